@@ -1,0 +1,85 @@
+"""`make bench`: run every benchmark in bench/bench_*.py and write bench/results.json.
+
+A benchmark module defines ``BENCHMARKS``: a list of ``(name, setup, run, meta)`` where ``setup()``
+returns the argument passed to ``run(arg)`` (untimed), ``run`` is timed (best of ``repeat``), and
+``meta`` is a dict of what is being measured (sizes, units, the paper's number for comparison).
+Timings live here and never in pass/fail tests.
+"""
+
+import argparse
+import importlib.util
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def _versions():
+    out = {"python": sys.version.split()[0]}
+    for mod in ("numpy", "scipy", "numba", "dask", "zarr", "colour", "h5py"):
+        try:
+            out[mod] = __import__(mod).__version__
+        except Exception:  # a missing optional package is recorded, not fatal
+            out[mod] = None
+    from flakedb import __version__
+
+    out["flakedb"] = __version__
+    return out
+
+
+def _machine():
+    info = {"platform": platform.platform(), "processor": platform.processor(), "cpu_count": os.cpu_count()}
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    info["cpu_model"] = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return info
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", default="bench/results.json")
+    ap.add_argument("--only", default=None, help="substring filter on benchmark names")
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    here = Path(__file__).parent
+    results = []
+    for path in sorted(here.glob("bench_*.py")):
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        for name, setup, run, meta in mod.BENCHMARKS:
+            if args.only and args.only not in name:
+                continue
+            arg = setup()
+            run(arg)  # warm-up (JIT compilation, caches)
+            times = []
+            for _ in range(args.repeat):
+                t0 = time.perf_counter()
+                extra = run(arg)
+                times.append(time.perf_counter() - t0)
+            row = {"name": name, "module": path.name, "best_s": min(times), "times_s": times, **meta}
+            if isinstance(extra, dict):
+                row.update(extra)
+            results.append(row)
+            print(f"{name:60s} {min(times):10.4f} s")
+    doc = {"created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "machine": _machine(),
+           "versions": _versions(), "benchmarks": results}
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        json.dump(doc, fh, indent=2)
+    os.replace(tmp, out)
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

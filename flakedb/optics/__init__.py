@@ -1,0 +1,1 @@
+"""Particle optics: optical constants, Fresnel, thin films (transfer matrix), Mie (Du 2004)."""

@@ -1,0 +1,1 @@
+"""Radiative transfer: quadrature, Fourier projection, adding-doubling layers, interfaces."""
