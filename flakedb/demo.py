@@ -8,4 +8,14 @@ def run_demo(out_dir):
     from flakedb import __version__
 
     print(f"flakedb {__version__}: demo, outputs in {out_dir}/")
-    print("not built yet: species optics, solver, catalogue build, compose, preview")
+
+    # Stage 1: particle optics of a catalogue species (same code as `flakedb species show`).
+    from flakedb.species import load_catalog, optics_table, plot_optics
+
+    catalog = load_catalog()
+    for name in ("pearlescent", "titanium-white"):
+        print()
+        print(optics_table(name, catalog))
+        print(f"plot: {plot_optics(name, out_dir, catalog)}")
+    print()
+    print("not built yet: solver, catalogue build, compose, preview")
