@@ -29,9 +29,11 @@ Refractive indices
 Radiance across interfaces
 --------------------------
 The solver's matrices act on **basic radiance** ``L / η²`` (η the real index of the medium the light
-is in).  Basic radiance is conserved by a smooth interface up to the Fresnel transmittance, which
-makes transmission matrices reciprocal without η factors.  A radiance BSDF for transmission from a
-medium of index ``η_i`` into one of index ``η_o`` is ``f_radiance = (η_o/η_i)² f_basic``.
+is in).  Basic radiance is conserved by a smooth interface up to the Fresnel transmittance, so
+refraction is a plain node-to-node map.  A radiance BSDF for transmission from a medium of index
+``η_i`` into one of index ``η_o`` is ``f_radiance = (η_o/η_i)² f_basic``.  Reciprocity (the η² rule,
+Veach 1997 eq. 5.14) reads ``f_radiance(i→o)/η_o² = f_radiance(o→i)/η_i²``, i.e.
+``f_basic(i→o)/η_i² = f_basic(o→i)/η_o²``.
 
 Scattering matrices (the solver's normalisation)
 ------------------------------------------------

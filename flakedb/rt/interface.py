@@ -1,0 +1,168 @@
+"""Interfaces and boundaries as scattering matrices (model.md §4).
+
+* :func:`smooth_dielectric` — the smooth interface handled exactly: the inside quadrature is the
+  Snell image of the outside one (:func:`flakedb.rt.quadrature.snell_mapped_quadrature`), so
+  refraction maps node j outside to node j inside with weight 1 − F, internal reflection is
+  diagonal (F, and 1 in the totally internally reflected range), all in every Fourier order (a
+  delta in φ_d has every order).  The first-surface mirror reflection F(θ_i) is *not* put in the
+  matrix: it is returned as an analytic delta term (bsdf-format.md, "Carrying a smooth clear coat's
+  mirror reflection").
+* :func:`rough_dielectric` — a Beckmann microfacet dielectric (Walter et al. 2007, with the exact
+  Smith shadowing), reflection and transmission both ways including total internal reflection,
+  projected on the cosine series with adaptively chosen φ sampling and orders.
+* :func:`lambertian` — a diffuse primer at the bottom of the stack, order 0 only.
+
+All matrices act on basic radiance (conventions, "Radiance across interfaces").
+"""
+
+import numpy as np
+from scipy.special import erf
+
+from flakedb.conventions import fourier_weight
+from flakedb.optics.fresnel import fresnel_dielectric
+from flakedb.rt.fourier import project_azimuthal
+from flakedb.rt.layer import Layer
+
+
+def smooth_dielectric(q_out, q_in, eta, L):
+    """Smooth interface of relative index ``eta`` between the outside rule ``q_out`` and the Snell-
+    mapped inside rule ``q_in`` (its last ``q_in.n_mapped == q_out.h`` nodes are the images).
+
+    Returns ``(layer, delta_F)`` with ``delta_F`` (h_out,) the first-surface Fresnel reflectance at
+    the outside nodes (the analytic delta term), and the layer's Rt = 0.
+    """
+    ho, hi = q_out.h, q_in.h
+    if q_in.n_mapped != ho:
+        raise ValueError("inside quadrature is not the Snell image of the outside one")
+    F_out = fresnel_dielectric(q_out.x, eta).R  # from above, at the outside nodes
+    h_tir = hi - ho
+    j = np.arange(ho)
+    T = np.zeros((hi, ho))
+    T[h_tir + j, j] = 1.0 - F_out
+    # Internal reflection from below at the inside nodes: F is the same at corresponding angles
+    # (Stokes); in the TIR range it is 1.
+    F_in = fresnel_dielectric(-q_in.x, eta).R
+    Rb = np.diag(F_in)
+    shape = (L, 1)
+    layer = Layer(
+        Rt=np.zeros(shape + (ho, ho)),
+        Ttb=np.broadcast_to(T, shape + T.shape).copy(),
+        Rb=np.broadcast_to(Rb, shape + Rb.shape).copy(),
+        Tbt=np.broadcast_to(T.T, shape + T.T.shape).copy(),
+    )
+    return layer, F_out
+
+
+def _smith_G1_Beckmann(cos_v, alpha):
+    """Smith masking for the Beckmann distribution, exact form (Walter et al. 2007, eq. 27)."""
+    cos_v = np.clip(np.abs(cos_v), 1e-300, 1.0)
+    tan_v = np.sqrt(np.maximum(1.0 - cos_v**2, 0.0)) / cos_v
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = 1.0 / (alpha * tan_v)
+        g = 2.0 / (1.0 + erf(a) + np.exp(-a * a) / (a * np.sqrt(np.pi)))
+    return np.where(tan_v == 0.0, 1.0, g)
+
+
+def microfacet_Beckmann_ndf(cos_h, alpha):
+    """Beckmann normal distribution (per projected area, Walter et al. 2007 eq. 25), cos_h > 0."""
+    c2 = np.clip(cos_h, 1e-300, 1.0) ** 2
+    tan2 = (1.0 - c2) / c2
+    return np.where(cos_h > 0, np.exp(-tan2 / alpha**2) / (np.pi * alpha**2 * c2 * c2), 0.0)
+
+
+def microfacet_dielectric_Walter2007(mu_i, mu_o, phi_d, eta_rel, alpha, transmit):
+    """Basic-radiance BSDF (1/sr) of a rough dielectric for light arriving on one side of it.
+
+    ``mu_i`` > 0 and ``mu_o`` > 0 are the cosines of the incident and outgoing propagation
+    directions against the normal on their own side (geometry of arrival from above); ``phi_d``
+    as in the conventions; ``eta_rel`` = index of the far side / index of the arrival side.
+    ``transmit`` False gives reflection f_r = F D G / (4 μ_i μ_o) (Walter et al. 2007 eq. 20),
+    True gives transmission in basic radiance
+    f_t = |i·h||o·h| (1 − F) D G / (μ_i μ_o (i·h + η o·h)²)  (Walter eq. 21 divided by η²).
+    G is the separable Smith term with the exact Beckmann G1.
+    """
+    si = np.sqrt(np.maximum(1.0 - mu_i**2, 0.0))
+    so = np.sqrt(np.maximum(1.0 - mu_o**2, 0.0))
+    # graphics vectors: wi points back to where the light came from; wo's azimuth is φ_d + π
+    wi = (si, 0.0 * si, mu_i)
+    cphi, sphi = np.cos(phi_d + np.pi), np.sin(phi_d + np.pi)
+    oz = -mu_o if transmit else mu_o
+    wo = (so * cphi, so * sphi, oz)
+    if not transmit:
+        hx, hy, hz = wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]
+    else:
+        hx, hy, hz = -(wi[0] + eta_rel * wo[0]), -(wi[1] + eta_rel * wo[1]), -(wi[2] + eta_rel * wo[2])
+    norm = np.sqrt(hx * hx + hy * hy + hz * hz)
+    norm = np.where(norm > 0, norm, 1.0)
+    flip = np.where(hz < 0, -1.0, 1.0)
+    hx, hy, hz = hx * flip / norm, hy * flip / norm, hz * flip / norm
+    i_h = wi[0] * hx + wi[1] * hy + wi[2] * hz
+    o_h = wo[0] * hx + wo[1] * hy + wo[2] * hz
+    D = microfacet_Beckmann_ndf(hz, alpha)
+    G = _smith_G1_Beckmann(mu_i, alpha) * _smith_G1_Beckmann(mu_o, alpha)
+    # the facet must face both directions consistently (χ⁺ terms)
+    F = fresnel_dielectric(np.clip(i_h, 0.0, 1.0), eta_rel).R
+    if not transmit:
+        valid = (i_h > 0) & (o_h > 0)
+        f = F * D * G / (4.0 * mu_i * mu_o)
+    else:
+        valid = (i_h > 0) & (o_h < 0)
+        denom = (i_h + eta_rel * o_h) ** 2
+        denom = np.where(denom > 0, denom, np.inf)
+        f = np.abs(i_h * o_h) * (1.0 - F) * D * G / (mu_i * mu_o * denom)
+    return np.where(valid & (hz > 0), f, 0.0)
+
+
+def _bsdf_block(fn, x_in, w_in, x_out, w_out, tol, n_start, max_orders):
+    """Scattering-matrix block S_l[o, i] = c_l w_i μ_i f_l from a BSDF ``fn(mu_i, mu_o, phi)``.
+
+    The projected quantity is f·μ_o (the stored quantity of bsdf-format.md), so the adaptive
+    tolerance is relative to what a file holds.
+    """
+    W = (w_in * x_in)[:, None] * (w_out * 1.0)[None, :]  # energy carried i → o per unit f·μ_o
+    coeffs, info = project_azimuthal(lambda mi, mo, ph: fn(mi, mo, ph) * mo, x_in, x_out, tol=tol,
+                                     n_start=min(n_start, 4 * max_orders), n_max=4 * max_orders,
+                                     weights=W)
+    coeffs = coeffs[:max_orders]
+    L = coeffs.shape[0]
+    cl = fourier_weight(np.arange(L))[:, None, None, None]
+    S = cl * coeffs / x_out[:, None] * (w_in * x_in)[None, :]
+    return S, info
+
+
+def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512):
+    """Rough dielectric interface (Beckmann α, relative index η) as a :class:`Layer`.
+
+    The number of orders is chosen by the projection (:func:`flakedb.rt.fourier.project_azimuthal`);
+    the four blocks are padded to a common count.  Returns ``(layer, info)``.
+    """
+    n_start = int(max(16, 2 ** np.ceil(np.log2(4.0 / alpha))))
+    blocks = {}
+    infos = {}
+    for name, x_in, w_in, x_out, w_out, eta_rel, transmit in (
+        ("Rt", q_out.x, q_out.w, q_out.x, q_out.w, eta, False),
+        ("Ttb", q_out.x, q_out.w, q_in.x, q_in.w, eta, True),
+        ("Rb", q_in.x, q_in.w, q_in.x, q_in.w, 1.0 / eta, False),
+        ("Tbt", q_in.x, q_in.w, q_out.x, q_out.w, 1.0 / eta, True),
+    ):
+        fn = lambda mi, mo, ph, e=eta_rel, t=transmit: microfacet_dielectric_Walter2007(mi, mo, ph, e, alpha, t)
+        blocks[name], infos[name] = _bsdf_block(fn, x_in, w_in, x_out, w_out, tol, n_start, max_orders)
+    L = max(b.shape[0] for b in blocks.values())
+    for k, b in blocks.items():
+        if b.shape[0] < L:
+            blocks[k] = np.concatenate([b, np.zeros((L - b.shape[0],) + b.shape[1:])])
+    return Layer(**blocks), infos
+
+
+def lambertian(q, albedo, L):
+    """Lambertian primer of spectral ``albedo`` (C,) at the bottom of a layer with rule ``q``.
+
+    f = albedo/π, order 0 only: S_0[o, i] = 2π w_i μ_i · albedo/π = 2 albedo w_i μ_i.  Nothing is
+    transmitted; the bottom-side blocks are zero.
+    """
+    albedo = np.atleast_1d(np.asarray(albedo, dtype=float))
+    h = q.h
+    Rt = np.zeros((L, len(albedo), h, h))
+    Rt[0] = 2.0 * albedo[:, None, None] * (q.w * q.x)[None, None, :]
+    zero = np.zeros((L, 1, h, h))
+    return Layer(Rt, zero, zero.copy(), zero.copy())

@@ -1,0 +1,145 @@
+"""Scattering media for the slab solver: phase-function media (isotropic, Henyey–Greenstein,
+tabulated) and mixtures of components (model.md §3: "species mix in one layer by adding their
+σ_t, σ_s and kernels").
+
+A medium component provides
+
+* ``sigma_t(mu)`` → (C, …) extinction in 1/µm at cosines ``mu`` (may depend on direction),
+* ``kernel(mu_i, mu_o, phi_d)`` → (C, …) the scattering kernel σ_s f_p(ω_i → ω_o) in
+  1/(µm·sr) (conventions: propagation directions, φ_d = 0 forward),
+* ``phi_bandwidth`` — a first guess of the number of φ intervals the kernel needs (the projection
+  refines it adaptively),
+
+and is symmetric under z → −z (the solver relies on it, see :func:`flakedb.rt.layer.thin_slab_diamond`).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def cos_scattering_angle(mu_i, mu_o, phi_d):
+    """cos Θ = ω_i · ω_o for propagation directions with cosines μ_i, μ_o and azimuth difference φ_d.
+
+    With ω = (sin θ cos φ, sin θ sin φ, −μ) (conventions): cos Θ = μ_i μ_o + sin θ_i sin θ_o cos φ_d.
+    """
+    si = np.sqrt(np.maximum(1.0 - mu_i**2, 0.0))
+    so = np.sqrt(np.maximum(1.0 - mu_o**2, 0.0))
+    return np.clip(mu_i * mu_o + si * so * np.cos(phi_d), -1.0, 1.0)
+
+
+def phase_HG(cos_theta, g):
+    """Henyey–Greenstein phase function in 1/sr, normalised to 1 over the sphere, mean cosine g."""
+    return (1.0 - g * g) / (4.0 * np.pi * (1.0 + g * g - 2.0 * g * cos_theta) ** 1.5)
+
+
+def _channels(a):
+    return np.atleast_1d(np.asarray(a, dtype=float))
+
+
+@dataclass
+class PhaseMedium:
+    """Direction-independent extinction with a phase function of the scattering angle.
+
+    ``sigma_t_per_um`` and ``albedo`` are per channel (C,) or scalars.  ``phase`` is ``"isotropic"``,
+    ``("hg", g)`` with g per channel or scalar, or ``("table", cos_theta, values)`` with values
+    (C, n) or (n,) in 1/sr (normalised to 1 over the sphere; linear interpolation in cos Θ).
+    """
+
+    sigma_t_per_um: object
+    albedo: object
+    phase: object = "isotropic"
+
+    def sigma_t(self, mu):
+        s = _channels(self.sigma_t_per_um)
+        return np.broadcast_to(s.reshape((-1,) + (1,) * np.ndim(mu)), (len(s),) + np.shape(mu))
+
+    def _p(self, cos_t):
+        ph = self.phase
+        if ph == "isotropic":
+            return np.full((1,) + np.shape(cos_t), 1.0 / (4.0 * np.pi))
+        kind = ph[0]
+        if kind == "hg":
+            g = _channels(ph[1]).reshape((-1,) + (1,) * np.ndim(cos_t))
+            return phase_HG(cos_t[None], g)
+        if kind == "table":
+            ct = np.asarray(ph[1], dtype=float)
+            vals = np.atleast_2d(np.asarray(ph[2], dtype=float))
+            return np.stack([np.interp(cos_t, ct, v) for v in vals])
+        raise ValueError(f"unknown phase function {ph!r}; use 'isotropic', ('hg', g) or ('table', cos, p)")
+
+    def sigma_s(self, mu):
+        return self.sigma_t(mu) * _channels(self.albedo).reshape((-1,) + (1,) * np.ndim(mu))
+
+    def kernel(self, mu_i, mu_o, phi_d):
+        cos_t = cos_scattering_angle(mu_i, mu_o, phi_d)
+        ss = (_channels(self.sigma_t_per_um) * _channels(self.albedo)).reshape((-1,) + (1,) * cos_t.ndim)
+        return ss * self._p(cos_t)
+
+    @property
+    def phi_bandwidth(self):
+        if self.phase == "isotropic":
+            return 2
+        if self.phase[0] == "hg":
+            g = float(np.max(np.abs(_channels(self.phase[1]))))
+            return int(2 ** np.ceil(np.log2(max(8.0, 8.0 / max(1e-3, 1.0 - g)))))
+        return 64
+
+
+@dataclass
+class Mixture:
+    """Several components in one layer: extinctions and kernels add (model.md §3)."""
+
+    components: list = field(default_factory=list)
+
+    def sigma_t(self, mu):
+        return sum(_bc(c.sigma_t(mu)) for c in self.components)
+
+    def sigma_s(self, mu):
+        return sum(_bc(c.sigma_s(mu)) for c in self.components)
+
+    def kernel(self, mu_i, mu_o, phi_d):
+        return sum(c.kernel(mu_i, mu_o, phi_d) for c in self.components)
+
+    @property
+    def phi_bandwidth(self):
+        return max(c.phi_bandwidth for c in self.components)
+
+
+def _bc(a):
+    return np.asarray(a, dtype=float)
+
+
+@dataclass
+class FlakeMedium:
+    """Translucent micro-flakes (paper eq. 2, model.md §3): Beckmann orientation spread ``alpha``,
+    flake optics :class:`flakedb.rt.microflake.FlakeOptics` (R(c), T(c) per channel) and loading
+    ``a_rho_per_um`` (flake area per volume, 1/µm).  σ_t(μ) is the accurate 1-D integral of
+    :func:`flakedb.rt.microflake.extinction_Ergun`; the kernel is
+    :func:`flakedb.rt.microflake.kernel_Ergun`.
+    """
+
+    alpha: float
+    optics: object
+    a_rho_per_um: float
+
+    def sigma_t(self, mu):
+        from flakedb.rt.microflake import extinction_Ergun
+
+        return extinction_Ergun(np.abs(mu), self.alpha, self.optics, self.a_rho_per_um)
+
+    def sigma_s(self, mu):
+        from flakedb.rt.microflake import scattering_Ergun
+
+        return scattering_Ergun(np.abs(mu), self.alpha, self.optics, self.a_rho_per_um)
+
+    def kernel(self, mu_i, mu_o, phi_d):
+        from flakedb.rt.microflake import kernel_Ergun
+
+        return kernel_Ergun(mu_i, mu_o, phi_d, self.alpha, self.optics, self.a_rho_per_um)
+
+    @property
+    def phi_bandwidth(self):
+        # the mirror lobe's width in φ at 45° is ≈ √2 α (microflake.kernel_phi_bandwidth); start
+        # from a few samples per lobe width, the projection refines adaptively
+        return int(2 ** np.ceil(np.log2(max(8.0, 8.0 * np.pi / (np.sqrt(2.0) * self.alpha)))))
