@@ -22,9 +22,11 @@ def cli():
 
 # --- command registration (one line per command module) ---------------------------------------
 from flakedb.commands.demo import demo  # noqa: E402
+from flakedb.commands.info import info  # noqa: E402
 from flakedb.commands.species import species  # noqa: E402
 
 cli.add_command(demo)
+cli.add_command(info)
 cli.add_command(species)
 # --- end of command registration --------------------------------------------------------------
 

@@ -124,6 +124,40 @@ class StackBSDF:
         S0 = self.Ttb[0]
         return np.einsum("coi,o->ci", S0, self.w_in * self.x_in) / (self.w * self.x)[None, :]
 
+    def to_table(self, metadata=None, channels=None):
+        """The result as a :class:`flakedb.bsdf.BSDFTable` (coefficients of f·|μ_o| on the full
+        node set ``[-x_h … -x_1, x_1 … x_h]``, bsdf-format.md conventions).
+
+        Reflection from above fills (incident μ_i > 0, outgoing μ_o < 0).  Transmissive stacks
+        also fill the transmission and bottom-reflection blocks when the binder side uses the same
+        nodes as the air side (index-matched or rough top), in radiance units (η² rule,
+        conventions); below a smooth coat the inside nodes differ and only reflection is stored.
+        """
+        from flakedb.bsdf import BSDFTable
+
+        h = len(self.x)
+        L = self.n_orders
+        C = self.Rt.shape[1]
+        mu = np.concatenate([-self.x[::-1], self.x])
+        coeffs = np.zeros((C, 2 * h, 2 * h, L))
+        pos = np.arange(h, 2 * h)  # full-set index of +x_k
+        neg = np.arange(h - 1, -1, -1)  # full-set index of −x_k
+
+        def put(block, i_idx, o_idx, x_out, scale=1.0):
+            f = self.f_coefficients(block) * scale  # (L, C, o, i)
+            val = np.transpose(f, (1, 3, 2, 0)) * x_out[None, None, :, None]  # (C, i, o, L)
+            coeffs[:, i_idx[:, None], o_idx[None, :], :] = val
+
+        put("Rt", pos, neg, self.x)
+        same_nodes = self.x_in is not None and len(self.x_in) == h and np.allclose(self.x_in, self.x)
+        if self.Ttb is not None and same_nodes:
+            put("Ttb", pos, pos, self.x, self.eta**2)  # radiance: (η_o/η_i)² f_basic
+            put("Tbt", neg, neg, self.x, 1.0 / self.eta**2)
+            put("Rb", neg, pos, self.x)
+        delta = {"kind": "fresnel", "eta": float(self.eta)} if self.delta_F is not None else None
+        return BSDFTable(mu=mu, coeffs=coeffs, eta=float(self.eta), alpha=(0.0, 0.0), delta=delta,
+                         metadata=dict(metadata or {}), channels=channels)
+
     def eval_nodes(self, phi_d):
         """f (1/sr) of reflection at all node pairs and azimuths: (C, h_o, h_i, len(phi_d))."""
         f = self.f_coefficients("Rt")
