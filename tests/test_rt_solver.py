@@ -222,3 +222,11 @@ def test_convergence_in_orders():
         np.testing.assert_allclose(r.albedo(), full.albedo(), rtol=1e-5)
         errs.append(np.abs(r.eval_nodes(phi) - ref).max() / np.abs(ref).max())
     assert errs[0] > errs[1] > errs[2]
+
+
+def test_fast_fresnel_of_rough_interface_matches_reference():
+    from flakedb.rt.interface import fresnel_dielectric_unpolarised
+
+    c = np.linspace(1e-6, 1.0, 20001)
+    for eta in (1.5, 1 / 1.5, 1.33, 2.4):
+        np.testing.assert_allclose(fresnel_dielectric_unpolarised(c, eta), fresnel_dielectric(c, eta).R, atol=1e-14)

@@ -71,25 +71,22 @@ def project_azimuthal(fn, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, chunk_e
         return np.broadcast_to(v, v.shape[:1] + (len(idx), ho, n + 1))
 
     # Adaptive sampling is decided on the whole grid (chunked over incident nodes for memory).
+    # Each round compares the coefficients from n and 2n intervals; the 2n result of one round is
+    # the n result of the next, so every sampling is evaluated once.
+    def coefficients(n):
+        per_node = max(1, chunk_elems // max(1, ho * (n + 1)))
+        return np.concatenate([cosine_coefficients(evaluate(np.arange(s, min(hi, s + per_node)), n))
+                               for s in range(0, hi, per_node)], axis=1)  # (C, Hi, Ho, n+1)
+
+    W = None if weights is None else np.asarray(weights, dtype=float)[None, :, :, None]
     n = max(2, int(n_start))
+    a = coefficients(n)
     while True:
-        per_node = max(1, chunk_elems // max(1, ho * (2 * n + 1)))
-        chunks_prev, chunks = [], []
-        for s in range(0, hi, per_node):
-            idx = np.arange(s, min(hi, s + per_node))
-            chunks_prev.append(cosine_coefficients(evaluate(idx, n)))
-            chunks.append(cosine_coefficients(evaluate(idx, 2 * n)))
-        a_prev = np.concatenate(chunks_prev, axis=1)  # (C, Hi, Ho, n+1)
-        a = np.concatenate(chunks, axis=1)  # (C, Hi, Ho, 2n+1)
-        if weights is not None:
-            W = np.asarray(weights, dtype=float)[None, :, :, None]
-            a_prev_w, a_w = a_prev * W, a * W
-        else:
-            a_prev_w, a_w = a_prev, a
+        a_prev, a = a, coefficients(2 * n)
+        a_prev_w, a_w = (a_prev, a) if W is None else (a_prev * W, a * W)
         scale = np.abs(a_w).sum(axis=-1).max()
         if scale == 0.0:
-            c = a.shape[0]
-            return np.zeros((1, c, ho, hi)), {"n_phi": 2 * n, "tail": 0.0}
+            return np.zeros((1, a.shape[0], ho, hi)), {"n_phi": 2 * n, "tail": 0.0, "converged": True}
         change = np.abs(a_w[..., :n] - a_prev_w[..., :n]).max() / scale
         upper = np.abs(a_w[..., n:]).sum(axis=-1).max() / scale
         if max(change, upper) <= tol or 2 * n >= n_max:

@@ -63,6 +63,22 @@ def _smith_G1_Beckmann(cos_v, alpha):
     return np.where(tan_v == 0.0, 1.0, g)
 
 
+def fresnel_dielectric_unpolarised(cos_i, eta_rel):
+    """Unpolarised Fresnel reflectance of a dielectric for 0 ≤ cos_i ≤ 1 and real relative index
+    ``eta_rel`` (transmitted / incident side), in real arithmetic (Walter et al. 2007 eq. 22):
+    g² = η² − 1 + c²;  F = ½ ((g − c)/(g + c))² (1 + ((c(g + c) − 1)/(c(g − c) + 1))²), F = 1 if g² < 0.
+    The hot path of the rough interface; tested against :func:`flakedb.optics.fresnel.fresnel_dielectric`.
+    """
+    c = np.clip(cos_i, 0.0, 1.0)
+    g2 = eta_rel * eta_rel - 1.0 + c * c
+    g = np.sqrt(np.maximum(g2, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = (g - c) / (g + c)
+        b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
+        F = 0.5 * a * a * (1.0 + b * b)
+    return np.where(g2 <= 0.0, 1.0, np.where(np.isfinite(F), F, 1.0))
+
+
 def microfacet_Beckmann_ndf(cos_h, alpha):
     """Beckmann normal distribution (per projected area, Walter et al. 2007 eq. 25), cos_h > 0."""
     c2 = np.clip(cos_h, 1e-300, 1.0) ** 2
@@ -101,7 +117,7 @@ def microfacet_dielectric_Walter2007(mu_i, mu_o, phi_d, eta_rel, alpha, transmit
     D = microfacet_Beckmann_ndf(hz, alpha)
     G = _smith_G1_Beckmann(mu_i, alpha) * _smith_G1_Beckmann(mu_o, alpha)
     # the facet must face both directions consistently (χ⁺ terms)
-    F = fresnel_dielectric(np.clip(i_h, 0.0, 1.0), eta_rel).R
+    F = fresnel_dielectric_unpolarised(i_h, eta_rel)
     if not transmit:
         valid = (i_h > 0) & (o_h > 0)
         f = F * D * G / (4.0 * mu_i * mu_o)
