@@ -1,0 +1,154 @@
+"""flakedb.store + pipelines/build.py: guards against a distributed build that writes different bytes
+than the serial one, an interrupted build that breaks `latest` or cannot be resumed, corrupted chunks
+that verify or the reader let through, a rebuild of unchanged inputs that recomputes, a content hash
+that depends on dict order or ignores an input, and stored factors that do not give R."""
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from flakedb import compress as C
+from flakedb import store as st
+from flakedb.cli import cli
+from pipelines.build import build, make_request
+
+SPECIES = ["pearlescent", "cadmium-yellow"]
+
+
+def _request(**kw):
+    args = dict(species=SPECIES, n=8, m=16, wavelength_nm=[450.0, 550.0, 650.0], channel_block=2, n_table=257)
+    args.update(kw)
+    return make_request(**args)
+
+
+def _checksums(url, version):
+    return json.loads((Path(url) / "versions" / version / "checksums.json").read_text())["files"]
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory):
+    url = str(tmp_path_factory.mktemp("serial") / "store")
+    req = _request(store_raw=True)
+    res = build(req, url, scheduler="sync")
+    assert res["status"] == "built" and res["tasks_run"] == res["tasks_total"] == 4
+    return url, req, res
+
+
+def test_content_hash_is_deterministic_and_sensitive():
+    a, b = _request(), _request(species=list(reversed(SPECIES)))
+    assert st.plan_build(a).version == st.plan_build(b).version
+    assert st.plan_build(_request(rank=4)).version != st.plan_build(a).version
+    changed = dict(a.species)
+    changed["pearlescent"] = json.loads(json.dumps(changed["pearlescent"]))
+    changed["pearlescent"]["coating"][0]["thickness_nm"]["value"] += 1
+    assert st.content_hash({**a.inputs(), "species": changed}) != st.plan_build(a).version
+
+
+def test_reader_values(serial):
+    url, req, res = serial
+    v = st.open_version(url)
+    assert v.version == res["version"] and v.species == sorted(SPECIES)
+    assert st.schema_problems(v.metadata, "metadata") == []
+    np.testing.assert_array_equal(v.wavelength_nm, [450.0, 550.0, 650.0])
+    mu, phi = v.grid(8)
+    np.testing.assert_array_equal(mu, C.grid_nodes(8, 16)[0])
+    for name in SPECIES:
+        raw = v.raw(name, 8)
+        assert raw.shape == (3, 8, 8, 16) and np.all(np.isfinite(raw))
+        Rh = v.reflectance(name, 8)
+        f = v.factors(name, 8)
+        for ch in range(3):
+            assert f["mean_relative_error"][ch] == pytest.approx(C.mean_relative_error(raw[ch], Rh[ch]), rel=1e-12)
+        assert f["mean_relative_error"].max() < 0.05
+        from flakedb.rt.fourier import cosine_coefficients
+
+        np.testing.assert_allclose(v.fourier_coefficients(name, 8), cosine_coefficients(Rh), rtol=0, atol=1e-12)
+    with pytest.raises(st.StoreError, match="no species"):
+        v.factors("titanium-white", 8)
+
+
+def test_unchanged_inputs_do_no_work(serial):
+    url, req, res = serial
+    files = [p for p in Path(url).rglob("*") if p.is_file() and p.name != "latest"]
+    before = {p: p.stat().st_mtime_ns for p in files}
+    again = build(req, url, scheduler="sync")
+    assert again["status"] == "reused" and again["tasks_run"] == 0 and again["version"] == res["version"]
+    assert {p: p.stat().st_mtime_ns for p in files} == before
+
+
+def test_distributed_build_is_bit_for_bit_the_serial_build(serial, tmp_path):
+    from distributed import Client, LocalCluster
+
+    url, req, res = serial
+    url2 = str(tmp_path / "dist")
+    with LocalCluster(n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        res2 = build(req, url2, client=client)
+    assert res2["status"] == "built" and res2["version"] == res["version"]
+    assert _checksums(url2, res2["version"]) == _checksums(url, res["version"])  # every chunk, byte for byte
+    a, b = st.open_version(url), st.open_version(url2)
+    for name in SPECIES:
+        for k, x in a.factors(name, 8).items():
+            assert np.array_equal(x, b.factors(name, 8)[k])
+
+
+def test_interrupted_build_keeps_latest_and_resumes(serial, tmp_path):
+    url = str(tmp_path / "store")
+    old = build(_request(wavelength_nm=[500.0, 600.0]), url, scheduler="sync")
+    req = _request()
+    part = build(req, url, scheduler="threads", workers=2, max_tasks=1)
+    assert part["status"] == "partial" and part["tasks_run"] == 1
+    assert st.read_latest(url) == old["version"]
+    assert st.open_version(url).version == old["version"]  # the previous version stays readable
+    assert st.verify_store(url) == []
+    problems = st.verify_version(url, part["version"])
+    assert len(problems) == 1 and "incomplete build (1 of 4 tasks done)" in problems[0]
+    with pytest.raises(st.StoreError, match="partial"):
+        st.open_version(url, part["version"])
+    # a task killed mid-way: garbage in one of its chunks, no record; the rerun overwrites it
+    plan = st.plan_build(req)
+    pending = st.pending_tasks(url, plan)
+    key = st._task_chunk_keys(plan, pending[0])[0]
+    chunk = Path(url) / "versions" / plan.version / key
+    chunk.parent.mkdir(parents=True, exist_ok=True)
+    chunk.write_bytes(b"half-written")
+    done = build(req, url, scheduler="threads", workers=2)
+    assert done["status"] == "built" and done["tasks_run"] == 3
+    assert st.read_latest(url) == done["version"] and st.verify_store(url, all_versions=True) == []
+    # resumed = built in one go (the serial fixture has the same inputs except store_raw)
+    fresh = str(tmp_path / "fresh")
+    build(req, fresh, scheduler="sync")
+    assert _checksums(url, done["version"]) == _checksums(fresh, done["version"])
+
+
+def test_corrupted_chunk_is_reported_and_refused(serial, tmp_path):
+    import shutil
+
+    url0, req, res = serial
+    url = str(tmp_path / "copy")
+    shutil.copytree(url0, url)
+    key = "species/cadmium-yellow/n8_m16/U_pairs/c/0/0/0"
+    p = Path(url) / "versions" / res["version"] / key
+    data = bytearray(p.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    p.write_bytes(bytes(data))
+    r = CliRunner().invoke(cli, ["verify", url])
+    assert r.exit_code == 1 and key in r.output and "corrupted" in r.output
+    with pytest.raises(st.StoreIntegrityError, match="U_pairs/c/0/0/0"):
+        st.open_version(url)
+    assert CliRunner().invoke(cli, ["verify", url0]).exit_code == 0
+
+
+def test_cli_dry_run_builds_nothing(tmp_path):
+    url = str(tmp_path / "none")
+    r = CliRunner().invoke(cli, ["build", "--store", url, "--dry-run", "--n", "8", "--m", "16",
+                                 "--species", "metallic", "--step-nm", "100"])
+    assert r.exit_code == 0, r.output
+    assert "1 tasks" in r.output and "MiB uncompressed" in r.output and "absent" in r.output
+    assert not os.path.exists(url)
+    r = CliRunner().invoke(cli, ["build", "--store", url, "--dry-run", "--n", "7"])
+    assert r.exit_code == 2 and "even" in r.output
