@@ -24,12 +24,14 @@ def cli():
 from flakedb.commands.build import build, verify  # noqa: E402
 from flakedb.commands.demo import demo  # noqa: E402
 from flakedb.commands.info import info  # noqa: E402
+from flakedb.commands.render import render  # noqa: E402
 from flakedb.commands.species import species  # noqa: E402
 
 cli.add_command(build)
 cli.add_command(verify)
 cli.add_command(demo)
 cli.add_command(info)
+cli.add_command(render)
 cli.add_command(species)
 # --- end of command registration --------------------------------------------------------------
 

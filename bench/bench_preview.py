@@ -1,0 +1,57 @@
+"""Preview renderer timings (see bench/run.py for the BENCHMARKS protocol).
+
+`flakedb render`'s default scene: a 256 x 256 sphere under the studio environment with the sun, at
+the default samples per pixel (flakedb.preview.DEFAULT_SPP), all available threads.  Target (issue
+#7): a smooth-coated paint in under 30 s on 2 cores.
+
+- ``preview.render_256.smooth_coat``: a smooth-coated paint composed here by flakedb's solver (coat
+  eta = 1.5, 10 µm of an HG g = 0.5 red medium, tau = 3, over a white Lambertian primer; n = 64
+  nodes), written as a ``.bsdf`` with its delta term (first-surface Fresnel, added exactly).
+- ``preview.render_256.carpaint_rgb_n100``: layerlab's ``carpaint_rgb_n100.bsdf`` (rough coat, up to 266
+  Fourier orders, no delta), the expensive case for the file's sampling kernel.
+"""
+
+import os
+import tempfile
+
+from flakedb import preview
+from flakedb.bsdf import open_bsdf, write_bsdf
+
+SIZE = 256
+CARPAINT = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "bsdf-files", "carpaint_rgb_n100.bsdf")
+if not os.path.exists(CARPAINT):
+    CARPAINT = "/work/shared/data/bsdf-files/carpaint_rgb_n100.bsdf"
+
+
+def _setup_smooth():
+    from flakedb.rt.media import PhaseMedium
+    from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
+
+    med = PhaseMedium(sigma_t_per_um=[0.3, 0.3, 0.3], albedo=[0.95, 0.45, 0.15], phase=("hg", 0.5))
+    s = solve_stack(Smooth(1.5), [Slab(10.0, med)], Lambertian([0.8, 0.8, 0.8]), SolverSettings(n=64))
+    with tempfile.TemporaryDirectory(prefix="flakedb-bench-preview-") as tmp:   # read into memory
+        path = os.path.join(tmp, "smooth_red.bsdf")
+        write_bsdf(path, s.to_table(metadata={"recipe": "bench smooth red"}))
+        return open_bsdf(path)
+
+
+def _setup_carpaint():
+    return open_bsdf(CARPAINT)
+
+
+def _run(b):
+    r = preview.render_sphere(b, preview.studio_environment(), preview.studio_sun(), size=SIZE,
+                              spp=preview.DEFAULT_SPP)
+    inside = r.coverage >= 1
+    return {"threads": r.settings["threads"], "sphere_mean_rgb": [float(x) for x in r.image[inside].mean(axis=0)],
+            "samples": int(inside.sum()) * preview.DEFAULT_SPP}
+
+
+_META = {"size": SIZE, "spp": preview.DEFAULT_SPP, "env": "studio", "sun": True, "target_s": 30.0,
+         "target_cores": 2}
+
+BENCHMARKS = [
+    ("preview.render_256.smooth_coat", _setup_smooth, _run,
+     {**_META, "file": "solver: smooth coat eta 1.5 over red HG slab, n=64"}),
+    ("preview.render_256.carpaint_rgb_n100", _setup_carpaint, _run, {**_META, "file": "carpaint_rgb_n100.bsdf"}),
+]
