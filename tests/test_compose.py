@@ -1,0 +1,272 @@
+"""Compose: recipe → physics mapping → solver → files → colour report.
+
+Guards against: a wrong physics mapping (flake loading aρ = φ/t, optical-depth loadings, pigment
+number density, phase tables that do not integrate to 1 or are too coarse, flake R/T grids that miss
+thin-film fringes); energy leaks through compose's wiring (white furnace, R + T = 1 of a
+non-absorbing index-matched slab, absorbing coat against the closed form 2 E_3); the solver's blocks
+put in the wrong place of the file's node set (reflection vs transmission, sign of μ_o, the |μ_o|
+factor); the spectral → RGB conversion of the .bsdf; wrong geometry of the multi-angle report
+(specular vs illuminator side, φ_d = 0 vs π); a wrong CIELAB/flop computation (white primer:
+L* = 116·0.9^(1/3) − 16 exactly); metadata missing from the files (delta term, store, recipe text);
+half-written outputs when writing fails.
+"""
+
+import textwrap
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+from scipy.special import expn
+
+from flakedb.bsdf import open_bsdf
+from flakedb.cli import cli
+from flakedb.export import compose
+from flakedb.paint import build_paint, phase_cos_grid
+from flakedb.recipe import parse_recipe
+from flakedb.report import eval_table, flop_index, multiangle_geometry
+
+
+def recipe(layers, mode="mono", n=16, name="t", extra=""):
+    spectral = {"mono": "{mode: mono}", "spectral": "{mode: spectral, range_nm: [400, 700], step_nm: 20}",
+                "rgb": "{mode: rgb, range_nm: [380, 780], step_nm: 10}"}[mode]
+    text = f"flakedb: 1\nname: {name}\nspectral: {spectral}\nresolution: {n}\nlayers:\n" + textwrap.indent(
+        yaml.safe_dump(layers, sort_keys=False, default_flow_style=None), "  ") + extra
+    return parse_recipe(text)
+
+
+HG = {"custom": {"kind": "medium", "albedo": 1.0, "phase": {"hg": 0.6}}, "optical_depth": 1.5}
+WHITE_FLAKE = {"custom": {"kind": "flake", "R": {"c": [0, 1], "value": [0.9, 0.5]},
+                          "T": {"c": [0, 1], "value": [0.1, 0.5]}, "orientation_alpha": 0.3},
+               "optical_depth": 1.0}
+
+
+def test_index_matched_hg_slab_conserves_energy_through_compose(tmp_path):
+    r = recipe([{"basecoat": {"thickness_um": 5, "ior": 1.0, "particles": [HG]}}], n=16)
+    res = compose(r, tmp_path)
+    s = res.stack
+    total = s.albedo() + s.transmittance()
+    assert np.abs(total - 1.0).max() < 1e-6
+    assert s.delta_F is None and res.paint.top is None
+    # the file table holds reflection and transmission: 2π Σ_o w_o a_0 over both hemispheres = 1
+    t = res.table
+    w_full = np.concatenate([s.w[::-1], s.w])
+    flux = 2 * np.pi * np.einsum("cio,o->ci", t.coeffs[..., 0], w_full)
+    np.testing.assert_allclose(flux, 1.0, atol=1e-6)
+    h = s.x.size
+    refl = 2 * np.pi * np.einsum("cio,o->ci", t.coeffs[:, h:, :h, 0], s.w[::-1])
+    np.testing.assert_allclose(refl, s.albedo(), rtol=1e-12)          # reflection sits in μ_o < 0
+    # the optical depth loading: σ_t d = τ
+    assert res.paint.slabs[0].medium.sigma_t(np.array([0.5]))[0, 0] * 5 == pytest.approx(1.5)
+
+
+def test_white_furnace_smooth_coat_conservative_scatterers_white_primer(tmp_path):
+    r = recipe([{"clearcoat": {"thickness_um": 20, "ior": 1.5, "roughness": 0}},
+                {"basecoat": {"thickness_um": 8, "ior": 1.5, "particles": [HG, WHITE_FLAKE]}},
+                {"primer": {"albedo": 1.0}}], n=16)
+    res = compose(r, tmp_path)
+    assert res.paint.slabs and len(res.paint.slabs) == 1   # a clear non-absorbing coat adds no slab
+    np.testing.assert_allclose(res.stack.albedo(), 1.0, atol=1e-6)
+    rep = res.report
+    for a in rep["albedo"]:
+        assert a["albedo_Y"] == pytest.approx(1.0, abs=1e-6)   # spline of the nodal total
+
+
+def test_custom_flake_optical_depth_is_normal_incidence_extinction():
+    r = recipe([{"basecoat": {"thickness_um": 4, "ior": 1.5, "particles": [WHITE_FLAKE]}},
+                {"primer": {"color": "black"}}])
+    p = build_paint(r)
+    med = p.slabs[0].medium
+    assert med.sigma_t(np.array([1.0]))[0, 0] * 4 == pytest.approx(1.0, rel=1e-12)
+    assert p.bottom.albedo[0] == 0.04
+
+
+def test_absorbing_index_matched_coat_closed_form(tmp_path):
+    """Coat of optical depth τ over a white Lambertian: albedo(μ) = e^{−τ/μ} · 2 E_3(τ)."""
+    tau, d = 0.2, 10.0
+    r = recipe([{"clearcoat": {"thickness_um": d, "ior": 1.0, "absorption_per_um": tau / d}},
+                {"primer": {"albedo": 1.0}}], n=32)
+    res = compose(r, tmp_path)
+    x = res.stack.x
+    np.testing.assert_allclose(res.stack.albedo()[0], np.exp(-tau / x) * 2 * expn(3, tau), rtol=1e-5,
+                               atol=2e-6)  # the direct beam at grazing nodes: diamond start
+
+
+def test_catalogue_mapping_flake_and_pigment():
+    r = recipe([{"clearcoat": {"thickness_um": 40, "ior": 1.5}},
+                {"basecoat": {"thickness_um": 15, "ior": 1.5, "particles": [
+                    {"species": "pearlescent", "volume_fraction": 0.04, "orientation_alpha": 0.2},
+                    {"species": "titanium-white", "volume_fraction": 0.02}]}},
+                {"primer": {"color": "white"}}], mode="spectral")
+    p = build_paint(r)
+    fl, pig = p.components[0], p.components[1]
+    assert fl["a_rho_per_um"] == pytest.approx(0.04 / 0.54)   # φ / flake thickness (model.md §3)
+    assert p.info["flake_c_grid"]["layers[1].basecoat.particles[0]"]["max_midpoint_error"] <= 1e-3
+    from flakedb.species import get_species, pigment_optics
+
+    mu = phase_cos_grid()
+    po = pigment_optics(get_species("titanium-white"), r.wavelength_nm, 1.5, mu=mu)
+    rho = 0.02 / po.mean_volume_um3
+    med = p.slabs[0].medium.components[1]
+    np.testing.assert_allclose(med.sigma_t_per_um, rho * po.c_ext_um2, rtol=1e-12)
+    np.testing.assert_allclose(med.albedo, po.c_sca_um2 / po.c_ext_um2, rtol=1e-12)
+    # the tabulated phase integrates to 1 and its mean cosine is the Mie g (grid fine enough)
+    ct, tab = med.phase[1], med.phase[2]
+    np.testing.assert_allclose(2 * np.pi * np.trapezoid(tab, ct, axis=-1), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(2 * np.pi * np.trapezoid(tab * ct, ct, axis=-1), po.g, atol=2e-4)
+    assert p.info["phase_table_norm_error"]["layers[1].basecoat.particles[1]"] < 1e-3
+    assert p.delta == {"kind": "fresnel", "eta": 1.5}
+
+
+def test_flake_grid_resolves_thin_film_fringes():
+    """Linear interpolation on the adaptive c grid against a fine grid: ≤ 1e-3 (catalogue pearl)."""
+    from flakedb.paint import adaptive_flake_optics
+    from flakedb.species import flake_reflectance_transmittance, get_species
+
+    e = get_species("pearlescent")
+    wl = np.arange(380.0, 781.0, 40.0)
+    fn = lambda c: flake_reflectance_transmittance(e, wl, c, 1.5)  # noqa: E731
+    c, R, T, err = adaptive_flake_optics(fn)
+    cf = np.linspace(0.0, 1.0, 6001)
+    Rf, Tf = fn(cf)
+    Ri = np.array([np.interp(cf, c, v) for v in R])
+    assert np.abs(Ri - Rf).max() < 2e-3 and err <= 1e-3
+    assert c.size > 48   # a fixed 48-node grid misses the fringes (error 0.15)
+
+
+def test_rgb_mode_flake_optics_physical_and_flat_input_grey():
+    r = recipe([{"clearcoat": {"thickness_um": 40, "ior": 1.5}},
+                {"basecoat": {"thickness_um": 15, "ior": 1.5, "particles": [
+                    {"species": "pearlescent-tio2-090nm", "volume_fraction": 0.04}]}},
+                {"primer": {"color": "gray"}}], mode="rgb")
+    p = build_paint(r)
+    opt = p.slabs[0].medium.optics
+    assert opt.R.shape[0] == 3 and opt.R.min() >= 0 and (opt.R + opt.T).max() <= 1 + 1e-12
+    np.testing.assert_allclose(p.bottom.albedo, 0.18, rtol=1e-12)   # a flat spectrum stays grey
+
+
+def test_files_read_back_and_evaluate_to_solver_values(tmp_path):
+    r = recipe([{"clearcoat": {"thickness_um": 40, "ior": 1.5}},
+                {"basecoat": {"thickness_um": 10, "ior": 1.5, "particles": [
+                    {"species": "metallic", "volume_fraction": 0.03, "orientation_alpha": 0.35}]}},
+                {"primer": {"color": "gray"}}], mode="spectral", n=16, name="rt-test")
+    res = compose(r, tmp_path, raw=True)
+    s = res.stack
+    h = s.x.size
+    phi = np.array([0.0, 0.7, np.pi])
+    f = s.eval_nodes(phi)                                         # (C, h_o, h_i, P) in 1/sr
+    fcos = f * s.x[None, :, None, None]
+    # full-precision .h5: every band, exact at the nodes
+    b5 = open_bsdf(tmp_path / "rt-test.h5")
+    assert b5.channels == tuple(f"{w:g}nm" for w in r.wavelength_nm)
+    MI, MO, PH = np.meshgrid(s.x, -s.x, phi, indexing="ij")       # (i, o, p)
+    v5 = b5.eval(MI, MO, PH, clamp="none")                       # (i, o, p, C)
+    np.testing.assert_allclose(v5, np.transpose(fcos, (2, 1, 3, 0)), rtol=1e-10, atol=1e-14)
+    # nothing transmitted, nothing from below
+    assert np.all(b5.eval(MI, -MO, PH, clamp="none") == 0)
+    # .bsdf: float32 RGB = the white-normalised sRGB of the band values
+    from flakedb.colorimetry import spectra_to_rgb_mode
+
+    bb = open_bsdf(tmp_path / "rt-test.bsdf")
+    assert bb.n_channels == 3
+    vb = bb.eval(MI, MO, PH, clamp="none")
+    expect = spectra_to_rgb_mode(v5, r.wavelength_nm)
+    # float32 storage, and G rebuilt from Y, R, B with the spec's 6-digit coefficients: ~1e-6 relative
+    assert np.abs(vb - expect).max() < 2e-6 * np.abs(expect).max()
+    # the mirror term and provenance are recorded
+    assert bb.delta == {"kind": "fresnel", "eta": 1.5} and b5.delta == {"kind": "fresnel", "eta": 1.5}
+    assert bb.metadata["recipe"] == "rt-test" and bb.metadata["store"] == "none: computed directly"
+    assert b5.metadata["store_version"] == "none: computed directly" and b5.metadata["raw"] is True
+    assert b5.metadata["recipe_text"] == r.text and "flakedb_version" in b5.metadata
+    # the report's interpolation is the readers' (off-node points, both sides)
+    mi = np.array([0.71, 0.3, 0.95])
+    mo = np.array([-0.5, -0.86, -0.2])
+    ph = np.array([0.0, np.pi, 1.1])
+    np.testing.assert_allclose(eval_table(res.table, mi, mo, ph), b5.eval(mi, mo, ph, clamp="none"),
+                               rtol=1e-10, atol=1e-14)
+    assert not list(tmp_path.glob(".*"))                         # no temporary leftovers
+    # opaque paint: the nodes' reflected flux is the solver's albedo
+    np.testing.assert_allclose(res.table.coeffs[:, h:, :h, 0] @ s.w[::-1] * 2 * np.pi,
+                               s.albedo(include_delta=False), rtol=1e-12)
+
+
+def test_white_primer_colour_report_exact(tmp_path):
+    r = recipe([{"primer": {"color": "white"}}], mode="spectral", n=16, name="white")
+    res = compose(r, tmp_path)
+    rep = res.report
+    L_expect = 116 * 0.9 ** (1 / 3) - 16
+    for g in rep["geometries"]:
+        assert g["L"] == pytest.approx(L_expect, abs=1e-9)
+        assert abs(g["a"]) < 1e-9 and abs(g["b"]) < 1e-9
+        assert g["reflectance_factor"] == pytest.approx([0.9] * len(r.wavelength_nm), abs=1e-12)
+    assert abs(rep["flop_index"]) < 1e-9
+    assert all(a["albedo_Y"] == pytest.approx(0.9, abs=1e-12) and a["mirror"] == 0 for a in rep["albedo"])
+    import json
+
+    assert json.loads((tmp_path / "white.json").read_text())["geometries"][0]["L"] == pytest.approx(L_expect)
+    assert open_bsdf(tmp_path / "white.bsdf").n_channels == 1     # grey: one channel
+
+
+def test_spectral_primer_lab_matches_colorimetry(tmp_path):
+    from flakedb.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
+
+    wl = np.arange(400.0, 701.0, 20.0)
+    spec = 0.1 + 0.7 * (wl - 400) / 300
+    r = recipe([{"primer": {"spectrum": {"wavelength_nm": wl.tolist(), "value": spec.tolist()}}}],
+               mode="spectral", n=16)
+    rep = compose(r, tmp_path).report
+    lab = XYZ_to_Lab(reflectance_to_XYZ(spec, wl), white=white_XYZ(wl))
+    for g in rep["geometries"]:
+        np.testing.assert_allclose([g["L"], g["a"], g["b"]], lab, atol=1e-9)
+    assert lab[1] > 5    # a reddish ramp: the test would notice channels mixed up
+
+
+def test_rgb_mode_white_is_white(tmp_path):
+    r = recipe([{"primer": {"color": "white"}}], mode="rgb", n=16)
+    rep = compose(r, tmp_path).report
+    g = rep["geometries"][3]
+    assert g["L"] == pytest.approx(116 * 0.9 ** (1 / 3) - 16, abs=1e-9) and abs(g["a"]) < 1e-9
+
+
+def test_multiangle_geometry_and_flop():
+    assert multiangle_geometry(15) == pytest.approx((np.cos(np.pi / 4), -np.cos(np.radians(30)), 0.0, 30.0))
+    mu_i, mu_o, phi, tv = multiangle_geometry(110)
+    assert phi == np.pi and tv == -65 and mu_o == pytest.approx(-np.cos(np.radians(65)))
+    assert flop_index(100, 50, 20) == pytest.approx(2.69 * 80**1.11 / 50**0.86)
+    assert flop_index(20, 50, 100) == pytest.approx(-2.69 * 80**1.11 / 50**0.86)
+    assert flop_index(10, 0, 5) is None
+
+
+def test_mirror_like_flakes_bright_on_the_specular_side(tmp_path):
+    """Nearly aligned mirror flakes over black: the near-specular geometries (φ_d = 0 side) are far
+    brighter than those on the illuminator's side, and the flop index is large."""
+    flake = {"custom": {"kind": "flake", "R": 1.0, "T": 0.0, "orientation_alpha": 0.15}, "optical_depth": 3.0}
+    r = recipe([{"basecoat": {"thickness_um": 5, "ior": 1.0, "particles": [flake]}},
+                {"primer": {"color": "black"}}], n=32)
+    rep = compose(r, tmp_path).report
+    L = {g["aspecular_deg"]: g["L"] for g in rep["geometries"]}
+    assert L[15.0] > L[25.0] > L[45.0] > L[75.0] and L[-15.0] > L[75.0] and L[15.0] > 2 * L[110.0]
+    assert rep["flop_index"] > 10
+
+
+def test_failed_write_leaves_nothing(tmp_path, monkeypatch):
+    import flakedb.bsdf
+
+    def boom(*a, **k):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(flakedb.bsdf, "write_h5", boom)
+    r = recipe([{"primer": {"color": "gray"}}], n=16, name="fail")
+    with pytest.raises(OSError, match="disk full"):
+        compose(r, tmp_path / "out")
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_cli_compose_end_to_end(tmp_path):
+    rp = tmp_path / "r.yaml"
+    rp.write_text("flakedb: 1\nname: cli-paint\nspectral: {mode: mono}\nresolution: 16\nlayers:\n"
+                  "  - clearcoat: {thickness_um: 30, ior: 1.5}\n  - primer: {color: gray}\n")
+    res = CliRunner().invoke(cli, ["compose", str(rp), "--out", str(tmp_path / "o"), "--raw"])
+    assert res.exit_code == 0, res.output
+    assert "store: none" in res.output and "flop index" in res.output and "aspecular" in res.output
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["cli-paint.bsdf", "cli-paint.h5", "cli-paint.json"]
