@@ -230,3 +230,13 @@ def test_fast_fresnel_of_rough_interface_matches_reference():
     c = np.linspace(1e-6, 1.0, 20001)
     for eta in (1.5, 1 / 1.5, 1.33, 2.4):
         np.testing.assert_allclose(fresnel_dielectric_unpolarised(c, eta), fresnel_dielectric(c, eta).R, atol=1e-14)
+
+
+def test_convergence_in_tir_nodes():
+    """Nodes in the totally internally reflected range below a smooth coat: the albedo converges
+    as their count grows (errors measured against a fine reference fall monotonically)."""
+    med = Mixture([FlakeMedium(0.2, FlakeOptics.constant(0.5, 0.3), 1.0), PhaseMedium(1.0, 0.9, ("hg", 0.5))])
+    ref = solve_stack(Smooth(1.5), [Slab(5.0, med)], Lambertian(0.5), SolverSettings(n=32, h_tir=40)).albedo()
+    errs = [np.abs(solve_stack(Smooth(1.5), [Slab(5.0, med)], Lambertian(0.5),
+                               SolverSettings(n=32, h_tir=k)).albedo() - ref).max() for k in (4, 8, 16)]
+    assert errs[0] > errs[1] > errs[2] and errs[0] < 2e-5, errs

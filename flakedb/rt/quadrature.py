@@ -108,10 +108,14 @@ def snell_mapped_quadrature(outside, eta, h_tir):
 
 
 def default_tir_nodes(h_out, eta):
-    """A stated heuristic for the node count in the TIR range (0, μ_c): the outside rule's density.
+    """A stated heuristic for the node count in the TIR range (0, μ_c): half the outside density.
 
-    The outside rule spreads h_out nodes over (0, 1]; the same density over (0, μ_c) is
-    h_out · μ_c nodes (at least 4).  Convergence in this count is tested (tests/test_rt_solver.py).
+    Light in that range never leaves through a smooth interface directly; it only feeds further
+    scattering, so it needs far fewer nodes than the range's length suggests.  Measured (a flake +
+    HG basecoat under η = 1.5, h = 24 outside nodes, against 60 TIR nodes): 6, 9, 12, 18 TIR nodes
+    give albedo errors 3.5e-6, 1.7e-6, 1.0e-6, 5.1e-7 and BSDF errors 2.7e-5 … 4e-6 of the peak,
+    while the solve cost grows as (h + h_tir)³.  Half the outside density, h_out · μ_c / 2 (at
+    least 4), is the default; convergence in this count is tested (tests/test_rt_solver.py).
     """
     mu_c = np.sqrt(1.0 - 1.0 / eta**2)
-    return int(max(4, np.ceil(h_out * mu_c)))
+    return int(max(4, np.ceil(0.5 * h_out * mu_c)))

@@ -64,7 +64,7 @@ class SolverSettings:
 
     n: int = 64
     tol: float = 1e-5
-    slice_tau: float = 2.0**-10
+    slice_tau: float = 2.0**-7
     h_tir: int | None = None
     max_orders: int | None = None
 
