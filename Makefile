@@ -24,6 +24,9 @@ test: $(STAMP)
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q -m 'not slow' tests
 
+figures: $(STAMP)
+	$(BIN)/python -m pipelines.figures
+
 bench: $(STAMP)
 	$(BIN)/python bench/run.py --out bench/results.json
 

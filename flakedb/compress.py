@@ -26,12 +26,18 @@ piecewise-linear-in-c representation as the solver's :class:`flakedb.rt.microfla
 
 The grid
 --------
-μ: the solver's full Gauss–Radau node set (:func:`flakedb.rt.quadrature.radau_hemisphere` with
-h = n/2 per hemisphere, sign order ``[-x_h … -x_1, x_1 … x_h]``), n even.  φ_d: the m points
+μ: the solver's full node set *inside the binder* for n nodes in air (n even), sign order
+``[-x_h … -x_1, x_1 … x_h]`` — the nodes on which :func:`flakedb.rt.stack.solve_stack` projects a
+medium's kernel.  Without a top interface, or a rough one (``eta_top`` None or 1), that is the
+Gauss–Radau set (:func:`flakedb.rt.quadrature.radau_hemisphere`, h = n/2 per hemisphere, n nodes in
+all).  Below a smooth coat of index η > 1 (``eta_top`` = η) it is the Snell image of the n/2 outside
+Radau nodes plus :func:`flakedb.rt.quadrature.default_tir_nodes` Gauss–Legendre nodes in the totally
+internally reflected range (:func:`flakedb.rt.quadrature.snell_mapped_quadrature`), so
+n_mu = 2 (n/2 + h_tir) > n nodes.  φ_d: the m points
 φ_k = π k/(m − 1), k = 0 … m − 1 of [0, π] (both ends; :func:`flakedb.rt.fourier.phi_samples` with
 N = m − 1), whose DCT-I (:func:`flakedb.rt.fourier.cosine_coefficients`) gives the cosine orders
-0 … m − 1.  Array layout: ``R[i, o, k] = R(mu[i], mu[o], phi[k])``; flattened to (n², m) with row
-``i·n + o``.
+0 … m − 1.  Array layout: ``R[i, o, k] = R(mu[i], mu[o], phi[k])``; flattened to (n_mu², m) with row
+``i·n_mu + o``.
 
 Compression (model.md §5)
 -------------------------
@@ -54,7 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from flakedb.rt.fourier import cosine_coefficients, phi_samples
-from flakedb.rt.quadrature import radau_hemisphere
+from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
 
 __all__ = [
     "grid_nodes",
@@ -84,17 +90,28 @@ MRE_THRESHOLD = 1e-6
 # --------------------------------------------------------------------------------------------
 
 
-def grid_nodes(n, m):
-    """The sampling grid: ``mu`` (n,) full Gauss–Radau node set, ``phi`` (m,) radians on [0, π].
+def grid_nodes(n, m, eta_top=None):
+    """The sampling grid: ``mu`` (n_mu,) the solver's full inside node set, ``phi`` (m,) radians on [0, π].
 
-    ``n`` must be even (n/2 nodes per hemisphere, no node at μ = 0) and ≥ 2; ``m`` ≥ 2.
+    ``n`` (even, ≥ 2) is the solver's node count in air (n/2 per hemisphere).  ``eta_top``: None or
+    1 → plain Gauss–Radau (n_mu = n; no top interface, or a rough one); η > 1 → the quadrature below
+    a smooth interface of relative index η (Snell-mapped Radau nodes plus the default TIR nodes,
+    module docstring).  ``m`` ≥ 2.
     """
     n, m = int(n), int(m)
     if n < 2 or n % 2:
         raise ValueError(f"n = {n}: the μ grid needs an even node count ≥ 2 (n/2 per hemisphere); use n = {max(2, n + n % 2)}")
     if m < 2:
         raise ValueError(f"m = {m}: the φ_d grid needs at least 2 samples on [0, π] (both ends)")
-    mu, _ = radau_hemisphere(n // 2).full()
+    q = radau_hemisphere(n // 2)
+    if eta_top is not None:
+        eta = float(eta_top)
+        if not np.isfinite(eta) or eta < 1.0:
+            raise ValueError(f"eta_top = {eta_top}: the top interface's index (binder / air) must be ≥ 1 "
+                             f"(1 or None: no smooth interface, plain Gauss–Radau nodes)")
+        if eta > 1.0:
+            q = snell_mapped_quadrature(q, eta, default_tir_nodes(q.h, eta))
+    mu, _ = q.full()
     return mu, phi_samples(m - 1)
 
 
@@ -115,8 +132,10 @@ def _interp_channels(x_table, y_table, x):
     return out
 
 
-def sample_reflectance(entry, wavelength_nm, n_binder, n, m, n_table=DEFAULT_N_TABLE):
-    """R(μ_i, μ_o, φ_d) of one catalogue species on the (n, n, m) grid, per wavelength → (W, n, n, m).
+def sample_reflectance(entry, wavelength_nm, n_binder, n, m, n_table=DEFAULT_N_TABLE, eta_top=None):
+    """R(μ_i, μ_o, φ_d) of one catalogue species on the (n_mu, n_mu, m) grid of
+    :func:`grid_nodes` ``(n, m, eta_top)``, per wavelength → (W, n_mu, n_mu, m) (n_mu = n for
+    ``eta_top`` None or 1).
 
     ``entry``: a species of the catalogue (:func:`flakedb.species.get_species`); ``wavelength_nm``
     (W,) vacuum wavelengths in nm; ``n_binder`` scalar or (W,) real binder index.  Dimensionless; see
@@ -126,7 +145,7 @@ def sample_reflectance(entry, wavelength_nm, n_binder, n, m, n_table=DEFAULT_N_T
 
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     nb = np.broadcast_to(np.asarray(n_binder, dtype=float), wl.shape)
-    mu, phi = grid_nodes(n, m)
+    mu, phi = grid_nodes(n, m, eta_top)
     cos_t = scattering_cosine_grid(mu, phi)
     if entry["kind"] in ("interference_flake", "mirror_flake"):
         c_grid = np.sqrt(np.clip(0.5 * (1.0 - cos_t), 0.0, 1.0))

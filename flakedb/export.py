@@ -13,10 +13,12 @@ The files
   coefficient by coefficient.  A smooth coat's first-surface mirror reflection is not in the table:
   it is recorded in the metadata as ``delta=fresnel``, ``delta_eta=η`` (bsdf-format.md, "Carrying a
   smooth clear coat's mirror reflection").  Also in the metadata: recipe name, flakedb version,
-  mode, n, and ``store=none: computed directly``.
+  mode, n, and ``store``: ``none: computed directly``, or the store URL and version the species'
+  reflectance functions came from (``--store``; compressed or raw).
 * ``NAME.h5``: the full-precision table (every channel — all spectral bands — every order, float64)
-  with the delta term, the recipe text, the flakedb version, ``store_version = "none: computed
-  directly"`` and what compose derived (loadings, solver info).
+  with the delta term, the recipe text, the flakedb version, ``store_version`` (``"none: computed
+  directly"`` or the store version's hash, with ``store_url`` and ``raw``) and what compose derived
+  (loadings, solver info).
 * ``NAME.json``: the colour report (:mod:`flakedb.report`).
 
 Node layout (conventions: μ > 0 travels down): the table's nodes are ``[-x_h … -x_1, x_1 … x_h]``
@@ -189,11 +191,16 @@ def write_outputs(out_dir, name, table, file_table, report, h5_metadata):
     return {k: str(v) for k, v in final.items()}, summary
 
 
-def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None) -> ComposeResult:
+def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=None, verify=True) -> ComposeResult:
     """Compose ``recipe`` (a :class:`flakedb.recipe.Recipe`) into ``out_dir``; see the module docstring.
 
     ``n`` overrides the recipe's resolution; ``log`` (callable taking a line) reports progress.
-    Species optics are computed directly from the catalogue (store-backed compose is not implemented yet).
+    ``store``: None (species optics computed directly from the catalogue), a store URL or an open
+    :class:`flakedb.store.StoreVersion`: the catalogue species' reflectance functions come from its
+    latest complete version (checksums verified first with ``verify``; compressed factors, or the
+    raw samples with ``raw``).  A recipe without catalogue species does not open the store.  Raises
+    :class:`flakedb.store.StoreError` (:class:`~flakedb.store.StoreIntegrityError` for a corrupted
+    store) before writing anything.
     """
     from flakedb import __version__
     from flakedb.paint import auto_resolution, build_paint, solve_paint
@@ -213,8 +220,20 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None) -> Compo
     if recipe.clearcoat is not None and recipe.clearcoat.roughness > 0 and n_used < 128:
         warnings.append(f"rough coat at n = {n_used} < 128: expect energy errors of several %")
     t = {}
+    from flakedb.paint import catalog_species
+
+    version = None
+    store_label = STORE_NONE
+    if store is not None and catalog_species(recipe):
+        from flakedb import store as st
+
+        t0 = time.perf_counter()
+        version = store if isinstance(store, st.StoreVersion) else st.open_version(str(store), verify=verify)
+        t["store_open"] = time.perf_counter() - t0
+        store_label = f"{version.url} version {version.version} ({'raw' if raw else 'compressed'})"
+        log(f"store: {store_label}, opened{' and verified' if verify else ''} in {t['store_open']:.2f} s")
     t0 = time.perf_counter()
-    paint = build_paint(recipe, catalog)
+    paint = build_paint(recipe, catalog, store=version, n=n_used, raw=raw)
     t["optics"] = time.perf_counter() - t0
     log(f"optics: {len(paint.components)} component(s), {paint.n_channels} channel(s) ({paint.mode}), "
         f"{t['optics']:.2f} s")
@@ -224,7 +243,7 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None) -> Compo
     log(f"solve: n = {n_used} ({reason}), {stack.info.get('orders')} Fourier orders, {t['solve']:.2f} s")
     t0 = time.perf_counter()
     md = {"recipe": recipe.name, "flakedb_version": __version__, "mode": paint.mode, "n_nodes": n_used,
-          "store": STORE_NONE, "generator": "flakedb compose"}
+          "store": store_label, "generator": "flakedb compose"}
     if recipe.description:
         md["description"] = " ".join(str(recipe.description).split())
     table = stack_to_table(stack, paint.channels, paint.eta, paint.top_alpha, paint.delta, md)
@@ -235,8 +254,14 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None) -> Compo
                            paint.eta if paint.delta else None, recipe.name)
     t["table_report"] = time.perf_counter() - t0
     h5_md = {
-        "recipe_text": recipe.text, "recipe_source": recipe.source, "store_version": STORE_NONE,
-        "species_optics": "computed directly from the catalogue (flakedb.species); no precomputed store",
+        "recipe_text": recipe.text, "recipe_source": recipe.source,
+        "store_version": STORE_NONE if version is None else version.version,
+        "store_url": None if version is None else version.url,
+        "species_optics": ("computed directly from the catalogue (flakedb.species); no precomputed store"
+                           if version is None else
+                           "kernel reflectance functions R(mu_i, mu_o, phi_d) of catalogue species from the store "
+                           f"({'raw samples' if raw else 'compressed sqrt-SVD factors'}); loadings, sigma_t, sigma_s "
+                           "and D(h) computed directly (flakedb.paint, flakedb.rt.stored)"),
         "raw": bool(raw), "n_reason": reason,
         "wavelength_nm": None if paint.wavelength_nm is None else paint.wavelength_nm.tolist(),
         "components": paint.components, "paint_info": paint.info,
@@ -245,7 +270,7 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None) -> Compo
         "delta_F_nodes": None if stack.delta_F is None else np.asarray(stack.delta_F).tolist(),
         "timings_s": dict(t),
     }
-    report["store"] = STORE_NONE
+    report["store"] = store_label
     t0 = time.perf_counter()
     paths, summary = write_outputs(out_dir, recipe.name, table, file_table, report, h5_md)
     t["write"] = time.perf_counter() - t0

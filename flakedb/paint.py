@@ -45,6 +45,21 @@ Particles (model.md §3 "the anisotropic medium", §6 "particle optics")
     piecewise-linear interpolant (what :class:`~flakedb.rt.media.PhaseMedium` evaluates) integrates
     to 1 over the sphere.
 
+From the precomputed store (issue #6)
+-----------------------------------
+With an open store version (:func:`build_paint` ``store=``), catalogue flakes become
+:class:`flakedb.rt.stored.StoredFlakeMedium` and catalogue pigments
+:class:`flakedb.rt.stored.StoredPigmentMedium`: the kernels' R(μ_i, μ_o, φ_d) comes from the store
+(compressed factors, or the raw samples with ``raw``), the rest as above: the loadings, σ_t(μ) and
+σ_s(μ) of flakes (1-D integrals of R(c), T(c): the store has no T), a pigment's ρ <C_ext> and
+<C_sca> (Mie cross-sections, no phase function), and the recipe's α (D(h) is evaluated, not
+stored).  :func:`store_problems` lists what the store lacks for a recipe.  In RGB mode the stored
+spectral R is mapped to linear sRGB coefficient by coefficient (the map is linear); the direct path's
+per-c clip of R to [0, 1] cannot be applied to the series and is not (the direct path reports its size
+in ``info['rgb_clip']``).  Not supported from the store (compose without a store instead): a rough coat
+(the store's optics use the binder index η with the Snell-mapped grid of a smooth coat) and a
+pigment whose recipe overrides the catalogue's size distribution.
+
 Primer (Lambertian, model.md §4): ``color`` black / gray / white → albedo 0.04 / 0.18 / 0.9
 (:data:`PRIMER_ALBEDO`); or an albedo; or a spectrum (linear in λ).
 
@@ -249,8 +264,8 @@ def _spectrum_or_const(value, wl, C):
     return np.full(C, float(value))
 
 
-def _flake_component(p, recipe, layer_um, n_binder, wl, C, info):
-    """FlakeMedium and its record for a catalogue flake or a custom flake."""
+def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
+    """FlakeMedium (or StoredFlakeMedium with ``stored``) and its record for a catalogue or custom flake."""
     from flakedb.recipe import CatalogParticle
     from flakedb.rt.media import FlakeMedium
     from flakedb.rt.microflake import FlakeOptics
@@ -284,17 +299,56 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info):
         rec = {"path": p.path, "species": p.name, "kind": "custom flake", "optical_depth": p.optical_depth,
                "orientation_alpha": alpha, "a_rho_per_um": a_rho,
                "loading": "optical depth: sigma_t(mu=1) x layer thickness"}
-    med = FlakeMedium(alpha, optics, a_rho)
+    if stored is not None and isinstance(p, CatalogParticle):
+        from flakedb.rt.microflake import extinction_Ergun, scattering_Ergun
+        from flakedb.rt.stored import StoredFlakeMedium
+
+        src = stored.reflectance(p.species)
+        med = StoredFlakeMedium(alpha, a_rho, src, lambda mu: extinction_Ergun(mu, alpha, optics, a_rho),
+                                lambda mu: scattering_Ergun(mu, alpha, optics, a_rho))
+        rec["kernel_R"] = src.source
+    else:
+        med = FlakeMedium(alpha, optics, a_rho)
     st = np.atleast_2d(med.sigma_t(np.array([1.0])))[:, 0]
     rec["sigma_t_normal_per_um"] = [float(st.min()), float(st.max())]
     rec["optical_depth_normal"] = [float(st.min() * layer_um), float(st.max() * layer_um)]
     return med, rec
 
 
-def _pigment_component(p, recipe, layer_um, n_binder, wl, info):
+def _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored):
+    """StoredPigmentMedium: R = 4π ϖ p from the store, ρ <C_ext>, <C_sca> from the Mie code."""
+    from flakedb.rt.stored import StoredPigmentMedium
+    from flakedb.species import pigment_optics
+
+    po = pigment_optics(p.entry, wl, n_binder)  # cross-sections only, no phase function
+    c_ext, c_sca = np.asarray(po.c_ext_um2, float), np.asarray(po.c_sca_um2, float)
+    rho = pigment_number_density(p.volume_fraction, po.mean_volume_um3)
+    src = stored.reflectance(p.species, weights=rho * c_ext)  # kernel = ρ C_ext R / (4π) per band, then mapped
+    if recipe.mode == "rgb":
+        e = _rgb(c_ext, wl)
+        s = _rgb(c_sca, wl)
+        c_ext, c_sca = np.maximum(e, 0.0), np.clip(s, 0.0, np.maximum(e, 0.0))
+    sigma_t, sigma_s = rho * c_ext, rho * c_sca
+    with np.errstate(divide="ignore", invalid="ignore"):
+        albedo = np.where(c_ext > 0, c_sca / c_ext, 0.0)
+    med = StoredPigmentMedium(src, sigma_t, sigma_s)
+    rec = {"path": p.path, "species": p.species, "kind": "pigment", "volume_fraction": p.volume_fraction,
+           "median_diameter_um": float(p.entry["median_diameter_um"]["value"]), "gsd": float(p.entry["gsd"]["value"]),
+           "mean_volume_um3": float(po.mean_volume_um3), "number_density_per_um3": rho,
+           "sigma_t_per_um": [float(sigma_t.min()), float(sigma_t.max())],
+           "albedo": [float(albedo.min()), float(albedo.max())],
+           "optical_depth": [float(sigma_t.min() * layer_um), float(sigma_t.max() * layer_um)],
+           "loading": "number density = volume_fraction / mean particle volume; sigma_t = rho C_ext",
+           "kernel_R": src.source}
+    return med, rec
+
+
+def _pigment_component(p, recipe, layer_um, n_binder, wl, info, stored=None):
     from flakedb.rt.media import PhaseMedium
     from flakedb.species import pigment_optics
 
+    if stored is not None:
+        return _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored)
     entry = copy.deepcopy(p.entry)
     if p.median_diameter_um is not None:
         entry["median_diameter_um"] = {"value": float(p.median_diameter_um), "source": "recipe"}
@@ -341,10 +395,13 @@ def _custom_medium_component(p, layer_um, C, info):
     return med, rec
 
 
-def build_paint(recipe, catalog=None) -> Paint:
+def build_paint(recipe, catalog=None, store=None, n=None, raw=False) -> Paint:
     """The solver inputs of ``recipe`` (a :class:`flakedb.recipe.Recipe`); see the module docstring.
 
-    Computes every particle's optics directly from the catalogue (no precomputed store).
+    Without ``store`` every particle's optics is computed directly from the catalogue.  With an open
+    :class:`flakedb.store.StoreVersion` ``store`` and the solve's node count ``n``, catalogue species
+    take their kernels' R from it (compressed, or raw with ``raw``); raises
+    :class:`flakedb.store.StoreError` listing :func:`store_problems` when it cannot serve the recipe.
     """
     from flakedb.recipe import CatalogParticle, CustomFlake, CustomMedium
     from flakedb.rt.media import Mixture, PhaseMedium
@@ -361,6 +418,12 @@ def build_paint(recipe, catalog=None) -> Paint:
     C = len(channels)
     eta = float(recipe.binder_ior)
     info: dict = {}
+    stored = None
+    if store is not None:
+        if n is None:
+            raise ValueError("build_paint(store=…) needs the solve's node count n (the store grid depends on it)")
+        stored = StoreContext.for_recipe(store, recipe, int(n), raw)
+        info["store"] = {"url": store.url, "version": store.version, "raw": bool(raw), "n": int(n)}
     components = []
     cc = recipe.clearcoat
     top_alpha = 0.0
@@ -391,9 +454,9 @@ def build_paint(recipe, catalog=None) -> Paint:
         meds = []
         for p in b.particles:
             if isinstance(p, CatalogParticle) and p.is_flake:
-                med, rec = _flake_component(p, recipe, b.thickness_um, b.ior, wl, C, info)
+                med, rec = _flake_component(p, recipe, b.thickness_um, b.ior, wl, C, info, stored)
             elif isinstance(p, CatalogParticle):
-                med, rec = _pigment_component(p, recipe, b.thickness_um, b.ior, wl, info)
+                med, rec = _pigment_component(p, recipe, b.thickness_um, b.ior, wl, info, stored)
             elif isinstance(p, CustomFlake):
                 med, rec = _flake_component(p, recipe, b.thickness_um, b.ior, wl, C, info)
             elif isinstance(p, CustomMedium):
@@ -421,6 +484,115 @@ def build_paint(recipe, catalog=None) -> Paint:
     return Paint(top=top, slabs=slabs, bottom=bottom, channels=channels, mode=mode,
                  wavelength_nm=None if wl is None else np.asarray(wl), eta=eta, top_alpha=top_alpha,
                  components=components, info=info, warnings=list(recipe.warnings))
+
+
+def catalog_species(recipe) -> list:
+    """The catalogue particles of a recipe (those a store can serve), in layer order."""
+    from flakedb.recipe import CatalogParticle
+
+    return [p for _, p in recipe.particles() if isinstance(p, CatalogParticle)]
+
+
+def _same_entry(a, b) -> bool:
+    import json
+
+    norm = lambda e: json.loads(json.dumps(e, sort_keys=True, default=float))
+    return norm(a) == norm(b)
+
+
+def store_problems(version, recipe, n, raw=False) -> list[str]:
+    """What the open store ``version`` lacks to serve ``recipe``'s catalogue species at node count ``n``
+    (empty: it can).  Checks the top interface (a smooth coat of the recipe's index η, or η = 1),
+    the resolution n, every species (present, and built from the same catalogue entry), the
+    wavelengths, the raw samples when ``raw``, and recipe overrides the store cannot honour."""
+    from flakedb.rt.stack import Smooth  # noqa: F401  (documents what a store can serve)
+
+    probs = []
+    eta = float(recipe.binder_ior)
+    cc = recipe.clearcoat
+    if eta != 1.0 and cc is not None and cc.roughness > 0:
+        probs.append(f"the recipe has a rough coat (roughness {cc.roughness:g}); store versions serve smooth coats "
+                     f"and index-matched stacks only: compose without --store")
+    st_eta = version.eta_top
+    if st_eta is None or abs(float(st_eta) - eta) > 1e-12:
+        probs.append(f"top interface: the recipe's binder / coat index is η = {eta:g}, the store version was built "
+                     f"for eta_top = {st_eta} ({'plain Radau grid, catalogue binder index' if st_eta is None else 'η'})")
+    if not any(nn == n for nn, _ in version.resolutions):
+        probs.append(f"node count: the solve uses n = {n}, the store has (n, m) = {version.resolutions}")
+    have = set(version.species)
+    stored_inputs = version.metadata["inputs"]["species"]
+    for p in catalog_species(recipe):
+        if p.species not in have:
+            probs.append(f"species {p.species!r} ({p.path}) is not in the store")
+        elif not _same_entry(stored_inputs[p.species], p.entry):
+            probs.append(f"species {p.species!r}: the store was built from a different catalogue entry "
+                         f"(the catalogue changed since): rebuild")
+        if p.kind == "pigment" and (p.median_diameter_um is not None or p.gsd is not None):
+            probs.append(f"{p.path}: the recipe overrides the pigment's size distribution; the store holds the "
+                         f"catalogue's: compose without --store")
+    if recipe.wavelength_nm is not None:
+        swl = np.asarray(version.wavelength_nm, float)
+        miss = [float(w) for w in recipe.wavelength_nm if not np.any(np.abs(swl - w) <= 1e-9)]
+        if miss:
+            probs.append(f"wavelengths: the recipe's grid {recipe.wavelength_nm[0]:g}-{recipe.wavelength_nm[-1]:g} nm has "
+                         f"{len(miss)} band(s) the store lacks (e.g. {miss[0]:g} nm); the store has "
+                         f"{swl.min():g}-{swl.max():g} nm in {swl.size} bands")
+    if raw and not version.metadata["inputs"]["store_raw"]:
+        probs.append("--raw: the store version holds only the compressed factors (build it with --raw)")
+    return probs
+
+
+def store_build_command(version, recipe, n, raw=False) -> str:
+    """The `flakedb build` command that makes a version serving ``recipe`` at ``n``."""
+    wl = recipe.wavelength_nm
+    names = sorted({p.species for p in catalog_species(recipe)})
+    cmd = [f"flakedb build --store {version.url if version is not None else 'STORE'} --n {n} --eta-top {float(recipe.binder_ior):g}"]
+    if wl is not None and len(wl) > 1:
+        cmd.append(f"--range-nm {wl[0]:g} {wl[-1]:g} --step-nm {wl[1] - wl[0]:g}")
+    cmd += [f"--species {s}" for s in names]
+    if raw:
+        cmd.append("--raw")
+    return " ".join(cmd)
+
+
+@dataclass
+class StoreContext:
+    """An open store version checked against a recipe, and how its bands become the paint's channels."""
+
+    version: object
+    n: int
+    raw: bool
+    channel_index: np.ndarray
+    channel_map: np.ndarray | None
+
+    @classmethod
+    def for_recipe(cls, version, recipe, n, raw=False):
+        from flakedb.store import StoreError
+
+        probs = store_problems(version, recipe, n, raw)
+        if probs:
+            raise StoreError(
+                f"store {version.url} (version {version.version[:12]}) cannot serve recipe {recipe.name!r} at n = {n}:\n  "
+                + "\n  ".join(probs)
+                + f"\nthe store has: species {', '.join(version.species)}; (n, m) {version.resolutions}; "
+                  f"eta_top {version.eta_top}; {len(version.wavelength_nm)} bands "
+                  f"{version.wavelength_nm.min():g}-{version.wavelength_nm.max():g} nm; raw samples "
+                  f"{'yes' if version.metadata['inputs']['store_raw'] else 'no'}"
+                + f"\nto add what is missing: {store_build_command(version, recipe, n, raw)}")
+        swl = np.asarray(version.wavelength_nm, float)
+        wl = np.asarray(recipe.wavelength_nm, float)
+        idx = np.array([int(np.argmin(np.abs(swl - w))) for w in wl])
+        cmap = None
+        if recipe.mode == "rgb":
+            cmap = _rgb(np.eye(wl.size), wl)  # (W, 3): spectra @ cmap = linear sRGB (the map is linear)
+        return cls(version, int(n), bool(raw), idx, cmap)
+
+    def reflectance(self, species, weights=None):
+        from flakedb.rt.stored import StoredReflectance
+
+        return StoredReflectance.from_store(self.version, species, self.n, raw=self.raw,
+                                            channel_index=self.channel_index, channel_map=self.channel_map,
+                                            weights=weights)
 
 
 def auto_resolution(recipe) -> tuple[int, str]:

@@ -6,14 +6,16 @@ Layout (``STORE`` a local directory or any fsspec URL)::
     STORE/versions/<hash>/                one immutable version, a Zarr v3 group
         zarr.json                         group attributes = the metadata (schemas/store.schema.json#/$defs/metadata)
         wavelength_nm                     (W,) vacuum wavelength, nm
-        grid/n<N>_m<M>/mu                 (n,) cosines, full Gauss–Radau set (conventions: μ > 0 travels down)
+        grid/n<N>_m<M>/mu                 (n_mu,) cosines: the solver's full inside node set for n nodes in
+                                          air and the top index ``eta_top`` (flakedb.compress.grid_nodes;
+                                          conventions: μ > 0 travels down)
         grid/n<N>_m<M>/phi_d              (m,) φ_d = π k/(m−1), rad (0 forward)
-        species/<name>/n<N>_m<M>/U_pairs  (W, n², k) row i·n + o ↔ (mu[i], mu[o]); see flakedb.compress
+        species/<name>/n<N>_m<M>/U_pairs  (W, n_mu², k) row i·n_mu + o ↔ (mu[i], mu[o]); see flakedb.compress
         species/<name>/n<N>_m<M>/V_pairs  (W, k, m) φ factor on phi_d
         species/<name>/n<N>_m<M>/fourier  (W, k, m) its cosine coefficients, orders 0 … m−1
         species/<name>/n<N>_m<M>/singular_values      (W, r) of √R
         species/<name>/n<N>_m<M>/mean_relative_error  (W,) of R̂ against R on the grid
-        species/<name>/n<N>_m<M>/raw      (W, n, n, m) R itself (only with ``store_raw``)
+        species/<name>/n<N>_m<M>/raw      (W, n_mu, n_mu, m) R itself (only with ``store_raw``)
         tasks/<task>.json                 one per finished task: sha256 of every chunk it wrote
         checksums.json                    every chunk and zarr.json of the version with its sha256
         complete                          written last, after every task finished
@@ -26,6 +28,16 @@ one task per (species, resolution, channel block) fills its chunk-aligned region
 checksums of the chunks it wrote (so any task can be re-run, and a resumed build runs only the
 tasks without a record), then :func:`finalize` writes ``checksums.json`` and ``complete``, and
 :func:`publish` moves ``latest``.  An interrupted build leaves ``latest`` on the previous version.
+
+The top interface (``eta_top``, issue #6: compose reads the store).  The solver projects a medium's
+kernel on its nodes *inside the binder*; below a smooth coat of index η those are the Snell image
+of the air-side Radau nodes plus nodes in the TIR range, not the Radau set.  A version built with
+``eta_top = η`` samples R on exactly that node set (:func:`flakedb.compress.grid_nodes`), and
+evaluates the species' optics with the binder index η (constant over wavelength): a recipe has one
+index for its coat and basecoats (``flakedb.recipe``), which is the flakes' and pigments' embedding
+index in :mod:`flakedb.paint`.  η = 1 is an index-matched stack (plain Radau nodes, embedding
+index 1).  ``eta_top`` None keeps the catalogue binder's dispersion and the plain Radau nodes (no
+compose can use such a version directly unless its stack has no smooth coat).
 
 This module holds the planning (pure), the per-task work and the readers; Dask lives in
 ``pipelines/build.py``.
@@ -126,7 +138,10 @@ class BuildRequest:
     ``binder``: the catalogue's binder entry; ``material_checksums``: optical-data file name → sha256;
     ``resolutions``: (n, m) pairs; ``rank`` r of the √R SVD; ``wavelength_nm``: channels (nm);
     ``channel_block``: channels per task (and per chunk); ``store_raw``: also store R itself;
-    ``n_table``: table nodes of R(c) / p(cos Θ) (flakedb.compress.sample_reflectance).
+    ``n_table``: table nodes of R(c) / p(cos Θ) (flakedb.compress.sample_reflectance);
+    ``eta_top``: relative index of the paint's smooth top interface (module docstring): the μ grid
+    is the solver's inside node set below it and the optics use it as the binder index; None: plain
+    Radau nodes and the catalogue binder's index.
     """
 
     species: dict
@@ -138,6 +153,7 @@ class BuildRequest:
     channel_block: int = 4
     store_raw: bool = False
     n_table: int = DEFAULT_N_TABLE
+    eta_top: float | None = None
 
     def inputs(self) -> dict:
         return {
@@ -153,6 +169,7 @@ class BuildRequest:
             "channel_block": int(self.channel_block),
             "store_raw": bool(self.store_raw),
             "n_table": int(self.n_table),
+            "eta_top": None if self.eta_top is None else float(self.eta_top),
         }
 
 
@@ -213,21 +230,21 @@ def plan_build(request: BuildRequest) -> BuildPlan:
     arrays = {"wavelength_nm": {"shape": [W], "chunks": [W], "dtype": "float64", "units": "nm"}}
     tasks = []
     for n, m in request.resolutions:
-        grid_nodes(n, m)  # validates n, m
-        if r < 1 or r > min(n * n, m):
-            raise ValueError(f"rank {r} is outside 1 … min(n², m) = {min(n * n, m)} for n = {n}, m = {m}")
+        nm = len(grid_nodes(n, m, request.eta_top)[0])  # validates n, m, eta_top; n_mu nodes
+        if r < 1 or r > min(nm * nm, m):
+            raise ValueError(f"rank {r} is outside 1 … min(n_mu², m) = {min(nm * nm, m)} for n = {n}, m = {m}")
         g = f"grid/{_res_key(n, m)}"
-        arrays[f"{g}/mu"] = {"shape": [n], "chunks": [n], "dtype": "float64", "units": "1"}
+        arrays[f"{g}/mu"] = {"shape": [nm], "chunks": [nm], "dtype": "float64", "units": "1"}
         arrays[f"{g}/phi_d"] = {"shape": [m], "chunks": [m], "dtype": "float64", "units": "rad"}
         for name in sorted(request.species):
             p = f"species/{name}/{_res_key(n, m)}"
-            arrays[f"{p}/U_pairs"] = {"shape": [W, n * n, k], "chunks": [cb, n * n, k], "dtype": "float64", "units": "1"}
+            arrays[f"{p}/U_pairs"] = {"shape": [W, nm * nm, k], "chunks": [cb, nm * nm, k], "dtype": "float64", "units": "1"}
             arrays[f"{p}/V_pairs"] = {"shape": [W, k, m], "chunks": [cb, k, m], "dtype": "float64", "units": "1"}
             arrays[f"{p}/fourier"] = {"shape": [W, k, m], "chunks": [cb, k, m], "dtype": "float64", "units": "1"}
             arrays[f"{p}/singular_values"] = {"shape": [W, r], "chunks": [cb, r], "dtype": "float64", "units": "1"}
             arrays[f"{p}/mean_relative_error"] = {"shape": [W], "chunks": [cb], "dtype": "float64", "units": "1"}
             if request.store_raw:
-                arrays[f"{p}/raw"] = {"shape": [W, n, n, m], "chunks": [cb, n, n, m], "dtype": "float64", "units": "1"}
+                arrays[f"{p}/raw"] = {"shape": [W, nm, nm, m], "chunks": [cb, nm, nm, m], "dtype": "float64", "units": "1"}
             for c0 in range(0, W, cb):
                 tasks.append(Task(name, int(n), int(m), c0, min(W, c0 + cb)))
     inputs = request.inputs()
@@ -267,9 +284,14 @@ def metadata(plan: BuildPlan) -> dict:
                      "dimensionless; compressed as sqrt-SVD pairs R ~= U_pairs @ V_pairs (flakedb.compress)"),
         "conventions": "flakedb.conventions: mu > 0 travels down (propagation directions), phi_d = phi_o - phi_i, "
                        "phi_d = 0 forward / mirror reflection; wavelengths in vacuum nm",
-        "grid": {"mu": "full Gauss-Radau node set, n/2 per hemisphere, [-x_h..-x_1, x_1..x_h] (flakedb.rt.quadrature)",
+        "grid": {"mu": ("the solver's full inside node set [-x_h..-x_1, x_1..x_h] for n nodes in air "
+                        + ("and no smooth top interface: Gauss-Radau, n/2 per hemisphere (flakedb.rt.quadrature)"
+                           if plan.inputs.get("eta_top") in (None, 1.0) else
+                           f"below a smooth top interface of relative index eta_top = {plan.inputs['eta_top']:g}: "
+                           "the Snell image of the n/2 air-side Gauss-Radau nodes plus default_tir_nodes(n/2, eta_top) "
+                           "Gauss-Legendre nodes in the TIR range (flakedb.rt.quadrature.snell_mapped_quadrature)")),
                  "phi_d": "phi_k = pi k/(m-1), k = 0..m-1", "fourier": "DCT-I cosine coefficients, orders 0..m-1 "
-                 "(flakedb.rt.fourier.cosine_coefficients)", "row_order": "U_pairs row i*n + o <-> (mu[i], mu[o])"},
+                 "(flakedb.rt.fourier.cosine_coefficients)", "row_order": "U_pairs row i*n_mu + o <-> (mu[i], mu[o]), n_mu = len(mu)"},
         "units": {"wavelength_nm": "nm", "mu": "1", "phi_d": "rad", "R": "1"},
         "inputs": plan.inputs,
         "tasks": [t.id for t in plan.tasks],
@@ -352,7 +374,7 @@ def write_template(url, plan: BuildPlan):
                        fill_value=np.nan, attributes={"units": spec["units"]})
     g["wavelength_nm"][:] = np.asarray(plan.inputs["wavelength_nm"], dtype=float)
     for n, m in plan.inputs["resolutions"]:
-        mu, phi = grid_nodes(n, m)
+        mu, phi = grid_nodes(n, m, plan.inputs.get("eta_top"))
         g[f"grid/{_res_key(n, m)}/mu"][:] = mu
         g[f"grid/{_res_key(n, m)}/phi_d"][:] = phi
     g.attrs.update(meta)  # the group's zarr.json is written last: its presence marks the template
@@ -365,8 +387,13 @@ def compute_task(request_inputs: dict, task: Task) -> dict:
 
     entry = request_inputs["species"][task.species]
     wl = np.asarray(request_inputs["wavelength_nm"], dtype=float)[task.c0:task.c1]
-    nb = sp.binder_index({"binder": request_inputs["binder"]}, wl)
-    R = sample_reflectance(entry, wl, nb, task.n, task.m, n_table=request_inputs["n_table"])
+    eta_top = request_inputs.get("eta_top")
+    # the binder index of the optics: the paint's one index below the top interface when eta_top is
+    # given (module docstring), else the catalogue binder's dispersion
+    nb = np.full(wl.shape, float(eta_top)) if eta_top is not None else sp.binder_index(
+        {"binder": request_inputs["binder"]}, wl)
+    R = sample_reflectance(entry, wl, nb, task.n, task.m, n_table=request_inputs["n_table"], eta_top=eta_top)
+    nm = R.shape[1]
     r = request_inputs["rank"]
     out = {"U_pairs": [], "V_pairs": [], "fourier": [], "singular_values": [], "mean_relative_error": []}
     for ch in range(R.shape[0]):
@@ -375,7 +402,7 @@ def compute_task(request_inputs: dict, task: Task) -> dict:
         out["V_pairs"].append(f.V_pairs)
         out["fourier"].append(fourier_factors(f.V_pairs))
         out["singular_values"].append(f.singular_values)
-        out["mean_relative_error"].append(mean_relative_error(R[ch], reconstruct(f.U_pairs, f.V_pairs, task.n)))
+        out["mean_relative_error"].append(mean_relative_error(R[ch], reconstruct(f.U_pairs, f.V_pairs, nm)))
     out = {k: np.asarray(v) for k, v in out.items()}
     if request_inputs["store_raw"]:
         out["raw"] = R
@@ -587,6 +614,11 @@ class StoreVersion:
         return sorted(self.metadata["inputs"]["species"])
 
     @property
+    def eta_top(self) -> float | None:
+        """The top interface index the version was built for (None: plain Radau nodes, catalogue binder)."""
+        return self.metadata["inputs"].get("eta_top")
+
+    @property
     def resolutions(self) -> list[tuple[int, int]]:
         return [tuple(x) for x in self.metadata["inputs"]["resolutions"]]
 
@@ -621,17 +653,26 @@ class StoreVersion:
         return {k: self._arr(species, n, m, k) for k in
                 ("U_pairs", "V_pairs", "fourier", "singular_values", "mean_relative_error")}
 
-    def fourier_coefficients(self, species, n, m=None) -> np.ndarray:
-        """R's cosine coefficients from the compressed factors: (W, n, n, L), [ch, i, o, l]."""
+    def fourier_coefficients(self, species, n, m=None, raw=False) -> np.ndarray:
+        """R's cosine coefficients (W, n_mu, n_mu, m), [ch, i, o, l], orders 0 … m−1: from the compressed
+        factors (U_pairs @ fourier), or with ``raw`` the DCT-I of the stored raw R (a version built
+        with ``store_raw``)."""
+        if raw:
+            from flakedb.rt.fourier import cosine_coefficients
+
+            return cosine_coefficients(self.raw(species, n, m))
         f = self.factors(species, n, m)
         W, nn, _ = f["U_pairs"].shape
-        return np.matmul(f["U_pairs"], f["fourier"]).reshape(W, n, n, -1)
+        nm = int(round(np.sqrt(nn)))
+        return np.matmul(f["U_pairs"], f["fourier"]).reshape(W, nm, nm, -1)
 
     def reflectance(self, species, n, m=None) -> np.ndarray:
-        """The compressed R̂ on the grid, (W, n, n, m)."""
+        """The compressed R̂ on the grid, (W, n_mu, n_mu, m)."""
         f = self.factors(species, n, m)
-        return np.matmul(f["U_pairs"], f["V_pairs"]).reshape(f["U_pairs"].shape[0], n, n, -1)
+        W, nn, _ = f["U_pairs"].shape
+        nm = int(round(np.sqrt(nn)))
+        return np.matmul(f["U_pairs"], f["V_pairs"]).reshape(W, nm, nm, -1)
 
     def raw(self, species, n, m=None) -> np.ndarray:
-        """R itself, (W, n, n, m) (only in a version built with ``store_raw``)."""
+        """R itself, (W, n_mu, n_mu, m) (only in a version built with ``store_raw``)."""
         return self._arr(species, n, m, "raw")

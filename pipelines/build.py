@@ -19,6 +19,8 @@ DEFAULT_N = (32,)
 DEFAULT_RANK = 8
 DEFAULT_RANGE_NM = (400.0, 700.0)
 DEFAULT_STEP_NM = 20.0
+#: top interface index of ``flakedb build``: the catalogue's paints have a smooth 1.5 clear coat.
+DEFAULT_ETA_TOP = 1.5
 
 
 def material_checksums() -> dict:
@@ -30,10 +32,11 @@ def material_checksums() -> dict:
 
 
 def make_request(species=None, n=DEFAULT_N, m=None, rank=DEFAULT_RANK, wavelength_nm=None, channel_block=4,
-                 store_raw=False, catalog_path=None, n_table=None) -> st.BuildRequest:
+                 store_raw=False, catalog_path=None, n_table=None, eta_top=None) -> st.BuildRequest:
     """A :class:`flakedb.store.BuildRequest` from the catalogue (default: every species, sweeps
     included).  ``n``: node counts (one resolution each, m = n unless ``m`` is given);
-    ``wavelength_nm``: default 400–700 nm every 20 nm."""
+    ``wavelength_nm``: default 400–700 nm every 20 nm; ``eta_top``: the paints' smooth top index
+    (None: plain Radau grid and the catalogue binder's index; see :mod:`flakedb.store`)."""
     from flakedb import species as sp
     from flakedb.colorimetry import spectral_grid
     from flakedb.compress import DEFAULT_N_TABLE
@@ -50,7 +53,7 @@ def make_request(species=None, n=DEFAULT_N, m=None, rank=DEFAULT_RANK, wavelengt
         species={s: allsp[s] for s in names}, binder=catalog["binder"], material_checksums=material_checksums(),
         resolutions=tuple((x, int(m) if m else x) for x in ns), rank=int(rank),
         wavelength_nm=tuple(float(w) for w in wl), channel_block=int(channel_block), store_raw=bool(store_raw),
-        n_table=int(n_table or DEFAULT_N_TABLE))
+        n_table=int(n_table or DEFAULT_N_TABLE), eta_top=None if eta_top is None else float(eta_top))
 
 
 def _execute(url, plan, tasks, scheduler, workers, client, progress):

@@ -172,7 +172,7 @@ def test_files_read_back_and_evaluate_to_solver_values(tmp_path):
     vb = bb.eval(MI, MO, PH, clamp="none")
     expect = spectra_to_rgb_mode(v5, r.wavelength_nm)
     # float32 storage, and G rebuilt from Y, R, B with the spec's 6-digit coefficients: ~1e-6 relative
-    assert np.abs(vb - expect).max() < 2e-6 * np.abs(expect).max()
+    assert np.abs(vb - expect).max() < 3e-6 * np.abs(expect).max()
     # the mirror term and provenance are recorded
     assert bb.delta == {"kind": "fresnel", "eta": 1.5} and b5.delta == {"kind": "fresnel", "eta": 1.5}
     assert bb.metadata["recipe"] == "rt-test" and bb.metadata["store"] == "none: computed directly"

@@ -268,11 +268,11 @@ def test_cli_bad_recipe_exits_nonzero_without_outputs(tmp_path):
     assert not out.exists()
 
 
-def test_cli_store_not_implemented_and_bad_n(tmp_path):
+def test_cli_empty_store_and_bad_n(tmp_path):
     rp = tmp_path / "ok.yaml"
     rp.write_text(BASE)
     r = _run(["compose", str(rp), "--out", str(tmp_path / "o"), "--store", str(tmp_path / "store.zarr")])
-    assert r.exit_code == 2 and "store-backed compose is not implemented yet" in r.output
+    assert r.exit_code == 2 and "flakedb build --store" in r.output  # names the command that fills it
     r = _run(["compose", str(rp), "--out", str(tmp_path / "o"), "--n", "33"])
     assert r.exit_code == 2 and "--n 33" in r.output and "even" in r.output
     assert not (tmp_path / "o").exists()

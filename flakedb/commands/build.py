@@ -14,9 +14,15 @@ import click
 @click.option("--m", "m", type=int, default=None, help="φ_d samples on [0, π] [default: = n]")
 @click.option("--rank", type=int, default=8, show_default=True, help="rank r of the √R SVD")
 @click.option("--species", "species", multiple=True, help="species name (repeatable) [default: the whole catalogue]")
-@click.option("--step-nm", type=float, default=20.0, show_default=True, help="wavelength step over 400-700 nm")
-@click.option("--raw", is_flag=True, help="also store the raw R samples")
-def build(store, workers, processes, scheduler, dry_run, n, m, rank, species, step_nm, raw):
+@click.option("--range-nm", type=float, nargs=2, default=(400.0, 700.0), show_default=True,
+              help="first and last wavelength (nm) of the bands")
+@click.option("--step-nm", type=float, default=20.0, show_default=True, help="wavelength step (nm)")
+@click.option("--eta-top", default="1.5", show_default=True,
+              help="relative index of the paints' smooth top (clear-coat) interface: the μ grid is the solver's "
+                   "node set inside the binder below it and the optics use it as the binder index; 1 = no "
+                   "interface / index-matched; 'none' = plain Radau nodes with the catalogue binder's index")
+@click.option("--raw", is_flag=True, help="also store the raw R samples (compose --raw needs them)")
+def build(store, workers, processes, scheduler, dry_run, n, m, rank, species, range_nm, step_nm, eta_top, raw):
     """Build (or reuse) the compressed reflectance store and point `latest` at it."""
     from flakedb import store as st
     from flakedb.cli import FlakedbError
@@ -24,9 +30,16 @@ def build(store, workers, processes, scheduler, dry_run, n, m, rank, species, st
     from pipelines.build import DEFAULT_N, build as run_build, make_request
 
     url = store or st.default_store()
+    if str(eta_top).strip().lower() in ("none", "null"):
+        eta = None
+    else:
+        try:
+            eta = float(eta_top)
+        except ValueError:
+            raise FlakedbError(f"--eta-top {eta_top}: give a number ≥ 1 (e.g. 1.5) or 'none'") from None
     try:
         req = make_request(species=species or None, n=n or DEFAULT_N, m=m, rank=rank,
-                           wavelength_nm=spectral_grid((400, 700), step_nm), store_raw=raw)
+                           wavelength_nm=spectral_grid(tuple(range_nm), step_nm), store_raw=raw, eta_top=eta)
         plan = st.plan_build(req)
     except ValueError as exc:
         raise FlakedbError(str(exc)) from exc

@@ -9,22 +9,20 @@ import click
               help="Output directory for NAME.bsdf, NAME.h5 and NAME.json.")
 @click.option("--n", "n", default=None, type=int,
               help="Node count (even, >= 8; n/2 per hemisphere); overrides the recipe's resolution.")
-@click.option("--store", "store", default=None, type=click.Path(),
-              help="Precomputed species store (store-backed compose is not implemented yet: it errors).")
+@click.option("--store", "store", default=None, envvar="FLAKEDB_STORE",
+              help="Precomputed species store of `flakedb build` (path or fsspec URL; default $FLAKEDB_STORE): "
+                   "catalogue species' reflectance functions come from its latest version, checksums verified. "
+                   "Without it, species optics are computed directly.")
 @click.option("--raw", is_flag=True,
-              help="Use uncompressed species data.  Without a store the optics are always computed "
-                   "directly (raw); the flag is recorded.")
+              help="With --store: use the raw R samples instead of the compressed factors (a version built "
+                   "with `flakedb build --raw`).  Without a store the optics are always computed directly; "
+                   "the flag is recorded.")
 @click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
 def compose(recipe, out_dir, n, store, raw, catalog_path):
     """Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report."""
     from flakedb.cli import FlakedbError
 
-    if store is not None:
-        raise FlakedbError(
-            f"--store {store}: store-backed compose is not implemented yet (compose does not read the "
-            f"precomputed store of `flakedb build`); run without --store: compose computes the species "
-            f"optics directly from the catalogue")
     if n is not None and (n < 8 or n % 2):
         raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8 (n/2 nodes per hemisphere), "
                            f"e.g. --n 64")
@@ -41,9 +39,20 @@ def compose(recipe, out_dir, n, store, raw, catalog_path):
         raise FlakedbError(str(exc)) from exc
     for w in rec.warnings:
         click.echo(f"warning: {w}", err=True)
-    click.echo(f"compose {rec.name}: store: none; species optics computed directly from the catalogue "
-               f"(store-backed compose is not implemented yet)")
-    res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"))
+    from flakedb.paint import catalog_species
+    from flakedb.store import StoreError
+
+    if store is None:
+        click.echo(f"compose {rec.name}: store: none; species optics computed directly from the catalogue")
+    elif not catalog_species(rec):
+        click.echo(f"compose {rec.name}: store: none needed (no catalogue species); optics computed directly")
+    else:
+        click.echo(f"compose {rec.name}: store: {store} ({'raw samples' if raw else 'compressed factors'})")
+    try:
+        res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"),
+                             store=store)
+    except StoreError as exc:
+        raise FlakedbError(str(exc)) from exc
     from flakedb.report import format_report
 
     click.echo(format_report(res.report))

@@ -137,7 +137,7 @@ def _bsdf_block(fn, x_in, w_in, x_out, w_out, tol, n_start, max_orders):
     """
     W = (w_in * x_in)[:, None] * (w_out * 1.0)[None, :]  # energy carried i → o per unit f·μ_o
     coeffs, info = project_azimuthal(lambda mi, mo, ph: fn(mi, mo, ph) * mo, x_in, x_out, tol=tol,
-                                     n_start=min(n_start, 4 * max_orders), n_max=4 * max_orders,
+                                     n_start=min(n_start, max(2 * max_orders, 128)), n_max=max(2 * max_orders, 128),
                                      weights=W)
     coeffs = coeffs[:max_orders]
     L = coeffs.shape[0]

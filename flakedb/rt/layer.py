@@ -166,6 +166,9 @@ def homogeneous_slab(x, w, sigma_t, K_T, K_R, thickness_um, slice_tau=2.0**-7):
     Returns a :class:`Layer` with L = K_T.shape[0] orders.
     """
     sigma_t = np.atleast_2d(sigma_t)
+    if not np.any(K_T) and not np.any(K_R):  # a pure absorber: the exact diagonal attenuation
+        C = max(sigma_t.shape[0], K_T.shape[1])
+        return direct_only_orders(x, sigma_t, thickness_um, K_T.shape[0], C)
     n = slice_doublings(thickness_um, sigma_t.max(), slice_tau)
     dz = thickness_um / 2.0**n
     R, T = thin_slab_diamond(x, w, sigma_t, K_T, K_R, dz)

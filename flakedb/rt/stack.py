@@ -184,9 +184,12 @@ def medium_kernel_blocks(medium, x, w, tol, max_orders, renormalize=True):
     """
     mu_o = np.concatenate([-x, x])  # up-going (reflection-like) then down-going
     W = w[:, None] * np.concatenate([w, w])[None, :]  # flux carried i → o per unit kernel
-    n_start = min(max(4, _component_orders_hint(medium)), 4 * max_orders)
+    # φ sampling up to 2× the order cap: where the cap binds, aliasing from orders ≥ 2L into the
+    # kept orders is far below the truncation itself
+    n_max = max(2 * max_orders, 128)
+    n_start = min(max(4, _component_orders_hint(medium)), n_max)
     coeffs, info = project_azimuthal(medium.kernel, x, mu_o, tol=tol, n_start=n_start,
-                                     n_max=4 * max_orders, weights=W)
+                                     n_max=n_max, weights=W)
     coeffs = coeffs[:max_orders]
     h = len(x)
     K_T, K_R = coeffs[:, :, h:, :], coeffs[:, :, :h, :]
