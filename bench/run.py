@@ -12,7 +12,6 @@ import json
 import os
 import platform
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -80,10 +79,9 @@ def main():
            "versions": _versions(), "benchmarks": results}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(doc, fh, indent=2)
-    os.replace(tmp, out)
+    from flakedb.atomic import atomic_write_text
+
+    atomic_write_text(out, json.dumps(doc, indent=2))
     print(f"wrote {out}")
 
 

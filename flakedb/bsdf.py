@@ -460,10 +460,9 @@ def _file_channels(coeffs_row: np.ndarray) -> np.ndarray:
 
 
 def _atomic_target(path: Path):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + ".", suffix=".tmp")
-    return fd, tmp
+    from flakedb.atomic import temp_beside
+
+    return temp_beside(path, suffix="")
 
 
 def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -> dict:

@@ -13,8 +13,6 @@ target, so a reader never sees a half-written image and a failed write leaves no
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -31,18 +29,10 @@ def _check_rgb(rgb, name="image") -> np.ndarray:
 
 def _atomic_write(path, write_tmp) -> Path:
     """Call ``write_tmp(tmp_path)`` on a temporary file next to ``path``, then rename it onto
-    ``path``.  The temporary file keeps the target's suffix (some writers pick the format by it)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp{path.suffix}")
-    os.close(fd)
-    try:
-        write_tmp(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    ``path`` (:func:`flakedb.atomic.atomic_write`; the temporary keeps the target's suffix)."""
+    from flakedb.atomic import atomic_write
+
+    return atomic_write(path, write_tmp)
 
 
 def write_exr(path, rgb) -> Path:

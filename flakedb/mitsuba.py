@@ -76,7 +76,6 @@ import math
 import os
 import re
 import struct
-import tempfile
 import weakref
 from pathlib import Path
 
@@ -378,7 +377,9 @@ def write_tensor_file(path, fields: dict, align: int = 8) -> int:
         pos += a.nbytes
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + ".", suffix=".tmp")
+    from flakedb.atomic import temp_beside
+
+    fd, tmp = temp_beside(path, suffix="")
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(head)
@@ -386,9 +387,6 @@ def write_tensor_file(path, fields: dict, align: int = 8) -> int:
                 fh.write(b"\0" * (offsets[k] - fh.tell()))
                 fh.write(a.tobytes())
             size = fh.tell()
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)                       # mkstemp creates 0600
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -8,7 +8,6 @@ spectrophotometer geometries of the colour report.
 
 import argparse
 import json
-import os
 import tempfile
 import time
 from pathlib import Path
@@ -54,6 +53,7 @@ def main(argv=None):
     ap.add_argument("--out", default="docs/figures/rgb-vs-spectral.json")
     ap.add_argument("--only", default=None, help="comma-separated recipe names")
     args = ap.parse_args(argv)
+    from flakedb.atomic import atomic_write_text
     from flakedb.species import load_catalog
 
     catalog = load_catalog()
@@ -68,10 +68,7 @@ def main(argv=None):
     out.parent.mkdir(parents=True, exist_ok=True)
     doc = {"what": "CIEDE2000 between spectral-mode and RGB-mode compose, 45° illumination, aspecular angles",
            "n": args.n, "step_nm": args.step_nm, "rows": rows}
-    fd, tmp = tempfile.mkstemp(dir=out.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(doc, fh, indent=1)
-    os.replace(tmp, out)
+    atomic_write_text(out, json.dumps(doc, indent=1))
     print(f"wrote {out}")
 
 

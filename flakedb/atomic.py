@@ -1,0 +1,46 @@
+"""Atomic file writes: write a temporary file beside the target, then ``os.replace`` it.
+
+Nothing half-written is ever visible under the target's name, and the result gets the ordinary
+permissions of a new file (0666 less the process umask), not ``mkstemp``'s 0600.
+"""
+
+import os
+import tempfile
+from pathlib import Path
+
+
+def _new_file_mode():
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+def temp_beside(path, suffix=None):
+    """``(fd, tmp)``: an open temporary file in ``path``'s directory (created if needed), named
+    ``.NAME.XXXX.tmpSUFFIX`` (the target's suffix by default: some writers pick the format by it)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
+                               suffix=".tmp" + (path.suffix if suffix is None else suffix))
+    os.fchmod(fd, _new_file_mode())
+    return fd, tmp
+
+
+def atomic_write(path, write_tmp):
+    """Call ``write_tmp(tmp_path)`` on a temporary file beside ``path``, then rename it onto
+    ``path``; on any error the temporary file is removed and the target is untouched."""
+    fd, tmp = temp_beside(path)
+    os.close(fd)
+    try:
+        write_tmp(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return Path(path)
+
+
+def atomic_write_text(path, text):
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    return atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
