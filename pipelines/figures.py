@@ -21,8 +21,11 @@ Figures
   table is integrated over the same bins by :func:`flakedb.reference.bin_average`) and rendered by the
   same deterministic sphere shader (:func:`render_binned`), so the images differ only by the two
   BSDFs; PSNR over the sphere's pixels.  The MC runs as two independent halves, so its own noise
-  level is measured too.  The paper's third column (compressed data) needs store-backed compose,
-  which does not exist yet: it is left empty, not faked.
+  level is measured too.  The paper's raw / compressed columns: a store of the two species is built
+  (:func:`pipelines.build.build`, the recipes' 380–780 nm grid, the coat's η, n = ``fig6_n``, rank
+  :data:`FIG6_RANK`, raw samples kept) into the temporary directory, timed (the "compression" time),
+  and each paint is composed three times — directly, from the store's raw samples, from its
+  compressed factors — and all three are shaded like the MC reference.
 * **fig7**: the eight ``catalog/recipes/fig7-*.yaml`` paints (TiO₂ 70–140 nm) as spheres, with the
   colour report's CIELAB at 15° and 45° aspecular per thickness and the hue angle versus thickness.
 
@@ -57,6 +60,8 @@ QUICK = {"n": 16, "step_nm": 20, "size": 40, "spp": 4, "fig4": {"n": 12, "m": 12
 FIG5_PAINTS = [(op, pr) for op in ("opaque", "translucent") for pr in ("black", "gray", "white")]
 FIG7_THICKNESS_NM = tuple(range(70, 141, 10))
 FIG6_PAINTS = (("pigment", "particle-cadmium-yellow"), ("mirror flakes", "particle-gray-mirror"))
+#: √R SVD rank of the Figure 6 store (the paper's choice, the build default).
+FIG6_RANK = 8
 #: Thread count for the preview renderer (the machine this runs on has 2 cores).
 THREADS = min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
@@ -523,7 +528,40 @@ def psnr(a, b, mask):
     return float("inf") if mse == 0 else float(10.0 * math.log10(1.0 / mse))
 
 
-def fig6_case(label, name, cfg, work, log):
+def _finite(v):
+    return v if math.isfinite(v) else None
+
+
+def fig6_store(names, cfg, work, log):
+    """Build the Figure 6 store (both species, the recipes' grid, n = fig6_n, rank FIG6_RANK, raw
+    samples kept) in ``work``; returns (open StoreVersion, build record)."""
+    from flakedb import store as st
+    from flakedb.paint import catalog_species
+    from pipelines.build import build, make_request
+
+    recs = [load_variant(nm, mode="rgb")[0] for nm in names]
+    wl, eta = recs[0].wavelength_nm, float(recs[0].binder_ior)
+    for r in recs[1:]:
+        if not (np.array_equal(r.wavelength_nm, wl) and float(r.binder_ior) == eta):
+            raise ValueError("the Figure 6 paints need one wavelength grid and binder index to share a store")
+    species = [p.species for r in recs for p in catalog_species(r)]
+    url = str(Path(work) / "store")
+    req = make_request(species=species, n=cfg["fig6_n"], rank=FIG6_RANK, wavelength_nm=wl, store_raw=True,
+                       eta_top=eta)
+    t0 = time.perf_counter()
+    res = build(req, url, scheduler="threads", workers=THREADS)
+    t_build = time.perf_counter() - t0
+    version = st.open_version(url, verify=True)
+    log(f"  store: {len(species)} species, n = {cfg['fig6_n']}, {len(wl)} bands, rank {FIG6_RANK}: "
+        f"{res['status']} in {t_build:.1f} s")
+    return version, {"species": species, "n": cfg["fig6_n"], "m": list(version.resolutions)[0][1],
+                     "rank": FIG6_RANK, "bands": len(wl), "range_nm": [float(wl[0]), float(wl[-1])],
+                     "eta_top": eta, "version": version.version, "tasks": res["tasks_total"],
+                     "build_s": t_build}
+
+
+def fig6_case(label, name, cfg, work, log, store=None):
+    from flakedb.export import compose
     from flakedb.preview import studio_environment, studio_sun
 
     r = compose_render(name, cfg, work, log, render=False, mode="rgb")
@@ -548,6 +586,19 @@ def fig6_case(label, name, cfg, work, log):
     sol, _ = render_binned(Bs, x, mu_edges, phi_edges, env, sun, eta, size)
     p_sol = psnr(ref, sol, mask)
     p_halves = psnr(half_a, half_b, mask)
+    stored, images = {}, {"direct": sol}
+    for kind in (("raw", "compressed") if store is not None else ()):
+        t0 = time.perf_counter()
+        sres = compose(r["recipe"], Path(work) / kind, n=cfg["fig6_n"], store=store, raw=kind == "raw")
+        t_c = time.perf_counter() - t0
+        if not np.array_equal(np.asarray(sres.stack.x), x):
+            raise AssertionError("store-backed compose solved on other incident nodes than the direct one")
+        Bk = solver_binned(sres.table, x, mu_edges, phi_edges)
+        images[kind], _ = render_binned(Bk, x, mu_edges, phi_edges, env, sun, eta, size)
+        stored[kind] = {"psnr_vs_mc_db": psnr(ref, images[kind], mask), "compose_s": t_c,
+                        "albedo_max_abs_diff_vs_direct": float(np.abs(sres.stack.albedo(include_delta=False)
+                                                                      - stack.albedo(include_delta=False)).max())}
+        log(f"  {label}: store {kind}: PSNR vs MC {stored[kind]['psnr_vs_mc_db']:.1f} dB, compose {t_c:.1f} s")
     # albedo: solver (tabulated, at its nodes) vs MC diffuse albedo (both halves together)
     a_sol = stack.albedo(include_delta=False)                     # (C, h)
     a_mc = Amc.mean(axis=0)
@@ -561,6 +612,12 @@ def fig6_case(label, name, cfg, work, log):
                        for c in paint.components],
         "mc_paths_per_node": cfg["fig6_paths"], "incident_nodes_mu": x.tolist(), "bins": [nmu, nphi],
         "psnr_solver_vs_mc_db": p_sol, "psnr_mc_half_vs_half_db": p_halves,
+        "store": stored,
+        "psnr_store_raw_vs_mc_db": stored["raw"]["psnr_vs_mc_db"] if stored else None,
+        "psnr_store_compressed_vs_mc_db": stored["compressed"]["psnr_vs_mc_db"] if stored else None,
+        # None: the two images are bit-identical (infinite PSNR; JSON has no infinity)
+        "psnr_compressed_vs_raw_db": _finite(psnr(images["raw"], images["compressed"], mask)) if stored else None,
+        "psnr_store_raw_vs_direct_db": _finite(psnr(sol, images["raw"], mask)) if stored else None,
         "psnr_mc_noise_limit_db": p_halves + 10 * math.log10(4.0),
         "albedo_solver": a_sol.tolist(), "albedo_mc": a_mc.tolist(), "albedo_mc_se": se.tolist(),
         "albedo_max_abs_diff": float(np.abs(a_sol - a_mc).max()), "albedo_max_rel_diff": float(rel.max()),
@@ -569,7 +626,7 @@ def fig6_case(label, name, cfg, work, log):
     }
     log(f"  {label}: PSNR solver vs MC {p_sol:.1f} dB (MC half vs half {p_halves:.1f} dB); "
         f"albedo max |Δ| {rec['albedo_max_abs_diff']:.4f} ({rec['albedo_max_sigma']:.1f} σ); MC {t_mc:.0f} s")
-    return rec, ref, sol, mask
+    return rec, ref, images, mask
 
 
 def fig6(out, cfg, log):
@@ -578,17 +635,21 @@ def fig6(out, cfg, log):
     plt = _plt()
     recs, rows = [], []
     with tempfile.TemporaryDirectory(prefix="flakedb-fig6-") as work:
+        store, store_rec = fig6_store([nm for _, nm in FIG6_PAINTS], cfg, Path(work) / "build", log)
         for label, name in FIG6_PAINTS:
-            rec, ref, sol, mask = fig6_case(label, name, cfg, work, log)
+            rec, ref, images, mask = fig6_case(label, name, cfg, Path(work) / name, log, store=store)
             recs.append(rec)
-            rows.append((ref, sol, mask))
-    fig, axes = plt.subplots(2, 4, figsize=(9.4, 5.2))
-    for k, ((ref, sol, mask), rec) in enumerate(zip(rows, recs)):
-        diff = np.clip(8.0 * np.abs(srgb_encode(ref) - srgb_encode(sol)), 0, 1) * mask[..., None]
+            rows.append((ref, images, mask))
+    fig, axes = plt.subplots(2, 5, figsize=(11.6, 5.4))
+    for k, ((ref, images, mask), rec) in enumerate(zip(rows, recs)):
+        diff = np.clip(8.0 * np.abs(srgb_encode(ref) - srgb_encode(images["compressed"])), 0, 1) * mask[..., None]
         panels = [(srgb_encode(ref), f"Monte Carlo reference\n(MC halves: {rec['psnr_mc_half_vs_half_db']:.1f} dB)"),
-                  (srgb_encode(sol), f"solver (raw optics)\nPSNR {rec['psnr_solver_vs_mc_db']:.1f} dB"),
-                  (diff, "|solver − MC| × 8"),
-                  (None, "compressed data:\nnot available\n(store-backed compose\nnot implemented)")]
+                  (srgb_encode(images["direct"]), f"solver, direct optics\nPSNR {rec['psnr_solver_vs_mc_db']:.1f} dB"),
+                  (srgb_encode(images["raw"]), f"store, raw samples\nPSNR {rec['psnr_store_raw_vs_mc_db']:.1f} dB"),
+                  (srgb_encode(images["compressed"]), f"store, compressed (r = {FIG6_RANK})\n"
+                   f"PSNR {rec['psnr_store_compressed_vs_mc_db']:.1f} dB "
+                   f"(vs raw {rec['psnr_compressed_vs_raw_db']:.1f})"),
+                  (diff, "|compressed − MC| × 8")]
         for c, (im, title) in enumerate(panels):
             ax = axes[k, c]
             ax.set_xticks([])
@@ -605,8 +666,10 @@ def fig6(out, cfg, log):
             "psnr_definition": "10 log10(1/MSE) of sRGB-encoded (clipped [0, 1]) pixel values over the sphere's pixels",
             "noise_limit_definition": "PSNR of the two independent MC halves + 10 log10(4): the PSNR an exact "
                                       "solver would reach against the full MC reference, limited by MC noise",
-            "shader": "pipelines.figures.render_binned (deterministic; the same for both images)",
-            "compressed_column": "TODO: needs store-backed compose (flakedb compose --store STORE); not implemented"}
+            "shader": "pipelines.figures.render_binned (deterministic; the same for every image)",
+            "store": store_rec,
+            "compression_definition": "store build (pipelines.build.build: sampling R on the grid, sqrt-SVD "
+                                      "compression, raw samples kept) of both species, wall-clock seconds"}
     write_json(Path(out) / "figure6.json", data)
     return data
 
@@ -671,31 +734,63 @@ def write_readme(out):
     f6 = _load(out, 6)
     if f6:
         st = f6["settings"]
-        L += ["## Figure 6: solver versus Monte Carlo reference (`figure6.png`, `figure6.json`)", "",
+        L += ["## Figure 6: solver (direct, store raw, store compressed) versus Monte Carlo reference "
+              "(`figure6.png`, `figure6.json`)", "",
               "The paper compares path-traced spheres (Rayleigh pigments, Jakob mirror flakes) with its model "
               "on raw and on compressed data. Here: `particle-cadmium-yellow` (Mie pigment) and "
               f"`particle-gray-mirror` (mirror flakes) in RGB mode, solver at n = {st['fig6_n']}; the independent "
               f"Monte Carlo simulator (`flakedb.reference`) traces {st['fig6_paths']:,} paths per incident solver node "
               f"into {st['fig6_bins'][0]}×{st['fig6_bins'][1]} (|μ_o|, φ_d) bins; the solver's table is averaged over "
-              "the same bins; both are shaded by the same deterministic sphere shader (`render_binned`), "
-              "so the images differ only by the BSDFs. PSNR over the sphere's pixels of the sRGB-encoded images; "
-              "the MC is run as two independent halves, which measures its own noise.", "",
-              "| paint | PSNR solver vs MC | MC noise limit | max diffuse-albedo \\|Δ\\| (R, G, B; all nodes) | max \\|Δ\\|/σ_MC | mean \\|Δ\\|/σ_MC |",
-              "|---|---|---|---|---|---|"]
+              "the same bins; all images are shaded by the same deterministic sphere shader (`render_binned`), "
+              "so they differ only by the BSDFs. PSNR over the sphere's pixels of the sRGB-encoded images; "
+              "the MC is run as two independent halves, which measures its own noise.", ""]
+        sr = f6.get("store")
+        if sr:
+            L += [f"Each paint is composed three times: with the species' optics computed directly, and from a "
+                  f"store (`pipelines.build`) of both species built for this figure — {sr['bands']} bands "
+                  f"{sr['range_nm'][0]:g}–{sr['range_nm'][1]:g} nm, n = {sr['n']}, m = {sr['m']} φ_d samples, "
+                  f"η_top = {sr['eta_top']:g}, √R SVD rank {sr['rank']} — read as raw samples (`--raw`) and as "
+                  f"compressed factors. Building that store (sampling R on the grid and compressing it, "
+                  f"{sr['tasks']} tasks) took {sr['build_s']:.1f} s.", ""]
+        L += ["| paint | PSNR direct vs MC | store raw vs MC | store compressed vs MC | compressed vs raw | "
+              "MC noise limit | max diffuse-albedo \\|Δ\\| (R, G, B; all nodes) | max \\|Δ\\|/σ_MC | mean \\|Δ\\|/σ_MC |",
+              "|---|---|---|---|---|---|---|---|---|"]
+
+        def db(v):
+            return "identical" if v is None else f"{v:.1f} dB"
+
         for p in f6["paints"]:
-            L.append(f"| {p['label']} | {p['psnr_solver_vs_mc_db']:.1f} dB | {p['psnr_mc_noise_limit_db']:.1f} dB | "
-                     f"{p['albedo_max_abs_diff']:.4f} | "
+            L.append(f"| {p['label']} | {db(p['psnr_solver_vs_mc_db'])} | {db(p.get('psnr_store_raw_vs_mc_db'))} | "
+                     f"{db(p.get('psnr_store_compressed_vs_mc_db'))} | {db(p.get('psnr_compressed_vs_raw_db'))} | "
+                     f"{db(p['psnr_mc_noise_limit_db'])} | {p['albedo_max_abs_diff']:.4f} | "
                      f"{p['albedo_max_sigma']:.1f} | {p['albedo_mean_sigma']:.2f} |")
         L += ["", "The noise limit is the PSNR an exact solver would reach against this MC reference "
               "(PSNR of the two MC halves + 6.02 dB); a solver PSNR close to it means the remaining "
-              "difference is mostly Monte Carlo noise. The albedo columns compare the solver's diffuse albedo "
-              "at its incident nodes with the MC's (both halves, σ_MC its standard error) over all nodes and "
-              f"channels; from noise alone the mean |Δ|/σ would be {math.sqrt(2 / math.pi):.2f}.", "",
-              "**TODO (compressed column)**: the paper's third column renders from compressed species data. "
-              "It needs store-backed compose (`flakedb compose --store STORE [--raw]`, reading the SVD-compressed "
-              "species of `flakedb build`), which is not implemented yet; the column is left empty rather than "
-              "faked. When it exists, `fig6_case` should compose each paint twice (raw / compressed) and report "
-              "both PSNRs against the same MC reference.", ""]
+              "difference is mostly Monte Carlo noise. The albedo columns compare the directly composed "
+              "solver's diffuse albedo at its incident nodes with the MC's (both halves, σ_MC its standard "
+              "error) over all nodes and channels; from noise alone the mean |Δ|/σ would be "
+              f"{math.sqrt(2 / math.pi):.2f}."]
+        if sr:
+            dr = max(p["store"]["raw"]["albedo_max_abs_diff_vs_direct"] for p in f6["paints"])
+            dc = max(p["store"]["compressed"]["albedo_max_abs_diff_vs_direct"] for p in f6["paints"])
+            cr = [p["psnr_compressed_vs_raw_db"] for p in f6["paints"]]
+            far = all(v is None or v > p["psnr_mc_noise_limit_db"] + 20 for v, p in zip(cr, f6["paints"]))
+            L += ["", ("Raw and compressed store data give the same pictures as the direct optics to far below the "
+                       "MC noise" if far else "Store data versus direct optics")
+                  + ": compressed versus raw "
+                  + ", ".join(f"{db(v)} ({p['label']})" for v, p in zip(cr, f6["paints"]))
+                  + "; store raw versus direct "
+                  + ", ".join(f"{db(p['psnr_store_raw_vs_direct_db'])} ({p['label']})" for p in f6["paints"])
+                  + (" (the gray mirror's R(c) = 0.5 depends on neither angle nor wavelength: rank 1 holds it "
+                     "exactly)" if any(p["label"] == "mirror flakes" and (p["psnr_compressed_vs_raw_db"] is None
+                                                                          or p["psnr_compressed_vs_raw_db"] > 150)
+                                       for p in f6["paints"]) else "")
+                  + f"; largest diffuse-albedo difference from the direct compose {dr:.1e} (raw), "
+                  f"{dc:.1e} (compressed). Compose times (s): "
+                  + "; ".join(f"{p['label']} direct {p['seconds']['compose']:.2f}, raw "
+                              f"{p['store']['raw']['compose_s']:.2f}, compressed {p['store']['compressed']['compose_s']:.2f}"
+                              for p in f6["paints"]) + "."]
+        L.append("")
     f7 = _load(out, 7)
     if f7:
         st = f7["settings"]

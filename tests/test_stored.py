@@ -183,6 +183,43 @@ def test_store_backed_compose_matches_direct(tiny, tmp_path, species):
     assert open_bsdf(Path(direct.paths["h5"])).metadata["store_version"] == "none: computed directly"
 
 
+@pytest.fixture(scope="module")
+def tiny_visible(tmp_path_factory):
+    """The pigment over the recipes' full visible grid (380–780 nm, 20 nm): the RGB mode's blue
+    channel phase function goes negative there (over 14 % of cos Θ), unlike on the 500–600 nm grid."""
+    url = str(tmp_path_factory.mktemp("stored-vis") / "store")
+    from flakedb.colorimetry import spectral_grid
+
+    req = make_request(species=[PIGMENT], n=N, m=M, rank=8, wavelength_nm=spectral_grid((380, 780), 20),
+                       store_raw=True, eta_top=ETA)
+    assert build(req, url, scheduler="sync")["status"] == "built"
+    return url
+
+
+def test_rgb_mode_pigment_store_compose_matches_direct(tiny_visible, tmp_path, monkeypatch):
+    """RGB mode: the direct path (flakedb.paint.pigment_to_rgb) clips the pigment's RGB phase function
+    at 0 (the sRGB map's negative lobes) and C_sca at C_ext; the store path maps the stored spectral
+    series linearly and must apply the same constraints (flakedb.paint._stored_pigment_component,
+    StoredPigmentMedium.nonnegative).  Measured (n = 16, 380–780 nm / 20 nm): ΔE00 raw vs direct
+    1.2e-3 with the clip, 0.83 without it; compressed vs direct 0.021."""
+    from flakedb.rt import stored as S
+
+    url = tiny_visible
+    rec = parse_recipe(_recipe(PIGMENT).replace("range_nm: [500, 600]", "range_nm: [380, 780]")
+                       .replace("mode: spectral", "mode: rgb"))
+    assert rec.wavelength_nm[0] == 380 and rec.mode == "rgb"
+    direct = compose(rec, tmp_path / "d")
+    raw = compose(rec, tmp_path / "r", store=url, raw=True)
+    comp = compose(rec, tmp_path / "c", store=url)
+    assert delta_E_2000(_lab(raw), _lab(direct)).max() < 0.01
+    assert delta_E_2000(_lab(comp), _lab(direct)).max() < 0.06
+    # without the phase clip the two paths differ visibly (what this test guards against)
+    monkeypatch.setattr(S.StoredPigmentMedium, "kernel", lambda self, mi, mo, ph:
+                        self.R_source.evaluate(mi, mo, ph) / (4.0 * np.pi))
+    unclipped = compose(rec, tmp_path / "u", store=url, raw=True)
+    assert delta_E_2000(_lab(unclipped), _lab(direct)).max() > 0.3
+
+
 def test_cli_compose_store_raw_and_corrupted_chunk(tiny, tmp_path):
     url0, req, v = tiny
     rp = tmp_path / "r.yaml"

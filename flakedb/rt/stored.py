@@ -178,11 +178,16 @@ class StoredPigmentMedium:
     """Pigments with R = 4π ϖ p from the store (module docstring).  ``R_source`` must already carry
     the per-channel weight ρ C_ext (``StoredReflectance.from_store(weights=ρ C_ext)``), so that the
     kernel is R_source/(4π) = ρ C_sca p; ``sigma_t_per_um`` = ρ C_ext and ``sigma_s_per_um`` =
-    ρ C_sca per channel (C,)."""
+    ρ C_sca per channel (C,).  ``nonnegative``: the kernel is clipped at 0 (the RGB mode's phase ≥ 0;
+    the solver's renormalisation to σ_s then plays the part of the direct path's re-normalisation of
+    the clipped phase table)."""
 
     R_source: StoredReflectance
     sigma_t_per_um: object
     sigma_s_per_um: object
+    #: clip the kernel at 0 (RGB mode: the linear sRGB map of the stored spectral series has negative
+    #: lobes where the direct path clips its RGB phase function to ≥ 0; see flakedb.paint)
+    nonnegative: bool = False
 
     def sigma_t(self, mu):
         mu = np.asarray(mu, dtype=float)
@@ -193,8 +198,9 @@ class StoredPigmentMedium:
         return _per_channel(self.sigma_s_per_um, mu.ndim) * np.ones_like(mu)
 
     def kernel(self, mu_i, mu_o, phi_d):
-        """ρ C_ext R/(4π) = ρ C_sca p(cos Θ), 1/(µm·sr)."""
-        return self.R_source.evaluate(mu_i, mu_o, phi_d) / (4.0 * np.pi)
+        """ρ C_ext R/(4π) = ρ C_sca p(cos Θ), 1/(µm·sr) (≥ 0 with ``nonnegative``)."""
+        k = self.R_source.evaluate(mu_i, mu_o, phi_d) / (4.0 * np.pi)
+        return np.maximum(k, 0.0) if self.nonnegative else k
 
     @property
     def phi_bandwidth(self):
