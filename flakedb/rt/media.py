@@ -71,6 +71,21 @@ class PhaseMedium:
     def sigma_s(self, mu):
         return self.sigma_t(mu) * _channels(self.albedo).reshape((-1,) + (1,) * np.ndim(mu))
 
+    def subset(self, idx):
+        """The same medium restricted to channels ``idx`` (per-channel values sliced)."""
+        def take(a):
+            a = np.asarray(a, dtype=float)
+            return a if a.ndim == 0 or a.shape[0] == 1 else a[idx]
+
+        ph = self.phase
+        if ph != "isotropic":
+            if ph[0] == "hg":
+                ph = ("hg", take(ph[1]))
+            elif ph[0] == "table":
+                vals = np.asarray(ph[2], dtype=float)
+                ph = ("table", ph[1], vals[idx] if vals.ndim == 2 and vals.shape[0] > 1 else vals)
+        return PhaseMedium(take(self.sigma_t_per_um), take(self.albedo), ph)
+
     def kernel(self, mu_i, mu_o, phi_d):
         cos_t = cos_scattering_angle(mu_i, mu_o, phi_d)
         ss = (_channels(self.sigma_t_per_um) * _channels(self.albedo)).reshape((-1,) + (1,) * cos_t.ndim)
@@ -97,6 +112,11 @@ class Mixture:
 
     def sigma_s(self, mu):
         return sum(_bc(c.sigma_s(mu)) for c in self.components)
+
+    def subset(self, idx):
+        from flakedb.rt.stack import _subset
+
+        return Mixture([_subset(c, idx) for c in self.components])
 
     def kernel(self, mu_i, mu_o, phi_d):
         return sum(c.kernel(mu_i, mu_o, phi_d) for c in self.components)
@@ -127,6 +147,14 @@ class FlakeMedium:
         from flakedb.rt.microflake import extinction_Ergun
 
         return extinction_Ergun(np.abs(mu), self.alpha, self.optics, self.a_rho_per_um)
+
+    def subset(self, idx):
+        from flakedb.rt.microflake import FlakeOptics
+
+        o = self.optics
+        if o.R.shape[0] == 1:
+            return self
+        return FlakeMedium(self.alpha, FlakeOptics(o.c, o.R[idx], o.T[idx]), self.a_rho_per_um)
 
     def sigma_s(self, mu):
         from flakedb.rt.microflake import scattering_Ergun

@@ -213,6 +213,57 @@ def medium_kernel_blocks(medium, x, w, tol, max_orders, renormalize=True):
     return K_T, K_R, info
 
 
+#: Memory the solver may use for one group of spectral channels (bytes); channels are independent,
+#: so a large problem is solved in groups of channels that fit (``FLAKEDB_MEMORY_BUDGET`` overrides).
+MEMORY_BUDGET_BYTES = 4 * 2**30
+
+
+def _n_channels(slabs, bottom):
+    """Largest channel count among the media (σ_t at one node) and the primer's albedo."""
+    C = 1
+    for slab in slabs:
+        C = max(C, np.atleast_2d(slab.medium.sigma_t(np.array([0.5]))).shape[0])
+    if bottom is not None:
+        C = max(C, np.atleast_1d(bottom.albedo).size)
+    return C
+
+
+def _bytes_per_channel(n, h_in, cap):
+    """A stated estimate of the solver's peak memory per spectral channel: the kernel projection's
+    coefficient arrays (a few copies of h_in × 2h_in × 2·cap orders) and the per-order blocks (about
+    ten h_in × h_in × cap arrays: kernels, four layer blocks, solve temporaries)."""
+    return 8 * (4 * h_in * 2 * h_in * (2 * cap + 1) + 10 * cap * h_in * h_in)
+
+
+class _ChannelSubset:
+    """A medium restricted to some of its channels (evaluates all, keeps ``idx``; used only when a
+    medium has no cheaper ``subset``)."""
+
+    def __init__(self, medium, idx):
+        self.medium, self.idx = medium, np.asarray(idx)
+
+    def _take(self, a):
+        a = np.asarray(a)
+        return a if a.shape[0] == 1 else a[self.idx]
+
+    def sigma_t(self, mu):
+        return self._take(np.atleast_1d(self.medium.sigma_t(mu)))
+
+    def sigma_s(self, mu):
+        return self._take(np.atleast_1d(self.medium.sigma_s(mu)))
+
+    def kernel(self, mu_i, mu_o, phi_d):
+        return self._take(self.medium.kernel(mu_i, mu_o, phi_d))
+
+    @property
+    def phi_bandwidth(self):
+        return getattr(self.medium, "phi_bandwidth", 16)
+
+
+def _subset(medium, idx):
+    return medium.subset(idx) if hasattr(medium, "subset") else _ChannelSubset(medium, idx)
+
+
 def solve_stack(top, slabs, bottom, settings=None, channels=None):
     """Solve the stack; returns a :class:`StackBSDF`.
 
@@ -220,8 +271,59 @@ def solve_stack(top, slabs, bottom, settings=None, channels=None):
     ``slabs``: list of :class:`Slab`.  ``bottom``: :class:`Lambertian` or None (transmission into a
     half-space of the binder's index).  ``channels``: number of spectral channels (inferred from
     the components when None).
+
+    Channels are independent: when the estimated memory (:func:`_bytes_per_channel`) of all of them
+    together exceeds the budget (``MEMORY_BUDGET_BYTES`` or ``$FLAKEDB_MEMORY_BUDGET`` bytes), the
+    channels are solved in groups and the results joined (orders padded to the largest count).
     """
+    import os
+
     s = settings or SolverSettings()
+    if s.n % 2 == 0 and s.n >= 2:
+        C = int(channels) if channels else _n_channels(slabs, bottom)
+        h_out = s.n // 2
+        h_in = h_out + (0 if not isinstance(top, Smooth) or top.eta == 1.0 else
+                        (s.h_tir if s.h_tir is not None else default_tir_nodes(h_out, top.eta)))
+        budget = float(os.environ.get("FLAKEDB_MEMORY_BUDGET", MEMORY_BUDGET_BYTES))
+        group = max(1, int(budget // _bytes_per_channel(s.n, h_in, s.order_cap)))
+        if C > group:
+            return _solve_in_channel_groups(top, slabs, bottom, s, C, group)
+    return _solve_stack(top, slabs, bottom, s)
+
+
+def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
+    parts, sizes = [], []
+    for c0 in range(0, C, group):
+        idx = np.arange(c0, min(C, c0 + group))
+        sub_slabs = [Slab(sl.thickness_um, _subset(sl.medium, idx)) for sl in slabs]
+        sub_bottom = None
+        if bottom is not None:
+            a = np.atleast_1d(np.asarray(bottom.albedo, dtype=float))
+            sub_bottom = Lambertian(a if a.size == 1 else a[idx])
+        parts.append(_solve_stack(top, sub_slabs, sub_bottom, s))
+        sizes.append(len(idx))
+    L = max(p.n_orders for p in parts)
+
+    def join(name):
+        blocks = [getattr(p, name) for p in parts]
+        if blocks[0] is None:
+            return None
+        out = []
+        for k, b in zip(sizes, blocks):
+            b = np.broadcast_to(b, (b.shape[0], k) + b.shape[2:])
+            if b.shape[0] < L:
+                b = np.concatenate([b, np.zeros((L - b.shape[0],) + b.shape[1:])])
+            out.append(b)
+        return np.concatenate(out, axis=1)
+
+    first = parts[0]
+    info = {"orders": L, "channel_groups": [[int(c0), int(min(C, c0 + group))] for c0 in range(0, C, group)],
+            "groups": [p.info for p in parts]}
+    return StackBSDF(x=first.x, w=first.w, Rt=join("Rt"), eta=first.eta, delta_F=first.delta_F,
+                     Ttb=join("Ttb"), Rb=join("Rb"), Tbt=join("Tbt"), x_in=first.x_in, w_in=first.w_in, info=info)
+
+
+def _solve_stack(top, slabs, bottom, s):
     if s.n % 2 or s.n < 2:
         raise ValueError(f"the node count n must be even and ≥ 2 (n/2 per hemisphere), got {s.n}")
     q_out = radau_hemisphere(s.n // 2)
