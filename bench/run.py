@@ -50,7 +50,17 @@ def main():
     ap.add_argument("--long", type=float, default=20.0, help="seconds above which a benchmark is timed once")
     args = ap.parse_args()
     here = Path(__file__).parent
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
     results = []
+
+    def write():  # after every benchmark, so an interrupted run keeps what it measured
+        from flakedb.atomic import atomic_write_text
+
+        doc = {"created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "machine": _machine(),
+               "versions": _versions(), "benchmarks": results}
+        atomic_write_text(out, json.dumps(doc, indent=2))
+
     for path in sorted(here.glob("bench_*.py")):
         spec = importlib.util.spec_from_file_location(path.stem, path)
         mod = importlib.util.module_from_spec(spec)
@@ -74,14 +84,9 @@ def main():
             if isinstance(extra, dict):
                 row.update(extra)
             results.append(row)
-            print(f"{name:60s} {min(times):10.4f} s")
-    doc = {"created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "machine": _machine(),
-           "versions": _versions(), "benchmarks": results}
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    from flakedb.atomic import atomic_write_text
-
-    atomic_write_text(out, json.dumps(doc, indent=2))
+            print(f"{name:60s} {min(times):10.4f} s", flush=True)
+            write()
+    write()
     print(f"wrote {out}")
 
 
