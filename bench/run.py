@@ -46,6 +46,8 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default="bench/results.json")
     ap.add_argument("--only", default=None, help="substring filter on benchmark names")
+    ap.add_argument("--skip", default=None, help="substring filter: skip benchmarks whose name has it")
+    ap.add_argument("--merge", default=None, help="a results.json whose benchmarks are kept (merged in)")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--long", type=float, default=20.0, help="seconds above which a benchmark is timed once")
     args = ap.parse_args()
@@ -53,6 +55,8 @@ def main():
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     results = []
+    if args.merge:
+        results.extend(json.loads(Path(args.merge).read_text())["benchmarks"])
 
     def write():  # after every benchmark, so an interrupted run keeps what it measured
         from flakedb.atomic import atomic_write_text
@@ -66,7 +70,7 @@ def main():
         mod = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(mod)
         for name, setup, run, meta in mod.BENCHMARKS:
-            if args.only and args.only not in name:
+            if (args.only and args.only not in name) or (args.skip and args.skip in name):
                 continue
             arg = setup()
             # The first run is a warm-up (JIT compilation, caches).  A benchmark whose first run
