@@ -70,19 +70,10 @@ THREADS = min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity"
 # Writing (atomic)
 # --------------------------------------------------------------------------------------------
 def _atomic(path, write):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp{path.suffix}")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    """``write(tmp)`` then rename onto ``path`` (:func:`flakedb.atomic.atomic_write`)."""
+    from flakedb.atomic import atomic_write
+
+    return atomic_write(path, write)
 
 
 def write_json(path, obj):
