@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import posixpath
 import uuid
 from dataclasses import dataclass, field
@@ -367,7 +368,33 @@ def write_template(url, plan: BuildPlan):
         raise StoreIntegrityError("metadata breaks schemas/store.schema.json:\n  " + "\n  ".join(problems))
     if version_state(url, plan.version) != "absent":
         return False
-    vurl = _version_url(url, plan.version)
+    fs, root = _fs(url)
+    local = "file" in (fs.protocol if isinstance(fs.protocol, (tuple, list)) else (fs.protocol,))
+    final = posixpath.join(root, "versions", plan.version)
+    if local:
+        # Build the template privately and rename it into place: two builds starting at once
+        # cannot clear or interleave each other's template (the loser's rename fails, it uses the
+        # winner's).  A leftover partial template (interrupted before the rename) never exists.
+        import shutil
+
+        tmp = posixpath.join(root, "versions", f".tmp-{plan.version[:16]}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+        os.makedirs(posixpath.dirname(tmp), exist_ok=True)
+        _fill_template(tmp, plan, meta)
+        try:
+            os.rename(tmp, final)
+        except OSError:
+            shutil.rmtree(tmp, ignore_errors=True)
+            if version_state(url, plan.version) == "absent":
+                raise
+            return False
+        return True
+    _fill_template(_version_url(url, plan.version), plan, meta)
+    return True
+
+
+def _fill_template(vurl, plan: BuildPlan, meta: dict):
+    import zarr
+
     g = zarr.open_group(vurl, mode="w")  # also clears a template whose writing was interrupted
     for path, spec in plan.arrays.items():
         g.create_array(path, shape=tuple(spec["shape"]), chunks=tuple(spec["chunks"]), dtype=spec["dtype"],
@@ -378,7 +405,6 @@ def write_template(url, plan: BuildPlan):
         g[f"grid/{_res_key(n, m)}/mu"][:] = mu
         g[f"grid/{_res_key(n, m)}/phi_d"][:] = phi
     g.attrs.update(meta)  # the group's zarr.json is written last: its presence marks the template
-    return True
 
 
 def compute_task(request_inputs: dict, task: Task) -> dict:
