@@ -953,6 +953,17 @@ def _normal_quantile(p):
             / (((((b0 * r + b1) * r + b2) * r + b3) * r + b4) * r + 1))
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _blend_order(order, oi, oo, wi, wo):
+    """Largest coefficient count among the 4 × 4 entries blended at (oi, oo) with non-zero weight."""
+    kmax = 0
+    for ia in range(4):
+        for ob in range(4):
+            if wi[ia] * wo[ob] != 0.0:
+                kmax = max(kmax, order[oi + ia, oo + ob])
+    return kmax
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FASTMATH)
 def _series_kernel(nodes, flat, start, order, cd, mu_i, mu_o, phi, out_val, out_a0):
     """Per point: Σ over the 4x4 neighbouring entries of w · Σ_{k<K_e} a_k cos(k phi) per channel
@@ -970,11 +981,7 @@ def _series_kernel(nodes, flat, start, order, cd, mu_i, mu_o, phi, out_val, out_
         oo = _cr_weights_1(nodes, mu_o[p], wo)
         if oi == -n or oo == -n:
             continue
-        kmax = 0
-        for ia in range(4):
-            for ob in range(4):
-                if wi[ia] * wo[ob] != 0.0:
-                    kmax = max(kmax, order[oi + ia, oo + ob])
+        kmax = _blend_order(order, oi, oo, wi, wo)
         if kmax == 0:
             continue
         c1 = np.cos(phi[p])
@@ -1076,11 +1083,7 @@ def _sample_kernel(nodes, cdf, a0s, sflat, sstart, flat, start, order, cs, mix, 
         oo = _cr_weights_1(nodes, mu_o, wo)
         if oo == -n:
             continue
-        kmax = 0
-        for ia in range(4):
-            for ob in range(4):
-                if wi[ia] * wo[ob] != 0.0:
-                    kmax = max(kmax, order[oi + ia, oo + ob])
+        kmax = _blend_order(order, oi, oo, wi, wo)
         if kmax == 0:
             continue
         a_s[:kmax] = 0.0

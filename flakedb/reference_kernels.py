@@ -138,30 +138,11 @@ def _sample_beckmann_normal(alpha, s):
 
 
 @njit(cache=True)
-def _interp(tab, off, n, x):
-    """Linear interpolation of the table stored as tab[off:off+n] (grid) and tab[off+n:off+2n] (values)."""
+def _interp_column(tab, off, n, base, x):
+    """Linear interpolation in a table whose grid is tab[off:off+n] and whose values are
+    tab[off+base:off+base+n] (clamped at the ends; binary search)."""
     lo = off
     hi = off + n - 1
-    if x <= tab[lo]:
-        return tab[lo + n]
-    if x >= tab[hi]:
-        return tab[hi + n]
-    while hi - lo > 1:
-        mid = (lo + hi) >> 1
-        if tab[mid] <= x:
-            lo = mid
-        else:
-            hi = mid
-    t = (x - tab[lo]) / (tab[hi] - tab[lo])
-    return tab[lo + n] * (1.0 - t) + tab[hi + n] * t
-
-
-@njit(cache=True)
-def _interp_flake(tab, off, n, which, x):
-    """R (which = 0) or T (which = 1) of a flake table stored as [c grid | R | T] at tab[off:off+3n]."""
-    lo = off
-    hi = off + n - 1
-    base = n * (1 + which)
     if x <= tab[lo]:
         return tab[lo + base]
     if x >= tab[hi]:
@@ -174,6 +155,18 @@ def _interp_flake(tab, off, n, which, x):
             hi = mid
     t = (x - tab[lo]) / (tab[hi] - tab[lo])
     return tab[lo + base] * (1.0 - t) + tab[hi + base] * t
+
+
+@njit(cache=True)
+def _interp(tab, off, n, x):
+    """Linear interpolation of the table stored as tab[off:off+n] (grid) and tab[off+n:off+2n] (values)."""
+    return _interp_column(tab, off, n, n, x)
+
+
+@njit(cache=True)
+def _interp_flake(tab, off, n, which, x):
+    """R (which = 0) or T (which = 1) of a flake table stored as [c grid | R | T] at tab[off:off+3n]."""
+    return _interp_column(tab, off, n, n * (1 + which), x)
 
 
 @njit(cache=True)
