@@ -55,12 +55,6 @@ A phase function ``p(cos Θ)`` is normalised to integrate to 1 over the sphere (
 ``k(ω_in → ω_out) = σ_s(ω_in) p(ω_in → ω_out)`` has units 1/(µm·sr).
 """
 
-#: phi_d of exact backscatter (retro-reflection) in flakedb's convention.
-PHI_BACKSCATTER = 3.141592653589793
-#: phi_d of forward scattering / mirror reflection in flakedb's convention.
-PHI_FORWARD = 0.0
-
-
 def fourier_weight(order):
     """Azimuthal factor c_l of the scattering-matrix normalisation: 2π for l = 0, π otherwise.
 

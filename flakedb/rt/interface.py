@@ -21,7 +21,7 @@ from scipy.special import erf
 from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.rt.fourier import project_azimuthal
-from flakedb.rt.layer import Layer
+from flakedb.rt.layer import Layer, pad_orders
 
 
 def smooth_dielectric(q_out, q_in, eta, L):
@@ -166,7 +166,7 @@ def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512):
     L = max(b.shape[0] for b in blocks.values())
     for k, b in blocks.items():
         if b.shape[0] < L:
-            blocks[k] = np.concatenate([b, np.zeros((L - b.shape[0],) + b.shape[1:])])
+            blocks[k] = pad_orders(b, L)
     return Layer(**blocks), infos
 
 

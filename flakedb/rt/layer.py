@@ -46,8 +46,9 @@ def identity_layer(L, h, C=1):
     return Layer(zero, eye, zero.copy(), eye.copy())
 
 
-def _pad_orders(a, L):
-    """Pad a block to L orders.  Orders beyond a block's own count are zero (no scattering)."""
+def pad_orders(a, L):
+    """Pad a block (orders on axis 0) with zero orders up to L: for blocks that are genuinely zero
+    beyond their own order count (an order-limited interface, a stack truncated at its order count)."""
     if a.shape[0] >= L:
         return a
     pad = np.zeros((L - a.shape[0],) + a.shape[1:])
@@ -62,7 +63,7 @@ def add(top, bottom):
         T^bt = T1^bt (I − R2^t R1^b)^{-1} T2^bt
         R^b  = R2^b + T2^tb R1^b (I − R2^t R1^b)^{-1} T2^bt
 
-    Both layers must have the same number of orders (the caller pads with :func:`_pad_orders`
+    Both layers must have the same number of orders (the caller pads with :func:`pad_orders`
     only for blocks that are genuinely zero beyond their order count, i.e. interfaces and media
     carry their own diagonal direct terms in every order).
     """

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from flakedb.rt.microflake import phase_HG  # noqa: F401  (re-exported: the one HG definition)
+
 
 def cos_scattering_angle(mu_i, mu_o, phi_d):
     """cos Θ = ω_i · ω_o for propagation directions with cosines μ_i, μ_o and azimuth difference φ_d.
@@ -26,11 +28,6 @@ def cos_scattering_angle(mu_i, mu_o, phi_d):
     si = np.sqrt(np.maximum(1.0 - mu_i**2, 0.0))
     so = np.sqrt(np.maximum(1.0 - mu_o**2, 0.0))
     return np.clip(mu_i * mu_o + si * so * np.cos(phi_d), -1.0, 1.0)
-
-
-def phase_HG(cos_theta, g):
-    """Henyey–Greenstein phase function in 1/sr, normalised to 1 over the sphere, mean cosine g."""
-    return (1.0 - g * g) / (4.0 * np.pi * (1.0 + g * g - 2.0 * g * cos_theta) ** 1.5)
 
 
 def _channels(a):

@@ -15,7 +15,7 @@ import numpy as np
 from flakedb.conventions import fourier_weight
 from flakedb.rt import interface as itf
 from flakedb.rt.fourier import project_azimuthal
-from flakedb.rt.layer import Layer, add, extend_orders, homogeneous_slab, identity_layer
+from flakedb.rt.layer import Layer, add, extend_orders, homogeneous_slab, identity_layer, pad_orders
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
 
 
@@ -311,8 +311,7 @@ def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
         out = []
         for k, b in zip(sizes, blocks):
             b = np.broadcast_to(b, (b.shape[0], k) + b.shape[2:])
-            if b.shape[0] < L:
-                b = np.concatenate([b, np.zeros((L - b.shape[0],) + b.shape[1:])])
+            b = pad_orders(b, L)
             out.append(b)
         return np.concatenate(out, axis=1)
 
@@ -365,8 +364,7 @@ def _solve_stack(top, slabs, bottom, s):
     if isinstance(top, Smooth):
         top_layer, delta_F = itf.smooth_dielectric(q_out, q_in, top.eta, L)
     elif isinstance(top, Rough) and L_top < L:
-        pad = lambda a: np.concatenate([a, np.zeros((L - a.shape[0],) + a.shape[1:])])
-        top_layer = Layer(pad(top_layer.Rt), pad(top_layer.Ttb), pad(top_layer.Rb), pad(top_layer.Tbt))
+        top_layer = Layer(*(pad_orders(b, L) for b in (top_layer.Rt, top_layer.Ttb, top_layer.Rb, top_layer.Tbt)))
 
     # stack the slabs from the top down
     body = None
