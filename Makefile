@@ -25,7 +25,7 @@ test-fast: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -q -m 'not slow' tests
 
 figures: $(STAMP)
-	$(BIN)/python -m pipelines.figures
+	$(BIN)/python -m figures.figures
 
 bench: $(STAMP)
 	$(BIN)/python bench/run.py --out bench/results.json

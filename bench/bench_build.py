@@ -2,7 +2,7 @@
 
 * ``compress/<particle>``: per catalogue particle (the paper's Table 1 "Compression" column), one
   spectral channel (550 nm) at n = m = 64: sampling R(μ_i, μ_o, φ_d) on the grid
-  (flakedb.compress.sample_reflectance, incl. the R(c) / Mie phase table), the √R SVD at r = 8 and the
+  (flakedb.store.compress.sample_reflectance, incl. the R(c) / Mie phase table), the √R SVD at r = 8 and the
   Fourier factors.  The paper's grid is n = m = 200; meta carries the storage arithmetic.
 * ``build/catalogue-…``: the whole default catalogue (particles + the TiO2 sweep, 14 species) built
   into a fresh store at a small grid (n = 8, m = 16, 4 channels, 2 per task: 28 tasks), serially
@@ -22,7 +22,7 @@ PARTICLES = ("metallic", "pearlescent", "gray-mirror", "cadmium-yellow", "titani
 
 def _compress_setup(name):
     def setup():
-        from flakedb import species as sp
+        from flakedb.paint import species as sp
 
         cat = sp.load_catalog()
         wl = np.array([550.0])
@@ -32,7 +32,7 @@ def _compress_setup(name):
 
 
 def _compress_run(arg):
-    from flakedb.compress import fourier_factors, mean_relative_error, reconstruct, sample_reflectance, sqrt_svd_compress
+    from flakedb.store.compress import fourier_factors, mean_relative_error, reconstruct, sample_reflectance, sqrt_svd_compress
 
     entry, wl, nb = arg
     R = sample_reflectance(entry, wl, nb, N, M)[0]
@@ -42,7 +42,7 @@ def _compress_run(arg):
 
 
 def _build_setup():
-    from pipelines.build import make_request
+    from flakedb.pipelines.build import make_request
 
     req = make_request(n=8, m=16, wavelength_nm=[400.0, 500.0, 600.0, 700.0], channel_block=2)
     return req, tempfile.mkdtemp(prefix="flakedb-bench-")
@@ -50,7 +50,7 @@ def _build_setup():
 
 def _build_run(scheduler, workers):
     def run(arg):
-        from pipelines.build import build
+        from flakedb.pipelines.build import build
 
         req, root = arg
         url = f"{root}/{uuid.uuid4().hex}"
@@ -62,7 +62,7 @@ def _build_run(scheduler, workers):
 
 
 def _storage_meta():
-    from flakedb.compress import storage_bytes
+    from flakedb.store.compress import storage_bytes
 
     return storage_bytes(200, 200, RANK)
 

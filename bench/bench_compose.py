@@ -20,7 +20,7 @@ N = 64
 
 def _setup(name):
     def setup():
-        from flakedb.recipe import load_recipe
+        from flakedb.paint.recipe import load_recipe
 
         return load_recipe(RECIPES / f"{name}.yaml")
 
@@ -28,7 +28,7 @@ def _setup(name):
 
 
 def _run(arg):
-    from flakedb.export import compose
+    from flakedb.compose.orchestrate import compose
 
     with tempfile.TemporaryDirectory(prefix="flakedb-bench-") as out:
         res = compose(arg, out, n=N)

@@ -1,7 +1,7 @@
 """Preview renderer timings (see bench/run.py for the BENCHMARKS protocol).
 
 `flakedb render`'s default scene: a 256 x 256 sphere under the studio environment with the sun, at
-the default samples per pixel (flakedb.preview.DEFAULT_SPP), all available threads.  Target (issue
+the default samples per pixel (flakedb.render.preview.DEFAULT_SPP), all available threads.  Target (issue
 #7): a smooth-coated paint in under 30 s on 2 cores.
 
 - ``preview.render_256.smooth_coat``: a smooth-coated paint composed here by flakedb's solver (coat
@@ -14,7 +14,7 @@ the default samples per pixel (flakedb.preview.DEFAULT_SPP), all available threa
 import os
 import tempfile
 
-from flakedb import preview
+from flakedb.render import preview
 from flakedb.bsdf import open_bsdf, write_bsdf
 
 SIZE = 256

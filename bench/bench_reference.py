@@ -1,4 +1,4 @@
-"""Throughput of the Monte Carlo reference (flakedb.reference), in paths per second.
+"""Throughput of the Monte Carlo reference (flakedb.reference.montecarlo), in paths per second.
 
 Representative case (the brief's): an HG slab, τ = 1, g = 0.7, albedo 0.9, under a smooth η = 1.5
 clear coat over a Lambertian primer of albedo 0.8, incidence 45°.  A second case adds translucent
@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from flakedb.reference import FlakeMedium, HenyeyGreenstein, Lambertian, PhaseMedium, Problem, Slab, Smooth, simulate
+from flakedb.reference.montecarlo import FlakeMedium, HenyeyGreenstein, Lambertian, PhaseMedium, Problem, Slab, Smooth, simulate
 
 N_PATHS = 400_000
 MU_I = float(np.cos(np.radians(45.0)))

@@ -10,7 +10,7 @@ run on the shared 2-core machine), m = 33, rank r = 8:
   raw samples too) into a fresh directory: sampling R on the solver's inside grid (n_mu = 56 nodes),
   the √R SVD and Fourier factors, chunk writes, checksums (the paper's Table 1 "Compression": 13–27 s
   per particle at n = m = 200, one RGB set).
-* ``stored/compose-{direct,raw,compressed}/<particle>``: the whole ``flakedb.export.compose`` (optics,
+* ``stored/compose-{direct,raw,compressed}/<particle>``: the whole ``flakedb.compose.orchestrate.compose`` (optics,
   adding-doubling, table, colour report, three files) computing the optics directly, or reading R from
   the store (raw DCT-I series, or the compressed factors; checksums verified on open).  The paper's
   Table 1 "Adding-doubling": 5.4–12.5 s raw, 2.8–6.2 s compressed at n = m = 200.  Extra columns:
@@ -34,7 +34,7 @@ _STORE = {}
 
 
 def _recipe(particle):
-    from flakedb.recipe import parse_recipe
+    from flakedb.paint.recipe import parse_recipe
 
     text = (RECIPES / f"particle-{particle}.yaml").read_text(encoding="utf-8")
     text = re.sub(r"(?m)^spectral:.*$", f"spectral: {{mode: rgb, range_nm: [{RANGE_NM[0]:g}, {RANGE_NM[1]:g}], "
@@ -44,8 +44,8 @@ def _recipe(particle):
 
 
 def _request(species):
-    from flakedb.colorimetry import spectral_grid
-    from pipelines.build import make_request
+    from flakedb.colour.colorimetry import spectral_grid
+    from flakedb.pipelines.build import make_request
 
     return make_request(species=list(species), n=N, m=M, rank=RANK, wavelength_nm=spectral_grid(RANGE_NM, STEP_NM),
                         store_raw=True, eta_top=ETA)
@@ -54,7 +54,7 @@ def _request(species):
 def _shared_store():
     """One store with every particle (built once per process, untimed)."""
     if "url" not in _STORE:
-        from pipelines.build import build
+        from flakedb.pipelines.build import build
 
         url = str(Path(tempfile.mkdtemp(prefix="flakedb-bench-stored-")) / "store")
         build(_request(PARTICLES), url, scheduler="sync")
@@ -70,7 +70,7 @@ def _compress_setup(particle):
 
 
 def _compress_run(req):
-    from pipelines.build import build
+    from flakedb.pipelines.build import build
 
     d = tempfile.mkdtemp(prefix="flakedb-bench-compress-")
     try:
@@ -82,7 +82,7 @@ def _compress_run(req):
 
 def _compose_setup(particle, kind):
     def setup():
-        from flakedb.export import compose
+        from flakedb.compose.orchestrate import compose
 
         rec = _recipe(particle)
         url = _shared_store() if kind != "direct" else None
@@ -97,8 +97,8 @@ def _compose_setup(particle, kind):
 
 def _compose_run(kind):
     def run(arg):
-        from flakedb.colorimetry import delta_E_2000
-        from flakedb.export import compose
+        from flakedb.colour.colorimetry import delta_E_2000
+        from flakedb.compose.orchestrate import compose
 
         rec, url, ref = arg
         with tempfile.TemporaryDirectory(prefix="flakedb-bench-") as out:

@@ -1,4 +1,4 @@
-from flakedb.cli import main
+from flakedb.cli.main import main
 
 if __name__ == "__main__":
     main()

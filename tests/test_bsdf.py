@@ -565,7 +565,7 @@ def test_corrupt_files_are_refused(tmp_path):
 # flakedb info
 # ------------------------------------------------------------------------------------------------
 def test_info_command(tmp_path):
-    from flakedb.cli import cli
+    from flakedb.cli.main import cli
 
     table = synthetic_table(channels=3)
     write_bsdf(tmp_path / "t.bsdf", table)

@@ -6,7 +6,7 @@ import sys
 from click.testing import CliRunner
 
 from flakedb import __version__
-from flakedb.cli import cli
+from flakedb.cli.main import cli
 
 
 def test_version_and_help():

@@ -1,4 +1,4 @@
-"""Colour (flakedb.colorimetry): spectra → XYZ → linear sRGB / CIELAB, CIEDE2000, RGB mode.
+"""Colour (flakedb.colour.colorimetry): spectra → XYZ → linear sRGB / CIELAB, CIEDE2000, RGB mode.
 
 Guards against: a wrong normalisation (the perfect white must give Y = 1 and D65's chromaticity,
 Lab (100, 0, 0)); mis-aligned or mis-interpolated CIE tables (1 nm results must equal
@@ -13,7 +13,7 @@ import colour
 import numpy as np
 import pytest
 
-from flakedb.colorimetry import (
+from flakedb.colour.colorimetry import (
     XYZ_to_Lab,
     XYZ_to_linear_sRGB,
     delta_E_2000,

@@ -20,11 +20,11 @@ from click.testing import CliRunner
 from scipy.special import expn
 
 from flakedb.bsdf import open_bsdf
-from flakedb.cli import cli
-from flakedb.export import compose
-from flakedb.paint import build_paint, phase_cos_grid
-from flakedb.recipe import parse_recipe
-from flakedb.report import eval_table, flop_index, multiangle_geometry
+from flakedb.cli.main import cli
+from flakedb.compose.orchestrate import compose
+from flakedb.paint.mapping import build_paint, phase_cos_grid
+from flakedb.paint.recipe import parse_recipe
+from flakedb.compose.report import eval_table, flop_index, multiangle_geometry
 
 
 def recipe(layers, mode="mono", n=16, name="t", extra=""):
@@ -102,7 +102,7 @@ def test_catalogue_mapping_flake_and_pigment():
     fl, pig = p.components[0], p.components[1]
     assert fl["a_rho_per_um"] == pytest.approx(0.04 / 0.54)   # φ / flake thickness (model.md §3)
     assert p.info["flake_c_grid"]["layers[1].basecoat.particles[0]"]["max_midpoint_error"] <= 1e-3
-    from flakedb.species import get_species, pigment_optics
+    from flakedb.paint.species import get_species, pigment_optics
 
     mu = phase_cos_grid()
     po = pigment_optics(get_species("titanium-white"), r.wavelength_nm, 1.5, mu=mu)
@@ -120,8 +120,8 @@ def test_catalogue_mapping_flake_and_pigment():
 
 def test_flake_grid_resolves_thin_film_fringes():
     """Linear interpolation on the adaptive c grid against a fine grid: ≤ 1e-3 (catalogue pearl)."""
-    from flakedb.paint import adaptive_flake_optics
-    from flakedb.species import flake_reflectance_transmittance, get_species
+    from flakedb.paint.mapping import adaptive_flake_optics
+    from flakedb.paint.species import flake_reflectance_transmittance, get_species
 
     e = get_species("pearlescent")
     wl = np.arange(380.0, 781.0, 40.0)
@@ -165,7 +165,7 @@ def test_files_read_back_and_evaluate_to_solver_values(tmp_path):
     # nothing transmitted, nothing from below
     assert np.all(b5.eval(MI, -MO, PH, clamp="none") == 0)
     # .bsdf: float32 RGB = the white-normalised sRGB of the band values
-    from flakedb.colorimetry import spectra_to_rgb_mode
+    from flakedb.colour.colorimetry import spectra_to_rgb_mode
 
     bb = open_bsdf(tmp_path / "rt-test.bsdf")
     assert bb.n_channels == 3
@@ -208,7 +208,7 @@ def test_white_primer_colour_report_exact(tmp_path):
 
 
 def test_spectral_primer_lab_matches_colorimetry(tmp_path):
-    from flakedb.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
+    from flakedb.colour.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
 
     wl = np.arange(400.0, 701.0, 20.0)
     spec = 0.1 + 0.7 * (wl - 400) / 300

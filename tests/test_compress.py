@@ -1,4 +1,4 @@
-"""flakedb.compress: guards against a wrong R(μ_i, μ_o, φ_d) grid (wrong flake cosine, broken
+"""flakedb.store.compress: guards against a wrong R(μ_i, μ_o, φ_d) grid (wrong flake cosine, broken
 reciprocity, a pigment R that does not integrate to its albedo), a pair expansion that is not the
 square of the rank-r √R approximation (a missing factor 2 off the diagonal, a lost singular value),
 Fourier factors that do not give R's cosine coefficients, an NMF that is not deterministic or goes
@@ -9,8 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from flakedb import compress as C
-from flakedb import species as sp
+from flakedb.store import compress as C
+from flakedb.paint import species as sp
 from flakedb.rt.fourier import cosine_coefficients
 
 N, M = 8, 17

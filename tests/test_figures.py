@@ -1,4 +1,4 @@
-"""The figure pipeline (pipelines/figures.py, issue #7) in --quick mode: smoke plus physics checks
+"""The figure pipeline (figures/figures.py, issue #7) in --quick mode: smoke plus physics checks
 that can fail (primer visibility through translucent vs opaque flakes, interference hue travel,
 solver vs Monte Carlo within the MC noise, a furnace test of the Figure 6 shader)."""
 
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from pipelines import figures as F
+from figures import figures as F
 
 
 def _run(fig, out):
@@ -56,7 +56,7 @@ def test_figure6_solver_matches_monte_carlo(tmp_path):
     data, readme = _run("fig6", tmp_path)
     assert {p["label"] for p in data["paints"]} == {"pigment", "mirror flakes"}
     for p in data["paints"]:
-        # the solver differs from the MC reference by about as much as MC noise explains
+        # the solver differs from the MC reference by about as MC noise explains
         assert p["albedo_max_sigma"] < 5.0, p["label"]
         assert p["psnr_solver_vs_mc_db"] > p["psnr_mc_noise_limit_db"] - 3.0, p["label"]
         # the paper's raw / compressed columns: composed from a store built for the figure; the store
@@ -77,7 +77,7 @@ def test_figure6_solver_matches_monte_carlo(tmp_path):
 def test_binned_shader_furnace():
     """A white Lambertian (f·|μ_o| = |μ_o|/π, exactly bin-averaged) in a constant environment
     without a coat reflects the environment's radiance exactly."""
-    from flakedb.preview import constant_environment
+    from flakedb.render.preview import constant_environment
 
     me, pe = np.linspace(0, 1, 9), np.linspace(0, math.pi, 7)
     x = np.array([0.1, 0.5, 0.9])

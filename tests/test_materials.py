@@ -1,4 +1,4 @@
-"""Optical constants (flakedb.optics.materials, catalog/materials/).
+"""Optical constants (flakedb.paint.materials, catalog/materials/).
 
 Guards against: a mistyped or mis-copied table or dispersion coefficient (published check values,
 formula vs. shipped table); interpolation that does not pass through the table points or that
@@ -11,7 +11,7 @@ a wrong powder average for birefringent rutile; shape handling.
 import numpy as np
 import pytest
 
-from flakedb.optics.materials import (
+from flakedb.paint.materials import (
     HC_EV_NM,
     dispersion_formula_n,
     material_info,

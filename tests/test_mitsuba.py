@@ -1,4 +1,4 @@
-"""Mitsuba 3 integration (flakedb.mitsuba, `flakedb export-mitsuba`).
+"""Mitsuba 3 integration (flakedb.render.mitsuba, `flakedb export-mitsuba`).
 
 Guards against: a wrong direction mapping between Mitsuba's (wi to the camera, wo to the light) and
 the file's (mu_i, mu_o, phi_d) -- a swapped mu_i/mu_o or a mirrored phi_d changes renders but not
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flakedb import mitsuba as fm
+from flakedb.render import mitsuba as fm
 from flakedb.bsdf import BSDFTable, open_bsdf, write_bsdf, write_h5
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.rt.quadrature import radau_hemisphere
@@ -247,7 +247,7 @@ def test_spectral_to_rgb_export(files, tmp_path):
 def test_cli(files, tmp_path):
     from click.testing import CliRunner
 
-    from flakedb.cli import cli
+    from flakedb.cli.main import cli
 
     out = tmp_path / "paint.measured"
     r = CliRunner().invoke(cli, ["export-mitsuba", str(files["synthetic"]), "--out", str(out), "--res", "32"])
@@ -490,7 +490,7 @@ LLVM_SCRIPT = textwrap.dedent("""
     import mitsuba as mi
     mi.set_variant("llvm_ad_rgb")
     mi.set_log_level(mi.LogLevel.Warn)
-    from flakedb import mitsuba as fm
+    from flakedb.render import mitsuba as fm
     from flakedb.bsdf import open_bsdf
     from flakedb.optics.fresnel import fresnel_dielectric
     fm.register()

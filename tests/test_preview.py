@@ -1,4 +1,4 @@
-"""The preview renderer (flakedb.preview), its image writers (flakedb.imageio) and `flakedb render`.
+"""The preview renderer (flakedb.render.preview), its image writers (flakedb.render.imageio) and `flakedb render`.
 
 Bugs these tests guard against:
 - the wrong renderer mapping to the file (mu_i from the wrong vector, mu_o's sign, phi_d = φ_o - φ_i
@@ -23,9 +23,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from flakedb import preview
+from flakedb.render import preview
 from flakedb.bsdf import BSDFTable, open_bsdf, write_bsdf, write_h5
-from flakedb.imageio import read_exr, srgb_encode, to_srgb8, write_exr, write_png
+from flakedb.render.imageio import read_exr, srgb_encode, to_srgb8, write_exr, write_png
 from flakedb.optics.fresnel import fresnel_dielectric
 
 REPO = Path(__file__).resolve().parents[1]
@@ -348,7 +348,7 @@ def test_exr_round_trip_and_png(tmp_path):
 # (5) the command
 # --------------------------------------------------------------------------------------------
 def test_cli_render_writes_both_images(tmp_path):
-    from flakedb.cli import cli
+    from flakedb.cli.main import cli
 
     b = tmp_path / "lambert.bsdf"
     _lambertian(b)
@@ -368,7 +368,7 @@ def test_cli_render_writes_both_images(tmp_path):
 
 @pytest.mark.parametrize("content", [b"not a bsdf file at all", b"SCATFUN\x01" + b"\x00" * 20, None])
 def test_cli_bad_file_fails_and_writes_nothing(content, tmp_path):
-    from flakedb.cli import cli
+    from flakedb.cli.main import cli
 
     f = tmp_path / "bad.bsdf"
     if content is not None:

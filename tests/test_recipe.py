@@ -16,8 +16,8 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from flakedb.cli import cli
-from flakedb.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError, load_recipe, parse_recipe
+from flakedb.cli.main import cli
+from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError, load_recipe, parse_recipe
 
 RECIPES = sorted((Path(__file__).resolve().parents[1] / "catalog" / "recipes").glob("*.yaml"))
 
@@ -234,7 +234,7 @@ def test_yaml_syntax_error_names_line():
 
 
 def test_auto_resolution_heuristic():
-    from flakedb.paint import auto_resolution
+    from flakedb.paint.mapping import auto_resolution
 
     d = doc()
     d["resolution"] = "auto"

@@ -1,4 +1,4 @@
-"""Tests of the Monte Carlo reference (flakedb.reference) against closed forms and published values.
+"""Tests of the Monte Carlo reference (flakedb.reference.montecarlo) against closed forms and published values.
 
 Guards against: a wrong Fresnel factor or Snell refraction (first-surface delta, inside TIR), energy
 leaks or creation (non-absorbing stacks must return every path with its weight), a wrong free-path
@@ -16,7 +16,7 @@ probability < 1e-4 for a correct code; the seeds are fixed, so they are determin
 import numpy as np
 import pytest
 
-from flakedb.reference import (
+from flakedb.reference.montecarlo import (
     FlakeMedium,
     HenyeyGreenstein,
     Isotropic,

@@ -13,7 +13,7 @@ Incident directions are quadrature nodes, so the solver's albedo needs no interp
 import numpy as np
 import pytest
 
-import flakedb.reference as mc
+import flakedb.reference.montecarlo as mc
 from flakedb.bsdf import _from_table
 from flakedb.rt import media as rm
 from flakedb.rt.microflake import FlakeOptics

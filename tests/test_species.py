@@ -1,4 +1,4 @@
-"""The particle catalogue (flakedb.species, catalog/particles.yaml) and `flakedb species`.
+"""The particle catalogue (flakedb.paint.species, catalog/particles.yaml) and `flakedb species`.
 
 Guards against: a catalogue that does not validate, or a schema that accepts unknown keys, values
 without a source, unknown materials or a total thickness that disagrees with the film stack; a
@@ -18,8 +18,8 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from flakedb.cli import cli
-from flakedb.species import (
+from flakedb.cli.main import cli
+from flakedb.paint.species import (
     SHOW_ANGLES_DEG,
     SHOW_WAVELENGTHS_NM,
     CatalogError,
@@ -211,7 +211,7 @@ class TestPigmentOptics:
         nb = binder_index(catalog, wl)
         p = pigment_optics(e, wl, nb)
         d = e["median_diameter_um"]["value"]
-        from flakedb.optics.materials import refractive_index
+        from flakedb.paint.materials import refractive_index
 
         for i, w in enumerate(wl):
             m = refractive_index("CdS", w) / nb[i]

@@ -1,4 +1,4 @@
-"""flakedb.store + pipelines/build.py: guards against a distributed build that writes different bytes
+"""flakedb.store.versions + flakedb/pipelines/build.py: guards against a distributed build that writes different bytes
 than the serial one, an interrupted build that breaks `latest` or cannot be resumed, corrupted chunks
 that verify or the reader let through, a rebuild of unchanged inputs that recomputes, a content hash
 that depends on dict order or ignores an input, and stored factors that do not give R."""
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from flakedb import compress as C
-from flakedb import store as st
-from flakedb.cli import cli
-from pipelines.build import build, make_request
+from flakedb.store import compress as C
+from flakedb.store import versions as st
+from flakedb.cli.main import cli
+from flakedb.pipelines.build import build, make_request
 
 SPECIES = ["pearlescent", "cadmium-yellow"]
 
@@ -159,9 +159,9 @@ def test_build_to_an_fsspec_url_round_trips():
     back the same arrays as a local build (guards against local-path assumptions in store I/O)."""
     import numpy as np
 
-    from flakedb import store as st
-    from flakedb.colorimetry import spectral_grid
-    from pipelines.build import build, make_request
+    from flakedb.store import versions as st
+    from flakedb.colour.colorimetry import spectral_grid
+    from flakedb.pipelines.build import build, make_request
 
     req = make_request(species=["gray-mirror"], n=8, m=8, wavelength_nm=spectral_grid((400, 700), 100))
     url = "memory://flakedb-test-fsspec/store"
@@ -178,7 +178,7 @@ def test_build_to_an_fsspec_url_round_trips():
 
 def _build_in_process(args):
     url, kw = args
-    from pipelines.build import build as _build
+    from flakedb.pipelines.build import build as _build
 
     return _build(_request(**kw), url, scheduler="sync")["status"]
 

@@ -1,4 +1,4 @@
-"""Compose from the precomputed store (issues #5/#6; flakedb/rt/stored.py, flakedb/paint.py, flakedb compose
+"""Compose from the precomputed store (issues #5/#6; flakedb/rt/stored.py, flakedb/paint/mapping.py, flakedb compose
 --store): guards against a store grid that is not the solver's inside node set below a smooth coat, a
 stored kernel that is not kernel_Ergun / the pigment kernel (wrong factor, wrong node or channel
 mapping), compressed factors whose kernel error exceeds the compression error, a store-backed compose
@@ -23,19 +23,19 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from flakedb import compress as C
-from flakedb import species as sp
-from flakedb import store as st
+from flakedb.store import compress as C
+from flakedb.paint import species as sp
+from flakedb.store import versions as st
 from flakedb.bsdf import open_bsdf
-from flakedb.cli import cli
-from flakedb.colorimetry import delta_E_2000
-from flakedb.export import compose
-from flakedb.recipe import parse_recipe
+from flakedb.cli.main import cli
+from flakedb.colour.colorimetry import delta_E_2000
+from flakedb.compose.orchestrate import compose
+from flakedb.paint.recipe import parse_recipe
 from flakedb.rt.microflake import (FlakeOptics, _halfvector_terms, flake_ndf_Beckmann, kernel_Ergun,
                                    pigment_kernel_Ergun)
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
 from flakedb.rt.stored import StoredFlakeMedium, StoredGridMismatch, StoredPigmentMedium, StoredReflectance
-from pipelines.build import build, make_request
+from flakedb.pipelines.build import build, make_request
 
 N, M = 16, 17
 WL = (500.0, 520.0, 540.0, 560.0, 580.0, 600.0)
@@ -89,7 +89,7 @@ def test_grid_is_the_solvers_inside_node_set(tiny):
 
 
 def _same_table_optics(entry):
-    """FlakeOptics on exactly the R(c) table the store interpolates (flakedb.compress)."""
+    """FlakeOptics on exactly the R(c) table the store interpolates (flakedb.store.compress)."""
     c = np.cos(np.linspace(0.5 * np.pi, 0.0, C.DEFAULT_N_TABLE))
     c[0] = 0.0
     R, T = sp.flake_reflectance_transmittance(entry, np.array(WL), c, np.full(len(WL), ETA))
@@ -188,7 +188,7 @@ def tiny_visible(tmp_path_factory):
     """The pigment over the recipes' full visible grid (380–780 nm, 20 nm): the RGB mode's blue
     channel phase function goes negative there (over 14 % of cos Θ), unlike on the 500–600 nm grid."""
     url = str(tmp_path_factory.mktemp("stored-vis") / "store")
-    from flakedb.colorimetry import spectral_grid
+    from flakedb.colour.colorimetry import spectral_grid
 
     req = make_request(species=[PIGMENT], n=N, m=M, rank=8, wavelength_nm=spectral_grid((380, 780), 20),
                        store_raw=True, eta_top=ETA)
@@ -197,9 +197,9 @@ def tiny_visible(tmp_path_factory):
 
 
 def test_rgb_mode_pigment_store_compose_matches_direct(tiny_visible, tmp_path, monkeypatch):
-    """RGB mode: the direct path (flakedb.paint.pigment_to_rgb) clips the pigment's RGB phase function
+    """RGB mode: the direct path (flakedb.paint.mapping.pigment_to_rgb) clips the pigment's RGB phase function
     at 0 (the sRGB map's negative lobes) and C_sca at C_ext; the store path maps the stored spectral
-    series linearly and must apply the same constraints (flakedb.paint._stored_pigment_component,
+    series linearly and must apply the same constraints (flakedb.paint.mapping._stored_pigment_component,
     StoredPigmentMedium.nonnegative).  Measured (n = 16, 380–780 nm / 20 nm): ΔE00 raw vs direct
     1.2e-3 with the clip, 0.83 without it; compressed vs direct 0.021."""
     from flakedb.rt import stored as S

@@ -1,7 +1,7 @@
 """The Monte Carlo validation cases exist as recipes (tests/recipes/validation-*.yaml, issue #6) and
 compose to the very stacks tests/test_rt_vs_mc.py validates against the Monte Carlo reference.
 
-Guards against a recipe → solver mapping (flakedb/paint.py) that silently changes a validated
+Guards against a recipe → solver mapping (flakedb/paint/mapping.py) that silently changes a validated
 case: a wrong optical-depth → loading conversion (for flakes: σ_t at normal incidence times the
 layer thickness), a lost phase function, a primer or coat mapped to something else.
 """
@@ -13,8 +13,8 @@ import sys
 import numpy as np
 import pytest
 
-from flakedb.paint import build_paint, solve_paint
-from flakedb.recipe import load_recipe
+from flakedb.paint.mapping import build_paint, solve_paint
+from flakedb.paint.recipe import load_recipe
 from flakedb.rt.stack import SolverSettings, solve_stack
 
 sys.path.insert(0, os.path.dirname(__file__))

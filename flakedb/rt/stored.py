@@ -1,7 +1,7 @@
 """Media whose reflectance function comes from the precomputed store (issue #6, model.md §5).
 
-The store (:mod:`flakedb.store`) holds a species' R(μ_i, μ_o, φ_d) on the grid of
-:func:`flakedb.compress.grid_nodes`: μ the solver's full node set inside the binder, φ_d the m points
+The store (:mod:`flakedb.store.versions`) holds a species' R(μ_i, μ_o, φ_d) on the grid of
+:func:`flakedb.store.compress.grid_nodes`: μ the solver's full node set inside the binder, φ_d the m points
 π k/(m − 1) of [0, π], as cosine-series coefficients in φ_d (orders 0 … m − 1): the DCT-I of the raw
 samples, or the compressed factors' product U_pairs · Fourier(V_pairs) (paper §4 end: "R's Fourier
 coefficients are then one matrix product").  :class:`StoredReflectance` evaluates that series
@@ -21,7 +21,7 @@ Media (the interface of :mod:`flakedb.rt.media`: ``sigma_t``, ``sigma_s``, ``ker
   the flake's T(c) (σ_t) and a 1-D integral over flake normals; they stay the accurate 1-D
   integrals :func:`flakedb.rt.microflake.extinction_Ergun` / :func:`~flakedb.rt.microflake.scattering_Ergun`
   of the species' FlakeOptics, passed in as callables (they are cheap: a few ms per band).
-* :class:`StoredPigmentMedium`: the store's pigment R is 4π ϖ p(cos Θ) (:mod:`flakedb.compress`;
+* :class:`StoredPigmentMedium`: the store's pigment R is 4π ϖ p(cos Θ) (:mod:`flakedb.store.compress`;
   ϖ = C_sca/C_ext), so the kernel ρ C_sca p = ρ C_ext · R/(4π) = σ_t R/(4π), with σ_t = ρ C_ext and
   σ_s = ρ C_sca, direction-independent.
 
@@ -79,7 +79,7 @@ class StoredReflectance:
     def from_store(cls, version, species, n, m=None, raw=False, channel_index=None, channel_map=None,
                    weights=None):
         """R's series of ``species`` at resolution ``n`` (and ``m``) of an open
-        :class:`flakedb.store.StoreVersion`; compressed factors by default, the raw samples with ``raw``.
+        :class:`flakedb.store.versions.StoreVersion`; compressed factors by default, the raw samples with ``raw``.
 
         ``channel_index`` (C,) picks stored wavelengths; ``weights`` (C,) multiplies each picked band
         (a pigment's ρ C_ext); ``channel_map`` (C, K) then maps the bands linearly to K output
@@ -186,7 +186,7 @@ class StoredPigmentMedium:
     sigma_t_per_um: object
     sigma_s_per_um: object
     #: clip the kernel at 0 (RGB mode: the linear sRGB map of the stored spectral series has negative
-    #: lobes where the direct path clips its RGB phase function to ≥ 0; see flakedb.paint)
+    #: lobes where the direct path clips its RGB phase function to ≥ 0; see flakedb.paint.mapping)
     nonnegative: bool = False
 
     def sigma_t(self, mu):

@@ -1,0 +1,64 @@
+"""`flakedb compose RECIPE --out DIR`: a paint recipe → DIR/NAME.bsdf, DIR/NAME.h5, DIR/NAME.json."""
+
+import click
+
+
+@click.command()
+@click.argument("recipe", type=click.Path(dir_okay=False))
+@click.option("--out", "out_dir", default="out", show_default=True, type=click.Path(),
+              help="Output directory for NAME.bsdf, NAME.h5 and NAME.json.")
+@click.option("--n", "n", default=None, type=int,
+              help="Node count (even, >= 8; n/2 per hemisphere); overrides the recipe's resolution.")
+@click.option("--store", "store", default=None, envvar="FLAKEDB_STORE",
+              help="Precomputed species store of `flakedb build` (path or fsspec URL; default $FLAKEDB_STORE): "
+                   "catalogue species' reflectance functions come from its latest version, checksums verified. "
+                   "Without it, species optics are computed directly.")
+@click.option("--raw", is_flag=True,
+              help="With --store: use the raw R samples instead of the compressed factors (a version built "
+                   "with `flakedb build --raw`).  Without a store the optics are always computed directly; "
+                   "the flag is recorded.")
+@click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
+              help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
+def compose(recipe, out_dir, n, store, raw, catalog_path):
+    """Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report."""
+    from flakedb.cli.errors import FlakedbError
+
+    if n is not None and (n < 8 or n % 2):
+        raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8 (n/2 nodes per hemisphere), "
+                           f"e.g. --n 64")
+
+    from flakedb.compose.orchestrate import OutputError, check_output_dir, compose as compose_recipe
+    from flakedb.paint.recipe import RecipeError, load_recipe
+    from flakedb.paint.species import CatalogError, load_catalog
+
+    try:
+        catalog = load_catalog(catalog_path)
+        rec = load_recipe(recipe, catalog)
+        check_output_dir(out_dir)
+    except (RecipeError, CatalogError, OutputError) as exc:
+        raise FlakedbError(str(exc)) from exc
+    for w in rec.warnings:
+        click.echo(f"warning: {w}", err=True)
+    from flakedb.paint.mapping import catalog_species
+    from flakedb.store.versions import StoreError
+
+    if store is None:
+        click.echo(f"compose {rec.name}: store: none; species optics computed directly from the catalogue")
+    elif not catalog_species(rec):
+        click.echo(f"compose {rec.name}: store: none needed (no catalogue species); optics computed directly")
+    else:
+        click.echo(f"compose {rec.name}: store: {store} ({'raw samples' if raw else 'compressed factors'})")
+    try:
+        res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"),
+                             store=store)
+    except StoreError as exc:
+        raise FlakedbError(str(exc)) from exc
+    from flakedb.compose.report import format_report
+
+    click.echo(format_report(res.report))
+    s = res.bsdf_summary
+    click.echo(f"wrote {res.paths['bsdf']} ({s['n_channels']} channel(s), {s['n_nodes']} nodes, max order "
+               f"{s['max_order']}, {s['size'] / 1e6:.2f} MB)")
+    click.echo(f"wrote {res.paths['h5']} (full precision) and {res.paths['json']} (colour report)")
+    click.echo(f"time: {sum(res.timings_s.values()):.1f} s (" +
+               ", ".join(f"{k} {v:.2f} s" for k, v in res.timings_s.items()) + ")")

@@ -1,0 +1,54 @@
+"""`flakedb export-mitsuba FILE --out PATH`: a Fourier file as a Mitsuba 3 ``measured`` BSDF file.
+
+Thin: the work is in :func:`flakedb.render.mitsuba.export_measured`.
+"""
+
+import click
+
+
+@click.command("export-mitsuba")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
+              help="Output tensor file (e.g. paint_measured.bsdf) for Mitsuba 3's `measured` plugin.")
+@click.option("--variant", type=click.Choice(["rgb", "spectral"]), default="rgb", show_default=True,
+              help="rgb: an `rgb` field (RGB variants); spectral: `spectra` + `wavelengths` from a "
+                   "spectral flakedb .h5 (spectral variants).")
+@click.option("--res", type=int, default=None,
+              help="Half-vector grid vertices per axis [default: 96].")
+@click.option("--n-theta", type=int, default=None,
+              help="Incident elevations tabulated [default: 24].")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+def export_mitsuba(file, out, variant, res, n_theta, as_json):
+    """Export a Fourier .bsdf / flakedb .h5 FILE to Mitsuba 3's `measured` format (front-side
+    reflection only).  The smooth coat's mirror term cannot be carried and is dropped: the summary
+    lists the albedo it loses.  Render the full paint with the `flakedb` plugin instead
+    (docs/renderers.md)."""
+    import json
+
+    from flakedb.render import mitsuba as fm
+    from flakedb.bsdf import BSDFFileError
+    from flakedb.cli.errors import FlakedbError
+
+    try:
+        s = fm.export_measured(file, out, variant=variant, res=res or fm.RES_DEFAULT,
+                               n_theta=n_theta or fm.N_THETA_DEFAULT)
+    except (BSDFFileError, fm.MeasuredExportError) as e:
+        raise FlakedbError(str(e)) from None
+    if as_json:
+        click.echo(json.dumps(s, indent=2))
+        return
+    shape = " x ".join(str(x) for x in s["shape"])
+    click.echo(f"wrote {s['out']} ({s['size']} bytes): Mitsuba 3 `measured`, {variant}, "
+               f"res {s['res']}, {s['n_theta']} theta_i, data {shape}")
+    d = s["dropped"]
+    th = d["theta_i_deg"]
+    refl = ", ".join(f"{t:g}°: {sum(a) / len(a):.4f}" for t, a in zip(th, s["reflected_albedo"]))
+    click.echo(f"reflected albedo (channel mean) kept: {refl}")
+    if "delta_albedo" in d:
+        lost = ", ".join(f"{t:g}°: {a:.4f}" for t, a in zip(th, d["delta_albedo"]))
+        click.echo(f"DROPPED: the smooth coat's mirror reflection {d['delta']} (albedo {lost}); "
+                   f"add a dielectric coat in the renderer or use the `flakedb` plugin", err=True)
+    if "transmitted_albedo" in d:
+        lost = ", ".join(f"{t:g}°: {sum(a) / len(a):.4f}" for t, a in zip(th, d["transmitted_albedo"]))
+        click.echo(f"DROPPED: transmission (albedo {lost}); `measured` holds reflection only", err=True)
+    click.echo(f'use: {{"type": "measured", "filename": "{s["out"]}"}}')

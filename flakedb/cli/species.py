@@ -1,0 +1,48 @@
+"""`flakedb species list | show NAME`: the particle catalogue and one species' optics."""
+
+import click
+
+
+@click.group()
+def species():
+    """The particle catalogue (catalog/particles.yaml) and each species' optics."""
+
+
+@species.command("list")
+@click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
+              help="Catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
+def list_(catalog_path):
+    """List the species: catalogue particles and sweep members."""
+    from flakedb.cli.errors import FlakedbError
+    from flakedb.paint.species import CatalogError, expand_sweeps, load_catalog
+
+    try:
+        allsp = expand_sweeps(load_catalog(catalog_path))
+    except CatalogError as exc:
+        raise FlakedbError(str(exc)) from exc
+    for name, e in allsp.items():
+        click.echo(f"{name:28s} {e['kind']:20s} {e['description']}")
+
+
+@species.command("show")
+@click.argument("name")
+@click.option("--out", "out_dir", default="out", show_default=True, type=click.Path(file_okay=False),
+              help="Directory for NAME-optics.png.")
+@click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
+              help="Catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
+def show(name, out_dir, catalog_path):
+    """Print a species' optics (flake R/T at 0°, 30°, 60°, 80° in the binder, or a pigment's
+    C_ext, C_sca, albedo, g) and write its plot to OUT/NAME-optics.png."""
+    from flakedb.cli.errors import FlakedbError
+    from flakedb.paint.species import CatalogError, expand_sweeps, load_catalog, optics_table, plot_optics
+
+    try:
+        catalog = load_catalog(catalog_path)
+    except CatalogError as exc:
+        raise FlakedbError(str(exc)) from exc
+    known = list(expand_sweeps(catalog))
+    if name not in known:
+        raise FlakedbError(f"unknown species {name!r}; known species: {', '.join(known)}")
+    click.echo(optics_table(name, catalog))
+    path = plot_optics(name, out_dir, catalog)
+    click.echo(f"plot: {path}")

@@ -1,0 +1,217 @@
+"""The colour report of a composed paint: pure functions, arrays and dicts in, dicts and text out.
+
+What a paint lab reads (model.md §6): CIELAB (D65, CIE 1931 2°) at the multi-angle
+spectrophotometer geometries, the flop index, and the directional albedo per incident angle.
+
+Geometry (ASTM E2194 / X-Rite MA-T instruments)
+-----------------------------------------------
+Illumination at 45° from the normal.  The aspecular angle γ is measured from the specular direction
+towards the illuminator, so the detector looks from θ_v = 45° − γ off the normal: on the specular
+side for θ_v > 0, on the illuminator's side for θ_v < 0.  In flakedb's conventions
+(:mod:`flakedb.conventions`: propagation directions, μ > 0 travels down, φ_d = 0 mirror/forward):
+μ_i = cos 45°, μ_o = −cos θ_v, φ_d = 0 on the specular side and φ_d = π on the illuminator's side.
+The aspecular angles are −15°, 15°, 25°, 45°, 75°, 110° (θ_v = 60°, 30°, 20°, 0°, −30°, −65°).
+
+Reflectance factor = π f(ω_i, ω_o): the tabulated part only.  The smooth coat's mirror term is a
+delta at γ = 0, which no aspecular angle hits, so it adds nothing to these geometries (it is
+included in the albedo).  f comes from the table by the file readers' interpolation (Catmull–Rom
+in μ_i and μ_o over the file nodes, bsdf-format.md "Evaluation"), here in float64 on the
+full-precision table (:func:`eval_table`); it agrees with :meth:`flakedb.bsdf.FourierBSDF.eval` of
+the written ``.h5`` (tested).
+
+Colour: spectral channels → XYZ by :func:`flakedb.colour.colorimetry.reflectance_to_XYZ` (Y = 1 for the
+perfect white); RGB-mode channels (white-normalised linear sRGB) → XYZ by the exact inverse of
+:func:`flakedb.colour.colorimetry.XYZ_to_linear_sRGB` after undoing the white normalisation; a mono channel
+is a grey (XYZ = v · white).  CIELAB relative to the white integrated on the same grid, so the
+perfect white is exactly L* = 100, a* = b* = 0.
+
+Flop index (X-Rite): FI = 2.69 (L*15 − L*110)^1.11 / L*45^0.86.  When L*15 < L*110 the power is
+taken of |L*15 − L*110| with the sign kept (the formula is only defined for a positive difference;
+such paints brighten towards the illuminator, a negative flop).  Undefined (None) when L*45 = 0.
+
+Directional albedo per incident angle: the solver's albedo at its nodes (quadrature, exact for
+the table) including the mirror term's Fresnel reflectance F(θ_i; η), interpolated in μ_i by a
+cubic spline; the mirror part is reported separately, exact at θ_i (the tabulated part is the
+total minus it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Illumination zenith angle (degrees) of the multi-angle geometries.
+ILLUMINATION_DEG = 45.0
+#: Aspecular angles (degrees) of the multi-angle spectrophotometer (X-Rite MA-T6/MA98 set).
+ASPECULAR_DEG = (-15.0, 15.0, 25.0, 45.0, 75.0, 110.0)
+#: Incident angles (degrees) at which the directional albedo is reported.
+ALBEDO_THETA_DEG = (0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 85.0)
+#: Grid on which a mono channel's white is integrated (any grid with these end points gives the same).
+MONO_WHITE_GRID = ((380.0, 780.0), 10.0)
+
+
+def multiangle_geometry(aspecular_deg, illumination_deg=ILLUMINATION_DEG):
+    """(mu_i, mu_o, phi_d, theta_view_deg) of an aspecular angle (module docstring)."""
+    tv = float(illumination_deg) - float(aspecular_deg)
+    mu_i = np.cos(np.radians(illumination_deg))
+    mu_o = -np.cos(np.radians(abs(tv)))
+    phi_d = 0.0 if tv >= 0 else np.pi
+    return mu_i, mu_o, phi_d, tv
+
+
+def eval_table(table, mu_i, mu_o, phi_d) -> np.ndarray:
+    """f·|μ_o| (1/sr) of a :class:`flakedb.bsdf.BSDFTable` at (μ_i, μ_o, φ_d), float64, unclamped.
+
+    The readers' Catmull–Rom interpolation over the file nodes (zero nodes inserted, entries at them
+    zero).  Arguments broadcast; returns (..., C).
+    """
+    from flakedb.bsdf import catmull_rom_weights, insert_zero_nodes
+
+    mu_i, mu_o, phi_d = np.broadcast_arrays(*(np.asarray(a, float) for a in (mu_i, mu_o, phi_d)))
+    nodes = insert_zero_nodes(table.mu)
+    n, h = table.n, table.n // 2
+    C, _, _, L = table.coeffs.shape
+    N = n + 2
+    # file index -> table index (the two zero nodes hold no coefficients)
+    tidx = np.r_[0:h, -1, -1, h:n]
+    oi, wi = catmull_rom_weights(nodes, mu_i)
+    oo, wo = catmull_rom_weights(nodes, mu_o)
+    out = np.zeros(mu_i.shape + (C, L))
+    for a in range(4):
+        for b in range(4):
+            ti = tidx[np.clip(oi + a, 0, N - 1)]
+            to = tidx[np.clip(oo + b, 0, N - 1)]
+            w = wi[..., a] * wo[..., b] * ((ti >= 0) & (to >= 0))
+            block = np.moveaxis(table.coeffs[:, np.maximum(ti, 0), np.maximum(to, 0), :], 0, -2)
+            out += w[..., None, None] * block
+    cos = np.cos(np.arange(L) * phi_d[..., None])  # (..., L)
+    return np.einsum("...cl,...l->...c", out, cos)
+
+
+def _rgb_to_xyz_matrix():
+    from flakedb.colour.colorimetry import XYZ_to_linear_sRGB
+
+    A = XYZ_to_linear_sRGB(np.eye(3))  # rows: RGB of unit X, Y, Z → rgb = XYZ @ A
+    return np.linalg.inv(A)
+
+
+def channels_to_XYZ(values, mode, wavelength_nm=None) -> np.ndarray:
+    """XYZ (Y = 1 for white) of reflectance-type values (..., C) in a paint's channels."""
+    from flakedb.colour.colorimetry import XYZ_to_linear_sRGB, reflectance_to_XYZ, spectral_grid, white_XYZ
+
+    v = np.asarray(values, float)
+    if mode == "spectral":
+        return reflectance_to_XYZ(v, wavelength_nm)
+    if mode == "rgb":
+        rgb_white = XYZ_to_linear_sRGB(white_XYZ(wavelength_nm))
+        return (v * rgb_white) @ _rgb_to_xyz_matrix()
+    if mode == "mono":
+        w = white_XYZ(spectral_grid(*MONO_WHITE_GRID))
+        return v[..., :1] * w
+    raise ValueError(f"unknown mode {mode!r}")
+
+
+def reference_white(mode, wavelength_nm=None) -> np.ndarray:
+    """XYZ of the perfect white in the same integration as :func:`channels_to_XYZ`."""
+    from flakedb.colour.colorimetry import spectral_grid, white_XYZ
+
+    if mode == "mono":
+        return white_XYZ(spectral_grid(*MONO_WHITE_GRID))
+    return white_XYZ(wavelength_nm)
+
+
+def flop_index(L15, L45, L110):
+    """X-Rite flop index 2.69 (L*15 − L*110)^1.11 / L*45^0.86 (sign kept; None when L*45 = 0)."""
+    if not L45 > 0:
+        return None
+    d = float(L15) - float(L110)
+    return float(2.69 * np.sign(d) * abs(d) ** 1.11 / float(L45) ** 0.86)
+
+
+def directional_albedo(x_nodes, albedo_nodes, theta_deg, delta_eta=None):
+    """Albedo (A, C) at incident angles ``theta_deg`` from the tabulated albedo (C, h) at the solver's
+    nodes ``x_nodes`` (h,) and, when ``delta_eta``, the mirror term F(θ; η): the nodal total
+    (tabulated + F) by a cubic spline in μ; the mirror part exact at θ.
+
+    Returns ``(total, tabulated, mirror)`` with mirror (A,).
+    """
+    from scipy.interpolate import CubicSpline
+
+    from flakedb.optics.fresnel import fresnel_dielectric
+
+    mu = np.cos(np.radians(np.asarray(theta_deg, float)))
+    x = np.asarray(x_nodes, float)
+    a = np.asarray(albedo_nodes, float)
+    if delta_eta is None:
+        mirror, mirror_nodes = np.zeros(mu.shape), np.zeros(x.shape)
+    else:
+        mirror = fresnel_dielectric(mu, float(delta_eta)).R
+        mirror_nodes = fresnel_dielectric(x, float(delta_eta)).R
+    # the total (tabulated + mirror) is the smoother function of μ (constant for a white furnace):
+    # interpolate it, and give the tabulated part as the total minus the exact mirror term
+    total = CubicSpline(x, a + mirror_nodes[None, :], axis=1)(np.clip(mu, x[0], x[-1])).T  # (A, C)
+    return total, total - mirror[:, None], mirror
+
+
+def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=None, name=""):
+    """The colour report (a JSON-able dict) of a paint's full-precision ``table`` (channels of ``mode``).
+
+    ``x_nodes``/``albedo_nodes``: the solver's positive nodes (h,) and tabulated albedo (C, h) at them.
+    """
+    from flakedb.colour.colorimetry import XYZ_to_Lab, XYZ_to_linear_sRGB
+
+    white = reference_white(mode, wavelength_nm)
+    geoms = []
+    rows = []
+    for g in ASPECULAR_DEG:
+        mu_i, mu_o, phi_d, tv = multiangle_geometry(g)
+        f_cos = eval_table(table, mu_i, mu_o, phi_d)  # (C,)
+        rf = np.pi * f_cos / abs(mu_o)
+        XYZ = channels_to_XYZ(rf, mode, wavelength_nm)
+        lab = XYZ_to_Lab(XYZ, white=white)
+        rgb = XYZ_to_linear_sRGB(XYZ)
+        geoms.append((g, tv, mu_i, mu_o, phi_d, rf, XYZ, lab, rgb))
+        rows.append({
+            "aspecular_deg": g, "theta_view_deg": abs(tv),
+            "side": "specular" if tv > 0 else ("normal" if tv == 0 else "illuminator"),
+            "mu_i": float(mu_i), "mu_o": float(mu_o), "phi_d": float(phi_d),
+            "L": float(lab[0]), "a": float(lab[1]), "b": float(lab[2]),
+            "XYZ": [float(v) for v in XYZ], "linear_sRGB": [float(v) for v in rgb],
+            "reflectance_factor": [float(v) for v in rf],
+        })
+    Ls = {r["aspecular_deg"]: r["L"] for r in rows}
+    fi = flop_index(Ls[15.0], Ls[45.0], Ls[110.0])
+    tot, tab, mirror = directional_albedo(x_nodes, albedo_nodes, ALBEDO_THETA_DEG, delta_eta)
+    Y_tot = channels_to_XYZ(tot, mode, wavelength_nm)[:, 1] / white[1]
+    Y_tab = channels_to_XYZ(tab, mode, wavelength_nm)[:, 1] / white[1]
+    albedo = [{"theta_i_deg": t, "albedo_Y": float(yt), "tabulated_Y": float(yb), "mirror": float(m),
+               "albedo_channels": [float(v) for v in tt]}
+              for t, yt, yb, m, tt in zip(ALBEDO_THETA_DEG, Y_tot, Y_tab, mirror, tot)]
+    return {
+        "name": name,
+        "mode": mode,
+        "colour": "CIELAB (CIE 1976), illuminant D65, CIE 1931 2° observer; white = perfect diffuser",
+        "illumination_deg": ILLUMINATION_DEG,
+        "reflectance_factor": "pi * f(omega_i, omega_o), tabulated part (no aspecular angle hits the mirror delta)",
+        "geometries": rows,
+        "flop_index": fi,
+        "flop_index_formula": "X-Rite: 2.69 (L*15 - L*110)^1.11 / L*45^0.86",
+        "albedo": albedo,
+        "albedo_note": ("directional albedo (reflected flux / incident flux) from above; albedo_Y is its luminance "
+                        "(Y, D65) including the mirror term 'mirror' = F(theta_i) of a smooth coat"),
+        "wavelength_nm": None if wavelength_nm is None else [float(w) for w in wavelength_nm],
+    }
+
+
+def format_report(rep) -> str:
+    """The colour report as the text table ``flakedb compose`` prints."""
+    lines = [f"colour report: {rep['name']} ({rep['mode']} mode; CIELAB D65/2°, illumination {rep['illumination_deg']:g}°)",
+             f"{'aspecular':>10} {'view':>12} {'L*':>8} {'a*':>8} {'b*':>8}"]
+    for r in rep["geometries"]:
+        view = f"{r['theta_view_deg']:g}° {r['side'][:5]}"
+        lines.append(f"{r['aspecular_deg']:>9g}° {view:>12} {r['L']:8.2f} {r['a']:8.2f} {r['b']:8.2f}")
+    fi = rep["flop_index"]
+    lines.append(f"flop index (X-Rite): {'undefined (L*45 = 0)' if fi is None else f'{fi:.2f}'}")
+    lines.append(f"{'theta_i':>8} {'albedo Y':>9} {'tabulated':>10} {'mirror':>8}")
+    for a in rep["albedo"]:
+        lines.append(f"{a['theta_i_deg']:>7g}° {a['albedo_Y']:9.4f} {a['tabulated_Y']:10.4f} {a['mirror']:8.4f}")
+    return "\n".join(lines)

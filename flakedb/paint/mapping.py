@@ -1,0 +1,651 @@
+"""Recipe → solver inputs: the physics mapping of a paint (model.md §1, §3, §6).
+
+A :class:`flakedb.paint.recipe.Recipe` becomes the arguments of :func:`flakedb.rt.stack.solve_stack`::
+
+    top     Smooth(η) | Rough(η, α) | None      η = the binder index (one index below the top: the
+                                                 clear coat's = every basecoat's; ior 1 = no interface)
+    slabs   [Slab(d_clear, absorbing coat)]      only when the coat absorbs: PhaseMedium(σ_a, albedo 0)
+            + [Slab(d_base, Mixture(…)) …]       one per basecoat that holds particles
+    bottom  Lambertian(albedo per channel) | None
+
+A non-absorbing clear coat adds no slab at all: inside one binder it changes nothing (the
+smooth or rough top interface is the coat's surface).  A basecoat without particles is likewise
+clear binder and adds nothing.
+
+Particles (model.md §3 "the anisotropic medium", §6 "particle optics")
+----------------------------------------------------------------------
+* **Flakes** (interference and mirror flakes of the catalogue; paper eq. 2, model.md §3): a
+  :class:`flakedb.rt.media.FlakeMedium` with
+
+  - loading ``aρ = volume_fraction / t_flake`` (flake area × number density, 1/µm; model.md: "aρ =
+    volume fraction / flake thickness": N flakes of area a and thickness t fill a volume N a t,
+    so the volume fraction is φ = ρ a t).  The flake diameter cancels, so it does not enter the
+    optics (it is recorded);
+  - R(c, λ), T(c, λ) from :func:`flakedb.paint.species.flake_reflectance_transmittance` (transfer-matrix
+    method for interference flakes; R = albedo, T = 0 for mirror flakes) on the flake-cosine grid
+    :func:`flake_cos_grid` (c = |cos| of the angle of incidence on the flake *in the binder*),
+    with the recipe's binder ior as the embedding index (the same η the solver uses);
+  - ``opaque: true`` keeps R and sets T = 0 (the paper's Fig. 5 opaque flakes: Jakob et al. 2010);
+  - the Beckmann orientation spread α of the catalogue, or the recipe's ``orientation_alpha``.
+
+* **Pigments** (spheres; model.md §3 "uniform D with a Mie kernel is an isotropic Mie medium", §6):
+  a :class:`flakedb.rt.media.PhaseMedium` with number density ``ρ = volume_fraction / <V>``
+  (``<V>`` the mean particle volume of the log-normal, µm³), ``σ_t = ρ <C_ext>``,
+  ``albedo = <C_sca>/<C_ext>`` and the C_sca-weighted Mie phase function tabulated on
+  :func:`phase_cos_grid` (from :func:`flakedb.paint.species.pigment_optics`, Du 2004, relative index
+  m = N/n_binder, size parameter x = π d n_binder / λ).
+
+* **Custom species** (research stacks), loaded by optical depth τ in a layer of thickness d:
+
+  - a flake with constant or tabulated (vs c) grey R and T: ``aρ = τ / (d · s_t(1))`` with
+    ``s_t(μ) = ∫ (1 − T(|ω·m|)) |ω·m| D(m) dm`` (σ_t per unit aρ, eq. 2) at normal incidence, so
+    that σ_t(μ = 1) · d = τ;
+  - a medium with single-scattering albedo ϖ and an isotropic, Henyey–Greenstein or tabulated
+    phase function: ``σ_t = τ / d``.  A tabulated phase function is normalised so that its
+    piecewise-linear interpolant (what :class:`~flakedb.rt.media.PhaseMedium` evaluates) integrates
+    to 1 over the sphere.
+
+From the precomputed store (issue #6)
+-----------------------------------
+With an open store version (:func:`build_paint` ``store=``), catalogue flakes become
+:class:`flakedb.rt.stored.StoredFlakeMedium` and catalogue pigments
+:class:`flakedb.rt.stored.StoredPigmentMedium`: the kernels' R(μ_i, μ_o, φ_d) comes from the store
+(compressed factors, or the raw samples with ``raw``), the rest as above: the loadings, σ_t(μ) and
+σ_s(μ) of flakes (1-D integrals of R(c), T(c): the store has no T), a pigment's ρ <C_ext> and
+<C_sca> (Mie cross-sections, no phase function), and the recipe's α (D(h) is evaluated, not
+stored).  :func:`store_problems` lists what the store lacks for a recipe.  In RGB mode the stored
+spectral R is mapped to linear sRGB coefficient by coefficient (the map is linear).  For pigments the
+direct path's clips are reproduced: C_sca ≤ C_ext scales each channel's kernel, and the phase ≥ 0
+clip is applied to the evaluated kernel (:class:`flakedb.rt.stored.StoredPigmentMedium`
+``nonnegative``), whose renormalisation to σ_s the solver does as for the direct path.  Without the
+phase clip the store path differed from the direct one by ΔE00 0.83 (cadmium-yellow, n = 16, 380–780
+nm; the blue channel's phase goes negative over 14 % of cos Θ); with it 1.2e-3 (tests/test_stored.py).
+For flakes the direct path's per-c clip of R to [0, 1] with R + T ≤ 1 needs T, which the store does
+not hold: it is not applied (the direct path reports its size in ``info['rgb_clip']``).  Not supported from the store (compose without a store instead): a rough coat
+(the store's optics use the binder index η with the Snell-mapped grid of a smooth coat) and a
+pigment whose recipe overrides the catalogue's size distribution.
+
+Primer (Lambertian, model.md §4): ``color`` black / gray / white → albedo 0.04 / 0.18 / 0.9
+(:data:`PRIMER_ALBEDO`); or an albedo; or a spectrum (linear in λ).
+
+Channels
+--------
+* ``spectral``: one channel per band of the recipe's grid; every optical quantity per band.
+* ``rgb`` (the paper's mode, model.md §6): spectra are computed on the grid and converted to the
+  white-normalised linear sRGB of :func:`flakedb.colour.colorimetry.spectra_to_rgb_mode` *before* the
+  solve: flake R(c) and T(c) per c; pigments' <C_ext> and <C_sca>, and the phase function as
+  rgb(C_sca p)/rgb(C_sca) (so a channel's phase is its scattering-weighted mean); the primer's
+  albedo; a coat's absorption through its normal-incidence transmittance,
+  a_rgb = −ln(rgb(exp(−a d)))/d.  sRGB weights have negative lobes, so a converted value may fall
+  outside its physical range; it is clipped (R, T, albedo to [0, 1] with R + T ≤ 1 by scaling;
+  cross-sections ≥ 0 with C_sca ≤ C_ext; phase ≥ 0) and the largest clip is reported in ``info``.
+* ``mono``: one grey channel; every input is wavelength-independent (checked by the recipe).
+
+Resolution (:func:`auto_resolution`) is a stated heuristic, see its docstring.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from flakedb.paint.recipe import PRIMER_ALBEDO  # noqa: E402,F401  (defined with the recipe's primer colours)
+
+#: Flake-cosine grid: start from FLAKE_C_START nodes c = cos θ, θ uniform on [0°, 90°], and bisect
+#: every interval whose midpoint differs from the linear interpolant by more than FLAKE_C_TOL in R
+#: or T (any band), up to FLAKE_C_MAX nodes.  Thin-film fringes in c are narrow (the 120 nm TiO2 /
+#: 300 nm SiO2 pearlescent flake has R dropping from 0.26 to 0.001 within Δc = 0.015 at 400 nm), so
+#: a fixed grid is not enough: 48 θ-uniform nodes leave errors of 0.15 there.  Measured against a
+#: 20001-node grid (10 nm bands): max error 1.0e-3 for every catalogue flake with 68 (metallic) to
+#: 323 (pearlescent) nodes.
+FLAKE_C_START = 33
+FLAKE_C_TOL = 1e-3
+FLAKE_C_MAX = 2049
+#: Scattering-angle step of the tabulated Mie phase function (uniform in Θ, dense near forward in
+#: cos Θ).  Error of linear interpolation in cos Θ measured in tests/test_compose.py.
+PHASE_THETA_STEP_DEG = 0.5
+
+
+def flake_cos_grid(n=FLAKE_C_START) -> np.ndarray:
+    """c = cos θ, θ uniform on [0°, 90°], ascending, exactly 0 and 1 at the ends (n,)."""
+    c = np.cos(np.linspace(0.5 * np.pi, 0.0, int(n)))
+    c[0], c[-1] = 0.0, 1.0
+    return c
+
+
+def adaptive_flake_optics(fn, tol=FLAKE_C_TOL, n_start=FLAKE_C_START, max_nodes=FLAKE_C_MAX):
+    """Tabulate ``R, T = fn(c)`` ((W, nc) each) on a c grid refined until linear interpolation is
+    within ``tol`` at every interval midpoint (all bands), or ``max_nodes`` would be exceeded.
+
+    Returns ``(c, R, T, max_midpoint_error)``; the error is that of the last refinement pass
+    (≤ tol unless the node cap stopped it).
+    """
+    c = flake_cos_grid(n_start)
+    R, T = fn(c)
+    while True:
+        mid = 0.5 * (c[:-1] + c[1:])
+        Rm, Tm = fn(mid)
+        err = np.maximum(np.abs(Rm - 0.5 * (R[:, :-1] + R[:, 1:])),
+                         np.abs(Tm - 0.5 * (T[:, :-1] + T[:, 1:]))).max(axis=0)
+        bad = err > tol
+        if not bad.any() or c.size + int(bad.sum()) > max_nodes:
+            return c, R, T, float(err.max())
+        c = np.concatenate([c, mid[bad]])
+        R = np.concatenate([R, Rm[:, bad]], axis=1)
+        T = np.concatenate([T, Tm[:, bad]], axis=1)
+        order = np.argsort(c)
+        c, R, T = c[order], R[:, order], T[:, order]
+
+
+def phase_cos_grid(step_deg=PHASE_THETA_STEP_DEG) -> np.ndarray:
+    """cos Θ, Θ uniform from 180° to 0° in ``step_deg`` steps, ascending from −1 to 1."""
+    m = int(round(180.0 / step_deg)) + 1
+    c = np.cos(np.linspace(np.pi, 0.0, m))
+    c[0], c[-1] = -1.0, 1.0
+    return c
+
+
+def normalise_phase_table(cos_theta, values) -> tuple[np.ndarray, np.ndarray]:
+    """Scale a tabulated phase function (…, M) so that its linear interpolant in cos Θ integrates to 1
+    over the sphere (2π ∫ p dcosΘ by the trapezoidal rule, exact for the interpolant).
+
+    Returns ``(normalised values, the integrals before scaling)``.
+    """
+    v = np.asarray(values, float)
+    integral = 2.0 * np.pi * np.trapezoid(v, np.asarray(cos_theta, float), axis=-1)
+    return v / np.asarray(integral)[..., None], integral
+
+
+# ----------------------------------------------------------------------------------------------
+# Loadings (model.md §3)
+# ----------------------------------------------------------------------------------------------
+
+
+def flake_a_rho_from_volume_fraction(volume_fraction, flake_thickness_um) -> float:
+    """aρ (1/µm) of flakes of thickness ``flake_thickness_um`` at ``volume_fraction``: φ / t (model.md §3)."""
+    return float(volume_fraction) / float(flake_thickness_um)
+
+
+def flake_a_rho_from_optical_depth(optical_depth, layer_um, alpha, optics) -> float:
+    """aρ (1/µm) such that σ_t(μ = 1) · d = τ for flakes of ``optics`` (channel 0) and spread α."""
+    from flakedb.rt.microflake import extinction_Ergun
+
+    s1 = float(np.atleast_1d(extinction_Ergun(np.array([1.0]), alpha, optics, 1.0))[0].ravel()[0])
+    return float(optical_depth) / (float(layer_um) * s1)
+
+
+def pigment_number_density(volume_fraction, mean_volume_um3) -> float:
+    """ρ (1/µm³) = volume fraction / mean particle volume."""
+    return float(volume_fraction) / float(mean_volume_um3)
+
+
+# ----------------------------------------------------------------------------------------------
+# RGB mode conversions
+# ----------------------------------------------------------------------------------------------
+
+
+def _rgb(values_last_axis_W, wl):
+    from flakedb.colour.colorimetry import spectra_to_rgb_mode
+
+    return spectra_to_rgb_mode(values_last_axis_W, wl)
+
+
+def flake_rt_to_rgb(R, T, wl) -> tuple[np.ndarray, np.ndarray, float]:
+    """(W, nc) spectra → (3, nc) RGB-mode R and T, clipped to [0, 1] with R + T ≤ 1; and the largest clip."""
+    Rr = _rgb(np.asarray(R).T, wl).T
+    Tr = _rgb(np.asarray(T).T, wl).T
+    Rc, Tc = np.clip(Rr, 0.0, 1.0), np.clip(Tr, 0.0, 1.0)
+    s = Rc + Tc
+    scale = np.where(s > 1.0, 1.0 / np.maximum(s, 1e-300), 1.0)
+    Rc, Tc = Rc * scale, Tc * scale
+    clip = float(max(np.abs(Rc - Rr).max(), np.abs(Tc - Tr).max()))
+    return Rc, Tc, clip
+
+
+def pigment_to_rgb(c_ext, c_sca, phase, wl):
+    """Per-band <C_ext>, <C_sca> (W,) and phase (W, M) → RGB-mode (3,), (3,), (3, M); and the largest clip."""
+    e = _rgb(np.asarray(c_ext), wl)
+    s = _rgb(np.asarray(c_sca), wl)
+    sp = _rgb((np.asarray(c_sca)[:, None] * np.asarray(phase)).T, wl).T  # (3, M)
+    ec = np.maximum(e, 0.0)
+    sc = np.clip(s, 0.0, ec)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = np.where(s[:, None] > 0, sp / s[:, None], 0.0)
+    pc = np.maximum(p, 0.0)
+    clip = float(max(np.abs(ec - e).max() / max(np.abs(e).max(), 1e-300),
+                     np.abs(sc - s).max() / max(np.abs(s).max(), 1e-300),
+                     np.abs(pc - p).max() / max(np.abs(p).max(), 1e-300)))
+    return ec, sc, pc, clip
+
+
+# ----------------------------------------------------------------------------------------------
+# The paint
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Paint:
+    """Solver inputs of a recipe.  ``channels``: names (``"450nm"``…, ``R G B`` or ``mono``);
+    ``components``: one JSON-able dict per particle with what was derived (loading, ranges);
+    ``info``: anything else worth recording (clips in RGB mode, phase normalisations)."""
+
+    top: object
+    slabs: list
+    bottom: object
+    channels: tuple
+    mode: str
+    wavelength_nm: np.ndarray | None
+    eta: float
+    top_alpha: float
+    components: list = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+
+    @property
+    def n_channels(self):
+        return len(self.channels)
+
+    @property
+    def delta(self):
+        """The smooth coat's mirror term as the file format records it, or None."""
+        from flakedb.rt.stack import Smooth
+
+        if isinstance(self.top, Smooth) and self.eta != 1.0:
+            return {"kind": "fresnel", "eta": float(self.eta)}
+        return None
+
+
+def _spectrum_or_const(value, wl, C):
+    from flakedb.paint.recipe import Spectrum
+
+    if isinstance(value, Spectrum):
+        return value.at(wl)
+    return np.full(C, float(value))
+
+
+def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
+    """FlakeMedium (or StoredFlakeMedium with ``stored``) and its record for a catalogue or custom flake."""
+    from flakedb.paint.recipe import CatalogParticle
+    from flakedb.rt.media import FlakeMedium
+    from flakedb.rt.microflake import FlakeOptics
+
+    if isinstance(p, CatalogParticle):
+        from flakedb.paint.species import flake_reflectance_transmittance
+
+        c, R, T, c_err = adaptive_flake_optics(
+            lambda cc: flake_reflectance_transmittance(p.entry, wl, cc, n_binder))  # (W, nc) each
+        info.setdefault("flake_c_grid", {})[p.path] = {"nodes": int(c.size), "max_midpoint_error": c_err}
+        if p.opaque:
+            T = np.zeros_like(T)
+        if recipe.mode == "rgb":
+            R, T, clip = flake_rt_to_rgb(R, T, wl)
+            info.setdefault("rgb_clip", {})[p.path] = clip
+        alpha = float(p.orientation_alpha if p.orientation_alpha is not None else p.entry["orientation_alpha"]["value"])
+        t = float(p.entry["thickness_um"]["value"])
+        a_rho = flake_a_rho_from_volume_fraction(p.volume_fraction, t)
+        optics = FlakeOptics(c, R, T)
+        rec = {"path": p.path, "species": p.species, "kind": p.kind, "volume_fraction": p.volume_fraction,
+               "flake_thickness_um": t, "orientation_alpha": alpha, "a_rho_per_um": a_rho, "opaque": p.opaque,
+               "diameter_um": float(p.diameter_um if p.diameter_um is not None else p.entry["diameter_um"]["value"]),
+               "loading": "volume_fraction / flake thickness (model.md §3)"}
+    else:
+        c = np.union1d(p.R.c, p.T.c)
+        R = np.interp(c, p.R.c, p.R.value)
+        T = np.interp(c, p.T.c, p.T.value)
+        optics = FlakeOptics(c, np.broadcast_to(R, (C, c.size)), np.broadcast_to(T, (C, c.size)))
+        alpha = float(p.orientation_alpha)
+        a_rho = flake_a_rho_from_optical_depth(p.optical_depth, layer_um, alpha, optics)
+        rec = {"path": p.path, "species": p.name, "kind": "custom flake", "optical_depth": p.optical_depth,
+               "orientation_alpha": alpha, "a_rho_per_um": a_rho,
+               "loading": "optical depth: sigma_t(mu=1) x layer thickness"}
+    if stored is not None and isinstance(p, CatalogParticle):
+        from flakedb.rt.microflake import extinction_Ergun, scattering_Ergun
+        from flakedb.rt.stored import StoredFlakeMedium
+
+        src = stored.reflectance(p.species)
+        med = StoredFlakeMedium(alpha, a_rho, src, lambda mu: extinction_Ergun(mu, alpha, optics, a_rho),
+                                lambda mu: scattering_Ergun(mu, alpha, optics, a_rho))
+        rec["kernel_R"] = src.source
+    else:
+        med = FlakeMedium(alpha, optics, a_rho)
+    st = np.atleast_2d(med.sigma_t(np.array([1.0])))[:, 0]
+    rec["sigma_t_normal_per_um"] = [float(st.min()), float(st.max())]
+    rec["optical_depth_normal"] = [float(st.min() * layer_um), float(st.max() * layer_um)]
+    return med, rec
+
+
+def _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored):
+    """StoredPigmentMedium: R = 4π ϖ p from the store, ρ <C_ext>, <C_sca> from the Mie code."""
+    from flakedb.rt.stored import StoredPigmentMedium
+    from flakedb.paint.species import pigment_optics
+
+    po = pigment_optics(p.entry, wl, n_binder)  # cross-sections only, no phase function
+    c_ext, c_sca = np.asarray(po.c_ext_um2, float), np.asarray(po.c_sca_um2, float)
+    rho = pigment_number_density(p.volume_fraction, po.mean_volume_um3)
+    src = stored.reflectance(p.species, weights=rho * c_ext)  # kernel = ρ C_ext R / (4π) per band, then mapped
+    if recipe.mode == "rgb":
+        # the same constraints as pigment_to_rgb: C_ext ≥ 0, 0 ≤ C_sca ≤ C_ext (the mapped kernel
+        # ρ rgb(C_sca p) scaled per channel by clipped / unclipped C_sca, a linear per-channel factor)
+        # and phase ≥ 0 (the medium clips its kernel at 0: not linear, applied at evaluation)
+        e = _rgb(c_ext, wl)
+        s = _rgb(c_sca, wl)
+        c_ext, c_sca = np.maximum(e, 0.0), np.clip(s, 0.0, np.maximum(e, 0.0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.where(s > 0, c_sca / s, 0.0)
+        src = type(src)(src.mu, src.coeffs * f[:, None, None, None], src.source)
+        info.setdefault("rgb_clip", {})[p.path] = float(max(np.abs(c_ext - e).max() / max(np.abs(e).max(), 1e-300),
+                                                            np.abs(c_sca - s).max() / max(np.abs(s).max(), 1e-300)))
+    sigma_t, sigma_s = rho * c_ext, rho * c_sca
+    with np.errstate(divide="ignore", invalid="ignore"):
+        albedo = np.where(c_ext > 0, c_sca / c_ext, 0.0)
+    med = StoredPigmentMedium(src, sigma_t, sigma_s, nonnegative=recipe.mode == "rgb")
+    rec = {"path": p.path, "species": p.species, "kind": "pigment", "volume_fraction": p.volume_fraction,
+           "median_diameter_um": float(p.entry["median_diameter_um"]["value"]), "gsd": float(p.entry["gsd"]["value"]),
+           "mean_volume_um3": float(po.mean_volume_um3), "number_density_per_um3": rho,
+           "sigma_t_per_um": [float(sigma_t.min()), float(sigma_t.max())],
+           "albedo": [float(albedo.min()), float(albedo.max())],
+           "optical_depth": [float(sigma_t.min() * layer_um), float(sigma_t.max() * layer_um)],
+           "loading": "number density = volume_fraction / mean particle volume; sigma_t = rho C_ext",
+           "kernel_R": src.source}
+    return med, rec
+
+
+def _pigment_component(p, recipe, layer_um, n_binder, wl, info, stored=None):
+    from flakedb.rt.media import PhaseMedium
+    from flakedb.paint.species import pigment_optics
+
+    if stored is not None:
+        return _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored)
+    entry = copy.deepcopy(p.entry)
+    if p.median_diameter_um is not None:
+        entry["median_diameter_um"] = {"value": float(p.median_diameter_um), "source": "recipe"}
+    if p.gsd is not None:
+        entry["gsd"] = {"value": float(p.gsd), "source": "recipe"}
+    mu = phase_cos_grid()
+    po = pigment_optics(entry, wl, n_binder, mu=mu)
+    c_ext, c_sca, phase = np.asarray(po.c_ext_um2), np.asarray(po.c_sca_um2), np.asarray(po.phase_function)
+    phase, integral = normalise_phase_table(mu, phase)
+    info.setdefault("phase_table_norm_error", {})[p.path] = float(np.abs(integral - 1.0).max())
+    if recipe.mode == "rgb":
+        c_ext, c_sca, phase, clip = pigment_to_rgb(c_ext, c_sca, phase, wl)
+        phase, _ = normalise_phase_table(mu, phase)
+        info.setdefault("rgb_clip", {})[p.path] = clip
+    rho = pigment_number_density(p.volume_fraction, po.mean_volume_um3)
+    sigma_t = rho * c_ext
+    with np.errstate(divide="ignore", invalid="ignore"):
+        albedo = np.where(c_ext > 0, c_sca / c_ext, 0.0)
+    med = PhaseMedium(sigma_t, albedo, ("table", mu, phase))
+    rec = {"path": p.path, "species": p.species, "kind": "pigment", "volume_fraction": p.volume_fraction,
+           "median_diameter_um": float(entry["median_diameter_um"]["value"]), "gsd": float(entry["gsd"]["value"]),
+           "mean_volume_um3": float(po.mean_volume_um3), "number_density_per_um3": rho,
+           "sigma_t_per_um": [float(sigma_t.min()), float(sigma_t.max())],
+           "albedo": [float(albedo.min()), float(albedo.max())],
+           "optical_depth": [float(sigma_t.min() * layer_um), float(sigma_t.max() * layer_um)],
+           "loading": "number density = volume_fraction / mean particle volume; sigma_t = rho C_ext"}
+    return med, rec
+
+
+def _custom_medium_component(p, layer_um, C, info):
+    from flakedb.rt.media import PhaseMedium
+
+    phase = p.phase
+    if isinstance(phase, tuple) and phase[0] == "table":
+        vals, integral = normalise_phase_table(phase[1], phase[2])
+        info.setdefault("phase_table_normalised_from", {})[p.path] = float(integral)
+        phase = ("table", np.asarray(phase[1], float), vals)
+    sigma_t = float(p.optical_depth) / float(layer_um)
+    med = PhaseMedium(np.full(C, sigma_t), np.full(C, float(p.albedo)), phase)
+    rec = {"path": p.path, "species": p.name, "kind": "custom medium", "optical_depth": p.optical_depth,
+           "sigma_t_per_um": sigma_t, "albedo": p.albedo,
+           "phase": phase if isinstance(phase, str) else (["hg", phase[1]] if phase[0] == "hg" else "table"),
+           "loading": "optical depth: sigma_t x layer thickness"}
+    return med, rec
+
+
+def build_paint(recipe, catalog=None, store=None, n=None, raw=False) -> Paint:
+    """The solver inputs of ``recipe`` (a :class:`flakedb.paint.recipe.Recipe`); see the module docstring.
+
+    Without ``store`` every particle's optics is computed directly from the catalogue.  With an open
+    :class:`flakedb.store.versions.StoreVersion` ``store`` and the solve's node count ``n``, catalogue species
+    take their kernels' R from it (compressed, or raw with ``raw``); raises
+    :class:`flakedb.store.versions.StoreError` listing :func:`store_problems` when it cannot serve the recipe.
+    """
+    from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium
+    from flakedb.rt.media import Mixture, PhaseMedium
+    from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth
+
+    mode = recipe.mode
+    wl = recipe.wavelength_nm
+    if mode == "spectral":
+        channels = tuple(f"{w:g}nm" for w in wl)
+    elif mode == "rgb":
+        channels = ("R", "G", "B")
+    else:
+        channels = ("mono",)
+    C = len(channels)
+    eta = float(recipe.binder_ior)
+    info: dict = {}
+    stored = None
+    if store is not None:
+        if n is None:
+            raise ValueError("build_paint(store=…) needs the solve's node count n (the store grid depends on it)")
+        stored = StoreContext.for_recipe(store, recipe, int(n), raw)
+        info["store"] = {"url": store.url, "version": store.version, "raw": bool(raw), "n": int(n)}
+    components = []
+    cc = recipe.clearcoat
+    top_alpha = 0.0
+    if eta == 1.0:
+        top = None
+    elif cc is not None and cc.roughness > 0:
+        top = Rough(eta, float(cc.roughness))
+        top_alpha = float(cc.roughness)
+    else:
+        top = Smooth(eta)
+
+    slabs = []
+    if cc is not None and cc.absorption_per_um is not None:
+        if mode == "rgb":
+            a = _spectrum_or_const(cc.absorption_per_um, wl, len(wl))
+            t_rgb = _rgb(np.exp(-a * cc.thickness_um), wl)
+            a_ch = -np.log(np.clip(t_rgb, 1e-300, 1.0)) / cc.thickness_um
+        else:
+            a_ch = _spectrum_or_const(cc.absorption_per_um, wl, C) if mode == "spectral" else np.full(
+                C, float(cc.absorption_per_um))
+        if np.any(a_ch > 0):
+            slabs.append(Slab(cc.thickness_um, PhaseMedium(a_ch, 0.0, "isotropic")))
+            components.append({"path": cc.path, "kind": "absorbing clear coat",
+                               "absorption_per_um": [float(a_ch.min()), float(a_ch.max())],
+                               "optical_depth": [float(a_ch.min() * cc.thickness_um), float(a_ch.max() * cc.thickness_um)]})
+
+    for b in recipe.basecoats:
+        meds = []
+        for p in b.particles:
+            if isinstance(p, CatalogParticle) and p.is_flake:
+                med, rec = _flake_component(p, recipe, b.thickness_um, b.ior, wl, C, info, stored)
+            elif isinstance(p, CatalogParticle):
+                med, rec = _pigment_component(p, recipe, b.thickness_um, b.ior, wl, info, stored)
+            elif isinstance(p, CustomFlake):
+                med, rec = _flake_component(p, recipe, b.thickness_um, b.ior, wl, C, info)
+            elif isinstance(p, CustomMedium):
+                med, rec = _custom_medium_component(p, b.thickness_um, C, info)
+            else:  # pragma: no cover - the recipe module builds only these
+                raise TypeError(f"unknown particle {p!r}")
+            meds.append(med)
+            components.append(rec)
+        if meds:
+            slabs.append(Slab(b.thickness_um, meds[0] if len(meds) == 1 else Mixture(meds)))
+
+    bottom = None
+    if recipe.primer is not None:
+        pr = recipe.primer
+        if mode == "rgb":
+            alb = _rgb(_spectrum_or_const(pr.albedo, wl, len(wl)), wl)
+            info["primer_rgb_clip"] = float(np.abs(np.clip(alb, 0, 1) - alb).max())
+            alb = np.clip(alb, 0.0, 1.0)
+        else:
+            alb = _spectrum_or_const(pr.albedo, wl, C) if mode == "spectral" else np.full(C, float(pr.albedo))
+        bottom = Lambertian(alb)
+        components.append({"path": pr.path, "kind": "primer", "label": pr.label,
+                           "albedo": [float(np.min(alb)), float(np.max(alb))]})
+
+    return Paint(top=top, slabs=slabs, bottom=bottom, channels=channels, mode=mode,
+                 wavelength_nm=None if wl is None else np.asarray(wl), eta=eta, top_alpha=top_alpha,
+                 components=components, info=info, warnings=list(recipe.warnings))
+
+
+def catalog_species(recipe) -> list:
+    """The catalogue particles of a recipe (those a store can serve), in layer order."""
+    from flakedb.paint.recipe import CatalogParticle
+
+    return [p for _, p in recipe.particles() if isinstance(p, CatalogParticle)]
+
+
+def _same_entry(a, b) -> bool:
+    import json
+
+    norm = lambda e: json.loads(json.dumps(e, sort_keys=True, default=float))
+    return norm(a) == norm(b)
+
+
+def store_problems(version, recipe, n, raw=False) -> list[str]:
+    """What the open store ``version`` lacks to serve ``recipe``'s catalogue species at node count ``n``
+    (empty: it can).  Checks the top interface (a smooth coat of the recipe's index η, or η = 1),
+    the resolution n, every species (present, and built from the same catalogue entry), the
+    wavelengths, the raw samples when ``raw``, and recipe overrides the store cannot honour."""
+    from flakedb.rt.stack import Smooth  # noqa: F401  (documents what a store can serve)
+
+    probs = []
+    eta = float(recipe.binder_ior)
+    cc = recipe.clearcoat
+    if eta != 1.0 and cc is not None and cc.roughness > 0:
+        probs.append(f"the recipe has a rough coat (roughness {cc.roughness:g}); store versions serve smooth coats "
+                     f"and index-matched stacks only: compose without --store")
+    st_eta = version.eta_top
+    if st_eta is None or abs(float(st_eta) - eta) > 1e-12:
+        probs.append(f"top interface: the recipe's binder / coat index is η = {eta:g}, the store version was built "
+                     f"for eta_top = {st_eta} ({'plain Radau grid, catalogue binder index' if st_eta is None else 'η'})")
+    if not any(nn == n for nn, _ in version.resolutions):
+        probs.append(f"node count: the solve uses n = {n}, the store has (n, m) = {version.resolutions}")
+    have = set(version.species)
+    stored_inputs = version.metadata["inputs"]["species"]
+    for p in catalog_species(recipe):
+        if p.species not in have:
+            probs.append(f"species {p.species!r} ({p.path}) is not in the store")
+        elif not _same_entry(stored_inputs[p.species], p.entry):
+            probs.append(f"species {p.species!r}: the store was built from a different catalogue entry "
+                         f"(the catalogue changed since): rebuild")
+        if p.kind == "pigment" and (p.median_diameter_um is not None or p.gsd is not None):
+            probs.append(f"{p.path}: the recipe overrides the pigment's size distribution; the store holds the "
+                         f"catalogue's: compose without --store")
+    if recipe.wavelength_nm is not None:
+        swl = np.asarray(version.wavelength_nm, float)
+        miss = [float(w) for w in recipe.wavelength_nm if not np.any(np.abs(swl - w) <= 1e-9)]
+        if miss:
+            probs.append(f"wavelengths: the recipe's grid {recipe.wavelength_nm[0]:g}-{recipe.wavelength_nm[-1]:g} nm has "
+                         f"{len(miss)} band(s) the store lacks (e.g. {miss[0]:g} nm); the store has "
+                         f"{swl.min():g}-{swl.max():g} nm in {swl.size} bands")
+    if raw and not version.metadata["inputs"]["store_raw"]:
+        probs.append("--raw: the store version holds only the compressed factors (build it with --raw)")
+    return probs
+
+
+def store_build_command(version, recipe, n, raw=False) -> str:
+    """The `flakedb build` command that makes a version serving ``recipe`` at ``n``."""
+    wl = recipe.wavelength_nm
+    names = sorted({p.species for p in catalog_species(recipe)})
+    cmd = [f"flakedb build --store {version.url if version is not None else 'STORE'} --n {n} --eta-top {float(recipe.binder_ior):g}"]
+    if wl is not None and len(wl) > 1:
+        cmd.append(f"--range-nm {wl[0]:g} {wl[-1]:g} --step-nm {wl[1] - wl[0]:g}")
+    cmd += [f"--species {s}" for s in names]
+    if raw:
+        cmd.append("--raw")
+    return " ".join(cmd)
+
+
+@dataclass
+class StoreContext:
+    """An open store version checked against a recipe, and how its bands become the paint's channels."""
+
+    version: object
+    n: int
+    raw: bool
+    channel_index: np.ndarray
+    channel_map: np.ndarray | None
+
+    @classmethod
+    def for_recipe(cls, version, recipe, n, raw=False):
+        from flakedb.store.versions import StoreError
+
+        probs = store_problems(version, recipe, n, raw)
+        if probs:
+            raise StoreError(
+                f"store {version.url} (version {version.version[:12]}) cannot serve recipe {recipe.name!r} at n = {n}:\n  "
+                + "\n  ".join(probs)
+                + f"\nthe store has: species {', '.join(version.species)}; (n, m) {version.resolutions}; "
+                  f"eta_top {version.eta_top}; {len(version.wavelength_nm)} bands "
+                  f"{version.wavelength_nm.min():g}-{version.wavelength_nm.max():g} nm; raw samples "
+                  f"{'yes' if version.metadata['inputs']['store_raw'] else 'no'}"
+                + f"\nto add what is missing: {store_build_command(version, recipe, n, raw)}")
+        swl = np.asarray(version.wavelength_nm, float)
+        wl = np.asarray(recipe.wavelength_nm, float)
+        idx = np.array([int(np.argmin(np.abs(swl - w))) for w in wl])
+        cmap = None
+        if recipe.mode == "rgb":
+            cmap = _rgb(np.eye(wl.size), wl)  # (W, 3): spectra @ cmap = linear sRGB (the map is linear)
+        return cls(version, int(n), bool(raw), idx, cmap)
+
+    def reflectance(self, species, weights=None):
+        from flakedb.rt.stored import StoredReflectance
+
+        return StoredReflectance.from_store(self.version, species, self.n, raw=self.raw,
+                                            channel_index=self.channel_index, channel_map=self.channel_map,
+                                            weights=weights)
+
+
+def auto_resolution(recipe) -> tuple[int, str]:
+    """Node count n for ``resolution: auto`` and the reason, a stated heuristic.
+
+    The narrowest angular feature sets n: h = n/2 = ⌈3/α⌉ for flakes of Beckmann spread α (the
+    flake lobe is ≈ 1.4 α wide) and ⌈3/(1 − |g|)⌉ for a Henyey–Greenstein medium; n = 2h rounded
+    up to a multiple of 8 and clamped to [32, 128] (the per-band cost grows as n³, files as n²).
+    Without flakes or peaked phase functions (Lambertian primer, pigments: smooth Mie lobes after
+    the log-normal average) n = 32.  A rough coat needs n ≥ 128 (the rough interface's energy
+    error is several % below).
+
+    Measured (metallic-silver in RGB mode, CIEDE2000 of the six multi-angle colours against the
+    finest n): α = 0.2: n = 32 → ΔE00 ≤ 0.08 (vs n = 128), n = 48 → ≤ 0.02;  α = 0.08: n = 32 →
+    ≤ 1.02, n = 48 → ≤ 0.11, n = 64 → ≤ 0.08 (vs n = 96).  ΔE00 ≈ 0.1 is reached at h ≈ 2/α;
+    ⌈3/α⌉ keeps a 1.5× margin for the lobe shape renderers see between the report's geometries.
+    """
+    from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium
+
+    h = 16
+    reasons = ["default 32 (Lambertian primer / pigments: smooth lobes)"]
+    for _, p in recipe.particles():
+        if isinstance(p, CatalogParticle) and p.is_flake:
+            a = float(p.orientation_alpha if p.orientation_alpha is not None else p.entry["orientation_alpha"]["value"])
+            hh = int(np.ceil(3.0 / a))
+            if hh > h:
+                h, reasons = hh, [f"flake lobe α = {a:g} ({p.path})"]
+        elif isinstance(p, CustomFlake):
+            hh = int(np.ceil(3.0 / p.orientation_alpha))
+            if hh > h:
+                h, reasons = hh, [f"flake lobe α = {p.orientation_alpha:g} ({p.path})"]
+        elif isinstance(p, CustomMedium) and isinstance(p.phase, tuple) and p.phase[0] == "hg":
+            hh = int(np.ceil(3.0 / max(1e-3, 1.0 - abs(p.phase[1]))))
+            if hh > h:
+                h, reasons = hh, [f"HG lobe g = {p.phase[1]:g} ({p.path})"]
+    n = int(np.clip(8 * int(np.ceil(2 * h / 8)), 32, 128))
+    if recipe.clearcoat is not None and recipe.clearcoat.roughness > 0 and n < 128:
+        n, reasons = 128, [f"rough coat (roughness {recipe.clearcoat.roughness:g})"]
+    return n, "; ".join(reasons) + f" → n = {n}"
+
+
+def solve_paint(paint: Paint, n: int, **settings):
+    """Solve the paint's stack at ``n`` nodes; returns :class:`flakedb.rt.stack.StackBSDF`."""
+    from flakedb.rt.stack import SolverSettings, solve_stack
+
+    return solve_stack(paint.top, paint.slabs, paint.bottom, SolverSettings(n=int(n), **settings),
+                       channels=paint.n_channels)

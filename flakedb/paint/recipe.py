@@ -1,0 +1,663 @@
+"""Paint recipes: parse, validate and check a recipe YAML into a typed :class:`Recipe`.
+
+A recipe describes a paint as layers, top to bottom (model.md §1)::
+
+    flakedb: 1                       # format version
+    name: pearl-white                # names the outputs DIR/NAME.bsdf, .h5, .json
+    spectral: {mode: spectral, range_nm: [380, 780], step_nm: 10}     # or rgb / mono
+    resolution: auto                 # or the node count n (even)
+    layers:
+      - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
+      - basecoat:
+          thickness_um: 15
+          ior: 1.5
+          particles:
+            - {species: pearlescent, volume_fraction: 0.04, orientation_alpha: 0.2}
+            - {species: titanium-white, volume_fraction: 0.02}
+      - primer: {color: white}
+
+Three stages, each reporting *every* problem with the recipe field path
+(``layers[1].basecoat.particles[0].volume_fraction``), the value, the allowed range and a hint:
+
+1. YAML → a document (:func:`parse_recipe`); YAML syntax errors name the line.
+2. JSON Schema 2020-12 (``schemas/recipe.schema.json``; unknown keys refused everywhere).
+3. Checks a schema cannot express (:func:`semantic_problems`): layer order (at most one clearcoat,
+   first; at most one primer, last), a single binder index below the top interface, species that
+   exist in the catalogue, overrides that fit the species' kind, packing limits, flake R + T ≤ 1,
+   tabulated spectra that cover the grid, optical constants that cover the grid, a transmissive
+   stack (no primer) only without a top interface.
+
+Nothing here computes optics; everything is caught before any computation.  The physics mapping
+from a :class:`Recipe` to solver inputs is :mod:`flakedb.paint.mapping`.
+
+Limits (stated here, checked in :func:`semantic_problems`)
+----------------------------------------------------------
+* Spherical pigments: Σ volume_fraction ≤ :data:`PIGMENT_PACKING_LIMIT` = 0.64 per layer, the
+  random close packing of equal spheres (Scott & Kilgour, Brit. J. Appl. Phys. 2, 863 (1969));
+  a pigment volume concentration above it leaves no room for the binder.
+* All particles together: Σ volume_fraction < 1 (space filling).  No published packing limit of
+  platelets with an orientation spread was found, so flakes get only this hard limit.
+* Above :data:`DILUTE_WARNING` = 0.3 total the model's independent-scattering assumption (eq. 2
+  adds the particles' cross-sections) is doubtful: a warning, not an error.
+* A particle larger than its layer (flake thickness, or pigment median diameter, above the layer
+  thickness) is refused.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from flakedb.resources import CATALOG_DIR, PACKAGE_DIR, SCHEMAS_DIR
+
+import numpy as np
+
+#: Recipe format version this flakedb reads (the ``flakedb:`` key).
+FORMAT_VERSION = 1
+#: Σ volume fraction of spherical pigments per layer: random close packing (module docstring).
+PIGMENT_PACKING_LIMIT = 0.64
+#: Σ volume fraction above which a warning says the dilute (independent scattering) model is doubtful.
+DILUTE_WARNING = 0.3
+#: Lambertian albedo of the named primer colours.  black 0.04 (Munsell value ≈ 2.3 by ASTM D1535:
+#: a carbon-black primer), gray 0.18 (the photographic 18 % grey card, Munsell ≈ N4.9, middle grey),
+#: white 0.9 (Munsell ≈ N9.6, a good white primer; TiO2 whites reach 0.9-0.95).  Munsell values
+#: computed with colour.munsell_value(Y, method="ASTM D1535").
+PRIMER_ALBEDO = {"black": 0.04, "gray": 0.18, "white": 0.9}
+
+#: Defaults of the ``spectral`` block.
+DEFAULT_SPECTRAL = {"mode": "spectral", "range_nm": [380.0, 780.0], "step_nm": 10.0}
+
+
+class RecipeError(ValueError):
+    """An invalid recipe.  ``problems`` lists every problem as ``path: message``."""
+
+    def __init__(self, source, problems):
+        self.source = str(source)
+        self.problems = list(problems)
+        super().__init__(f"{self.source}: invalid recipe ({len(self.problems)} problem"
+                         f"{'s' if len(self.problems) != 1 else ''}):\n  " + "\n  ".join(self.problems))
+
+
+# ----------------------------------------------------------------------------------------------
+# Typed structure
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Spectrum:
+    """A tabulated spectrum (nm → value), linear between points."""
+
+    wavelength_nm: np.ndarray
+    value: np.ndarray
+
+    def at(self, wavelength_nm):
+        return np.interp(np.asarray(wavelength_nm, float), self.wavelength_nm, self.value)
+
+
+@dataclass
+class Clearcoat:
+    thickness_um: float
+    ior: float
+    roughness: float = 0.0
+    absorption_per_um: float | Spectrum | None = None
+    path: str = "layers[0].clearcoat"
+
+
+@dataclass
+class CatalogParticle:
+    """A catalogue species with a volume fraction; ``entry`` is the resolved catalogue entry."""
+
+    species: str
+    entry: dict
+    volume_fraction: float
+    orientation_alpha: float | None = None
+    diameter_um: float | None = None
+    opaque: bool = False
+    median_diameter_um: float | None = None
+    gsd: float | None = None
+    path: str = ""
+
+    @property
+    def kind(self):
+        return self.entry["kind"]
+
+    @property
+    def is_flake(self):
+        return self.kind in ("interference_flake", "mirror_flake")
+
+
+@dataclass
+class FlakeTable:
+    """R or T of a custom flake over the flake cosine c (constant: c = [0, 1], equal values)."""
+
+    c: np.ndarray
+    value: np.ndarray
+
+
+@dataclass
+class CustomFlake:
+    R: FlakeTable
+    T: FlakeTable
+    orientation_alpha: float
+    optical_depth: float
+    name: str = "custom-flake"
+    path: str = ""
+
+
+@dataclass
+class CustomMedium:
+    """``phase``: ``"isotropic"``, ``("hg", g)`` or ``("table", cos_theta, value)``."""
+
+    albedo: float
+    phase: object
+    optical_depth: float
+    name: str = "custom-medium"
+    path: str = ""
+
+
+@dataclass
+class Basecoat:
+    thickness_um: float
+    ior: float
+    particles: list = field(default_factory=list)
+    path: str = ""
+
+
+@dataclass
+class Primer:
+    """Lambertian primer: ``albedo`` is a float or a :class:`Spectrum`; ``label`` says where it came from."""
+
+    albedo: float | Spectrum
+    label: str
+    path: str = ""
+
+
+@dataclass
+class Recipe:
+    """A validated recipe.  ``wavelength_nm`` is the band grid (spectral mode) or the integration
+    grid of the RGB conversion (rgb mode); None in mono mode.  ``n`` is None for ``auto``."""
+
+    name: str
+    mode: str
+    wavelength_nm: np.ndarray | None
+    n: int | None
+    clearcoat: Clearcoat | None
+    basecoats: list
+    primer: Primer | None
+    description: str = ""
+    text: str = ""
+    source: str = "<recipe>"
+    warnings: list = field(default_factory=list)
+    doc: dict = field(default_factory=dict)
+
+    @property
+    def binder_ior(self) -> float:
+        """The single binder index below the top interface (1.0 when there is no layer with one)."""
+        if self.clearcoat is not None:
+            return self.clearcoat.ior
+        if self.basecoats:
+            return self.basecoats[0].ior
+        return 1.0
+
+    def particles(self):
+        """(basecoat, particle) pairs, top to bottom."""
+        return [(b, p) for b in self.basecoats for p in b.particles]
+
+
+# ----------------------------------------------------------------------------------------------
+# Schema validation with messages that say what to do
+# ----------------------------------------------------------------------------------------------
+
+
+def repo_root() -> Path:
+    """The package folder (holds ``catalog/`` and ``schemas/``, see :mod:`flakedb.resources`)."""
+    return PACKAGE_DIR
+
+
+def schema_path() -> Path:
+    return SCHEMAS_DIR / "recipe.schema.json"
+
+
+_SCHEMA = None
+
+
+def _schema():
+    global _SCHEMA
+    if _SCHEMA is None:
+        with open(schema_path(), encoding="utf-8") as f:
+            _SCHEMA = json.load(f)
+    return _SCHEMA
+
+
+def fmt_path(parts) -> str:
+    """``['layers', 1, 'basecoat', 'particles', 0]`` → ``layers[1].basecoat.particles[0]``."""
+    out = ""
+    for p in parts:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out or "(top level)"
+
+
+def _range_text(schema) -> str | None:
+    lo = hi = None
+    if "minimum" in schema:
+        lo = f"{schema['minimum']:g} ≤ value"
+    if "exclusiveMinimum" in schema:
+        lo = f"{schema['exclusiveMinimum']:g} < value"
+    if "maximum" in schema:
+        hi = f"value ≤ {schema['maximum']:g}"
+    if "exclusiveMaximum" in schema:
+        hi = f"value < {schema['exclusiveMaximum']:g}"
+    if lo and hi:
+        return lo + hi[len("value"):]
+    return lo or hi
+
+
+def _json_short(v) -> str:
+    s = json.dumps(v, default=str)
+    return s if len(s) <= 60 else s[:57] + "..."
+
+
+def _describe_error(err) -> str:
+    path = fmt_path(err.absolute_path)
+    v = err.validator
+    hint = err.schema.get("description") if isinstance(err.schema, dict) else None
+    if v in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
+        msg = f"value {err.instance!r} is outside the allowed range {_range_text(err.schema)}"
+    elif v == "additionalProperties":
+        allowed = sorted((err.schema.get("properties") or {}).keys())
+        extra = sorted(set(err.instance) - set(allowed)) if isinstance(err.instance, dict) else []
+        parts = []
+        for k in extra:
+            close = difflib.get_close_matches(str(k), allowed, n=1)
+            parts.append(f"unknown key {k!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+        msg = "; ".join(parts) + f"; allowed keys: {', '.join(allowed)}"
+    elif v == "required":
+        msg = err.message.replace("is a required property", "is missing (required)")
+    elif v == "enum":
+        msg = f"value {_json_short(err.instance)} is not one of {', '.join(map(str, err.validator_value))}"
+    elif v == "const":
+        if path == "flakedb":
+            msg = (f"recipe format version {_json_short(err.instance)} is not supported; this flakedb reads "
+                   f"version {FORMAT_VERSION} (write `flakedb: {FORMAT_VERSION}` as the first line)")
+        else:
+            msg = f"value {_json_short(err.instance)} must be {_json_short(err.validator_value)}"
+    elif v == "type":
+        msg = f"value {_json_short(err.instance)} has the wrong type; expected {err.validator_value}"
+    elif v == "multipleOf":
+        msg = f"value {err.instance!r} must be a multiple of {err.validator_value:g}"
+    elif v in ("minProperties", "maxProperties"):
+        allowed = sorted((err.schema.get("properties") or {}).keys())
+        msg = f"{_json_short(err.instance)} must have exactly one of the keys {', '.join(allowed)}"
+    elif v == "pattern":
+        msg = f"value {_json_short(err.instance)} does not match the pattern {err.validator_value}"
+    elif v in ("minItems", "maxItems"):
+        msg = f"{_json_short(err.instance)}: {err.message}"
+    else:
+        msg = f"{_json_short(err.instance)}: {err.message}"
+    return f"{path}: {msg}" + (f" (hint: {hint})" if hint else "")
+
+
+def schema_problems(doc) -> list[str]:
+    """Every schema violation of a parsed recipe document as ``path: message (hint: …)``."""
+    import jsonschema
+
+    schema = _schema()
+    validator = jsonschema.Draft202012Validator(schema)
+
+    out = []
+    errors = sorted(validator.iter_errors(doc), key=lambda e: [str(p) for p in e.absolute_path])
+    for err in errors:
+        if err.validator in ("oneOf", "anyOf") and err.context:
+            # the branch that got furthest (deepest path), else a summary naming the alternatives
+            best = max(err.context, key=lambda e: (len(e.absolute_path), e.validator != "type"))
+            if len(best.absolute_path) > len(err.absolute_path):
+                out.append(_describe_error(best))
+                continue
+            hint = err.schema.get("description") if isinstance(err.schema, dict) else None
+            out.append(f"{fmt_path(err.absolute_path)}: value {_json_short(err.instance)} is not valid"
+                       + (f" (hint: {hint})" if hint else ""))
+            continue
+        out.append(_describe_error(err))
+    # one error per path and message
+    seen, uniq = set(), []
+    for p in out:
+        if p not in seen:
+            seen.add(p)
+            uniq.append(p)
+    return uniq
+
+
+# ----------------------------------------------------------------------------------------------
+# Semantic checks
+# ----------------------------------------------------------------------------------------------
+
+
+def _spectrum_problems(path, spec, grid, lo_val=None, hi_val=None, what="value"):
+    out = []
+    wl = np.asarray(spec["wavelength_nm"], float)
+    val = np.asarray(spec["value"], float)
+    if wl.size != val.size:
+        out.append(f"{path}: wavelength_nm has {wl.size} entries and value {val.size}; give one value per wavelength")
+        return out
+    if np.any(np.diff(wl) <= 0):
+        out.append(f"{path}.wavelength_nm: must be strictly increasing, got {wl.tolist()}")
+        return out
+    if grid is not None and (wl[0] > grid[0] + 1e-9 or wl[-1] < grid[-1] - 1e-9):
+        out.append(f"{path}.wavelength_nm: covers {wl[0]:g}-{wl[-1]:g} nm but the recipe's grid is "
+                   f"{grid[0]:g}-{grid[-1]:g} nm; extend the table (nothing is extrapolated) or narrow spectral.range_nm")
+    if lo_val is not None and np.any(val < lo_val):
+        k = int(np.argmin(val))
+        out.append(f"{path}.value[{k}]: value {val[k]:g} is outside the allowed range "
+                   f"{lo_val:g} ≤ {what}" + (f" ≤ {hi_val:g}" if hi_val is not None else ""))
+    if hi_val is not None and np.any(val > hi_val):
+        k = int(np.argmax(val))
+        out.append(f"{path}.value[{k}]: value {val[k]:g} is outside the allowed range "
+                   f"{lo_val:g} ≤ {what} ≤ {hi_val:g}")
+    return out
+
+
+def _flake_table(spec) -> FlakeTable:
+    if isinstance(spec, (int, float)):
+        return FlakeTable(np.array([0.0, 1.0]), np.array([float(spec)] * 2))
+    return FlakeTable(np.asarray(spec["c"], float), np.asarray(spec["value"], float))
+
+
+def _flake_table_problems(path, spec):
+    if isinstance(spec, (int, float)):
+        return []
+    c, v = np.asarray(spec["c"], float), np.asarray(spec["value"], float)
+    if c.size != v.size:
+        return [f"{path}: c has {c.size} entries and value {v.size}; give one value per c"]
+    if np.any(np.diff(c) <= 0):
+        return [f"{path}.c: must be strictly increasing in [0, 1] (c = |cos| between light and flake normal), got {c.tolist()}"]
+    return []
+
+
+def spectral_grid_of(doc) -> tuple[str, np.ndarray | None, list[str]]:
+    """(mode, grid or None, problems) of a schema-valid document's ``spectral`` block."""
+    from flakedb.colour.colorimetry import spectral_grid
+
+    sp = {**DEFAULT_SPECTRAL, **(doc.get("spectral") or {})}
+    mode = sp["mode"]
+    lo, hi = (float(v) for v in sp["range_nm"])
+    step = float(sp["step_nm"])
+    if mode == "mono":
+        return mode, None, []
+    if hi <= lo:
+        return mode, None, [f"spectral.range_nm: value {[lo, hi]} must be increasing (first < last band, nm)"]
+    try:
+        grid = spectral_grid((lo, hi), step)
+    except ValueError:
+        return mode, None, [f"spectral.step_nm: value {step:g} does not divide the range {lo:g}-{hi:g} nm "
+                            f"(hint: choose a step such that (last - first) / step is an integer, e.g. 5, 10 or 20)"]
+    if grid.size < 3:
+        return mode, None, [f"spectral: the grid {grid.tolist()} nm has fewer than 3 bands; colour needs the visible range "
+                            f"(hint: range_nm [380, 780])"]
+    return mode, grid, []
+
+
+def _material_coverage_problems(path, entry, grid):
+    """The catalogue materials of a species must cover the grid (nothing is extrapolated silently)."""
+    from flakedb.paint.materials import refractive_index
+
+    mats = []
+    if entry["kind"] == "interference_flake":
+        mats = [entry["substrate"]["material"]] + [f["material"] for f in entry["coating"]]
+    elif entry["kind"] == "pigment":
+        mats = [entry["material"]]
+    out = []
+    for m in mats:
+        try:
+            refractive_index(m, np.array([grid[0], grid[-1]]))
+        except ValueError as exc:
+            out.append(f"{path}: {exc} (hint: narrow spectral.range_nm)")
+    if entry["kind"] == "mirror_flake" and "wavelength_nm" in entry["albedo"]:
+        wl = entry["albedo"]["wavelength_nm"]
+        if grid[0] < wl[0] or grid[-1] > wl[-1]:
+            out.append(f"{path}: the albedo spectrum covers {wl[0]:g}-{wl[-1]:g} nm, the grid {grid[0]:g}-{grid[-1]:g} nm "
+                       f"(hint: narrow spectral.range_nm)")
+    return out
+
+
+def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
+    """Checks beyond the schema on a schema-valid document.
+
+    Returns ``(problems, warnings, parts)`` where ``parts`` holds the typed pieces built on the way
+    (used by :func:`build_recipe` when there are no problems).
+    """
+    from flakedb.paint.species import expand_sweeps, load_catalog
+
+    problems, warnings = [], []
+    mode, grid, p = spectral_grid_of(doc)
+    problems += p
+    layers = doc["layers"]
+    kinds = [next(iter(item)) for item in layers]
+    # --- order --------------------------------------------------------------------------------
+    for i, k in enumerate(kinds):
+        if k == "clearcoat" and i != 0:
+            problems.append(f"layers[{i}].clearcoat: a clear coat must be the first (top) layer; layers go top to bottom "
+                            f"(hint: move it to layers[0])")
+        if k == "primer" and i != len(kinds) - 1:
+            problems.append(f"layers[{i}].primer: the primer must be the last (bottom) layer; layers go top to bottom "
+                            f"(hint: move it to the end)")
+    if kinds.count("clearcoat") > 1:
+        problems.append(f"layers: {kinds.count('clearcoat')} clear coats; at most one (the top layer)")
+    if kinds.count("primer") > 1:
+        problems.append(f"layers: {kinds.count('primer')} primers; at most one (the bottom layer)")
+
+    clear = None
+    basecoats = []
+    primer = None
+    catalog = catalog if catalog is not None else load_catalog()
+    allsp = expand_sweeps(catalog)
+    # --- binder index ----------------------------------------------------------------------------
+    iors = [(f"layers[{i}].{k}.ior", float(layers[i][k]["ior"])) for i, k in enumerate(kinds) if k != "primer"]
+    if iors:
+        ref_path, ref = iors[0]
+        for pth, v in iors[1:]:
+            if v != ref:
+                problems.append(
+                    f"{pth}: value {v:g} differs from {ref_path} = {ref:g}; not supported yet: flakedb solves one "
+                    f"binder index below the top interface (no internal interfaces) (hint: set it to {ref:g})")
+
+    for i, k in enumerate(kinds):
+        base = f"layers[{i}].{k}"
+        L = layers[i][k]
+        if k == "clearcoat":
+            ab = L.get("absorption_per_um")
+            if isinstance(ab, dict):
+                if mode == "mono":
+                    problems.append(f"{base}.absorption_per_um: a spectrum needs spectral or rgb mode; mono mode takes "
+                                    f"wavelength-independent inputs only (hint: give a number, or set spectral.mode)")
+                else:
+                    problems += _spectrum_problems(f"{base}.absorption_per_um", ab, grid, 0.0, None, "absorption_per_um")
+                ab = Spectrum(np.asarray(ab["wavelength_nm"], float), np.asarray(ab["value"], float))
+            rough = float(L.get("roughness", 0.0))
+            if float(L["ior"]) == 1.0 and rough > 0:
+                problems.append(f"{base}.roughness: value {rough:g} with ior 1: an index-matched coat has no interface "
+                                f"to be rough (hint: set roughness to 0, or ior > 1)")
+            if rough > 0:
+                warnings.append(f"{base}.roughness: {rough:g}: the rough top interface is still inaccurate at small n "
+                                f"(energy errors of several % below n ≈ 128); prefer resolution ≥ 128 or a smooth coat")
+            clear = Clearcoat(float(L["thickness_um"]), float(L["ior"]), rough, ab, base)
+        elif k == "basecoat":
+            bc = Basecoat(float(L["thickness_um"]), float(L["ior"]), [], base)
+            d = bc.thickness_um
+            sum_pig = sum_all = 0.0
+            for j, P in enumerate(L["particles"]):
+                pp = f"{base}.particles[{j}]"
+                if "custom" in P:
+                    C = P["custom"]
+                    tau = float(P["optical_depth"])
+                    if C["kind"] == "flake":
+                        for key in ("R", "T"):
+                            problems += _flake_table_problems(f"{pp}.custom.{key}", C[key])
+                        R, T = _flake_table(C["R"]), _flake_table(C["T"])
+                        if R.c.size == R.value.size and T.c.size == T.value.size:
+                            cc = np.union1d(R.c, T.c)
+                            s = np.interp(cc, R.c, R.value) + np.interp(cc, T.c, T.value)
+                            if np.any(s > 1 + 1e-12):
+                                m = int(np.argmax(s))
+                                problems.append(
+                                    f"{pp}.custom: R + T = {s[m]:.6g} at c = {cc[m]:g} exceeds 1 (energy conservation: "
+                                    f"allowed R + T ≤ 1, the rest is absorbed) (hint: lower R or T)")
+                            if np.all(np.interp(cc, T.c, T.value) >= 1.0 - 1e-12):
+                                problems.append(f"{pp}.optical_depth: value {tau:g} cannot be met: a flake with T = 1 "
+                                                f"at every c has no extinction (hint: T < 1 somewhere)")
+                        bc.particles.append(CustomFlake(R, T, float(C["orientation_alpha"]), tau,
+                                                        C.get("name", "custom-flake"), pp))
+                    else:
+                        ph = C["phase"]
+                        if ph == "isotropic":
+                            phase = "isotropic"
+                        elif "hg" in ph:
+                            phase = ("hg", float(ph["hg"]))
+                        else:
+                            ct = np.asarray(ph["table"]["cos_theta"], float)
+                            pv = np.asarray(ph["table"]["value"], float)
+                            phase = ("table", ct, pv)
+                            tp = f"{pp}.custom.phase.table"
+                            if ct.size != pv.size:
+                                problems.append(f"{tp}: cos_theta has {ct.size} entries and value {pv.size}")
+                            elif np.any(np.diff(ct) <= 0) or ct[0] != -1.0 or ct[-1] != 1.0:
+                                problems.append(f"{tp}.cos_theta: must increase strictly from -1 to 1 (both ends "
+                                                f"included), got {_json_short(ct.tolist())}")
+                            elif not np.any(pv > 0):
+                                problems.append(f"{tp}.value: all zero; a phase function must integrate to 1 "
+                                                f"(hint: give relative values; compose normalises them)")
+                        bc.particles.append(CustomMedium(float(C["albedo"]), phase, tau,
+                                                         C.get("name", "custom-medium"), pp))
+                    continue
+                name = P["species"]
+                vf = float(P["volume_fraction"])
+                if name not in allsp:
+                    close = difflib.get_close_matches(name, list(allsp), n=3)
+                    problems.append(f"{pp}.species: unknown species {name!r}"
+                                    + (f" (did you mean {', '.join(map(repr, close))}?)" if close else "")
+                                    + " (hint: `flakedb species list` shows the catalogue; or describe it inline "
+                                      "with `custom:` and an optical_depth)")
+                    continue
+                entry = allsp[name]
+                is_flake = entry["kind"] != "pigment"
+                flake_only = ("orientation_alpha", "diameter_um", "opaque")
+                pig_only = ("median_diameter_um", "gsd")
+                for key in (pig_only if is_flake else flake_only):
+                    if key in P:
+                        problems.append(f"{pp}.{key}: {name!r} is a {entry['kind']}; {key} applies to "
+                                        f"{'pigments' if key in pig_only else 'flakes'} only (hint: remove it)")
+                if mode == "mono":
+                    problems.append(f"{pp}.species: catalogue species have spectral optics; mono mode takes "
+                                    f"wavelength-independent inputs only (hint: set spectral.mode to spectral or rgb)")
+                elif grid is not None:
+                    problems += _material_coverage_problems(f"{pp}.species ({name})", entry, grid)
+                if is_flake:
+                    t_flake = float(entry["thickness_um"]["value"])
+                    if t_flake > d:
+                        problems.append(f"{pp}: the flake is {t_flake:g} µm thick but {base}.thickness_um is {d:g} µm "
+                                        f"(hint: a layer must be thicker than its flakes)")
+                    if P.get("opaque") and entry["kind"] == "mirror_flake":
+                        warnings.append(f"{pp}.opaque: a mirror flake is opaque already (T = 0)")
+                else:
+                    dm = float(P.get("median_diameter_um", entry["median_diameter_um"]["value"]))
+                    if dm > d:
+                        problems.append(f"{pp}: median particle diameter {dm:g} µm exceeds {base}.thickness_um = {d:g} µm "
+                                        f"(hint: a layer must be thicker than its pigment particles)")
+                    sum_pig += vf
+                sum_all += vf
+                bc.particles.append(CatalogParticle(
+                    name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
+                    P.get("median_diameter_um"), P.get("gsd"), pp))
+            if sum_pig > PIGMENT_PACKING_LIMIT:
+                problems.append(f"{base}.particles: the pigments' volume fractions add up to {sum_pig:.4g}, above the "
+                                f"random close packing of spheres {PIGMENT_PACKING_LIMIT} (allowed range: Σ ≤ "
+                                f"{PIGMENT_PACKING_LIMIT}) (hint: lower the volume_fraction values)")
+            if sum_all >= 1.0:
+                problems.append(f"{base}.particles: the volume fractions add up to {sum_all:.4g}; they must stay below 1 "
+                                f"(the particles cannot fill more than the layer) (hint: lower them)")
+            elif sum_all > DILUTE_WARNING:
+                warnings.append(f"{base}.particles: volume fractions add up to {sum_all:.3g} > {DILUTE_WARNING}: the "
+                                f"independent-scattering model (eq. 2 adds cross-sections) is doubtful this dense")
+            basecoats.append(bc)
+        else:  # primer
+            if "color" in L:
+                primer = Primer(PRIMER_ALBEDO[L["color"]], L["color"], base)
+            elif "albedo" in L:
+                primer = Primer(float(L["albedo"]), f"albedo {float(L['albedo']):g}", base)
+            else:
+                if mode == "mono":
+                    problems.append(f"{base}.spectrum: a spectrum needs spectral or rgb mode; mono mode takes "
+                                    f"wavelength-independent inputs only (hint: give an albedo)")
+                else:
+                    problems += _spectrum_problems(f"{base}.spectrum", L["spectrum"], grid, 0.0, 1.0, "albedo")
+                sp = L["spectrum"]
+                primer = Primer(Spectrum(np.asarray(sp["wavelength_nm"], float), np.asarray(sp["value"], float)),
+                                "spectrum", base)
+
+    top_ior = clear.ior if clear is not None else (basecoats[0].ior if basecoats else 1.0)
+    if primer is None and top_ior != 1.0:
+        problems.append(
+            f"layers: no primer, so the stack transmits into a half-space of the binder (index {top_ior:g}); a "
+            f"transmissive .bsdf needs one node set above and below, which only an index-matched stack (ior 1, no "
+            f"top interface) has (hint: add a primer as the last layer, or set every ior to 1)")
+    if not basecoats and clear is None and primer is None:
+        problems.append("layers: nothing to compose (hint: add a primer, a basecoat or a clearcoat)")
+    parts = {"mode": mode, "grid": grid, "clearcoat": clear, "basecoats": basecoats, "primer": primer}
+    return problems, warnings, parts
+
+
+# ----------------------------------------------------------------------------------------------
+# Entry points
+# ----------------------------------------------------------------------------------------------
+
+
+def validate_recipe(doc, catalog=None) -> list[str]:
+    """Every problem of a parsed recipe document (empty: valid).  Schema first; semantics only when
+    the schema passes (the checks rely on its shapes)."""
+    if not isinstance(doc, dict):
+        return [f"(top level): a recipe is a YAML mapping (flakedb: 1, name: …, layers: …), got {type(doc).__name__}"]
+    problems = schema_problems(doc)
+    if problems:
+        return problems
+    return semantic_problems(doc, catalog)[0]
+
+
+def parse_recipe(text: str, source="<recipe>", catalog=None) -> Recipe:
+    """Parse, validate and check recipe YAML ``text``; returns a :class:`Recipe` or raises
+    :class:`RecipeError` listing every problem."""
+    import yaml
+
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
+        raise RecipeError(source, [f"YAML syntax error at {where}: {getattr(exc, 'problem', exc)}"]) from None
+    if not isinstance(doc, dict):
+        raise RecipeError(source, validate_recipe(doc, catalog))
+    problems = schema_problems(doc)
+    if problems:
+        raise RecipeError(source, problems)
+    problems, warnings, parts = semantic_problems(doc, catalog)
+    if problems:
+        raise RecipeError(source, problems)
+    res = doc.get("resolution", "auto")
+    return Recipe(
+        name=doc["name"], mode=parts["mode"], wavelength_nm=parts["grid"],
+        n=None if res == "auto" else int(res), clearcoat=parts["clearcoat"], basecoats=parts["basecoats"],
+        primer=parts["primer"], description=doc.get("description", ""), text=text, source=str(source),
+        warnings=warnings, doc=doc,
+    )
+
+
+def load_recipe(path, catalog=None) -> Recipe:
+    """Read and check the recipe file at ``path`` (see :func:`parse_recipe`)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RecipeError(path, ["no such file"]) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecipeError(path, [f"cannot read the file ({exc})"]) from None
+    return parse_recipe(text, source=path, catalog=catalog)

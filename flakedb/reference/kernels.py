@@ -1,0 +1,529 @@
+"""Numba kernels of the Monte Carlo reference (:mod:`flakedb.reference.montecarlo`): one photon path at a time.
+
+Nothing here is shared with the adding-doubling solver (:mod:`flakedb.rt`); the Fresnel factor, the
+microfacet interface, the flake sampler and the RNG are written out again on purpose.  Everything
+takes plain arrays so the kernels stay independent of the Python problem description.
+
+Frame inside the kernels: a propagation direction is stored as ``(dx, dy, mu)`` where ``mu`` is the
+cosine against the **downward** axis (conventions: ``mu > 0`` travels down into the stack) and
+``(dx, dy)`` its horizontal part, ``φ = atan2(dy, dx)``.  Depth ``z`` (µm) grows downward from the top
+interface (``z = 0``).  The incident light travels along ``(sqrt(1 - mu_i²), 0, mu_i)`` (``φ_i = 0``), so
+the azimuth of an exit direction is ``phi_d`` directly (0 = mirror/forward, π = backscatter).
+
+Random numbers: xoshiro256+ (Blackman & Vigna 2018), one independent stream per batch of paths,
+seeded from :class:`numpy.random.SeedSequence`, so a result depends on ``seed`` and ``n_paths`` only
+(not on the number of threads).
+"""
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+# ---- component / boundary codes shared with flakedb.reference.montecarlo ---------------------------------
+COMP_ISOTROPIC = 0
+COMP_HG = 1
+COMP_TABLE = 2
+COMP_FLAKE = 3
+
+TOP_NONE = 0
+TOP_SMOOTH = 1
+TOP_ROUGH = 2
+
+BOTTOM_NONE = 0
+BOTTOM_LAMBERT = 1
+
+# path outcomes
+_ABSORBED = 0
+_EXIT_TOP = 1
+_EXIT_BOTTOM = 2
+_EXIT_BOTTOM_DIRECT = 3
+_LOST = 4
+
+# layout of the per-batch scalar tallies
+S_R = 0          # sum of diffuse reflected weight
+S_R2 = 1         # ... of its squares
+S_T = 2          # scattered transmitted weight
+S_T2 = 3
+S_TDIR = 4       # unscattered (direct) transmitted weight
+S_TDIR2 = 5
+S_LOSS = 6       # weight removed by Smith shadowing-masking at a rough interface
+S_LOSS2 = 7
+S_LOST = 8       # paths stopped by the event cap (should stay 0)
+S_EVENTS = 9     # interactions simulated (tentative collisions + boundary hits)
+N_SCALARS = 10
+
+_U11 = np.uint64(11)
+_U17 = np.uint64(17)
+_U45 = np.uint64(45)
+_U19 = np.uint64(19)
+_INV53 = 1.0 / 9007199254740992.0  # 2**-53
+_TWO_PI = 2.0 * math.pi
+_SQRT_PI = math.sqrt(math.pi)
+
+
+@njit(cache=True)
+def _uniform(s):
+    """xoshiro256+ step: a double uniform on [0, 1) with 53 random bits; ``s`` is the uint64[4] state."""
+    s0 = s[0]
+    s1 = s[1]
+    s2 = s[2]
+    s3 = s[3]
+    result = s0 + s3
+    t = s1 << _U17
+    s2 ^= s0
+    s3 ^= s1
+    s1 ^= s2
+    s0 ^= s3
+    s2 ^= t
+    s3 = (s3 << _U45) | (s3 >> _U19)
+    s[0] = s0
+    s[1] = s1
+    s[2] = s2
+    s[3] = s3
+    return float(result >> _U11) * _INV53
+
+
+@njit(cache=True)
+def fresnel_unpolarized(cos_i, eta):
+    """Unpolarised Fresnel reflectance of a smooth dielectric interface (Born & Wolf §1.5.2).
+
+    ``cos_i`` > 0: cosine of the angle of incidence; ``eta`` = n_transmitted / n_incident (real).
+    Returns 1 under total internal reflection.  F = (r_s² + r_p²)/2 with
+    r_s = (cos_i − η cos_t)/(cos_i + η cos_t), r_p = (η cos_i − cos_t)/(η cos_i + cos_t).
+    """
+    sin2_t = (1.0 - cos_i * cos_i) / (eta * eta)
+    if sin2_t >= 1.0:
+        return 1.0
+    cos_t = math.sqrt(1.0 - sin2_t)
+    rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    return 0.5 * (rs * rs + rp * rp)
+
+
+@njit(cache=True)
+def smith_g1_beckmann(v_z, v_dot_m, alpha):
+    """Exact Smith masking G1 for the Beckmann distribution (Walter et al. 2007, eq. 25, exact form).
+
+    G1 = χ⁺(v·m / v·n) · 2 / (1 + erf(a) + exp(−a²)/(a √π)),  a = 1/(α tan θ_v).
+    ``v_z`` = v·n (may be negative for a transmitted direction), ``v_dot_m`` = v·m.
+    """
+    if v_dot_m * v_z <= 0.0:
+        return 0.0
+    c = abs(v_z)
+    s2 = 1.0 - c * c
+    if s2 <= 0.0:
+        return 1.0
+    a = c / (alpha * math.sqrt(s2))
+    if a > 8.0:  # 1 - G1 < 1e-29
+        return 1.0
+    return 2.0 / (1.0 + math.erf(a) + math.exp(-a * a) / (a * _SQRT_PI))
+
+
+@njit(cache=True)
+def _sample_beckmann_normal(alpha, s):
+    """Microflake / microfacet normal with density exp(−tan²θ/α²)/(π α² cos³θ) on the upper hemisphere.
+
+    This is both the paper's flake density D (eq. 5, ∫_sphere D = 1) folded onto one hemisphere
+    (m and −m act alike) and Walter's D(m) cos θ_m (eq. 28 with his eq. 35 sampling):
+    tan²θ = −α² ln(1 − u₁), φ = 2π u₂.  Returns (mx, my, mz) with mz = cos θ > 0 along the axis.
+    """
+    u1 = _uniform(s)
+    u2 = _uniform(s)
+    tan2 = -alpha * alpha * math.log(1.0 - u1)
+    cos_t = 1.0 / math.sqrt(1.0 + tan2)
+    sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+    phi = _TWO_PI * u2
+    return sin_t * math.cos(phi), sin_t * math.sin(phi), cos_t
+
+
+@njit(cache=True)
+def _interp_column(tab, off, n, base, x):
+    """Linear interpolation in a table whose grid is tab[off:off+n] and whose values are
+    tab[off+base:off+base+n] (clamped at the ends; binary search)."""
+    lo = off
+    hi = off + n - 1
+    if x <= tab[lo]:
+        return tab[lo + base]
+    if x >= tab[hi]:
+        return tab[hi + base]
+    while hi - lo > 1:
+        mid = (lo + hi) >> 1
+        if tab[mid] <= x:
+            lo = mid
+        else:
+            hi = mid
+    t = (x - tab[lo]) / (tab[hi] - tab[lo])
+    return tab[lo + base] * (1.0 - t) + tab[hi + base] * t
+
+
+@njit(cache=True)
+def _interp(tab, off, n, x):
+    """Linear interpolation of the table stored as tab[off:off+n] (grid) and tab[off+n:off+2n] (values)."""
+    return _interp_column(tab, off, n, n, x)
+
+
+@njit(cache=True)
+def _interp_flake(tab, off, n, which, x):
+    """R (which = 0) or T (which = 1) of a flake table stored as [c grid | R | T] at tab[off:off+3n]."""
+    return _interp_column(tab, off, n, n * (1 + which), x)
+
+
+@njit(cache=True)
+def _sample_table_cos(tab, off, n, u):
+    """Invert the CDF of a piecewise-linear pdf q(x) on x = cos Θ ∈ [−1, 1] (exactly, per interval).
+
+    Stored as tab[off:off+n] = x grid, tab[off+n:off+2n] = q (normalised: ∫ q dx = 1),
+    tab[off+2n:off+3n] = CDF at the nodes.  Within [x_k, x_k+1] the CDF is q_k t + s t²/2,
+    solved in the cancellation-free form t = 2Δ / (q_k + sqrt(q_k² + 2 s Δ)).
+    """
+    lo = off
+    hi = off + n - 1
+    cdf0 = off + 2 * n
+    while hi - lo > 1:
+        mid = (lo + hi) >> 1
+        if tab[mid - off + cdf0] <= u:
+            lo = mid
+        else:
+            hi = mid
+    x0 = tab[lo]
+    h = tab[hi] - x0
+    q0 = tab[lo + n]
+    q1 = tab[hi + n]
+    slope = (q1 - q0) / h
+    delta = u - tab[lo - off + cdf0]
+    disc = q0 * q0 + 2.0 * slope * delta
+    if disc < 0.0:
+        disc = 0.0
+    den = q0 + math.sqrt(disc)
+    if den <= 0.0:
+        t = 0.0
+    else:
+        t = 2.0 * delta / den
+    if t < 0.0:
+        t = 0.0
+    if t > h:
+        t = h
+    c = x0 + t
+    if c > 1.0:
+        c = 1.0
+    if c < -1.0:
+        c = -1.0
+    return c
+
+
+@njit(cache=True)
+def _rotate(dx, dy, dz, cos_t, phi):
+    """Turn the unit vector (dx, dy, dz) by polar angle acos(cos_t) and azimuth phi about itself."""
+    sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+    cp = math.cos(phi)
+    sp = math.sin(phi)
+    if abs(dz) > 0.99999:
+        nx = sin_t * cp
+        ny = sin_t * sp
+        nz = cos_t if dz > 0.0 else -cos_t
+    else:
+        tmp = math.sqrt(1.0 - dz * dz)
+        nx = sin_t * (dx * dz * cp - dy * sp) / tmp + dx * cos_t
+        ny = sin_t * (dy * dz * cp + dx * sp) / tmp + dy * cos_t
+        nz = -sin_t * cp * tmp + dz * cos_t
+    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+    return nx * inv, ny * inv, nz * inv
+
+
+@njit(cache=True)
+def _rough_interface(dx, dy, mu, from_above, eta, alpha, s):
+    """One hit of a Beckmann microfacet dielectric interface (Walter et al. 2007), both sides.
+
+    Propagation direction (dx, dy, mu); ``from_above``: the light comes from the air side.
+    ``eta`` = n_binder / n_air.  A microfacet normal is drawn from D(m)|m·n| (Walter eq. 35), the
+    branch is chosen with probability F(i·m) (reflect) / 1 − F (refract), and the path weight is
+    multiplied by Walter's eq. 41, w = |i·m| G1(i,m) G1(o,m) / (|i·n| |m·n|), the same for both
+    branches (separable Smith G, exact Beckmann G1).  Returns (dx', dy', mu', weight_factor);
+    weight_factor = 0 when the sample is masked/shadowed (the single-scattering microfacet model
+    loses that energy).
+    """
+    # local frame: z_l along the normal pointing into the incident side.
+    if from_above:
+        eta_rel = eta
+        wz = -mu
+    else:
+        eta_rel = 1.0 / eta
+        wz = mu
+    ix = -dx
+    iy = -dy
+    iz = -wz  # i = −ω points back to where the light came from; iz > 0
+    mx, my, mz = _sample_beckmann_normal(alpha, s)
+    c = ix * mx + iy * my + iz * mz
+    if c <= 0.0:
+        return dx, dy, mu, 0.0
+    F = fresnel_unpolarized(c, eta_rel)
+    if _uniform(s) < F:
+        ox = 2.0 * c * mx - ix
+        oy = 2.0 * c * my - iy
+        oz = 2.0 * c * mz - iz
+        if oz <= 0.0:
+            return dx, dy, mu, 0.0
+        o_dot_m = c
+    else:
+        sin2_t = (1.0 - c * c) / (eta_rel * eta_rel)
+        cos_t = math.sqrt(max(0.0, 1.0 - sin2_t))
+        k = c / eta_rel - cos_t
+        ox = -ix / eta_rel + k * mx
+        oy = -iy / eta_rel + k * my
+        oz = -iz / eta_rel + k * mz
+        if oz >= 0.0:
+            return dx, dy, mu, 0.0
+        o_dot_m = -cos_t
+    inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
+    ox *= inv
+    oy *= inv
+    oz *= inv
+    g = smith_g1_beckmann(iz, c, alpha) * smith_g1_beckmann(oz, o_dot_m, alpha)
+    w = c * g / (iz * mz)
+    mu_new = -oz if from_above else oz
+    return ox, oy, mu_new, w
+
+
+@njit(cache=True)
+def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, z_edges, sigma_bar, comp_start,
+           comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha, comp_off, comp_n, tab,
+           w_start, max_orders, max_events, rr_threshold):
+    """Trace one path; returns (outcome, weight, dx, dy, mu, interface_loss, events)."""
+    n_slabs = sigma_bar.shape[0]
+    w = w_start
+    loss = 0.0
+    events = 0
+    sin_i = math.sqrt(max(0.0, 1.0 - mu_i * mu_i))
+    dx = sin_i
+    dy = 0.0
+    mu = mu_i
+    direct = True
+    if top_type == TOP_SMOOTH:
+        sin_t = sin_i / eta
+        if sin_t >= 1.0:  # total reflection from the air side (eta < 1): nothing enters
+            return _ABSORBED, 0.0, dx, dy, mu, loss, events
+        dx = sin_t
+        mu = math.sqrt(1.0 - sin_t * sin_t)
+    elif top_type == TOP_ROUGH:
+        dx, dy, mu, f = _rough_interface(dx, dy, mu, True, eta, top_alpha, s)
+        events += 1
+        loss += w * (1.0 - f)
+        w *= f
+        direct = False
+        if w == 0.0:
+            return _ABSORBED, 0.0, dx, dy, mu, loss, events
+        if mu < 0.0:
+            return _EXIT_TOP, w, dx, dy, mu, loss, events
+    z = 0.0
+    k = 0
+    orders = 0
+    while True:
+        events += 1
+        if events > max_events:
+            return _LOST, w, dx, dy, mu, loss, events
+        sb = sigma_bar[k]
+        if mu > 0.0:
+            dist = (z_edges[k + 1] - z) / mu
+        elif mu < 0.0:
+            dist = (z - z_edges[k]) / (-mu)
+        else:
+            dist = np.inf
+        if sb > 0.0:
+            t = -math.log(1.0 - _uniform(s)) / sb
+        else:
+            t = np.inf
+        if t >= dist:
+            if dist == np.inf:
+                return _LOST, w, dx, dy, mu, loss, events
+            if mu > 0.0:
+                z = z_edges[k + 1]
+                if k < n_slabs - 1:
+                    k += 1
+                    continue
+                # bottom of the stack
+                if bot_type == BOTTOM_LAMBERT:
+                    w *= bot_albedo
+                    if w == 0.0:
+                        return _ABSORBED, 0.0, dx, dy, mu, loss, events
+                    if w < rr_threshold and bot_albedo < 1.0:  # Russian roulette (see below)
+                        if _uniform(s) < 0.1:
+                            w *= 10.0
+                        else:
+                            return _ABSORBED, 0.0, dx, dy, mu, loss, events
+                    direct = False
+                    u1 = _uniform(s)
+                    u2 = _uniform(s)
+                    mu = -math.sqrt(u1)  # cosine-weighted, travelling up
+                    st = math.sqrt(max(0.0, 1.0 - u1))
+                    ph = _TWO_PI * u2
+                    dx = st * math.cos(ph)
+                    dy = st * math.sin(ph)
+                else:
+                    if direct:
+                        return _EXIT_BOTTOM_DIRECT, w, dx, dy, mu, loss, events
+                    return _EXIT_BOTTOM, w, dx, dy, mu, loss, events
+            else:
+                z = z_edges[k]
+                if k > 0:
+                    k -= 1
+                    continue
+                # top interface from inside
+                if top_type == TOP_NONE:
+                    return _EXIT_TOP, w, dx, dy, mu, loss, events
+                elif top_type == TOP_SMOOTH:
+                    cos_in = -mu
+                    F = fresnel_unpolarized(cos_in, 1.0 / eta)
+                    direct = False
+                    if _uniform(s) < F:
+                        mu = cos_in
+                    else:
+                        sin_in = math.sqrt(max(0.0, 1.0 - cos_in * cos_in))
+                        sin_out = eta * sin_in
+                        mu_out = -math.sqrt(max(0.0, 1.0 - sin_out * sin_out))
+                        if sin_in > 0.0:
+                            scale = sin_out / sin_in
+                            dx *= scale
+                            dy *= scale
+                        return _EXIT_TOP, w, dx, dy, mu_out, loss, events
+                else:
+                    dx, dy, mu, f = _rough_interface(dx, dy, mu, False, eta, top_alpha, s)
+                    loss += w * (1.0 - f)
+                    w *= f
+                    direct = False
+                    if w == 0.0:
+                        return _ABSORBED, 0.0, dx, dy, mu, loss, events
+                    if mu < 0.0:
+                        return _EXIT_TOP, w, dx, dy, mu, loss, events
+            continue
+        # tentative collision inside slab k
+        z += t * mu
+        if z < z_edges[k]:
+            z = z_edges[k]
+        elif z > z_edges[k + 1]:
+            z = z_edges[k + 1]
+        pick = _uniform(s) * sb
+        j = comp_start[k]
+        acc = comp_sigma[j]
+        while acc < pick and j < comp_start[k + 1] - 1:
+            j += 1
+            acc += comp_sigma[j]
+        ctype = comp_type[j]
+        if ctype == COMP_FLAKE:
+            mx, my, mz = _sample_beckmann_normal(comp_alpha[j], s)
+            cdot = dx * mx + dy * my + mu * mz
+            c = abs(cdot)
+            if _uniform(s) >= c:
+                continue  # null collision: flake seen edge-on in proportion 1 - |ω·m|
+            Tc = _interp_flake(tab, comp_off[j], comp_n[j], 1, c)
+            if Tc >= 1.0 or _uniform(s) < Tc:
+                continue  # transmitted undeviated through the flake
+            orders += 1
+            if max_orders >= 0 and orders > max_orders:
+                return _ABSORBED, 0.0, dx, dy, mu, loss, events
+            Rc = _interp_flake(tab, comp_off[j], comp_n[j], 0, c)
+            w *= Rc / (1.0 - Tc)
+            dx -= 2.0 * cdot * mx
+            dy -= 2.0 * cdot * my
+            mu -= 2.0 * cdot * mz
+            inv = 1.0 / math.sqrt(dx * dx + dy * dy + mu * mu)
+            dx *= inv
+            dy *= inv
+            mu *= inv
+        else:
+            orders += 1
+            if max_orders >= 0 and orders > max_orders:
+                return _ABSORBED, 0.0, dx, dy, mu, loss, events
+            w *= comp_albedo[j]
+            if ctype == COMP_ISOTROPIC:
+                cos_t = 2.0 * _uniform(s) - 1.0
+            elif ctype == COMP_HG:
+                g = comp_g[j]
+                u = _uniform(s)
+                if abs(g) < 1e-6:
+                    cos_t = 2.0 * u - 1.0
+                else:
+                    q = (1.0 - g * g) / (1.0 - g + 2.0 * g * u)
+                    cos_t = (1.0 + g * g - q * q) / (2.0 * g)
+                    if cos_t > 1.0:
+                        cos_t = 1.0
+                    if cos_t < -1.0:
+                        cos_t = -1.0
+            else:
+                cos_t = _sample_table_cos(tab, comp_off[j], comp_n[j], _uniform(s))
+            ph = _TWO_PI * _uniform(s)
+            dx, dy, mu = _rotate(dx, dy, mu, cos_t, ph)
+        direct = False
+        if w == 0.0:
+            return _ABSORBED, 0.0, dx, dy, mu, loss, events
+        if w < rr_threshold:  # Russian roulette, survival probability 1/10 (unbiased)
+            if _uniform(s) < 0.1:
+                w *= 10.0
+            else:
+                return _ABSORBED, 0.0, dx, dy, mu, loss, events
+
+
+@njit(cache=True)
+def _bin_index(edges, v):
+    n = edges.shape[0]
+    if v < edges[0] or v > edges[n - 1]:
+        return -1
+    if v == edges[n - 1]:
+        return n - 2
+    i = np.searchsorted(edges, v, side="right") - 1
+    return i
+
+
+@njit(parallel=True, cache=True)
+def simulate_kernel(path_counts, seeds, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, z_edges,
+                    sigma_bar, comp_start, comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha,
+                    comp_off, comp_n, tab, w_start, mu_edges, phi_edges, max_orders, max_events,
+                    rr_threshold):
+    """Run ``path_counts[b]`` paths for every batch b (in parallel, each with its own RNG stream).
+
+    Returns per-batch tallies: ``scal`` (B, N_SCALARS) with the layout S_*; ``rbin`` / ``tbin``
+    (B, n_mu, n_phi, 2): the sum and sum of squares of the weight leaving the top / (scattered)
+    bottom into each (|mu|, phi_d) bin.  Diffuse reflection excludes the first-surface specular
+    reflection of a smooth top, which the caller carries analytically (1 − w_start of the power).
+    """
+    n_batches = path_counts.shape[0]
+    n_mu = mu_edges.shape[0] - 1
+    n_phi = phi_edges.shape[0] - 1
+    scal = np.zeros((n_batches, N_SCALARS))
+    rbin = np.zeros((n_batches, n_mu, n_phi, 2))
+    tbin = np.zeros((n_batches, n_mu, n_phi, 2))
+    for b in prange(n_batches):
+        s = seeds[b].copy()
+        for _ in range(path_counts[b]):
+            outcome, w, dx, dy, mu, loss, events = _trace(
+                s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, z_edges, sigma_bar, comp_start,
+                comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha, comp_off, comp_n, tab,
+                w_start, max_orders, max_events, rr_threshold)
+            scal[b, S_EVENTS] += events
+            if loss != 0.0:
+                scal[b, S_LOSS] += loss
+                scal[b, S_LOSS2] += loss * loss
+            if outcome == _ABSORBED:
+                continue
+            if outcome == _LOST:
+                scal[b, S_LOST] += 1.0
+                continue
+            if outcome == _EXIT_BOTTOM_DIRECT:
+                scal[b, S_TDIR] += w
+                scal[b, S_TDIR2] += w * w
+                continue
+            i = _bin_index(mu_edges, abs(mu))
+            jphi = _bin_index(phi_edges, abs(math.atan2(dy, dx)))
+            if outcome == _EXIT_TOP:
+                scal[b, S_R] += w
+                scal[b, S_R2] += w * w
+                if i >= 0 and jphi >= 0:
+                    rbin[b, i, jphi, 0] += w
+                    rbin[b, i, jphi, 1] += w * w
+            else:
+                scal[b, S_T] += w
+                scal[b, S_T2] += w * w
+                if i >= 0 and jphi >= 0:
+                    tbin[b, i, jphi, 0] += w
+                    tbin[b, i, jphi, 1] += w * w
+    return scal, rbin, tbin

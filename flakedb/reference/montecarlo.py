@@ -1,0 +1,644 @@
+"""Independent Monte Carlo reference for the plane-parallel paint stack (model.md §7 item 2).
+
+It solves the same radiative-transfer problem as the adding-doubling solver (:mod:`flakedb.rt`) by
+tracing photon paths, and shares no code with it.  Conventions: :mod:`flakedb.conventions`
+(propagation directions, ``mu > 0`` travels down, ``phi_d = 0`` forward/mirror, ``π`` backscatter,
+``eta = eta_below / eta_above``, phase functions normalised to 1 over the sphere in 1/sr).
+
+The problem
+-----------
+Air (index 1) above; a top interface (``None``: index-matched, :class:`Smooth`, :class:`Rough`);
+one or more :class:`Slab` s of the binder, whose real index is the ``eta`` of the top interface
+(1 when the top is ``None``; slabs are index-matched to each other); a bottom (:class:`Lambertian`
+inside the binder at the bottom of the last slab, or ``None``: light leaving the last slab is
+counted as transmitted into a half-space of the binder's index).  Each slab holds zero or more media
+whose extinctions and kernels add:
+
+* :class:`PhaseMedium` — direction-independent σ_t with a phase function (:class:`Isotropic`,
+  :class:`HenyeyGreenstein`, :class:`TabulatedPhase`).
+* :class:`FlakeMedium` — translucent micro-flakes (paper eq. 2, model.md §3): normals with the
+  Beckmann density D(m) = exp(−tan²θ/α²)/(2π α² |cos θ|³) on the sphere (paper eq. 5), reflectance
+  R(c) and transmittance T(c) of c = |ω·m|.
+
+How flakes are simulated (without σ_t(μ) quadrature, so independently of the solver)
+--------------------------------------------------------------------------------------
+Delta tracking with the majorant aρ (valid since |ω·m| ≤ 1), added to the other components' σ_t:
+at a tentative collision a flake normal m ~ D is drawn in closed form (tan²θ = −α² ln(1−u)); the
+collision is a real encounter with probability |ω·m| (else a null collision); the light then
+passes undeviated with probability T(c), otherwise it is reflected specularly, ω' = ω − 2(ω·m)m,
+**with its weight multiplied by R(c)/(1 − T(c))** (absorption carried by weights, no termination).
+This realises σ_t(ω) = aρ∫(1−T)|ω·m|D dm and the kernel (aρ/4) R(|ω'·h|)(D(h)+D(−h)) of model.md §3.
+Phase media also carry absorption by weights (w ← w·albedo); low weights are Russian-rouletted
+(survival 1/10 below ``rr_threshold``), which is unbiased.  A non-absorbing problem therefore has
+zero-variance energy bookkeeping: every path leaves with its starting weight.
+
+Interfaces
+----------
+* :class:`Smooth`: unpolarised Fresnel, refraction and total internal reflection both ways.  The
+  first-surface mirror reflection F(θ_i) is carried **analytically** (``Result.specular``); every
+  path enters with weight 1 − F(θ_i).  Inside, reflection vs refraction is chosen with probability F.
+* :class:`Rough`: Walter et al. 2007 microfacet dielectric, Beckmann D, separable Smith G with the
+  exact Beckmann G1 (erf form), reflection and transmission both ways.  Normals are drawn from
+  D(m)|m·n| (Walter eq. 35), branch chosen with probability F(i·m), weight Walter eq. 41.  This
+  single-scattering microfacet model is not energy conserving (it loses the masked/shadowed part:
+  1.36 % of the incident power for a white Lambertian under α = 0.1, η = 1.5 at μ_i = 0.6, where
+  light meets the interface ~2.5 times); the loss is tallied as ``Result.interface_loss``.  There is no delta term for a rough top.
+
+Estimators
+----------
+For light incident from the air with ``mu_i`` (φ_i = 0), per spectral channel c (channels are
+simulated one after another with the *same* random streams — common random numbers — so a channel
+of a multi-channel problem equals the same problem with that channel alone, bit for bit):
+
+* ``albedo`` = ``specular`` + ``diffuse_albedo``: fraction of incident power leaving the top
+  (``diffuse_albedo`` is everything but the analytic first-surface delta; its standard error is
+  ``albedo_se``).
+* ``transmittance`` = ``transmittance_direct`` (never scattered or reflected: the delta term of the
+  transmission) + scattered; ``transmittance_se``, ``transmittance_direct_se``.
+* Binned (when ``mu_edges``/``phi_edges`` are given): for bins of |μ_o| (``mu_edges``, ascending in
+  [0, 1]) × φ_d (``phi_edges``, ascending in [0, π], the bin standing for ±φ_d together):
+  ``reflectance_binned[c, i, j]`` = (fraction of incident power leaving the top into the bin,
+  excluding the specular delta) / (solid angle of the bin, 2 Δ|μ| Δφ) in 1/sr.  For a tabulated BSDF
+  f this equals ∫_bin f |μ_o| dω / ∫_bin dω = (1/(Δ|μ| Δφ)) ∫∫ f |μ_o| d|μ_o| dφ_d, which
+  :func:`bin_average` computes by quadrature.  ``transmittance_binned`` is the same for the scattered
+  transmission (directions in the bottom half-space, |μ| of the binder-side direction).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from flakedb.reference import kernels as _k
+
+__all__ = [
+    "Isotropic",
+    "HenyeyGreenstein",
+    "TabulatedPhase",
+    "PhaseMedium",
+    "FlakeMedium",
+    "Slab",
+    "Smooth",
+    "Rough",
+    "Lambertian",
+    "Problem",
+    "Result",
+    "simulate",
+    "directional_albedo",
+    "binned_reflectance",
+    "bin_average",
+    "flake_ndf_Beckmann",
+]
+
+#: number of independent RNG streams (path batches); fixed so results depend on seed and n_paths only
+N_BATCHES = 64
+#: Russian roulette threshold on the path weight (relative to a start weight of 1)
+RR_THRESHOLD = 1e-3
+#: paths interacting more often than this are counted as lost (``Result.n_lost``; should be 0)
+MAX_EVENTS = 10_000_000
+
+
+# ----------------------------------------------------------------------------------------------
+# problem description
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Isotropic:
+    """Isotropic phase function p = 1/(4π) sr⁻¹."""
+
+
+@dataclass(frozen=True)
+class HenyeyGreenstein:
+    """Henyey–Greenstein phase function p(cos Θ) = (1−g²)/(4π (1+g²−2g cos Θ)^{3/2}) sr⁻¹.
+
+    ``g``: mean cosine (scalar or per channel (C,)), g > 0 forward scattering (cos Θ = ω_in·ω_out).
+    """
+
+    g: Any
+
+
+@dataclass(frozen=True)
+class TabulatedPhase:
+    """Tabulated phase function p(cos Θ) in 1/sr, linearly interpolated in cos Θ.
+
+    ``cos_theta``: strictly increasing grid from −1 to 1; ``value``: p at the nodes, (n,) or (C, n),
+    normalised to 1 over the sphere (2π ∫ p dcosΘ = 1).  The piecewise-linear interpolant is
+    renormalised exactly (trapezoid rule) and sampled by inverting its CDF exactly; a table whose
+    trapezoid normalisation is off by more than 1 % is refused.
+    """
+
+    cos_theta: Any
+    value: Any
+
+
+@dataclass(frozen=True)
+class PhaseMedium:
+    """A direction-independent medium component: extinction ``sigma_t_per_um`` (1/µm), single-
+    scattering ``albedo`` (both scalars or per channel (C,)) and a ``phase`` function
+    (:class:`Isotropic`, :class:`HenyeyGreenstein`, :class:`TabulatedPhase`; the solver-style specs
+    ``"isotropic"``, ``("hg", g)`` and ``("table", cos_theta, value)`` are accepted too)."""
+
+    sigma_t_per_um: Any
+    albedo: Any
+    phase: Any = Isotropic()
+
+
+@dataclass(frozen=True)
+class FlakeMedium:
+    """Translucent micro-flakes (paper eq. 2, model.md §3).
+
+    ``a_rho_per_um``: flake area × number density aρ (1/µm; scalar or (C,)); ``alpha``: Beckmann
+    roughness of the flake normals (paper eq. 5); ``R_table``, ``T_table``: flake reflectance and
+    transmittance as functions of c = |ω·m| — without ``c_grid``: constants (scalar or (C,)); with
+    ``c_grid`` (n,): tables (n,) or (C, n), or scalars (constant), linearly interpolated in c.  ``c_grid`` must run from 0 to 1; R, T ≥ 0, R + T ≤ 1.
+    """
+
+    a_rho_per_um: Any
+    alpha: float
+    R_table: Any
+    T_table: Any = 0.0
+    c_grid: Any = None
+
+
+@dataclass(frozen=True)
+class Slab:
+    """A slab of binder of thickness ``thickness_um`` (µm) holding the media in ``media`` (which add)."""
+
+    thickness_um: float
+    media: tuple = ()
+
+
+@dataclass(frozen=True)
+class Smooth:
+    """Smooth dielectric top interface, ``eta`` = n_binder / n_air (real, > 0)."""
+
+    eta: float
+
+
+@dataclass(frozen=True)
+class Rough:
+    """Rough dielectric top interface (Walter et al. 2007, Beckmann, roughness ``alpha`` > 0),
+    ``eta`` = n_binder / n_air."""
+
+    eta: float
+    alpha: float
+
+
+@dataclass(frozen=True)
+class Lambertian:
+    """Lambertian primer at the bottom of the last slab, inside the binder; ``albedo`` scalar or (C,)."""
+
+    albedo: Any
+
+
+@dataclass(frozen=True)
+class Problem:
+    """The stack: ``slabs`` (top to bottom), ``top`` interface (None, :class:`Smooth`, :class:`Rough`),
+    ``bottom`` (None or :class:`Lambertian`).  See the module docstring."""
+
+    slabs: tuple
+    top: Any = None
+    bottom: Any = None
+
+    @property
+    def eta_binder(self) -> float:
+        """Real index of the binder relative to the air above (1 with an index-matched top)."""
+        return 1.0 if self.top is None else float(self.top.eta)
+
+    @property
+    def n_channels(self) -> int:
+        """Number of spectral channels C, from the broadcast of every per-channel parameter."""
+        return _n_channels(self)
+
+
+# ----------------------------------------------------------------------------------------------
+# result
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Result:
+    """Monte Carlo estimates for one incident direction; arrays have a leading channel axis (C,).
+
+    See the module docstring for the definitions.  ``*_se`` are one-sigma standard errors of the
+    mean over paths.  ``absorbed`` = 1 − albedo − transmittance − interface_loss (estimate).
+    """
+
+    mu_i: float
+    n_paths: int
+    seed: int
+    albedo: np.ndarray
+    albedo_se: np.ndarray
+    specular: np.ndarray
+    diffuse_albedo: np.ndarray
+    transmittance: np.ndarray
+    transmittance_se: np.ndarray
+    transmittance_direct: np.ndarray
+    transmittance_direct_se: np.ndarray
+    interface_loss: np.ndarray
+    interface_loss_se: np.ndarray
+    absorbed: np.ndarray
+    n_lost: np.ndarray
+    events_per_path: np.ndarray
+    mu_edges: np.ndarray | None = None
+    phi_edges: np.ndarray | None = None
+    reflectance_binned: np.ndarray | None = None
+    reflectance_binned_se: np.ndarray | None = None
+    transmittance_binned: np.ndarray | None = None
+    transmittance_binned_se: np.ndarray | None = None
+    max_scattering_orders: int | None = None
+    extra: dict = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------------------------
+# validation and packing
+# ----------------------------------------------------------------------------------------------
+
+
+def _arr(x):
+    return np.asarray(x, dtype=float)
+
+
+def _per_channel_sizes(problem):
+    """Yield (path, C) for every parameter that carries a channel axis."""
+    for si, slab in enumerate(problem.slabs):
+        for mi, m in enumerate(slab.media):
+            p = f"slabs[{si}].media[{mi}]"
+            if isinstance(m, PhaseMedium):
+                for name in ("sigma_t_per_um", "albedo"):
+                    a = _arr(getattr(m, name))
+                    if a.ndim == 1:
+                        yield f"{p}.{name}", a.shape[0]
+                ph = _normalise_phase(m.phase, p)
+                if isinstance(ph, HenyeyGreenstein) and _arr(ph.g).ndim == 1:
+                    yield f"{p}.phase.g", _arr(ph.g).shape[0]
+                if isinstance(ph, TabulatedPhase) and _arr(ph.value).ndim == 2:
+                    yield f"{p}.phase.value", _arr(ph.value).shape[0]
+            elif isinstance(m, FlakeMedium):
+                a = _arr(m.a_rho_per_um)
+                if a.ndim == 1:
+                    yield f"{p}.a_rho_per_um", a.shape[0]
+                for name in ("R_table", "T_table"):
+                    t = _arr(getattr(m, name))
+                    if (m.c_grid is None and t.ndim == 1) or (m.c_grid is not None and t.ndim == 2):
+                        yield f"{p}.{name}", t.shape[0]
+    if isinstance(problem.bottom, Lambertian) and _arr(problem.bottom.albedo).ndim == 1:
+        yield "bottom.albedo", _arr(problem.bottom.albedo).shape[0]
+
+
+def _n_channels(problem):
+    sizes = list(_per_channel_sizes(problem))
+    cs = {c for _, c in sizes}
+    if len(cs) > 1:
+        raise ValueError(
+            "per-channel parameters disagree on the number of channels: "
+            + ", ".join(f"{p} has {c}" for p, c in sizes)
+            + "; give every per-channel array the same length (or a scalar for all channels)."
+        )
+    return cs.pop() if cs else 1
+
+
+def _normalise_phase(ph, path):
+    if isinstance(ph, (Isotropic, HenyeyGreenstein, TabulatedPhase)):
+        return ph
+    if isinstance(ph, str) and ph == "isotropic":
+        return Isotropic()
+    if isinstance(ph, tuple) and len(ph) == 2 and ph[0] == "hg":
+        return HenyeyGreenstein(ph[1])
+    if isinstance(ph, tuple) and len(ph) == 3 and ph[0] == "table":
+        return TabulatedPhase(ph[1], ph[2])
+    raise ValueError(
+        f"{path}.phase = {ph!r} is not a phase function; use Isotropic(), HenyeyGreenstein(g), "
+        "TabulatedPhase(cos_theta, value) (or 'isotropic', ('hg', g), ('table', cos_theta, value))."
+    )
+
+
+def _pick(x, c, path, base_ndim=0):
+    """Channel c of a parameter that is either channel-independent (ndim == base_ndim) or (C, ...)."""
+    a = _arr(x)
+    if a.ndim == base_ndim:
+        return a
+    if a.ndim == base_ndim + 1:
+        return a[c]
+    raise ValueError(f"{path} has shape {a.shape}; expected {base_ndim}-d (all channels) or {base_ndim + 1}-d (per channel).")
+
+
+def _check_range(v, lo, hi, path, what):
+    v = np.asarray(v, dtype=float)
+    if not np.all(np.isfinite(v)) or np.any(v < lo) or np.any(v > hi):
+        raise ValueError(f"{path} = {v} is outside [{lo}, {hi}] ({what}).")
+
+
+def _validate(problem):
+    if not isinstance(problem, Problem):
+        raise TypeError("problem must be a flakedb.reference.montecarlo.Problem")
+    if len(problem.slabs) == 0:
+        raise ValueError("Problem.slabs is empty; give at least one Slab(thickness_um, media).")
+    top = problem.top
+    if top is not None and not isinstance(top, (Smooth, Rough)):
+        raise ValueError(f"top = {top!r}; use None (index-matched), Smooth(eta) or Rough(eta, alpha).")
+    if top is not None and not (np.isfinite(top.eta) and top.eta > 0):
+        raise ValueError(f"top.eta = {top.eta}; it must be a positive real n_binder / n_air.")
+    if isinstance(top, Rough) and not (0 < top.alpha <= 2):
+        raise ValueError(f"top.alpha = {top.alpha}; the Beckmann roughness must be in (0, 2] (use Smooth for 0).")
+    if problem.bottom is not None and not isinstance(problem.bottom, Lambertian):
+        raise ValueError(f"bottom = {problem.bottom!r}; use None (index-matched half-space) or Lambertian(albedo).")
+    if isinstance(problem.bottom, Lambertian):
+        _check_range(problem.bottom.albedo, 0.0, 1.0, "bottom.albedo", "an albedo")
+    for si, slab in enumerate(problem.slabs):
+        if not isinstance(slab, Slab):
+            raise ValueError(f"slabs[{si}] = {slab!r} is not a Slab")
+        if not (np.isfinite(slab.thickness_um) and slab.thickness_um > 0):
+            raise ValueError(f"slabs[{si}].thickness_um = {slab.thickness_um}; it must be > 0 µm.")
+        for mi, m in enumerate(slab.media):
+            p = f"slabs[{si}].media[{mi}]"
+            if isinstance(m, PhaseMedium):
+                _check_range(m.sigma_t_per_um, 0.0, np.inf, f"{p}.sigma_t_per_um", "an extinction in 1/µm")
+                _check_range(m.albedo, 0.0, 1.0, f"{p}.albedo", "a single-scattering albedo")
+                ph = _normalise_phase(m.phase, p)
+                if isinstance(ph, HenyeyGreenstein):
+                    _check_range(ph.g, -0.999999, 0.999999, f"{p}.phase.g", "the HG mean cosine, |g| < 1")
+                if isinstance(ph, TabulatedPhase):
+                    _phase_table(ph, 0, p)  # raises on a bad table
+            elif isinstance(m, FlakeMedium):
+                _check_range(m.a_rho_per_um, 0.0, np.inf, f"{p}.a_rho_per_um", "aρ in 1/µm")
+                if not (0 < m.alpha <= 10):
+                    raise ValueError(f"{p}.alpha = {m.alpha}; the flake Beckmann roughness must be in (0, 10].")
+            else:
+                raise ValueError(f"{p} = {m!r}; use PhaseMedium or FlakeMedium.")
+    C = _n_channels(problem)
+    for c in range(C):
+        for si, slab in enumerate(problem.slabs):
+            for mi, m in enumerate(slab.media):
+                if isinstance(m, FlakeMedium):
+                    _flake_table(m, c, f"slabs[{si}].media[{mi}]")
+    return C
+
+
+def _phase_table(ph, c, path):
+    x = _arr(ph.cos_theta)
+    v = _pick(ph.value, c, f"{path}.phase.value", base_ndim=1)
+    if x.ndim != 1 or x.shape != v.shape or x.size < 2:
+        raise ValueError(f"{path}.phase: cos_theta {x.shape} and value {v.shape} must be 1-d of equal length >= 2.")
+    if abs(x[0] + 1) > 1e-12 or abs(x[-1] - 1) > 1e-12 or np.any(np.diff(x) <= 0):
+        raise ValueError(f"{path}.phase.cos_theta must increase strictly from -1 to 1.")
+    if np.any(v < 0) or not np.all(np.isfinite(v)):
+        raise ValueError(f"{path}.phase.value must be finite and >= 0.")
+    norm = 2 * np.pi * np.trapezoid(v, x)
+    if abs(norm - 1) > 1e-2:
+        raise ValueError(
+            f"{path}.phase: 2π ∫ p dcosΘ = {norm:.6g} (trapezoid on the table), not 1; pass p in 1/sr "
+            "normalised to 1 over the sphere (conventions), or refine the table."
+        )
+    q = 2 * np.pi * v / norm  # pdf in cos Θ, ∫ q dx = 1 with the trapezoid rule
+    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (q[1:] + q[:-1]) * np.diff(x))])
+    cdf /= cdf[-1]
+    return x, q, cdf
+
+
+def _flake_table(m, c, path):
+    if m.c_grid is None:
+        R = float(_pick(m.R_table, c, f"{path}.R_table"))
+        T = float(_pick(m.T_table, c, f"{path}.T_table"))
+        grid = np.array([0.0, 1.0])
+        R = np.array([R, R])
+        T = np.array([T, T])
+    else:
+        grid = _arr(m.c_grid)
+        if grid.ndim != 1 or grid.size < 2 or abs(grid[0]) > 1e-12 or abs(grid[-1] - 1) > 1e-12 or np.any(np.diff(grid) <= 0):
+            raise ValueError(f"{path}.c_grid must increase strictly from 0 to 1 (cosines c = |ω·m|).")
+        R, T = (_arr(getattr(m, name)) for name in ("R_table", "T_table"))
+        R = np.broadcast_to(R if R.ndim == 0 else _pick(R, c, f"{path}.R_table", base_ndim=1), grid.shape).astype(float)
+        T = np.broadcast_to(T if T.ndim == 0 else _pick(T, c, f"{path}.T_table", base_ndim=1), grid.shape).astype(float)
+    if np.any(R < 0) or np.any(T < 0) or np.any(R + T > 1 + 1e-9):
+        bad = np.argmax((R < 0) | (T < 0) | (R + T > 1 + 1e-9))
+        raise ValueError(
+            f"{path}: R = {R[bad]:.6g}, T = {T[bad]:.6g} at c = {grid[bad]:.4g} (channel {c}); flakes need "
+            "R, T >= 0 and R + T <= 1 (energy conservation, model.md §3)."
+        )
+    return grid, R, np.minimum(T, 1.0)
+
+
+def _pack(problem, c):
+    """Flatten channel c of the problem into the kernel's arrays."""
+    z = [0.0]
+    sigma_bar, comp_start = [], [0]
+    ctype, csig, calb, cg, calpha, coff, cn = [], [], [], [], [], [], []
+    tab = []
+    for si, slab in enumerate(problem.slabs):
+        z.append(z[-1] + float(slab.thickness_um))
+        sb = 0.0
+        for mi, m in enumerate(slab.media):
+            p = f"slabs[{si}].media[{mi}]"
+            if isinstance(m, PhaseMedium):
+                sig = float(_pick(m.sigma_t_per_um, c, f"{p}.sigma_t_per_um"))
+                alb = float(_pick(m.albedo, c, f"{p}.albedo"))
+                ph = _normalise_phase(m.phase, p)
+                g, off, n = 0.0, 0, 0
+                if isinstance(ph, Isotropic):
+                    t = _k.COMP_ISOTROPIC
+                elif isinstance(ph, HenyeyGreenstein):
+                    t = _k.COMP_HG
+                    g = float(_pick(ph.g, c, f"{p}.phase.g"))
+                else:
+                    t = _k.COMP_TABLE
+                    x, q, cdf = _phase_table(ph, c, p)
+                    off, n = len(tab), len(x)
+                    tab.extend(x)
+                    tab.extend(q)
+                    tab.extend(cdf)
+                a = 0.0
+            else:
+                t = _k.COMP_FLAKE
+                sig = float(_pick(m.a_rho_per_um, c, f"{p}.a_rho_per_um"))
+                alb, g, a = 0.0, 0.0, float(m.alpha)
+                grid, R, T = _flake_table(m, c, p)
+                off, n = len(tab), len(grid)
+                tab.extend(grid)
+                tab.extend(R)
+                tab.extend(T)
+            if sig == 0.0:
+                continue
+            ctype.append(t)
+            csig.append(sig)
+            calb.append(alb)
+            cg.append(g)
+            calpha.append(a)
+            coff.append(off)
+            cn.append(n)
+            sb += sig
+        sigma_bar.append(sb)
+        comp_start.append(len(ctype))
+    if not tab:
+        tab = [0.0]
+    i64 = np.int64
+    return dict(
+        z_edges=np.array(z), sigma_bar=np.array(sigma_bar), comp_start=np.array(comp_start, dtype=i64),
+        comp_type=np.array(ctype, dtype=i64), comp_sigma=np.array(csig, dtype=float),
+        comp_albedo=np.array(calb, dtype=float), comp_g=np.array(cg, dtype=float),
+        comp_alpha=np.array(calpha, dtype=float), comp_off=np.array(coff, dtype=i64),
+        comp_n=np.array(cn, dtype=i64), tab=np.array(tab, dtype=float),
+    )
+
+
+def _edges(edges, hi, name):
+    e = _arr(edges)
+    if e.ndim != 1 or e.size < 2 or np.any(np.diff(e) <= 0) or e[0] < 0 or e[-1] > hi + 1e-12:
+        raise ValueError(
+            f"{name} = {edges!r}: need >= 2 strictly increasing edges in [0, {hi:.6g}]"
+            + (" (edges of |mu_o| = cos θ_o; reflected mu_o < 0 is binned by its absolute value)" if name == "mu_edges" else "")
+            + "."
+        )
+    return e
+
+
+def _fresnel_scalar(cos_i, eta):
+    """Unpolarised Fresnel reflectance (the same closed form the kernels use), for the delta term."""
+    return float(_k.fresnel_unpolarized(float(cos_i), float(eta)))
+
+
+def flake_ndf_Beckmann(cos_theta, alpha):
+    """The paper's flake normal density on the sphere (eq. 5), in 1/sr:
+    D(m) = exp(−tan²θ/α²) / (2π α² |cos θ|³); symmetric under m → −m, ∫_sphere D dm = 1."""
+    c = np.abs(np.asarray(cos_theta, dtype=float))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        tan2 = (1.0 - c * c) / (c * c)
+        d = np.exp(-tan2 / alpha**2) / (2 * np.pi * alpha**2 * c**3)
+    return np.where(c > 0, d, 0.0)
+
+
+# ----------------------------------------------------------------------------------------------
+# public API
+# ----------------------------------------------------------------------------------------------
+
+
+def simulate(problem, mu_i, n_paths, seed, mu_edges=None, phi_edges=None, *, max_scattering_orders=None,
+             rr_threshold=RR_THRESHOLD):
+    """Trace ``n_paths`` paths per channel for light incident from the air at ``mu_i`` = cos θ_i ∈ (0, 1].
+
+    ``seed`` (int) fixes the random streams (results depend on ``seed`` and ``n_paths`` only).
+    ``mu_edges`` (edges of |μ|, in [0, 1]) and ``phi_edges`` (edges of φ_d, in [0, π]) switch on the
+    binned estimators (give both, or neither: a missing one defaults to a single bin over its range).
+    ``max_scattering_orders``: keep only paths with at most this many volume scattering events
+    (phase-function scatterings and flake reflections; interface and primer events do not count) —
+    e.g. 1 gives the single-scattering solution; None = all orders (the weight of truncated paths
+    is counted in ``Result.absorbed``).  Returns a :class:`Result`.
+    """
+    mu_i = float(mu_i)
+    if not (0.0 < mu_i <= 1.0):
+        raise ValueError(f"mu_i = {mu_i}; the incident cosine must be in (0, 1] (light travelling down).")
+    n_paths = int(n_paths)
+    if n_paths < 2:
+        raise ValueError(f"n_paths = {n_paths}; need at least 2 paths for a standard error.")
+    C = _validate(problem)
+    binned = mu_edges is not None or phi_edges is not None
+    me = _edges([0.0, 1.0] if mu_edges is None else mu_edges, 1.0, "mu_edges")
+    pe = _edges([0.0, np.pi] if phi_edges is None else phi_edges, np.pi, "phi_edges")
+    max_orders = -1 if max_scattering_orders is None else int(max_scattering_orders)
+
+    top = problem.top
+    eta = problem.eta_binder
+    top_type = _k.TOP_NONE if top is None else (_k.TOP_SMOOTH if isinstance(top, Smooth) else _k.TOP_ROUGH)
+    top_alpha = float(top.alpha) if isinstance(top, Rough) else 0.0
+    F_i = _fresnel_scalar(mu_i, eta) if top_type == _k.TOP_SMOOTH else 0.0
+    w_start = 1.0 - F_i
+
+    n_b = min(N_BATCHES, n_paths)
+    counts = np.full(n_b, n_paths // n_b, dtype=np.int64)
+    counts[: n_paths % n_b] += 1
+    seeds = np.random.SeedSequence(int(seed)).generate_state(4 * n_b, dtype=np.uint64).reshape(n_b, 4)
+    seeds[np.all(seeds == 0, axis=1), 0] = np.uint64(0x9E3779B97F4A7C15)  # xoshiro state must be non-zero
+
+    N = float(n_paths)
+
+    def mean_se(s, s2):
+        m = s / N
+        var = max(s2 / N - m * m, 0.0)
+        return m, math.sqrt(var / (N - 1.0))
+
+    out = {k: np.zeros(C) for k in ("R", "Rse", "T", "Tse", "Td", "Tdse", "L", "Lse", "lost", "ev")}
+    nmu, nphi = me.size - 1, pe.size - 1
+    rb, rbse, tb, tbse = (np.zeros((C, nmu, nphi)) for _ in range(4))
+    dmu = np.diff(me)[:, None]
+    dphi = np.diff(pe)[None, :]
+    omega = 2.0 * dmu * dphi  # solid angle of each (±φ) bin
+    for c in range(C):
+        if isinstance(problem.bottom, Lambertian):
+            bot_type, bot_alb = _k.BOTTOM_LAMBERT, float(_pick(problem.bottom.albedo, c, "bottom.albedo"))
+        else:
+            bot_type, bot_alb = _k.BOTTOM_NONE, 0.0
+        pk = _pack(problem, c)
+        scal, rbin, tbin = _k.simulate_kernel(
+            counts, seeds, mu_i, np.int64(top_type), eta, top_alpha, np.int64(bot_type), bot_alb,
+            pk["z_edges"], pk["sigma_bar"], pk["comp_start"], pk["comp_type"], pk["comp_sigma"],
+            pk["comp_albedo"], pk["comp_g"], pk["comp_alpha"], pk["comp_off"], pk["comp_n"], pk["tab"],
+            w_start, me, pe, np.int64(max_orders), np.int64(MAX_EVENTS), float(rr_threshold))
+        t = scal.sum(axis=0)
+        out["R"][c], out["Rse"][c] = mean_se(t[_k.S_R], t[_k.S_R2])
+        out["Td"][c], out["Tdse"][c] = mean_se(t[_k.S_TDIR], t[_k.S_TDIR2])
+        out["T"][c], out["Tse"][c] = mean_se(t[_k.S_T] + t[_k.S_TDIR], t[_k.S_T2] + t[_k.S_TDIR2])
+        out["L"][c], out["Lse"][c] = mean_se(t[_k.S_LOSS], t[_k.S_LOSS2])
+        out["lost"][c] = t[_k.S_LOST]
+        out["ev"][c] = t[_k.S_EVENTS] / N
+        for src, dst, dse in ((rbin, rb, rbse), (tbin, tb, tbse)):
+            s = src.sum(axis=0)
+            m = s[..., 0] / N
+            var = np.maximum(s[..., 1] / N - m * m, 0.0)
+            dst[c] = m / omega
+            dse[c] = np.sqrt(var / (N - 1.0)) / omega
+
+    spec = np.full(C, F_i)
+    res = Result(
+        mu_i=mu_i, n_paths=n_paths, seed=int(seed),
+        albedo=spec + out["R"], albedo_se=out["Rse"], specular=spec, diffuse_albedo=out["R"],
+        transmittance=out["T"], transmittance_se=out["Tse"],
+        transmittance_direct=out["Td"], transmittance_direct_se=out["Tdse"],
+        interface_loss=out["L"], interface_loss_se=out["Lse"],
+        absorbed=1.0 - spec - out["R"] - out["T"] - out["L"],
+        n_lost=out["lost"].astype(np.int64), events_per_path=out["ev"],
+        max_scattering_orders=max_scattering_orders,
+    )
+    if binned:
+        res.mu_edges, res.phi_edges = me, pe
+        res.reflectance_binned, res.reflectance_binned_se = rb, rbse
+        res.transmittance_binned, res.transmittance_binned_se = tb, tbse
+    return res
+
+
+def directional_albedo(problem, mu_i, n_paths, seed, **kw):
+    """Reflectance albedo R(μ_i) (with the specular delta separately), transmittance T(μ_i), errors.
+
+    Same as :func:`simulate` without bins; returns the :class:`Result`.
+    """
+    return simulate(problem, mu_i, n_paths, seed, **kw)
+
+
+def binned_reflectance(problem, mu_i, n_paths, seed, mu_edges, phi_edges, **kw):
+    """BSDF × |μ_o| averaged over (|μ_o|, φ_d) bins of outgoing directions in air, in 1/sr.
+
+    ``Result.reflectance_binned[c, i, j]`` = (power fraction into the bin, both ±φ_d, specular delta
+    excluded) / (2 Δ|μ| Δφ); compare with :func:`bin_average` of f|μ_o| from a tabulated BSDF.
+    """
+    return simulate(problem, mu_i, n_paths, seed, mu_edges, phi_edges, **kw)
+
+
+def bin_average(f_cos, mu_edges, phi_edges, n_quad=16):
+    """Bin averages (1/(Δ|μ| Δφ)) ∫∫ f_cos(|μ|, φ_d) d|μ| dφ_d by Gauss–Legendre (n_quad² nodes per bin).
+
+    ``f_cos(mu_abs, phi_d)`` is the BSDF times |μ_o| (vectorised, arrays of equal shape in, out).
+    For a φ_d-even BSDF this is exactly what :func:`binned_reflectance` estimates.  Returns (n_mu, n_phi).
+    """
+    me = _edges(mu_edges, 1.0, "mu_edges")
+    pe = _edges(phi_edges, np.pi, "phi_edges")
+    x, w = np.polynomial.legendre.leggauss(int(n_quad))
+    mu = 0.5 * (me[:-1, None] + me[1:, None]) + 0.5 * np.diff(me)[:, None] * x[None, :]  # (nmu, q)
+    ph = 0.5 * (pe[:-1, None] + pe[1:, None]) + 0.5 * np.diff(pe)[:, None] * x[None, :]  # (nphi, q)
+    M = mu[:, None, :, None]
+    P = ph[None, :, None, :]
+    M, P = np.broadcast_arrays(M, P)
+    vals = np.asarray(f_cos(M, P), dtype=float)
+    return 0.25 * np.einsum("ijab,a,b->ij", vals, w, w)

@@ -1,1 +1,0 @@
-"""Dask pipeline definitions (the build graph); they only wire flakedb's pure functions together."""
