@@ -380,7 +380,7 @@ def test_lambertian_golden(tmp_path):
 
 
 def test_writer_refuses_and_is_atomic(tmp_path, monkeypatch):
-    import flakedb.bsdf as mod
+    import flakedb.bsdf.fourier_file as mod
 
     t = synthetic_table(h=4, L=5, channels=3)
     with pytest.raises(ValueError, match="1 or 3 channels"):

@@ -181,10 +181,10 @@ def test_van_de_hulst_table12_isotropic():
     """van de Hulst, *Multiple Light Scattering* (1980) vol. 1, Table 12, pp. 260-261: isotropic
     scattering, albedo 0.8, optical thickness 2: reflection function R(μ, μ0) = π f_r and
     transmission function T(μ, μ0) = π f_t (values as quoted in Mitsuba's layer tests)."""
-    from flakedb.bsdf import _from_table
+    from flakedb.bsdf import table_evaluator
 
     r = solve_stack(None, [Slab(1.0, PhaseMedium(2.0, 0.8))], None, SolverSettings(n=96))
-    bs = _from_table(r.to_table())
+    bs = table_evaluator(r.to_table())
     # f·|μ_o| from the table (Catmull–Rom between nodes, bsdf-format.md) → π f
     for mu0, mu, ref, transmit in [(1.0, 0.5, 0.28616, False), (0.5, 0.5, 0.39102, False),
                                    (1.0, 0.5, 0.14864, True)]:
@@ -197,13 +197,13 @@ def test_convergence_in_nodes():
     """A BSDF value of a smooth-coated flake paint converges as n grows: successive differences
     shrink.  (The albedo converges much faster, ~1e-7 already at n = 16, thanks to the kernel's
     energy renormalisation; the angular shape is the demanding part.)"""
-    from flakedb.bsdf import _from_table
+    from flakedb.bsdf import table_evaluator
 
     m = FlakeMedium(0.3, FlakeOptics.constant(0.6, 0.2), 1.0)
     vals = []
     for n in (16, 32, 64):
         r = solve_stack(Smooth(1.5), [Slab(2.0, m)], Lambertian(0.5), SolverSettings(n=n))
-        vals.append(_from_table(r.to_table()).eval(1.0, -0.6, 0.5)[0])
+        vals.append(table_evaluator(r.to_table()).eval(1.0, -0.6, 0.5)[0])
     # measured: 0.0559015 (n=16), 0.0559129 (32), 0.0559035 (64): converged to ~2e-4 relative,
     # the remaining wobble being the Catmull–Rom interpolation between nodes
     assert max(vals) - min(vals) < 5e-4 * abs(vals[2]), vals

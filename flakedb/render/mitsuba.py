@@ -82,7 +82,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from flakedb.bsdf import _cr_weights_1, _sample_kernel, _series_kernel
+from flakedb.bsdf.kernels import cr_weights_1, sample_kernel, series_kernel
 
 __all__ = [
     "MeasuredExportError",
@@ -160,7 +160,7 @@ def direction_from_file(wi, mu_o, phi_d):
 # --------------------------------------------------------------------------------------------
 def _stored_to_eval(b) -> np.ndarray:
     """(Cs, Cout) matrix from the reader's stored channels to what ``eval`` returns."""
-    from flakedb.bsdf import G_FROM_YRB
+    from flakedb.bsdf.table import G_FROM_YRB
 
     if b.kind == "bsdf":
         if b.n_channels == 1:
@@ -496,7 +496,7 @@ def _fresnel_unpolarised(c, eta):
 
 
 # The plugin's compiled kernels (numba) around the reader's own compiled evaluation
-# (``_series_kernel``), sampling (``_sample_kernel``) and Catmull-Rom weights: a scalar Mitsuba call
+# (``series_kernel``), sampling (``sample_kernel``) and Catmull-Rom weights: a scalar Mitsuba call
 # costs one compiled call instead of dozens of small numpy operations.
 _fresnel_1 = numba.njit(cache=True, nogil=True)(_fresnel_unpolarised)
 
@@ -508,7 +508,7 @@ def _choice_1(nodes, cdf, mu_i, delta_eta, delta_on, glossy_on, w):
     if not glossy_on:
         return F, 1.0 if F > 0.0 else 0.0
     n = nodes.size
-    off = _cr_weights_1(nodes, mu_i, w)
+    off = cr_weights_1(nodes, mu_i, w)
     A = 0.0
     if off != -n:
         for a in range(4):
@@ -550,8 +550,8 @@ def _eval_pdf_kernel(nodes, cdf, flat, start, order, cs, mix, sflat, sstart, wi,
     a0 = np.zeros((P, cs))
     fs = np.zeros((P, 1))
     a0s = np.zeros((P, 1))
-    _series_kernel(nodes, flat, start, order, cs, mu_i, mu_o, phi, vals, a0)
-    _series_kernel(nodes, sflat, sstart, order, 1, mu_i, mu_o, phi, fs, a0s)
+    series_kernel(nodes, flat, start, order, cs, mu_i, mu_o, phi, vals, a0)
+    series_kernel(nodes, sflat, sstart, order, 1, mu_i, mu_o, phi, fs, a0s)
     w = np.zeros(4)
     for p in range(P):
         for j in range(mix.shape[1]):
@@ -562,7 +562,7 @@ def _eval_pdf_kernel(nodes, cdf, flat, start, order, cs, mix, sflat, sstart, wi,
         out_pdf[p] = 0.0
         if not (mu_i[p] > 0.0) or a0s[p, 0] == 0.0:
             continue
-        off = _cr_weights_1(nodes, mu_i[p], w)
+        off = cr_weights_1(nodes, mu_i[p], w)
         norm = 0.0
         for a in range(4):
             if w[a] != 0.0:
@@ -607,7 +607,7 @@ def _plugin_sample_kernel(nodes, cdf, a0s_nodes, sflat, sstart, flat, start, ord
     pdf = np.zeros(P)
     u1 = np.ascontiguousarray(s2[:, 0])
     u2 = np.ascontiguousarray(s2[:, 1])
-    _sample_kernel(nodes, cdf, a0s_nodes, sflat, sstart, flat, start, order, cs, mix, mu_i,
+    sample_kernel(nodes, cdf, a0s_nodes, sflat, sstart, flat, start, order, cs, mix, mu_i,
                    u1, u2, mu_o, phi, wt, pdf)
     for p in range(P):
         if not (mu_i[p] > 0.0):

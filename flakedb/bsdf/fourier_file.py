@@ -1,0 +1,245 @@
+"""The layerlab / Mitsuba 0.6 / pbrt-v3 Fourier ``.bsdf`` file: writer and reader (byte layout per
+docs/bsdf-format.md)."""
+
+from __future__ import annotations
+
+import math
+import os
+import struct
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from flakedb.atomic import temp_beside
+from flakedb.bsdf.evaluator import FourierBSDF
+from flakedb.bsdf.metadata import format_metadata, parse_metadata
+from flakedb.bsdf.spline import catmull_rom_cdf, insert_zero_nodes
+from flakedb.bsdf.table import G_FROM_YRB, RGB_TO_Y, TRUNCATION_DEFAULT, BSDFFileError, BSDFTable
+
+#: Identifier, version and flags of the .bsdf header (docs/bsdf-format.md, header table).
+MAGIC_BSDF = b"SCATFUN"
+_VERSION = 1
+_FLAGS_BSDF = 1
+_FLAGS_EXTRAPOLATED = 2
+_HEADER = struct.Struct("<7sBIIIIIIIIIfff8x")  # 64 bytes, spec table
+assert _HEADER.size == 64
+
+
+# --------------------------------------------------------------------------------------------
+# The .bsdf writer
+# --------------------------------------------------------------------------------------------
+def bsdf_file_size(n_nodes: int, n_coeffs: int, n_metadata_bytes: int, n_parameters: int = 0,
+                   n_parameter_values: int = 0, n_bases: int = 1) -> int:
+    """The spec's size formula [bytes]: 64 + 4 (N + nP + nPV + N²·nBases + 2N² + nCoeffs) + nMeta."""
+    nn = n_nodes * n_nodes
+    return 64 + 4 * (n_nodes + n_parameters + n_parameter_values + nn * n_bases + 2 * nn + n_coeffs) + n_metadata_bytes
+
+
+def _truncation_orders(c: np.ndarray, truncation: float) -> np.ndarray:
+    """K per entry for one incident row: ``c`` (C, n_o, L) -> int (n_o,).
+
+    Per channel: the smallest j >= 1 with ``Σ_{k>=j} |a_k| <= truncation·|a_0|``; max over
+    channels; entries whose coefficients are all exactly 0 get K = 0.  ``truncation = 0`` keeps
+    everything up to the last non-zero coefficient.
+    """
+    a = np.abs(c)
+    tail = np.cumsum(a[..., ::-1], axis=-1)[..., ::-1]                 # tail[..., j] = Σ_{k>=j}
+    tail_ext = np.concatenate([tail, np.zeros(tail.shape[:-1] + (1,))], axis=-1)
+    ok = tail_ext[..., 1:] <= truncation * a[..., :1]                  # ok[..., j-1] for j = 1 … L
+    k = np.argmax(ok, axis=-1) + 1                                     # the last one (j = L) is always ok
+    k = k.max(axis=0)
+    k[~np.any(c != 0, axis=(0, 2))] = 0
+    return k
+
+
+def _file_channels(coeffs_row: np.ndarray) -> np.ndarray:
+    """(C, ...) table channels -> (C, ...) file channels: mono unchanged, R, G, B -> Y, R, B."""
+    if coeffs_row.shape[0] == 1:
+        return coeffs_row
+    r, g, b = coeffs_row
+    y = RGB_TO_Y[0] * r + RGB_TO_Y[1] * g + RGB_TO_Y[2] * b
+    return np.stack([y, r, b])
+
+
+def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -> dict:
+    """Write ``table`` as a Fourier ``.bsdf`` file (spec layout), atomically.
+
+    Parameters
+    ----------
+    path : str or Path
+        Target file; written to a temporary file in the same directory, then ``os.replace``-d.
+    table : BSDFTable
+        C = 1 or 3 channels (R, G, B are stored as Y, R, B).
+    truncation : float
+        Relative tail bound of the per-entry truncation (spec rule, default 2e-3, evaluated on the
+        table's channels).  ``0`` keeps every order up to the last non-zero coefficient.
+
+    Returns a summary dict: ``n_nodes``, ``n_coeffs``, ``max_order``, ``n_channels``,
+    ``metadata_bytes``, ``size`` [bytes].
+
+    Layout: nodes with the two zero nodes inserted (N = n + 2), entries touching a zero node have
+    K = 0, entries contiguous in e = o + i·N, channel c's coefficient k of entry e at
+    ``offset + c·K_e + k``, cdf from the stored (float32) Y order-0 coefficients integrated over the
+    float64 nodes.
+    """
+    if not isinstance(table, BSDFTable):
+        raise TypeError("write_bsdf expects a BSDFTable")
+    C = table.n_channels
+    if C not in (1, 3):
+        raise ValueError(f"a .bsdf file holds 1 or 3 channels (mono or R, G, B), the table has {C}; "
+                         f"write spectral results with write_h5 and convert to RGB first")
+    if C == 3 and tuple(table.channels) != ("R", "G", "B"):
+        raise ValueError(f"a 3-channel .bsdf stores linear R, G, B (as Y, R, B); the table's channels are "
+                         f"{table.channels}. Convert to linear RGB first (or use write_h5).")
+    truncation = float(truncation)
+    if not (truncation >= 0 and math.isfinite(truncation)):
+        raise ValueError(f"truncation must be a finite number >= 0, got {truncation!r}")
+    n = table.n
+    h = n // 2
+    N = n + 2
+    if table.mu[-1] != 1.0:
+        warnings.warn(f"write_bsdf: the largest node is mu = {table.mu[-1]!r} < 1; every reader (layerlab, "
+                      f"pbrt-v3, flakedb) returns 0 for |mu| beyond it, normal incidence included. Use a "
+                      f"rule with a node at mu = 1 (Gauss-Radau / Gauss-Lobatto).", stacklevel=2)
+    nodes32 = insert_zero_nodes(table.mu).astype(np.float32)
+    if not np.all(np.diff(nodes32[:h + 1]) > 0) or not np.all(np.diff(nodes32[h + 1:]) > 0):
+        raise ValueError("the nodes are not strictly ascending in float32; use fewer nodes")
+
+    def fidx(t):  # table index -> file index
+        return t if t < h else t + 2
+
+    # Pass 1: orders K[i, o] (file indices) and stored Y a_0 (float32) for the cdf.
+    K = np.zeros((N, N), dtype=np.int64)
+    a0 = np.zeros((N, N), dtype=np.float64)
+    for ti in range(n):
+        row = table.coeffs[:, ti]                                    # (C, n_o, L)
+        i = fidx(ti)
+        k = _truncation_orders(row, truncation)
+        K[i, :h] = k[:h]
+        K[i, h + 2:] = k[h:]
+        y0 = _file_channels(row[..., 0])[0].astype(np.float32)       # (n_o,)
+        y0 = np.where(k > 0, y0, 0.0)
+        a0[i, :h] = y0[:h]
+        a0[i, h + 2:] = y0[h:]
+    n_coeffs = int(K.sum() * C)
+    if n_coeffs >= 2**32:
+        raise ValueError(f"{n_coeffs} coefficients do not fit the file's u32 count; raise truncation or use fewer nodes")
+    max_order = int(K.max())
+    offsets = np.zeros((N * N, 2), dtype="<u4")
+    sizes = (K * C).ravel()
+    offsets[1:, 0] = np.cumsum(sizes)[:-1]
+    offsets[:, 1] = K.ravel()
+    # Integrate over the float64 nodes, as layerlab does (its cdf uses the solver's double nodes),
+    # the stored float32 a_0 values: 2π·cdf[i][N-1] is then the table's albedo to float32 precision.
+    cdf = catmull_rom_cdf(insert_zero_nodes(table.mu), a0).astype("<f4")    # (N_i, N_o)
+    meta_bytes = format_metadata(table.metadata, table.delta).encode("utf-8")
+    header = _HEADER.pack(MAGIC_BSDF, _VERSION, _FLAGS_BSDF, N, n_coeffs, max_order, C, 1,
+                          len(meta_bytes), 0, 0, np.float32(table.eta), np.float32(table.alpha[0]),
+                          np.float32(table.alpha[1]))
+    size = bsdf_file_size(N, n_coeffs, len(meta_bytes))
+    fd, tmp = temp_beside(path, suffix="")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(header)
+            fh.write(nodes32.astype("<f4").tobytes())
+            fh.write(cdf.tobytes())
+            fh.write(offsets.tobytes())
+            L = table.coeffs.shape[3]
+            kk = np.arange(L)
+            for ti in range(n):                                      # pass 2: coefficients, row by row
+                i = fidx(ti)
+                fc = _file_channels(table.coeffs[:, ti]).astype("<f4")   # (C, n_o, L)
+                k_row = np.concatenate([K[i, :h], K[i, h + 2:]])
+                block = np.transpose(fc, (1, 0, 2))                  # (n_o, C, L)
+                mask = np.broadcast_to(kk[None, None, :] < k_row[:, None, None], block.shape)
+                o_neg, o_pos = block[:h][mask[:h]], block[h:][mask[h:]]
+                fh.write(o_neg.tobytes())
+                fh.write(o_pos.tobytes())                            # the zero-node entries hold nothing
+            fh.write(meta_bytes)
+        if os.path.getsize(tmp) != size:
+            raise RuntimeError(f"internal error: wrote {os.path.getsize(tmp)} bytes, spec size is {size}")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return {"n_nodes": N, "n_coeffs": n_coeffs, "max_order": max_order, "n_channels": C,
+            "metadata_bytes": len(meta_bytes), "size": size}
+
+
+
+# --------------------------------------------------------------------------------------------
+# The .bsdf reader
+# --------------------------------------------------------------------------------------------
+def read_bsdf(path) -> FourierBSDF:
+    """Read a Fourier ``.bsdf`` file (spec layout) into a :class:`FourierBSDF`.
+
+    Checks the identifier, version 1, the BSDF flag (the harmonic-extrapolation flag is refused),
+    nBases = 1, no parameters, the exact file size, ascending nodes, the two empty zero nodes and
+    offsets inside the coefficient block (contiguity is not required, as in layerlab and pbrt-v3);
+    raises :class:`BSDFFileError` naming what is wrong otherwise.  Coefficients are kept as read
+    (:attr:`FourierBSDF.coeffs`, float32) and as float64 for evaluation.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise BSDFFileError(f"{path}: no such file") from None
+    except OSError as e:
+        raise BSDFFileError(f"{path}: cannot read ({e.strerror})") from None
+    if len(raw) < 64:
+        raise BSDFFileError(f"{path}: truncated header ({len(raw)} bytes, a .bsdf header is 64)")
+    (ident, version, flags, N, n_coeffs, max_order, C, n_bases, n_meta, n_par, n_parval,
+     eta, alpha0, alpha1) = _HEADER.unpack_from(raw, 0)
+    if ident != MAGIC_BSDF:
+        raise BSDFFileError(f"{path}: not a Fourier .bsdf file (identifier {ident!r}, expected b'SCATFUN')")
+    if version != _VERSION:
+        raise BSDFFileError(f"{path}: unsupported .bsdf version {version} (only version 1 exists)")
+    if flags & _FLAGS_EXTRAPOLATED or not flags & _FLAGS_BSDF:
+        raise BSDFFileError(f"{path}: flags = {flags}; only flags = 1 (a BSDF without harmonic extrapolation) is supported")
+    if n_bases != 1 or n_par != 0 or n_parval != 0:
+        raise BSDFFileError(f"{path}: textured/parametrised files (nBases = {n_bases}, nParameters = {n_par}) are not supported")
+    if C not in (1, 3):
+        raise BSDFFileError(f"{path}: nChannels = {C}; a .bsdf holds 1 or 3 channels")
+    if N < 4 or N % 2:
+        raise BSDFFileError(f"{path}: nNodes = {N} must be even and >= 4 (n + 2 with the two zero nodes)")
+    expect = bsdf_file_size(N, n_coeffs, n_meta)
+    if len(raw) != expect:
+        raise BSDFFileError(f"{path}: file is {len(raw)} bytes, the header implies {expect}; it is truncated or corrupt")
+    pos = 64
+    nodes = np.frombuffer(raw, "<f4", N, pos).astype(np.float64)
+    pos += 4 * N
+    cdf = np.frombuffer(raw, "<f4", N * N, pos).reshape(N, N).astype(np.float64)
+    pos += 4 * N * N
+    offsets = np.frombuffer(raw, "<u4", 2 * N * N, pos).reshape(N * N, 2).copy()
+    pos += 8 * N * N
+    coeffs = np.frombuffer(raw, "<f4", n_coeffs, pos).copy()
+    pos += 4 * n_coeffs
+    meta_text = raw[pos:pos + n_meta].decode("utf-8", errors="replace")
+    if not (np.all(np.isfinite(nodes)) and np.all(np.diff(nodes) >= 0) and nodes[0] >= -1 and nodes[-1] <= 1):
+        raise BSDFFileError(f"{path}: nodes are not ascending within [-1, 1]")
+    K = offsets[:, 1].astype(np.int64)
+    start = offsets[:, 0].astype(np.int64)
+    ends = start + K * C
+    if K.max(initial=0) > max_order or ends.max(initial=0) > n_coeffs:
+        raise BSDFFileError(f"{path}: offset table points outside the coefficient block (or exceeds nMaxOrder = {max_order})")
+    h = (N - 2) // 2
+    Kq = K.reshape(N, N)
+    if nodes[h] != 0 or nodes[h + 1] != 0 or Kq[h].any() or Kq[h + 1].any() or Kq[:, h].any() or Kq[:, h + 1].any():
+        raise BSDFFileError(f"{path}: the two middle nodes must be 0 and hold no coefficients (spec, 'nodes')")
+    metadata, delta = parse_metadata(meta_text)
+    if C == 3:
+        g = np.array(G_FROM_YRB)
+        mix = np.array([[0.0, g[0], 0.0], [1.0, g[1], 0.0], [0.0, g[2], 1.0]])   # Y, R, B -> R, G, B
+    else:
+        mix = np.ones((1, 3))
+    header = {"identifier": ident.decode("ascii"), "version": version, "flags": flags, "nNodes": N,
+              "nCoeffs": n_coeffs, "nMaxOrder": max_order, "nChannels": C, "nBases": n_bases,
+              "nMetadataBytes": n_meta, "nParameters": n_par, "nParameterValues": n_parval,
+              "eta": eta, "alpha": (alpha0, alpha1)}
+    return FourierBSDF(kind="bsdf", path=path, nodes=nodes, cdf=cdf, order=Kq, flat=coeffs,
+                       start=start.reshape(N, N), n_channels=C, mix=mix, sample_weights=np.eye(C)[0],
+                       channels=("R", "G", "B"), eta=eta, alpha=(alpha0, alpha1), delta=delta, metadata=metadata,
+                       metadata_text=meta_text, offsets=offsets, coeffs=coeffs, header=header,
+                       n_coeffs=n_coeffs)

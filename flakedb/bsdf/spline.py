@@ -1,0 +1,89 @@
+"""Catmull-Rom weights and prefix integrals over the file nodes (docs/bsdf-format.md, "Evaluation"
+step 1 and "cdf")."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+# --------------------------------------------------------------------------------------------
+# Catmull-Rom machinery (spec: "Evaluation" step 1 and "cdf")
+# --------------------------------------------------------------------------------------------
+def insert_zero_nodes(mu: np.ndarray) -> np.ndarray:
+    """``[-x_h … -x_1, x_1 … x_h]`` -> the file's ``[-x_h … -x_1, 0, 0, x_1 … x_h]`` (N = n + 2)."""
+    mu = np.asarray(mu)
+    h = mu.size // 2
+    return np.concatenate([mu[:h], np.zeros(2, dtype=mu.dtype), mu[h:]])
+
+
+def catmull_rom_weights(nodes: np.ndarray, x) -> tuple[np.ndarray, np.ndarray]:
+    """Catmull-Rom interpolation weights of ``x`` over ascending ``nodes`` (pbrt-v3 / layerlab).
+
+    Returns ``(offset, weights)``: ``offset`` int64 of x's shape and ``weights`` (..., 4) on nodes
+    ``offset … offset+3``.  Interval ``idx`` = largest node <= x, clamped to [0, N-2]
+    (``offset = idx - 1``); ``u = (x - x_idx)/(x_{idx+1} - x_idx)``; Hermite basis with
+    finite-difference tangents scaled by ``(x_{idx+1}-x_idx)/(x_{idx+1}-x_{idx-1})`` on the left and
+    ``(x_{idx+1}-x_idx)/(x_{idx+2}-x_idx)`` on the right, one-sided at the ends.  Weights falling
+    outside the node range are 0 (and their index is then irrelevant).  For x outside
+    ``[nodes[0], nodes[-1]]`` or NaN all weights are 0.  With the duplicated zero node, x >= 0
+    always lands in an interval right of both zeros and x < 0 left of them, so the zero-width
+    interval is never used.
+    """
+    nodes = np.asarray(nodes, dtype=np.float64)
+    n = nodes.size
+    x = np.asarray(x, dtype=np.float64)
+    valid = (x >= nodes[0]) & (x <= nodes[-1])
+    xc = np.where(valid, x, nodes[0])
+    idx = np.clip(np.searchsorted(nodes, xc, side="right") - 1, 0, n - 2)
+    x0 = nodes[idx]
+    x1 = nodes[idx + 1]
+    width = x1 - x0
+    t = (xc - x0) / width
+    t2 = t * t
+    t3 = t2 * t
+    w = np.zeros(x.shape + (4,))
+    w[..., 1] = 2 * t3 - 3 * t2 + 1
+    w[..., 2] = -2 * t3 + 3 * t2
+    d0 = t3 - 2 * t2 + t
+    d1 = t3 - t2
+    left = idx > 0
+    f0 = width / np.where(left, x1 - nodes[np.maximum(idx - 1, 0)], 1.0)
+    w[..., 0] = np.where(left, -d0 * f0, 0.0)
+    w[..., 2] += np.where(left, d0 * f0, d0)
+    w[..., 1] -= np.where(left, 0.0, d0)
+    right = idx + 2 < n
+    f1 = width / np.where(right, nodes[np.minimum(idx + 2, n - 1)] - x0, 1.0)
+    w[..., 3] = np.where(right, d1 * f1, 0.0)
+    w[..., 1] -= np.where(right, d1 * f1, d1)
+    w[..., 2] += np.where(right, 0.0, d1)
+    w *= valid[..., None]
+    return idx - 1, w
+
+
+def catmull_rom_cdf(nodes: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Prefix integrals of the Catmull-Rom spline through ``(nodes, values[..., :])`` (spec, "cdf").
+
+    ``out[..., 0] = 0``, ``out[..., k+1] = out[..., k] + w((v_k + v_{k+1})/2 + (d0 - d1)/12)``
+    with ``w = x_{k+1} - x_k``, ``d0 = w (v_{k+1} - v_{k-1})/(x_{k+1} - x_{k-1})`` (``v_{k+1} - v_k``
+    on the first interval) and ``d1 = w (v_{k+2} - v_k)/(x_{k+2} - x_k)`` (``v_{k+1} - v_k`` on the
+    last).  Exact for functions linear between the nodes.  Vectorised over leading axes; the sum is
+    sequential along the last axis (as layerlab's ``integrate1D``).
+    """
+    x = np.asarray(nodes, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    n = x.size
+    if v.shape[-1] != n or n < 2:
+        raise ValueError(f"values must end in an axis of {n} node values, got shape {v.shape}")
+    w = np.diff(x)
+    vk, vk1 = v[..., :-1], v[..., 1:]
+    slope_one = vk1 - vk
+    if n > 2:
+        centred = (v[..., 2:] - v[..., :-2]) / (x[2:] - x[:-2])   # D_j, j = 1 … n-2
+        d0 = np.concatenate([slope_one[..., :1], w[1:] * centred], axis=-1)
+        d1 = np.concatenate([w[:-1] * centred, slope_one[..., -1:]], axis=-1)
+    else:
+        d0 = d1 = slope_one
+    seg = w * ((vk + vk1) * 0.5 + (d0 - d1) * (1.0 / 12.0))
+    out = np.zeros(v.shape)
+    np.cumsum(seg, axis=-1, out=out[..., 1:])
+    return out
