@@ -14,8 +14,9 @@ the default samples per pixel (flakedb.render.preview.DEFAULT_SPP), all availabl
 import os
 import tempfile
 
-from flakedb.render import preview
 from flakedb.bsdf import open_bsdf, write_bsdf
+from flakedb.bsdf.convert import stack_to_table
+from flakedb.render import preview
 
 SIZE = 256
 CARPAINT = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "bsdf-files", "carpaint_rgb_n100.bsdf")
@@ -31,7 +32,7 @@ def _setup_smooth():
     s = solve_stack(Smooth(1.5), [Slab(10.0, med)], Lambertian([0.8, 0.8, 0.8]), SolverSettings(n=64))
     with tempfile.TemporaryDirectory(prefix="flakedb-bench-preview-") as tmp:   # read into memory
         path = os.path.join(tmp, "smooth_red.bsdf")
-        write_bsdf(path, s.to_table(metadata={"recipe": "bench smooth red"}))
+        write_bsdf(path, stack_to_table(s, metadata={"recipe": "bench smooth red"}))
         return open_bsdf(path)
 
 

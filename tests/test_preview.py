@@ -23,10 +23,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from flakedb.render import preview
 from flakedb.bsdf import BSDFTable, open_bsdf, write_bsdf, write_h5
-from flakedb.render.imageio import read_exr, srgb_encode, to_srgb8, write_exr, write_png
+from flakedb.bsdf.convert import stack_to_table
 from flakedb.optics.fresnel import fresnel_dielectric
+from flakedb.render import preview
+from flakedb.render.imageio import read_exr, srgb_encode, to_srgb8, write_exr, write_png
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "bsdf-files"   # CI: the shared folder beside the checkout
@@ -80,7 +81,7 @@ def _smooth_coated_h5(path):
 
     med = PhaseMedium(sigma_t_per_um=[0.3, 0.3, 0.3], albedo=[0.95, 0.45, 0.15], phase=("hg", 0.5))
     s = solve_stack(Smooth(1.5), [Slab(10.0, med)], Lambertian([0.8, 0.8, 0.8]), SolverSettings(n=32))
-    write_h5(path, s.to_table(metadata={"recipe": "test smooth red"}))
+    write_h5(path, stack_to_table(s, metadata={"recipe": "test smooth red"}))
     return open_bsdf(path)
 
 

@@ -15,6 +15,7 @@ import pytest
 
 import flakedb.reference.montecarlo as mc
 from flakedb.bsdf import table_evaluator
+from flakedb.bsdf.convert import stack_to_table
 from flakedb.rt import media as rm
 from flakedb.rt.microflake import FlakeOptics
 from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
@@ -108,7 +109,7 @@ def test_binned_reflectance_matches_monte_carlo(name):
     Catmull–Rom interpolation towards the zero node is not the solver's function)."""
     top, slabs, bottom, problem, n = _case(name)
     r = solve_stack(top, slabs, bottom, SolverSettings(n=n))
-    bs = table_evaluator(r.to_table())
+    bs = table_evaluator(stack_to_table(r))
     k = int(np.argmin(np.abs(r.x - 0.7)))
     mu_i = float(r.x[k])
     mu_edges = np.array([0.3, 0.5, 0.7, 0.85, 1.0])

@@ -88,8 +88,9 @@ each channel at each incident node (derived, for inspection).  The reader insert
 nodes exactly as the ``.bsdf`` writer does, so both files evaluate identically up to float32.
 """
 
+from flakedb.bsdf.convert import stack_to_table
 from flakedb.bsdf.dispatch import open_bsdf
-from flakedb.bsdf.evaluator import FourierBSDF
+from flakedb.bsdf.evaluator import FourierBSDF, table_evaluator
 from flakedb.bsdf.fourier_file import bsdf_file_size, read_bsdf, write_bsdf
 from flakedb.bsdf.h5file import read_h5, write_h5
 from flakedb.bsdf.metadata import format_metadata, parse_metadata
@@ -100,6 +101,8 @@ __all__ = [
     "BSDFTable",
     "BSDFFileError",
     "FourierBSDF",
+    "table_evaluator",
+    "stack_to_table",
     "write_bsdf",
     "read_bsdf",
     "write_h5",

@@ -1,7 +1,7 @@
 """Compose a recipe into files: DIR/NAME.bsdf, DIR/NAME.h5 and DIR/NAME.json (the I/O edge).
 
 :func:`compose` = :func:`flakedb.paint.mapping.build_paint` (physics mapping) → :func:`flakedb.paint.mapping.solve_paint`
-(adding-doubling) → :func:`stack_to_table` (the solver's blocks on the file's full node set) →
+(adding-doubling) → :func:`flakedb.bsdf.convert.stack_to_table` (the solver's blocks on the file's full node set) →
 :func:`flakedb.compose.report.colour_report` → :func:`write_outputs`.
 
 The files
@@ -21,17 +21,10 @@ The files
   (loadings, solver info).
 * ``NAME.json``: the colour report (:mod:`flakedb.compose.report`).
 
-Node layout (conventions: μ > 0 travels down): the table's nodes are ``[-x_h … -x_1, x_1 … x_h]``
-with x the solver's air-side nodes.  Reflection from above (incident μ_i = +x_j, outgoing
-μ_o = −x_k) holds ``f_l(x_j → x_k) · x_k`` (coefficients of f·|μ_o|).  An opaque paint has nothing
-else.  An index-matched transmissive stack (no primer, no interface) also fills transmission from
-above (+x_j → +x_k), and reflection and transmission from below, from the solver's other blocks
-(no η² factor: η = 1).  The unscattered transmitted beam stays in the transmission blocks as
-the solver carries it (the attenuated identity: a spike on the quadrature diagonal, in every
-order), as layerlab's files do; the ``.h5`` is exact under the solver's quadrature, but a reader's
-Catmull–Rom integral over such a spike is not (measured: albedo + transmittance 1.12 instead of 1
-at normal incidence for an index-matched flake slab at n = 16).  Paints (with a primer) have no
-transmission and are not affected.
+Node layout and transmission blocks: :mod:`flakedb.bsdf.convert`.  The reader's Catmull–Rom integral over
+the unscattered-beam spike of a transmissive table is not exact (measured: albedo + transmittance
+1.12 instead of 1 at normal incidence for an index-matched flake slab at n = 16); paints (with a
+primer) have no transmission and are not affected.
 
 No half-written outputs: the output directory is checked before any computation
 (:func:`check_output_dir`), the three files are written into a temporary directory inside it and
@@ -49,6 +42,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from flakedb.bsdf.convert import stack_to_table
 
 #: Order truncation of the ``.bsdf`` (flakedb.bsdf.write_bsdf): 0 keeps every order up to the last
 #: non-zero coefficient, so the file evaluates to the solver's values at the nodes to float32
@@ -88,40 +83,6 @@ def check_output_dir(out_dir) -> Path:
                           f"(hint: choose a directory you can write)")
     return p
 
-
-def stack_to_table(bsdf, channels, eta=1.0, alpha=0.0, delta=None, metadata=None):
-    """:class:`flakedb.bsdf.BSDFTable` of a solved stack (module docstring: node layout)."""
-    from flakedb.bsdf import BSDFTable
-
-    x = np.asarray(bsdf.x, float)
-    h = x.size
-    n = 2 * h
-    C = len(channels)
-    blocks = {"Rt": bsdf.f_coefficients("Rt")}
-    if bsdf.Ttb is not None:
-        if not np.allclose(bsdf.x_in, x, rtol=0, atol=1e-14):
-            raise ValueError("a transmissive table needs the same nodes above and below (index-matched stack)")
-        for b in ("Ttb", "Rb", "Tbt"):
-            blocks[b] = bsdf.f_coefficients(b)
-    L = max(b.shape[0] for b in blocks.values())
-    coeffs = np.zeros((C, n, n, L))
-    up = slice(h - 1, None, -1)  # table indices of -x_0 … -x_{h-1} (reversed: -x_1 is at h-1)
-    dn = slice(h, n)             # table indices of +x_0 … +x_{h-1}
-
-    def put(name, i_sl, o_sl):
-        f = blocks[name]                                   # (L_b, C|1, h_o, h_i)
-        f = np.broadcast_to(f, (f.shape[0], C) + f.shape[2:])
-        v = np.transpose(f * x[None, None, :, None], (1, 3, 2, 0))   # (C, i, o, L_b) of f·|μ_o|
-        coeffs[:, i_sl, o_sl, : v.shape[-1]] = v
-
-    put("Rt", dn, up)
-    if "Ttb" in blocks:
-        put("Ttb", dn, dn)
-        put("Rb", up, dn)
-        put("Tbt", up, up)
-    mu = np.concatenate([-x[::-1], x])
-    return BSDFTable(mu=mu, coeffs=coeffs, eta=float(eta), alpha=(float(alpha), 0.0), delta=delta,
-                     metadata=dict(metadata or {}), channels=tuple(channels))
 
 
 def table_to_file_channels(table, mode, wavelength_nm=None):
@@ -203,8 +164,8 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     store) before writing anything.
     """
     from flakedb import __version__
-    from flakedb.paint.mapping import auto_resolution, build_paint, solve_paint
     from flakedb.compose.report import colour_report
+    from flakedb.paint.mapping import auto_resolution, build_paint, solve_paint
 
     log = log or (lambda s: None)
     check_output_dir(out_dir)
@@ -238,7 +199,8 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     log(f"optics: {len(paint.components)} component(s), {paint.n_channels} channel(s) ({paint.mode}), "
         f"{t['optics']:.2f} s")
     t0 = time.perf_counter()
-    stack = solve_paint(paint, n_used)
+    budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
+    stack = solve_paint(paint, n_used, memory_budget_bytes=float(budget) if budget else None)
     t["solve"] = time.perf_counter() - t0
     log(f"solve: n = {n_used} ({reason}), {stack.info.get('orders')} Fourier orders, {t['solve']:.2f} s")
     t0 = time.perf_counter()

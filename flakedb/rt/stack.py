@@ -53,7 +53,8 @@ class Lambertian:
 class SolverSettings:
     """Discretisation: ``n`` nodes in air (n/2 per hemisphere), tolerance of the φ projections,
     optical thickness of the first slice before doubling, nodes in the TIR range (None: heuristic),
-    and the largest number of Fourier orders (None: 2n).
+    the largest number of Fourier orders (None: 2n), and the memory one group of spectral channels may
+    use (None: :data:`MEMORY_BUDGET_BYTES`).
 
     The order cap is a stated heuristic: a μ quadrature of n/2 nodes per hemisphere cannot resolve
     lobes narrower than its node spacing, and azimuthal detail finer than that is wasted (layerlab
@@ -67,6 +68,7 @@ class SolverSettings:
     slice_tau: float = 2.0**-7
     h_tir: int | None = None
     max_orders: int | None = None
+    memory_budget_bytes: float | None = None
 
     @property
     def order_cap(self):
@@ -124,40 +126,6 @@ class StackBSDF:
         S0 = self.Ttb[0]
         return np.einsum("coi,o->ci", S0, self.w_in * self.x_in) / (self.w * self.x)[None, :]
 
-    def to_table(self, metadata=None, channels=None):
-        """The result as a :class:`flakedb.bsdf.BSDFTable` (coefficients of f·|μ_o| on the full
-        node set ``[-x_h … -x_1, x_1 … x_h]``, bsdf-format.md conventions).
-
-        Reflection from above fills (incident μ_i > 0, outgoing μ_o < 0).  Transmissive stacks
-        also fill the transmission and bottom-reflection blocks when the binder side uses the same
-        nodes as the air side (index-matched or rough top), in radiance units (η² rule,
-        conventions); below a smooth coat the inside nodes differ and only reflection is stored.
-        """
-        from flakedb.bsdf import BSDFTable
-
-        h = len(self.x)
-        L = self.n_orders
-        C = self.Rt.shape[1]
-        mu = np.concatenate([-self.x[::-1], self.x])
-        coeffs = np.zeros((C, 2 * h, 2 * h, L))
-        pos = np.arange(h, 2 * h)  # full-set index of +x_k
-        neg = np.arange(h - 1, -1, -1)  # full-set index of −x_k
-
-        def put(block, i_idx, o_idx, x_out, scale=1.0):
-            f = self.f_coefficients(block) * scale  # (L, C, o, i)
-            val = np.transpose(f, (1, 3, 2, 0)) * x_out[None, None, :, None]  # (C, i, o, L)
-            coeffs[:, i_idx[:, None], o_idx[None, :], :] = val
-
-        put("Rt", pos, neg, self.x)
-        same_nodes = self.x_in is not None and len(self.x_in) == h and np.allclose(self.x_in, self.x)
-        if self.Ttb is not None and same_nodes:
-            put("Ttb", pos, pos, self.x, self.eta**2)  # radiance: (η_o/η_i)² f_basic
-            put("Tbt", neg, neg, self.x, 1.0 / self.eta**2)
-            put("Rb", neg, pos, self.x)
-        delta = {"kind": "fresnel", "eta": float(self.eta)} if self.delta_F is not None else None
-        return BSDFTable(mu=mu, coeffs=coeffs, eta=float(self.eta), alpha=(0.0, 0.0), delta=delta,
-                         metadata=dict(metadata or {}), channels=channels)
-
     def eval_nodes(self, phi_d):
         """f (1/sr) of reflection at all node pairs and azimuths: (C, h_o, h_i, len(phi_d))."""
         f = self.f_coefficients("Rt")
@@ -214,7 +182,8 @@ def medium_kernel_blocks(medium, x, w, tol, max_orders, renormalize=True):
 
 
 #: Memory the solver may use for one group of spectral channels (bytes); channels are independent,
-#: so a large problem is solved in groups of channels that fit (``FLAKEDB_MEMORY_BUDGET`` overrides).
+#: so a large problem is solved in groups of channels that fit (``SolverSettings.memory_budget_bytes``
+#: overrides; compose takes it from ``$FLAKEDB_MEMORY_BUDGET``).
 MEMORY_BUDGET_BYTES = 4 * 2**30
 
 
@@ -273,18 +242,16 @@ def solve_stack(top, slabs, bottom, settings=None, channels=None):
     the components when None).
 
     Channels are independent: when the estimated memory (:func:`_bytes_per_channel`) of all of them
-    together exceeds the budget (``MEMORY_BUDGET_BYTES`` or ``$FLAKEDB_MEMORY_BUDGET`` bytes), the
+    together exceeds the budget (``settings.memory_budget_bytes``, default ``MEMORY_BUDGET_BYTES``), the
     channels are solved in groups and the results joined (orders padded to the largest count).
     """
-    import os
-
     s = settings or SolverSettings()
     if s.n % 2 == 0 and s.n >= 2:
         C = int(channels) if channels else _n_channels(slabs, bottom)
         h_out = s.n // 2
         h_in = h_out + (0 if not isinstance(top, Smooth) or top.eta == 1.0 else
                         (s.h_tir if s.h_tir is not None else default_tir_nodes(h_out, top.eta)))
-        budget = float(os.environ.get("FLAKEDB_MEMORY_BUDGET", MEMORY_BUDGET_BYTES))
+        budget = float(s.memory_budget_bytes or MEMORY_BUDGET_BYTES)
         group = max(1, int(budget // _bytes_per_channel(s.n, h_in, s.order_cap)))
         if C > group:
             return _solve_in_channel_groups(top, slabs, bottom, s, C, group)

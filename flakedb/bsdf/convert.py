@@ -1,0 +1,63 @@
+"""The solver's result as the file's table: the one stack → :class:`~flakedb.bsdf.table.BSDFTable`
+conversion (compose, the Monte Carlo tests and the benchmarks all go through it).
+
+Node layout (docs/conventions.md: μ > 0 travels down): the table's nodes are ``[-x_h … -x_1,
+x_1 … x_h]`` with x the solver's air-side nodes.  Reflection from above (incident μ_i = +x_j,
+outgoing μ_o = −x_k) holds ``f_l(x_j → x_k) · x_k``, the coefficients of f·|μ_o|
+(docs/bsdf-format.md, "Evaluation").  An opaque paint has nothing else.  A transmissive stack whose
+binder side uses the air-side nodes (index-matched, or under a rough top) also fills transmission
+from above (+x_j → +x_k) and reflection and transmission from below, from the solver's other
+blocks, in basic radiance: the file's ``eta`` tells a renderer to scale transmitted values by η² or
+1/η² (docs/bsdf-format.md, "Renderer mapping").  The unscattered transmitted beam stays in the
+transmission blocks as the solver carries it (the attenuated identity: a spike on the quadrature
+diagonal, in every order), as layerlab's files do.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from flakedb.bsdf.table import BSDFTable
+
+
+def stack_to_table(stack, channels=None, eta=None, alpha=0.0, delta="auto", metadata=None) -> BSDFTable:
+    """:class:`BSDFTable` of a solved stack (:class:`flakedb.rt.stack.StackBSDF`).
+
+    ``channels``: names (default by count, :class:`BSDFTable`); ``eta``: the header's relative index
+    (default the stack's); ``alpha``: the top's Beckmann roughness (informational); ``delta``: the
+    analytic mirror term (``"auto"``: ``{"kind": "fresnel", "eta": η}`` when the stack has a smooth
+    top's delta term, else None); ``metadata``: str → JSON-able.
+    """
+    x = np.asarray(stack.x, float)
+    h = x.size
+    n = 2 * h
+    blocks = {"Rt": stack.f_coefficients("Rt")}
+    if stack.Ttb is not None:
+        if stack.x_in is None or stack.x_in.shape != x.shape or not np.allclose(stack.x_in, x, rtol=0, atol=1e-14):
+            raise ValueError("a transmissive table needs the same nodes above and below (index-matched stack)")
+        for b in ("Ttb", "Rb", "Tbt"):
+            blocks[b] = stack.f_coefficients(b)
+    C = max(b.shape[1] for b in blocks.values()) if channels is None else len(channels)
+    L = max(b.shape[0] for b in blocks.values())
+    coeffs = np.zeros((C, n, n, L))
+    up = slice(h - 1, None, -1)  # table indices of -x_0 … -x_{h-1} (reversed: -x_1 is at h-1)
+    dn = slice(h, n)             # table indices of +x_0 … +x_{h-1}
+
+    def put(name, i_sl, o_sl):
+        f = blocks[name]                                   # (L_b, C|1, h_o, h_i)
+        f = np.broadcast_to(f, (f.shape[0], C) + f.shape[2:])
+        v = np.transpose(f * x[None, None, :, None], (1, 3, 2, 0))   # (C, i, o, L_b) of f·|μ_o|
+        coeffs[:, i_sl, o_sl, : v.shape[-1]] = v
+
+    put("Rt", dn, up)
+    if "Ttb" in blocks:
+        put("Ttb", dn, dn)
+        put("Rb", up, dn)
+        put("Tbt", up, up)
+    mu = np.concatenate([-x[::-1], x])
+    if eta is None:
+        eta = stack.eta
+    if isinstance(delta, str) and delta == "auto":
+        delta = {"kind": "fresnel", "eta": float(stack.eta)} if stack.delta_F is not None else None
+    return BSDFTable(mu=mu, coeffs=coeffs, eta=float(eta), alpha=(float(alpha), 0.0), delta=delta,
+                     metadata=dict(metadata or {}), channels=None if channels is None else tuple(channels))
