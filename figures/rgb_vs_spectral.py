@@ -27,7 +27,6 @@ def compare(name, n, step_nm, catalog):
     from flakedb.colour.colorimetry import delta_E_2000
     from flakedb.compose.orchestrate import compose
     from flakedb.paint.recipe import parse_recipe
-    from flakedb.paint.species import repo_root
 
     path = RECIPES_DIR / f"{name}.yaml"
     doc = yaml.safe_load(path.read_text(encoding="utf-8"))

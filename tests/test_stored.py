@@ -23,19 +23,18 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from flakedb.store import compress as C
-from flakedb.paint import species as sp
-from flakedb.store import versions as st
 from flakedb.bsdf import open_bsdf
 from flakedb.cli.main import cli
 from flakedb.colour.colorimetry import delta_E_2000
 from flakedb.compose.orchestrate import compose
+from flakedb.paint import species as sp
 from flakedb.paint.recipe import parse_recipe
-from flakedb.rt.microflake import (FlakeOptics, _halfvector_terms, flake_ndf_Beckmann, kernel_Ergun,
-                                   pigment_kernel_Ergun)
-from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
-from flakedb.rt.stored import StoredFlakeMedium, StoredGridMismatch, StoredPigmentMedium, StoredReflectance
 from flakedb.pipelines.build import build, make_request
+from flakedb.rt.microflake import FlakeOptics, _halfvector_terms, flake_ndf_Beckmann, kernel_Ergun, pigment_kernel_Ergun
+from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
+from flakedb.rt.stored import StoredFlakeMedium, StoredGridMismatch, StoredPigmentMedium
+from flakedb.store import compress as C
+from flakedb.store import versions as st
 
 N, M = 16, 17
 WL = (500.0, 520.0, 540.0, 560.0, 580.0, 600.0)
@@ -104,12 +103,12 @@ def test_stored_flake_kernel_is_kernel_Ergun(tiny):
     alpha, a_rho = 0.2, 0.7
     args = (x[:, None, None], mu_o[None, :, None], phi[None, None, :])
     direct = kernel_Ergun(*args, alpha, _same_table_optics(req.species[FLAKE]), a_rho)
-    raw = StoredFlakeMedium(alpha, a_rho, StoredReflectance.from_store(v, FLAKE, N, raw=True), None, None)
+    raw = StoredFlakeMedium(alpha, a_rho, v.stored_reflectance(FLAKE, N, raw=True), None, None)
     k_raw = raw.kernel(*args)
     assert k_raw.shape == direct.shape
     assert np.abs(k_raw - direct).max() <= 1e-10 * np.abs(direct).max()
     # compressed: exactly (aρ/2) D (R̂ − R) away from the raw kernel, i.e. within the compression error
-    comp = StoredFlakeMedium(alpha, a_rho, StoredReflectance.from_store(v, FLAKE, N), None, None)
+    comp = StoredFlakeMedium(alpha, a_rho, v.stored_reflectance(FLAKE, N), None, None)
     k_c = comp.kernel(*args)
     R, Rhat = v.raw(FLAKE, N), v.reflectance(FLAKE, N)
     h = x.size
@@ -142,7 +141,7 @@ def test_stored_pigment_kernel_is_rho_csca_p(tiny):
     _, phi = v.grid(N)
     args = (x[:, None, None], mu_o[None, :, None], phi[None, None, :])
     direct = pigment_kernel_Ergun(*args, rho, po.c_sca_um2, phase)
-    src = StoredReflectance.from_store(v, PIGMENT, N, raw=True, weights=rho * np.asarray(po.c_ext_um2))
+    src = v.stored_reflectance(PIGMENT, N, raw=True, weights=rho * np.asarray(po.c_ext_um2))
     med = StoredPigmentMedium(src, rho * np.asarray(po.c_ext_um2), rho * np.asarray(po.c_sca_um2))
     assert np.abs(med.kernel(*args) - direct).max() <= 1e-10 * np.abs(direct).max()
     assert med.sigma_t(x).shape == (len(WL), x.size)
@@ -150,7 +149,7 @@ def test_stored_pigment_kernel_is_rho_csca_p(tiny):
 
 def test_nodes_off_the_grid_are_refused(tiny):
     url, req, v = tiny
-    src = StoredReflectance.from_store(v, FLAKE, N)
+    src = v.stored_reflectance(FLAKE, N)
     x = radau_hemisphere(N // 2).x  # the grid of a stack without a smooth coat
     with pytest.raises(StoredGridMismatch, match="not a node of the stored grid.*flakedb build"):
         src.evaluate(x[:, None, None], np.concatenate([-x, x])[None, :, None], np.zeros((1, 1, 3)))

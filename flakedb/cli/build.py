@@ -24,10 +24,11 @@ import click
 @click.option("--raw", is_flag=True, help="also store the raw R samples (compose --raw needs them)")
 def build(store, workers, processes, scheduler, dry_run, n, m, rank, species, range_nm, step_nm, eta_top, raw):
     """Build (or reuse) the compressed reflectance store and point `latest` at it."""
-    from flakedb.store import versions as st
     from flakedb.cli.errors import FlakedbError
     from flakedb.colour.colorimetry import spectral_grid
-    from flakedb.pipelines.build import DEFAULT_N, build as run_build, make_request
+    from flakedb.pipelines.build import DEFAULT_N, make_request
+    from flakedb.pipelines.build import build as run_build
+    from flakedb.store import versions as st
 
     url = store or st.default_store()
     if str(eta_top).strip().lower() in ("none", "null"):

@@ -27,7 +27,8 @@ def compose(recipe, out_dir, n, store, raw, catalog_path):
         raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8 (n/2 nodes per hemisphere), "
                            f"e.g. --n 64")
 
-    from flakedb.compose.orchestrate import OutputError, check_output_dir, compose as compose_recipe
+    from flakedb.compose.orchestrate import OutputError, check_output_dir
+    from flakedb.compose.orchestrate import compose as compose_recipe
     from flakedb.paint.recipe import RecipeError, load_recipe
     from flakedb.paint.species import CatalogError, load_catalog
 

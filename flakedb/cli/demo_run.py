@@ -42,9 +42,9 @@ def run_demo(out_dir):
 def _build_demo_store(out_dir):
     import time
 
-    from flakedb.store import versions as st
     from flakedb.colour.colorimetry import spectral_grid
     from flakedb.pipelines.build import build, make_request
+    from flakedb.store import versions as st
 
     url = os.path.join(out_dir, "flakedb-store")
     wl = spectral_grid((DEMO_RANGE_NM[0], DEMO_RANGE_NM[1]), DEMO_STEP_NM)
@@ -65,8 +65,8 @@ def _build_demo_store(out_dir):
 def _render_demo(bsdf_path, out_dir):
     from pathlib import Path
 
-    from flakedb.render import preview
     from flakedb.bsdf import open_bsdf
+    from flakedb.render import preview
     from flakedb.render.imageio import write_exr, write_png
 
     bsdf = open_bsdf(bsdf_path)
@@ -92,9 +92,8 @@ def _compose_demo(out_dir, catalog, store_url=None):
     import yaml
 
     from flakedb.compose.orchestrate import compose
-    from flakedb.paint.recipe import parse_recipe
     from flakedb.compose.report import format_report
-    from flakedb.paint.species import repo_root
+    from flakedb.paint.recipe import parse_recipe
 
     path = RECIPES_DIR / f"{DEMO_RECIPE}.yaml"
     doc = yaml.safe_load(path.read_text(encoding="utf-8"))

@@ -25,9 +25,9 @@ def export_mitsuba(file, out, variant, res, n_theta, as_json):
     (docs/renderers.md)."""
     import json
 
-    from flakedb.render import mitsuba as fm
     from flakedb.bsdf import BSDFFileError
     from flakedb.cli.errors import FlakedbError
+    from flakedb.render import mitsuba as fm
 
     try:
         s = fm.export_measured(file, out, variant=variant, res=res or fm.RES_DEFAULT,

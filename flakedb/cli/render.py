@@ -33,9 +33,9 @@ def render(file, out_dir, size, spp, env_kind, sun, seed, exposure, threads):
     import sys
     from pathlib import Path
 
-    from flakedb.render import preview
     from flakedb.bsdf import BSDFFileError, open_bsdf
     from flakedb.cli.errors import FlakedbError
+    from flakedb.render import preview
     from flakedb.render.imageio import write_exr, write_png
 
     try:

@@ -190,11 +190,33 @@ def delta_E_2000(lab1, lab2) -> np.ndarray:
     return np.asarray(colour.delta_E(np.asarray(lab1, float), np.asarray(lab2, float), method="CIE 2000"))
 
 
-def spectra_to_rgb_mode(values, wavelength_nm, illuminant: str = "D65") -> np.ndarray:
-    """The paper's RGB mode: spectra (..., W) → white-normalised linear sRGB (..., 3).
-
-    A flat spectrum c maps to (c, c, c) exactly; see the module docstring for why and what it costs.
-    """
-    rgb = XYZ_to_linear_sRGB(reflectance_to_XYZ(values, wavelength_nm, illuminant))
+def spectra_to_rgb_matrix(wavelength_nm, illuminant: str = "D65") -> np.ndarray:
+    """The one spectral → RGB map of flakedb (the paper's RGB mode), as a matrix M (W, 3):
+    white-normalised linear sRGB = spectra @ M.  M = W_xyz A / rgb(white), with W_xyz the
+    tristimulus weights and A the XYZ → linear sRGB matrix; a flat spectrum c maps to (c, c, c)
+    exactly (module docstring).  It is linear, so it applies to BSDF coefficients one by one."""
+    W = tristimulus_weights(wavelength_nm, illuminant)                 # (W, 3) → XYZ
+    A = XYZ_to_linear_sRGB(np.eye(3))                                  # XYZ @ A = rgb
     rgb_white = XYZ_to_linear_sRGB(white_XYZ(wavelength_nm, illuminant))
-    return rgb / rgb_white
+    return (W @ A) / rgb_white[None, :]
+
+
+def rgb_mode_to_XYZ(rgb, wavelength_nm, illuminant: str = "D65") -> np.ndarray:
+    """Inverse of the RGB mode's normalisation: XYZ (Y = 1 white on this grid) of white-normalised
+    linear sRGB values (..., 3), so that rgb_mode_to_XYZ(spectra @ M) = spectra' XYZ for every
+    spectrum in the span of the sRGB primaries."""
+    A = XYZ_to_linear_sRGB(np.eye(3))
+    rgb_white = XYZ_to_linear_sRGB(white_XYZ(wavelength_nm, illuminant))
+    return (np.asarray(rgb, float) * rgb_white) @ np.linalg.inv(A)
+
+
+def spectra_to_rgb_mode(values, wavelength_nm, illuminant: str = "D65") -> np.ndarray:
+    """The paper's RGB mode: spectra (..., W) → white-normalised linear sRGB (..., 3), by
+    :func:`spectra_to_rgb_matrix`.  A flat spectrum c maps to (c, c, c) exactly; see the module
+    docstring for why and what it costs.
+    """
+    v = np.asarray(values, dtype=float)
+    M = spectra_to_rgb_matrix(wavelength_nm, illuminant)
+    if v.shape[-1:] != (M.shape[0],):
+        raise ValueError(f"values' last axis has {v.shape[-1:]} samples, the grid {M.shape[0]}")
+    return v @ M

@@ -44,6 +44,8 @@ from pathlib import Path
 import numpy as np
 
 from flakedb.bsdf.convert import stack_to_table
+from flakedb.colour.colorimetry import spectra_to_rgb_matrix
+from flakedb.compose.store_context import StoreContext
 
 #: Order truncation of the ``.bsdf`` (flakedb.bsdf.write_bsdf): 0 keeps every order up to the last
 #: non-zero coefficient, so the file evaluates to the solver's values at the nodes to float32
@@ -91,14 +93,9 @@ def table_to_file_channels(table, mode, wavelength_nm=None):
     applied coefficient by coefficient (it is linear)."""
     import dataclasses
 
-    from flakedb.colour.colorimetry import XYZ_to_linear_sRGB, tristimulus_weights, white_XYZ
-
     c = table.coeffs
     if mode == "spectral":
-        W = tristimulus_weights(wavelength_nm)                           # (B, 3) → XYZ
-        A = XYZ_to_linear_sRGB(np.eye(3))                                # XYZ @ A = rgb
-        rgb_white = XYZ_to_linear_sRGB(white_XYZ(wavelength_nm))
-        M = (W @ A) / rgb_white[None, :]                                 # (B, 3)
+        M = spectra_to_rgb_matrix(wavelength_nm)                         # (B, 3)
         c = np.einsum("bk,b...->k...", M, c)
         channels = ("R", "G", "B")
     elif mode == "rgb":
@@ -194,7 +191,8 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
         store_label = f"{version.url} version {version.version} ({'raw' if raw else 'compressed'})"
         log(f"store: {store_label}, opened{' and verified' if verify else ''} in {t['store_open']:.2f} s")
     t0 = time.perf_counter()
-    paint = build_paint(recipe, catalog, store=version, n=n_used, raw=raw)
+    stored = None if version is None else StoreContext.for_recipe(version, recipe, n_used, raw)
+    paint = build_paint(recipe, catalog, stored=stored)
     t["optics"] = time.perf_counter() - t0
     log(f"optics: {len(paint.components)} component(s), {paint.n_channels} channel(s) ({paint.mode}), "
         f"{t['optics']:.2f} s")

@@ -87,23 +87,15 @@ def eval_table(table, mu_i, mu_o, phi_d) -> np.ndarray:
     return np.einsum("...cl,...l->...c", out, cos)
 
 
-def _rgb_to_xyz_matrix():
-    from flakedb.colour.colorimetry import XYZ_to_linear_sRGB
-
-    A = XYZ_to_linear_sRGB(np.eye(3))  # rows: RGB of unit X, Y, Z → rgb = XYZ @ A
-    return np.linalg.inv(A)
-
-
 def channels_to_XYZ(values, mode, wavelength_nm=None) -> np.ndarray:
     """XYZ (Y = 1 for white) of reflectance-type values (..., C) in a paint's channels."""
-    from flakedb.colour.colorimetry import XYZ_to_linear_sRGB, reflectance_to_XYZ, spectral_grid, white_XYZ
+    from flakedb.colour.colorimetry import reflectance_to_XYZ, rgb_mode_to_XYZ, spectral_grid, white_XYZ
 
     v = np.asarray(values, float)
     if mode == "spectral":
         return reflectance_to_XYZ(v, wavelength_nm)
     if mode == "rgb":
-        rgb_white = XYZ_to_linear_sRGB(white_XYZ(wavelength_nm))
-        return (v * rgb_white) @ _rgb_to_xyz_matrix()
+        return rgb_mode_to_XYZ(v, wavelength_nm)
     if mode == "mono":
         w = white_XYZ(spectral_grid(*MONO_WHITE_GRID))
         return v[..., :1] * w

@@ -53,7 +53,7 @@ With an open store version (:func:`build_paint` ``store=``), catalogue flakes be
 (compressed factors, or the raw samples with ``raw``), the rest as above: the loadings, σ_t(μ) and
 σ_s(μ) of flakes (1-D integrals of R(c), T(c): the store has no T), a pigment's ρ <C_ext> and
 <C_sca> (Mie cross-sections, no phase function), and the recipe's α (D(h) is evaluated, not
-stored).  :func:`store_problems` lists what the store lacks for a recipe.  In RGB mode the stored
+stored).  :func:`flakedb.compose.store_context.store_problems` lists what the store lacks for a recipe.  In RGB mode the stored
 spectral R is mapped to linear sRGB coefficient by coefficient (the map is linear).  For pigments the
 direct path's clips are reproduced: C_sca ≤ C_ext scales each channel's kernel, and the phase ≥ 0
 clip is applied to the evaluated kernel (:class:`flakedb.rt.stored.StoredPigmentMedium`
@@ -91,6 +91,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.paint.recipe import PRIMER_ALBEDO  # noqa: E402,F401  (defined with the recipe's primer colours)
 
 #: Flake-cosine grid: start from FLAKE_C_START nodes c = cos θ, θ uniform on [0°, 90°], and bisect
@@ -186,16 +187,10 @@ def pigment_number_density(volume_fraction, mean_volume_um3) -> float:
 # ----------------------------------------------------------------------------------------------
 
 
-def _rgb(values_last_axis_W, wl):
-    from flakedb.colour.colorimetry import spectra_to_rgb_mode
-
-    return spectra_to_rgb_mode(values_last_axis_W, wl)
-
-
-def flake_rt_to_rgb(R, T, wl) -> tuple[np.ndarray, np.ndarray, float]:
+def flake_rt_tospectra_to_rgb_mode(R, T, wl) -> tuple[np.ndarray, np.ndarray, float]:
     """(W, nc) spectra → (3, nc) RGB-mode R and T, clipped to [0, 1] with R + T ≤ 1; and the largest clip."""
-    Rr = _rgb(np.asarray(R).T, wl).T
-    Tr = _rgb(np.asarray(T).T, wl).T
+    Rr = spectra_to_rgb_mode(np.asarray(R).T, wl).T
+    Tr = spectra_to_rgb_mode(np.asarray(T).T, wl).T
     Rc, Tc = np.clip(Rr, 0.0, 1.0), np.clip(Tr, 0.0, 1.0)
     s = Rc + Tc
     scale = np.where(s > 1.0, 1.0 / np.maximum(s, 1e-300), 1.0)
@@ -204,11 +199,11 @@ def flake_rt_to_rgb(R, T, wl) -> tuple[np.ndarray, np.ndarray, float]:
     return Rc, Tc, clip
 
 
-def pigment_to_rgb(c_ext, c_sca, phase, wl):
+def pigment_tospectra_to_rgb_mode(c_ext, c_sca, phase, wl):
     """Per-band <C_ext>, <C_sca> (W,) and phase (W, M) → RGB-mode (3,), (3,), (3, M); and the largest clip."""
-    e = _rgb(np.asarray(c_ext), wl)
-    s = _rgb(np.asarray(c_sca), wl)
-    sp = _rgb((np.asarray(c_sca)[:, None] * np.asarray(phase)).T, wl).T  # (3, M)
+    e = spectra_to_rgb_mode(np.asarray(c_ext), wl)
+    s = spectra_to_rgb_mode(np.asarray(c_sca), wl)
+    sp = spectra_to_rgb_mode((np.asarray(c_sca)[:, None] * np.asarray(phase)).T, wl).T  # (3, M)
     ec = np.maximum(e, 0.0)
     sc = np.clip(s, 0.0, ec)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -280,7 +275,7 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
         if p.opaque:
             T = np.zeros_like(T)
         if recipe.mode == "rgb":
-            R, T, clip = flake_rt_to_rgb(R, T, wl)
+            R, T, clip = flake_rt_tospectra_to_rgb_mode(R, T, wl)
             info.setdefault("rgb_clip", {})[p.path] = clip
         alpha = float(p.orientation_alpha if p.orientation_alpha is not None else p.entry["orientation_alpha"]["value"])
         t = float(p.entry["thickness_um"]["value"])
@@ -318,8 +313,8 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
 
 def _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored):
     """StoredPigmentMedium: R = 4π ϖ p from the store, ρ <C_ext>, <C_sca> from the Mie code."""
-    from flakedb.rt.stored import StoredPigmentMedium
     from flakedb.paint.species import pigment_optics
+    from flakedb.rt.stored import StoredPigmentMedium
 
     po = pigment_optics(p.entry, wl, n_binder)  # cross-sections only, no phase function
     c_ext, c_sca = np.asarray(po.c_ext_um2, float), np.asarray(po.c_sca_um2, float)
@@ -329,8 +324,8 @@ def _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored):
         # the same constraints as pigment_to_rgb: C_ext ≥ 0, 0 ≤ C_sca ≤ C_ext (the mapped kernel
         # ρ rgb(C_sca p) scaled per channel by clipped / unclipped C_sca, a linear per-channel factor)
         # and phase ≥ 0 (the medium clips its kernel at 0: not linear, applied at evaluation)
-        e = _rgb(c_ext, wl)
-        s = _rgb(c_sca, wl)
+        e = spectra_to_rgb_mode(c_ext, wl)
+        s = spectra_to_rgb_mode(c_sca, wl)
         c_ext, c_sca = np.maximum(e, 0.0), np.clip(s, 0.0, np.maximum(e, 0.0))
         with np.errstate(divide="ignore", invalid="ignore"):
             f = np.where(s > 0, c_sca / s, 0.0)
@@ -353,8 +348,8 @@ def _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored):
 
 
 def _pigment_component(p, recipe, layer_um, n_binder, wl, info, stored=None):
-    from flakedb.rt.media import PhaseMedium
     from flakedb.paint.species import pigment_optics
+    from flakedb.rt.media import PhaseMedium
 
     if stored is not None:
         return _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored)
@@ -369,7 +364,7 @@ def _pigment_component(p, recipe, layer_um, n_binder, wl, info, stored=None):
     phase, integral = normalise_phase_table(mu, phase)
     info.setdefault("phase_table_norm_error", {})[p.path] = float(np.abs(integral - 1.0).max())
     if recipe.mode == "rgb":
-        c_ext, c_sca, phase, clip = pigment_to_rgb(c_ext, c_sca, phase, wl)
+        c_ext, c_sca, phase, clip = pigment_tospectra_to_rgb_mode(c_ext, c_sca, phase, wl)
         phase, _ = normalise_phase_table(mu, phase)
         info.setdefault("rgb_clip", {})[p.path] = clip
     rho = pigment_number_density(p.volume_fraction, po.mean_volume_um3)
@@ -404,13 +399,12 @@ def _custom_medium_component(p, layer_um, C, info):
     return med, rec
 
 
-def build_paint(recipe, catalog=None, store=None, n=None, raw=False) -> Paint:
+def build_paint(recipe, catalog=None, stored=None) -> Paint:
     """The solver inputs of ``recipe`` (a :class:`flakedb.paint.recipe.Recipe`); see the module docstring.
 
-    Without ``store`` every particle's optics is computed directly from the catalogue.  With an open
-    :class:`flakedb.store.versions.StoreVersion` ``store`` and the solve's node count ``n``, catalogue species
-    take their kernels' R from it (compressed, or raw with ``raw``); raises
-    :class:`flakedb.store.versions.StoreError` listing :func:`store_problems` when it cannot serve the recipe.
+    Without ``stored`` every particle's optics is computed directly from the catalogue.  With
+    ``stored`` (a :class:`flakedb.compose.store_context.StoreContext`: an open store version checked
+    against the recipe at the solve's node count), catalogue species take their kernels' R from it.
     """
     from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium
     from flakedb.rt.media import Mixture, PhaseMedium
@@ -427,12 +421,8 @@ def build_paint(recipe, catalog=None, store=None, n=None, raw=False) -> Paint:
     C = len(channels)
     eta = float(recipe.binder_ior)
     info: dict = {}
-    stored = None
-    if store is not None:
-        if n is None:
-            raise ValueError("build_paint(store=…) needs the solve's node count n (the store grid depends on it)")
-        stored = StoreContext.for_recipe(store, recipe, int(n), raw)
-        info["store"] = {"url": store.url, "version": store.version, "raw": bool(raw), "n": int(n)}
+    if stored is not None:
+        info["store"] = stored.record()
     components = []
     cc = recipe.clearcoat
     top_alpha = 0.0
@@ -448,7 +438,7 @@ def build_paint(recipe, catalog=None, store=None, n=None, raw=False) -> Paint:
     if cc is not None and cc.absorption_per_um is not None:
         if mode == "rgb":
             a = _spectrum_or_const(cc.absorption_per_um, wl, len(wl))
-            t_rgb = _rgb(np.exp(-a * cc.thickness_um), wl)
+            t_rgb = spectra_to_rgb_mode(np.exp(-a * cc.thickness_um), wl)
             a_ch = -np.log(np.clip(t_rgb, 1e-300, 1.0)) / cc.thickness_um
         else:
             a_ch = _spectrum_or_const(cc.absorption_per_um, wl, C) if mode == "spectral" else np.full(
@@ -481,7 +471,7 @@ def build_paint(recipe, catalog=None, store=None, n=None, raw=False) -> Paint:
     if recipe.primer is not None:
         pr = recipe.primer
         if mode == "rgb":
-            alb = _rgb(_spectrum_or_const(pr.albedo, wl, len(wl)), wl)
+            alb = spectra_to_rgb_mode(_spectrum_or_const(pr.albedo, wl, len(wl)), wl)
             info["primer_rgb_clip"] = float(np.abs(np.clip(alb, 0, 1) - alb).max())
             alb = np.clip(alb, 0.0, 1.0)
         else:
@@ -500,108 +490,6 @@ def catalog_species(recipe) -> list:
     from flakedb.paint.recipe import CatalogParticle
 
     return [p for _, p in recipe.particles() if isinstance(p, CatalogParticle)]
-
-
-def _same_entry(a, b) -> bool:
-    import json
-
-    norm = lambda e: json.loads(json.dumps(e, sort_keys=True, default=float))
-    return norm(a) == norm(b)
-
-
-def store_problems(version, recipe, n, raw=False) -> list[str]:
-    """What the open store ``version`` lacks to serve ``recipe``'s catalogue species at node count ``n``
-    (empty: it can).  Checks the top interface (a smooth coat of the recipe's index η, or η = 1),
-    the resolution n, every species (present, and built from the same catalogue entry), the
-    wavelengths, the raw samples when ``raw``, and recipe overrides the store cannot honour."""
-    from flakedb.rt.stack import Smooth  # noqa: F401  (documents what a store can serve)
-
-    probs = []
-    eta = float(recipe.binder_ior)
-    cc = recipe.clearcoat
-    if eta != 1.0 and cc is not None and cc.roughness > 0:
-        probs.append(f"the recipe has a rough coat (roughness {cc.roughness:g}); store versions serve smooth coats "
-                     f"and index-matched stacks only: compose without --store")
-    st_eta = version.eta_top
-    if st_eta is None or abs(float(st_eta) - eta) > 1e-12:
-        probs.append(f"top interface: the recipe's binder / coat index is η = {eta:g}, the store version was built "
-                     f"for eta_top = {st_eta} ({'plain Radau grid, catalogue binder index' if st_eta is None else 'η'})")
-    if not any(nn == n for nn, _ in version.resolutions):
-        probs.append(f"node count: the solve uses n = {n}, the store has (n, m) = {version.resolutions}")
-    have = set(version.species)
-    stored_inputs = version.metadata["inputs"]["species"]
-    for p in catalog_species(recipe):
-        if p.species not in have:
-            probs.append(f"species {p.species!r} ({p.path}) is not in the store")
-        elif not _same_entry(stored_inputs[p.species], p.entry):
-            probs.append(f"species {p.species!r}: the store was built from a different catalogue entry "
-                         f"(the catalogue changed since): rebuild")
-        if p.kind == "pigment" and (p.median_diameter_um is not None or p.gsd is not None):
-            probs.append(f"{p.path}: the recipe overrides the pigment's size distribution; the store holds the "
-                         f"catalogue's: compose without --store")
-    if recipe.wavelength_nm is not None:
-        swl = np.asarray(version.wavelength_nm, float)
-        miss = [float(w) for w in recipe.wavelength_nm if not np.any(np.abs(swl - w) <= 1e-9)]
-        if miss:
-            probs.append(f"wavelengths: the recipe's grid {recipe.wavelength_nm[0]:g}-{recipe.wavelength_nm[-1]:g} nm has "
-                         f"{len(miss)} band(s) the store lacks (e.g. {miss[0]:g} nm); the store has "
-                         f"{swl.min():g}-{swl.max():g} nm in {swl.size} bands")
-    if raw and not version.metadata["inputs"]["store_raw"]:
-        probs.append("--raw: the store version holds only the compressed factors (build it with --raw)")
-    return probs
-
-
-def store_build_command(version, recipe, n, raw=False) -> str:
-    """The `flakedb build` command that makes a version serving ``recipe`` at ``n``."""
-    wl = recipe.wavelength_nm
-    names = sorted({p.species for p in catalog_species(recipe)})
-    cmd = [f"flakedb build --store {version.url if version is not None else 'STORE'} --n {n} --eta-top {float(recipe.binder_ior):g}"]
-    if wl is not None and len(wl) > 1:
-        cmd.append(f"--range-nm {wl[0]:g} {wl[-1]:g} --step-nm {wl[1] - wl[0]:g}")
-    cmd += [f"--species {s}" for s in names]
-    if raw:
-        cmd.append("--raw")
-    return " ".join(cmd)
-
-
-@dataclass
-class StoreContext:
-    """An open store version checked against a recipe, and how its bands become the paint's channels."""
-
-    version: object
-    n: int
-    raw: bool
-    channel_index: np.ndarray
-    channel_map: np.ndarray | None
-
-    @classmethod
-    def for_recipe(cls, version, recipe, n, raw=False):
-        from flakedb.store.versions import StoreError
-
-        probs = store_problems(version, recipe, n, raw)
-        if probs:
-            raise StoreError(
-                f"store {version.url} (version {version.version[:12]}) cannot serve recipe {recipe.name!r} at n = {n}:\n  "
-                + "\n  ".join(probs)
-                + f"\nthe store has: species {', '.join(version.species)}; (n, m) {version.resolutions}; "
-                  f"eta_top {version.eta_top}; {len(version.wavelength_nm)} bands "
-                  f"{version.wavelength_nm.min():g}-{version.wavelength_nm.max():g} nm; raw samples "
-                  f"{'yes' if version.metadata['inputs']['store_raw'] else 'no'}"
-                + f"\nto add what is missing: {store_build_command(version, recipe, n, raw)}")
-        swl = np.asarray(version.wavelength_nm, float)
-        wl = np.asarray(recipe.wavelength_nm, float)
-        idx = np.array([int(np.argmin(np.abs(swl - w))) for w in wl])
-        cmap = None
-        if recipe.mode == "rgb":
-            cmap = _rgb(np.eye(wl.size), wl)  # (W, 3): spectra @ cmap = linear sRGB (the map is linear)
-        return cls(version, int(n), bool(raw), idx, cmap)
-
-    def reflectance(self, species, weights=None):
-        from flakedb.rt.stored import StoredReflectance
-
-        return StoredReflectance.from_store(self.version, species, self.n, raw=self.raw,
-                                            channel_index=self.channel_index, channel_map=self.channel_map,
-                                            weights=weights)
 
 
 def auto_resolution(recipe) -> tuple[int, str]:

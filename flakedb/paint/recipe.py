@@ -50,9 +50,9 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from flakedb.resources import CATALOG_DIR, PACKAGE_DIR, SCHEMAS_DIR
-
 import numpy as np
+
+from flakedb.resources import PACKAGE_DIR, SCHEMAS_DIR
 
 #: Recipe format version this flakedb reads (the ``flakedb:`` key).
 FORMAT_VERSION = 1

@@ -29,9 +29,9 @@ import os
 import re
 from pathlib import Path
 
-from flakedb.resources import CATALOG_DIR, PACKAGE_DIR, SCHEMAS_DIR
-
 import numpy as np
+
+from flakedb.resources import CATALOG_DIR, PACKAGE_DIR, SCHEMAS_DIR
 
 #: Angles of incidence in the binder (degrees) and wavelengths (nm) of ``species show``'s table.
 SHOW_ANGLES_DEG = (0.0, 30.0, 60.0, 80.0)
@@ -243,8 +243,8 @@ def flake_reflectance_transmittance(entry: dict, wavelength_nm, cos_theta, n_bin
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     cos = np.atleast_1d(np.asarray(cos_theta, dtype=float))
     if entry["kind"] == "interference_flake":
-        from flakedb.paint.materials import refractive_index
         from flakedb.optics.thinfilm import flake_reflectance_transmittance as tmm_flake
+        from flakedb.paint.materials import refractive_index
 
         mats, d_nm = film_stack(entry)
         n_films = np.stack([refractive_index(m, wl) for m in mats], axis=1)  # (W, F)
@@ -264,8 +264,8 @@ def pigment_optics(entry: dict, wavelength_nm, n_binder, mu=None):
     """
     if entry["kind"] != "pigment":
         raise ValueError(f"a {entry['kind']} is not a pigment; use flake_reflectance_transmittance")
-    from flakedb.paint.materials import refractive_index
     from flakedb.optics.mie import lognormal_pigment
+    from flakedb.paint.materials import refractive_index
 
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     nb = np.broadcast_to(np.asarray(n_binder, dtype=float), wl.shape)

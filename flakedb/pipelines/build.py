@@ -37,8 +37,8 @@ def make_request(species=None, n=DEFAULT_N, m=None, rank=DEFAULT_RANK, wavelengt
     included).  ``n``: node counts (one resolution each, m = n unless ``m`` is given);
     ``wavelength_nm``: default 400–700 nm every 20 nm; ``eta_top``: the paints' smooth top index
     (None: plain Radau grid and the catalogue binder's index; see :mod:`flakedb.store.versions`)."""
-    from flakedb.paint import species as sp
     from flakedb.colour.colorimetry import spectral_grid
+    from flakedb.paint import species as sp
     from flakedb.store.compress import DEFAULT_N_TABLE
 
     catalog = sp.load_catalog(catalog_path)
@@ -61,7 +61,8 @@ def _execute(url, plan, tasks, scheduler, workers, client, progress):
 
     graph = [dask.delayed(st.run_task, pure=False)(url, plan, t, dask_key_name=f"task-{t.id}") for t in tasks]
     if client is not None or (scheduler and "://" in str(scheduler)):
-        from distributed import Client, progress as dprogress
+        from distributed import Client
+        from distributed import progress as dprogress
 
         own = client is None
         client = client or Client(scheduler)

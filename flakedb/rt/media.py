@@ -111,9 +111,8 @@ class Mixture:
         return sum(_bc(c.sigma_s(mu)) for c in self.components)
 
     def subset(self, idx):
-        from flakedb.rt.stack import _subset
 
-        return Mixture([_subset(c, idx) for c in self.components])
+        return Mixture([channel_subset(c, idx) for c in self.components])
 
     def kernel(self, mu_i, mu_o, phi_d):
         return sum(c.kernel(mu_i, mu_o, phi_d) for c in self.components)
@@ -168,3 +167,33 @@ class FlakeMedium:
         # the mirror lobe's width in φ at 45° is ≈ √2 α (microflake.kernel_phi_bandwidth); start
         # from a few samples per lobe width, the projection refines adaptively
         return int(2 ** np.ceil(np.log2(max(8.0, 8.0 * np.pi / (np.sqrt(2.0) * self.alpha)))))
+
+
+class ChannelSubset:
+    """A medium restricted to some of its channels (evaluates all, keeps ``idx``; used only when a
+    medium has no cheaper ``subset``)."""
+
+    def __init__(self, medium, idx):
+        self.medium, self.idx = medium, np.asarray(idx)
+
+    def _take(self, a):
+        a = np.asarray(a)
+        return a if a.shape[0] == 1 else a[self.idx]
+
+    def sigma_t(self, mu):
+        return self._take(np.atleast_1d(self.medium.sigma_t(mu)))
+
+    def sigma_s(self, mu):
+        return self._take(np.atleast_1d(self.medium.sigma_s(mu)))
+
+    def kernel(self, mu_i, mu_o, phi_d):
+        return self._take(self.medium.kernel(mu_i, mu_o, phi_d))
+
+    @property
+    def phi_bandwidth(self):
+        return getattr(self.medium, "phi_bandwidth", 16)
+
+
+def channel_subset(medium, idx):
+    """``medium`` restricted to the channels ``idx`` (its own ``subset`` when it has one)."""
+    return medium.subset(idx) if hasattr(medium, "subset") else ChannelSubset(medium, idx)

@@ -554,3 +554,15 @@ def sample_flake_normal_Beckmann(u1, u2, alpha):
     sin_t = np.sqrt(tan2) * cos_t
     phi = _TWO_PI * u2
     return np.stack(np.broadcast_arrays(sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t), axis=-1)
+
+
+def flake_ndf_at_halfvector(mu_i, mu_o, phi_d, alpha):
+    """D(h) of eq. 5 at h = normalize(ω_o − ω_i) (conventions), in 1/sr, evaluated as
+    :func:`kernel_Ergun` does (stable half-vector terms, then :func:`flake_ndf_Beckmann`); the same
+    value as the closed form :func:`ndf_halfvector_Ergun` (eq. 6-7).  Used by media whose R comes
+    from elsewhere (the store)."""
+    alpha = _check_alpha(alpha)
+    dmu, _, two_f = _halfvector_terms(mu_i, mu_o, phi_d)
+    ok = two_f > 0.0
+    cos_h = np.where(ok, dmu / np.sqrt(np.where(ok, two_f, 1.0)), 0.0)
+    return flake_ndf_Beckmann(cos_h, alpha)

@@ -16,6 +16,7 @@ from flakedb.conventions import fourier_weight
 from flakedb.rt import interface as itf
 from flakedb.rt.fourier import project_azimuthal
 from flakedb.rt.layer import Layer, add, extend_orders, homogeneous_slab, identity_layer, pad_orders
+from flakedb.rt.media import channel_subset
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
 
 
@@ -204,33 +205,6 @@ def _bytes_per_channel(n, h_in, cap):
     return 8 * (4 * h_in * 2 * h_in * (2 * cap + 1) + 10 * cap * h_in * h_in)
 
 
-class _ChannelSubset:
-    """A medium restricted to some of its channels (evaluates all, keeps ``idx``; used only when a
-    medium has no cheaper ``subset``)."""
-
-    def __init__(self, medium, idx):
-        self.medium, self.idx = medium, np.asarray(idx)
-
-    def _take(self, a):
-        a = np.asarray(a)
-        return a if a.shape[0] == 1 else a[self.idx]
-
-    def sigma_t(self, mu):
-        return self._take(np.atleast_1d(self.medium.sigma_t(mu)))
-
-    def sigma_s(self, mu):
-        return self._take(np.atleast_1d(self.medium.sigma_s(mu)))
-
-    def kernel(self, mu_i, mu_o, phi_d):
-        return self._take(self.medium.kernel(mu_i, mu_o, phi_d))
-
-    @property
-    def phi_bandwidth(self):
-        return getattr(self.medium, "phi_bandwidth", 16)
-
-
-def _subset(medium, idx):
-    return medium.subset(idx) if hasattr(medium, "subset") else _ChannelSubset(medium, idx)
 
 
 def solve_stack(top, slabs, bottom, settings=None, channels=None):
@@ -262,7 +236,7 @@ def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
     parts, sizes = [], []
     for c0 in range(0, C, group):
         idx = np.arange(c0, min(C, c0 + group))
-        sub_slabs = [Slab(sl.thickness_um, _subset(sl.medium, idx)) for sl in slabs]
+        sub_slabs = [Slab(sl.thickness_um, channel_subset(sl.medium, idx)) for sl in slabs]
         sub_bottom = None
         if bottom is not None:
             a = np.atleast_1d(np.asarray(bottom.albedo, dtype=float))

@@ -27,7 +27,7 @@ Media (the interface of :mod:`flakedb.rt.media`: ``sigma_t``, ``sigma_s``, ``ker
 
 Channels: the coefficients may be any linear combination of the stored wavelengths (a band
 selection, or the RGB mode's spectra → linear sRGB map), applied before the solve
-(:func:`StoredReflectance.from_store`); a pigment's per-band weight ρ C_ext goes in before that map
+(:meth:`flakedb.store.versions.StoreVersion.stored_reflectance`); a pigment's per-band weight ρ C_ext goes in before that map
 (``weights``), since the RGB mode converts C_sca p, not p.
 """
 
@@ -36,6 +36,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from flakedb.rt.microflake import flake_ndf_at_halfvector
 
 #: Solver nodes and store grid nodes must agree to this (absolute, in μ).
 NODE_TOL = 1e-12
@@ -74,27 +76,6 @@ class StoredReflectance:
     @property
     def n_orders(self) -> int:
         return self.coeffs.shape[-1]
-
-    @classmethod
-    def from_store(cls, version, species, n, m=None, raw=False, channel_index=None, channel_map=None,
-                   weights=None):
-        """R's series of ``species`` at resolution ``n`` (and ``m``) of an open
-        :class:`flakedb.store.versions.StoreVersion`; compressed factors by default, the raw samples with ``raw``.
-
-        ``channel_index`` (C,) picks stored wavelengths; ``weights`` (C,) multiplies each picked band
-        (a pigment's ρ C_ext); ``channel_map`` (C, K) then maps the bands linearly to K output
-        channels (e.g. spectra → RGB).  Order: pick, weight, map.
-        """
-        mu, _ = version.grid(n, m)
-        co = version.fourier_coefficients(species, n, m, raw=raw)  # (W, n_mu, n_mu, L)
-        if channel_index is not None:
-            co = co[np.asarray(channel_index, dtype=int)]
-        if weights is not None:
-            co = co * np.asarray(weights, dtype=float)[:, None, None, None]
-        if channel_map is not None:
-            co = np.tensordot(np.asarray(channel_map, dtype=float), co, axes=([0], [0]))
-        what = "raw samples (DCT-I)" if raw else "compressed factors (U_pairs @ fourier)"
-        return cls(mu, co, f"store {version.url} version {version.version[:12]} species {species} n = {n}: {what}")
 
     def node_index(self, mu):
         """Indices of the grid nodes equal (within :data:`NODE_TOL`) to ``mu`` (any shape); refuses others."""
@@ -157,13 +138,7 @@ class StoredFlakeMedium:
 
     def kernel(self, mu_i, mu_o, phi_d):
         """(aρ/2) R(μ_i, μ_o, φ_d) D(h), h = normalize(ω_o − ω_i) (as kernel_Ergun), 1/(µm·sr)."""
-        from flakedb.rt.microflake import _check_alpha, _halfvector_terms, flake_ndf_Beckmann
-
-        alpha = _check_alpha(self.alpha)
-        dmu, _, two_f = _halfvector_terms(mu_i, mu_o, phi_d)
-        ok = two_f > 0.0
-        cos_h = np.where(ok, dmu / np.sqrt(np.where(ok, two_f, 1.0)), 0.0)
-        d = flake_ndf_Beckmann(cos_h, alpha)
+        d = flake_ndf_at_halfvector(mu_i, mu_o, phi_d, self.alpha)
         R = self.R_source.evaluate(mu_i, mu_o, phi_d)
         return (0.5 * self.a_rho_per_um) * R * d[None]
 
@@ -176,7 +151,7 @@ class StoredFlakeMedium:
 @dataclass(eq=False)
 class StoredPigmentMedium:
     """Pigments with R = 4π ϖ p from the store (module docstring).  ``R_source`` must already carry
-    the per-channel weight ρ C_ext (``StoredReflectance.from_store(weights=ρ C_ext)``), so that the
+    the per-channel weight ρ C_ext (``StoreVersion.stored_reflectance(weights=ρ C_ext)``), so that the
     kernel is R_source/(4π) = ρ C_sca p; ``sigma_t_per_um`` = ρ C_ext and ``sigma_s_per_um`` =
     ρ C_sca per channel (C,).  ``nonnegative``: the kernel is clipped at 0 (the RGB mode's phase ≥ 0;
     the solver's renormalisation to σ_s then plays the part of the direct path's re-normalisation of

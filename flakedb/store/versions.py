@@ -57,8 +57,16 @@ import numpy as np
 
 from flakedb import __version__
 from flakedb.resources import SCHEMAS_DIR
-from flakedb.store.compress import (DEFAULT_N_TABLE, fourier_factors, grid_nodes, mean_relative_error, reconstruct,
-                              sample_reflectance, sqrt_svd_compress)
+from flakedb.rt.stored import StoredReflectance
+from flakedb.store.compress import (
+    DEFAULT_N_TABLE,
+    fourier_factors,
+    grid_nodes,
+    mean_relative_error,
+    reconstruct,
+    sample_reflectance,
+    sqrt_svd_compress,
+)
 
 FORMAT = "flakedb-store"
 FORMAT_VERSION = 1
@@ -361,7 +369,6 @@ def write_template(url, plan: BuildPlan):
 
     Idempotent: a version whose template exists (a resumed build) is left as it is.
     """
-    import zarr
 
     meta = metadata(plan)
     problems = schema_problems(meta, "metadata")
@@ -703,3 +710,23 @@ class StoreVersion:
     def raw(self, species, n, m=None) -> np.ndarray:
         """R itself, (W, n_mu, n_mu, m) (only in a version built with ``store_raw``)."""
         return self._arr(species, n, m, "raw")
+
+    def stored_reflectance(self, species, n, m=None, raw=False, channel_index=None, channel_map=None,
+                   weights=None):
+        """R's series of ``species`` at resolution ``n`` (and ``m``) of this version, as a
+        :class:`flakedb.rt.stored.StoredReflectance`; compressed factors by default, the raw samples with ``raw``.
+
+        ``channel_index`` (C,) picks stored wavelengths; ``weights`` (C,) multiplies each picked band
+        (a pigment's ρ C_ext); ``channel_map`` (C, K) then maps the bands linearly to K output
+        channels (e.g. spectra → RGB).  Order: pick, weight, map.
+        """
+        mu, _ = self.grid(n, m)
+        co = self.fourier_coefficients(species, n, m, raw=raw)  # (W, n_mu, n_mu, L)
+        if channel_index is not None:
+            co = co[np.asarray(channel_index, dtype=int)]
+        if weights is not None:
+            co = co * np.asarray(weights, dtype=float)[:, None, None, None]
+        if channel_map is not None:
+            co = np.tensordot(np.asarray(channel_map, dtype=float), co, axes=([0], [0]))
+        what = "raw samples (DCT-I)" if raw else "compressed factors (U_pairs @ fourier)"
+        return StoredReflectance(mu, co, f"store {self.url} version {self.version[:12]} species {species} n = {n}: {what}")
