@@ -4,10 +4,10 @@
 import argparse
 import time
 
+from flakedb.store.compress import figure4
+
 
 def main(argv=None):
-    from flakedb.store.compress import figure4
-
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--n", type=int, default=64)
     ap.add_argument("--m", type=int, default=64)

@@ -46,6 +46,31 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
+
+import flakedb.reference.montecarlo as mc
+from flakedb.atomic import atomic_write
+from flakedb.bsdf import open_bsdf
+from flakedb.compose.orchestrate import compose
+from flakedb.compose.report import channels_to_XYZ, directional_albedo, eval_table, reference_white
+from flakedb.optics.fresnel import fresnel_dielectric
+from flakedb.paint.mapping import catalog_species
+from flakedb.paint.recipe import parse_recipe
+from flakedb.pipelines.build import build, make_request
+from flakedb.reference.montecarlo import bin_average, binned_reflectance
+from flakedb.render.imageio import srgb_encode, to_srgb8
+from flakedb.render.preview import (
+    CAMERA_DIR,
+    VIEW_DIR,
+    orthonormal_basis,
+    render_sphere,
+    studio_environment,
+    studio_sun,
+)
+from flakedb.rt import media as rm
+from flakedb.rt import stack as rs
+from flakedb.store import versions as st
+from flakedb.store.compress import figure4
 
 ROOT = Path(__file__).resolve().parents[1]
 RECIPES = ROOT / "catalog" / "recipes"
@@ -71,8 +96,6 @@ THREADS = min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity"
 # --------------------------------------------------------------------------------------------
 def _atomic(path, write):
     """``write(tmp)`` then rename onto ``path`` (:func:`flakedb.atomic.atomic_write`)."""
-    from flakedb.atomic import atomic_write
-
     return atomic_write(path, write)
 
 
@@ -85,17 +108,17 @@ def write_json(path, obj):
 
 
 def save_fig(fig, path, dpi=110):
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
 
     _atomic(path, lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
     plt.close(fig)
 
 
 def _plt():
-    import matplotlib
+    import matplotlib  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
 
     return plt
 
@@ -105,10 +128,6 @@ def _plt():
 # --------------------------------------------------------------------------------------------
 def load_variant(name, step_nm=None, mode=None):
     """The catalogue recipe ``name`` with its spectral step (and mode) overridden; returns (Recipe, changes)."""
-    import yaml
-
-    from flakedb.paint.recipe import parse_recipe
-
     path = RECIPES / f"{name}.yaml"
     doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     changes = {}
@@ -128,10 +147,6 @@ def compose_render(name, cfg, work, log, render=True, mode=None):
     """Compose catalogue recipe ``name`` (cfg's n and bands) into ``work`` and render its sphere.
 
     Returns dict(recipe, result, bsdf, image, seconds)."""
-    from flakedb.bsdf import open_bsdf
-    from flakedb.compose.orchestrate import compose
-    from flakedb.render.preview import render_sphere, studio_environment, studio_sun
-
     rec, changes = load_variant(name, step_nm=cfg["step_nm"] if mode is None else None, mode=mode)
     t0 = time.perf_counter()
     res = compose(rec, work, n=cfg["n"] if mode is None else cfg["fig6_n"])
@@ -148,8 +163,6 @@ def compose_render(name, cfg, work, log, render=True, mode=None):
 
 def sphere_grid(images, titles, rows, cols, suptitle, row_labels=None, col_labels=None, cell=2.1):
     """A matplotlib figure of sphere images (linear RGB, sRGB-encoded for display)."""
-    from flakedb.render.imageio import to_srgb8
-
     plt = _plt()
     fig, axes = plt.subplots(rows, cols, figsize=(cell * cols + 0.4, cell * rows + 0.6), squeeze=False)
     for k, ax in enumerate(axes.ravel()):
@@ -173,23 +186,17 @@ def sphere_grid(images, titles, rows, cols, suptitle, row_labels=None, col_label
 
 
 def _white(mode, wl):
-    from flakedb.compose.report import reference_white
-
     return reference_white(mode, wl)
 
 
 def luminance(values, paint):
     """Y (white = 1) of reflectance-type values (..., C) in the paint's channels."""
-    from flakedb.compose.report import channels_to_XYZ
-
     return channels_to_XYZ(values, paint.mode, paint.wavelength_nm)[..., 1] / _white(paint.mode, paint.wavelength_nm)[1]
 
 
 def inplane_slice(result, theta_i_deg=45.0, theta_o_deg=None):
     """Luminance reflectance factor π·f (Y) in the plane of incidence: θ_o > 0 on the specular side
     (φ_d = 0), θ_o < 0 towards the illuminator (φ_d = π).  Tabulated part (no mirror delta)."""
-    from flakedb.compose.report import eval_table
-
     th = np.arange(-85.0, 85.1, 1.0) if theta_o_deg is None else np.asarray(theta_o_deg, float)
     mu_i = math.cos(math.radians(theta_i_deg))
     mu_o = -np.cos(np.radians(np.abs(th)))
@@ -202,8 +209,6 @@ def inplane_slice(result, theta_i_deg=45.0, theta_o_deg=None):
 def albedo_curve(result, theta_deg=None):
     """(θ_i, total Y, tabulated Y): directional albedo from the solver's nodes
     (:func:`flakedb.compose.report.directional_albedo`), mirror term included in the total."""
-    from flakedb.compose.report import directional_albedo
-
     th = np.arange(0.0, 86.0, 5.0) if theta_deg is None else np.asarray(theta_deg, float)
     st, paint = result.stack, result.paint
     delta_eta = paint.eta if paint.delta else None
@@ -227,8 +232,6 @@ def _settings(cfg, keys):
 # --------------------------------------------------------------------------------------------
 def fig4(out, cfg, log):
     """Reuse :func:`flakedb.store.compress.figure4`, written into a temporary directory then moved in."""
-    from flakedb.store.compress import figure4
-
     p = cfg["fig4"]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -383,10 +386,6 @@ def fig7(out, cfg, log):
 def paint_to_mc_problem(paint):
     """The :class:`flakedb.reference.montecarlo.Problem` of a :class:`flakedb.paint.mapping.Paint` (same media, same
     numbers; the Monte Carlo samples them independently of the solver)."""
-    import flakedb.reference.montecarlo as mc
-    from flakedb.rt import media as rm
-    from flakedb.rt import stack as rs
-
     def media(m):
         if isinstance(m, rm.Mixture):
             return [x for c in m.components for x in media(c)]
@@ -410,9 +409,6 @@ def paint_to_mc_problem(paint):
 
 def solver_binned(table, x_nodes, mu_edges, phi_edges, n_quad=6):
     """(C, h, nμ, nφ): the table's f·|μ_o| averaged over the bins, per incident node (bin_average)."""
-    from flakedb.reference.montecarlo import bin_average
-    from flakedb.compose.report import eval_table
-
     C = table.coeffs.shape[0]
     out = np.zeros((C, len(x_nodes), len(mu_edges) - 1, len(phi_edges) - 1))
     for j, x in enumerate(x_nodes):
@@ -431,8 +427,6 @@ def solver_binned(table, x_nodes, mu_edges, phi_edges, n_quad=6):
 def mc_binned(problem, x_nodes, n_paths, seed, mu_edges, phi_edges):
     """Two independent half runs per incident node: binned reflectance (2, C, h, nμ, nφ), diffuse
     albedo (2, C, h) and its standard error (2, C, h)."""
-    from flakedb.reference.montecarlo import binned_reflectance
-
     B, A, S = [], [], []
     for half in range(2):
         b, a, s = [], [], []
@@ -453,9 +447,6 @@ def render_binned(B, x_nodes, mu_edges, phi_edges, env, sun, delta_eta, size, ex
     between the nodes, each bin (both ±φ_d halves) lit by the environment at its centre direction
     times its solid angle Δ|μ|Δφ, the sun by the bin it falls into, plus the exact coat mirror term.
     Returns linear RGB (size, size, 3) and the sphere mask."""
-    from flakedb.optics.fresnel import fresnel_dielectric
-    from flakedb.render.preview import CAMERA_DIR, VIEW_DIR, orthonormal_basis
-
     me, pe = np.asarray(mu_edges, float), np.asarray(phi_edges, float)
     mc_, pc = 0.5 * (me[1:] + me[:-1]), 0.5 * (pe[1:] + pe[:-1])
     dom = np.diff(me)[:, None] * np.diff(pe)[None, :]                         # (K, L), per ± half
@@ -512,8 +503,6 @@ def render_binned(B, x_nodes, mu_edges, phi_edges, env, sun, delta_eta, size, ex
 
 def psnr(a, b, mask):
     """PSNR (dB) of sRGB-encoded images (values in [0, 1], clipped) over the masked pixels."""
-    from flakedb.render.imageio import srgb_encode
-
     d = srgb_encode(a)[mask] - srgb_encode(b)[mask]
     mse = float(np.mean(d * d))
     return float("inf") if mse == 0 else float(10.0 * math.log10(1.0 / mse))
@@ -526,10 +515,6 @@ def _finite(v):
 def fig6_store(names, cfg, work, log):
     """Build the Figure 6 store (both species, the recipes' grid, n = fig6_n, rank FIG6_RANK, raw
     samples kept) in ``work``; returns (open StoreVersion, build record)."""
-    from flakedb.store import versions as st
-    from flakedb.paint.mapping import catalog_species
-    from flakedb.pipelines.build import build, make_request
-
     recs = [load_variant(nm, mode="rgb")[0] for nm in names]
     wl, eta = recs[0].wavelength_nm, float(recs[0].binder_ior)
     for r in recs[1:]:
@@ -552,9 +537,6 @@ def fig6_store(names, cfg, work, log):
 
 
 def fig6_case(label, name, cfg, work, log, store=None):
-    from flakedb.compose.orchestrate import compose
-    from flakedb.render.preview import studio_environment, studio_sun
-
     r = compose_render(name, cfg, work, log, render=False, mode="rgb")
     res = r["result"]
     paint, stack = res.paint, res.stack
@@ -621,8 +603,6 @@ def fig6_case(label, name, cfg, work, log, store=None):
 
 
 def fig6(out, cfg, log):
-    from flakedb.render.imageio import srgb_encode
-
     plt = _plt()
     recs, rows = [], []
     with tempfile.TemporaryDirectory(prefix="flakedb-fig6-") as work:

@@ -15,6 +15,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from flakedb.atomic import atomic_write_text
+from flakedb.colour.colorimetry import delta_E_2000
+from flakedb.compose.orchestrate import compose
+from flakedb.paint.recipe import parse_recipe
+from flakedb.paint.species import load_catalog
 from flakedb.resources import RECIPES_DIR
 
 RECIPES = ["particle-metallic", "particle-pearlescent", "particle-gray-mirror", "particle-cadmium-yellow",
@@ -24,10 +29,6 @@ RECIPES = ["particle-metallic", "particle-pearlescent", "particle-gray-mirror", 
 
 def compare(name, n, step_nm, catalog):
     """ΔE00 per aspecular angle between spectral and RGB mode for one recipe (pure wiring)."""
-    from flakedb.colour.colorimetry import delta_E_2000
-    from flakedb.compose.orchestrate import compose
-    from flakedb.paint.recipe import parse_recipe
-
     path = RECIPES_DIR / f"{name}.yaml"
     doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     labs, times = {}, {}
@@ -54,8 +55,6 @@ def main(argv=None):
     ap.add_argument("--out", default="docs/figures/rgb-vs-spectral.json")
     ap.add_argument("--only", default=None, help="comma-separated recipe names")
     args = ap.parse_args(argv)
-    from flakedb.atomic import atomic_write_text
-    from flakedb.paint.species import load_catalog
 
     catalog = load_catalog()
     names = args.only.split(",") if args.only else RECIPES

@@ -54,13 +54,13 @@ A phase function ``p(cos Θ)`` is normalised to integrate to 1 over the sphere (
 ``cos Θ = ω_in · ω_out`` of propagation directions (``cos Θ = 1`` is forward).  A scattering kernel
 ``k(ω_in → ω_out) = σ_s(ω_in) p(ω_in → ω_out)`` has units 1/(µm·sr).
 """
+import numpy as np
+
 
 def fourier_weight(order):
     """Azimuthal factor c_l of the scattering-matrix normalisation: 2π for l = 0, π otherwise.
 
     ``order`` may be an int or an integer array; returns float(s).  See the module docstring.
     """
-    import numpy as np
-
     order = np.asarray(order)
     return np.where(order == 0, 2.0 * np.pi, np.pi)

@@ -6,8 +6,10 @@ import json
 import os
 from pathlib import Path
 
+import h5py
 import numpy as np
 
+from flakedb import __version__
 from flakedb.atomic import temp_beside
 from flakedb.bsdf.evaluator import FourierBSDF, table_evaluator
 from flakedb.bsdf.table import BSDFFileError, BSDFTable
@@ -28,10 +30,6 @@ def write_h5(path, table: BSDFTable, extra_metadata: dict | None = None) -> dict
     ``table.metadata``; ``flakedb_version`` is always recorded.  Layout in the package docstring (:mod:`flakedb.bsdf`).
     Returns ``{"size": bytes, "n_channels": C, "max_order": L}``.
     """
-    import h5py
-
-    from flakedb import __version__
-
     if not isinstance(table, BSDFTable):
         raise TypeError("write_h5 expects a BSDFTable")
     md = dict(table.metadata)
@@ -74,8 +72,6 @@ def _json_default(o):
 def read_h5(path) -> FourierBSDF:
     """Read a file written by :func:`write_h5` into a :class:`FourierBSDF` (float64, channels as
     stored; the zero nodes inserted as in the ``.bsdf``; cdf computed from the sampling channel)."""
-    import h5py
-
     path = Path(path)
     if not path.exists():
         raise BSDFFileError(f"{path}: no such file")

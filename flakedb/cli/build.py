@@ -3,6 +3,12 @@ flakedb/pipelines/build.py and flakedb/store/versions.py."""
 
 import click
 
+from flakedb.cli.errors import FlakedbError
+from flakedb.colour.colorimetry import spectral_grid
+from flakedb.pipelines.build import DEFAULT_N, make_request
+from flakedb.pipelines.build import build as run_build
+from flakedb.store import versions as st
+
 
 @click.command()
 @click.option("--store", default=None, help="store path or fsspec URL [default: $FLAKEDB_STORE or ./flakedb-store]")
@@ -24,12 +30,6 @@ import click
 @click.option("--raw", is_flag=True, help="also store the raw R samples (compose --raw needs them)")
 def build(store, workers, processes, scheduler, dry_run, n, m, rank, species, range_nm, step_nm, eta_top, raw):
     """Build (or reuse) the compressed reflectance store and point `latest` at it."""
-    from flakedb.cli.errors import FlakedbError
-    from flakedb.colour.colorimetry import spectral_grid
-    from flakedb.pipelines.build import DEFAULT_N, make_request
-    from flakedb.pipelines.build import build as run_build
-    from flakedb.store import versions as st
-
     url = store or st.default_store()
     if str(eta_top).strip().lower() in ("none", "null"):
         eta = None
@@ -59,8 +59,6 @@ def build(store, workers, processes, scheduler, dry_run, n, m, rank, species, ra
 @click.option("--all", "all_versions", is_flag=True, help="check every version, not only `latest`")
 def verify(store, all_versions):
     """Check a store: completeness, schema, every chunk's sha256.  Exit 1 listing the problems."""
-    from flakedb.store import versions as st
-
     url = store or st.default_store()
     problems = st.verify_store(url, all_versions=all_versions)
     if problems:

@@ -2,6 +2,15 @@
 
 import click
 
+from flakedb.cli.errors import FlakedbError
+from flakedb.compose.orchestrate import OutputError, check_output_dir
+from flakedb.compose.orchestrate import compose as compose_recipe
+from flakedb.compose.report import format_report
+from flakedb.paint.mapping import catalog_species
+from flakedb.paint.recipe import RecipeError, load_recipe
+from flakedb.paint.species import CatalogError, load_catalog
+from flakedb.store.versions import StoreError
+
 
 @click.command()
 @click.argument("recipe", type=click.Path(dir_okay=False))
@@ -21,16 +30,9 @@ import click
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
 def compose(recipe, out_dir, n, store, raw, catalog_path):
     """Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report."""
-    from flakedb.cli.errors import FlakedbError
-
     if n is not None and (n < 8 or n % 2):
         raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8 (n/2 nodes per hemisphere), "
                            f"e.g. --n 64")
-
-    from flakedb.compose.orchestrate import OutputError, check_output_dir
-    from flakedb.compose.orchestrate import compose as compose_recipe
-    from flakedb.paint.recipe import RecipeError, load_recipe
-    from flakedb.paint.species import CatalogError, load_catalog
 
     try:
         catalog = load_catalog(catalog_path)
@@ -40,8 +42,6 @@ def compose(recipe, out_dir, n, store, raw, catalog_path):
         raise FlakedbError(str(exc)) from exc
     for w in rec.warnings:
         click.echo(f"warning: {w}", err=True)
-    from flakedb.paint.mapping import catalog_species
-    from flakedb.store.versions import StoreError
 
     if store is None:
         click.echo(f"compose {rec.name}: store: none; species optics computed directly from the catalogue")
@@ -54,7 +54,6 @@ def compose(recipe, out_dir, n, store, raw, catalog_path):
                              store=store)
     except StoreError as exc:
         raise FlakedbError(str(exc)) from exc
-    from flakedb.compose.report import format_report
 
     click.echo(format_report(res.report))
     s = res.bsdf_summary

@@ -2,12 +2,12 @@
 
 import click
 
+from flakedb.cli.demo_run import run_demo
+
 
 @click.command()
 @click.option("--out", "out_dir", default="out", show_default=True, type=click.Path(file_okay=False),
               help="Directory for the demo's outputs.")
 def demo(out_dir):
     """Run the end-to-end demo with what flakedb can do today."""
-    from flakedb.cli.demo_run import run_demo
-
     run_demo(out_dir)

@@ -1,22 +1,33 @@
 """The end-to-end demo behind `make demo`: runs each stage that exists, names those that do not."""
 
 import os
+import time
+from pathlib import Path
 
+import yaml
+
+from flakedb import __version__
+from flakedb.bsdf import open_bsdf
+from flakedb.colour.colorimetry import spectral_grid
+from flakedb.compose.orchestrate import compose
+from flakedb.compose.report import format_report
+from flakedb.paint.recipe import parse_recipe
+from flakedb.paint.species import load_catalog, optics_table, plot_optics
+from flakedb.pipelines.build import build, make_request
+from flakedb.render import preview
+from flakedb.render.imageio import write_exr, write_png
 from flakedb.resources import RECIPES_DIR
+from flakedb.store import versions as st
 
 
 def run_demo(out_dir):
     """species optics → build the catalogue store → verify → compose from the store → preview."""
-    import time
-
     os.makedirs(out_dir, exist_ok=True)
-    from flakedb import __version__
 
     t_all = time.perf_counter()
     print(f"flakedb {__version__}: demo, outputs in {out_dir}/")
 
     # Stage 1: particle optics of a catalogue species (same code as `flakedb species show`).
-    from flakedb.paint.species import load_catalog, optics_table, plot_optics
 
     catalog = load_catalog()
     for name in ("pearlescent", "titanium-white"):
@@ -40,12 +51,6 @@ def run_demo(out_dir):
 
 
 def _build_demo_store(out_dir):
-    import time
-
-    from flakedb.colour.colorimetry import spectral_grid
-    from flakedb.pipelines.build import build, make_request
-    from flakedb.store import versions as st
-
     url = os.path.join(out_dir, "flakedb-store")
     wl = spectral_grid((DEMO_RANGE_NM[0], DEMO_RANGE_NM[1]), DEMO_STEP_NM)
     req = make_request(n=DEMO_N, wavelength_nm=wl, eta_top=DEMO_ETA)
@@ -63,12 +68,6 @@ def _build_demo_store(out_dir):
 
 
 def _render_demo(bsdf_path, out_dir):
-    from pathlib import Path
-
-    from flakedb.bsdf import open_bsdf
-    from flakedb.render import preview
-    from flakedb.render.imageio import write_exr, write_png
-
     bsdf = open_bsdf(bsdf_path)
     result = preview.render_sphere(bsdf, preview.studio_environment(), preview.studio_sun(), size=DEMO_PREVIEW_PX,
                                    spp=preview.DEFAULT_SPP)
@@ -89,12 +88,6 @@ DEMO_PREVIEW_PX = 256
 
 
 def _compose_demo(out_dir, catalog, store_url=None):
-    import yaml
-
-    from flakedb.compose.orchestrate import compose
-    from flakedb.compose.report import format_report
-    from flakedb.paint.recipe import parse_recipe
-
     path = RECIPES_DIR / f"{DEMO_RECIPE}.yaml"
     doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     doc["spectral"] = {**doc.get("spectral", {}), "step_nm": DEMO_STEP_NM}

@@ -3,7 +3,13 @@
 Thin: the work is in :func:`flakedb.render.mitsuba.export_measured`.
 """
 
+import json
+
 import click
+
+from flakedb.bsdf import BSDFFileError
+from flakedb.cli.errors import FlakedbError
+from flakedb.render import mitsuba as fm
 
 
 @click.command("export-mitsuba")
@@ -23,12 +29,6 @@ def export_mitsuba(file, out, variant, res, n_theta, as_json):
     reflection only).  The smooth coat's mirror term cannot be carried and is dropped: the summary
     lists the albedo it loses.  Render the full paint with the `flakedb` plugin instead
     (docs/renderers.md)."""
-    import json
-
-    from flakedb.bsdf import BSDFFileError
-    from flakedb.cli.errors import FlakedbError
-    from flakedb.render import mitsuba as fm
-
     try:
         s = fm.export_measured(file, out, variant=variant, res=res or fm.RES_DEFAULT,
                                n_theta=n_theta or fm.N_THETA_DEFAULT)

@@ -1,6 +1,12 @@
 """`flakedb info FILE`: what is in a Fourier ``.bsdf`` or flakedb HDF5 BSDF file."""
 
+import json
+
 import click
+import numpy as np
+
+from flakedb.bsdf import BSDFFileError, open_bsdf
+from flakedb.cli.errors import FlakedbError
 
 #: Incident zenith angles [deg] (light arriving from above) at which the albedo is listed.
 INFO_THETA_DEG = (0.0, 30.0, 45.0, 60.0, 75.0, 85.0)
@@ -8,10 +14,6 @@ INFO_THETA_DEG = (0.0, 30.0, 45.0, 60.0, 75.0, 85.0)
 
 def describe(path):
     """A JSON-able summary of the BSDF file at ``path`` (raises BSDFFileError when unreadable)."""
-    import numpy as np
-
-    from flakedb.bsdf import open_bsdf
-
     b = open_bsdf(path)
     size = b.path.stat().st_size
     mu = np.cos(np.radians(INFO_THETA_DEG))
@@ -53,11 +55,6 @@ def describe(path):
 def info(file, as_json):
     """Describe a Fourier .bsdf or flakedb .h5 BSDF file: nodes, channels, orders, eta, alpha,
     the smooth coat's delta term, metadata, and the albedo (R + T) at a few incident angles."""
-    import json
-
-    from flakedb.bsdf import BSDFFileError
-    from flakedb.cli.errors import FlakedbError
-
     try:
         d = describe(file)
     except BSDFFileError as e:

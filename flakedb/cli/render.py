@@ -1,6 +1,14 @@
 """`flakedb render FILE`: a preview image of a composed BSDF file on a sphere (OpenEXR + PNG)."""
 
+import sys
+from pathlib import Path
+
 import click
+
+from flakedb.bsdf import BSDFFileError, open_bsdf
+from flakedb.cli.errors import FlakedbError
+from flakedb.render import preview
+from flakedb.render.imageio import write_exr, write_png
 
 ENV_CONSTANT_RADIANCE = 0.5  # the furnace of renderers.md
 
@@ -30,14 +38,6 @@ def render(file, out_dir, size, spp, env_kind, sun, seed, exposure, threads):
     Orthographic camera looking down -z; BSDF importance sampling from the file's CDF combined
     with sun sampling (MIS, power heuristic); the smooth coat's mirror term (the file's delta)
     added exactly.  Writes OUT/<stem>.exr and OUT/<stem>.png atomically."""
-    import sys
-    from pathlib import Path
-
-    from flakedb.bsdf import BSDFFileError, open_bsdf
-    from flakedb.cli.errors import FlakedbError
-    from flakedb.render import preview
-    from flakedb.render.imageio import write_exr, write_png
-
     try:
         bsdf = open_bsdf(file)
         preview.check_renderable(bsdf)

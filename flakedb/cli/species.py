@@ -2,6 +2,9 @@
 
 import click
 
+from flakedb.cli.errors import FlakedbError
+from flakedb.paint.species import CatalogError, expand_sweeps, load_catalog, optics_table, plot_optics
+
 
 @click.group()
 def species():
@@ -13,9 +16,6 @@ def species():
               help="Catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
 def list_(catalog_path):
     """List the species: catalogue particles and sweep members."""
-    from flakedb.cli.errors import FlakedbError
-    from flakedb.paint.species import CatalogError, expand_sweeps, load_catalog
-
     try:
         allsp = expand_sweeps(load_catalog(catalog_path))
     except CatalogError as exc:
@@ -33,9 +33,6 @@ def list_(catalog_path):
 def show(name, out_dir, catalog_path):
     """Print a species' optics (flake R/T at 0°, 30°, 60°, 80° in the binder, or a pigment's
     C_ext, C_sca, albedo, g) and write its plot to OUT/NAME-optics.png."""
-    from flakedb.cli.errors import FlakedbError
-    from flakedb.paint.species import CatalogError, expand_sweeps, load_catalog, optics_table, plot_optics
-
     try:
         catalog = load_catalog(catalog_path)
     except CatalogError as exc:

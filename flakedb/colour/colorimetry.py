@@ -63,7 +63,7 @@ def spectral_grid(range_nm=(380, 780), step_nm=10) -> np.ndarray:
 
 
 def _tables():
-    import colour
+    import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
 
     return colour.MSDS_CMFS[CMFS_NAME], colour.SDS_ILLUMINANTS
 
@@ -110,7 +110,7 @@ def _weights_cached(wl_key: tuple, illuminant: str) -> np.ndarray:
     if m == 1:
         H = np.eye(wl.size)
     else:
-        from colour.algebra import SpragueInterpolator
+        from colour.algebra import SpragueInterpolator  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
 
         eye = np.eye(wl.size)
         H = np.stack([SpragueInterpolator(wl, eye[j])(fine) for j in range(wl.size)])  # (W, F)
@@ -153,7 +153,7 @@ def XYZ_to_linear_sRGB(XYZ) -> np.ndarray:
 
     No chromatic adaptation (the XYZ are already relative to D65, sRGB's white).  (..., 3) → (..., 3).
     """
-    import colour
+    import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
 
     cs = colour.RGB_COLOURSPACES["sRGB"]
     return np.asarray(
@@ -172,7 +172,7 @@ def XYZ_to_Lab(XYZ, white="D65") -> np.ndarray:
     (0.3127, 0.3290), Y = 1) or an XYZ triple, e.g. :func:`white_XYZ` on the grid the spectra were
     integrated on (then the perfect white is exactly (100, 0, 0)).
     """
-    import colour
+    import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
 
     if isinstance(white, str):
         xy = colour.CCS_ILLUMINANTS[CMFS_NAME][white]
@@ -185,7 +185,7 @@ def XYZ_to_Lab(XYZ, white="D65") -> np.ndarray:
 
 def delta_E_2000(lab1, lab2) -> np.ndarray:
     """CIEDE2000 colour difference (Sharma, Wu & Dalal 2005, Color Res. Appl. 30, 21), k_L=k_C=k_H=1."""
-    import colour
+    import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
 
     return np.asarray(colour.delta_E(np.asarray(lab1, float), np.asarray(lab2, float), method="CIE 2000"))
 

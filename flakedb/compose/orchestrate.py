@@ -33,6 +33,7 @@ moved into place (``os.replace``) only when all three are complete; on any error
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -43,9 +44,14 @@ from pathlib import Path
 
 import numpy as np
 
+from flakedb import __version__
+import flakedb.bsdf as bsdf_files  # the module, so a test can replace its writers
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
+from flakedb.compose.report import colour_report
 from flakedb.compose.store_context import StoreContext
+from flakedb.paint.mapping import auto_resolution, build_paint, catalog_species, solve_paint
+from flakedb.store import versions as st
 
 #: Order truncation of the ``.bsdf`` (flakedb.bsdf.write_bsdf): 0 keeps every order up to the last
 #: non-zero coefficient, so the file evaluates to the solver's values at the nodes to float32
@@ -91,8 +97,6 @@ def table_to_file_channels(table, mode, wavelength_nm=None):
     """The ``.bsdf`` version of a full table: linear sRGB (3 channels) or mono when every channel is
     equal (to 1e-12 relative).  Spectral → RGB by :func:`flakedb.colour.colorimetry.spectra_to_rgb_mode`
     applied coefficient by coefficient (it is linear)."""
-    import dataclasses
-
     c = table.coeffs
     if mode == "spectral":
         M = spectra_to_rgb_matrix(wavelength_nm)                         # (B, 3)
@@ -126,15 +130,13 @@ class ComposeResult:
 
 def write_outputs(out_dir, name, table, file_table, report, h5_metadata):
     """Write DIR/NAME.bsdf, .h5, .json all-or-nothing (module docstring).  Returns (paths, bsdf summary)."""
-    from flakedb.bsdf import write_bsdf, write_h5
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(dir=out, prefix=f".{name}.", suffix=".tmp"))
     final = {"bsdf": out / f"{name}.bsdf", "h5": out / f"{name}.h5", "json": out / f"{name}.json"}
     try:
-        summary = write_bsdf(tmp / final["bsdf"].name, file_table, truncation=BSDF_TRUNCATION)
-        write_h5(tmp / final["h5"].name, table, h5_metadata)
+        summary = bsdf_files.write_bsdf(tmp / final["bsdf"].name, file_table, truncation=BSDF_TRUNCATION)
+        bsdf_files.write_h5(tmp / final["h5"].name, table, h5_metadata)
         with open(tmp / final["json"].name, "w", encoding="utf-8") as fh:
             json.dump(report, fh, indent=1, allow_nan=False)
             fh.write("\n")
@@ -160,10 +162,6 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     :class:`flakedb.store.versions.StoreError` (:class:`~flakedb.store.versions.StoreIntegrityError` for a corrupted
     store) before writing anything.
     """
-    from flakedb import __version__
-    from flakedb.compose.report import colour_report
-    from flakedb.paint.mapping import auto_resolution, build_paint, solve_paint
-
     log = log or (lambda s: None)
     check_output_dir(out_dir)
     if n is not None:
@@ -178,13 +176,10 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     if recipe.clearcoat is not None and recipe.clearcoat.roughness > 0 and n_used < 128:
         warnings.append(f"rough coat at n = {n_used} < 128: expect energy errors of several %")
     t = {}
-    from flakedb.paint.mapping import catalog_species
 
     version = None
     store_label = STORE_NONE
     if store is not None and catalog_species(recipe):
-        from flakedb.store import versions as st
-
         t0 = time.perf_counter()
         version = store if isinstance(store, st.StoreVersion) else st.open_version(str(store), verify=verify)
         t["store_open"] = time.perf_counter() - t0

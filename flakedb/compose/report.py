@@ -38,6 +38,18 @@ total minus it).
 from __future__ import annotations
 
 import numpy as np
+from scipy.interpolate import CubicSpline
+
+from flakedb.bsdf import catmull_rom_weights, insert_zero_nodes
+from flakedb.colour.colorimetry import (
+    XYZ_to_Lab,
+    XYZ_to_linear_sRGB,
+    reflectance_to_XYZ,
+    rgb_mode_to_XYZ,
+    spectral_grid,
+    white_XYZ,
+)
+from flakedb.optics.fresnel import fresnel_dielectric
 
 #: Illumination zenith angle (degrees) of the multi-angle geometries.
 ILLUMINATION_DEG = 45.0
@@ -64,8 +76,6 @@ def eval_table(table, mu_i, mu_o, phi_d) -> np.ndarray:
     The readers' Catmull–Rom interpolation over the file nodes (zero nodes inserted, entries at them
     zero).  Arguments broadcast; returns (..., C).
     """
-    from flakedb.bsdf import catmull_rom_weights, insert_zero_nodes
-
     mu_i, mu_o, phi_d = np.broadcast_arrays(*(np.asarray(a, float) for a in (mu_i, mu_o, phi_d)))
     nodes = insert_zero_nodes(table.mu)
     n, h = table.n, table.n // 2
@@ -89,8 +99,6 @@ def eval_table(table, mu_i, mu_o, phi_d) -> np.ndarray:
 
 def channels_to_XYZ(values, mode, wavelength_nm=None) -> np.ndarray:
     """XYZ (Y = 1 for white) of reflectance-type values (..., C) in a paint's channels."""
-    from flakedb.colour.colorimetry import reflectance_to_XYZ, rgb_mode_to_XYZ, spectral_grid, white_XYZ
-
     v = np.asarray(values, float)
     if mode == "spectral":
         return reflectance_to_XYZ(v, wavelength_nm)
@@ -104,8 +112,6 @@ def channels_to_XYZ(values, mode, wavelength_nm=None) -> np.ndarray:
 
 def reference_white(mode, wavelength_nm=None) -> np.ndarray:
     """XYZ of the perfect white in the same integration as :func:`channels_to_XYZ`."""
-    from flakedb.colour.colorimetry import spectral_grid, white_XYZ
-
     if mode == "mono":
         return white_XYZ(spectral_grid(*MONO_WHITE_GRID))
     return white_XYZ(wavelength_nm)
@@ -126,10 +132,6 @@ def directional_albedo(x_nodes, albedo_nodes, theta_deg, delta_eta=None):
 
     Returns ``(total, tabulated, mirror)`` with mirror (A,).
     """
-    from scipy.interpolate import CubicSpline
-
-    from flakedb.optics.fresnel import fresnel_dielectric
-
     mu = np.cos(np.radians(np.asarray(theta_deg, float)))
     x = np.asarray(x_nodes, float)
     a = np.asarray(albedo_nodes, float)
@@ -149,8 +151,6 @@ def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=N
 
     ``x_nodes``/``albedo_nodes``: the solver's positive nodes (h,) and tabulated albedo (C, h) at them.
     """
-    from flakedb.colour.colorimetry import XYZ_to_Lab, XYZ_to_linear_sRGB
-
     white = reference_white(mode, wavelength_nm)
     geoms = []
     rows = []

@@ -92,7 +92,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
-from flakedb.paint.recipe import PRIMER_ALBEDO  # noqa: E402,F401  (defined with the recipe's primer colours)
+from flakedb.paint.recipe import (
+    PRIMER_ALBEDO,  # noqa: E402,F401  (defined with the recipe's primer colours)
+    CatalogParticle,
+    CustomFlake,
+    CustomMedium,
+    Spectrum,
+)
+from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
+from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
+from flakedb.rt.microflake import FlakeOptics, extinction_Ergun, scattering_Ergun
+from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.stored import StoredFlakeMedium, StoredPigmentMedium
 
 #: Flake-cosine grid: start from FLAKE_C_START nodes c = cos θ, θ uniform on [0°, 90°], and bisect
 #: every interval whose midpoint differs from the linear interpolant by more than FLAKE_C_TOL in R
@@ -171,8 +182,6 @@ def flake_a_rho_from_volume_fraction(volume_fraction, flake_thickness_um) -> flo
 
 def flake_a_rho_from_optical_depth(optical_depth, layer_um, alpha, optics) -> float:
     """aρ (1/µm) such that σ_t(μ = 1) · d = τ for flakes of ``optics`` (channel 0) and spread α."""
-    from flakedb.rt.microflake import extinction_Ergun
-
     s1 = float(np.atleast_1d(extinction_Ergun(np.array([1.0]), alpha, optics, 1.0))[0].ravel()[0])
     return float(optical_depth) / (float(layer_um) * s1)
 
@@ -245,16 +254,12 @@ class Paint:
     @property
     def delta(self):
         """The smooth coat's mirror term as the file format records it, or None."""
-        from flakedb.rt.stack import Smooth
-
         if isinstance(self.top, Smooth) and self.eta != 1.0:
             return {"kind": "fresnel", "eta": float(self.eta)}
         return None
 
 
 def _spectrum_or_const(value, wl, C):
-    from flakedb.paint.recipe import Spectrum
-
     if isinstance(value, Spectrum):
         return value.at(wl)
     return np.full(C, float(value))
@@ -262,13 +267,7 @@ def _spectrum_or_const(value, wl, C):
 
 def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
     """FlakeMedium (or StoredFlakeMedium with ``stored``) and its record for a catalogue or custom flake."""
-    from flakedb.paint.recipe import CatalogParticle
-    from flakedb.rt.media import FlakeMedium
-    from flakedb.rt.microflake import FlakeOptics
-
     if isinstance(p, CatalogParticle):
-        from flakedb.paint.species import flake_reflectance_transmittance
-
         c, R, T, c_err = adaptive_flake_optics(
             lambda cc: flake_reflectance_transmittance(p.entry, wl, cc, n_binder))  # (W, nc) each
         info.setdefault("flake_c_grid", {})[p.path] = {"nodes": int(c.size), "max_midpoint_error": c_err}
@@ -296,9 +295,6 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
                "orientation_alpha": alpha, "a_rho_per_um": a_rho,
                "loading": "optical depth: sigma_t(mu=1) x layer thickness"}
     if stored is not None and isinstance(p, CatalogParticle):
-        from flakedb.rt.microflake import extinction_Ergun, scattering_Ergun
-        from flakedb.rt.stored import StoredFlakeMedium
-
         src = stored.reflectance(p.species)
         med = StoredFlakeMedium(alpha, a_rho, src, lambda mu: extinction_Ergun(mu, alpha, optics, a_rho),
                                 lambda mu: scattering_Ergun(mu, alpha, optics, a_rho))
@@ -313,9 +309,6 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
 
 def _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored):
     """StoredPigmentMedium: R = 4π ϖ p from the store, ρ <C_ext>, <C_sca> from the Mie code."""
-    from flakedb.paint.species import pigment_optics
-    from flakedb.rt.stored import StoredPigmentMedium
-
     po = pigment_optics(p.entry, wl, n_binder)  # cross-sections only, no phase function
     c_ext, c_sca = np.asarray(po.c_ext_um2, float), np.asarray(po.c_sca_um2, float)
     rho = pigment_number_density(p.volume_fraction, po.mean_volume_um3)
@@ -348,9 +341,6 @@ def _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored):
 
 
 def _pigment_component(p, recipe, layer_um, n_binder, wl, info, stored=None):
-    from flakedb.paint.species import pigment_optics
-    from flakedb.rt.media import PhaseMedium
-
     if stored is not None:
         return _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored)
     entry = copy.deepcopy(p.entry)
@@ -383,8 +373,6 @@ def _pigment_component(p, recipe, layer_um, n_binder, wl, info, stored=None):
 
 
 def _custom_medium_component(p, layer_um, C, info):
-    from flakedb.rt.media import PhaseMedium
-
     phase = p.phase
     if isinstance(phase, tuple) and phase[0] == "table":
         vals, integral = normalise_phase_table(phase[1], phase[2])
@@ -406,10 +394,6 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
     ``stored`` (a :class:`flakedb.compose.store_context.StoreContext`: an open store version checked
     against the recipe at the solve's node count), catalogue species take their kernels' R from it.
     """
-    from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium
-    from flakedb.rt.media import Mixture, PhaseMedium
-    from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth
-
     mode = recipe.mode
     wl = recipe.wavelength_nm
     if mode == "spectral":
@@ -487,8 +471,6 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
 
 def catalog_species(recipe) -> list:
     """The catalogue particles of a recipe (those a store can serve), in layer order."""
-    from flakedb.paint.recipe import CatalogParticle
-
     return [p for _, p in recipe.particles() if isinstance(p, CatalogParticle)]
 
 
@@ -507,8 +489,6 @@ def auto_resolution(recipe) -> tuple[int, str]:
     ≤ 1.02, n = 48 → ≤ 0.11, n = 64 → ≤ 0.08 (vs n = 96).  ΔE00 ≈ 0.1 is reached at h ≈ 2/α;
     ⌈3/α⌉ keeps a 1.5× margin for the lobe shape renderers see between the report's geometries.
     """
-    from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium
-
     h = 16
     reasons = ["default 32 (Lambertian primer / pigments: smooth lobes)"]
     for _, p in recipe.particles():
@@ -533,7 +513,5 @@ def auto_resolution(recipe) -> tuple[int, str]:
 
 def solve_paint(paint: Paint, n: int, **settings):
     """Solve the paint's stack at ``n`` nodes; returns :class:`flakedb.rt.stack.StackBSDF`."""
-    from flakedb.rt.stack import SolverSettings, solve_stack
-
     return solve_stack(paint.top, paint.slabs, paint.bottom, SolverSettings(n=int(n), **settings),
                        channels=paint.n_channels)

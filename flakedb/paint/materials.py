@@ -24,11 +24,13 @@ The only I/O is reading the shipped CSV/YAML once (cached); evaluation is vector
 
 from __future__ import annotations
 
+import copy
 import functools
 import os
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from flakedb.resources import MATERIALS_DIR
 
@@ -48,8 +50,6 @@ def materials_dir() -> Path:
 
 @functools.lru_cache(maxsize=None)
 def _index() -> dict:
-    import yaml
-
     path = materials_dir() / "materials.yaml"
     with open(path, encoding="utf-8") as f:
         doc = yaml.safe_load(f)
@@ -123,8 +123,6 @@ def material_table(material: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def material_info(material: str) -> dict:
     """The index entry of a material (file, citation, valid range, rules), as a new dict."""
-    import copy
-
     return copy.deepcopy(_entry(material))
 
 

@@ -50,8 +50,13 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import jsonschema
 import numpy as np
+import yaml
 
+from flakedb.colour.colorimetry import spectral_grid
+from flakedb.paint.materials import refractive_index
+from flakedb.paint.species import expand_sweeps, load_catalog
 from flakedb.resources import PACKAGE_DIR, SCHEMAS_DIR
 
 #: Recipe format version this flakedb reads (the ``flakedb:`` key).
@@ -301,8 +306,6 @@ def _describe_error(err) -> str:
 
 def schema_problems(doc) -> list[str]:
     """Every schema violation of a parsed recipe document as ``path: message (hint: …)``."""
-    import jsonschema
-
     schema = _schema()
     validator = jsonschema.Draft202012Validator(schema)
 
@@ -377,8 +380,6 @@ def _flake_table_problems(path, spec):
 
 def spectral_grid_of(doc) -> tuple[str, np.ndarray | None, list[str]]:
     """(mode, grid or None, problems) of a schema-valid document's ``spectral`` block."""
-    from flakedb.colour.colorimetry import spectral_grid
-
     sp = {**DEFAULT_SPECTRAL, **(doc.get("spectral") or {})}
     mode = sp["mode"]
     lo, hi = (float(v) for v in sp["range_nm"])
@@ -400,8 +401,6 @@ def spectral_grid_of(doc) -> tuple[str, np.ndarray | None, list[str]]:
 
 def _material_coverage_problems(path, entry, grid):
     """The catalogue materials of a species must cover the grid (nothing is extrapolated silently)."""
-    from flakedb.paint.materials import refractive_index
-
     mats = []
     if entry["kind"] == "interference_flake":
         mats = [entry["substrate"]["material"]] + [f["material"] for f in entry["coating"]]
@@ -427,8 +426,6 @@ def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
     Returns ``(problems, warnings, parts)`` where ``parts`` holds the typed pieces built on the way
     (used by :func:`build_recipe` when there are no problems).
     """
-    from flakedb.paint.species import expand_sweeps, load_catalog
-
     problems, warnings = [], []
     mode, grid, p = spectral_grid_of(doc)
     problems += p
@@ -626,8 +623,6 @@ def validate_recipe(doc, catalog=None) -> list[str]:
 def parse_recipe(text: str, source="<recipe>", catalog=None) -> Recipe:
     """Parse, validate and check recipe YAML ``text``; returns a :class:`Recipe` or raises
     :class:`RecipeError` listing every problem."""
-    import yaml
-
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:

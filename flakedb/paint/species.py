@@ -29,8 +29,14 @@ import os
 import re
 from pathlib import Path
 
+import jsonschema
 import numpy as np
+import yaml
 
+from flakedb.colour.colorimetry import spectra_to_rgb_mode, spectral_grid
+from flakedb.optics.mie import lognormal_pigment
+from flakedb.optics.thinfilm import flake_reflectance_transmittance as tmm_flake
+from flakedb.paint.materials import material_names, refractive_index
 from flakedb.resources import CATALOG_DIR, PACKAGE_DIR, SCHEMAS_DIR
 
 #: Angles of incidence in the binder (degrees) and wavelengths (nm) of ``species show``'s table.
@@ -66,8 +72,6 @@ def _fmt_path(parts) -> str:
 
 def validate_catalog(doc) -> list[str]:
     """All problems of a parsed catalogue as 'path: message' strings (empty list: valid)."""
-    import jsonschema
-
     with open(schema_path(), encoding="utf-8") as f:
         schema = json.load(f)
     validator = jsonschema.Draft202012Validator(schema)
@@ -86,8 +90,6 @@ def validate_catalog(doc) -> list[str]:
 
 
 def _semantic_problems(doc) -> list[str]:
-    from flakedb.paint.materials import material_names
-
     known = set(material_names())
     out = []
 
@@ -150,8 +152,6 @@ def load_catalog(path=None) -> dict:
     Returns the parsed document (a dict with ``version``, ``binder``, ``particles`` and optionally
     ``sweeps``).  Raises :class:`CatalogError` listing every problem as ``path: message``.
     """
-    import yaml
-
     path = Path(path) if path is not None else default_catalog_path()
     with open(path, encoding="utf-8") as f:
         doc = yaml.safe_load(f)
@@ -215,8 +215,6 @@ def film_stack(entry: dict) -> tuple[list[str], np.ndarray]:
 
 def binder_index(catalog: dict, wavelength_nm) -> np.ndarray:
     """Real index of the catalogue's binder at ``wavelength_nm`` (its k is 0 in the shipped data)."""
-    from flakedb.paint.materials import refractive_index
-
     N = refractive_index(catalog["binder"]["material"], wavelength_nm)
     return N.real
 
@@ -243,9 +241,6 @@ def flake_reflectance_transmittance(entry: dict, wavelength_nm, cos_theta, n_bin
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     cos = np.atleast_1d(np.asarray(cos_theta, dtype=float))
     if entry["kind"] == "interference_flake":
-        from flakedb.optics.thinfilm import flake_reflectance_transmittance as tmm_flake
-        from flakedb.paint.materials import refractive_index
-
         mats, d_nm = film_stack(entry)
         n_films = np.stack([refractive_index(m, wl) for m in mats], axis=1)  # (W, F)
         rt = tmm_flake(n_films, d_nm, wl, cos, n_binder)
@@ -264,8 +259,6 @@ def pigment_optics(entry: dict, wavelength_nm, n_binder, mu=None):
     """
     if entry["kind"] != "pigment":
         raise ValueError(f"a {entry['kind']} is not a pigment; use flake_reflectance_transmittance")
-    from flakedb.optics.mie import lognormal_pigment
-    from flakedb.paint.materials import refractive_index
 
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     nb = np.broadcast_to(np.asarray(n_binder, dtype=float), wl.shape)
@@ -335,10 +328,8 @@ def plot_optics(name: str, out_dir, catalog: dict | None = None) -> Path:
     (RGB mode of :mod:`flakedb.colour.colorimetry`, sRGB-encoded, clipped for display only) versus angle.
     Pigments: C_ext, C_sca, single-scattering albedo and g versus wavelength.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    from flakedb.colour.colorimetry import spectra_to_rgb_mode, spectral_grid
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
+    from matplotlib.figure import Figure  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
 
     catalog = catalog if catalog is not None else load_catalog()
     entry = get_species(name, catalog)
@@ -358,7 +349,7 @@ def plot_optics(name: str, out_dir, catalog: dict | None = None) -> Path:
         ax2.set(xlabel="wavelength (nm)", ylim=(-0.05, 1.05), title="single scattering")
         ax2.legend()
     else:
-        import colour
+        import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
 
         angles = np.asarray(SHOW_ANGLES_DEG)
         R, T = flake_reflectance_transmittance(entry, wl, np.cos(np.radians(angles)), nb)

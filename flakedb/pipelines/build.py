@@ -13,7 +13,11 @@ import hashlib
 import time
 from pathlib import Path
 
+from flakedb.colour.colorimetry import spectral_grid
+from flakedb.paint import species as sp
+from flakedb.paint.materials import materials_dir
 from flakedb.store import versions as st
+from flakedb.store.compress import DEFAULT_N_TABLE
 
 DEFAULT_N = (32,)
 DEFAULT_RANK = 8
@@ -25,8 +29,6 @@ DEFAULT_ETA_TOP = 1.5
 
 def material_checksums() -> dict:
     """sha256 of every optical-data file shipped in catalog/materials (name → hex)."""
-    from flakedb.paint.materials import materials_dir
-
     d = Path(materials_dir())
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.iterdir()) if p.is_file()}
 
@@ -37,10 +39,6 @@ def make_request(species=None, n=DEFAULT_N, m=None, rank=DEFAULT_RANK, wavelengt
     included).  ``n``: node counts (one resolution each, m = n unless ``m`` is given);
     ``wavelength_nm``: default 400–700 nm every 20 nm; ``eta_top``: the paints' smooth top index
     (None: plain Radau grid and the catalogue binder's index; see :mod:`flakedb.store.versions`)."""
-    from flakedb.colour.colorimetry import spectral_grid
-    from flakedb.paint import species as sp
-    from flakedb.store.compress import DEFAULT_N_TABLE
-
     catalog = sp.load_catalog(catalog_path)
     allsp = sp.expand_sweeps(catalog)
     names = list(allsp) if not species else list(species)
@@ -57,12 +55,12 @@ def make_request(species=None, n=DEFAULT_N, m=None, rank=DEFAULT_RANK, wavelengt
 
 
 def _execute(url, plan, tasks, scheduler, workers, client, progress):
-    import dask
+    import dask  # lazy: Dask only where a build runs
 
     graph = [dask.delayed(st.run_task, pure=False)(url, plan, t, dask_key_name=f"task-{t.id}") for t in tasks]
     if client is not None or (scheduler and "://" in str(scheduler)):
-        from distributed import Client
-        from distributed import progress as dprogress
+        from distributed import Client  # lazy: Dask only where a build runs
+        from distributed import progress as dprogress  # lazy: Dask only where a build runs
 
         own = client is None
         client = client or Client(scheduler)
@@ -78,7 +76,7 @@ def _execute(url, plan, tasks, scheduler, workers, client, progress):
     if workers:
         kwargs["num_workers"] = int(workers)
     if progress:
-        from dask.diagnostics import ProgressBar
+        from dask.diagnostics import ProgressBar  # lazy: Dask only where a build runs
 
         with ProgressBar():
             return dask.compute(*graph, **kwargs)

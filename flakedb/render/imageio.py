@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from flakedb.atomic import atomic_write
+
 __all__ = ["write_exr", "read_exr", "srgb_encode", "to_srgb8", "write_png"]
 
 
@@ -30,8 +32,6 @@ def _check_rgb(rgb, name="image") -> np.ndarray:
 def _atomic_write(path, write_tmp) -> Path:
     """Call ``write_tmp(tmp_path)`` on a temporary file next to ``path``, then rename it onto
     ``path`` (:func:`flakedb.atomic.atomic_write`; the temporary keeps the target's suffix)."""
-    from flakedb.atomic import atomic_write
-
     return atomic_write(path, write_tmp)
 
 
@@ -39,7 +39,7 @@ def write_exr(path, rgb) -> Path:
     """Write linear RGB ``rgb`` (H, W, 3) as a float32 scanline OpenEXR file (ZIP), atomically.
 
     Row 0 is the top of the image.  Returns the path."""
-    import OpenEXR
+    import OpenEXR  # lazy: image codec only where images are written
 
     data = np.ascontiguousarray(_check_rgb(rgb), dtype=np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
@@ -53,7 +53,7 @@ def write_exr(path, rgb) -> Path:
 
 def read_exr(path) -> np.ndarray:
     """Read an RGB OpenEXR file into a float32 (H, W, 3) array."""
-    import OpenEXR
+    import OpenEXR  # lazy: image codec only where images are written
 
     with OpenEXR.File(str(path)) as f:
         ch = f.channels()
@@ -78,7 +78,7 @@ def to_srgb8(rgb, exposure: float = 0.0) -> np.ndarray:
 
 def write_png(path, rgb, exposure: float = 0.0) -> Path:
     """Write linear RGB ``rgb`` (H, W, 3) as an 8-bit sRGB PNG (see :func:`to_srgb8`), atomically."""
-    from PIL import Image
+    from PIL import Image  # lazy: image codec only where images are written
 
     img = Image.fromarray(np.ascontiguousarray(to_srgb8(_check_rgb(rgb), exposure)))  # (H, W, 3) uint8 -> RGB
 

@@ -82,7 +82,13 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from flakedb import __version__
+from flakedb.atomic import temp_beside
+from flakedb.bsdf import catmull_rom_cdf, catmull_rom_weights, open_bsdf
 from flakedb.bsdf.kernels import cr_weights_1, sample_kernel, series_kernel
+from flakedb.bsdf.table import G_FROM_YRB
+from flakedb.colour.colorimetry import spectra_to_rgb_mode
+from flakedb.optics.fresnel import fresnel_dielectric
 
 __all__ = [
     "MeasuredExportError",
@@ -160,8 +166,6 @@ def direction_from_file(wi, mu_o, phi_d):
 # --------------------------------------------------------------------------------------------
 def _stored_to_eval(b) -> np.ndarray:
     """(Cs, Cout) matrix from the reader's stored channels to what ``eval`` returns."""
-    from flakedb.bsdf.table import G_FROM_YRB
-
     if b.kind == "bsdf":
         if b.n_channels == 1:
             return np.ones((1, 3))
@@ -181,8 +185,6 @@ def reflectance_albedo(b, mu_i) -> np.ndarray:
     both hemispheres, reflection + transmission), stopped at the first zero node.  For an opaque
     paint the two agree.
     """
-    from flakedb.bsdf import catmull_rom_cdf, catmull_rom_weights
-
     N = b.n_nodes
     h = (N - 2) // 2                         # index of the first zero node
     cache = _ALBEDO_ROWS.get(b)
@@ -208,7 +210,6 @@ def delta_reflectance(delta, mu_i) -> np.ndarray:
         return np.zeros_like(mu_i)
     if delta.get("kind") != "fresnel":
         raise ValueError(f"unknown mirror term {delta!r}: flakedb.render.mitsuba knows kind = 'fresnel'")
-    from flakedb.optics.fresnel import fresnel_dielectric
 
     return np.where(mu_i > 0, fresnel_dielectric(np.clip(mu_i, 0.0, 1.0), float(delta["eta"])).R, 0.0)
 
@@ -241,7 +242,6 @@ def _rgb_matrix(b) -> np.ndarray:
         raise MeasuredExportError(
             f"{b.path}: channels {chans} are neither R, G, B, mono nor wavelengths (e.g. '450nm'); "
             f"cannot convert to RGB")
-    from flakedb.colour.colorimetry import spectra_to_rgb_mode
 
     order = np.argsort(wl)
     try:
@@ -377,7 +377,6 @@ def write_tensor_file(path, fields: dict, align: int = 8) -> int:
         pos += a.nbytes
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    from flakedb.atomic import temp_beside
 
     fd, tmp = temp_beside(path, suffix="")
     try:
@@ -426,9 +425,6 @@ def export_measured(src, out, variant: str = "rgb", res: int = RES_DEFAULT, n_th
     incident angles: the mirror term (``delta_albedo``: F(θ_i; η)) and any transmission
     (``transmitted_albedo``: total minus reflected albedo of the table).
     """
-    from flakedb import __version__
-    from flakedb.bsdf import open_bsdf
-
     b = open_bsdf(src)
     desc = (f"flakedb {__version__} export of {Path(src).name}: front-side reflection, "
             f"res {res}, {n_theta} theta_i; the mirror term delta={b.delta} is not included")
@@ -467,7 +463,7 @@ def llvm_library() -> str | None:
 def evaluated_mode():
     """Turn Dr.Jit's symbolic loops and calls off (restored on exit) so that the ``flakedb`` plugin
     receives evaluated arrays in JIT variants (it calls numpy).  Not needed in scalar variants."""
-    import drjit as dr
+    import drjit as dr  # lazy: optional renderer (test extra), large import
 
     flags = (dr.JitFlag.SymbolicLoops, dr.JitFlag.SymbolicCalls)
     old = [dr.flag(f) for f in flags]
@@ -631,8 +627,6 @@ class _Core:
     """
 
     def __init__(self, path, variant: str, use_delta: bool = True):
-        from flakedb.bsdf import open_bsdf
-
         self.b = b = open_bsdf(path)
         self.delta = b.delta if use_delta else None
         delta_reflectance(self.delta, 1.0)                      # refuse unknown kinds early
@@ -712,8 +706,8 @@ def register(name: str = "flakedb"):
     Properties: ``filename`` (a ``.bsdf`` or flakedb ``.h5``), ``delta`` (bool, default True: add
     the file's smooth-coat mirror term back as a delta lobe).  See the module docstring.
     """
-    import drjit as dr
-    import mitsuba as mi
+    import drjit as dr  # lazy: optional renderer (test extra), large import
+    import mitsuba as mi  # lazy: optional renderer (test extra), large import
 
     variant = mi.variant()
     if variant is None:
@@ -874,7 +868,7 @@ def furnace_sphere_scene(bsdf: dict, res: int = 64, max_depth: int = 3) -> dict:
     Pixel (column c, row r) covers ``x, y`` in ``FURNACE_HALF_WIDTH · [-1 + 2c/res, -1 + 2(c+1)/res]``
     (up to a mirror, irrelevant here): the sphere is radially symmetric.
     """
-    import mitsuba as mi
+    import mitsuba as mi  # lazy: optional renderer (test extra), large import
 
     T = mi.ScalarTransform4f
     cam = T().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]) @ T().scale(

@@ -62,6 +62,8 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import numpy as np
 
+from flakedb.optics.fresnel import fresnel_dielectric
+
 __all__ = [
     "Environment",
     "Sun",
@@ -287,8 +289,6 @@ def _output_channels(bsdf) -> int:
 def _shade(bsdf, env, sun, delta_eta, n, u, nout):
     """Reflected radiance (M, 3) towards ``VIEW_DIR`` at unit normals ``n`` (M, 3), one sample each;
     ``u`` (4, M) uniforms in [0, 1): BSDF sample (u[0] -> mu_o, u[1] -> phi_d), sun sample (u[2:4])."""
-    from flakedb.optics.fresnel import fresnel_dielectric
-
     m = n.shape[0]
     out = np.zeros((m, 3))
     if m == 0:

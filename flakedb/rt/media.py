@@ -17,7 +17,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flakedb.rt.microflake import phase_HG  # noqa: F401  (re-exported: the one HG definition)
+from flakedb.rt.microflake import (
+    FlakeOptics,
+    extinction_Ergun,
+    kernel_Ergun,
+    phase_HG,  # noqa: F401  (re-exported: the one HG definition)
+    scattering_Ergun,
+)
 
 
 def cos_scattering_angle(mu_i, mu_o, phi_d):
@@ -140,26 +146,18 @@ class FlakeMedium:
     a_rho_per_um: float
 
     def sigma_t(self, mu):
-        from flakedb.rt.microflake import extinction_Ergun
-
         return extinction_Ergun(np.abs(mu), self.alpha, self.optics, self.a_rho_per_um)
 
     def subset(self, idx):
-        from flakedb.rt.microflake import FlakeOptics
-
         o = self.optics
         if o.R.shape[0] == 1:
             return self
         return FlakeMedium(self.alpha, FlakeOptics(o.c, o.R[idx], o.T[idx]), self.a_rho_per_um)
 
     def sigma_s(self, mu):
-        from flakedb.rt.microflake import scattering_Ergun
-
         return scattering_Ergun(np.abs(mu), self.alpha, self.optics, self.a_rho_per_um)
 
     def kernel(self, mu_i, mu_o, phi_d):
-        from flakedb.rt.microflake import kernel_Ergun
-
         return kernel_Ergun(mu_i, mu_o, phi_d, self.alpha, self.optics, self.a_rho_per_um)
 
     @property

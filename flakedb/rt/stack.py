@@ -15,7 +15,15 @@ import numpy as np
 from flakedb.conventions import fourier_weight
 from flakedb.rt import interface as itf
 from flakedb.rt.fourier import project_azimuthal
-from flakedb.rt.layer import Layer, add, extend_orders, homogeneous_slab, identity_layer, pad_orders
+from flakedb.rt.layer import (
+    Layer,
+    add,
+    add_reflection_only,
+    extend_orders,
+    homogeneous_slab,
+    identity_layer,
+    pad_orders,
+)
 from flakedb.rt.media import channel_subset
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
 
@@ -330,8 +338,6 @@ def _solve_stack(top, slabs, bottom, s):
 
 def _reflection_over(layer, bottom_Rt):
     """(Rt, Ttb, Rb, Tbt) of ``layer`` over an opaque bottom: only Rt survives; the others are zero."""
-    from flakedb.rt.layer import add_reflection_only
-
     Rt = add_reflection_only(layer, bottom_Rt)
     z = np.zeros((1, 1) + layer.Rb.shape[-2:])
     return Rt, z, z, z

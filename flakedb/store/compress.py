@@ -59,6 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flakedb.paint import species as sp
 from flakedb.rt.fourier import cosine_coefficients, phi_samples
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
 
@@ -141,8 +142,6 @@ def sample_reflectance(entry, wavelength_nm, n_binder, n, m, n_table=DEFAULT_N_T
     (W,) vacuum wavelengths in nm; ``n_binder`` scalar or (W,) real binder index.  Dimensionless; see
     the module docstring for what R is for flakes and pigments and how it is interpolated.
     """
-    from flakedb.paint import species as sp
-
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     nb = np.broadcast_to(np.asarray(n_binder, dtype=float), wl.shape)
     mu, phi = grid_nodes(n, m, eta_top)
@@ -344,12 +343,10 @@ def figure4(out_dir="docs/figures", species=FIGURE4_SPECIES, wavelength_nm=550.0
     """Reproduce the paper's Figure 4 (mean relative error vs rank, SVD and NMF) on catalogue species
     at one wavelength (nm) on the (n, n, m) grid.  Writes ``figure4.png`` (matplotlib Agg) and
     ``figure4.json`` (the table and its parameters) into ``out_dir``; returns the table dict."""
-    import matplotlib
+    import matplotlib  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from flakedb.paint import species as sp
+    import matplotlib.pyplot as plt  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
 
     catalog = catalog if catalog is not None else sp.load_catalog()
     allsp = sp.expand_sweeps(catalog)

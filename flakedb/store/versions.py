@@ -46,17 +46,25 @@ This module holds the planning (pure), the per-task work and the readers; Dask l
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import os
 import posixpath
+import shutil
+import sys
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import fsspec
+import jsonschema
 import numpy as np
+import zarr
 
 from flakedb import __version__
+from flakedb.paint import species as sp
 from flakedb.resources import SCHEMAS_DIR
+from flakedb.rt.fourier import cosine_coefficients
 from flakedb.rt.stored import StoredReflectance
 from flakedb.store.compress import (
     DEFAULT_N_TABLE,
@@ -105,8 +113,6 @@ class StoreIntegrityError(StoreError):
 
 def default_store() -> str:
     """``$FLAKEDB_STORE`` or ``./flakedb-store``."""
-    import os
-
     return os.environ.get("FLAKEDB_STORE") or DEFAULT_STORE
 
 
@@ -120,8 +126,6 @@ def _schema():
 
 def schema_problems(doc, definition) -> list[str]:
     """Violations of ``schemas/store.schema.json#/$defs/<definition>`` as 'path: message' lines."""
-    import jsonschema
-
     schema = _schema()
     sub = {"$schema": schema["$schema"], "$defs": schema["$defs"], "$ref": f"#/$defs/{definition}"}
     v = jsonschema.Draft202012Validator(sub)
@@ -263,8 +267,6 @@ def plan_build(request: BuildRequest) -> BuildPlan:
 
 def _chunk_keys(path, spec):
     """Every chunk key (relative to the version root) of an array in the plan."""
-    import itertools
-
     grid = [range(-(-s // c)) for s, c in zip(spec["shape"], spec["chunks"])]
     return [f"{path}/c/" + "/".join(map(str, idx)) for idx in itertools.product(*grid)]
 
@@ -281,10 +283,6 @@ def _task_chunk_keys(plan: BuildPlan, task: Task):
 
 def metadata(plan: BuildPlan) -> dict:
     """The version's metadata (group attributes), schema ``$defs/metadata``."""
-    import sys
-
-    import zarr
-
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -317,8 +315,6 @@ def metadata(plan: BuildPlan) -> dict:
 
 
 def _fs(url):
-    import fsspec
-
     return fsspec.core.url_to_fs(str(url))
 
 
@@ -383,7 +379,6 @@ def write_template(url, plan: BuildPlan):
         # Build the template privately and rename it into place: two builds starting at once
         # cannot clear or interleave each other's template (the loser's rename fails, it uses the
         # winner's).  A leftover partial template (interrupted before the rename) never exists.
-        import shutil
 
         tmp = posixpath.join(root, "versions", f".tmp-{plan.version[:16]}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
         os.makedirs(posixpath.dirname(tmp), exist_ok=True)
@@ -401,8 +396,6 @@ def write_template(url, plan: BuildPlan):
 
 
 def _fill_template(vurl, plan: BuildPlan, meta: dict):
-    import zarr
-
     g = zarr.open_group(vurl, mode="w")  # also clears a template whose writing was interrupted
     for path, spec in plan.arrays.items():
         g.create_array(path, shape=tuple(spec["shape"]), chunks=tuple(spec["chunks"]), dtype=spec["dtype"],
@@ -417,8 +410,6 @@ def _fill_template(vurl, plan: BuildPlan, meta: dict):
 
 def compute_task(request_inputs: dict, task: Task) -> dict:
     """The numbers of one task (pure): name → array for the channel block [c0, c1)."""
-    from flakedb.paint import species as sp
-
     entry = request_inputs["species"][task.species]
     wl = np.asarray(request_inputs["wavelength_nm"], dtype=float)[task.c0:task.c1]
     eta_top = request_inputs.get("eta_top")
@@ -448,8 +439,6 @@ def run_task(url, plan: BuildPlan, task: Task) -> dict:
 
     Safe to re-run: it overwrites exactly its own chunks and its own record.
     """
-    import zarr
-
     data = compute_task(plan.inputs, task)
     vurl = _version_url(url, plan.version)
     base = f"species/{task.species}/{_res_key(task.n, task.m)}"
@@ -610,8 +599,6 @@ def open_version(url=None, version=None, verify=True) -> "StoreVersion":
     :class:`StoreIntegrityError` lists what does not match; an incomplete version raises
     :class:`StoreError`.
     """
-    import zarr
-
     url = url if url is not None else default_store()
     if version is None:
         version = read_latest(url)
@@ -692,8 +679,6 @@ class StoreVersion:
         factors (U_pairs @ fourier), or with ``raw`` the DCT-I of the stored raw R (a version built
         with ``store_raw``)."""
         if raw:
-            from flakedb.rt.fourier import cosine_coefficients
-
             return cosine_coefficients(self.raw(species, n, m))
         f = self.factors(species, n, m)
         W, nn, _ = f["U_pairs"].shape
