@@ -152,6 +152,8 @@ class Mixture:
         """The components' bases side by side: kernels add, so the combination matrices are
         concatenated along the basis axis (channel counts of 1 broadcast)."""
         parts = [kernel_basis(c) for c in self.components]
+        if any(p is None for p in parts):
+            return None
         C = max(p.M.shape[0] for p in parts)
         M = np.concatenate([np.broadcast_to(p.M, (C, p.M.shape[1])) for p in parts], axis=1)
 
@@ -235,11 +237,9 @@ class KernelBasis:
 
 
 def kernel_basis(medium):
-    """The :class:`KernelBasis` of any medium: its own ``kernel_basis()`` when it has one, otherwise
-    its C channel kernels as the basis with M = I (no saving, the same result)."""
-    if hasattr(medium, "kernel_basis"):
-        kb = medium.kernel_basis()
-        return KernelBasis(kb.fn, np.atleast_2d(np.asarray(kb.M, dtype=float)))
-    one = np.array([[[0.0]]])
-    C = np.asarray(medium.kernel(one + 0.5, one - 0.3, one)).reshape(-1).size
-    return KernelBasis(medium.kernel, np.eye(C))
+    """The :class:`KernelBasis` of a medium, or None when it has none (then its C channel kernels are
+    projected one by one, e.g. media read from the store, or mixtures holding one)."""
+    kb = medium.kernel_basis() if hasattr(medium, "kernel_basis") else None
+    if kb is None:
+        return None
+    return KernelBasis(kb.fn, np.atleast_2d(np.asarray(kb.M, dtype=float)))

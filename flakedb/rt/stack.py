@@ -76,8 +76,8 @@ class SolverSettings:
     h_tir: int | None = None
     max_orders: int | None = None
     #: Orders from the physics (docs/orders.md): an opaque stack keeps the fewest orders whose
-    #: dropped tail Σ_{l≥L} max|f_l| is ≤ order_tol × max|f_0| of its BSDF (reflection from above,
-    #: without the smooth coat's delta); None keeps every order the components carry (up to the cap),
+    #: dropped tail Σ_{l≥L} max|g_l| is ≤ order_tol × max|g_0| of its cosine-weighted BSDF
+    #: g = f μ_i μ_o (reflection from above, without the smooth coat's delta); None keeps every order the components carry (up to the cap),
     #: the previous behaviour, which stays the default of this class so that an explicit
     #: ``max_orders`` keeps meaning a fixed order count.  :data:`ORDER_TOL` (1e-4) is the product
     #: default (:meth:`SolverSettings.product`).
@@ -228,11 +228,8 @@ def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True):
     # kept orders is far below the truncation itself
     n_max = max(2 * max_orders, 128)
     n_start = min(max(4, _component_orders_hint(medium)), n_max)
-    if basis:
-        kb = kernel_basis(medium)
-        fn, M = kb.fn, kb.M
-    else:
-        fn, M = medium.kernel, None
+    kb = kernel_basis(medium) if basis else None
+    fn, M = (medium.kernel, None) if kb is None else (kb.fn, kb.M)
     coeffs, info = project_kernel_basis(fn, M, x, mu_o, tol=tol, n_start=n_start, n_max=n_max, weights=W)
     pk = ProjectedKernel(coeffs[:max_orders], M)
     if M is not None:
@@ -500,7 +497,10 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L_max, s,
         l1 = min(L_max, max(FIRST_ORDER_BLOCK, 2 * l0))
         Rt = through_top(reflection(l0, l1), l0, l1)
         blocks.append(Rt)
-        f = np.abs(bsdf_orders(Rt, q_out.x, q_out.w, l0))
+        # the cosine-weighted BSDF f μ_i μ_o (reciprocal; the flux a coefficient carries between the
+        # two directions per unit projected solid angle): grazing pairs, where f itself grows as
+        # 1/(μ_i μ_o) for a rough coat, do not dictate the order count (docs/orders.md)
+        f = np.abs(bsdf_orders(Rt, q_out.x, q_out.w, l0) * q_out.x[:, None] * q_out.x[None, :])
         if f0max is None:
             f0max = float(f[0].max())
         a.extend((f.reshape(f.shape[0], -1).max(axis=1) / (f0max if f0max > 0 else 1.0)).tolist())
