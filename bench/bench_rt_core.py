@@ -49,8 +49,10 @@ def _three_species(n, before=True):
             prev, t_before = solve(med, order_tol=None, kernel_basis=False)
             phi = np.linspace(0, np.pi, 181)
             fa, fb = after.eval_nodes(phi), prev.eval_nodes(phi)
+            cos2 = (after.x[:, None] * after.x[None, :])[None, :, :, None]
             out.update(before_s=t_before, speedup=t_before / t_after, orders_before=int(prev.info["orders"]),
-                       bsdf_change_rel_max=float(np.abs(fa - fb).max() / np.abs(fb).max()))
+                       bsdf_change_rel_max=float(np.abs(fa - fb).max() / np.abs(fb).max()),
+                       cosine_weighted_change_rel_max=float(np.abs((fa - fb) * cos2).max() / np.abs(fb * cos2).max()))
         return out
 
     return (f"rt core: smooth coat + 3-species basecoat, 16 bands, n={n}, before/after", setup, run,
