@@ -105,7 +105,7 @@ def double_symmetric(R, T, times):
     return R, T
 
 
-def thin_slab_diamond(x, w, sigma_t, K_T, K_R, dz_um):
+def thin_slab_diamond(x, w, sigma_t, K_T, K_R, dz_um, l0=0):
     """Symmetric scattering matrices of a thin homogeneous slab by the diamond (trapezoid) start.
 
     Parameters
@@ -118,6 +118,7 @@ def thin_slab_diamond(x, w, sigma_t, K_T, K_R, dz_um):
         The medium is assumed symmetric under z → −z (true for flake normal densities with
         D(m) = D(−m) and for phase-function media), so up→up = K_T and up→down = K_R.
     dz_um : slice thickness in µm.
+    l0 : the Fourier order of the first entry of K_T, K_R (blocks of orders l0 … l0 + L − 1).
 
     The radiative transfer equation for order l on the nodes reads (z down, paper eq. 1 and 3)
         dI⁺/dz = −α I⁺ + β I⁻,   −dI⁻/dz = −α I⁻ + β I⁺,
@@ -130,7 +131,7 @@ def thin_slab_diamond(x, w, sigma_t, K_T, K_R, dz_um):
     """
     L = K_T.shape[0]
     h = len(x)
-    cl = fourier_weight(np.arange(L))[:, None, None, None]
+    cl = fourier_weight(np.arange(l0, l0 + L))[:, None, None, None]
     inv_mu = (1.0 / x)[:, None]  # rows: outgoing node
     a = (0.5 * dz_um) * inv_mu * (-cl * K_T * w[None, :])
     diag = (0.5 * dz_um) * sigma_t / x  # (C, h)
@@ -159,12 +160,12 @@ def slice_doublings(thickness_um, sigma_t_max_per_um, slice_tau=2.0**-7):
     return int(np.ceil(np.log2(tau / slice_tau)))
 
 
-def homogeneous_slab(x, w, sigma_t, K_T, K_R, thickness_um, slice_tau=2.0**-7):
+def homogeneous_slab(x, w, sigma_t, K_T, K_R, thickness_um, slice_tau=2.0**-7, l0=0):
     """A homogeneous slab of the given thickness: diamond start, then symmetric doubling.
 
     Orders whose kernel vanishes (beyond the kernel's own count) carry only the direct beam, whose
     transmission exp(−σ_t Δz/μ) is diagonal and exact; they are not stored (the caller pads).
-    Returns a :class:`Layer` with L = K_T.shape[0] orders.
+    Returns a :class:`Layer` with L = K_T.shape[0] orders (orders l0 … l0 + L − 1).
     """
     sigma_t = np.atleast_2d(sigma_t)
     if not np.any(K_T) and not np.any(K_R):  # a pure absorber: the exact diagonal attenuation
@@ -172,7 +173,7 @@ def homogeneous_slab(x, w, sigma_t, K_T, K_R, thickness_um, slice_tau=2.0**-7):
         return direct_only_orders(x, sigma_t, thickness_um, K_T.shape[0], C)
     n = slice_doublings(thickness_um, sigma_t.max(), slice_tau)
     dz = thickness_um / 2.0**n
-    R, T = thin_slab_diamond(x, w, sigma_t, K_T, K_R, dz)
+    R, T = thin_slab_diamond(x, w, sigma_t, K_T, K_R, dz, l0)
     R, T = double_symmetric(R, T, n)
     return Layer(R, T, R.copy(), T.copy())
 

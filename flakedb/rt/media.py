@@ -20,9 +20,12 @@ import numpy as np
 from flakedb.rt.microflake import (
     FlakeOptics,
     extinction_Ergun,
+    interp_rows,
     kernel_Ergun,
+    kernel_Ergun_basis,
     phase_HG,  # noqa: F401  (re-exported: the one HG definition)
     scattering_Ergun,
+    table_basis,
 )
 
 
@@ -94,6 +97,36 @@ class PhaseMedium:
         ss = (_channels(self.sigma_t_per_um) * _channels(self.albedo)).reshape((-1,) + (1,) * cos_t.ndim)
         return ss * self._p(cos_t)
 
+    def kernel_basis(self):
+        """The kernel as Σ_b M[c, b] k_b (:class:`KernelBasis`): σ_s(c) times a phase function that
+        is one of a few basis functions of cos Θ — one per distinct HG g, or the rows of a truncated
+        SVD of a phase table (the table's linear interpolant is linear in its values)."""
+        sig_s = _channels(self.sigma_t_per_um) * _channels(self.albedo)
+        ph = self.phase
+        if ph == "isotropic":
+            return KernelBasis(lambda mi, mo, p: np.full((1,) + np.shape(cos_scattering_angle(mi, mo, p)),
+                                                         1.0 / (4.0 * np.pi)), sig_s[:, None])
+        if ph[0] == "hg":
+            g = _channels(ph[1])
+            C = max(sig_s.size, g.size)
+            g = np.broadcast_to(g, (C,))
+            uniq, inv = np.unique(g, return_inverse=True)
+            M = np.zeros((C, uniq.size))
+            M[np.arange(C), inv.ravel()] = np.broadcast_to(sig_s, (C,))
+
+            def hg(mi, mo, p):
+                cos_t = cos_scattering_angle(mi, mo, p)
+                return phase_HG(cos_t[None], uniq.reshape((-1,) + (1,) * cos_t.ndim))
+
+            return KernelBasis(hg, M)
+        if ph[0] == "table":
+            ct = np.asarray(ph[1], dtype=float)
+            U, V = table_basis(np.atleast_2d(np.asarray(ph[2], dtype=float)))
+            C = max(sig_s.size, U.shape[0])
+            M = np.broadcast_to(sig_s[:, None], (C, 1)) * np.broadcast_to(U, (C, U.shape[1]))
+            return KernelBasis(lambda mi, mo, p: interp_rows(V, ct, cos_scattering_angle(mi, mo, p)), M)
+        raise ValueError(f"unknown phase function {ph!r}; use 'isotropic', ('hg', g) or ('table', cos, p)")
+
     @property
     def phi_bandwidth(self):
         if self.phase == "isotropic":
@@ -122,6 +155,22 @@ class Mixture:
 
     def kernel(self, mu_i, mu_o, phi_d):
         return sum(c.kernel(mu_i, mu_o, phi_d) for c in self.components)
+
+    def kernel_basis(self):
+        """The components' bases side by side: kernels add, so the combination matrices are
+        concatenated along the basis axis (channel counts of 1 broadcast)."""
+        parts = [kernel_basis(c) for c in self.components]
+        if any(p is None for p in parts):
+            return None
+        C = max(p.M.shape[0] for p in parts)
+        M = np.concatenate([np.broadcast_to(p.M, (C, p.M.shape[1])) for p in parts], axis=1)
+
+        def fn(mi, mo, ph):
+            vals = [np.asarray(p.fn(mi, mo, ph), dtype=float) for p in parts]
+            shape = np.broadcast_shapes(*(v.shape[1:] for v in vals))
+            return np.concatenate([np.broadcast_to(v, v.shape[:1] + shape) for v in vals], axis=0)
+
+        return KernelBasis(fn, M)
 
     @property
     def phi_bandwidth(self):
@@ -160,6 +209,14 @@ class FlakeMedium:
     def kernel(self, mu_i, mu_o, phi_d):
         return kernel_Ergun(mu_i, mu_o, phi_d, self.alpha, self.optics, self.a_rho_per_um)
 
+    def kernel_basis(self):
+        """The kernel (aρ/2) R(c) D(h) is linear in R(c) (paper eq. 2): R's table (C, nc) factored as
+        M @ V (truncated SVD, :func:`flakedb.rt.microflake.table_basis`), basis kernels
+        (aρ/2) V_b(c) D(h) with the geometry c, D(h) computed once for all rows."""
+        M, V = table_basis(self.optics.R)
+        c, alpha, a_rho = self.optics.c, self.alpha, self.a_rho_per_um
+        return KernelBasis(lambda mi, mo, ph: kernel_Ergun_basis(mi, mo, ph, alpha, c, V, a_rho), M)
+
     @property
     def phi_bandwidth(self):
         # the mirror lobe's width in φ at 45° is ≈ √2 α (microflake.kernel_phi_bandwidth); start
@@ -195,3 +252,24 @@ class ChannelSubset:
 def channel_subset(medium, idx):
     """``medium`` restricted to the channels ``idx`` (its own ``subset`` when it has one)."""
     return medium.subset(idx) if hasattr(medium, "subset") else ChannelSubset(medium, idx)
+
+
+@dataclass
+class KernelBasis:
+    """A medium's kernel written as k_c(μ_i, μ_o, φ_d) = Σ_b M[c, b] k_b(μ_i, μ_o, φ_d)
+    (docs/projection.md): ``fn(mu_i, mu_o, phi_d)`` → (B, *shape) the basis kernels in 1/(µm·sr),
+    ``M`` (C, B) dimensionless.  The projection on the cosine series is linear, so the basis kernels
+    are projected once and the C channels' coefficients are M times theirs: the geometry (and the
+    azimuthal sampling) is paid per basis function, not per channel."""
+
+    fn: object
+    M: np.ndarray
+
+
+def kernel_basis(medium):
+    """The :class:`KernelBasis` of a medium, or None when it has none (then its C channel kernels are
+    projected one by one, e.g. media read from the store, or mixtures holding one)."""
+    kb = medium.kernel_basis() if hasattr(medium, "kernel_basis") else None
+    if kb is None:
+        return None
+    return KernelBasis(kb.fn, np.atleast_2d(np.asarray(kb.M, dtype=float)))

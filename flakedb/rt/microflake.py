@@ -566,3 +566,57 @@ def flake_ndf_at_halfvector(mu_i, mu_o, phi_d, alpha):
     ok = two_f > 0.0
     cos_h = np.where(ok, dmu / np.sqrt(np.where(ok, two_f, 1.0)), 0.0)
     return flake_ndf_Beckmann(cos_h, alpha)
+
+
+# ---------------------------------------------------------------------------------------------
+# Spectral basis of the kernel (projection once for all channels; docs/projection.md)
+# ---------------------------------------------------------------------------------------------
+
+
+def table_basis(table, rtol=1e-13):
+    """A low-rank factorisation of a per-channel table (C, n) → (M (C, B), basis (B, n)) with
+    table = M @ basis up to ``rtol`` × its largest singular value (truncated SVD; B = numerical rank).
+
+    Used to project kernels that are *linear* in a tabulated function of one variable (a flake's R(c),
+    a phase function p(cos Θ)): the kernels of the B basis rows are projected once and the C channel
+    kernels are their combinations M (docs/projection.md).  Rows equal up to a factor give B = 1.
+    """
+    table = np.atleast_2d(np.asarray(table, dtype=float))
+    if not np.any(table):
+        return np.zeros((table.shape[0], 1)), np.zeros((1, table.shape[1]))
+    U, S, Vt = np.linalg.svd(table, full_matrices=False)
+    B = max(1, int(np.sum(S > rtol * S[0])))
+    return U[:, :B], S[:B, None] * Vt[:B]
+
+
+def interp_rows(table, xp, x):
+    """Linear interpolation of every row of ``table`` (B, n) on the ascending grid ``xp`` (n,) at ``x``
+    (any shape), held constant outside [xp[0], xp[-1]] (as ``numpy.interp`` and
+    :meth:`FlakeOptics.reflectance`), → (B, *x.shape).  The grid search is done once for all rows."""
+    table = np.atleast_2d(np.asarray(table, dtype=float))
+    x = np.asarray(x, dtype=float)
+    if xp.size == 1:
+        return np.broadcast_to(table[:, :1].reshape((-1,) + (1,) * x.ndim), (table.shape[0],) + x.shape).copy()
+    xc = np.clip(x, xp[0], xp[-1])
+    j = np.clip(np.searchsorted(xp, xc, side="right") - 1, 0, xp.size - 2)
+    t = (xc - xp.take(j)) / (xp.take(j + 1) - xp.take(j))
+    out = np.empty((table.shape[0],) + x.shape)
+    for b in range(table.shape[0]):  # B basis rows (a handful): one gather each
+        lo = table[b].take(j)
+        out[b] = lo + (table[b].take(j + 1) - lo) * t
+    return out
+
+
+def kernel_Ergun_basis(mu_i, mu_o, phi_d, alpha, c_grid, R_basis, a_rho_per_um):
+    """:func:`kernel_Ergun` for B basis rows ``R_basis`` (B, nc) of R(c) on ``c_grid`` (any sign; not a
+    :class:`FlakeOptics`): (aρ/2) R_b(c) D(h), c = |ω_o − ω_i|/2, with the geometry (c, D(h))
+    computed once for all rows.  Returns (B, *broadcast shape).  Linear in R, so a channel's kernel
+    with R = Σ_b M[c, b] R_b is Σ_b M[c, b] × this (paper eq. 2)."""
+    alpha = _check_alpha(alpha)
+    dmu, _, two_f = _halfvector_terms(mu_i, mu_o, phi_d)
+    ok = two_f > 0.0
+    length = np.sqrt(np.where(ok, two_f, 1.0))
+    cos_h = np.where(ok, dmu / length, 0.0)
+    c = np.where(ok, 0.5 * length, 0.0)
+    d = flake_ndf_Beckmann(cos_h, alpha)
+    return (0.5 * a_rho_per_um) * interp_rows(R_basis, np.asarray(c_grid, dtype=float), c) * d[None]

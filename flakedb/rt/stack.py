@@ -14,17 +14,19 @@ import numpy as np
 
 from flakedb.conventions import fourier_weight
 from flakedb.rt import interface as itf
-from flakedb.rt.fourier import project_azimuthal
 from flakedb.rt.layer import (
     Layer,
     add,
     add_reflection_only,
+    direct_only_orders,
     extend_orders,
     homogeneous_slab,
     identity_layer,
     pad_orders,
 )
-from flakedb.rt.media import channel_subset
+from flakedb.rt.media import channel_subset, kernel_basis
+from flakedb.rt.orders import bsdf_orders, order_tail, reflection_over, reflection_under_smooth
+from flakedb.rt.projection import ProjectedKernel, project_kernel_basis
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
 
 
@@ -58,6 +60,11 @@ class Lambertian:
     albedo: object
 
 
+#: Default budget of the order choice: the dropped Fourier tail of the final BSDF is at most this
+#: fraction of its order-0 maximum (docs/orders.md).
+ORDER_TOL = 1e-4
+
+
 @dataclass
 class SolverSettings:
     """Discretisation: ``n`` nodes in air (n/2 per hemisphere), tolerance of the φ projections,
@@ -78,6 +85,21 @@ class SolverSettings:
     h_tir: int | None = None
     max_orders: int | None = None
     memory_budget_bytes: float | None = None
+    #: Orders from the physics (docs/orders.md): an opaque stack keeps the fewest orders whose
+    #: dropped tail Σ_{l≥L} max|g_l| is ≤ order_tol × max|g_0| of its cosine-weighted BSDF
+    #: g = f μ_i μ_o (reflection from above, without the smooth coat's delta); None keeps every order the components carry (up to the cap),
+    #: the previous behaviour, which stays the default of this class so that an explicit
+    #: ``max_orders`` keeps meaning a fixed order count.  :data:`ORDER_TOL` (1e-4) is the product
+    #: default (:meth:`SolverSettings.product`).
+    order_tol: float | None = None
+    #: Project kernels through their spectral basis (docs/projection.md); False samples every channel.
+    kernel_basis: bool = True
+
+    @classmethod
+    def product(cls, n, **kw):
+        """Settings with the orders chosen from the physics at :data:`ORDER_TOL` (compose's default)."""
+        kw.setdefault("order_tol", ORDER_TOL)
+        return cls(n=int(n), **kw)
 
     @property
     def order_cap(self):
@@ -147,10 +169,27 @@ def _component_orders_hint(medium):
     return int(getattr(medium, "phi_bandwidth", 16))
 
 
-def medium_kernel_blocks(medium, x, w, tol, max_orders, renormalize=True):
+def medium_kernel_blocks(medium, x, w, tol, max_orders, renormalize=True, basis=True):
     """Project a medium's kernel on the cosine series for the down→down and down→up blocks.
 
-    Returns K_T, K_R of shape (L, C, h, h) (1/(µm·sr)) and the projection info.
+    Returns K_T, K_R of shape (L, C, h, h) (1/(µm·sr)) and the projection info; the projection
+    itself is :func:`project_medium` (renormalisation, spectral basis), of which this returns all
+    orders up to ``max_orders``.
+    """
+    pk, info = project_medium(medium, x, w, tol, max_orders, renormalize, basis)
+    K_T, K_R = pk.blocks(0, min(pk.n_orders, max_orders))
+    return K_T, K_R, info
+
+
+def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True):
+    """A medium's kernel projected on the cosine series: a :class:`flakedb.rt.projection.ProjectedKernel`
+    (K_T, K_R blocks of any orders on demand) and the projection info.
+
+    With ``basis`` (default) the kernel is projected through its spectral basis
+    (:func:`flakedb.rt.media.kernel_basis`, docs/projection.md): B basis kernels are sampled and
+    transformed once and the C channels combined from them, with the adaptive criteria applied to
+    the channels exactly as before; ``basis=False`` samples every channel's kernel (the previous path;
+    the same coefficients to rounding, tested).
 
     With ``renormalize`` (default), the kernel is scaled symmetrically, K[o, i] → s_o K[o, i] s_i
     (which keeps it reciprocal), so that the discrete scattering integral
@@ -165,29 +204,30 @@ def medium_kernel_blocks(medium, x, w, tol, max_orders, renormalize=True):
     # kept orders is far below the truncation itself
     n_max = max(2 * max_orders, 128)
     n_start = min(max(4, _component_orders_hint(medium)), n_max)
-    coeffs, info = project_azimuthal(medium.kernel, x, mu_o, tol=tol, n_start=n_start,
-                                     n_max=n_max, weights=W)
-    coeffs = coeffs[:max_orders]
+    kb = kernel_basis(medium) if basis else None
+    fn, M = (medium.kernel, None) if kb is None else (kb.fn, kb.M)
+    coeffs, info = project_kernel_basis(fn, M, x, mu_o, tol=tol, n_start=n_start, n_max=n_max, weights=W)
+    pk = ProjectedKernel(coeffs[:max_orders], M)
+    if M is not None:
+        info["basis_functions"] = int(M.shape[1])
     h = len(x)
-    K_T, K_R = coeffs[:, :, h:, :], coeffs[:, :, :h, :]
     if renormalize and hasattr(medium, "sigma_s"):
         target = np.atleast_2d(medium.sigma_s(x))  # (C, h)
-        M = 2.0 * np.pi * (K_T[0] + K_R[0])  # (C, o, i)
-        scale = np.ones(np.broadcast_shapes(target.shape, M.shape[:1] + (h,)))
+        K_T0, K_R0 = pk.blocks(0, 1)
+        M0 = 2.0 * np.pi * (K_T0[0] + K_R0[0])  # (C, o, i)
+        scale = np.ones(np.broadcast_shapes(target.shape, M0.shape[:1] + (h,)))
         # symmetric scaling K → diag(s) K diag(s) keeps the kernel reciprocal; fixed point of
         # s_i Σ_o M[o, i] w_o s_o = σ_s(μ_i) by a damped multiplicative iteration
         for _ in range(50):
-            col = np.einsum("coi,o,co->ci", M, w, scale)
+            col = np.einsum("coi,o,co->ci", M0, w, scale)
             with np.errstate(divide="ignore", invalid="ignore"):
                 upd = np.where(col > 0, np.sqrt(target / (scale * col)), 1.0)
             scale = scale * upd
             if np.abs(upd - 1.0).max() < 1e-15:
                 break
         info["renorm_max_dev"] = float(np.abs(scale**2 - 1.0).max())
-        ss = scale[None, :, :, None] * scale[None, :, None, :]
-        K_T = K_T * ss
-        K_R = K_R * ss
-    return K_T, K_R, info
+        pk.scale = scale
+    return pk, info
 
 
 #: Memory the solver may use for one group of spectral channels (bytes); channels are independent,
@@ -292,14 +332,13 @@ def _solve_stack(top, slabs, bottom, s):
     else:
         raise TypeError(f"unknown top interface {top!r}")
 
-    # scattering matrices of the slabs (each with its own order count)
-    slab_layers = []
+    # kernels of the slabs projected once (each with its own order count)
+    projected = []
     for k, slab in enumerate(slabs):
         sig = np.atleast_2d(slab.medium.sigma_t(q_in.x))
-        K_T, K_R, pinfo = medium_kernel_blocks(slab.medium, q_in.x, q_in.w, s.tol, s.order_cap)
-        layer = homogeneous_slab(q_in.x, q_in.w, sig, K_T, K_R, slab.thickness_um, s.slice_tau)
-        slab_layers.append((layer, sig, slab.thickness_um))
-        info[f"slab{k}"] = {"orders": K_T.shape[0], **pinfo}
+        pk, pinfo = project_medium(slab.medium, q_in.x, q_in.w, s.tol, s.order_cap, basis=s.kernel_basis)
+        projected.append((pk, sig, slab.thickness_um))
+        info[f"slab{k}"] = {"orders": pk.n_orders, **pinfo}
 
     top_layer = None
     delta_F = None
@@ -309,31 +348,120 @@ def _solve_stack(top, slabs, bottom, s):
                                                 max_orders=s.order_cap)
         L_top = top_layer.n_orders
         info["top"] = {"orders": L_top}
-    L = min(max([L_top, 1] + [lay.n_orders for lay, _, _ in slab_layers]), s.order_cap)
+    L = min(max([L_top, 1] + [pk.n_orders for pk, _, _ in projected]), s.order_cap)
     if isinstance(top, Smooth):
-        top_layer, delta_F = itf.smooth_dielectric(q_out, q_in, top.eta, L)
-    elif isinstance(top, Rough) and L_top < L:
-        top_layer = Layer(*(pad_orders(b, L) for b in (top_layer.Rt, top_layer.Ttb, top_layer.Rb, top_layer.Tbt)))
+        smooth1, delta_F = itf.smooth_dielectric(q_out, q_in, top.eta, 1)
 
-    # stack the slabs from the top down
+    def slab_block(pk, sig, d, l0, l1):
+        """Layer of orders l0 … l1 − 1 of a slab: doubling where the kernel has orders, the exact
+        direct beam beyond (extend_orders)."""
+        k1 = min(l1, pk.n_orders)
+        if k1 <= l0:
+            return direct_only_orders(q_in.x, sig, d, l1 - l0, max(pk.channels, sig.shape[0]))
+        K_T, K_R = pk.blocks(l0, k1)
+        layer = homogeneous_slab(q_in.x, q_in.w, sig, K_T, K_R, d, s.slice_tau, l0=l0)
+        return extend_orders(layer, l1 - l0, q_in.x, sig, d)
+
+    def top_block(l0, l1):
+        if isinstance(top, Rough):
+            return Layer(*(pad_orders(b[l0:l1], l1 - l0) for b in (top_layer.Rt, top_layer.Ttb, top_layer.Rb, top_layer.Tbt)))
+        return Layer(*(np.broadcast_to(b, (l1 - l0,) + b.shape[1:]) for b in (smooth1.Rt, smooth1.Ttb, smooth1.Rb, smooth1.Tbt)))
+
+    opaque = bottom is not None
+    if opaque and s.order_tol is not None:
+        Rt, oinfo = _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L, s, slab_block,
+                                                  top_block, smooth1 if isinstance(top, Smooth) else None)
+        info.update(oinfo)
+        return StackBSDF(x=q_out.x, w=q_out.w, Rt=Rt, eta=eta, delta_F=delta_F, x_in=q_in.x, w_in=q_in.w,
+                         info=info)
+
+    # all orders at once (transmissive stacks, or order_tol None)
     body = None
-    for layer, sig, d in slab_layers:
-        layer = extend_orders(layer, L, q_in.x, sig, d)
+    for pk, sig, d in projected:
+        layer = slab_block(pk, sig, d, 0, L)
         body = layer if body is None else add(body, layer)
     if body is None:
         body = identity_layer(L, q_in.h)
+    top_layer_L = None if top is None else top_block(0, L)
 
     if bottom is not None:
         prim = itf.lambertian(q_in, bottom.albedo, L)
         body = Layer(*_reflection_over(body, prim.Rt))
-    whole = body if top_layer is None else add(top_layer, body)
-    opaque = bottom is not None
+    whole = body if top_layer_L is None else add(top_layer_L, body)
     info["orders"] = L
     return StackBSDF(
         x=q_out.x, w=q_out.w, Rt=whole.Rt, eta=eta, delta_F=delta_F,
         Ttb=None if opaque else whole.Ttb, Rb=None if opaque else whole.Rb,
         Tbt=None if opaque else whole.Tbt, x_in=q_in.x, w_in=q_in.w, info=info,
     )
+
+
+#: First block of orders solved by the order choice; later blocks double the count solved so far.
+FIRST_ORDER_BLOCK = 16
+
+
+def _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L_max, s, slab_block, top_block, smooth1):
+    """R^t of an opaque stack, orders solved in blocks (16, then doubling) bottom-up with
+    reflection-only adding, until :func:`flakedb.rt.orders.order_tail` says the BSDF's dropped tail is
+    within ``s.order_tol`` (docs/orders.md).  Returns (Rt (L', C, h, h), info)."""
+    if smooth1 is not None:
+        h_tir = q_in.h - q_out.h
+        t = smooth1.Ttb[0, 0][h_tir + np.arange(q_out.h), np.arange(q_out.h)]
+        F_in = np.diagonal(smooth1.Rb[0, 0])
+
+    def reflection(l0, l1):
+        R = None
+        if l0 == 0:  # the Lambertian primer has order 0 only: its adding runs for that order alone
+            prim = itf.lambertian(q_in, bottom.albedo, 1).Rt
+            R0 = prim
+            for pk, sig, d in reversed(projected):
+                R0 = reflection_over(slab_block(pk, sig, d, 0, 1), R0)
+            R = R0
+            l0 = 1
+        if l1 > l0:
+            Rr = None
+            for pk, sig, d in reversed(projected):
+                Rr = reflection_over(slab_block(pk, sig, d, l0, l1), Rr)
+            if Rr is None:
+                Rr = np.zeros((l1 - l0, 1, q_in.h, q_in.h))
+            if R is None:
+                R = Rr
+            else:
+                shape = np.broadcast_shapes(R.shape[1:], Rr.shape[1:])
+                R = np.concatenate([np.broadcast_to(R, R.shape[:1] + shape), np.broadcast_to(Rr, Rr.shape[:1] + shape)])
+        return R
+
+    def through_top(R, l0, l1):
+        if top is None:
+            return R
+        if isinstance(top, Smooth):
+            return reflection_under_smooth(t, F_in, h_tir, R)
+        return reflection_over(top_block(l0, l1), R)
+
+    blocks, a = [], []
+    l0, f0max, done = 0, None, False
+    L_keep, tail = 1, 0.0
+    while l0 < L_max:
+        l1 = min(L_max, max(FIRST_ORDER_BLOCK, 2 * l0))
+        Rt = through_top(reflection(l0, l1), l0, l1)
+        blocks.append(Rt)
+        # the cosine-weighted BSDF f μ_i μ_o (reciprocal; the flux a coefficient carries between the
+        # two directions per unit projected solid angle): grazing pairs, where f itself grows as
+        # 1/(μ_i μ_o) for a rough coat, do not dictate the order count (docs/orders.md)
+        f = np.abs(bsdf_orders(Rt, q_out.x, q_out.w, l0) * q_out.x[:, None] * q_out.x[None, :])
+        if f0max is None:
+            f0max = float(f[0].max())
+        a.extend((f.reshape(f.shape[0], -1).max(axis=1) / (f0max if f0max > 0 else 1.0)).tolist())
+        l0 = l1
+        L_keep, tail, done = order_tail(a, L_max, s.order_tol)
+        if done:
+            break
+    shape = np.broadcast_shapes(*(b.shape[1:] for b in blocks))
+    Rt = np.concatenate([np.broadcast_to(b, b.shape[:1] + shape) for b in blocks])[:L_keep]
+    info = {"orders": int(L_keep), "orders_solved": int(l0), "orders_available": int(L_max),
+            "order_tol": float(s.order_tol), "order_tail": float(tail), "order_converged": bool(done),
+            "order_decay": [float(v) for v in a]}
+    return np.ascontiguousarray(Rt), info
 
 
 def _reflection_over(layer, bottom_Rt):

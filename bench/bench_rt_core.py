@@ -1,0 +1,114 @@
+"""Solver-core benchmarks (issue #11): before/after in one run, and the doubling loop's FLOP rate.
+
+* 3-species basecoat under a smooth coat, 16 bands, n = 100 and 200: "before" = every order the
+  components carry and per-channel kernel projection (``order_tol=None, kernel_basis=False``, the
+  previous path, with today's matrix code), "after" = orders chosen at 1e-4 and the spectral-basis
+  projection.  The row records both times and their ratio, measured back to back.
+* Rough coat (Beckmann 0.1, η 1.5) / HG slab (g 0.7, albedo 0.95, τ 2) / Lambertian 0.5, RGB, n = 200:
+  the solve with the rough interface built beforehand (its construction is excluded).
+* The doubling loop (:func:`flakedb.rt.layer.double_symmetric`) in GFLOP/s against a batched matmul
+  of the same matrices in the same run.
+"""
+
+import time
+
+import numpy as np
+
+from flakedb.rt import stack as st
+from flakedb.rt.layer import double_symmetric
+from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
+from flakedb.rt.microflake import FlakeOptics
+from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
+
+
+def _three_species_medium(channels=16):
+    c = np.linspace(0, 1, 33)
+    R1 = np.tile(0.2 + 0.6 * (1 - c) ** 5, (channels, 1))
+    T1 = np.tile(0.5 * c, (channels, 1))
+    return Mixture([
+        FlakeMedium(0.2, FlakeOptics(c, R1, T1), 1.0),
+        FlakeMedium(0.3, FlakeOptics.constant(np.full(channels, 0.7), np.zeros(channels)), 0.5),
+        PhaseMedium(np.full(channels, 2.0), np.linspace(0.3, 0.95, channels), ("hg", 0.5)),
+    ])
+
+
+def _three_species(n, before=True):
+    def setup():
+        return n, _three_species_medium()
+
+    def solve(med, **kw):
+        t0 = time.perf_counter()
+        r = solve_stack(Smooth(1.5), [Slab(15.0, med)], Lambertian(np.full(16, 0.5)), SolverSettings(n=n, **kw))
+        return r, time.perf_counter() - t0
+
+    def run(arg):
+        n, med = arg
+        after, t_after = solve(med, order_tol=1e-4)
+        out = {"orders": int(after.info["orders"]), "after_s": t_after}
+        if before:
+            prev, t_before = solve(med, order_tol=None, kernel_basis=False)
+            phi = np.linspace(0, np.pi, 181)
+            fa, fb = after.eval_nodes(phi), prev.eval_nodes(phi)
+            cos2 = (after.x[:, None] * after.x[None, :])[None, :, :, None]
+            out.update(before_s=t_before, speedup=t_before / t_after, orders_before=int(prev.info["orders"]),
+                       bsdf_change_rel_max=float(np.abs(fa - fb).max() / np.abs(fb).max()),
+                       cosine_weighted_change_rel_max=float(np.abs((fa - fb) * cos2).max() / np.abs(fb * cos2).max()))
+        return out
+
+    return (f"rt core: smooth coat + 3-species basecoat, 16 bands, n={n}, before/after", setup, run,
+            {"n": n, "channels": 16, "what": "after: orders at 1e-4 + spectral-basis projection; before: all orders, "
+             "per-channel projection (timed back to back in one run)"})
+
+
+def _rough_hg_rgb(n=200):
+    def setup():
+        q_out = st.radau_hemisphere(n // 2)
+        layer, rinfo = st.itf.rough_dielectric(q_out, q_out, 1.5, 0.1, tol=1e-5, max_orders=2 * n)
+        slab = Slab(2.0, PhaseMedium(np.ones(3), np.full(3, 0.95), ("hg", np.full(3, 0.7))))
+        return layer, rinfo, slab
+
+    def run(arg):
+        layer, rinfo, slab = arg
+        orig = st.itf.rough_dielectric
+        st.itf.rough_dielectric = lambda *a, **k: (layer, rinfo)  # built in setup: excluded from the timing
+        try:
+            out = {}
+            for name, tol in (("after", 1e-4), ("all_orders", None)):
+                t0 = time.perf_counter()
+                r = solve_stack(Rough(1.5, 0.1), [slab], Lambertian(np.full(3, 0.5)), SolverSettings(n=n, order_tol=tol))
+                out[f"{name}_s"] = time.perf_counter() - t0
+                out[f"{name}_orders"] = int(r.info["orders"])
+        finally:
+            st.itf.rough_dielectric = orig
+        return out
+
+    return (f"rt core: rough coat / HG / Lambertian, RGB, n={n}, solve without interface construction", setup, run,
+            {"n": n, "channels": 3, "what": "Beckmann 0.1, eta 1.5 / HG g 0.7, albedo 0.95, tau 2 / Lambertian 0.5"})
+
+
+def _doubling_rate(batch=256, h=69, times=8):
+    def setup():
+        rng = np.random.default_rng(0)
+        R = 0.3 * rng.random((batch, h, h)) / h
+        T = 0.5 * rng.random((batch, h, h)) / h + 0.5 * np.eye(h)
+        return R, T
+
+    def run(arg):
+        R, T = arg
+        t0 = time.perf_counter()
+        for _ in range(times):
+            R @ T
+        t_mm = (time.perf_counter() - t0) / times
+        t0 = time.perf_counter()
+        double_symmetric(R, T, times)
+        t_dbl = (time.perf_counter() - t0) / times
+        fl_mm = 2.0 * h**3 * batch
+        fl_dbl = (2.0 + 2.0 / 3.0 + 2.0 + 3 * 2.0) * h**3 * batch  # R@R, LU, solve (h rhs), 3 products
+        return {"matmul_gflops": fl_mm / t_mm / 1e9, "doubling_gflops": fl_dbl / t_dbl / 1e9,
+                "doubling_fraction_of_matmul": (fl_dbl / t_dbl) / (fl_mm / t_mm)}
+
+    return (f"rt core: doubling loop vs batched matmul, ({batch}, {h}, {h})", setup, run,
+            {"batch": batch, "h": h, "what": "GFLOP/s of double_symmetric and of R @ T in the same run"})
+
+
+BENCHMARKS = [_doubling_rate(), _three_species(100), _three_species(200, before=False), _rough_hg_rgb()]

@@ -1,0 +1,89 @@
+"""Opaque stacks order by order: reflection-only adding and the number of Fourier orders chosen from
+the BSDF's decay (docs/orders.md; model.md §4).
+
+Orders of an azimuthally isotropic stack are independent: order l of the composed matrices depends
+only on order l of every layer.  An opaque stack (primer at the bottom) needs only its top reflection
+R^t, so it is assembled from the bottom up with the first line of the adding equations (paper eq. 4),
+
+    R^t = R1^t + T1^bt R2^t (I − R1^b R2^t)^{-1} T1^tb,
+
+and the orders can be solved in blocks until the BSDF's cosine coefficients have decayed below a
+stated tolerance (:func:`order_tail`).
+"""
+
+import numpy as np
+
+from flakedb.conventions import fourier_weight
+
+
+def reflection_over(top, bottom_Rt):
+    """R^t of ``top`` (a :class:`flakedb.rt.layer.Layer`) over an opaque bottom of reflection
+    ``bottom_Rt`` (None: a black bottom, R^t = top.R^t): paper eq. 4's first line, one LU solve."""
+    if bottom_Rt is None:
+        return top.Rt
+    A = -(top.Rb @ bottom_Rt)
+    idx = np.arange(A.shape[-1])
+    A[..., idx, idx] += 1.0
+    X = np.linalg.solve(A, top.Ttb)
+    return top.Rt + top.Tbt @ (bottom_Rt @ X)
+
+
+def reflection_under_smooth(t, F_in, h_tir, bottom_Rt):
+    """R^t of a smooth interface over an opaque body of reflection ``bottom_Rt`` (L, C, hi, hi).
+
+    The smooth interface (:func:`flakedb.rt.interface.smooth_dielectric`) has R^t = 0 (its mirror
+    reflection is the analytic delta term), T^tb[h_tir + j, j] = t_j = 1 − F(x_j), T^bt = (T^tb)ᵀ and
+    R^b = diag(F_in): the products with it are row/column selections and scalings, so
+    R^t = diag(t) [R2 (I − diag(F_in) R2)^{-1}]_{mapped rows, mapped columns} diag(t) costs one LU
+    solve of the inside size with h_out right-hand sides and one h_out × hi × h_out product.
+    """
+    hi = bottom_Rt.shape[-1]
+    A = -(F_in[:, None] * bottom_Rt)
+    idx = np.arange(hi)
+    A[..., idx, idx] += 1.0
+    # X = (I − F R2)^{-1} E_mapped: the mapped columns of the inverse (A X = E)
+    E = np.zeros((hi, hi - h_tir))
+    E[h_tir + np.arange(hi - h_tir), np.arange(hi - h_tir)] = 1.0
+    X = np.linalg.solve(A, np.broadcast_to(E, A.shape[:-1] + E.shape[-1:]))
+    R = bottom_Rt[..., h_tir:, :] @ X
+    return t[:, None] * R * t[None, :]
+
+
+def bsdf_orders(Rt, x, w, l0=0):
+    """f_l = S_l[o, i] / (c_l w_i μ_i) (conventions) of a reflection block of orders l0 …, 1/sr."""
+    cl = fourier_weight(np.arange(l0, l0 + Rt.shape[0]))[:, None, None, None]
+    return Rt / (cl * (w * x)[None, None, None, :])
+
+
+def order_tail(a, L_max, tol, k=4):
+    """Choose the number of orders from the decay of the BSDF's coefficients (docs/orders.md).
+
+    ``a`` (L,): a_l = max over channels and node pairs of |f_l| / max |f_0| for the orders solved so
+    far; ``L_max``: the order beyond which every coefficient is exactly zero (the components' own
+    order counts); ``tol``: the budget for the dropped tail Σ_{l≥L'} a_l (which bounds the change of
+    f at any azimuth relative to the BSDF's maximum, since max f ≥ max f_0).
+
+    The unsolved tail l ≥ L is estimated from the last ``k`` orders: geometric with the measured
+    ratio r when r < 1, and never more than (L_max − L) times their largest value (decreasing
+    coefficients).  Returns ``(L_keep, tail, done)``: the smallest L' with
+    Σ_{L'≤l<L} a_l + estimate ≤ tol, the tail bound of that choice, and whether the criterion holds
+    (False: solve more orders).
+    """
+    a = np.asarray(a, dtype=float)
+    L = a.size
+    if L >= L_max:
+        est = 0.0
+    else:
+        last = a[-k:] if L >= k else a
+        flat = float(last.max()) * (L_max - L)
+        est = flat
+        if L > k and a[-1 - k] > 0.0 and a[-1] > 0.0:
+            r = (a[-1] / a[-1 - k]) ** (1.0 / k)
+            if r < 1.0:
+                est = min(flat, float(a[-1]) * r / (1.0 - r))
+    tails = np.concatenate([np.flip(np.cumsum(np.flip(a))), [0.0]]) + est  # tails[l] = Σ_{j≥l} a_j + est
+    ok = np.nonzero(tails <= tol)[0]
+    if len(ok) == 0:
+        return L, float(tails[-1]), False
+    L_keep = max(1, int(ok[0]))
+    return L_keep, float(tails[L_keep]), True

@@ -1,0 +1,181 @@
+"""Projection of a medium's kernel through its spectral basis, once for all channels (docs/projection.md).
+
+A medium's kernel is linear in what varies with wavelength (paper eq. 2: a flake's R(c); a
+pigment's σ_s p(cos Θ)), so k_c = Σ_b M[c, b] k_b with a few basis kernels k_b
+(:class:`flakedb.rt.media.KernelBasis`).  The cosine-series projection (model.md §4,
+:mod:`flakedb.rt.fourier`) is linear too: the basis kernels are sampled and transformed once and every
+channel's coefficients are M times theirs.  :func:`project_kernel_basis` applies exactly the adaptive
+criteria of :func:`flakedb.rt.fourier.project_azimuthal` to the C channel combinations (computed in
+chunks, never stored whole), and :class:`ProjectedKernel` hands out the channel coefficients of any
+range of orders on demand, so a solver that chooses its order count from the physics only builds the
+orders it uses.
+"""
+
+import numpy as np
+
+from flakedb.rt.fourier import cosine_coefficients, phi_samples
+
+
+def _combine(M, a):
+    """(C, B) @ (B, …) → (C, …); ``M`` None means the identity (the basis *is* the channels)."""
+    if M is None:
+        return a
+    return (M @ a.reshape(a.shape[0], -1)).reshape((M.shape[0],) + a.shape[1:])
+
+
+def _chunks(hi, per):
+    return [slice(s, min(hi, s + per)) for s in range(0, hi, per)]
+
+
+def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, weights=None,
+                         chunk_elems=250_000):
+    """Cosine coefficients of the C functions Σ_b M[c, b] fn_b(μ_i, μ_o, φ_d), kept per basis function.
+
+    ``fn(mu_i[:, None, None], mu_o[None, :, None], phi[None, None, :])`` → (B, Hi, Ho, P);
+    ``M`` (C, B) or None (then B = C and the basis functions are the channels).  ``tol``,
+    ``n_start``, ``n_max`` and ``weights`` (Hi, Ho) as in :func:`flakedb.rt.fourier.project_azimuthal`,
+    whose criteria are applied unchanged to the C combinations: the φ sampling doubles until the
+    combined coefficients change by ≤ tol · s and the upper half carries ≤ tol · s, and the series is
+    truncated at the first L whose dropped tail Σ_{k≥L} |a_k| ≤ tol · s for every channel and node
+    pair (s = max over channels and pairs of Σ_k |a_k|, all on ``weights`` · a).
+
+    Returns ``(coeffs, info)``: ``coeffs`` (L, B, Ho, Hi) — order, basis function, outgoing node,
+    incident node — and ``info`` with ``n_phi``, ``tail``, ``converged`` like ``project_azimuthal``.
+    """
+    mu_i = np.asarray(mu_i, dtype=float)
+    mu_o = np.asarray(mu_o, dtype=float)
+    hi, ho = len(mu_i), len(mu_o)
+    M = None if M is None else np.atleast_2d(np.asarray(M, dtype=float))
+    W = np.ones((hi, ho)) if weights is None else np.broadcast_to(np.asarray(weights, dtype=float), (hi, ho))
+
+    samples = {}
+
+    def evaluate(phi):
+        out = None
+        for sl in _chunks(hi, max(1, 4 * chunk_elems // max(1, ho * len(phi)))):
+            v = np.asarray(fn(mu_i[sl, None, None], mu_o[None, :, None], phi[None, None, :]), dtype=float)
+            if v.ndim == 3:
+                v = v[None]
+            if out is None:
+                out = np.empty((v.shape[0], hi, ho, len(phi)))
+            out[:, sl] = v
+        return out
+
+    def coefficients(n):
+        """Basis coefficients (B, Hi, Ho, n + 1); the samples of n/2 intervals are the even ones of n,
+        so each round evaluates only the new (odd) azimuths."""
+        prev = samples.pop(n // 2, None) if n % 2 == 0 else None
+        if prev is None:
+            v = evaluate(phi_samples(n))
+        else:
+            odd = evaluate(np.pi * (2 * np.arange(n // 2) + 1) / n)
+            v = np.empty(prev.shape[:3] + (n + 1,))
+            v[..., 0::2] = prev
+            v[..., 1::2] = odd
+        samples[n] = v
+        return cosine_coefficients(v)
+
+    # The criteria on the C channel combinations.  M None: exact, on the channels themselves.  With a
+    # basis (B < C typically), the combinations are never formed on all samples: with
+    # μ_b = max_c |M[c, b]|, |Σ_b M[c, b] x_b| ≤ Σ_b μ_b |x_b| bounds every numerator (exact for
+    # B = 1), and the scale s is bounded from below by the combinations' values at φ_d = 0 and π and
+    # their order-0 coefficients (|g(φ)| ≤ Σ_k |a_k|; kernels peak at φ_d = 0: mirror reflection,
+    # forward scattering).  So the sampling and the order count are at least those the exact
+    # criteria would choose, at B/C of the cost (docs/projection.md).
+    mu_b = None if M is None else np.abs(M).max(axis=0)
+
+    def envelope(x):  # (B, …) → (…): max over channels of |x_c| (exact) or its bound Σ_b μ_b |x_b|
+        if M is None:
+            return np.abs(x).max(axis=0)
+        return np.tensordot(mu_b, np.abs(x), axes=(0, 0))
+
+    def scale_of(a, n):
+        v = samples[2 * n]
+        ends = np.stack([v[..., 0], v[..., -1], a[..., 0]], axis=-1)  # (B, Hi, Ho, 3)
+        return float(np.abs(_combine(M, ends) * W[None, :, :, None]).max()) if M is not None else None
+
+    def stats(a, a_prev, n):
+        """Channel criteria (scale, change, upper) of the round comparing n and 2n intervals."""
+        scale = scale_of(a, n)
+        s_exact = change = upper = 0.0
+        for sl in _chunks(hi, max(1, chunk_elems // max(1, a.shape[0] * ho * (2 * n + 1)))):
+            Wc = W[sl, :, None]
+            d = envelope(a[:, sl, :, :n] - a_prev[:, sl, :, :n]) * Wc
+            change = max(change, float(d.max()))
+            e = envelope(a[:, sl]) * Wc
+            if M is None:
+                s_exact = max(s_exact, float(e.sum(axis=-1).max()))
+            upper = max(upper, float(e[..., n:].sum(axis=-1).max()))
+        return (s_exact if M is None else scale), change, upper
+
+    n = max(2, int(n_start))
+    a = coefficients(n)
+    while True:
+        a_prev, a = a, coefficients(2 * n)
+        scale, change, upper = stats(a, a_prev, n)
+        if scale == 0.0:
+            B = a.shape[0]
+            return np.zeros((1, B, ho, hi)), {"n_phi": 2 * n, "tail": 0.0, "converged": True}
+        change /= scale
+        upper /= scale
+        if max(change, upper) <= tol or 2 * n >= n_max:
+            break
+        n *= 2
+    samples.clear()
+    # truncation: smallest L with tail Σ_{k≥L} |a_k| ≤ tol · scale for every channel and pair
+    K = a.shape[-1]
+    worst = np.zeros(K)
+    for sl in _chunks(hi, max(1, chunk_elems // max(1, a.shape[0] * ho * K))):
+        e = envelope(a[:, sl]) * W[sl, :, None]
+        tails = np.flip(np.cumsum(np.flip(e, axis=-1), axis=-1), axis=-1)
+        worst = np.maximum(worst, tails.reshape(-1, K).max(axis=0))
+    worst /= scale
+    below = np.nonzero(worst <= tol)[0]
+    L = max(int(below[0]) if len(below) else K, 1)
+    coeffs = np.ascontiguousarray(np.transpose(a[..., :L], (3, 0, 2, 1)))  # (L, B, Ho, Hi)
+    info = {"n_phi": 2 * n, "tail": float(worst[L]) if L < K else 0.0,
+            "converged": bool(max(change, upper) <= tol)}
+    return coeffs, info
+
+
+class ProjectedKernel:
+    """A medium's projected kernel on the nodes ``x`` (h,) of its hemisphere rule: the down→down
+    (K_T) and down→up (K_R) blocks of every channel, built on demand for any range of orders.
+
+    ``coeffs`` (L, B, 2h, h) are the basis coefficients from :func:`project_kernel_basis` with the
+    outgoing nodes ordered [−x, +x]; ``M`` (C, B) (None: identity); ``scale`` (C, h) the symmetric
+    renormalisation s_o K[o, i] s_i (or None).  Orders ≥ L are zero.
+    """
+
+    def __init__(self, coeffs, M, scale=None):
+        self.coeffs = coeffs
+        self.M = M
+        self.scale = scale
+
+    @property
+    def n_orders(self):
+        return self.coeffs.shape[0]
+
+    @property
+    def channels(self):
+        return self.coeffs.shape[1] if self.M is None else self.M.shape[0]
+
+    def blocks(self, l0=0, l1=None):
+        """(K_T, K_R), each (l1 − l0, C, h, h) [order, channel, outgoing, incident] in 1/(µm·sr),
+        for orders l0 … l1 − 1 (zero beyond the kernel's own order count)."""
+        L = self.n_orders
+        l1 = L if l1 is None else int(l1)
+        h = self.coeffs.shape[-1]
+        C = self.channels
+        out = np.zeros((max(0, l1 - l0), C, 2 * h, h))
+        k1 = min(l1, L)
+        if k1 > l0:
+            a = self.coeffs[l0:k1]  # (l, B, 2h, h)
+            if self.M is None:
+                out[: k1 - l0] = a
+            else:
+                out[: k1 - l0] = (self.M @ a.reshape(a.shape[0], a.shape[1], -1)).reshape(k1 - l0, C, 2 * h, h)
+        if self.scale is not None:
+            s = self.scale  # (C', h) broadcast over channels
+            out *= np.concatenate([s, s], axis=1)[None, :, :, None] * s[None, :, None, :]
+        return out[:, :, h:, :], out[:, :, :h, :]

@@ -1,0 +1,129 @@
+"""Issue #11 (solver core): kernels projected through their spectral basis, orders chosen from the
+BSDF's decay, reflection-only adding of opaque stacks (docs/projection.md, docs/orders.md)."""
+
+import numpy as np
+import pytest
+
+from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, kernel_basis
+from flakedb.rt.microflake import FlakeOptics, table_basis
+from flakedb.rt.orders import order_tail, reflection_over, reflection_under_smooth
+from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
+from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, medium_kernel_blocks, solve_stack
+
+
+def _mixture(C=5):
+    c = np.linspace(0, 1, 9)
+    R = np.stack([0.2 + 0.1 * k * c for k in range(C)])  # rank 2 over channels
+    ct = np.linspace(-1, 1, 41)
+    table = np.stack([(1 + 0.3 * k * ct) / (4 * np.pi) for k in range(C)])  # rank 2, normalised
+    return Mixture([FlakeMedium(0.25, FlakeOptics(c, R, 0.3 * np.ones_like(R)), 1.0),
+                    FlakeMedium(0.4, FlakeOptics.constant(0.7, 0.0, channels=C), 0.5),
+                    PhaseMedium(np.linspace(0.5, 1.5, C), np.linspace(0.5, 0.9, C), ("hg", [0.1, 0.6, 0.6, 0.3, 0.1])),
+                    PhaseMedium(1.0, np.linspace(0.2, 0.8, C), ("table", ct, table))])
+
+
+def test_table_basis_reproduces_the_table_with_its_rank():
+    c = np.linspace(0, 1, 9)
+    R = np.stack([0.2 + 0.1 * k * c for k in range(6)])
+    M, V = table_basis(R)
+    assert M.shape == (6, 2) and V.shape == (2, 9)
+    np.testing.assert_allclose(M @ V, R, atol=1e-14)
+
+
+def test_kernel_basis_combines_to_every_channel_kernel():
+    med = _mixture()
+    kb = kernel_basis(med)
+    assert kb.M.shape[1] == 2 + 1 + 3 + 2  # flake rank 2, mirror flake 1, three distinct g, table rank 2
+    mi, mo, ph = np.meshgrid(np.linspace(-1, 1, 7), np.linspace(-0.95, 0.95, 6), np.linspace(0, np.pi, 5), indexing="ij")
+    direct = med.kernel(mi, mo, ph)
+    via = np.tensordot(kb.M, kb.fn(mi, mo, ph), axes=(1, 0))
+    np.testing.assert_allclose(via, direct, rtol=1e-12, atol=1e-14 * np.abs(direct).max())
+
+
+@pytest.mark.parametrize("n", [16, 24])
+def test_basis_projection_equals_per_channel_projection(n):
+    """The coefficients through the basis equal the per-channel projection (the previous path) to
+    rounding where both choose the same sampling, and within the projection tolerance otherwise."""
+    med = _mixture()
+    q = snell_mapped_quadrature(radau_hemisphere(n // 2), 1.5, default_tir_nodes(n // 2, 1.5))
+    KT, KR, info = medium_kernel_blocks(med, q.x, q.w, 1e-5, 2 * n)
+    KT0, KR0, info0 = medium_kernel_blocks(med, q.x, q.w, 1e-5, 2 * n, basis=False)
+    assert info["basis_functions"] == 8
+    assert info["n_phi"] >= info0["n_phi"] and KT.shape[0] >= KT0.shape[0]  # bounds: never coarser
+    L = KT0.shape[0]
+    scale = np.abs(KT0).max()
+    np.testing.assert_allclose(KT[:L], KT0, atol=1e-5 * scale)
+    np.testing.assert_allclose(KR[:L], KR0, atol=1e-5 * scale)
+
+
+def _flake_paint(order_tol, n=32, **kw):
+    m = Mixture([FlakeMedium(0.15, FlakeOptics.constant([0.8, 0.6, 0.7], 0.0), 1.0), PhaseMedium(1.0, 0.8, ("hg", 0.5))])
+    return solve_stack(Smooth(1.5), [Slab(2.0, m)], Lambertian([0.3, 0.5, 0.2]),
+                       SolverSettings(n=n, order_tol=order_tol, **kw))
+
+
+def _bsdf_change(a, b):
+    """max |Δ(f μ_i μ_o)| over nodes and azimuths relative to max f μ_i μ_o (the order choice's measure)."""
+    phi = np.linspace(0, np.pi, 181)
+    cos2 = (a.x[:, None] * a.x[None, :])[None, :, :, None]
+    fa, fb = a.eval_nodes(phi) * cos2, b.eval_nodes(phi) * cos2
+    return np.abs(fa - fb).max() / np.abs(fb).max()
+
+
+def test_order_choice_holds_its_tolerance():
+    """Orders chosen at tol change the BSDF by ≤ tol of its maximum against a much tighter choice and
+    against all orders; tightening the tolerance keeps more orders."""
+    ref = _flake_paint(None)
+    results = {tol: _flake_paint(tol) for tol in (1e-3, 1e-4, 1e-6)}
+    for tol, r in results.items():
+        assert r.info["order_converged"]
+        assert _bsdf_change(r, ref) <= tol, (tol, r.info["orders"])
+        assert _bsdf_change(r, results[1e-6]) <= tol
+        np.testing.assert_allclose(r.albedo(), ref.albedo(), rtol=1e-13)  # order 0 is untouched
+    assert results[1e-3].n_orders < results[1e-4].n_orders < results[1e-6].n_orders < ref.n_orders
+
+
+def test_order_check_bites():
+    """The comparison above detects a too-short series: keeping a handful of orders exceeds 1e-4."""
+    ref = _flake_paint(None)
+    short = _flake_paint(None, max_orders=4)
+    assert _bsdf_change(short, ref) > 1e-3
+
+
+def test_order_choice_rough_top_matches_all_orders():
+    """A rough coat at n = 24: the grazing pairs' lobes need more orders than the cap (measured decay
+    to 1.1e-2 at order 47); the choice keeps every order, equal to the all-orders solve."""
+    m = PhaseMedium(1.0, 0.9, ("hg", 0.7))
+    args = (Rough(1.5, 0.3), [Slab(2.0, m)], Lambertian(0.5))
+    ref = solve_stack(*args, SolverSettings(n=24))
+    r = solve_stack(*args, SolverSettings(n=24, order_tol=1e-4))
+    assert r.n_orders == ref.n_orders == r.info["orders_available"]
+    np.testing.assert_allclose(r.Rt, ref.Rt, rtol=1e-10, atol=1e-13 * np.abs(ref.Rt).max())
+
+
+def test_order_tail_estimate():
+    a = 0.5 ** np.arange(20)
+    L, tail, done = order_tail(a, 100, 1e-3)
+    assert done and tail <= 1e-3 and abs(L - 11) <= 1  # Σ_{l≥11} 2^-l ≈ 9.8e-4
+    L, tail, done = order_tail(np.ones(8), 100, 1e-3)
+    assert not done
+    L, tail, done = order_tail(np.r_[1.0, 1e-3 * np.ones(7)], 8, 1e-2)  # all orders solved: exact tail
+    assert done and L == 1
+
+
+def test_reflection_only_adding_equals_full_adding():
+    from flakedb.rt.interface import smooth_dielectric
+    from flakedb.rt.layer import add
+
+    rng = np.random.default_rng(3)
+    q_out = radau_hemisphere(6)
+    q_in = snell_mapped_quadrature(q_out, 1.5, 3)
+    h = q_in.h
+    R2 = 0.02 * rng.random((4, 2, h, h))
+    top, _ = smooth_dielectric(q_out, q_in, 1.5, 4)
+    full = add(top, type(top)(R2, np.zeros_like(R2), np.zeros_like(R2), np.zeros_like(R2)))
+    t = top.Ttb[0, 0][3 + np.arange(6), np.arange(6)]
+    np.testing.assert_allclose(reflection_under_smooth(t, np.diagonal(top.Rb[0, 0]), 3, R2), full.Rt, atol=1e-15)
+    lay = type(top)(*(0.05 * rng.random((4, 2, h, h)) for _ in range(4)))
+    full2 = add(lay, type(top)(R2, np.zeros_like(R2), np.zeros_like(R2), np.zeros_like(R2)))
+    np.testing.assert_allclose(reflection_over(lay, R2), full2.Rt, atol=1e-15)
