@@ -513,5 +513,5 @@ def auto_resolution(recipe) -> tuple[int, str]:
 
 def solve_paint(paint: Paint, n: int, **settings):
     """Solve the paint's stack at ``n`` nodes; returns :class:`flakedb.rt.stack.StackBSDF`."""
-    return solve_stack(paint.top, paint.slabs, paint.bottom, SolverSettings(n=int(n), **settings),
+    return solve_stack(paint.top, paint.slabs, paint.bottom, SolverSettings.product(n, **settings),
                        channels=paint.n_channels)
