@@ -1,6 +1,7 @@
 """A whole paint stack solved by adding-doubling: top interface, slabs, bottom (model.md §1, §4).
 
-    air | top interface (none, smooth or rough dielectric) | slab … slab | bottom (Lambertian or none)
+    air | top interface (none, smooth or rough dielectric) | slab … slab | bottom (Lambertian,
+    rough conductor or none)
 
 :func:`solve_stack` builds every component's scattering matrices on a common quadrature and number
 of Fourier orders, doubles the slabs and adds everything.  The result, :class:`StackBSDF`, holds the
@@ -47,6 +48,16 @@ class Lambertian:
     """Diffuse primer of albedo (scalar or per channel) at the bottom of the stack."""
 
     albedo: object
+
+
+@dataclass
+class RoughConductor:
+    """Beckmann microfacet metal at the bottom of the stack (Walter et al. 2007 reflection with a
+    conductor's Fresnel factor): complex index ``N`` = n + ik of the metal (scalar or per channel),
+    relative to vacuum; the solver divides by the binder's index above it.  ``alpha`` > 0."""
+
+    N: object
+    alpha: float
 
 
 @dataclass
@@ -224,7 +235,7 @@ def _n_channels(slabs, bottom):
     for slab in slabs:
         C = max(C, np.atleast_2d(slab.medium.sigma_t(np.array([0.5]))).shape[0])
     if bottom is not None:
-        C = max(C, np.atleast_1d(bottom.albedo).size)
+        C = max(C, np.atleast_1d(bottom.N if isinstance(bottom, RoughConductor) else bottom.albedo).size)
     return C
 
 
@@ -268,8 +279,8 @@ def solve_stack(top, slabs, bottom, settings=None, channels=None):
     """Solve the stack; returns a :class:`StackBSDF`.
 
     ``top``: None (index-matched, no interface), :class:`Smooth` or :class:`Rough`.
-    ``slabs``: list of :class:`Slab`.  ``bottom``: :class:`Lambertian` or None (transmission into a
-    half-space of the binder's index).  ``channels``: number of spectral channels (inferred from
+    ``slabs``: list of :class:`Slab`.  ``bottom``: :class:`Lambertian`, :class:`RoughConductor` or
+    None (transmission into a half-space of the binder's index).  ``channels``: number of spectral channels (inferred from
     the components when None).
 
     Channels are independent: when the estimated memory (:func:`_bytes_per_channel`) of all of them
@@ -298,8 +309,12 @@ def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
         sub_slabs = [Slab(sl.thickness_um, _subset(sl.medium, idx)) for sl in slabs]
         sub_bottom = None
         if bottom is not None:
-            a = np.atleast_1d(np.asarray(bottom.albedo, dtype=float))
-            sub_bottom = Lambertian(a if a.size == 1 else a[idx])
+            if isinstance(bottom, RoughConductor):
+                N = np.atleast_1d(bottom.N)
+                sub_bottom = RoughConductor(N if N.size == 1 else N[idx], bottom.alpha)
+            else:
+                a = np.atleast_1d(np.asarray(bottom.albedo, dtype=float))
+                sub_bottom = Lambertian(a if a.size == 1 else a[idx])
         parts.append(_solve_stack(top, sub_slabs, sub_bottom, s))
         sizes.append(len(idx))
     L = max(p.n_orders for p in parts)
@@ -360,7 +375,13 @@ def _solve_stack(top, slabs, bottom, s):
                                                 max_orders=s.order_cap)
         L_top = top_layer.n_orders
         info["top"] = {"orders": L_top}
-    L = min(max([L_top, 1] + [lay.n_orders for lay, _, _ in slab_layers]), s.order_cap)
+    L_bottom = 0
+    if isinstance(bottom, RoughConductor):
+        Rc, cinfo = itf.rough_conductor(q_in, np.asarray(bottom.N, dtype=complex) / eta, bottom.alpha,
+                                        tol=s.tol, max_orders=s.order_cap)
+        L_bottom = Rc.shape[0]
+        info["bottom"] = {k: v for k, v in cinfo.items() if k != "albedo"}
+    L = min(max([L_top, L_bottom, 1] + [lay.n_orders for lay, _, _ in slab_layers]), s.order_cap)
     if isinstance(top, Smooth):
         top_layer, delta_F = itf.smooth_dielectric(q_out, q_in, top.eta, L)
     elif isinstance(top, Rough) and L_top < L:
@@ -374,7 +395,9 @@ def _solve_stack(top, slabs, bottom, s):
     if body is None:
         body = identity_layer(L, q_in.h)
 
-    if bottom is not None:
+    if isinstance(bottom, RoughConductor):
+        body = Layer(*_reflection_over(body, pad_orders(Rc, L)))
+    elif bottom is not None:
         prim = itf.lambertian(q_in, bottom.albedo, L)
         body = Layer(*_reflection_over(body, prim.Rt))
     whole = body if top_layer is None else add(top_layer, body)
