@@ -15,6 +15,7 @@ seeded from :class:`numpy.random.SeedSequence`, so a result depends on ``seed`` 
 (not on the number of threads).
 """
 
+import cmath
 import math
 
 import numpy as np
@@ -32,6 +33,7 @@ TOP_ROUGH = 2
 
 BOTTOM_NONE = 0
 BOTTOM_LAMBERT = 1
+BOTTOM_ROUGH_CONDUCTOR = 2
 
 # path outcomes
 _ABSORBED = 0
@@ -286,7 +288,51 @@ def _rough_interface(dx, dy, mu, from_above, eta, alpha, s):
 
 
 @njit(cache=True)
-def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, z_edges, sigma_bar, comp_start,
+def fresnel_conductor_unpolarized(cos_i, n, k):
+    """Unpolarised Fresnel reflectance of a conductor of complex relative index N = n + ik seen from
+    the dielectric (Born & Wolf §14.2): q = sqrt(N² − 1 + c²) (decaying branch, Im q ≥ 0),
+    r_s = (c − q)/(c + q), r_p = (N² c − q)/(N² c + q), F = (|r_s|² + |r_p|²)/2."""
+    N2 = complex(n, k) ** 2
+    q = cmath.sqrt(N2 - 1.0 + cos_i * cos_i)
+    if q.imag < 0.0:
+        q = -q
+    rs = (cos_i - q) / (cos_i + q)
+    rp = (N2 * cos_i - q) / (N2 * cos_i + q)
+    return 0.5 * (abs(rs) ** 2 + abs(rp) ** 2)
+
+
+@njit(cache=True)
+def _rough_conductor(dx, dy, mu, n, k, alpha, s):
+    """One reflection off a Beckmann microfacet conductor below the binder (Walter et al. 2007).
+
+    The light travels down, (dx, dy, mu > 0).  In a frame whose z points up (into the binder),
+    i = (−dx, −dy, mu); a facet normal m is drawn from D(m)(m·n) (Walter eq. 35), o = 2(i·m)m − i,
+    and the weight is Walter's eq. 41 times the conductor's Fresnel factor,
+    F(i·m) |i·m| G1(i) G1(o) / (i_z m_z); zero for a back-facing facet or o below the surface.
+    Returns the new propagation direction (travelling up, mu' < 0) and the weight factor."""
+    ix = -dx
+    iy = -dy
+    iz = mu
+    mx, my, mz = _sample_beckmann_normal(alpha, s)
+    c = ix * mx + iy * my + iz * mz
+    if c <= 0.0:
+        return dx, dy, mu, 0.0
+    ox = 2.0 * c * mx - ix
+    oy = 2.0 * c * my - iy
+    oz = 2.0 * c * mz - iz
+    if oz <= 0.0:
+        return dx, dy, mu, 0.0
+    inv = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
+    ox *= inv
+    oy *= inv
+    oz *= inv
+    g = smith_g1_beckmann(iz, c, alpha) * smith_g1_beckmann(oz, c, alpha)
+    w = fresnel_conductor_unpolarized(c, n, k) * c * g / (iz * mz)
+    return ox, oy, -oz, w
+
+
+@njit(cache=True)
+def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k, bot_alpha, z_edges, sigma_bar, comp_start,
            comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha, comp_off, comp_n, tab,
            w_start, max_orders, max_events, rr_threshold):
     """Trace one path; returns (outcome, weight, dx, dy, mu, interface_loss, events)."""
@@ -359,6 +405,17 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, z_edges, sig
                     ph = _TWO_PI * u2
                     dx = st * math.cos(ph)
                     dy = st * math.sin(ph)
+                elif bot_type == BOTTOM_ROUGH_CONDUCTOR:
+                    dx, dy, mu, f = _rough_conductor(dx, dy, mu, bot_n, bot_k, bot_alpha, s)
+                    w *= f
+                    direct = False
+                    if w == 0.0:
+                        return _ABSORBED, 0.0, dx, dy, mu, loss, events
+                    if w < rr_threshold:  # Russian roulette (see below)
+                        if _uniform(s) < 0.1:
+                            w *= 10.0
+                        else:
+                            return _ABSORBED, 0.0, dx, dy, mu, loss, events
                 else:
                     if direct:
                         return _EXIT_BOTTOM_DIRECT, w, dx, dy, mu, loss, events
@@ -475,7 +532,8 @@ def _bin_index(edges, v):
 
 
 @njit(parallel=True, cache=True)
-def simulate_kernel(path_counts, seeds, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, z_edges,
+def simulate_kernel(path_counts, seeds, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k,
+                    bot_alpha, z_edges,
                     sigma_bar, comp_start, comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha,
                     comp_off, comp_n, tab, w_start, mu_edges, phi_edges, max_orders, max_events,
                     rr_threshold):
@@ -496,7 +554,8 @@ def simulate_kernel(path_counts, seeds, mu_i, top_type, eta, top_alpha, bot_type
         s = seeds[b].copy()
         for _ in range(path_counts[b]):
             outcome, w, dx, dy, mu, loss, events = _trace(
-                s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, z_edges, sigma_bar, comp_start,
+                s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k, bot_alpha, z_edges,
+                sigma_bar, comp_start,
                 comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha, comp_off, comp_n, tab,
                 w_start, max_orders, max_events, rr_threshold)
             scal[b, S_EVENTS] += events

@@ -10,7 +10,8 @@ The problem
 Air (index 1) above; a top interface (``None``: index-matched, :class:`Smooth`, :class:`Rough`);
 one or more :class:`Slab` s of the binder, whose real index is the ``eta`` of the top interface
 (1 when the top is ``None``; slabs are index-matched to each other); a bottom (:class:`Lambertian`
-inside the binder at the bottom of the last slab, or ``None``: light leaving the last slab is
+inside the binder at the bottom of the last slab, :class:`RoughConductor`, a Beckmann microfacet metal
+there, or ``None``: light leaving the last slab is
 counted as transmitted into a half-space of the binder's index).  Each slab holds zero or more media
 whose extinctions and kernels add:
 
@@ -84,6 +85,7 @@ __all__ = [
     "Smooth",
     "Rough",
     "Lambertian",
+    "RoughConductor",
     "Problem",
     "Result",
     "simulate",
@@ -196,6 +198,17 @@ class Lambertian:
 
 
 @dataclass(frozen=True)
+class RoughConductor:
+    """Beckmann microfacet metal at the bottom of the last slab (Walter et al. 2007 reflection with
+    the conductor Fresnel factor, separable Smith G, exact Beckmann G1): complex index ``N`` = n + ik
+    of the metal relative to vacuum (scalar or (C,)); it is divided by the binder's index.  The
+    masked/shadowed part and the metal's absorption are both lost (counted in ``absorbed``)."""
+
+    N: Any
+    alpha: float
+
+
+@dataclass(frozen=True)
 class Problem:
     """The stack: ``slabs`` (top to bottom), ``top`` interface (None, :class:`Smooth`, :class:`Rough`),
     ``bottom`` (None or :class:`Lambertian`).  See the module docstring."""
@@ -288,6 +301,8 @@ def _per_channel_sizes(problem):
                         yield f"{p}.{name}", t.shape[0]
     if isinstance(problem.bottom, Lambertian) and _arr(problem.bottom.albedo).ndim == 1:
         yield "bottom.albedo", _arr(problem.bottom.albedo).shape[0]
+    if isinstance(problem.bottom, RoughConductor) and np.ndim(problem.bottom.N) == 1:
+        yield "bottom.N", len(problem.bottom.N)
 
 
 def _n_channels(problem):
@@ -345,8 +360,15 @@ def _validate(problem):
         raise ValueError(f"top.eta = {top.eta}; it must be a positive real n_binder / n_air.")
     if isinstance(top, Rough) and not (0 < top.alpha <= 2):
         raise ValueError(f"top.alpha = {top.alpha}; the Beckmann roughness must be in (0, 2] (use Smooth for 0).")
-    if problem.bottom is not None and not isinstance(problem.bottom, Lambertian):
-        raise ValueError(f"bottom = {problem.bottom!r}; use None (index-matched half-space) or Lambertian(albedo).")
+    if problem.bottom is not None and not isinstance(problem.bottom, (Lambertian, RoughConductor)):
+        raise ValueError(f"bottom = {problem.bottom!r}; use None (index-matched half-space), Lambertian(albedo) "
+                         "or RoughConductor(N, alpha).")
+    if isinstance(problem.bottom, RoughConductor):
+        N = np.atleast_1d(np.asarray(problem.bottom.N, dtype=complex))
+        if not (np.all(np.isfinite(N)) and np.all(N.real > 0) and np.all(N.imag >= 0)):
+            raise ValueError(f"bottom.N = {problem.bottom.N!r}; need n > 0 and k >= 0.")
+        if not (0 < problem.bottom.alpha <= 2):
+            raise ValueError(f"bottom.alpha = {problem.bottom.alpha}; the Beckmann roughness must be in (0, 2].")
     if isinstance(problem.bottom, Lambertian):
         _check_range(problem.bottom.albedo, 0.0, 1.0, "bottom.albedo", "an albedo")
     for si, slab in enumerate(problem.slabs):
@@ -567,13 +589,20 @@ def simulate(problem, mu_i, n_paths, seed, mu_edges=None, phi_edges=None, *, max
     dphi = np.diff(pe)[None, :]
     omega = 2.0 * dmu * dphi  # solid angle of each (±φ) bin
     for c in range(C):
+        bot_n, bot_k, bot_alpha = 1.0, 0.0, 1.0
         if isinstance(problem.bottom, Lambertian):
             bot_type, bot_alb = _k.BOTTOM_LAMBERT, float(_pick(problem.bottom.albedo, c, "bottom.albedo"))
+        elif isinstance(problem.bottom, RoughConductor):
+            Nc = np.atleast_1d(np.asarray(problem.bottom.N, dtype=complex))
+            Nc = complex(Nc[0] if Nc.size == 1 else Nc[c]) / eta
+            bot_type, bot_alb = _k.BOTTOM_ROUGH_CONDUCTOR, 1.0
+            bot_n, bot_k, bot_alpha = Nc.real, Nc.imag, float(problem.bottom.alpha)
         else:
             bot_type, bot_alb = _k.BOTTOM_NONE, 0.0
         pk = _pack(problem, c)
         scal, rbin, tbin = _k.simulate_kernel(
-            counts, seeds, mu_i, np.int64(top_type), eta, top_alpha, np.int64(bot_type), bot_alb,
+            counts, seeds, mu_i, np.int64(top_type), eta, top_alpha, np.int64(bot_type), bot_alb, bot_n, bot_k,
+            bot_alpha,
             pk["z_edges"], pk["sigma_bar"], pk["comp_start"], pk["comp_type"], pk["comp_sigma"],
             pk["comp_albedo"], pk["comp_g"], pk["comp_alpha"], pk["comp_off"], pk["comp_n"], pk["tab"],
             w_start, me, pe, np.int64(max_orders), np.int64(MAX_EVENTS), float(rr_threshold))

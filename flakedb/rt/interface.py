@@ -9,7 +9,11 @@
   mirror reflection").
 * :func:`rough_dielectric` — a Beckmann microfacet dielectric (Walter et al. 2007, with the exact
   Smith shadowing), reflection and transmission both ways including total internal reflection,
-  projected on the cosine series with adaptively chosen φ sampling and orders.
+  integrated over the nodes' flux cells so that it carries exactly the continuous BSDF's energy
+  and reciprocity at any n (:mod:`flakedb.rt.microfacet`, docs/rough-interfaces.md).
+  :func:`rough_dielectric_point_sampled` is the former node-sampled projection, kept as the
+  "before" of the comparison (it creates energy once the lobe is narrower than the node spacing).
+* :func:`rough_conductor` — a Beckmann microfacet conductor at the bottom of the stack.
 * :func:`lambertian` — a diffuse primer at the bottom of the stack, order 0 only.
 
 All matrices act on basic radiance (conventions, "Radiance across interfaces").
@@ -22,6 +26,7 @@ from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.rt.fourier import project_azimuthal
 from flakedb.rt.layer import Layer, pad_orders
+from flakedb.rt.microfacet import rough_conductor_cells, rough_dielectric_cells
 
 
 def smooth_dielectric(q_out, q_in, eta, L):
@@ -147,10 +152,29 @@ def _bsdf_block(fn, x_in, w_in, x_out, w_out, tol, n_start, max_orders):
 
 
 def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512):
-    """Rough dielectric interface (Beckmann α, relative index η) as a :class:`Layer`.
+    """Rough dielectric interface (Beckmann α, relative index η) as a :class:`Layer`, by flux-cell
+    integration (:func:`flakedb.rt.microfacet.rough_dielectric_cells`): every column of order 0
+    carries the continuous BSDF's directional albedo, the blocks are reciprocal, and as α → 0 it
+    tends to the smooth interface.  Both sides use the same rule (``q_in`` nodes equal ``q_out``'s).
+    Returns ``(layer, info)``.
+    """
+    if q_in.h != q_out.h or not np.allclose(q_in.x, q_out.x):
+        raise ValueError("the rough interface needs the same quadrature on both sides")
+    blocks, info = rough_dielectric_cells(q_out.x, q_out.w, eta, alpha, tol=tol, max_orders=max_orders)
+    return Layer(*blocks), info
 
-    The number of orders is chosen by the projection (:func:`flakedb.rt.fourier.project_azimuthal`);
-    the four blocks are padded to a common count.  Returns ``(layer, info)``.
+
+def rough_conductor(q, eta_complex, alpha, tol=1e-5, max_orders=512):
+    """Rough conductor (Beckmann α, complex index relative to the binder above, scalar or (C,)) at
+    the bottom of the stack: reflection only, by flux-cell integration
+    (:func:`flakedb.rt.microfacet.rough_conductor_cells`).  Returns ``(Rt, info)``, Rt (L, C, h, h)."""
+    return rough_conductor_cells(q.x, q.w, eta_complex, alpha, tol=tol, max_orders=max_orders)
+
+
+def rough_dielectric_point_sampled(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512):
+    """The former discretisation: the BSDF sampled at the node pairs and projected on the cosine
+    series (:func:`flakedb.rt.fourier.project_azimuthal`).  Wrong once the lobe is narrower than
+    the node spacing (energy created or lost); kept for comparison.  Returns ``(layer, info)``.
     """
     n_start = int(max(16, 2 ** np.ceil(np.log2(4.0 / alpha))))
     blocks = {}

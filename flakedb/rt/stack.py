@@ -1,6 +1,7 @@
 """A whole paint stack solved by adding-doubling: top interface, slabs, bottom (model.md §1, §4).
 
-    air | top interface (none, smooth or rough dielectric) | slab … slab | bottom (Lambertian or none)
+    air | top interface (none, smooth or rough dielectric) | slab … slab | bottom (Lambertian,
+    rough conductor or none)
 
 :func:`solve_stack` builds every component's scattering matrices on a common quadrature and number
 of Fourier orders, doubles the slabs and adds everything.  The result, :class:`StackBSDF`, holds the
@@ -63,6 +64,16 @@ class Lambertian:
 #: Default budget of the order choice: the dropped Fourier tail of the final BSDF is at most this
 #: fraction of its order-0 maximum (docs/orders.md).
 ORDER_TOL = 1e-4
+
+
+@dataclass
+class RoughConductor:
+    """Beckmann microfacet metal at the bottom of the stack (Walter et al. 2007 reflection with a
+    conductor's Fresnel factor): complex index ``N`` = n + ik of the metal (scalar or per channel),
+    relative to vacuum; the solver divides by the binder's index above it.  ``alpha`` > 0."""
+
+    N: object
+    alpha: float
 
 
 @dataclass
@@ -242,7 +253,7 @@ def _n_channels(slabs, bottom):
     for slab in slabs:
         C = max(C, np.atleast_2d(slab.medium.sigma_t(np.array([0.5]))).shape[0])
     if bottom is not None:
-        C = max(C, np.atleast_1d(bottom.albedo).size)
+        C = max(C, np.atleast_1d(bottom.N if isinstance(bottom, RoughConductor) else bottom.albedo).size)
     return C
 
 
@@ -259,8 +270,8 @@ def solve_stack(top, slabs, bottom, settings=None, channels=None):
     """Solve the stack; returns a :class:`StackBSDF`.
 
     ``top``: None (index-matched, no interface), :class:`Smooth` or :class:`Rough`.
-    ``slabs``: list of :class:`Slab`.  ``bottom``: :class:`Lambertian` or None (transmission into a
-    half-space of the binder's index).  ``channels``: number of spectral channels (inferred from
+    ``slabs``: list of :class:`Slab`.  ``bottom``: :class:`Lambertian`, :class:`RoughConductor` or
+    None (transmission into a half-space of the binder's index).  ``channels``: number of spectral channels (inferred from
     the components when None).
 
     Channels are independent: when the estimated memory (:func:`_bytes_per_channel`) of all of them
@@ -287,8 +298,12 @@ def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
         sub_slabs = [Slab(sl.thickness_um, channel_subset(sl.medium, idx)) for sl in slabs]
         sub_bottom = None
         if bottom is not None:
-            a = np.atleast_1d(np.asarray(bottom.albedo, dtype=float))
-            sub_bottom = Lambertian(a if a.size == 1 else a[idx])
+            if isinstance(bottom, RoughConductor):
+                N = np.atleast_1d(bottom.N)
+                sub_bottom = RoughConductor(N if N.size == 1 else N[idx], bottom.alpha)
+            else:
+                a = np.atleast_1d(np.asarray(bottom.albedo, dtype=float))
+                sub_bottom = Lambertian(a if a.size == 1 else a[idx])
         parts.append(_solve_stack(top, sub_slabs, sub_bottom, s))
         sizes.append(len(idx))
     L = max(p.n_orders for p in parts)
@@ -348,7 +363,14 @@ def _solve_stack(top, slabs, bottom, s):
                                                 max_orders=s.order_cap)
         L_top = top_layer.n_orders
         info["top"] = {"orders": L_top}
-    L = min(max([L_top, 1] + [pk.n_orders for pk, _, _ in projected]), s.order_cap)
+    L_bottom = 0
+    Rc = None
+    if isinstance(bottom, RoughConductor):
+        Rc, cinfo = itf.rough_conductor(q_in, np.asarray(bottom.N, dtype=complex) / eta, bottom.alpha,
+                                        tol=s.tol, max_orders=s.order_cap)
+        L_bottom = Rc.shape[0]
+        info["bottom"] = {k: v for k, v in cinfo.items() if k != "albedo"}
+    L = min(max([L_top, L_bottom, 1] + [pk.n_orders for pk, _, _ in projected]), s.order_cap)
     if isinstance(top, Smooth):
         smooth1, delta_F = itf.smooth_dielectric(q_out, q_in, top.eta, 1)
 
@@ -370,7 +392,7 @@ def _solve_stack(top, slabs, bottom, s):
     opaque = bottom is not None
     if opaque and s.order_tol is not None:
         Rt, oinfo = _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L, s, slab_block,
-                                                  top_block, smooth1 if isinstance(top, Smooth) else None)
+                                                  top_block, smooth1 if isinstance(top, Smooth) else None, Rc)
         info.update(oinfo)
         return StackBSDF(x=q_out.x, w=q_out.w, Rt=Rt, eta=eta, delta_F=delta_F, x_in=q_in.x, w_in=q_in.w,
                          info=info)
@@ -384,7 +406,9 @@ def _solve_stack(top, slabs, bottom, s):
         body = identity_layer(L, q_in.h)
     top_layer_L = None if top is None else top_block(0, L)
 
-    if bottom is not None:
+    if isinstance(bottom, RoughConductor):
+        body = Layer(*_reflection_over(body, pad_orders(Rc, L)))
+    elif bottom is not None:
         prim = itf.lambertian(q_in, bottom.albedo, L)
         body = Layer(*_reflection_over(body, prim.Rt))
     whole = body if top_layer_L is None else add(top_layer_L, body)
@@ -400,10 +424,12 @@ def _solve_stack(top, slabs, bottom, s):
 FIRST_ORDER_BLOCK = 16
 
 
-def _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L_max, s, slab_block, top_block, smooth1):
+def _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L_max, s, slab_block, top_block, smooth1,
+                                  Rc=None):
     """R^t of an opaque stack, orders solved in blocks (16, then doubling) bottom-up with
     reflection-only adding, until :func:`flakedb.rt.orders.order_tail` says the BSDF's dropped tail is
-    within ``s.order_tol`` (docs/orders.md).  Returns (Rt (L', C, h, h), info)."""
+    within ``s.order_tol`` (docs/orders.md).  ``Rc``: the rough conductor bottom's R^t (all its
+    orders), None for a Lambertian primer.  Returns (Rt (L', C, h, h), info)."""
     if smooth1 is not None:
         h_tir = q_in.h - q_out.h
         t = smooth1.Ttb[0, 0][h_tir + np.arange(q_out.h), np.arange(q_out.h)]
@@ -411,6 +437,11 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L_max, s,
 
     def reflection(l0, l1):
         R = None
+        if Rc is not None:  # a rough conductor bottom carries orders of its own
+            Rb = pad_orders(Rc, max(l1, Rc.shape[0]))[l0:l1]
+            for pk, sig, d in reversed(projected):
+                Rb = reflection_over(slab_block(pk, sig, d, l0, l1), Rb)
+            return Rb
         if l0 == 0:  # the Lambertian primer has order 0 only: its adding runs for that order alone
             prim = itf.lambertian(q_in, bottom.albedo, 1).Rt
             R0 = prim

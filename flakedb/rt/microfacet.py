@@ -1,0 +1,438 @@
+"""Beckmann microfacet interfaces discretised by flux-cell integration (docs/rough-interfaces.md).
+
+A rough interface's lobe can be far narrower than the spacing of the μ nodes (Beckmann α = 0.02
+spans about 0.03 rad; 32 Gauss–Radau nodes per hemisphere are 0.05 rad apart).  Sampling the BSDF
+*at* the node pairs (layerlab, Jakob et al. 2014) then creates or destroys energy (measured: the
+albedo of a rough coat over a white primer is 1.74 for α = 0.05 at n = 128, 36 at n = 32).  Here
+the BSDF is instead **integrated over each node's quadrature cell** (a Galerkin / cell-average
+projection, the finite-volume idea of discrete-ordinate "quadrature cells", e.g. Lathrop 1971;
+the symmetric rescaling is the one of :func:`flakedb.rt.stack.medium_kernel_blocks`):
+
+1. **Flux cells.**  Node j of the hemisphere rule (x_j, w_j) owns the cell [C_{j−1}, C_j] of μ with
+   ∫_cell μ dμ = w_j x_j (C_j² = 2 Σ_{k≤j} w_k x_k; the cells partition [0, 1] because the rule
+   integrates μ exactly).  Each node's cell contains the node (checked in the tests).
+2. **Cell-to-cell averages.**  The coefficient between cells i (incident) and o (outgoing) is
+   f̃_l(i, o) = ∫_cell i ∫_cell o f_l(μ', μ) μ' μ dμ' dμ / (w_i x_i · w_o x_o), with f_l the
+   cosine coefficient in φ_d.  Reciprocity of f makes f̃ reciprocal exactly (a symmetric block is
+   computed once), and Σ_o 2π f̃_0(i, o) w_o x_o is the flux average of the continuous directional
+   albedo over cell i: energy is put into the cells the lobe actually reaches, whatever its width.
+   The integral uses a composite rule: cells wider (in θ) than ``SUB_WIDTH`` · α are split into
+   sub-intervals uniform in θ, each with a 2-point Gauss–Legendre rule in μ² (exact flux weights);
+   narrower cells use their own node (which is then point sampling, accurate there).
+3. **Azimuth.**  For a pair of directions the Beckmann factor is exp(−(A − B cos φ)/α²) with A, B
+   closed forms (:func:`_tan2_half_coeffs`), a von Mises lobe around the specular/refracted azimuth.
+   Pairs whose lobe is below exp(−``PRUNE_T2``) everywhere are skipped; for the others φ is
+   integrated by Gauss–Legendre on [0, φ_max] (the support above exp(−PRUNE_T2)) and the cosine
+   coefficients are accumulated by the Chebyshev recurrence, up to the order the lobe needs
+   (√(2κ ln(1/tol)) plus a margin for the smooth factors; κ = B/α²), capped at ``max_orders``.
+4. **Exact energy.**  The blocks are rescaled symmetrically, f̃(i, o) → s_o f̃(i, o) s_i (which
+   keeps reciprocity), so that every column of order 0 carries exactly the continuous BSDF's
+   directional albedo at the node, computed independently by integrating over the microfacet
+   normals in slope space (:func:`microfacet_albedo`).  The scale factors' spread is reported.
+
+The continuous model is Walter et al. 2007 (single scattering, Beckmann, separable Smith G with
+the exact Beckmann G1); it loses the masked/shadowed energy (e.g. 0.4 % at normal incidence and
+several % at grazing for α = 0.3) and the discretisation carries exactly that, no more, no less.
+"""
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.special import erf, roots_legendre
+
+from flakedb.conventions import fourier_weight
+from flakedb.optics.fresnel import fresnel_conductor
+
+#: Pairs whose Beckmann factor exp(−tan²θ_h/α²) stays below exp(−PRUNE_T2) for every φ are skipped.
+PRUNE_T2 = 40.0
+#: Cells wider in θ than SUB_WIDTH · α are split into sub-intervals of at most that width.
+SUB_WIDTH = 0.25
+#: Orders added to the von Mises estimate for the smooth factors (Fresnel, Jacobians, 1/cos⁴θ_h).
+ORDER_MARGIN = 12
+#: Gauss–Legendre nodes in φ per pair: at least this many, more when many orders oscillate in [0, φ_max].
+MIN_PHI_NODES = 24
+
+_SQRT_PI = np.sqrt(np.pi)
+
+
+# ------------------------------------------------------------------------------------------------
+# the continuous model (Walter et al. 2007)
+# ------------------------------------------------------------------------------------------------
+
+
+def smith_G1(mu, alpha):
+    """Exact Smith masking of the Beckmann distribution (Walter et al. 2007 eq. 27), 0 < μ ≤ 1:
+    G1 = 2 / (1 + erf(a) + exp(−a²)/(a √π)), a = μ / (α √(1 − μ²))."""
+    mu = np.clip(np.abs(np.asarray(mu, dtype=float)), 1e-300, 1.0)
+    s = np.sqrt(np.maximum(1.0 - mu * mu, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        a = mu / (alpha * s)
+        g = 2.0 / (1.0 + erf(a) + np.exp(-a * a) / (a * _SQRT_PI))
+    return np.where((s == 0.0) | (a > 30.0), 1.0, g)
+
+
+def fresnel_real(c, eta_rel):
+    """Unpolarised Fresnel reflectance, real relative index (Walter et al. 2007 eq. 22), 1 under TIR."""
+    c = np.clip(c, 0.0, 1.0)
+    g2 = eta_rel * eta_rel - 1.0 + c * c
+    g = np.sqrt(np.maximum(g2, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = (g - c) / (g + c)
+        b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
+        F = 0.5 * a * a * (1.0 + b * b)
+    return np.where(g2 <= 0.0, 1.0, np.where(np.isfinite(F), F, 1.0))
+
+
+def conductor_fresnel(eta_complex):
+    """F(c) of a conductor of complex relative index (C,) as a function returning (C, …)."""
+    N = np.atleast_1d(np.asarray(eta_complex, dtype=complex))
+
+    def F(c):
+        c = np.clip(np.asarray(c, dtype=float), 0.0, 1.0)
+        return fresnel_conductor(c[None], N.reshape((-1,) + (1,) * c.ndim)).R
+
+    return F
+
+
+def _tan2_half_coeffs(mu_i, mu_o, eta_rel, transmit):
+    """tan²θ_h = A − B cos φ_d for the half vector of a pair (conventions' φ_d, 0 = specular).
+
+    Reflection: A = (s_i² + s_o²)/(μ_i + μ_o)², B = 2 s_i s_o/(μ_i + μ_o)².
+    Transmission (η = far/near index): A = (s_i² + η² s_o²)/(η μ_o − μ_i)², B = 2η s_i s_o/(η μ_o − μ_i)².
+    """
+    si = np.sqrt(np.maximum(1.0 - mu_i * mu_i, 0.0))
+    so = np.sqrt(np.maximum(1.0 - mu_o * mu_o, 0.0))
+    if transmit:
+        hz2 = (eta_rel * mu_o - mu_i) ** 2
+        num_a, num_b = si * si + eta_rel**2 * so * so, 2.0 * eta_rel * si * so
+    else:
+        hz2 = (mu_i + mu_o) ** 2
+        num_a, num_b = si * si + so * so, 2.0 * si * so
+    with np.errstate(divide="ignore", invalid="ignore"):
+        A = np.where(hz2 > 0, num_a / hz2, np.inf)
+        B = np.where(hz2 > 0, num_b / hz2, 0.0)
+    return A, B
+
+
+def walter_bsdf(mu_i, mu_o, cos_phi, eta_rel, alpha, transmit, G, fresnel=None):
+    """Walter et al. 2007 rough interface in basic radiance (1/sr), all arguments broadcast.
+
+    ``mu_i``, ``mu_o`` > 0: cosines of the incident and outgoing propagation directions on their own
+    sides; ``cos_phi`` = cos φ_d; ``eta_rel`` = far-side / arrival-side index (real); ``G`` the
+    separable Smith product G1(μ_i) G1(μ_o) (precomputed); ``fresnel`` (reflection only) a function
+    F(c) → (C, …) for a conductor (default: the dielectric F of ``eta_rel``).
+    Reflection f_r = F D G / (4 μ_i μ_o) (eq. 20); transmission
+    f_t = |i·h||o·h| (1 − F) D G / (μ_i μ_o (i·h + η o·h)²) (eq. 21 / η², basic radiance).
+    """
+    si = np.sqrt(np.maximum(1.0 - mu_i * mu_i, 0.0))
+    so = np.sqrt(np.maximum(1.0 - mu_o * mu_o, 0.0))
+    if not transmit:
+        dot = mu_i * mu_o - si * so * cos_phi  # w_i · w_o (w_o mirrored at φ_d = 0)
+        h2 = np.maximum(2.0 + 2.0 * dot, 1e-300)
+        hz = mu_i + mu_o
+        tan2 = np.maximum(h2 - hz * hz, 0.0) / (hz * hz)
+        i_h = 0.5 * np.sqrt(h2)
+        D = np.exp(-tan2 / alpha**2) * (1.0 + tan2) ** 2 / (np.pi * alpha**2)
+        F = fresnel(i_h) if fresnel is not None else fresnel_real(i_h, eta_rel)
+        return F * (D * G / (4.0 * mu_i * mu_o))
+    dot = -mu_i * mu_o - si * so * cos_phi
+    h2 = np.maximum(1.0 + eta_rel**2 + 2.0 * eta_rel * dot, 1e-300)
+    hz_un = eta_rel * mu_o - mu_i
+    flip = np.where(hz_un < 0, -1.0, 1.0)
+    inv_h = 1.0 / np.sqrt(h2)
+    i_h = -flip * (1.0 + eta_rel * dot) * inv_h
+    o_h = -flip * (dot + eta_rel) * inv_h
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        tan2 = np.maximum(h2 - hz_un * hz_un, 0.0) / (hz_un * hz_un)
+        D = np.exp(-tan2 / alpha**2) * (1.0 + tan2) ** 2 / (np.pi * alpha**2)
+        denom = (i_h + eta_rel * o_h) ** 2
+        f = np.abs(i_h * o_h) * (1.0 - fresnel_real(i_h, eta_rel)) * D * G / (mu_i * mu_o * denom)
+    valid = (i_h > 0) & (o_h < 0) & (hz_un != 0) & (denom > 0)
+    return np.where(valid, f, 0.0)
+
+
+def microfacet_albedo(mu, eta_rel, alpha, fresnel=None, n=48):
+    """Directional albedos (R, T) of the continuous Walter BSDF for light arriving at cosines ``mu``.
+
+    Integrated over the microfacet normals: R + T = ∫ D(m) (m·n) w(m) dω_m with Walter's eq. 41
+    weight w = |i·m| G1(i) G1(o) / (μ_i m·n), o the reflected (probability F(i·m)) or refracted
+    (1 − F) direction; zero for back-facing facets and for o on the wrong side.  Beckmann D(m)(m·n)
+    dω_m is a Gaussian in slope space: with t = tan²θ_m/α² ~ Exp(1), u = 1 − e^{−t} is uniform, so
+    the integral is E over (u, φ_m) ∈ [0,1) × [0, π) (symmetric in φ_m), done by an n × n tensor
+    Gauss–Legendre rule.  The integrand jumps where facets turn edge-on or send light below the
+    horizon (and, from the denser side, at the critical angle), so convergence is algebraic:
+    measured against n = 256 for η = 1.5 at 60 μ in [0.02, 1], n = 48 is within 8e-5 (α 0.3),
+    6e-5 (0.1), 1.4e-5 (0.02) from above and 8e-4, 1.2e-4, 1.5e-5 from below (tests check it).  ``fresnel``: a conductor's
+    F(c) → (C, …) (then T = 0: the transmitted part is absorbed).  Returns (R, T), each (C, len(mu)).
+    """
+    mu = np.atleast_1d(np.asarray(mu, dtype=float))
+
+    def integrate(n):
+        gu, wu = roots_legendre(n)
+        u, wu = 0.5 * (gu + 1.0), 0.5 * wu
+        ph, wp = 0.5 * np.pi * (gu + 1.0), wu  # E over φ_m uniform on [0, π): Σ (π/2) w_k g / π
+        t = -np.log1p(-u)
+        tan_m = alpha * np.sqrt(t)
+        cm = 1.0 / np.sqrt(1.0 + tan_m**2)
+        sm = tan_m * cm
+        m = (sm[:, None] * np.cos(ph)[None, :], sm[:, None] * np.sin(ph)[None, :], cm[:, None] + 0 * ph[None, :])
+        W = wu[:, None] * wp[None, :]
+        mi = mu[:, None, None]
+        si = np.sqrt(np.maximum(1.0 - mi * mi, 0.0))
+        c = si * m[0][None] + mi * m[2][None]  # i·m, i = (s_i, 0, μ_i)
+        ok = c > 0
+        G1i = smith_G1(mi, alpha)
+        base = np.where(ok, c * G1i / (mi * m[2][None]), 0.0)
+        # reflection
+        orz = 2.0 * c * m[2][None] - mi
+        F = fresnel(c) if fresnel is not None else fresnel_real(c, eta_rel)
+        gr = np.where(orz > 0, smith_G1(orz, alpha), 0.0)
+        R = np.einsum("...kab,ab->...k", F * base * gr, W)
+        if fresnel is not None:
+            return np.atleast_2d(R), np.zeros_like(np.atleast_2d(R))
+        # refraction: o = −i/η + (c/η − cos_t) m
+        sin2_t = (1.0 - c * c) / eta_rel**2
+        cos_t = np.sqrt(np.maximum(1.0 - sin2_t, 0.0))
+        k = c / eta_rel - cos_t
+        otz = -mi / eta_rel + k * m[2][None]
+        gt = np.where((otz < 0) & (sin2_t < 1.0), smith_G1(otz, alpha), 0.0)
+        T = np.einsum("kab,ab->k", (1.0 - F) * base * gt, W)
+        return R[None], T[None]
+
+    R, T = integrate(n)
+    return R, T
+
+
+# ------------------------------------------------------------------------------------------------
+# cells and the composite rule
+# ------------------------------------------------------------------------------------------------
+
+
+def flux_cell_edges(x, w):
+    """Edges 0 = C_0 < … < C_h = 1 with ∫_{C_{j−1}}^{C_j} μ dμ = w_j x_j (normalised), (h + 1,)."""
+    m = 2.0 * np.asarray(w) * np.asarray(x)
+    return np.sqrt(np.concatenate([[0.0], np.cumsum(m)]) / m.sum())
+
+
+def cell_rule(x, w, width):
+    """Composite rule for ∫_cell g(μ) μ dμ over every flux cell: points ``t`` (M,), weights ``omega``
+    (M,) and owning node ``cell`` (M,).  Cells wider than ``width`` in θ are split into equal θ
+    sub-intervals, each with a 2-point Gauss–Legendre rule in μ² (so the weights of a cell sum to
+    w_j x_j exactly); narrower cells keep their node with weight w_j x_j."""
+    x = np.asarray(x, dtype=float)
+    w = np.asarray(w, dtype=float)
+    h = len(x)
+    C = flux_cell_edges(x, w)
+    th_top = np.arccos(np.clip(C[:-1], 0.0, 1.0))  # θ at the cell's small-μ edge
+    th_bot = np.arccos(np.clip(C[1:], 0.0, 1.0))
+    n_sub = np.maximum(1, np.ceil((th_top - th_bot) / width - 1e-9).astype(int))
+    point = n_sub == 1
+    cells = np.arange(h)
+    # point cells
+    t_p, om_p, c_p = x[point], (w * x)[point], cells[point]
+    # split cells
+    ns = n_sub[~point]
+    owner = np.repeat(cells[~point], ns)
+    start = np.repeat(np.cumsum(ns) - ns, ns)
+    k = np.arange(owner.size) - start
+    dth = ((th_top - th_bot) / n_sub)[owner]
+    th_a = th_top[owner] - k * dth
+    th_b = th_a - dth
+    s_a, s_b = np.cos(th_a) ** 2, np.cos(th_b) ** 2  # s = μ², s_a < s_b
+    mid, half = 0.5 * (s_a + s_b), 0.5 * (s_b - s_a)
+    g = half / np.sqrt(3.0)
+    t_s = np.sqrt(np.concatenate([mid - g, mid + g]))
+    om_s = np.concatenate([0.5 * half, 0.5 * half])  # ∫ g μ dμ = ½ ∫ g ds
+    c_s = np.concatenate([owner, owner])
+    t = np.concatenate([t_p, t_s])
+    om = np.concatenate([om_p, om_s])
+    cell = np.concatenate([c_p, c_s])
+    # renormalise each split cell's weights to w_j x_j exactly (μ² is integrated exactly already;
+    # the flux-cell edges are normalised, so this removes only round-off)
+    tot = np.bincount(cell, om, minlength=h)
+    om = om * ((w * x) / tot)[cell]
+    order = np.argsort(cell, kind="stable")
+    return t[order], om[order], cell[order]
+
+
+# ------------------------------------------------------------------------------------------------
+# cell-averaged cosine coefficients of one block
+# ------------------------------------------------------------------------------------------------
+
+
+def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, tol, max_orders,
+                symmetric=False, chunk_elems=2_000_000):
+    """Σ over sub-point pairs in each (o, i) cell pair of ω_a ω_b f_l(t_a, t_b): (L, C, h_o, h_i).
+
+    With ``symmetric`` (reflection on one side; rule_i is rule_o) only pairs a ≤ b are evaluated
+    and the block is completed by reciprocity.  Returns the block and the largest order used.
+    """
+    t_i, om_i, cell_i = rule_i
+    t_o, om_o, cell_o = rule_o
+    A, B = _tan2_half_coeffs(t_i[:, None], t_o[None, :], eta_rel, transmit)
+    keep = (A - B) / alpha**2 < PRUNE_T2
+    if symmetric:
+        keep &= np.arange(len(t_i))[:, None] <= np.arange(len(t_o))[None, :]
+    ia, ob = np.nonzero(keep)
+    A, B = A[ia, ob], B[ia, ob]
+    kappa = B / alpha**2
+    # φ support: (A − B cos φ)/α² < PRUNE_T2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cmin = np.where(kappa > 0, (A / alpha**2 - PRUNE_T2) / kappa, -1.0)
+    phi_max = np.arccos(np.clip(cmin, -1.0, 1.0))
+    L_pair = np.minimum(max_orders, np.ceil(np.sqrt(2.0 * kappa * np.log(1.0 / tol))).astype(int) + ORDER_MARGIN)
+    P_pair = np.maximum(MIN_PHI_NODES, np.ceil(1.5 * L_pair * phi_max / np.pi).astype(int) + 8)
+    # buckets of φ node counts (powers of √2) so that each group is one vectorised evaluation
+    bucket = np.ceil(2.0 * np.log2(P_pair / MIN_PHI_NODES) - 1e-9).astype(int)
+    G = smith_G1(t_i, alpha)[ia] * smith_G1(t_o, alpha)[ob]
+    weight = om_i[ia] * om_o[ob]
+    if symmetric:
+        weight = np.where(ia == ob, 0.5 * weight, weight)  # a = b counted once after X + Xᵀ
+    pair_cell = cell_o[ob] * h_i + cell_i[ia]
+    L_used = int(L_pair.max()) if len(L_pair) else 1
+    out = np.zeros((L_used, C, h_o * h_i))
+    for b in np.unique(bucket):
+        sel = np.nonzero(bucket == b)[0]
+        P = int(np.ceil(MIN_PHI_NODES * 2.0 ** (b / 2.0)))
+        gx, gw = roots_legendre(P)
+        gx, gw = 0.5 * (gx + 1.0), 0.5 * gw
+        step = max(1, chunk_elems // (P * C))
+        for s0 in range(0, len(sel), step):
+            k = sel[s0:s0 + step]
+            Lg = int(L_pair[k].max())
+            phi = phi_max[k, None] * gx[None, :]  # (K, P)
+            cphi = np.cos(phi)
+            f = walter_bsdf(t_i[ia[k], None], t_o[ob[k], None], cphi, eta_rel, alpha, transmit,
+                            G[k, None], fresnel)
+            f = np.broadcast_to(f, (C,) + phi.shape) if f.ndim == 2 else f
+            v = f * ((phi_max[k] * weight[k] / np.pi)[:, None] * gw[None, :])  # (C, K, P)
+            coef = np.empty((Lg, C, len(k)))
+            coef[0] = v.sum(axis=-1)
+            if Lg > 1:
+                c_prev, c_cur = np.ones_like(cphi), cphi
+                coef[1] = 2.0 * (v * c_cur).sum(axis=-1)
+                two_c = 2.0 * cphi
+                for l in range(2, Lg):  # Chebyshev recurrence cos(lφ) = 2 cos φ cos((l−1)φ) − cos((l−2)φ)
+                    c_prev, c_cur = c_cur, two_c * c_cur - c_prev
+                    coef[l] = 2.0 * np.einsum("ckp,kp->ck", v, c_cur)
+            agg = sp.csr_matrix((np.ones(len(k)), (pair_cell[k], np.arange(len(k)))), shape=(h_o * h_i, len(k)))
+            out[:Lg] += (agg @ coef.reshape(Lg * C, len(k)).T).T.reshape(Lg, C, h_o * h_i)
+    out = out.reshape(L_used, C, h_o, h_i)
+    if symmetric:
+        out = out + np.swapaxes(out, -1, -2)
+    return out, L_used
+
+
+def _symmetric_energy_scale(E, target, iters=2000, tol=1e-13):
+    """Scale factors s (C, N) with s_i Σ_o E[c, o, i] s_o = target[c, i] (damped multiplicative
+    fixed point, as :func:`flakedb.rt.stack.medium_kernel_blocks`), iterated until every column
+    is within ``tol`` of its target.  E (C, N, N) ≥ 0."""
+    s = np.ones(target.shape)
+    for _ in range(iters):
+        col = np.einsum("coi,co->ci", E, s)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(col > 0, target / (s * col), 1.0)
+        if np.abs(ratio - 1.0).max() < tol:
+            break
+        s = s * np.sqrt(ratio)
+    return s
+
+
+def _truncate_orders(blocks, flux_w, tol):
+    """Smallest L with Σ_{l≥L} |S_l| · flux weight ≤ tol · max column sum, over every block."""
+    L = max(b.shape[0] for b in blocks)
+    worst = np.zeros(L)
+    scale = 0.0
+    for b, (wo, wi) in zip(blocks, flux_w):
+        a = np.abs(b) * wo[:, None] * wi[None, :]
+        col = a.sum(axis=-2)  # (L, C, h_i)
+        scale = max(scale, col[0].max())
+        tail = np.flip(np.cumsum(np.flip(col.max(axis=(1, 2)))))
+        worst[: len(tail)] = np.maximum(worst[: len(tail)], tail)
+    if scale == 0.0:
+        return 1
+    below = np.nonzero(worst / scale <= tol)[0]
+    return max(1, int(below[0]) if len(below) else L)
+
+
+def _to_S(fbar, x, w):
+    """S_l[o, i] = c_l w_i x_i f_l from a cell-averaged f (conventions' normalisation)."""
+    cl = fourier_weight(np.arange(fbar.shape[0]))[:, None, None, None]
+    return cl * fbar * (w * x)[None, None, None, :]
+
+
+def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width=None):
+    """Rough dielectric interface (Beckmann α, binder/air index η) with the same rule (x, w) on
+    both sides, by flux-cell integration; returns the four blocks (L, 1, h, h) and an info dict.
+
+    Blocks as in :class:`flakedb.rt.layer.Layer` (basic radiance): Rt, Ttb from above, Rb, Tbt
+    from below; Tbt is the reciprocal of Ttb (f_bt[i, o] = η² f_tb[o, i]).
+    """
+    x = np.asarray(x, dtype=float)
+    w = np.asarray(w, dtype=float)
+    h = len(x)
+    sub = (SUB_WIDTH if sub_width is None else sub_width) * alpha * min(1.0, 4.0 * abs(1.0 - 1.0 / eta))
+    rule = cell_rule(x, w, max(sub, 1e-6))
+    m = w * x
+    Rt, L1 = _cell_block(rule, rule, h, h, eta, alpha, False, None, 1, tol, max_orders, symmetric=True)
+    Rb, L2 = _cell_block(rule, rule, h, h, 1.0 / eta, alpha, False, None, 1, tol, max_orders, symmetric=True)
+    Ttb, L3 = _cell_block(rule, rule, h, h, eta, alpha, True, None, 1, tol, max_orders)
+    L = max(L1, L2, L3)
+    Rt, Rb, Ttb = (_pad(b, L) / (m[:, None] * m[None, :]) for b in (Rt, Rb, Ttb))  # cell averages f̃
+    Tbt = eta**2 * np.swapaxes(Ttb, -1, -2)
+    # exact energy: columns of order 0 carry the continuous albedo at the node
+    R_a, T_a = microfacet_albedo(x, eta, alpha)
+    R_b, T_b = microfacet_albedo(x, 1.0 / eta, alpha)
+    two_pi_m = 2.0 * np.pi * m
+    E = np.zeros((1, 2 * h, 2 * h))  # rows: outgoing [air ↑, binder ↓]; columns: incident [air ↓, binder ↑]
+    E[0, :h, :h] = Rt[0, 0] * two_pi_m[:, None]
+    E[0, h:, :h] = eta**2 * Ttb[0, 0] * two_pi_m[:, None]
+    E[0, h:, h:] = Rb[0, 0] * two_pi_m[:, None]
+    E[0, :h, h:] = Tbt[0, 0] * two_pi_m[:, None] / eta**2
+    target = np.concatenate([R_a + T_a, R_b + T_b], axis=1)
+    before = E[0].sum(axis=0)
+    s = _symmetric_energy_scale(E, target)[0]
+    sa, sb = s[:h], s[h:]
+    Rt = Rt * sa[:, None] * sa[None, :]
+    Ttb = Ttb * sb[:, None] * sa[None, :]
+    Rb = Rb * sb[:, None] * sb[None, :]
+    Tbt = Tbt * sa[:, None] * sb[None, :]
+    blocks = [_to_S(b, x, w) for b in (Rt, Ttb, Rb, Tbt)]
+    Lt = _truncate_orders(blocks, [(m, np.ones(h))] * 4, tol)
+    info = {"orders": Lt, "orders_computed": L, "sub_points": len(rule[0]),
+            "renorm_max_dev": float(np.abs(s**2 - 1.0).max()),
+            "energy_before_max_dev": float(np.abs(before / target[0] - 1.0).max()),
+            "albedo_above": (R_a + T_a)[0], "albedo_below": (R_b + T_b)[0]}
+    return [b[:Lt] for b in blocks], info
+
+
+def rough_conductor_cells(x, w, eta_complex, alpha, tol=1e-5, max_orders=512, sub_width=None):
+    """Rough conductor (Beckmann α, complex relative index per channel (C,)) seen from the
+    dielectric above it, by flux-cell integration: the reflection block Rt (L, C, h, h) and info.
+    Only reflection: the transmitted part is absorbed by the metal."""
+    x = np.asarray(x, dtype=float)
+    w = np.asarray(w, dtype=float)
+    h = len(x)
+    N = np.atleast_1d(np.asarray(eta_complex, dtype=complex))
+    C = len(N)
+    F = conductor_fresnel(N)
+    rule = cell_rule(x, w, max((SUB_WIDTH if sub_width is None else sub_width) * alpha, 1e-6))
+    m = w * x
+    Rt, L = _cell_block(rule, rule, h, h, 1.0, alpha, False, F, C, tol, max_orders, symmetric=True)
+    Rt = Rt / (m[:, None] * m[None, :])
+    R, _ = microfacet_albedo(x, 1.0, alpha, fresnel=F)
+    E = Rt[0] * (2.0 * np.pi * m)[None, :, None]
+    before = E.sum(axis=1)
+    s = _symmetric_energy_scale(E, R)
+    Rt = Rt * s[None, :, :, None] * s[None, :, None, :]
+    S = _to_S(Rt, x, w)
+    Lt = _truncate_orders([S], [(m, np.ones(h))], tol)
+    info = {"orders": Lt, "orders_computed": L, "sub_points": len(rule[0]),
+            "renorm_max_dev": float(np.abs(s**2 - 1.0).max()),
+            "energy_before_max_dev": float(np.abs(before - R).max()), "albedo": R}
+    return S[:Lt], info
+
+
+def _pad(a, L):
+    if a.shape[0] >= L:
+        return a
+    return np.concatenate([a, np.zeros((L - a.shape[0],) + a.shape[1:])], axis=0)

@@ -1,0 +1,206 @@
+"""Rough interfaces that carry exactly the continuous BSDF's energy at every roughness and n (issue 12).
+
+The continuous model is Walter et al. 2007 (Beckmann, single scattering, separable Smith G).  It
+is *not* lossless: masked/shadowed light is dropped.  A white primer under a rough coat therefore
+has an albedo below 1 by the model's own loss, which for θ_i ≤ 80° is (measured here, η = 1.5)
+1.2e-4 (α 0.01), 4.8e-4 (0.02), 3.1e-3 (0.05), 3.4e-2 (0.1), 0.14 (0.3).  The furnace test compares
+the solver with that continuous answer, which for a Lambertian bottom directly under the coat has
+a closed form (every bounce off the primer is cosine-distributed again):
+
+    A(μ_i) = R(μ_i) + T(μ_i) · a T̄_b / (1 − a R̄_b),
+
+R, T the coat's directional albedos from above and T̄_b, R̄_b the cosine-weighted hemispherical
+albedos from below; for α ≤ 0.02, where the model's loss is below 1e-3, it also checks |1 − A|.
+"""
+
+import numpy as np
+import pytest
+from scipy.special import roots_legendre
+
+import flakedb.reference.montecarlo as mc
+from flakedb.conventions import fourier_weight
+from flakedb.rt import microfacet as mf
+from flakedb.rt.quadrature import radau_hemisphere
+from flakedb.rt.stack import Lambertian, Rough, RoughConductor, Smooth, SolverSettings, solve_stack
+
+ETA = 1.5
+N_PATHS = 400_000
+
+
+def _continuous_furnace(x, eta, alpha, a=1.0):
+    """The closed form above for the continuous Walter model (hemispherical integrals by 200-node
+    Gauss–Legendre in μ of the directional albedos)."""
+    R, T = mf.microfacet_albedo(x, eta, alpha)
+    g, wg = roots_legendre(200)
+    g, wg = 0.5 * (g + 1.0), 0.5 * wg
+    Rb, Tb = mf.microfacet_albedo(g, 1.0 / eta, alpha)
+    Tbar, Rbar = 2.0 * np.sum(wg * g * Tb[0]), 2.0 * np.sum(wg * g * Rb[0])
+    return R[0] + T[0] * a * Tbar / (1.0 - a * Rbar)
+
+
+def test_flux_cells_partition_and_hold_their_nodes():
+    for h in (8, 16, 32, 100):
+        q = radau_hemisphere(h)
+        C = mf.flux_cell_edges(q.x, q.w)
+        assert C[0] == 0.0 and abs(C[-1] - 1.0) < 1e-14 and np.all(np.diff(C) > 0)
+        assert np.all((q.x >= C[:-1]) & (q.x <= C[1:] + 1e-15))
+        assert np.allclose(0.5 * np.diff(C**2), q.w * q.x, rtol=1e-12, atol=0)
+        t, om, cell = mf.cell_rule(q.x, q.w, 0.01)
+        assert np.allclose(np.bincount(cell, om), q.w * q.x, rtol=1e-13, atol=0)
+        assert np.all((t >= C[cell] - 1e-15) & (t <= C[cell + 1] + 1e-15))
+
+
+@pytest.mark.parametrize("alpha", [0.3, 0.1, 0.02])
+@pytest.mark.parametrize("eta", [ETA, 1.0 / ETA])
+def test_microfacet_albedo_converged_and_matches_direct_integral(alpha, eta):
+    mu = np.array([1.0, 0.8, 0.5, 0.25, 0.1, 0.03])
+    R, T = mf.microfacet_albedo(mu, eta, alpha)
+    R2, T2 = mf.microfacet_albedo(mu, eta, alpha, n=256)
+    tol = 1e-3 if (eta < 1 and alpha > 0.2) else 2e-4  # algebraic convergence (see the docstring)
+    assert np.abs(R + T - R2 - T2).max() < tol and np.abs(R - R2).max() < tol
+    if alpha == 0.3:  # broad lobe: an independent integral of the BSDF itself over the hemisphere
+        g, wg = roots_legendre(400)
+        mo, wmo = 0.5 * (g + 1.0), 0.5 * wg
+        ph, wph = np.pi * 0.5 * (g + 1.0), np.pi * 0.5 * wg
+        for j, m in enumerate(mu[:4]):
+            G = mf.smith_G1(m, alpha) * mf.smith_G1(mo, alpha)[:, None]
+            fr = mf.walter_bsdf(m, mo[:, None], np.cos(ph)[None], eta, alpha, False, G)
+            ft = mf.walter_bsdf(m, mo[:, None], np.cos(ph)[None], eta, alpha, True, G)
+            Rd = 2.0 * np.einsum("ab,a,a,b->", fr, mo, wmo, wph)
+            Td = eta**2 * 2.0 * np.einsum("ab,a,a,b->", ft, mo, wmo, wph)  # basic → flux: × η²
+            assert abs(Rd - R2[0, j]) < 2e-4 and abs(Td - T2[0, j]) < 2e-4, (m, Rd, R2[0, j], Td, T2[0, j])
+
+
+def _furnace(alpha, n):
+    r = solve_stack(Rough(ETA, alpha), [], Lambertian(1.0), SolverSettings(n=n))
+    A = r.albedo()[0]
+    keep = r.x >= np.cos(np.radians(80.0)) - 1e-12
+    exact = _continuous_furnace(r.x, ETA, alpha)
+    return A[keep], exact[keep]
+
+
+@pytest.mark.parametrize("n", [32, 64])
+@pytest.mark.parametrize("alpha", [0.3, 0.1, 0.05, pytest.param(0.02, marks=pytest.mark.slow),
+                                   pytest.param(0.01, marks=pytest.mark.slow)])
+def test_white_furnace_rough_coat(alpha, n):
+    A, exact = _furnace(alpha, n)
+    assert np.abs(A - exact).max() <= 1e-3, np.abs(A - exact).max()
+    if alpha <= 0.02:  # the model's own loss is < 1e-3 here: the issue's |1 − A| target holds
+        assert np.abs(1.0 - A).max() <= 1e-3
+    assert np.all(A <= 1.0 + 1e-9)
+
+
+def test_white_furnace_was_broken_by_point_sampling():
+    """The former node-sampled interface (kept for comparison) fails the same furnace badly."""
+    from flakedb.rt import interface as itf
+    from flakedb.rt.layer import add_reflection_only
+
+    q = radau_hemisphere(16)
+    lay, _ = itf.rough_dielectric_point_sampled(q, q, ETA, 0.05, max_orders=64)
+    prim = itf.lambertian(q, 1.0, lay.n_orders)
+    Rt = add_reflection_only(lay, prim.Rt)
+    A = np.einsum("coi,o->ci", Rt[0], q.w * q.x)[0] / (q.w * q.x)
+    assert np.abs(A - 1.0).max() > 1.0
+
+
+@pytest.mark.parametrize("alpha,n", [(0.1, 32), (0.03, 24)])
+def test_blocks_reciprocal_and_carry_the_continuous_albedo(alpha, n):
+    q = radau_hemisphere(n // 2)
+    (Rt, Ttb, Rb, Tbt), info = mf.rough_dielectric_cells(q.x, q.w, ETA, alpha, max_orders=2 * n)
+    cl = fourier_weight(np.arange(Rt.shape[0]))[:, None, None, None]
+    f = [S / (cl * (q.w * q.x)[None, None, None, :]) for S in (Rt, Ttb, Rb, Tbt)]
+    assert np.allclose(f[0], np.swapaxes(f[0], -1, -2), rtol=1e-12, atol=1e-14 * np.abs(f[0]).max())
+    assert np.allclose(f[2], np.swapaxes(f[2], -1, -2), rtol=1e-12, atol=1e-14 * np.abs(f[2]).max())
+    assert np.allclose(f[3], ETA**2 * np.swapaxes(f[1], -1, -2), rtol=1e-12, atol=1e-14 * np.abs(f[3]).max())
+    m = q.w * q.x
+    above = (Rt[0, 0].T @ m + ETA**2 * Ttb[0, 0].T @ m) / m
+    below = (Rb[0, 0].T @ m + Tbt[0, 0].T @ m / ETA**2) / m
+    Ra, Ta = mf.microfacet_albedo(q.x, ETA, alpha)
+    Rb_, Tb_ = mf.microfacet_albedo(q.x, 1.0 / ETA, alpha)
+    assert np.allclose(above, (Ra + Ta)[0], rtol=0, atol=1e-12)
+    assert np.allclose(below, (Rb_ + Tb_)[0], rtol=0, atol=1e-12)
+    assert info["renorm_max_dev"] < 0.05  # the cell integration alone is already close
+    assert np.all(Rt[0] >= 0) and np.all(Ttb[0] >= 0)
+
+
+def test_converges_to_the_smooth_interface():
+    """Coat over a gray primer: the rough albedo (no delta term) tends to the smooth coat's (with
+    its analytic delta) as α → 0, at fixed n."""
+    n = 32
+    ref = solve_stack(Smooth(ETA), [], Lambertian(0.5), SolverSettings(n=n)).albedo()[0]
+    errs = []
+    for alpha in (0.08, 0.04, 0.02):
+        A = solve_stack(Rough(ETA, alpha), [], Lambertian(0.5), SolverSettings(n=n)).albedo()[0]
+        keep = slice(4, None)  # θ ≲ 80°
+        errs.append(np.abs(A - ref)[keep].max())
+    assert errs[0] > errs[1] > errs[2] and errs[2] < 2e-3, errs
+
+
+def _binned_prediction(r, k, mu_edges_idx, phi_edges):
+    """Bin averages of f|μ_o| from the solver's cells: bins in μ are unions of flux cells (edges at
+    cell edges), so ∫ f μ dμ over a bin is Σ_o w_o x_o f_l(o, k) exactly in the cell representation,
+    and ∫ cos(lφ) dφ is analytic."""
+    f = r.f_coefficients("Rt")[:, 0, :, k]  # (L, h_o)
+    C = mf.flux_cell_edges(r.x, r.w)
+    m = r.w * r.x
+    L = f.shape[0]
+    lphi = np.arange(L)[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Phi = np.where(lphi == 0, np.diff(phi_edges)[None, :],
+                       (np.sin(lphi * phi_edges[None, 1:]) - np.sin(lphi * phi_edges[None, :-1])) / np.maximum(lphi, 1))
+    out = np.zeros((len(mu_edges_idx) - 1, len(phi_edges) - 1))
+    for b in range(len(mu_edges_idx) - 1):
+        o = np.arange(mu_edges_idx[b], mu_edges_idx[b + 1])
+        flux = np.einsum("lo,o->l", f[:, o], m[o])  # ∫ f_l μ dμ over the bin
+        out[b] = (flux @ Phi) / ((C[mu_edges_idx[b + 1]] - C[mu_edges_idx[b]]) * np.diff(phi_edges))
+    return out, C[np.asarray(mu_edges_idx)]
+
+
+def _mc_case(alpha, n, bottom_solver, bottom_mc, seed):
+    r = solve_stack(Rough(ETA, alpha), [], bottom_solver, SolverSettings(n=n))
+    prob = mc.Problem([mc.Slab(1.0, [])], top=mc.Rough(ETA, alpha), bottom=bottom_mc)
+    A = r.albedo()
+    for j, frac in enumerate((1.0, 0.7, 0.35)):
+        k = int(np.argmin(np.abs(r.x - frac)))
+        res = mc.simulate(prob, float(r.x[k]), N_PATHS, seed=seed + j)
+        tol = 3 * res.albedo_se + 0.005 * np.abs(res.diffuse_albedo)
+        assert np.all(np.abs(A[:, k] - res.diffuse_albedo) <= tol), (frac, A[:, k], res.diffuse_albedo, res.albedo_se)
+    return r
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("alpha,n", [(0.1, 64), (0.03, 128)])
+def test_rough_coat_matches_monte_carlo(alpha, n):
+    r = _mc_case(alpha, n, Lambertian(0.5), mc.Lambertian(0.5), seed=700)
+    # binned reflectance at θ_i ≈ 45°: bins in |μ_o| made of whole flux cells, φ_d bins
+    k = int(np.argmin(np.abs(r.x - 0.7)))
+    h = len(r.x)
+    C = mf.flux_cell_edges(r.x, r.w)
+    idx = sorted({int(np.argmin(np.abs(C - v))) for v in (0.0, 0.3, 0.55, 0.68, 0.74, 0.85, 1.0)})
+    idx[0], idx[-1] = 0, h
+    phi_edges = np.array([0.0, 0.1, 0.25, 0.6, np.pi / 2, np.pi])
+    pred, mu_edges = _binned_prediction(r, k, idx, phi_edges)
+    prob = mc.Problem([mc.Slab(1.0, [])], top=mc.Rough(ETA, alpha), bottom=mc.Lambertian(0.5))
+    res = mc.simulate(prob, float(r.x[k]), 2 * N_PATHS, seed=99, mu_edges=mu_edges, phi_edges=phi_edges)
+    ref, se = res.reflectance_binned[0], res.reflectance_binned_se[0]
+    assert np.all(np.abs(pred - ref) <= 3 * se + 0.02 * np.abs(ref)), (pred, ref, se)
+
+
+@pytest.mark.slow
+def test_rough_conductor_base_matches_monte_carlo():
+    N = np.array([0.27 + 3.4j, 1.3 + 7.0j])  # per-channel metal indices (gold-like, aluminium-like)
+    _mc_case(0.05, 48, RoughConductor(N, 0.2), mc.RoughConductor(N, 0.2), seed=900)
+
+
+def test_rough_conductor_energy_and_reciprocity():
+    q = radau_hemisphere(16)
+    N = np.array([0.2 + 3.0j, 1.5 + 0.0j])
+    S, info = mf.rough_conductor_cells(q.x, q.w, N / ETA, 0.05, max_orders=64)
+    cl = fourier_weight(np.arange(S.shape[0]))[:, None, None, None]
+    f = S / (cl * (q.w * q.x)[None, None, None, :])
+    assert np.allclose(f, np.swapaxes(f, -1, -2), rtol=1e-12, atol=1e-14 * np.abs(f).max())
+    m = q.w * q.x
+    alb = np.einsum("coi,o->ci", S[0], m) / m
+    R, _ = mf.microfacet_albedo(q.x, 1.0, 0.05, fresnel=mf.conductor_fresnel(N / ETA))
+    assert np.allclose(alb, R, atol=1e-12)
+    assert np.all(alb < 1.0) and alb[0].min() > 0.8  # a good metal reflects most light
