@@ -22,19 +22,23 @@ def cli():
 
 # --- command registration (one line per command module) ---------------------------------------
 from flakedb.commands.build import build, verify  # noqa: E402
+from flakedb.commands.compare import compare  # noqa: E402
 from flakedb.commands.compose import compose  # noqa: E402
 from flakedb.commands.demo import demo  # noqa: E402
 from flakedb.commands.export import export_mitsuba  # noqa: E402
 from flakedb.commands.info import info  # noqa: E402
+from flakedb.commands.match import match  # noqa: E402
 from flakedb.commands.render import render  # noqa: E402
 from flakedb.commands.species import species  # noqa: E402
 
 cli.add_command(build)
 cli.add_command(verify)
+cli.add_command(compare)
 cli.add_command(compose)
 cli.add_command(demo)
 cli.add_command(export_mitsuba)
 cli.add_command(info)
+cli.add_command(match)
 cli.add_command(render)
 cli.add_command(species)
 # --- end of command registration --------------------------------------------------------------
