@@ -169,6 +169,10 @@ def compose_table(recipe, n, catalog=None, store=None, raw=False):
 def geometry_directions(geometries):
     """(mu_i, mu_o, phi_d) arrays (G,) of in-plane geometries (G, 2) = (illumination_deg, aspecular_deg)."""
     g = np.asarray(geometries, float).reshape(-1, 2)
+    bad = [(i, a) for i, a in g if not (0.0 <= i < 90.0 and abs(i - a) < 90.0)]
+    if bad:
+        raise ValueError(f"geometry (illumination {bad[0][0]:g}°, aspecular {bad[0][1]:g}°): the source must be within "
+                         f"[0, 90)° and the detector within ±90° of the normal")
     d = np.array([multiangle_geometry(a, i)[:3] for i, a in g])
     return d[:, 0], d[:, 1], d[:, 2]
 

@@ -125,9 +125,12 @@ def _validate_geometries(geoms, where):
 def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Target:
     """Read a target CSV (module docstring) from a path, or from text when it contains a newline.
 
-    ``observer`` / ``illuminant`` override the file's options (an L*a*b* file's conditions must be
-    stated somewhere: if neither the file nor the call says, 2° / D65 is assumed and recorded in
-    ``notes['assumed']``).
+    ``observer`` / ``illuminant``: the conditions the target is compared under.  A spectral target
+    is integrated under them (they override the file's options).  An L*a*b*-only file's stated
+    conditions are facts about its numbers and are kept (comparing under others then raises, see
+    :meth:`Target.lab_under`); the call fills in only conditions the file does not state, and if
+    neither says, 2° / D65 is assumed and recorded in ``notes['assumed']``.  L*a*b* columns beside R_ columns are always
+    checked under the file's own conditions.
     """
     if isinstance(path_or_text, str) and "\n" in path_or_text:
         text, where = path_or_text, source or "<target>"
@@ -188,13 +191,17 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     keys = [tuple(g) for g in geoms.tolist()]
     if len(set(keys)) != len(keys):
         raise TargetError(f"{where}: a geometry is listed twice")
-    obs = str(observer if observer is not None else opts.get("observer", "2"))
-    ill = str(illuminant if illuminant is not None else opts.get("illuminant", "D65"))
+    if not r_cols:  # L*a*b* only: the file's stated conditions are facts; a call fills in only what it omits
+        obs = str(opts.get("observer", observer if observer is not None else "2"))
+        ill = str(opts.get("illuminant", illuminant if illuminant is not None else "D65"))
+    else:
+        obs = str(observer if observer is not None else opts.get("observer", "2"))
+        ill = str(illuminant if illuminant is not None else opts.get("illuminant", "D65"))
     try:
         observer_name(obs), illuminant_name(ill)
     except ValueError as exc:
         raise TargetError(f"{where}: {exc}") from None
-    if lab_idx is not None and "observer" not in opts and observer is None:
+    if lab_idx is not None and not r_cols and "observer" not in opts and observer is None:
         notes["assumed"] = "observer 2 deg / illuminant D65 (not stated in the file)"
     t = Target(geometries=geoms, observer=obs, illuminant=ill, name=opts.get("name", ""), notes=notes, source=where)
     if lab_idx is not None:
@@ -212,10 +219,11 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
         except ValueError as exc:
             raise TargetError(f"{where}: reflectance grid: {exc}") from None
         t.reflectance, t.wavelength_nm = R, wl
-        if t.lab is not None:
-            de = delta_E_2000(t.lab, reflectance_to_Lab(R, wl, obs, ill))
+        if t.lab is not None:  # the L*a*b* columns are under the file's own conditions
+            f_obs, f_ill = opts.get("observer", "2"), opts.get("illuminant", "D65")
+            de = delta_E_2000(t.lab, reflectance_to_Lab(R, wl, f_obs, f_ill))
             if np.max(de) > 0.01:
-                raise TargetError(f"{where}: the L*a*b* columns disagree with the R_ columns under {obs}° / {ill} "
+                raise TargetError(f"{where}: the L*a*b* columns disagree with the R_ columns under {f_obs}° / {f_ill} "
                                   f"(max ΔE00 {np.max(de):.3g}); fix one, or drop the L*a*b* columns")
     return t
 
