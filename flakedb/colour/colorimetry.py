@@ -62,13 +62,13 @@ def spectral_grid(range_nm=(380, 780), step_nm=10) -> np.ndarray:
     return lo + step * np.arange(int(round(n)) + 1)
 
 
-def _tables():
+def _tables(cmfs_name=CMFS_NAME):
     import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
 
-    return colour.MSDS_CMFS[CMFS_NAME], colour.SDS_ILLUMINANTS
+    return colour.MSDS_CMFS[cmfs_name], colour.SDS_ILLUMINANTS
 
 
-def _check_grid(wavelength_nm) -> np.ndarray:
+def check_grid(wavelength_nm) -> np.ndarray:
     wl = np.asarray(wavelength_nm, dtype=float)
     if wl.ndim != 1 or wl.size < 2:
         raise ValueError("wavelength_nm must be a 1-D array of at least two wavelengths (nm)")
@@ -83,10 +83,10 @@ def _check_grid(wavelength_nm) -> np.ndarray:
     return wl
 
 
-@functools.lru_cache(maxsize=32)
-def _weights_cached(wl_key: tuple, illuminant: str) -> np.ndarray:
+@functools.lru_cache(maxsize=64)
+def _weights_cached(wl_key: tuple, illuminant: str, cmfs_name: str = CMFS_NAME) -> np.ndarray:
     wl = np.asarray(wl_key)
-    cmfs, illuminants = _tables()
+    cmfs, illuminants = _tables(cmfs_name)
     if illuminant not in illuminants:
         raise ValueError(f"unknown illuminant {illuminant!r}; colour-science knows e.g. D65, A, E")
     sd = illuminants[illuminant]
@@ -94,7 +94,7 @@ def _weights_cached(wl_key: tuple, illuminant: str) -> np.ndarray:
     hi = min(cmfs.domain[-1], sd.domain[-1])
     if wl[0] < lo - 1e-9 or wl[-1] > hi + 1e-9:
         raise ValueError(
-            f"wavelength grid {wl[0]:g}-{wl[-1]:g} nm is outside the CIE 1931 2° CMFs x {illuminant} "
+            f"wavelength grid {wl[0]:g}-{wl[-1]:g} nm is outside the {cmfs_name} x {illuminant} "
             f"tables' common domain {lo:g}-{hi:g} nm; nothing is extrapolated"
         )
     # Fine nodes: every grid interval split into m = ceil(step / 1 nm) equal parts (<= 1 nm).
@@ -110,7 +110,9 @@ def _weights_cached(wl_key: tuple, illuminant: str) -> np.ndarray:
     if m == 1:
         H = np.eye(wl.size)
     else:
-        from colour.algebra import SpragueInterpolator  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
+        from colour.algebra import (
+            SpragueInterpolator,  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
+        )
 
         eye = np.eye(wl.size)
         H = np.stack([SpragueInterpolator(wl, eye[j])(fine) for j in range(wl.size)])  # (W, F)
@@ -120,13 +122,14 @@ def _weights_cached(wl_key: tuple, illuminant: str) -> np.ndarray:
     return W
 
 
-def tristimulus_weights(wavelength_nm, illuminant: str = "D65") -> np.ndarray:
+def tristimulus_weights(wavelength_nm, illuminant: str = "D65", cmfs_name: str = CMFS_NAME) -> np.ndarray:
     """Weights (W, 3) with XYZ = Σ_j ρ_j W[j] (module docstring); the Y column sums to 1.
 
-    Read-only, cached per grid and illuminant.
+    ``cmfs_name``: colour-science's name of the observer's colour matching functions (default the
+    CIE 1931 2° observer).  Read-only, cached per grid, illuminant and observer.
     """
-    wl = _check_grid(wavelength_nm)
-    return _weights_cached(tuple(wl.tolist()), str(illuminant))
+    wl = check_grid(wavelength_nm)
+    return _weights_cached(tuple(wl.tolist()), str(illuminant), str(cmfs_name))
 
 
 def reflectance_to_XYZ(values, wavelength_nm, illuminant: str = "D65") -> np.ndarray:

@@ -44,8 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
-from flakedb import __version__
 import flakedb.bsdf as bsdf_files  # the module, so a test can replace its writers
+from flakedb import __version__
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.compose.report import colour_report

@@ -328,7 +328,9 @@ def plot_optics(name: str, out_dir, catalog: dict | None = None) -> Path:
     (RGB mode of :mod:`flakedb.colour.colorimetry`, sRGB-encoded, clipped for display only) versus angle.
     Pigments: C_ext, C_sca, single-scattering albedo and g versus wavelength.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
+    from matplotlib.backends.backend_agg import (
+        FigureCanvasAgg,  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
+    )
     from matplotlib.figure import Figure  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
 
     catalog = catalog if catalog is not None else load_catalog()

@@ -1,0 +1,103 @@
+"""`flakedb match BASE.yaml --target T.csv --out DIR`: fit a recipe's {fit: [min, max]} fields to a target.
+
+Thin: the fit is :func:`flakedb.colour.match.match` (docs/colour-matching.md).  Writes DIR/NAME.yaml
+(the fitted recipe), composes it into DIR/NAME.{bsdf,h5,json} like `flakedb compose`, and writes
+DIR/NAME-prediction.csv (target layout) and DIR/NAME-match.json (the fit record).  Progress lines go
+to stderr, one per iteration.
+"""
+
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+import yaml
+
+from flakedb.atomic import atomic_write_text
+from flakedb.cli.compare import open_store, parse_limits
+from flakedb.cli.errors import FlakedbError
+from flakedb.compose.orchestrate import OutputError, check_output_dir
+from flakedb.compose.orchestrate import compose as compose_recipe
+from flakedb.match import fit as cm
+from flakedb.match.targets import TargetError, read_target, write_target
+from flakedb.paint.recipe import RecipeError
+from flakedb.paint.species import CatalogError, load_catalog
+from flakedb.store.versions import StoreError
+
+
+@click.command()
+@click.argument("base", type=click.Path(dir_okay=False))
+@click.option("--target", "target_path", required=True, type=click.Path(dir_okay=False),
+              help="Target CSV (docs/colour-matching.md).")
+@click.option("--out", "out_dir", default="out", show_default=True, type=click.Path(),
+              help="Output directory for the fitted recipe, its BSDF files and the fit record.")
+@click.option("--observer", default=None, help="2 or 10 (default: the target's).")
+@click.option("--illuminant", default=None, help="D65, A, F11, ... (default: the target's).")
+@click.option("--weight", "weights", multiple=True,
+              help="Weight of a geometry in the fit, ASPECULAR=W or ILLUM/ASPECULAR=W (default 1); repeatable.")
+@click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=int,
+              help="Most residual evaluations of the least-squares solver.")
+@click.option("--n", "n", default=None, type=int, help="Node count (even, >= 8); overrides the recipe's.")
+@click.option("--store", "store", default=None, envvar="FLAKEDB_STORE",
+              help="Precomputed species store (path or URL; default $FLAKEDB_STORE).")
+@click.option("--raw", is_flag=True, help="With --store: the raw R samples instead of the compressed factors.")
+@click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
+              help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
+def match(base, target_path, out_dir, observer, illuminant, weights, max_nfev, n, store, raw, catalog_path):
+    """Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target."""
+    if n is not None and (n < 8 or n % 2):
+        raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8, e.g. --n 32")
+
+    try:
+        catalog = load_catalog(catalog_path)
+        try:
+            doc = yaml.safe_load(Path(base).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise RecipeError(base, ["no such file"]) from None
+        except yaml.YAMLError as exc:
+            raise RecipeError(base, [f"YAML syntax error: {exc}"]) from None
+        if not isinstance(doc, dict):
+            raise RecipeError(base, ["a recipe is a YAML mapping"])
+        target = read_target(target_path, observer, illuminant)
+        check_output_dir(out_dir)
+        params = cm.find_fit_parameters(doc, base)
+        rec0 = cm.recipe_from_doc(cm.substitute(doc, params, [p.start for p in params]), base, catalog)
+        version = open_store(store, rec0)
+    except (RecipeError, CatalogError, TargetError, OutputError, StoreError) as exc:
+        raise FlakedbError(str(exc)) from exc
+    w = np.ones(len(target.geometries))
+    for (il, asp), v in parse_limits(weights).items():
+        hit = [i for i, g in enumerate(target.geometries) if g[0] == il and g[1] == asp]
+        if not hit:
+            raise FlakedbError(f"--weight {il:g}/{asp:g}: the target has no such geometry")
+        w[hit] = v
+    click.echo(f"match {doc.get('name')}: {len(params)} parameter(s), {len(target.geometries)} geometries from "
+               f"{target.source}; store: {store if version is not None else 'none (optics computed directly)'}")
+    try:
+        res = cm.match(doc, target, observer=observer, illuminant=illuminant, weights=w, n=n, catalog=catalog,
+                       store=version, raw=raw, log=lambda s: click.echo(f"  {s}", err=True), max_nfev=max_nfev,
+                       source=base)
+    except (RecipeError, StoreError, TargetError, ValueError) as exc:
+        raise FlakedbError(str(exc)) from exc
+    click.echo(cm.format_match(res))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    name = res.fitted_doc["name"]
+
+    text = (f"# fitted by flakedb match to {target.source} ({res.observer}° / {res.illuminant}); "
+            f"max dE00 {res.de_fit.max():.3f}\n" + yaml.safe_dump(res.fitted_doc, sort_keys=False, allow_unicode=True))
+    atomic_write_text(out / f"{name}.yaml", text)
+    rec = cm.recipe_from_doc(res.fitted_doc, str(out / f"{name}.yaml"), catalog)
+    try:
+        comp = compose_recipe(rec, out, n=res.n, raw=raw, catalog=catalog, store=version)
+    except StoreError as exc:
+        raise FlakedbError(str(exc)) from exc
+    p = res.prediction
+    spectral = p.mode == "spectral"
+    write_target(out / f"{name}-prediction.csv", p.geometries, lab=None if spectral else res.lab_fit,
+                 reflectance=p.rf if spectral else None, wavelength_nm=p.wavelength_nm if spectral else None,
+                 observer=res.observer, illuminant=res.illuminant, name=name,
+                 notes={"generator": f"flakedb match, n = {res.n}, mode {p.mode}"})
+    atomic_write_text(out / f"{name}-match.json", json.dumps(cm.match_report(res), indent=1) + "\n")
+    click.echo(f"wrote {out / (name + '.yaml')} (fitted recipe), {comp.paths['bsdf']}, {comp.paths['h5']}, "
+               f"{comp.paths['json']}, {out / (name + '-prediction.csv')} and {out / (name + '-match.json')}")

@@ -1,0 +1,438 @@
+"""Fitting a recipe to a multi-angle colour target: predict, compare, bounded least squares.
+
+Fit parameters in a base recipe
+-------------------------------
+Any numeric recipe field may be written ``{fit: [min, max]}``, optionally with ``start: x`` (default:
+the geometric mean of the bounds when min > 0, else their midpoint) and ``scale: log | linear``
+(default log when min > 0).  :func:`find_fit_parameters` walks the YAML document and returns the
+parameters with their field paths (``layers[1].basecoat.particles[0].volume_fraction``);
+:func:`substitute` returns a concrete document for given values, which is then validated exactly
+like any recipe (:func:`flakedb.recipe.parse_recipe`), so ``{fit: …}`` never reaches the schema.
+
+Prediction at the target's geometries
+-------------------------------------
+:func:`compose_table` is the one compose call: recipe → paint → adding-doubling → the full-precision
+table (:func:`flakedb.export.stack_to_table`), from the store when one is given.  Everything else here
+calls it and nothing else, so a faster compose makes matching faster by itself.
+:func:`eval_geometries` evaluates the table at any in-plane geometry (illumination θ_i, aspecular γ):
+reflectance factor π f(ω_i, ω_o) with μ_i = cos θ_i, μ_o = −cos|θ_i − γ|, φ_d = 0 on the specular side
+and π on the illuminator's side (:func:`flakedb.report.multiangle_geometry`, generalised from the
+report's 45° to any θ_i) by the readers' Catmull–Rom interpolation (:func:`flakedb.report.eval_table`).
+
+The fit (docs/colour-matching.md)
+---------------------------------
+Minimise Σ_g w_g ΔE00(target_g, predicted_g)² over the target's geometries g, with the CIEDE2000
+residual split into three smooth components per geometry
+(:func:`flakedb.colour.tolerance.ciede2000_residuals`), by scipy's bounded trust-region reflective
+least squares (``least_squares(method="trf")``).  Parameters are optimised as ln p when their scale
+is log: loadings act on the colour nearly linearly in ln p over a wide range (optical depth ∝ loading;
+reflectance saturates), and a factor-3 error is then a fixed distance.  The Jacobian is a forward
+difference, one compose call per parameter (step 10⁻³ in ln p, or 10⁻³ of the range for linear
+parameters), so an iteration costs P + 1 compose calls; results are cached by parameter values.
+The sensitivities reported at the solution are ∂(L*, a*, b*)/∂p per geometry, forward differences
+with the same steps (cache hits when the last Jacobian was taken there).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import yaml
+from scipy.optimize import least_squares
+
+from flakedb.bsdf.convert import stack_to_table
+from flakedb.colour.colorimetry import XYZ_to_Lab
+from flakedb.colour.tolerance import (
+    ciede2000_residuals,
+    delta_E_2000,
+    illuminant_name,
+    observer_name,
+    reflectance_to_Lab,
+)
+from flakedb.compose.report import channels_to_XYZ, eval_table, multiangle_geometry, reference_white
+from flakedb.compose.store_context import StoreContext
+from flakedb.paint.mapping import auto_resolution, build_paint, solve_paint
+from flakedb.paint.recipe import RecipeError, fmt_path, parse_recipe
+
+#: Forward-difference step: in ln p for log parameters, as a fraction of the range for linear ones.
+FD_STEP = 1e-3
+#: Default early stop: every geometry's ΔE00 at or below this (far below a visible difference).
+DE_TOL = 0.01
+
+
+class _Converged(Exception):
+    """Raised inside the Jacobian when every ΔE00 is at or below ``de_tol``: stop there."""
+
+    def __init__(self, z):
+        self.z = z
+
+
+# ----------------------------------------------------------------------------------------------
+# {fit: [min, max]} parameters
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class FitParam:
+    """One fitted recipe field: its path in the document, bounds, start value and scale."""
+
+    path: tuple
+    lo: float
+    hi: float
+    start: float
+    log: bool
+
+    @property
+    def name(self) -> str:
+        return fmt_path(list(self.path))
+
+    def to_z(self, p):
+        return math.log(p) if self.log else float(p)
+
+    def from_z(self, z):
+        return math.exp(z) if self.log else float(z)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _fit_param(path, spec, source) -> FitParam:
+    extra = set(spec) - {"fit", "start", "scale"}
+    if extra:
+        raise RecipeError(source, [f"{fmt_path(list(path))}: unknown key(s) {sorted(extra)} in a fit field "
+                                   f"(allowed: fit: [min, max], start: x, scale: log|linear)"])
+    b = spec["fit"]
+    if not (isinstance(b, list) and len(b) == 2 and all(_is_number(v) for v in b) and b[0] < b[1]):
+        raise RecipeError(source, [f"{fmt_path(list(path))}: fit must be [min, max] with min < max, got {b!r} "
+                                   f"(e.g. {{fit: [0.01, 0.1]}})"])
+    lo, hi = float(b[0]), float(b[1])
+    scale = spec.get("scale", "log" if lo > 0 else "linear")
+    if scale not in ("log", "linear"):
+        raise RecipeError(source, [f"{fmt_path(list(path))}: scale must be log or linear, got {scale!r}"])
+    if scale == "log" and lo <= 0:
+        raise RecipeError(source, [f"{fmt_path(list(path))}: scale: log needs min > 0, got {lo:g}"])
+    if "start" in spec:
+        s = spec["start"]
+        if not (_is_number(s) and lo <= s <= hi):
+            raise RecipeError(source, [f"{fmt_path(list(path))}: start {s!r} must be a number in [{lo:g}, {hi:g}]"])
+        start = float(s)
+    else:
+        start = math.sqrt(lo * hi) if scale == "log" else 0.5 * (lo + hi)
+    return FitParam(tuple(path), lo, hi, start, scale == "log")
+
+
+def find_fit_parameters(doc, source="<base recipe>") -> list:
+    """Every ``{fit: [min, max], …}`` field of a recipe document, in document order."""
+    found = []
+
+    def walk(node, path):
+        if isinstance(node, dict):
+            if "fit" in node:
+                found.append(_fit_param(path, node, source))
+                return
+            for k, v in node.items():
+                walk(v, path + (k,))
+        elif isinstance(node, list):
+            for i, v in enumerate(node):
+                walk(v, path + (i,))
+
+    walk(doc, ())
+    return found
+
+
+def substitute(doc, params, values) -> dict:
+    """A deep copy of ``doc`` with each parameter's field set to the matching value."""
+    out = copy.deepcopy(doc)
+    for p, v in zip(params, values):
+        node = out
+        for k in p.path[:-1]:
+            node = node[k]
+        node[p.path[-1]] = float(v)
+    return out
+
+
+def recipe_from_doc(doc, source="<recipe>", catalog=None):
+    """Validate a concrete document as a recipe (:func:`flakedb.recipe.parse_recipe` on its YAML)."""
+    return parse_recipe(yaml.safe_dump(doc, sort_keys=False, allow_unicode=True), source=source, catalog=catalog)
+
+
+# ----------------------------------------------------------------------------------------------
+# Prediction at multi-angle geometries
+# ----------------------------------------------------------------------------------------------
+
+
+def compose_table(recipe, n, catalog=None, store=None, raw=False):
+    """The one compose call: ``(paint, table)`` of ``recipe`` at ``n`` nodes (``store``: an open
+    :class:`flakedb.store.versions.StoreVersion` or None)."""
+    stored = None if store is None else StoreContext.for_recipe(store, recipe, int(n), raw)
+    paint = build_paint(recipe, catalog, stored=stored)
+    stack = solve_paint(paint, n)
+    return paint, stack_to_table(stack, paint.channels, paint.eta, paint.top_alpha, paint.delta)
+
+
+def geometry_directions(geometries):
+    """(mu_i, mu_o, phi_d) arrays (G,) of in-plane geometries (G, 2) = (illumination_deg, aspecular_deg)."""
+    g = np.asarray(geometries, float).reshape(-1, 2)
+    bad = [(i, a) for i, a in g if not (0.0 <= i < 90.0 and abs(i - a) < 90.0)]
+    if bad:
+        raise ValueError(f"geometry (illumination {bad[0][0]:g}°, aspecular {bad[0][1]:g}°): the source must be within "
+                         f"[0, 90)° and the detector within ±90° of the normal")
+    d = np.array([multiangle_geometry(a, i)[:3] for i, a in g])
+    return d[:, 0], d[:, 1], d[:, 2]
+
+
+def eval_geometries(table, geometries) -> np.ndarray:
+    """Reflectance factors π f (G, C) of a table at in-plane geometries (module docstring)."""
+    mu_i, mu_o, phi_d = geometry_directions(geometries)
+    return np.pi * eval_table(table, mu_i, mu_o, phi_d) / np.abs(mu_o)[:, None]
+
+
+def channels_to_Lab(rf, mode, wavelength_nm, observer="2", illuminant="D65") -> np.ndarray:
+    """CIELAB (G, 3) of reflectance factors in a paint's channels under ``observer`` / ``illuminant``.
+
+    Spectral: any observer / illuminant the grid allows.  RGB mode is defined under D65 / 2° only
+    (its channels are white-normalised linear sRGB); mono is a grey, the same under any conditions.
+    """
+    if mode == "spectral":
+        return reflectance_to_Lab(rf, wavelength_nm, observer, illuminant)
+    if mode == "rgb" and (observer_name(observer) != observer_name("2") or illuminant_name(illuminant) != "D65"):
+        raise ValueError(f"an RGB-mode paint has colours under D65 / 2° only, not {illuminant} / {observer}°: "
+                         f"compose it in spectral mode")
+
+    return XYZ_to_Lab(channels_to_XYZ(rf, mode, wavelength_nm), white=reference_white(mode, wavelength_nm))
+
+
+@dataclass
+class Prediction:
+    """A recipe's reflectance factors at geometries: ``rf`` (G, C) in ``mode``'s channels."""
+
+    geometries: np.ndarray
+    rf: np.ndarray
+    mode: str
+    wavelength_nm: np.ndarray | None
+    n: int
+
+    def lab(self, observer="2", illuminant="D65"):
+        return channels_to_Lab(self.rf, self.mode, self.wavelength_nm, observer, illuminant)
+
+
+def resolution(recipe, n=None) -> int:
+    """The node count used: ``n``, else the recipe's, else :func:`flakedb.paint.auto_resolution`."""
+    if n is not None:
+        return int(n)
+    if recipe.n is not None:
+        return int(recipe.n)
+    return auto_resolution(recipe)[0]
+
+
+def predict(recipe, geometries, n=None, catalog=None, store=None, raw=False) -> Prediction:
+    """Compose ``recipe`` once and evaluate it at ``geometries`` (G, 2)."""
+    n = resolution(recipe, n)
+    paint, table = compose_table(recipe, n, catalog, store, raw)
+    g = np.asarray(geometries, float).reshape(-1, 2)
+    return Prediction(g, eval_geometries(table, g), paint.mode, paint.wavelength_nm, n)
+
+
+# ----------------------------------------------------------------------------------------------
+# The fit
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class MatchResult:
+    params: list
+    start: np.ndarray
+    values: np.ndarray
+    geometries: np.ndarray
+    weights: np.ndarray
+    lab_target: np.ndarray
+    lab_start: np.ndarray
+    lab_fit: np.ndarray
+    de_start: np.ndarray
+    de_fit: np.ndarray
+    sensitivities: np.ndarray           # (G, 3, P): d(L*, a*, b*)/dp in the parameter's units
+    fitted_doc: dict
+    prediction: Prediction
+    n: int
+    observer: str
+    illuminant: str
+    n_compose: int
+    compose_s: float
+    iterations: int
+    nfev: int
+    status: int
+    message: str
+    history: list = field(default_factory=list)
+
+    @property
+    def compose_s_per_call(self) -> float:
+        return self.compose_s / max(self.n_compose, 1)
+
+
+class _Evaluator:
+    """Compose-and-evaluate with a cache on the parameter values; counts compose calls and time."""
+
+    def __init__(self, doc, params, geometries, n, observer, illuminant, catalog, store, raw, source):
+        self.doc, self.params, self.geometries = doc, params, geometries
+        self.n, self.observer, self.illuminant = n, observer, illuminant
+        self.catalog, self.store, self.raw, self.source = catalog, store, raw, source
+        self.cache = {}
+        self.calls = 0
+        self.seconds = 0.0
+
+    def prediction(self, values) -> Prediction:
+        key = tuple(float(v) for v in values)
+        if key not in self.cache:
+            rec = recipe_from_doc(substitute(self.doc, self.params, key), self.source, self.catalog)
+            t0 = time.perf_counter()
+            pred = predict(rec, self.geometries, self.n, self.catalog, self.store, self.raw)
+            self.seconds += time.perf_counter() - t0
+            self.calls += 1
+            self.cache[key] = (pred, pred.lab(self.observer, self.illuminant))
+        return self.cache[key][0]
+
+    def lab(self, values) -> np.ndarray:
+        self.prediction(values)
+        return self.cache[tuple(float(v) for v in values)][1]
+
+
+def _fd_steps(params, z, lb, ub):
+    h = np.array([FD_STEP if p.log else FD_STEP * (p.hi - p.lo) for p in params])
+    return np.where(z + h > ub, -h, h)
+
+
+def match(doc, target, observer=None, illuminant=None, weights=None, n=None, catalog=None, store=None, raw=False,
+          log=None, max_nfev=50, de_tol=DE_TOL, source="<base recipe>") -> MatchResult:
+    """Fit the ``{fit: …}`` fields of recipe document ``doc`` to ``target`` (a
+    :class:`flakedb.colour.targets.Target`); see the module docstring.
+
+    ``observer`` / ``illuminant``: the colour conditions of the fit (default: the target's);
+    ``weights`` (G,): w_g per geometry (default 1); ``store``: an open store version; ``log``: a
+    callable taking one progress line per iteration; ``de_tol``: stop as soon as every geometry's
+    ΔE00 ≤ de_tol (0 or None: run scipy's own tests to the end).  Raises RecipeError before any computation
+    when the recipe is invalid at the start values or at the bounds.
+    """
+    log = log or (lambda s: None)
+    params = find_fit_parameters(doc, source)
+    if not params:
+        raise RecipeError(source, ["no field to fit: write one or more numeric fields as {fit: [min, max]}"])
+    for label, vals in (("start values", [p.start for p in params]), ("lower bounds", [p.lo for p in params]),
+                        ("upper bounds", [p.hi for p in params])):
+        try:
+            rec = recipe_from_doc(substitute(doc, params, vals), source, catalog)
+        except RecipeError as exc:
+            raise RecipeError(source, [f"with every fit field at its {label}: {p}" for p in exc.problems]) from None
+        if label == "start values":
+            rec0 = rec
+    n = resolution(rec0, n)
+    obs = target.observer if observer is None else str(observer)
+    ill = target.illuminant if illuminant is None else str(illuminant)
+    geoms = np.asarray(target.geometries, float)
+    G = geoms.shape[0]
+    w = np.ones(G) if weights is None else np.asarray(weights, float)
+    if w.shape != (G,) or np.any(w < 0):
+        raise ValueError(f"weights: need {G} non-negative values, one per target geometry")
+    sw = np.sqrt(w)
+    lab_t = target.lab_under(obs, ill)
+    ev = _Evaluator(doc, params, geoms, n, obs, ill, catalog, store, raw, source)
+    to_p = lambda z: np.array([p.from_z(v) for p, v in zip(params, z)])
+    lb = np.array([p.to_z(p.lo) for p in params])
+    ub = np.array([p.to_z(p.hi) for p in params])
+    z0 = np.clip(np.array([p.to_z(p.start) for p in params]), lb, ub)
+    history = []
+
+    def resid(z):
+        return (sw[:, None] * ciede2000_residuals(lab_t, ev.lab(to_p(z)))).ravel()
+
+    def jac(z):
+        r0 = resid(z)
+        h = _fd_steps(params, z, lb, ub)
+        J = np.empty((r0.size, len(params)))
+        for j in range(len(params)):
+            zj = z.copy()
+            zj[j] += h[j]
+            J[:, j] = (resid(zj) - r0) / h[j]
+        de = delta_E_2000(lab_t, ev.lab(to_p(z)))
+        line = (f"iteration {len(history)}: sum w*dE00^2 = {float(r0 @ r0):.4g}, max dE00 = {de.max():.3f}; "
+                + ", ".join(f"{p.name} = {v:.6g}" for p, v in zip(params, to_p(z)))
+                + f"  [{ev.calls} compose calls, {ev.seconds / max(ev.calls, 1):.2f} s/call]")
+        history.append({"values": to_p(z).tolist(), "cost": float(r0 @ r0), "max_dE00": float(de.max())})
+        log(line)
+        if de_tol and de.max() <= de_tol:
+            raise _Converged(z.copy())
+        return J
+
+    lab_start = ev.lab(to_p(z0)).copy()
+    try:
+        sol = least_squares(resid, z0, jac=jac, bounds=(lb, ub), method="trf", x_scale="jac",
+                            ftol=1e-10, xtol=1e-7, gtol=1e-10, max_nfev=max_nfev)
+        z_fit, nfev, status, message = sol.x, int(sol.nfev), int(sol.status), str(sol.message)
+    except _Converged as c:
+        z_fit, nfev, status = c.z, len(history), 5
+        message = f"every dE00 <= {de_tol:g}"
+    p_fit = to_p(z_fit)
+    pred = ev.prediction(p_fit)
+    lab_fit = ev.lab(p_fit)
+    # sensitivities d Lab / dp at the solution (natural units)
+    h = _fd_steps(params, z_fit, lb, ub)
+    sens = np.empty((G, 3, len(params)))
+    for j, p in enumerate(params):
+        zj = z_fit.copy()
+        zj[j] += h[j]
+        pj = to_p(zj)
+        sens[:, :, j] = (ev.lab(pj) - lab_fit) / (pj[j] - p_fit[j])
+    de_fit = delta_E_2000(lab_t, lab_fit)
+    log(f"done: {message.strip()} after {len(history)} iteration(s); max dE00 {de_fit.max():.3f}; "
+        f"{ev.calls} compose calls, {ev.seconds / max(ev.calls, 1):.2f} s per call")
+    values_out = np.array([float(f"{v:.6g}") for v in p_fit])
+    return MatchResult(
+        params=params, start=to_p(z0), values=p_fit, geometries=geoms, weights=w, lab_target=lab_t,
+        lab_start=lab_start, lab_fit=lab_fit, de_start=delta_E_2000(lab_t, lab_start), de_fit=de_fit,
+        sensitivities=sens, fitted_doc=substitute(doc, params, values_out), prediction=pred, n=n,
+        observer=obs, illuminant=ill, n_compose=ev.calls, compose_s=ev.seconds, iterations=len(history),
+        nfev=nfev, status=status, message=message, history=history)
+
+
+def format_match(res: MatchResult) -> str:
+    """The text ``flakedb match`` prints: per-geometry ΔE00 before and after, values, sensitivities."""
+    lines = [f"fit ({res.observer}° / {res.illuminant}, n = {res.n}): {res.message.strip()}",
+             f"{'parameter':<48} {'start':>11} {'fitted':>11} {'bounds':>22}"]
+    for p, s, v in zip(res.params, res.start, res.values):
+        lines.append(f"{p.name:<48} {s:11.5g} {v:11.5g} {f'[{p.lo:g}, {p.hi:g}]':>22}")
+    lines.append(f"{'illum':>6} {'aspec':>6} {'dE00 start':>11} {'dE00 fit':>9}   L*a*b* target -> fitted")
+    for g, d0, d1, lt, lf in zip(res.geometries, res.de_start, res.de_fit, res.lab_target, res.lab_fit):
+        lines.append(f"{g[0]:5g}° {g[1]:5g}° {d0:11.3f} {d1:9.3f}   ({lt[0]:6.2f} {lt[1]:6.2f} {lt[2]:6.2f}) -> "
+                     f"({lf[0]:6.2f} {lf[1]:6.2f} {lf[2]:6.2f})")
+    lines.append("sensitivities at the fit: d(L*, a*, b*) for a +1 % change of each parameter "
+                 "(= p * dLab/dp / 100)")
+    for j, (p, v) in enumerate(zip(res.params, res.values)):
+        lines.append(f"  {p.name}:")
+        for g, s in zip(res.geometries, res.sensitivities[:, :, j]):
+            d = s * v / 100.0
+            lines.append(f"    {g[0]:5g}° {g[1]:5g}°  dL* {d[0]:+8.4f}  da* {d[1]:+8.4f}  db* {d[2]:+8.4f}")
+    lines.append(f"compose calls: {res.n_compose} ({res.compose_s_per_call:.2f} s per call, "
+                 f"{res.compose_s:.1f} s in total), {res.iterations} iteration(s)")
+    return "\n".join(lines)
+
+
+def match_report(res: MatchResult) -> dict:
+    """A JSON-able record of a match."""
+    return {
+        "observer": res.observer, "illuminant": res.illuminant, "n": res.n,
+        "parameters": [{"path": p.name, "bounds": [p.lo, p.hi], "scale": "log" if p.log else "linear",
+                        "start": float(s), "fitted": float(v)} for p, s, v in zip(res.params, res.start, res.values)],
+        "geometries": [{"illumination_deg": float(g[0]), "aspecular_deg": float(g[1]), "weight": float(wt),
+                        "lab_target": lt.tolist(), "lab_start": ls.tolist(), "lab_fit": lf.tolist(),
+                        "dE00_start": float(d0), "dE00_fit": float(d1),
+                        "dLab_dp": {p.name: res.sensitivities[i, :, j].tolist() for j, p in enumerate(res.params)}}
+                       for i, (g, wt, lt, ls, lf, d0, d1) in enumerate(zip(res.geometries, res.weights, res.lab_target,
+                                                                             res.lab_start, res.lab_fit, res.de_start,
+                                                                             res.de_fit))],
+        "compose_calls": res.n_compose, "compose_seconds": res.compose_s, "iterations": res.iterations,
+        "nfev": res.nfev, "status": res.status, "message": res.message, "history": res.history,
+    }

@@ -1,0 +1,271 @@
+"""Multi-angle colour targets: the CSV layout, its reader and writer, and the standard geometries.
+
+The CSV layout (docs/colour-matching.md has an example)
+-------------------------------------------------------
+UTF-8 text.  Lines starting with ``#`` are comments; a comment of the form ``# key: value`` sets an
+option (keys: ``observer`` 2 or 10, ``illuminant`` D65 / A / F11 / …, ``reflectance`` fraction or
+percent, ``name``; unknown keys are kept as notes).  The first other line is the header, then one
+row per geometry::
+
+    # observer: 10
+    # illuminant: D65
+    illumination_deg,aspecular_deg,L*,a*,b*
+    45,-15,92.31,-1.20,3.05
+    45,15,80.02,-0.95,2.71
+    …
+
+Columns: ``illumination_deg`` (angle of the illuminator from the normal) and ``aspecular_deg``
+(the detector's angle from the specular direction, positive towards the illuminator: ASTM
+E2194's sign, so the detector looks from θ_v = illumination − aspecular off the normal, on the
+illuminator's side when negative; :func:`flakedb.report.multiangle_geometry`), then either
+
+* ``L*``, ``a*``, ``b*`` (``L``, ``a``, ``b`` also accepted): CIELAB under the observer and
+  illuminant of the options (default 2° / D65, said so in the target), or
+* ``R_380``, ``R_390``, …: spectral reflectance factors (fraction, 1 = perfect white diffuser, or
+  percent with ``# reflectance: percent``) on any uniform nm grid of step 1–20 nm; then the target's
+  L*a*b* can be computed for any observer and illuminant the grid allows.
+
+A file may carry both (the writer writes both for a spectral prediction); the spectra are then
+what is compared, and the L*a*b* columns are checked against them under the stated observer and
+illuminant (to 0.01 ΔE00) so a file whose two halves disagree is refused.
+
+Geometries (in-plane)
+---------------------
+* :data:`E2194_GEOMETRIES`: ASTM E2194 (metallic / effect pigments) as realised by the X-Rite MA-T
+  and MA98 instruments: illumination 45°, aspecular −15°, 15°, 25°, 45°, 75°, 110° (the set the
+  colour report has always used).
+* :data:`E2539_EXTRA`: the extra in-plane geometries with illumination at 15° that ASTM E2539
+  (interference pigments) adds and that E2539-class instruments (X-Rite MA98) measure: aspecular
+  −45°, −15°, 15°, 45°, 80° (detectors at 60°, 30°, 0°, −30°, −65° from the normal, the same
+  detectors as the 45° set).  The standard's text was not available when this was written: the
+  list follows the MA98's in-plane 15° geometries, which that instrument documents as E2539's; check
+  it against E2539 before relying on it for acceptance.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from flakedb.atomic import atomic_write_text
+from flakedb.colour.tolerance import delta_E_2000, illuminant_name, observer_name, reflectance_to_Lab
+
+#: ASTM E2194 geometries: (illumination_deg, aspecular_deg).
+E2194_GEOMETRIES = tuple((45.0, g) for g in (-15.0, 15.0, 25.0, 45.0, 75.0, 110.0))
+#: Extra in-plane geometries of ASTM E2539-class instruments (module docstring: not checked against the text).
+E2539_EXTRA = tuple((15.0, g) for g in (-45.0, -15.0, 15.0, 45.0, 80.0))
+#: Both sets.
+E2539_GEOMETRIES = E2194_GEOMETRIES + E2539_EXTRA
+#: Named sets (the CLI's --geometries).
+GEOMETRY_SETS = {"e2194": E2194_GEOMETRIES, "e2539": E2539_GEOMETRIES}
+
+_LAB_COLUMNS = (("L*", "a*", "b*"), ("L", "a", "b"))
+_R_COLUMN = re.compile(r"^R_(\d+(?:\.\d+)?)$")
+
+
+class TargetError(ValueError):
+    """A target file that cannot be read (the message names the line and what to fix)."""
+
+
+@dataclass
+class Target:
+    """A multi-angle colour target.
+
+    ``geometries`` (G, 2): illumination and aspecular angles in degrees.  ``lab`` (G, 3) or None;
+    ``reflectance`` (G, W) reflectance factors (fraction) on ``wavelength_nm`` (W,) or None.
+    ``observer`` / ``illuminant``: the conditions of ``lab``.
+    """
+
+    geometries: np.ndarray
+    lab: np.ndarray | None = None
+    reflectance: np.ndarray | None = None
+    wavelength_nm: np.ndarray | None = None
+    observer: str = "2"
+    illuminant: str = "D65"
+    name: str = ""
+    notes: dict = field(default_factory=dict)
+    source: str = ""
+
+    @property
+    def spectral(self) -> bool:
+        return self.reflectance is not None
+
+    def lab_under(self, observer=None, illuminant=None) -> np.ndarray:
+        """L*a*b* (G, 3) under ``observer`` / ``illuminant`` (default: the target's own).
+
+        A spectral target is integrated under any conditions its grid allows; an L*a*b* target only
+        under its own (anything else raises TargetError: the spectra are needed).
+        """
+        obs = self.observer if observer is None else str(observer)
+        ill = self.illuminant if illuminant is None else str(illuminant)
+        if self.spectral:
+            return reflectance_to_Lab(self.reflectance, self.wavelength_nm, obs, ill)
+        if observer_name(obs) != observer_name(self.observer) or illuminant_name(ill) != illuminant_name(self.illuminant):
+            raise TargetError(f"{self.source or 'target'}: its L*a*b* are for {self.observer}° / {self.illuminant}; "
+                              f"{obs}° / {ill} needs spectral reflectance factors (R_… columns)")
+        return np.asarray(self.lab, float)
+
+
+def _validate_geometries(geoms, where):
+    for i, (th_i, asp) in enumerate(geoms):
+        if not (0.0 <= th_i < 90.0):
+            raise TargetError(f"{where} row {i + 1}: illumination_deg {th_i:g} must be in [0, 90)")
+        if not abs(th_i - asp) < 90.0:
+            raise TargetError(f"{where} row {i + 1}: aspecular_deg {asp:g} puts the detector at "
+                              f"{th_i - asp:g}° from the normal (must be within ±90°)")
+        if asp == 0.0:
+            raise TargetError(f"{where} row {i + 1}: aspecular 0° is the specular direction (the smooth coat's "
+                              f"mirror delta): not a colour geometry")
+
+
+def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Target:
+    """Read a target CSV (module docstring) from a path, or from text when it contains a newline.
+
+    ``observer`` / ``illuminant``: the conditions the target is compared under.  A spectral target
+    is integrated under them (they override the file's options).  An L*a*b*-only file's stated
+    conditions are facts about its numbers and are kept (comparing under others then raises, see
+    :meth:`Target.lab_under`); the call fills in only conditions the file does not state, and if
+    neither says, 2° / D65 is assumed and recorded in ``notes['assumed']``.  L*a*b* columns beside R_ columns are always
+    checked under the file's own conditions.
+    """
+    if isinstance(path_or_text, str) and "\n" in path_or_text:
+        text, where = path_or_text, source or "<target>"
+    else:
+        p = Path(path_or_text)
+        where = source or str(p)
+        try:
+            text = p.read_text(encoding="utf-8-sig")
+        except FileNotFoundError:
+            raise TargetError(f"{where}: no such file") from None
+    opts, notes, rows = {}, {}, []
+    for ln, line in enumerate(text.splitlines(), 1):
+        s = line.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            m = re.match(r"#\s*([A-Za-z_][\w ]*?)\s*:\s*(.*)$", s)
+            if m:
+                k, v = m.group(1).strip().lower(), m.group(2).strip()
+                (opts if k in ("observer", "illuminant", "reflectance", "name") else notes)[k] = v
+            continue
+        rows.append((ln, s))
+    if not rows:
+        raise TargetError(f"{where}: no header line (illumination_deg,aspecular_deg,L*,a*,b* or …,R_380,…)")
+    hdr_ln, hdr = rows[0]
+    header = [h.strip() for h in next(csv.reader(io.StringIO(hdr)))]
+    if header[:2] != ["illumination_deg", "aspecular_deg"]:
+        raise TargetError(f"{where} line {hdr_ln}: the header must start with illumination_deg,aspecular_deg; "
+                          f"got {','.join(header[:2])}")
+    lab_idx = None
+    for names in _LAB_COLUMNS:
+        if all(n in header for n in names):
+            lab_idx = [header.index(n) for n in names]
+    r_cols = [(i, float(_R_COLUMN.match(h).group(1))) for i, h in enumerate(header) if _R_COLUMN.match(h)]
+    known = {0, 1} | set(lab_idx or []) | {i for i, _ in r_cols}
+    unknown = [h for i, h in enumerate(header) if i not in known]
+    if unknown:
+        raise TargetError(f"{where} line {hdr_ln}: unknown column(s) {', '.join(unknown)} (allowed: L*,a*,b* "
+                          f"and R_<nm> reflectance factors)")
+    if lab_idx is None and not r_cols:
+        raise TargetError(f"{where} line {hdr_ln}: no colour columns: give L*,a*,b* or R_380,R_390,… (any uniform grid)")
+    data = []
+    for ln, s in rows[1:]:
+        cells = [c.strip() for c in next(csv.reader(io.StringIO(s)))]
+        if len(cells) != len(header):
+            raise TargetError(f"{where} line {ln}: {len(cells)} values, the header has {len(header)} columns")
+        try:
+            data.append([float(c) for c in cells])
+        except ValueError:
+            raise TargetError(f"{where} line {ln}: a value is not a number: {s}") from None
+    if not data:
+        raise TargetError(f"{where}: no geometry rows after the header")
+    a = np.asarray(data, float)
+    if not np.all(np.isfinite(a)):
+        raise TargetError(f"{where}: values must be finite numbers")
+    geoms = a[:, :2]
+    _validate_geometries(geoms, where)
+    keys = [tuple(g) for g in geoms.tolist()]
+    if len(set(keys)) != len(keys):
+        raise TargetError(f"{where}: a geometry is listed twice")
+    if not r_cols:  # L*a*b* only: the file's stated conditions are facts; a call fills in only what it omits
+        obs = str(opts.get("observer", observer if observer is not None else "2"))
+        ill = str(opts.get("illuminant", illuminant if illuminant is not None else "D65"))
+    else:
+        obs = str(observer if observer is not None else opts.get("observer", "2"))
+        ill = str(illuminant if illuminant is not None else opts.get("illuminant", "D65"))
+    try:
+        observer_name(obs), illuminant_name(ill)
+    except ValueError as exc:
+        raise TargetError(f"{where}: {exc}") from None
+    if lab_idx is not None and not r_cols and "observer" not in opts and observer is None:
+        notes["assumed"] = "observer 2 deg / illuminant D65 (not stated in the file)"
+    t = Target(geometries=geoms, observer=obs, illuminant=ill, name=opts.get("name", ""), notes=notes, source=where)
+    if lab_idx is not None:
+        t.lab = a[:, lab_idx]
+    if r_cols:
+        wl = np.array([w for _, w in r_cols])
+        R = a[:, [i for i, _ in r_cols]]
+        unit = opts.get("reflectance", "fraction").lower()
+        if unit not in ("fraction", "percent"):
+            raise TargetError(f"{where}: '# reflectance: {unit}': use fraction or percent")
+        if unit == "percent":
+            R = R / 100.0
+        try:
+            reflectance_to_Lab(R[:1], wl, obs, ill)
+        except ValueError as exc:
+            raise TargetError(f"{where}: reflectance grid: {exc}") from None
+        t.reflectance, t.wavelength_nm = R, wl
+        if t.lab is not None:  # the L*a*b* columns are under the file's own conditions
+            f_obs, f_ill = opts.get("observer", "2"), opts.get("illuminant", "D65")
+            de = delta_E_2000(t.lab, reflectance_to_Lab(R, wl, f_obs, f_ill))
+            if np.max(de) > 0.01:
+                raise TargetError(f"{where}: the L*a*b* columns disagree with the R_ columns under {f_obs}° / {f_ill} "
+                                  f"(max ΔE00 {np.max(de):.3g}); fix one, or drop the L*a*b* columns")
+    return t
+
+
+def format_target(geometries, lab=None, reflectance=None, wavelength_nm=None, observer="2", illuminant="D65",
+                  name="", notes=None) -> str:
+    """The CSV text of a target (module docstring); ``lab`` computed from ``reflectance`` when omitted."""
+    g = np.asarray(geometries, float)
+    if reflectance is not None:
+        R = np.asarray(reflectance, float)
+        wl = np.asarray(wavelength_nm, float)
+        if lab is None:
+            lab = reflectance_to_Lab(R, wl, observer, illuminant)
+    if lab is None:
+        raise ValueError("format_target needs lab or reflectance")
+    lab = np.asarray(lab, float)
+    out = io.StringIO()
+    out.write("# flakedb multi-angle colour target (docs/colour-matching.md)\n")
+    if name:
+        out.write(f"# name: {name}\n")
+    out.write(f"# observer: {observer}\n# illuminant: {illuminant}\n")
+    if reflectance is not None:
+        out.write("# reflectance: fraction\n")
+    for k, v in (notes or {}).items():
+        out.write(f"# {k}: {v}\n")
+    cols = ["illumination_deg", "aspecular_deg", "L*", "a*", "b*"]
+    if reflectance is not None:
+        cols += [f"R_{w:g}" for w in wl]
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(cols)
+    for i in range(g.shape[0]):
+        row = [f"{g[i, 0]:g}", f"{g[i, 1]:g}"] + [f"{v:.6f}" for v in lab[i]]
+        if reflectance is not None:
+            row += [f"{v:.9g}" for v in R[i]]
+        w.writerow(row)
+    return out.getvalue()
+
+
+def write_target(path, geometries, lab=None, reflectance=None, wavelength_nm=None, observer="2", illuminant="D65",
+                 name="", notes=None) -> str:
+    """Write :func:`format_target`'s text to ``path`` atomically; returns the path."""
+    atomic_write_text(Path(path), format_target(geometries, lab, reflectance, wavelength_nm, observer, illuminant,
+                                                name, notes))
+    return str(path)
