@@ -13,14 +13,8 @@ import colour
 import numpy as np
 import pytest
 
-from flakedb.colour.colorimetry import spectral_grid, tristimulus_weights as weights_2deg_d65
-from flakedb.match.targets import (
-    E2194_GEOMETRIES,
-    E2539_GEOMETRIES,
-    TargetError,
-    format_target,
-    read_target,
-)
+from flakedb.colour.colorimetry import spectral_grid
+from flakedb.colour.colorimetry import tristimulus_weights as weights_2deg_d65
 from flakedb.colour.tolerance import (
     PerAngleLimits,
     WeightedLCH,
@@ -31,6 +25,13 @@ from flakedb.colour.tolerance import (
     reflectance_to_Lab,
     reflectance_to_XYZ,
     tristimulus_weights,
+)
+from flakedb.match.targets import (
+    E2194_GEOMETRIES,
+    E2539_GEOMETRIES,
+    TargetError,
+    format_target,
+    read_target,
 )
 
 # Sharma, Wu & Dalal, Color Res. Appl. 30, 21 (2005), Table 1: pairs 1, 2, 3, 7, 17, 25 (L*a*b* 1, 2, ΔE00)

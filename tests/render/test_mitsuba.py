@@ -27,12 +27,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flakedb.render import mitsuba as fm
 from flakedb.bsdf import BSDFTable, open_bsdf, write_bsdf, write_h5
 from flakedb.optics.fresnel import fresnel_dielectric
+from flakedb.render import mitsuba as fm
 from flakedb.rt.quadrature import radau_hemisphere
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 LAYERLAB = REPO.parent / "shared" / "data" / "bsdf-files" / "coated_diffuse_mono_n200.bsdf"
 ETA = 1.5
 

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from flakedb.store import compress as C
-from flakedb.store import versions as st
 from flakedb.cli.main import cli
 from flakedb.pipelines.build import build, make_request
+from flakedb.store import compress as C
+from flakedb.store import versions as st
 
 SPECIES = ["pearlescent", "cadmium-yellow"]
 
@@ -159,9 +159,9 @@ def test_build_to_an_fsspec_url_round_trips():
     back the same arrays as a local build (guards against local-path assumptions in store I/O)."""
     import numpy as np
 
-    from flakedb.store import versions as st
     from flakedb.colour.colorimetry import spectral_grid
     from flakedb.pipelines.build import build, make_request
+    from flakedb.store import versions as st
 
     req = make_request(species=["gray-mirror"], n=8, m=8, wavelength_nm=spectral_grid((400, 700), 100))
     url = "memory://flakedb-test-fsspec/store"

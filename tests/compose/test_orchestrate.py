@@ -22,9 +22,9 @@ from scipy.special import expn
 from flakedb.bsdf import open_bsdf
 from flakedb.cli.main import cli
 from flakedb.compose.orchestrate import compose
+from flakedb.compose.report import eval_table, flop_index, multiangle_geometry
 from flakedb.paint.mapping import build_paint, phase_cos_grid
 from flakedb.paint.recipe import parse_recipe
-from flakedb.compose.report import eval_table, flop_index, multiangle_geometry
 
 
 def recipe(layers, mode="mono", n=16, name="t", extra=""):

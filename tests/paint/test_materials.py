@@ -17,8 +17,8 @@ from flakedb.paint.materials import (
     material_info,
     material_names,
     material_table,
-    read_table,
     materials_dir,
+    read_table,
     refractive_index,
 )
 

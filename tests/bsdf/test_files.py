@@ -41,7 +41,7 @@ from flakedb.bsdf import (
     write_h5,
 )
 
-DATA = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "bsdf-files")
+DATA = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "data", "bsdf-files")
 if not os.path.isdir(DATA):  # the shared data folder sits beside the checkout
     DATA = "/work/shared/data/bsdf-files"
 FILES = ["carpaint_rgb_n100", "coated_diffuse_mono_n200"]

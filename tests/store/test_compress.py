@@ -9,9 +9,9 @@ import json
 import numpy as np
 import pytest
 
-from flakedb.store import compress as C
 from flakedb.paint import species as sp
 from flakedb.rt.fourier import cosine_coefficients
+from flakedb.store import compress as C
 
 N, M = 8, 17
 

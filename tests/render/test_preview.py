@@ -29,7 +29,7 @@ from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.render import preview
 from flakedb.render.imageio import read_exr, srgb_encode, to_srgb8, write_exr, write_png
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DATA = REPO.parent / "shared" / "data" / "bsdf-files"   # CI: the shared folder beside the checkout
 ENV_L = 0.5                                              # renderers.md's furnace radiance
 

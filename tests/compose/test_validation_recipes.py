@@ -1,5 +1,5 @@
 """The Monte Carlo validation cases exist as recipes (tests/recipes/validation-*.yaml, issue #6) and
-compose to the very stacks tests/test_rt_vs_mc.py validates against the Monte Carlo reference.
+compose to the very stacks tests/reference/test_solver_vs_montecarlo.py validates against the Monte Carlo reference.
 
 Guards against a recipe → solver mapping (flakedb/paint/mapping.py) that silently changes a validated
 case: a wrong optical-depth → loading conversion (for flakes: σ_t at normal incidence times the
@@ -8,7 +8,6 @@ layer thickness), a lost phase function, a primer or coat mapped to something el
 
 import glob
 import os
-import sys
 
 import numpy as np
 import pytest
@@ -16,17 +15,14 @@ import pytest
 from flakedb.paint.mapping import build_paint, solve_paint
 from flakedb.paint.recipe import load_recipe
 from flakedb.rt.stack import SolverSettings, solve_stack
+from tests.cases import FAST
+from tests.cases import case as _case
 
-sys.path.insert(0, os.path.dirname(__file__))
-from test_rt_vs_mc import _case  # noqa: E402
-
-HERE = os.path.dirname(__file__)
+HERE = os.path.join(os.path.dirname(__file__), "..")
 RECIPES = sorted(glob.glob(os.path.join(HERE, "recipes", "validation-*.yaml")))
 
 
 def test_every_validation_case_has_a_recipe():
-    from test_rt_vs_mc import FAST
-
     names = {os.path.basename(p)[len("validation-"):-len(".yaml")] for p in RECIPES}
     assert set(FAST) | {"rough-coat-lambertian"} <= names
 
