@@ -22,17 +22,24 @@ PARTICLES = ("metallic", "pearlescent", "gray-mirror", "cadmium-yellow", "titani
 
 def _compress_setup(name):
     def setup():
+        from flakedb.paint import catalog as cat
         from flakedb.paint import species as sp
 
-        cat = sp.load_catalog()
+        cat = cat.load_catalog()
         wl = np.array([550.0])
-        return sp.get_species(name, cat), wl, sp.binder_index(cat, wl)
+        return cat.get_species(name, cat), wl, sp.binder_index(cat, wl)
 
     return setup
 
 
 def _compress_run(arg):
-    from flakedb.store.compress import fourier_factors, mean_relative_error, reconstruct, sample_reflectance, sqrt_svd_compress
+    from flakedb.store.compress import (
+        fourier_factors,
+        mean_relative_error,
+        reconstruct,
+        sample_reflectance,
+        sqrt_svd_compress,
+    )
 
     entry, wl, nb = arg
     R = sample_reflectance(entry, wl, nb, N, M)[0]

@@ -43,13 +43,13 @@ layers:
 
 def _setup():
     import yaml
+    from pipelines.build import build, make_request
 
-    from flakedb.store.versions import versions as st
     from flakedb.colour.colorimetry import spectral_grid
     from flakedb.match.fit import predict, recipe_from_doc
-    from flakedb.match.targets import E2539_GEOMETRIES, read_target, format_target
-    from flakedb.paint.species import load_catalog
-    from pipelines.build import build, make_request
+    from flakedb.match.targets import E2539_GEOMETRIES, format_target, read_target
+    from flakedb.paint.catalog import load_catalog
+    from flakedb.store.versions import versions as st
 
     url = str(Path(tempfile.mkdtemp(prefix="flakedb-bench-match-")) / "store")
     build(make_request(species=list(SPECIES), n=N, m=N + 1, wavelength_nm=spectral_grid(RANGE_NM, STEP_NM),

@@ -12,8 +12,8 @@
 
 import numpy as np
 
-from flakedb.paint.materials import refractive_index
 from flakedb.optics.mie import amplitude, default_n_quad, lognormal_pigment, mie, phase_function
+from flakedb.paint.materials import refractive_index
 
 N_BINDER = 1.5
 WL = np.linspace(400.0, 800.0, 41)

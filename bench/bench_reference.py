@@ -10,7 +10,16 @@ import time
 
 import numpy as np
 
-from flakedb.reference.montecarlo import FlakeMedium, HenyeyGreenstein, Lambertian, PhaseMedium, Problem, Slab, Smooth, simulate
+from flakedb.reference.montecarlo import (
+    FlakeMedium,
+    HenyeyGreenstein,
+    Lambertian,
+    PhaseMedium,
+    Problem,
+    Slab,
+    Smooth,
+    simulate,
+)
 
 N_PATHS = 400_000
 MU_I = float(np.cos(np.radians(45.0)))

@@ -18,8 +18,8 @@ import yaml
 from flakedb.atomic import atomic_write_text
 from flakedb.colour.colorimetry import delta_E_2000
 from flakedb.compose.orchestrate import compose
+from flakedb.paint.catalog import load_catalog
 from flakedb.paint.recipe import parse_recipe
-from flakedb.paint.species import load_catalog
 from flakedb.resources import RECIPES_DIR
 
 RECIPES = ["particle-metallic", "particle-pearlescent", "particle-gray-mirror", "particle-cadmium-yellow",

@@ -12,9 +12,9 @@ from flakedb.cli.errors import FlakedbError
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
 from flakedb.match.fit import predict
 from flakedb.match.targets import GEOMETRY_SETS, TargetError, read_target, write_target
+from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
-from flakedb.paint.species import CatalogError, load_catalog
 from flakedb.store import versions as st
 from flakedb.store.versions import StoreError
 

@@ -6,9 +6,9 @@ from flakedb.cli.errors import FlakedbError
 from flakedb.compose.orchestrate import OutputError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
+from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
-from flakedb.paint.species import CatalogError, load_catalog
 from flakedb.store.versions import StoreError
 
 

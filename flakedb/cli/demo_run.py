@@ -11,11 +11,13 @@ from flakedb.bsdf import open_bsdf
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.compose.orchestrate import compose
 from flakedb.compose.report import format_report
+from flakedb.paint.catalog import load_catalog
 from flakedb.paint.recipe import parse_recipe
-from flakedb.paint.species import load_catalog, optics_table, plot_optics
+from flakedb.paint.species import optics_table
 from flakedb.pipelines.build import build, make_request
 from flakedb.render import preview
 from flakedb.render.imageio import write_exr, write_png
+from flakedb.render.plots import plot_optics
 from flakedb.resources import RECIPES_DIR
 from flakedb.store import versions as st
 

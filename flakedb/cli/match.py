@@ -20,8 +20,8 @@ from flakedb.compose.orchestrate import OutputError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.match import fit as cm
 from flakedb.match.targets import TargetError, read_target, write_target
+from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.recipe import RecipeError
-from flakedb.paint.species import CatalogError, load_catalog
 from flakedb.store.versions import StoreError
 
 

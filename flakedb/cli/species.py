@@ -3,7 +3,9 @@
 import click
 
 from flakedb.cli.errors import FlakedbError
-from flakedb.paint.species import CatalogError, expand_sweeps, load_catalog, optics_table, plot_optics
+from flakedb.paint.catalog import CatalogError, expand_sweeps, load_catalog
+from flakedb.paint.species import optics_table
+from flakedb.render.plots import plot_optics
 
 
 @click.group()

@@ -55,8 +55,8 @@ import numpy as np
 import yaml
 
 from flakedb.colour.colorimetry import spectral_grid
+from flakedb.paint.catalog import expand_sweeps, load_catalog
 from flakedb.paint.materials import refractive_index
-from flakedb.paint.species import expand_sweeps, load_catalog
 from flakedb.resources import PACKAGE_DIR, SCHEMAS_DIR
 
 #: Recipe format version this flakedb reads (the ``flakedb:`` key).

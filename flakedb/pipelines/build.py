@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from flakedb.colour.colorimetry import spectral_grid
-from flakedb.paint import species as sp
+from flakedb.paint import catalog as cat
 from flakedb.paint.materials import materials_dir
 from flakedb.store import versions as st
 from flakedb.store.compress import DEFAULT_N_TABLE
@@ -39,8 +39,8 @@ def make_request(species=None, n=DEFAULT_N, m=None, rank=DEFAULT_RANK, wavelengt
     included).  ``n``: node counts (one resolution each, m = n unless ``m`` is given);
     ``wavelength_nm``: default 400–700 nm every 20 nm; ``eta_top``: the paints' smooth top index
     (None: plain Radau grid and the catalogue binder's index; see :mod:`flakedb.store.versions`)."""
-    catalog = sp.load_catalog(catalog_path)
-    allsp = sp.expand_sweeps(catalog)
+    catalog = cat.load_catalog(catalog_path)
+    allsp = cat.expand_sweeps(catalog)
     names = list(allsp) if not species else list(species)
     unknown = [s for s in names if s not in allsp]
     if unknown:

@@ -59,6 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flakedb.paint import catalog as cat
 from flakedb.paint import species as sp
 from flakedb.rt.fourier import cosine_coefficients, phi_samples
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
@@ -138,7 +139,7 @@ def sample_reflectance(entry, wavelength_nm, n_binder, n, m, n_table=DEFAULT_N_T
     :func:`grid_nodes` ``(n, m, eta_top)``, per wavelength → (W, n_mu, n_mu, m) (n_mu = n for
     ``eta_top`` None or 1).
 
-    ``entry``: a species of the catalogue (:func:`flakedb.paint.species.get_species`); ``wavelength_nm``
+    ``entry``: a species of the catalogue (:func:`flakedb.paint.catalog.get_species`); ``wavelength_nm``
     (W,) vacuum wavelengths in nm; ``n_binder`` scalar or (W,) real binder index.  Dimensionless; see
     the module docstring for what R is for flakes and pigments and how it is interpolated.
     """
@@ -348,8 +349,8 @@ def figure4(out_dir="docs/figures", species=FIGURE4_SPECIES, wavelength_nm=550.0
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
 
-    catalog = catalog if catalog is not None else sp.load_catalog()
-    allsp = sp.expand_sweeps(catalog)
+    catalog = catalog if catalog is not None else cat.load_catalog()
+    allsp = cat.expand_sweeps(catalog)
     wl = np.array([float(wavelength_nm)])
     nb = sp.binder_index(catalog, wl)
     R_by = {name: sample_reflectance(allsp[name], wl, nb, n, m)[0] for name in species}

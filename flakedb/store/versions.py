@@ -148,7 +148,7 @@ def content_hash(inputs: dict) -> str:
 class BuildRequest:
     """Everything a build depends on (all of it enters the content hash).
 
-    ``species``: name → catalogue entry (as :func:`flakedb.paint.species.expand_sweeps` gives it);
+    ``species``: name → catalogue entry (as :func:`flakedb.paint.catalog.expand_sweeps` gives it);
     ``binder``: the catalogue's binder entry; ``material_checksums``: optical-data file name → sha256;
     ``resolutions``: (n, m) pairs; ``rank`` r of the √R SVD; ``wavelength_nm``: channels (nm);
     ``channel_block``: channels per task (and per chunk); ``store_raw``: also store R itself;

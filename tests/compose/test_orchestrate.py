@@ -102,7 +102,8 @@ def test_catalogue_mapping_flake_and_pigment():
     fl, pig = p.components[0], p.components[1]
     assert fl["a_rho_per_um"] == pytest.approx(0.04 / 0.54)   # φ / flake thickness (model.md §3)
     assert p.info["flake_c_grid"]["layers[1].basecoat.particles[0]"]["max_midpoint_error"] <= 1e-3
-    from flakedb.paint.species import get_species, pigment_optics
+    from flakedb.paint.catalog import get_species
+    from flakedb.paint.species import pigment_optics
 
     mu = phase_cos_grid()
     po = pigment_optics(get_species("titanium-white"), r.wavelength_nm, 1.5, mu=mu)
@@ -120,8 +121,9 @@ def test_catalogue_mapping_flake_and_pigment():
 
 def test_flake_grid_resolves_thin_film_fringes():
     """Linear interpolation on the adaptive c grid against a fine grid: ≤ 1e-3 (catalogue pearl)."""
+    from flakedb.paint.catalog import get_species
     from flakedb.paint.mapping import adaptive_flake_optics
-    from flakedb.paint.species import flake_reflectance_transmittance, get_species
+    from flakedb.paint.species import flake_reflectance_transmittance
 
     e = get_species("pearlescent")
     wl = np.arange(380.0, 781.0, 40.0)

@@ -23,8 +23,8 @@ from flakedb.match.fit import (
     substitute,
 )
 from flakedb.match.targets import E2194_GEOMETRIES, read_target
+from flakedb.paint.catalog import load_catalog
 from flakedb.paint.recipe import RecipeError
-from flakedb.paint.species import load_catalog
 
 BASE = textwrap.dedent("""\
     flakedb: 1

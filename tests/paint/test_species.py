@@ -19,19 +19,21 @@ import yaml
 from click.testing import CliRunner
 
 from flakedb.cli.main import cli
+from flakedb.paint.catalog import (
+    CatalogError,
+    default_catalog_path,
+    expand_sweeps,
+    get_species,
+    load_catalog,
+    validate_catalog,
+)
 from flakedb.paint.species import (
     SHOW_ANGLES_DEG,
     SHOW_WAVELENGTHS_NM,
-    CatalogError,
     binder_index,
-    default_catalog_path,
-    expand_sweeps,
     film_stack,
     flake_reflectance_transmittance,
-    get_species,
-    load_catalog,
     pigment_optics,
-    validate_catalog,
 )
 
 PAPER_SIX = {

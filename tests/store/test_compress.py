@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from flakedb.paint import catalog as cat
 from flakedb.paint import species as sp
 from flakedb.rt.fourier import cosine_coefficients
 from flakedb.store import compress as C
@@ -18,12 +19,12 @@ N, M = 8, 17
 
 @pytest.fixture(scope="module")
 def catalog():
-    return sp.load_catalog()
+    return cat.load_catalog()
 
 
 @pytest.fixture(scope="module")
 def grids(catalog):
-    allsp = sp.expand_sweeps(catalog)
+    allsp = cat.expand_sweeps(catalog)
     wl = np.array([550.0])
     nb = sp.binder_index(catalog, wl)
     return {name: C.sample_reflectance(allsp[name], wl, nb, N, M, n_table=513)[0]
@@ -43,7 +44,7 @@ def test_grid_nodes_refuse_odd_n():
 
 def test_flake_cosine_against_explicit_vectors(catalog):
     """R on the grid equals the flake R at c = |ω_o − ω_i|/2 built from 3-D propagation vectors."""
-    entry = sp.get_species("pearlescent", catalog)
+    entry = cat.get_species("pearlescent", catalog)
     wl = np.array([450.0, 650.0])
     nb = sp.binder_index(catalog, wl)
     R = C.sample_reflectance(entry, wl, nb, N, M, n_table=4097)
@@ -65,7 +66,7 @@ def test_mirror_flake_is_its_albedo(grids):
 
 def test_pigment_R_integrates_to_albedo(catalog):
     """R = 4π ϖ p: (1/4π) ∫ R dω_o = ϖ for every incident node (phase function normalised to 1)."""
-    entry = sp.get_species("cadmium-yellow", catalog)
+    entry = cat.get_species("cadmium-yellow", catalog)
     wl = np.array([550.0])
     nb = sp.binder_index(catalog, wl)
     n, m = 24, 129
