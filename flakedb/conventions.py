@@ -1,4 +1,4 @@
-"""The conventions every flakedb module follows, stated once (model.md §2, bsdf-format.md).
+"""The conventions every flakedb module follows, stated once (docs/model.md §2, docs/bsdf-format.md).
 
 Other modules refer to this docstring as "conventions" instead of restating it.
 

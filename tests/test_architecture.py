@@ -3,6 +3,7 @@
 modules, no import cycles.  Read from the source with ``ast``; nothing is imported."""
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -156,3 +157,14 @@ def test_contract_bites(rule, tmp_path, monkeypatch):
     monkeypatch.setitem(MODULES, "flakedb.rt.stack", p)
     with pytest.raises(AssertionError):
         rule()
+
+
+def test_cited_documents_are_in_the_repository():
+    """Every ``docs/….md`` a module cites exists (docstrings cite documents of this repository)."""
+    root = PKG.parent
+    missing = set()
+    for _, path in MODULES.items():
+        for doc in re.findall(r"docs/[\w./-]+?\.md", path.read_text(encoding="utf-8")):
+            if not (root / doc).is_file():
+                missing.add(f"{path.relative_to(root)} cites {doc}")
+    assert not missing, "\n".join(sorted(missing))

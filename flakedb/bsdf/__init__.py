@@ -1,7 +1,7 @@
 """Fourier BSDF files: the layerlab / Mitsuba 0.6 / pbrt-v3 ``.bsdf`` file and flakedb's HDF5 file.
 
 Writer, reader, evaluation and importance sampling of the tabulated BSDF described in
-``shared/design/bsdf-format.md`` (called "the spec" below).  Conventions are those of
+``docs/bsdf-format.md`` (called "the spec" below).  Conventions are those of
 :mod:`flakedb.conventions` and of the file, which agree: ``mu > 0`` travels down into the paint,
 reflection seen from above is ``mu_i > 0, mu_o < 0``, ``phi_d = 0`` is mirror reflection and
 ``phi_d = π`` retro-reflection.  Every quantity stored and returned here is the cosine series of

@@ -1,7 +1,7 @@
 """The solver's result as the file's table: the one stack → :class:`~flakedb.bsdf.table.BSDFTable`
 conversion (compose, the Monte Carlo tests and the benchmarks all go through it).
 
-Node layout (docs/conventions.md: μ > 0 travels down): the table's nodes are ``[-x_h … -x_1,
+Node layout (conventions: μ > 0 travels down): the table's nodes are ``[-x_h … -x_1,
 x_1 … x_h]`` with x the solver's air-side nodes.  Reflection from above (incident μ_i = +x_j,
 outgoing μ_o = −x_k) holds ``f_l(x_j → x_k) · x_k``, the coefficients of f·|μ_o|
 (docs/bsdf-format.md, "Evaluation").  An opaque paint has nothing else.  A transmissive stack whose

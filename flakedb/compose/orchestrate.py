@@ -6,12 +6,12 @@
 
 The files
 ---------
-* ``NAME.bsdf``: the Fourier file (bsdf-format.md) with 1 channel (mono, or every channel equal) or
+* ``NAME.bsdf``: the Fourier file (docs/bsdf-format.md) with 1 channel (mono, or every channel equal) or
   3 (linear sRGB, stored as Y, R, B).  A spectral paint is converted to RGB by integrating its
   coefficient spectra against the CIE 1931 2° observer under D65 and mapping to white-normalised
   linear sRGB (:func:`flakedb.colour.colorimetry.spectra_to_rgb_mode`); the map is linear, so it applies
   coefficient by coefficient.  A smooth coat's first-surface mirror reflection is not in the table:
-  it is recorded in the metadata as ``delta=fresnel``, ``delta_eta=η`` (bsdf-format.md, "Carrying a
+  it is recorded in the metadata as ``delta=fresnel``, ``delta_eta=η`` (docs/bsdf-format.md, "Carrying a
   smooth clear coat's mirror reflection").  Also in the metadata: recipe name, flakedb version,
   mode, n, and ``store``: ``none: computed directly``, or the store URL and version the species'
   reflectance functions came from (``--store``; compressed or raw).
@@ -55,7 +55,7 @@ from flakedb.store import versions as st
 
 #: Order truncation of the ``.bsdf`` (flakedb.bsdf.write_bsdf): 0 keeps every order up to the last
 #: non-zero coefficient, so the file evaluates to the solver's values at the nodes to float32
-#: precision (bsdf-format.md: "A writer is right when … evaluation at the quadrature nodes returns
+#: precision (docs/bsdf-format.md: "A writer is right when … evaluation at the quadrature nodes returns
 #: the solver's BSDF to float32 precision").  layerlab's rule (2e-3 relative tail) changed values by
 #: up to 1e-3 of the largest in a test paint; an opaque paint fills only the reflection quadrant, so
 #: the full file is small (n = 64, 128 orders, RGB: ≈ 1.6 MB).

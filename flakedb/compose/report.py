@@ -1,6 +1,6 @@
 """The colour report of a composed paint: pure functions, arrays and dicts in, dicts and text out.
 
-What a paint lab reads (model.md §6): CIELAB (D65, CIE 1931 2°) at the multi-angle
+What a paint lab reads (docs/model.md §6): CIELAB (D65, CIE 1931 2°) at the multi-angle
 spectrophotometer geometries, the flop index, and the directional albedo per incident angle.
 
 Geometry (ASTM E2194 / X-Rite MA-T instruments)
@@ -15,7 +15,7 @@ The aspecular angles are −15°, 15°, 25°, 45°, 75°, 110° (θ_v = 60°, 30
 Reflectance factor = π f(ω_i, ω_o): the tabulated part only.  The smooth coat's mirror term is a
 delta at γ = 0, which no aspecular angle hits, so it adds nothing to these geometries (it is
 included in the albedo).  f comes from the table by the file readers' interpolation (Catmull–Rom
-in μ_i and μ_o over the file nodes, bsdf-format.md "Evaluation"), here in float64 on the
+in μ_i and μ_o over the file nodes, docs/bsdf-format.md "Evaluation"), here in float64 on the
 full-precision table (:func:`eval_table`); it agrees with :meth:`flakedb.bsdf.FourierBSDF.eval` of
 the written ``.h5`` (tested).
 

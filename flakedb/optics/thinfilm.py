@@ -263,7 +263,7 @@ def thin_film_amplitudes(n_films, d_films_nm, wavelength_nm, cos_theta, n_ambien
 
 
 def flake_reflectance_transmittance(n_films, d_films_nm, wavelength_nm, cos_theta, n_binder):
-    """Unpolarised R(c, λ) and T(c, λ) of an interference flake embedded in its binder (model.md §3, §6).
+    """Unpolarised R(c, λ) and T(c, λ) of an interference flake embedded in its binder (docs/model.md §3, §6).
 
     The flake is the film stack ``n_films`` / ``d_films_nm`` (top to bottom, thicknesses in nm) with
     the binder (real index ``n_binder``, scalar or (W,)) on both sides; ``cos_theta`` (A,) is

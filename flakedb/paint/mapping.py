@@ -1,4 +1,4 @@
-"""Recipe → solver inputs: the physics mapping of a paint (model.md §1, §3, §6).
+"""Recipe → solver inputs: the physics mapping of a paint (docs/model.md §1, §3, §6).
 
 A :class:`flakedb.paint.recipe.Recipe` becomes the arguments of :func:`flakedb.rt.stack.solve_stack`::
 
@@ -12,12 +12,12 @@ A non-absorbing clear coat adds no slab at all: inside one binder it changes not
 smooth or rough top interface is the coat's surface).  A basecoat without particles is likewise
 clear binder and adds nothing.
 
-Particles (model.md §3 "the anisotropic medium", §6 "particle optics")
+Particles (docs/model.md §3 "the anisotropic medium", §6 "particle optics")
 ----------------------------------------------------------------------
-* **Flakes** (interference and mirror flakes of the catalogue; paper eq. 2, model.md §3): a
+* **Flakes** (interference and mirror flakes of the catalogue; paper eq. 2, docs/model.md §3): a
   :class:`flakedb.rt.media.FlakeMedium` with
 
-  - loading ``aρ = volume_fraction / t_flake`` (flake area × number density, 1/µm; model.md: "aρ =
+  - loading ``aρ = volume_fraction / t_flake`` (flake area × number density, 1/µm; docs/model.md: "aρ =
     volume fraction / flake thickness": N flakes of area a and thickness t fill a volume N a t,
     so the volume fraction is φ = ρ a t).  The flake diameter cancels, so it does not enter the
     optics (it is recorded);
@@ -28,7 +28,7 @@ Particles (model.md §3 "the anisotropic medium", §6 "particle optics")
   - ``opaque: true`` keeps R and sets T = 0 (the paper's Fig. 5 opaque flakes: Jakob et al. 2010);
   - the Beckmann orientation spread α of the catalogue, or the recipe's ``orientation_alpha``.
 
-* **Pigments** (spheres; model.md §3 "uniform D with a Mie kernel is an isotropic Mie medium", §6):
+* **Pigments** (spheres; docs/model.md §3 "uniform D with a Mie kernel is an isotropic Mie medium", §6):
   a :class:`flakedb.rt.media.PhaseMedium` with number density ``ρ = volume_fraction / <V>``
   (``<V>`` the mean particle volume of the log-normal, µm³), ``σ_t = ρ <C_ext>``,
   ``albedo = <C_sca>/<C_ext>`` and the C_sca-weighted Mie phase function tabulated on
@@ -65,13 +65,13 @@ not hold: it is not applied (the direct path reports its size in ``info['rgb_cli
 (the store's optics use the binder index η with the Snell-mapped grid of a smooth coat) and a
 pigment whose recipe overrides the catalogue's size distribution.
 
-Primer (Lambertian, model.md §4): ``color`` black / gray / white → albedo 0.04 / 0.18 / 0.9
+Primer (Lambertian, docs/model.md §4): ``color`` black / gray / white → albedo 0.04 / 0.18 / 0.9
 (:data:`PRIMER_ALBEDO`); or an albedo; or a spectrum (linear in λ).
 
 Channels
 --------
 * ``spectral``: one channel per band of the recipe's grid; every optical quantity per band.
-* ``rgb`` (the paper's mode, model.md §6): spectra are computed on the grid and converted to the
+* ``rgb`` (the paper's mode, docs/model.md §6): spectra are computed on the grid and converted to the
   white-normalised linear sRGB of :func:`flakedb.colour.colorimetry.spectra_to_rgb_mode` *before* the
   solve: flake R(c) and T(c) per c; pigments' <C_ext> and <C_sca>, and the phase function as
   rgb(C_sca p)/rgb(C_sca) (so a channel's phase is its scattering-weighted mean); the primer's
@@ -171,12 +171,12 @@ def normalise_phase_table(cos_theta, values) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ----------------------------------------------------------------------------------------------
-# Loadings (model.md §3)
+# Loadings (docs/model.md §3)
 # ----------------------------------------------------------------------------------------------
 
 
 def flake_a_rho_from_volume_fraction(volume_fraction, flake_thickness_um) -> float:
-    """aρ (1/µm) of flakes of thickness ``flake_thickness_um`` at ``volume_fraction``: φ / t (model.md §3)."""
+    """aρ (1/µm) of flakes of thickness ``flake_thickness_um`` at ``volume_fraction``: φ / t (docs/model.md §3)."""
     return float(volume_fraction) / float(flake_thickness_um)
 
 
@@ -283,7 +283,7 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
         rec = {"path": p.path, "species": p.species, "kind": p.kind, "volume_fraction": p.volume_fraction,
                "flake_thickness_um": t, "orientation_alpha": alpha, "a_rho_per_um": a_rho, "opaque": p.opaque,
                "diameter_um": float(p.diameter_um if p.diameter_um is not None else p.entry["diameter_um"]["value"]),
-               "loading": "volume_fraction / flake thickness (model.md §3)"}
+               "loading": "volume_fraction / flake thickness (docs/model.md §3)"}
     else:
         c = np.union1d(p.R.c, p.T.c)
         R = np.interp(c, p.R.c, p.R.value)

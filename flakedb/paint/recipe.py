@@ -1,6 +1,6 @@
 """Paint recipes: parse, validate and check a recipe YAML into a typed :class:`Recipe`.
 
-A recipe describes a paint as layers, top to bottom (model.md §1)::
+A recipe describes a paint as layers, top to bottom (docs/model.md §1)::
 
     flakedb: 1                       # format version
     name: pearl-white                # names the outputs DIR/NAME.bsdf, .h5, .json

@@ -7,7 +7,7 @@ A *species* is one entry of the catalogue, or one member of a sweep (``expand_sw
   method (:func:`flakedb.optics.thinfilm.flake_reflectance_transmittance`, Born & Wolf §1.6),
   unpolarised, with c = |ω·m| the cosine between the light and the flake normal *in the binder*.
 * ``mirror_flake``: R = albedo (constant or a spectrum, linearly interpolated in λ), T = 0
-  (model.md §3, Jakob et al. 2010's opaque flakes).
+  (docs/model.md §3, Jakob et al. 2010's opaque flakes).
 * ``pigment``: spheres with a log-normal number distribution of diameters; Mie optics per particle
   from :func:`flakedb.optics.mie.lognormal_pigment` (Du 2004), relative index m = N / n_binder
   (conventions).

@@ -1,4 +1,4 @@
-"""Independent Monte Carlo reference for the plane-parallel paint stack (model.md §7 item 2).
+"""Independent Monte Carlo reference for the plane-parallel paint stack (docs/model.md §7 item 2).
 
 It solves the same radiative-transfer problem as the adding-doubling solver (:mod:`flakedb.rt`) by
 tracing photon paths, and shares no code with it.  Conventions: :mod:`flakedb.conventions`
@@ -17,7 +17,7 @@ whose extinctions and kernels add:
 
 * :class:`PhaseMedium` — direction-independent σ_t with a phase function (:class:`Isotropic`,
   :class:`HenyeyGreenstein`, :class:`TabulatedPhase`).
-* :class:`FlakeMedium` — translucent micro-flakes (paper eq. 2, model.md §3): normals with the
+* :class:`FlakeMedium` — translucent micro-flakes (paper eq. 2, docs/model.md §3): normals with the
   Beckmann density D(m) = exp(−tan²θ/α²)/(2π α² |cos θ|³) on the sphere (paper eq. 5), reflectance
   R(c) and transmittance T(c) of c = |ω·m|.
 
@@ -28,7 +28,7 @@ at a tentative collision a flake normal m ~ D is drawn in closed form (tan²θ =
 collision is a real encounter with probability |ω·m| (else a null collision); the light then
 passes undeviated with probability T(c), otherwise it is reflected specularly, ω' = ω − 2(ω·m)m,
 **with its weight multiplied by R(c)/(1 − T(c))** (absorption carried by weights, no termination).
-This realises σ_t(ω) = aρ∫(1−T)|ω·m|D dm and the kernel (aρ/4) R(|ω'·h|)(D(h)+D(−h)) of model.md §3.
+This realises σ_t(ω) = aρ∫(1−T)|ω·m|D dm and the kernel (aρ/4) R(|ω'·h|)(D(h)+D(−h)) of docs/model.md §3.
 Phase media also carry absorption by weights (w ← w·albedo); low weights are Russian-rouletted
 (survival 1/10 below ``rr_threshold``), which is unbiased.  A non-absorbing problem therefore has
 zero-variance energy bookkeeping: every path leaves with its starting weight.
@@ -151,7 +151,7 @@ class PhaseMedium:
 
 @dataclass(frozen=True)
 class FlakeMedium:
-    """Translucent micro-flakes (paper eq. 2, model.md §3).
+    """Translucent micro-flakes (paper eq. 2, docs/model.md §3).
 
     ``a_rho_per_um``: flake area × number density aρ (1/µm; scalar or (C,)); ``alpha``: Beckmann
     roughness of the flake normals (paper eq. 5); ``R_table``, ``T_table``: flake reflectance and
@@ -440,7 +440,7 @@ def _flake_table(m, c, path):
         bad = np.argmax((R < 0) | (T < 0) | (R + T > 1 + 1e-9))
         raise ValueError(
             f"{path}: R = {R[bad]:.6g}, T = {T[bad]:.6g} at c = {grid[bad]:.4g} (channel {c}); flakes need "
-            "R, T >= 0 and R + T <= 1 (energy conservation, model.md §3)."
+            "R, T >= 0 and R + T <= 1 (energy conservation, docs/model.md §3)."
         )
     return grid, R, np.minimum(T, 1.0)
 

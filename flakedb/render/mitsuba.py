@@ -15,7 +15,7 @@ Mitsuba is imported inside the functions, so this module imports without it.  Th
 of renderers.md (a sphere under a constant environment) is :func:`furnace_sphere_scene` and
 :func:`furnace_sphere_prediction`.
 
-Direction mapping (bsdf-format.md, "Renderer mapping")
+Direction mapping (docs/bsdf-format.md, "Renderer mapping")
 ------------------------------------------------------
 Mitsuba's local frame has z = the outward normal; in ``eval(ctx, si, wo)`` ``si.wi`` points to the
 camera and ``wo`` to the light, both away from the surface, and the value returned is f · cos θ_o.
@@ -120,7 +120,7 @@ FLOOR_DEFAULT = 1e-3
 #: Where Debian's libllvm19 puts the library the ``llvm_ad_*`` variants need (renderers.md).
 LLVM_LIBRARY_DEFAULT = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
 
-#: Y of linear sRGB (bsdf-format.md, "colour").
+#: Y of linear sRGB (docs/bsdf-format.md, "colour").
 _RGB_TO_Y = np.array([0.212671, 0.715160, 0.072169])
 _CHANNEL_NM = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)\s*nm\s*$")
 
@@ -137,7 +137,7 @@ def file_coordinates(wi, wo):
     light), both (..., 3) unit vectors pointing away from the surface, z the outward normal.
 
     ``mu_i = wi_z``, ``mu_o = -wo_z``, ``phi_d = π - (φ_o - φ_i)`` folded into [0, π] (the file's
-    series is even in phi_d), conventions and bsdf-format.md.  phi_d [rad].
+    series is even in phi_d), conventions and docs/bsdf-format.md.  phi_d [rad].
     """
     wi = np.asarray(wi, dtype=np.float64)
     wo = np.asarray(wo, dtype=np.float64)

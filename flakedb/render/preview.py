@@ -16,7 +16,7 @@ Radiance ``L(d)`` is indexed by the direction ``d`` *towards* where the light co
 (:class:`Environment`, :class:`Sun`); a background pixel shows ``L((0, 0, -1))``.  The sun is a
 disk of angular radius ``half_angle`` whose radiance *adds* to the environment's inside the disk.
 
-Mapping to the file (bsdf-format.md, "Renderer mapping")
+Mapping to the file (docs/bsdf-format.md, "Renderer mapping")
 --------------------------------------------------------
 With the local frame ``(s, t, n)`` of the shading point, ``wi`` towards the camera and ``wo``
 towards the light (both pointing away from the surface, azimuths ``φ_i``, ``φ_o``):
@@ -274,7 +274,7 @@ def _delta_fresnel(bsdf):
         return None
     if delta.get("kind") != "fresnel":
         raise ValueError(f"{bsdf.path}: unknown delta term {delta!r}; the preview renderer knows "
-                         "only {'kind': 'fresnel', 'eta': η} (bsdf-format.md)")
+                         "only {'kind': 'fresnel', 'eta': η} (docs/bsdf-format.md)")
     return float(delta["eta"])
 
 

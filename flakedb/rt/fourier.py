@@ -1,4 +1,4 @@
-"""Projection of azimuth-dependent functions onto the cosine series in φ_d (model.md §4).
+"""Projection of azimuth-dependent functions onto the cosine series in φ_d (docs/model.md §4).
 
 A function g(μ_i, μ_o, φ_d) that is even and 2π-periodic in φ_d is expanded as
 g = Σ_l a_l(μ_i, μ_o) cos(l φ_d).  Sampling φ_d on the N + 1 points φ_k = π k / N of [0, π] and
@@ -6,7 +6,7 @@ taking the type-I discrete cosine transform gives the a_l exactly for band-limit
 with an aliasing error equal to the folded-back tail otherwise.  The number of samples and the
 number of orders are chosen adaptively: N doubles until the coefficients stop changing to the
 requested tolerance, and the series is truncated where the remaining tail is below it — never a
-fixed constant (model.md §3).
+fixed constant (docs/model.md §3).
 """
 
 import numpy as np

@@ -1,11 +1,11 @@
-"""Interfaces and boundaries as scattering matrices (model.md §4).
+"""Interfaces and boundaries as scattering matrices (docs/model.md §4).
 
 * :func:`smooth_dielectric` — the smooth interface handled exactly: the inside quadrature is the
   Snell image of the outside one (:func:`flakedb.rt.quadrature.snell_mapped_quadrature`), so
   refraction maps node j outside to node j inside with weight 1 − F, internal reflection is
   diagonal (F, and 1 in the totally internally reflected range), all in every Fourier order (a
   delta in φ_d has every order).  The first-surface mirror reflection F(θ_i) is *not* put in the
-  matrix: it is returned as an analytic delta term (bsdf-format.md, "Carrying a smooth clear coat's
+  matrix: it is returned as an analytic delta term (docs/bsdf-format.md, "Carrying a smooth clear coat's
   mirror reflection").
 * :func:`rough_dielectric` — a Beckmann microfacet dielectric (Walter et al. 2007, with the exact
   Smith shadowing), reflection and transmission both ways including total internal reflection,
@@ -137,7 +137,7 @@ def microfacet_dielectric_Walter2007(mu_i, mu_o, phi_d, eta_rel, alpha, transmit
 def _bsdf_block(fn, x_in, w_in, x_out, w_out, tol, n_start, max_orders):
     """Scattering-matrix block S_l[o, i] = c_l w_i μ_i f_l from a BSDF ``fn(mu_i, mu_o, phi)``.
 
-    The projected quantity is f·μ_o (the stored quantity of bsdf-format.md), so the adaptive
+    The projected quantity is f·μ_o (the stored quantity of docs/bsdf-format.md), so the adaptive
     tolerance is relative to what a file holds.
     """
     W = (w_in * x_in)[:, None] * (w_out * 1.0)[None, :]  # energy carried i → o per unit f·μ_o

@@ -1,4 +1,4 @@
-"""Scattering matrices of layers, the adding equations and doubling (paper eq. 3–4, model.md §4).
+"""Scattering matrices of layers, the adding equations and doubling (paper eq. 3–4, docs/model.md §4).
 
 A :class:`Layer` holds, for every Fourier order l and spectral channel c, the four blocks
 
@@ -56,7 +56,7 @@ def pad_orders(a, L):
 
 
 def add(top, bottom):
-    """Stack ``top`` above ``bottom`` (paper eq. 4, model.md §4), with solves instead of inverses.
+    """Stack ``top`` above ``bottom`` (paper eq. 4, docs/model.md §4), with solves instead of inverses.
 
         T^tb = T2^tb (I − R1^b R2^t)^{-1} T1^tb
         R^t  = R1^t + T1^bt R2^t (I − R1^b R2^t)^{-1} T1^tb

@@ -1,5 +1,5 @@
 """Scattering media for the slab solver: phase-function media (isotropic, Henyey–Greenstein,
-tabulated) and mixtures of components (model.md §3: "species mix in one layer by adding their
+tabulated) and mixtures of components (docs/model.md §3: "species mix in one layer by adding their
 σ_t, σ_s and kernels").
 
 A medium component provides
@@ -139,7 +139,7 @@ class PhaseMedium:
 
 @dataclass
 class Mixture:
-    """Several components in one layer: extinctions and kernels add (model.md §3)."""
+    """Several components in one layer: extinctions and kernels add (docs/model.md §3)."""
 
     components: list = field(default_factory=list)
 
@@ -183,7 +183,7 @@ def _bc(a):
 
 @dataclass
 class FlakeMedium:
-    """Translucent micro-flakes (paper eq. 2, model.md §3): Beckmann orientation spread ``alpha``,
+    """Translucent micro-flakes (paper eq. 2, docs/model.md §3): Beckmann orientation spread ``alpha``,
     flake optics :class:`flakedb.rt.microflake.FlakeOptics` (R(c), T(c) per channel) and loading
     ``a_rho_per_um`` (flake area per volume, 1/µm).  σ_t(μ) is the accurate 1-D integral of
     :func:`flakedb.rt.microflake.extinction_Ergun`; the kernel is

@@ -1,4 +1,4 @@
-"""The translucent micro-flake medium of Ergun et al. (paper eq. 2, 5-8; model.md §3), as pure functions.
+"""The translucent micro-flake medium of Ergun et al. (paper eq. 2, 5-8; docs/model.md §3), as pure functions.
 
 Every direction, ``mu`` and ``phi_d`` here follows :mod:`flakedb.conventions` ("conventions"):
 directions are *propagation* directions, ``mu > 0`` travels down, a direction is
@@ -7,7 +7,7 @@ directions are *propagation* directions, ``mu > 0`` travels down, a direction is
 Lengths in µm, so ``a_rho_per_um`` (flake area × number density, µm² · µm⁻³) is in 1/µm and the
 coefficients σ_t, σ_s are in 1/µm; kernels ``σ_s f_p`` are in 1/(µm·sr).
 
-The model (model.md §3, paper eq. 2), flakes of area a, number density ρ, normal density D(m) on the
+The model (docs/model.md §3, paper eq. 2), flakes of area a, number density ρ, normal density D(m) on the
 unit sphere (∫ D dm = 1, D(m) = D(−m)), reflectance R(c) and transmittance T(c) of the flake at
 c = |ω·m| (transmitted light goes on undeviated):
 
@@ -68,7 +68,7 @@ class FlakeOptics:
     light's direction and the flake normal).  ``R``, ``T``: (C, nc) arrays, channels × c, dimensionless.
     Between nodes R and T are linear in c; outside [c[0], c[-1]] they are held constant (like
     ``numpy.interp``).  Requires 0 ≤ R, 0 ≤ T and R + T ≤ 1 (+1e-12): what is neither reflected nor
-    transmitted is absorbed (model.md §3).
+    transmitted is absorbed (docs/model.md §3).
     """
 
     c: np.ndarray

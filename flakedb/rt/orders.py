@@ -1,5 +1,5 @@
 """Opaque stacks order by order: reflection-only adding and the number of Fourier orders chosen from
-the BSDF's decay (docs/orders.md; model.md §4).
+the BSDF's decay (docs/orders.md; docs/model.md §4).
 
 Orders of an azimuthally isotropic stack are independent: order l of the composed matrices depends
 only on order l of every layer.  An opaque stack (primer at the bottom) needs only its top reflection

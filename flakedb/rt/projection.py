@@ -2,7 +2,7 @@
 
 A medium's kernel is linear in what varies with wavelength (paper eq. 2: a flake's R(c); a
 pigment's σ_s p(cos Θ)), so k_c = Σ_b M[c, b] k_b with a few basis kernels k_b
-(:class:`flakedb.rt.media.KernelBasis`).  The cosine-series projection (model.md §4,
+(:class:`flakedb.rt.media.KernelBasis`).  The cosine-series projection (docs/model.md §4,
 :mod:`flakedb.rt.fourier`) is linear too: the basis kernels are sampled and transformed once and every
 channel's coefficients are M times theirs.  :func:`project_kernel_basis` applies exactly the adaptive
 criteria of :func:`flakedb.rt.fourier.project_azimuthal` to the C channel combinations (computed in

@@ -1,4 +1,4 @@
-"""Quadrature rules in μ for the adding-doubling solver (model.md §4).
+"""Quadrature rules in μ for the adding-doubling solver (docs/model.md §4).
 
 One rule per hemisphere (the integrands jump at μ = 0: reflection and transmission differ), no
 node at μ = 0.  Nodes are the positive cosines ``x_1 < … < x_h``; a full node set in the solver's
@@ -7,7 +7,7 @@ sign convention (see :mod:`flakedb.conventions`) is ``[-x_h … -x_1, x_1 … x_
 The default rule is **Gauss–Radau on (0, 1] with the node fixed at μ = 1**: exact for polynomials
 of degree 2h − 2 on each hemisphere, includes normal incidence exactly and excludes μ = 0.
 
-A smooth dielectric interface (model.md §4) needs the quadrature inside the binder to be the image
+A smooth dielectric interface (docs/model.md §4) needs the quadrature inside the binder to be the image
 of the outside one through Snell's law, plus extra nodes in the totally internally reflected range
 (0, μ_c); :func:`snell_mapped_quadrature` builds it.
 """

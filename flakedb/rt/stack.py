@@ -1,4 +1,4 @@
-"""A whole paint stack solved by adding-doubling: top interface, slabs, bottom (model.md §1, §4).
+"""A whole paint stack solved by adding-doubling: top interface, slabs, bottom (docs/model.md §1, §4).
 
     air | top interface (none, smooth or rough dielectric) | slab … slab | bottom (Lambertian,
     rough conductor or none)

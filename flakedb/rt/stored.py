@@ -1,4 +1,4 @@
-"""Media whose reflectance function comes from the precomputed store (issue #6, model.md §5).
+"""Media whose reflectance function comes from the precomputed store (issue #6, docs/model.md §5).
 
 The store (:mod:`flakedb.store.versions`) holds a species' R(μ_i, μ_o, φ_d) on the grid of
 :func:`flakedb.store.compress.grid_nodes`: μ the solver's full node set inside the binder, φ_d the m points

@@ -1,4 +1,4 @@
-"""Sampling and compression of the flake reflectance function R(μ_i, μ_o, φ_d) (model.md §5, paper §4
+"""Sampling and compression of the flake reflectance function R(μ_i, μ_o, φ_d) (docs/model.md §5, paper §4
 end and §6, Figure 4).  Pure numpy: arrays in, arrays out; the only I/O is :func:`figure4`'s output.
 
 What is sampled
@@ -39,7 +39,7 @@ N = m − 1), whose DCT-I (:func:`flakedb.rt.fourier.cosine_coefficients`) gives
 0 … m − 1.  Array layout: ``R[i, o, k] = R(mu[i], mu[o], phi[k])``; flattened to (n_mu², m) with row
 ``i·n_mu + o``.
 
-Compression (model.md §5)
+Compression (docs/model.md §5)
 -------------------------
 √R ≈ Σ_{i<r} s_i u_i v_iᵀ (truncated SVD), and the square expands into k = r(r+1)/2 column pairs
 

@@ -1,4 +1,4 @@
-"""The versioned Zarr v3 store of compressed flake reflectance functions (model.md §5, issue #5).
+"""The versioned Zarr v3 store of compressed flake reflectance functions (docs/model.md §5, issue #5).
 
 Layout (``STORE`` a local directory or any fsspec URL)::
 

@@ -100,7 +100,7 @@ def test_catalogue_mapping_flake_and_pigment():
                 {"primer": {"color": "white"}}], mode="spectral")
     p = build_paint(r)
     fl, pig = p.components[0], p.components[1]
-    assert fl["a_rho_per_um"] == pytest.approx(0.04 / 0.54)   # φ / flake thickness (model.md §3)
+    assert fl["a_rho_per_um"] == pytest.approx(0.04 / 0.54)   # φ / flake thickness (docs/model.md §3)
     assert p.info["flake_c_grid"]["layers[1].basecoat.particles[0]"]["max_midpoint_error"] <= 1e-3
     from flakedb.paint.catalog import get_species
     from flakedb.paint.species import pigment_optics

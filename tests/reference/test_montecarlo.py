@@ -72,7 +72,7 @@ def ndf_flake(cos_h, alpha):
 
 
 def flake_sigma_t(mu, a_rho, alpha, T_of_c, n_t=96, n_phi=1024):
-    """σ_t(μ) = aρ ∫_sphere (1 − T(|ω·m|)) |ω·m| D(m) dm by quadrature (model.md §3).
+    """σ_t(μ) = aρ ∫_sphere (1 − T(|ω·m|)) |ω·m| D(m) dm by quadrature (docs/model.md §3).
 
     Substituting tan θ_m = α t, D(m) sin θ dθ = t e^{−t²}/(2π) dt, and the lower hemisphere doubles.
     """

@@ -1,4 +1,4 @@
-"""The adding-doubling solver against the independent Monte Carlo reference (model.md §7.2).
+"""The adding-doubling solver against the independent Monte Carlo reference (docs/model.md §7.2).
 
 Guards against any error that the invariant tests cannot see: a wrong kernel normalisation, a
 wrong sign convention of φ_d or μ, an interface that conserves energy but sends it to the wrong

@@ -1,4 +1,4 @@
-"""The translucent micro-flake medium (flakedb.rt.microflake; paper eq. 2, 5-8; model.md §3).
+"""The translucent micro-flake medium (flakedb.rt.microflake; paper eq. 2, 5-8; docs/model.md §3).
 
 Guards against: a Beckmann density normalised over the wrong domain (π vs 2π, hemisphere vs
 sphere); a half-vector formula (eq. 6-7) in the wrong angle convention (μ' ↔ −μ', cos φ sign,

@@ -186,7 +186,7 @@ def test_van_de_hulst_table12_isotropic():
 
     r = solve_stack(None, [Slab(1.0, PhaseMedium(2.0, 0.8))], None, SolverSettings(n=96))
     bs = table_evaluator(stack_to_table(r))
-    # f·|μ_o| from the table (Catmull–Rom between nodes, bsdf-format.md) → π f
+    # f·|μ_o| from the table (Catmull–Rom between nodes, docs/bsdf-format.md) → π f
     for mu0, mu, ref, transmit in [(1.0, 0.5, 0.28616, False), (0.5, 0.5, 0.39102, False),
                                    (1.0, 0.5, 0.14864, True)]:
         val = bs.eval(mu0, mu if transmit else -mu, 0.0)[0] / mu * np.pi
