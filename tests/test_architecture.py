@@ -168,3 +168,21 @@ def test_cited_documents_are_in_the_repository():
             if not (root / doc).is_file():
                 missing.add(f"{path.relative_to(root)} cites {doc}")
     assert not missing, "\n".join(sorted(missing))
+
+
+def tier_graph():
+    """Lines ``part (tier t) → parts it imports`` for every part of the package (README, "Layout")."""
+    edges = {}
+    for mod, path in MODULES.items():
+        src = _part(mod)
+        for imp, names, _, _ in _imports(path):
+            for t in _internal_target(imp, names):
+                dst = _part(t) if t != "flakedb" else None
+                if dst and dst != src:
+                    edges.setdefault(src, set()).add(dst)
+    return [f"{p:12s} (tier {TIERS[p]}) → " + ", ".join(f"{d} ({TIERS[d]})" for d in sorted(edges.get(p, ()), key=lambda d: (TIERS[d], d)))
+            for p in sorted(TIERS, key=lambda p: (TIERS[p], p)) if p != "__main__"]
+
+
+if __name__ == "__main__":  # python -m tests.test_architecture: print the import graph by tier
+    print("\n".join(tier_graph()))

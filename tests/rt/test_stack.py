@@ -211,19 +211,23 @@ def test_convergence_in_nodes():
 
 
 def test_convergence_in_orders():
-    """Keeping fewer Fourier orders changes the BSDF by an amount that falls with the order count
-    (order cap of SolverSettings); the energy (order 0) barely depends on it (only through the
-    φ sampling of the projection, which the cap also limits)."""
+    """Keeping fewer Fourier orders changes the BSDF by an amount that falls at a stated rate with the
+    order count (order cap of SolverSettings): at least 100× per 8 orders for this α = 0.15 mirror-
+    flake paint (measured: 3.7e-2, 7.9e-5, 1.4e-8, 5.6e-13 at 8, 16, 24, 32 orders, relative to the
+    BSDF's maximum); the energy (order 0) barely depends on it."""
     m = FlakeMedium(0.15, FlakeOptics.constant(0.8, 0.0), 1.0)
     full = solve_stack(Smooth(1.5), [Slab(2.0, m)], Lambertian(0.3), SolverSettings(n=32))
     phi = np.linspace(0, np.pi, 181)
     ref = full.eval_nodes(phi)
     errs = []
-    for L in (16, 32, 48):
+    for L in (8, 16, 24, 32):
         r = solve_stack(Smooth(1.5), [Slab(2.0, m)], Lambertian(0.3), SolverSettings(n=32, max_orders=L))
-        np.testing.assert_allclose(r.albedo(), full.albedo(), rtol=1e-5)
+        if L >= 16:
+            np.testing.assert_allclose(r.albedo(), full.albedo(), rtol=1e-5)
         errs.append(np.abs(r.eval_nodes(phi) - ref).max() / np.abs(ref).max())
-    assert errs[0] > errs[1] > errs[2]
+    for a, b in zip(errs, errs[1:]):
+        assert b <= 1e-2 * a, errs
+    assert errs[-1] < 1e-10, errs
 
 
 def test_fast_fresnel_of_rough_interface_matches_reference():
@@ -235,13 +239,16 @@ def test_fast_fresnel_of_rough_interface_matches_reference():
 
 
 def test_convergence_in_tir_nodes():
-    """Nodes in the totally internally reflected range below a smooth coat: the albedo converges
-    as their count grows (errors measured against a fine reference fall monotonically)."""
+    """Nodes in the totally internally reflected range below a smooth coat: the albedo converges at
+    least at first order in their count (error against a fine reference h_tir = 128 falls by ≥ 1.8×
+    per doubling; measured 1.6e-5, 3.2e-6, 1.6e-6, 7.9e-7 at 4, 8, 16, 32 nodes)."""
     med = Mixture([FlakeMedium(0.2, FlakeOptics.constant(0.5, 0.3), 1.0), PhaseMedium(1.0, 0.9, ("hg", 0.5))])
-    ref = solve_stack(Smooth(1.5), [Slab(5.0, med)], Lambertian(0.5), SolverSettings(n=32, h_tir=40)).albedo()
+    ref = solve_stack(Smooth(1.5), [Slab(5.0, med)], Lambertian(0.5), SolverSettings(n=32, h_tir=128)).albedo()
     errs = [np.abs(solve_stack(Smooth(1.5), [Slab(5.0, med)], Lambertian(0.5),
-                               SolverSettings(n=32, h_tir=k)).albedo() - ref).max() for k in (4, 8, 16)]
-    assert errs[0] > errs[1] > errs[2] and errs[0] < 2e-5, errs
+                               SolverSettings(n=32, h_tir=k)).albedo() - ref).max() for k in (4, 8, 16, 32)]
+    for a, b in zip(errs, errs[1:]):
+        assert b <= a / 1.8, errs
+    assert errs[0] < 2e-5, errs
 
 
 def test_channel_groups_equal_one_solve(monkeypatch):
