@@ -4,6 +4,7 @@ Nothing half-written is ever visible under the target's name, and the result get
 permissions of a new file (0666 less the process umask), not ``mkstemp``'s 0600.
 """
 
+import contextlib
 import os
 import tempfile
 from pathlib import Path
@@ -26,18 +27,27 @@ def temp_beside(path, suffix=None):
     return fd, tmp
 
 
-def atomic_write(path, write_tmp):
-    """Call ``write_tmp(tmp_path)`` on a temporary file beside ``path``, then rename it onto
-    ``path``; on any error the temporary file is removed and the target is untouched."""
-    fd, tmp = temp_beside(path)
+@contextlib.contextmanager
+def atomic_path(path, suffix=None):
+    """Context manager: yields the path of a temporary file beside ``path`` to write; when the block
+    ends normally the file is renamed onto ``path``, on any error it is removed and the target is
+    untouched.  ``suffix`` as in :func:`temp_beside`."""
+    fd, tmp = temp_beside(path, suffix)
     os.close(fd)
     try:
-        write_tmp(tmp)
+        yield tmp
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def atomic_write(path, write_tmp):
+    """Call ``write_tmp(tmp_path)`` on a temporary file beside ``path``, then rename it onto
+    ``path``; on any error the temporary file is removed and the target is untouched."""
+    with atomic_path(path) as tmp:
+        write_tmp(tmp)
     return Path(path)
 
 

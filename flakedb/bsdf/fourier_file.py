@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flakedb.atomic import temp_beside
+from flakedb.atomic import atomic_path
 from flakedb.bsdf.evaluator import FourierBSDF
 from flakedb.bsdf.metadata import format_metadata, parse_metadata
 from flakedb.bsdf.spline import catmull_rom_cdf, insert_zero_nodes
@@ -138,9 +138,8 @@ def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -
                           len(meta_bytes), 0, 0, np.float32(table.eta), np.float32(table.alpha[0]),
                           np.float32(table.alpha[1]))
     size = bsdf_file_size(N, n_coeffs, len(meta_bytes))
-    fd, tmp = temp_beside(path, suffix="")
-    try:
-        with os.fdopen(fd, "wb") as fh:
+    with atomic_path(path, suffix="") as tmp:
+        with open(tmp, "wb") as fh:
             fh.write(header)
             fh.write(nodes32.astype("<f4").tobytes())
             fh.write(cdf.tobytes())
@@ -159,11 +158,6 @@ def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -
             fh.write(meta_bytes)
         if os.path.getsize(tmp) != size:
             raise RuntimeError(f"internal error: wrote {os.path.getsize(tmp)} bytes, spec size is {size}")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
     return {"n_nodes": N, "n_coeffs": n_coeffs, "max_order": max_order, "n_channels": C,
             "metadata_bytes": len(meta_bytes), "size": size}
 

@@ -10,7 +10,7 @@ import h5py
 import numpy as np
 
 from flakedb import __version__
-from flakedb.atomic import temp_beside
+from flakedb.atomic import atomic_path
 from flakedb.bsdf.evaluator import FourierBSDF, table_evaluator
 from flakedb.bsdf.table import BSDFFileError, BSDFTable
 
@@ -36,9 +36,7 @@ def write_h5(path, table: BSDFTable, extra_metadata: dict | None = None) -> dict
     md.update(extra_metadata or {})
     md_json = json.dumps(md, sort_keys=True, allow_nan=False, default=_json_default)
     C, n, _, L = table.coeffs.shape
-    fd, tmp = temp_beside(path)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as f:
             f.attrs["format"] = H5_FORMAT
             f.attrs["format_version"] = H5_FORMAT_VERSION
@@ -53,11 +51,6 @@ def write_h5(path, table: BSDFTable, extra_metadata: dict | None = None) -> dict
                              compression="gzip", compression_opts=1)
             f.create_dataset("albedo", data=table.albedo())
         size = os.path.getsize(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
     return {"size": size, "n_channels": C, "max_order": L}
 
 

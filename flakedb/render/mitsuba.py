@@ -83,7 +83,7 @@ import numba
 import numpy as np
 
 from flakedb import __version__
-from flakedb.atomic import temp_beside
+from flakedb.atomic import atomic_path
 from flakedb.bsdf import catmull_rom_cdf, catmull_rom_weights, open_bsdf
 from flakedb.bsdf.kernels import cr_weights_1, sample_kernel, series_kernel
 from flakedb.bsdf.table import G_FROM_YRB
@@ -378,19 +378,13 @@ def write_tensor_file(path, fields: dict, align: int = 8) -> int:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
 
-    fd, tmp = temp_beside(path, suffix="")
-    try:
-        with os.fdopen(fd, "wb") as fh:
+    with atomic_path(path, suffix="") as tmp:
+        with open(tmp, "wb") as fh:
             fh.write(head)
             for k, a in arrays.items():
                 fh.write(b"\0" * (offsets[k] - fh.tell()))
                 fh.write(a.tobytes())
             size = fh.tell()
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
     return size
 
 

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
+from flakedb.atomic import atomic_path
 from flakedb.colour.colorimetry import spectra_to_rgb_mode, spectral_grid
 from flakedb.paint.catalog import get_species, load_catalog
 from flakedb.paint.species import SHOW_ANGLES_DEG, binder_index, flake_reflectance_transmittance, pigment_optics
@@ -63,13 +63,7 @@ def plot_optics(name: str, out_dir, catalog: dict | None = None) -> Path:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     final = out_dir / f"{name}-optics.png"
-    tmp = out_dir / f".{name}-optics.png.{os.getpid()}.tmp"
-    try:
+    with atomic_path(final) as tmp:
         with open(tmp, "wb") as f:
             fig.savefig(f, format="png", dpi=110)
-        os.replace(tmp, final)
-    except BaseException:
-        if tmp.exists():
-            tmp.unlink()
-        raise
     return final
