@@ -1,0 +1,72 @@
+"""The one stack → table conversion (flakedb.bsdf.convert.stack_to_table): what the solver computed
+is what the file holds.  Guards against a second, diverging conversion (issue #10: two existed, one
+with and one without the η² factor on transmission) and against node-ordering or cosine-factor slips.
+"""
+
+import tempfile
+
+import numpy as np
+
+from flakedb.bsdf import table_evaluator
+from flakedb.bsdf.convert import stack_to_table
+from flakedb.compose.orchestrate import compose
+from flakedb.paint.mapping import build_paint, solve_paint
+from flakedb.paint.recipe import parse_recipe
+from flakedb.rt.media import PhaseMedium
+from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
+
+PHI = np.array([0.0, 0.7, 2.0, np.pi])
+
+
+def _series(f_l, phi):
+    return np.einsum("l...,lp->...p", f_l, np.cos(np.arange(f_l.shape[0])[:, None] * phi[None, :]))
+
+
+def test_reflection_at_the_nodes_is_the_solvers_bsdf_times_mu_o():
+    s = solve_stack(Smooth(1.5), [Slab(1.0, PhaseMedium(1.0, 0.9, ("hg", 0.5)))], Lambertian(0.5), SolverSettings(n=12))
+    ev = table_evaluator(stack_to_table(s))
+    x = s.x
+    f = s.f_coefficients("Rt")[:, 0]                     # (L, o, i)
+    want = _series(f, PHI)                                # (o, i, P)
+    mi, mo, ph = np.meshgrid(x, x, PHI, indexing="ij")    # [i, o, p]
+    got = ev.eval(mi.ravel(), -mo.ravel(), ph.ravel(), clamp="none")[:, 0].reshape(mi.shape)
+    np.testing.assert_allclose(got, np.transpose(want, (1, 0, 2)) * x[None, :, None], rtol=1e-10, atol=1e-14)
+    assert stack_to_table(s).delta == {"kind": "fresnel", "eta": 1.5}
+
+
+def test_transmission_blocks_are_basic_radiance_and_conserve_energy():
+    """Index-matched lossless slab, no primer: every incident node's reflection + transmission
+    from the table's order-0 coefficients (Σ_o 2π w_o a_0) is 1, both from above and from below."""
+    s = solve_stack(None, [Slab(2.0, PhaseMedium(1.0, 1.0, ("hg", 0.3)))], None, SolverSettings(n=16))
+    t = stack_to_table(s)
+    h = s.x.size
+    w = np.concatenate([s.w[::-1], s.w])
+    a0 = t.coeffs[0, :, :, 0]                              # [i, o] of f·|μ_o|
+    flux = 2 * np.pi * (a0 * w[None, :]).sum(axis=1)      # per incident node, all outgoing nodes
+    np.testing.assert_allclose(flux, 1.0, atol=1e-9)
+    # from below equals from above by the slab's symmetry
+    np.testing.assert_allclose(a0[:h, :][::-1, ::-1], a0[h:, :], atol=1e-12)
+
+
+def test_compose_ships_this_conversion():
+    """compose's table is stack_to_table of the solved paint (same numbers, not a re-implementation)."""
+    text = """flakedb: 1
+name: convert-parity
+spectral: {mode: mono}
+resolution: 16
+layers:
+  - clearcoat: {thickness_um: 30, ior: 1.5}
+  - basecoat:
+      thickness_um: 10
+      ior: 1.5
+      particles:
+        - custom: {kind: medium, name: grey, albedo: 0.7, phase: {hg: 0.4}}
+          optical_depth: 1.0
+  - primer: {color: gray}
+"""
+    recipe = parse_recipe(text)
+    paint = build_paint(recipe)
+    want = stack_to_table(solve_paint(paint, 16), paint.channels, paint.eta, paint.top_alpha, paint.delta)
+    got = compose(recipe, tempfile.mkdtemp()).table
+    np.testing.assert_array_equal(got.coeffs, want.coeffs)
+    np.testing.assert_array_equal(got.mu, want.mu)
