@@ -193,7 +193,8 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
         f"{t['optics']:.2f} s")
     t0 = time.perf_counter()
     budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
-    stack = solve_paint(paint, n_used, memory_budget_bytes=float(budget) if budget else None)
+    stack = solve_paint(paint, n_used, memory_budget_bytes=float(budget) if budget else None,
+                        threads=os.cpu_count() or 1)
     t["solve"] = time.perf_counter() - t0
     log(f"solve: n = {n_used} ({reason}), {stack.info.get('orders')} Fourier orders, {t['solve']:.2f} s")
     t0 = time.perf_counter()

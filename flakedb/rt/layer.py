@@ -16,6 +16,7 @@ are plain matrix products.  Channel axes of size 1 broadcast.
 Everything is batched over (L, C): one LAPACK call per step, no Python loop over orders or channels.
 """
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,18 +92,40 @@ def add_reflection_only(top, bottom_Rt):
     return top.Rt + top.Tbt @ (bottom_Rt @ X)
 
 
-def double_symmetric(R, T, times):
-    """Double a top/bottom-symmetric layer ``times`` times (R^t = R^b = R, T^tb = T^bt = T).
-
-    add(S, S) for a symmetric S: X = (I − R R)^{-1} T; T' = T X; R' = R + T R X.  One solve and
-    three products per doubling.
-    """
+def _double_symmetric_serial(R, T, times):
     h = R.shape[-1]
     eye = np.eye(h)
     for _ in range(int(times)):
         X = np.linalg.solve(eye - R @ R, T)
         R, T = R + T @ (R @ X), T @ X
     return R, T
+
+
+#: Threads of :func:`double_symmetric`'s batch split, created on first use.
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def double_symmetric(R, T, times, threads=1):
+    """Double a top/bottom-symmetric layer ``times`` times (R^t = R^b = R, T^tb = T^bt = T).
+
+    add(S, S) for a symmetric S: X = (I − R R)^{-1} T; T' = T X; R' = R + T R X.  One solve and
+    three products per doubling.  Orders and channels are independent: with ``threads`` > 1 the
+    (L, C) batch is split into that many parts doubled in parallel threads (numpy's LAPACK and BLAS
+    calls release the GIL; the caller keeps BLAS itself at one thread per call, see
+    :func:`flakedb.rt.stack.solve_stack`).  The result is bit-identical to the serial one.
+    """
+    L, C = R.shape[:2]
+    threads = int(threads)
+    if threads <= 1 or times <= 0 or L * C < 2 * threads:
+        return _double_symmetric_serial(R, T, times)
+    Rf = R.reshape((L * C,) + R.shape[2:])
+    Tf = np.broadcast_to(T, R.shape).reshape(Rf.shape)
+    parts = np.array_split(np.arange(L * C), threads)
+    pool = _POOLS.setdefault(threads, ThreadPoolExecutor(threads))
+    futs = [pool.submit(_double_symmetric_serial, Rf[p[0]:p[-1] + 1], Tf[p[0]:p[-1] + 1], times) for p in parts]
+    res = [f.result() for f in futs]
+    return (np.concatenate([r for r, _ in res]).reshape(R.shape),
+            np.concatenate([t for _, t in res]).reshape(R.shape))
 
 
 def thin_slab_diamond(x, w, sigma_t, K_T, K_R, dz_um, l0=0):
@@ -160,12 +183,13 @@ def slice_doublings(thickness_um, sigma_t_max_per_um, slice_tau=2.0**-7):
     return int(np.ceil(np.log2(tau / slice_tau)))
 
 
-def homogeneous_slab(x, w, sigma_t, K_T, K_R, thickness_um, slice_tau=2.0**-7, l0=0):
+def homogeneous_slab(x, w, sigma_t, K_T, K_R, thickness_um, slice_tau=2.0**-7, l0=0, threads=1):
     """A homogeneous slab of the given thickness: diamond start, then symmetric doubling.
 
     Orders whose kernel vanishes (beyond the kernel's own count) carry only the direct beam, whose
     transmission exp(−σ_t Δz/μ) is diagonal and exact; they are not stored (the caller pads).
-    Returns a :class:`Layer` with L = K_T.shape[0] orders (orders l0 … l0 + L − 1).
+    Returns a :class:`Layer` with L = K_T.shape[0] orders (orders l0 … l0 + L − 1); ``threads`` as
+    in :func:`double_symmetric`.
     """
     sigma_t = np.atleast_2d(sigma_t)
     if not np.any(K_T) and not np.any(K_R):  # a pure absorber: the exact diagonal attenuation
@@ -174,7 +198,7 @@ def homogeneous_slab(x, w, sigma_t, K_T, K_R, thickness_um, slice_tau=2.0**-7, l
     n = slice_doublings(thickness_um, sigma_t.max(), slice_tau)
     dz = thickness_um / 2.0**n
     R, T = thin_slab_diamond(x, w, sigma_t, K_T, K_R, dz, l0)
-    R, T = double_symmetric(R, T, n)
+    R, T = double_symmetric(R, T, n, threads)
     return Layer(R, T, R.copy(), T.copy())
 
 

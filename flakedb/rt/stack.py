@@ -12,6 +12,7 @@ analytic delta term of a smooth top, and evaluates them.
 from dataclasses import dataclass, field
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from flakedb.conventions import fourier_weight
 from flakedb.rt import interface as itf
@@ -105,6 +106,9 @@ class SolverSettings:
     order_tol: float | None = None
     #: Project kernels through their spectral basis (docs/projection.md); False samples every channel.
     kernel_basis: bool = True
+    #: Threads over the (orders, channels) batch of the doubling (:func:`flakedb.rt.layer.double_symmetric`);
+    #: compose sets the machine's core count.  BLAS itself runs one thread per call during a solve.
+    threads: int = 1
 
     @classmethod
     def product(cls, n, **kw):
@@ -279,6 +283,14 @@ def solve_stack(top, slabs, bottom, settings=None, channels=None):
     channels are solved in groups and the results joined (orders padded to the largest count).
     """
     s = settings or SolverSettings()
+    # small batched matrices: one BLAS thread per call (measured: the batched doubling of 100 × 100
+    # blocks ran 4.4× slower with OpenBLAS at 2 threads than at 1 on a 2-core machine); parallelism,
+    # if any, is over the batch (``settings.threads``)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _solve_stack_grouped(top, slabs, bottom, s, channels)
+
+
+def _solve_stack_grouped(top, slabs, bottom, s, channels):
     if s.n % 2 == 0 and s.n >= 2:
         C = int(channels) if channels else _n_channels(slabs, bottom)
         h_out = s.n // 2
@@ -381,7 +393,7 @@ def _solve_stack(top, slabs, bottom, s):
         if k1 <= l0:
             return direct_only_orders(q_in.x, sig, d, l1 - l0, max(pk.channels, sig.shape[0]))
         K_T, K_R = pk.blocks(l0, k1)
-        layer = homogeneous_slab(q_in.x, q_in.w, sig, K_T, K_R, d, s.slice_tau, l0=l0)
+        layer = homogeneous_slab(q_in.x, q_in.w, sig, K_T, K_R, d, s.slice_tau, l0=l0, threads=s.threads)
         return extend_orders(layer, l1 - l0, q_in.x, sig, d)
 
     def top_block(l0, l1):
