@@ -1,0 +1,26 @@
+"""Whole-process benchmark of issue #11's layerlab comparison: rough coat (Beckmann α 0.1, η 1.5) /
+Henyey–Greenstein slab (g 0.7, albedo 0.95, τ 2) / Lambertian 0.5, RGB, n = 200, solved and written
+as a Fourier ``.bsdf``.  Run as a process (``python bench/stack_rough_hg_lambertian.py [n] [out]``) and
+time it from outside; layerlab took 2.5 s for the same stack on the 2-core machine (issue #11)."""
+
+import os
+import sys
+import tempfile
+
+from flakedb.bsdf import write_bsdf
+from flakedb.bsdf.convert import stack_to_table
+from flakedb.rt.media import PhaseMedium
+from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+
+
+def main(n=200, out=None):
+    slab = Slab(2.0, PhaseMedium(sigma_t_per_um=[1.0] * 3, albedo=[0.95] * 3, phase=("hg", 0.7)))
+    s = solve_stack(Rough(1.5, 0.1), [slab], Lambertian([0.5] * 3),
+                    SolverSettings.product(n, threads=os.cpu_count() or 1))
+    out = out or os.path.join(tempfile.gettempdir(), "flakedb-bench-rough-hg-lambertian.bsdf")
+    write_bsdf(out, stack_to_table(s))
+    return s
+
+
+if __name__ == "__main__":
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 200, sys.argv[2] if len(sys.argv) > 2 else None)
