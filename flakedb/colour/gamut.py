@@ -186,3 +186,15 @@ def mapping_delta_e(rgb_before, rgb_after, wavelength_nm, space: str = "srgb") -
     lab1 = XYZ_to_Lab(np.asarray(rgb_before, float) @ B, white=white)
     lab2 = XYZ_to_Lab(np.asarray(rgb_after, float) @ B, white=white)
     return delta_E_2000(lab1, lab2)
+
+
+def desaturate_points(rgb, w) -> np.ndarray:
+    """(G1) applied to independent colours (..., 3) (e.g. a measured-BSDF grid, one s per value):
+    the largest s in [0, 1] making every channel ≥ 0 where Y > 0; a value with Y ≤ 0 becomes 0."""
+    v = np.asarray(rgb, dtype=float)
+    Y = v @ np.asarray(w, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = np.where((v < 0) & (Y[..., None] > 0), (1.0 - 1e-9) * Y[..., None] / (Y[..., None] - v), 1.0)
+    s = np.clip(bound.min(axis=-1), 0.0, 1.0)
+    out = Y[..., None] + s[..., None] * (v - Y[..., None])
+    return np.where(Y[..., None] > 0, np.maximum(out, 0.0), 0.0)
