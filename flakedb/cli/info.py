@@ -10,6 +10,7 @@ solver's convergence in the same words compose printed (:func:`flakedb.compose.o
 """
 
 import json
+import struct
 from pathlib import Path
 
 import click
@@ -17,6 +18,7 @@ import numpy as np
 
 from flakedb.bsdf import BSDFFileError, open_bsdf
 from flakedb.cli.errors import FlakedbError
+from flakedb.colour.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
 from flakedb.compose.orchestrate import solver_warnings
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.render.mitsuba import read_tensor_file
@@ -142,7 +144,6 @@ def describe(path):
         "warnings": list(dict.fromkeys(list(md.get("warnings") or []) + solver)),
     }
     if b.kind == "h5" and md.get("wavelength_nm") and len(md["wavelength_nm"]) == b.n_channels:
-        from flakedb.colour.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
         wl = np.asarray(md["wavelength_nm"], float)
         XYZ = reflectance_to_XYZ(albedo, wl)
         lab = XYZ_to_Lab(XYZ, white=white_XYZ(wl))
@@ -157,7 +158,7 @@ def describe_tensor(path):
     p = Path(path)
     try:
         f = read_tensor_file(p)
-    except (ValueError, KeyError, IndexError, Exception) as e:  # struct.error and friends: a damaged file
+    except (ValueError, KeyError, IndexError, struct.error) as e:  # a damaged file
         raise BSDFFileError(f"{p}: a tensor file that cannot be read ({e})") from None
     data_key = "rgb" if "rgb" in f else ("spectra" if "spectra" in f else None)
     desc = bytes(np.asarray(f.get("description", np.zeros(0, np.uint8)))).decode("utf-8", "replace")

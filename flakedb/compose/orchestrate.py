@@ -49,7 +49,12 @@ from flakedb import __version__
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.colour import gamut
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
-from flakedb.compose.report import ASPECULAR_DEG, colour_report, eval_table, multiangle_geometry
+from flakedb.compose.report import (
+    ASPECULAR_DEG,
+    colour_report,
+    eval_table,
+    multiangle_geometry,
+)
 from flakedb.compose.store_context import StoreContext
 from flakedb.paint.mapping import auto_resolution, build_paint, catalog_species, solve_paint
 from flakedb.store import versions as st

@@ -89,7 +89,7 @@ def test_render_accepts_the_spectral_h5_and_makes_a_sheet(yellow, tmp_path):
     assert r.exit_code == 0, r.output
     assert (tmp_path / "sheet.png").exists() and "ACES filmic" in r.output
     from flakedb.render.imageio import read_exr
-    a, b = read_exr(tmp_path / "particle-cadmium-yellow.exr"), None
+    a = read_exr(tmp_path / "particle-cadmium-yellow.exr")
     assert a.shape == (24, 24, 3)
     from PIL import Image
     with Image.open(tmp_path / "sheet.png") as im:
@@ -122,9 +122,10 @@ def test_demo_paint_render_at_defaults_clips_under_one_percent(tmp_path):
     assert r.exit_code == 0, r.output
     r = CliRunner().invoke(cli, ["render", str(tmp_path / "tri-coat-pearl-white.bsdf"), "--out", str(tmp_path)])
     assert r.exit_code == 0, r.output
+    from PIL import Image
+
     from flakedb.render.imageio import read_exr
     from flakedb.render.preview import DEFAULT_EXTENT
-    from PIL import Image
     with Image.open(tmp_path / "tri-coat-pearl-white.png") as im:
         png = np.asarray(im)
     size = png.shape[0]

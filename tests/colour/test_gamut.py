@@ -46,7 +46,7 @@ def _reciprocal_table(rng, n=8, L=5):
 
 def test_desaturation_keeps_luminance_reciprocity_and_removes_negatives():
     rng = np.random.default_rng(1)
-    mu, c, f = _reciprocal_table(rng)
+    mu, c, _ = _reciprocal_table(rng)
     w = gamut.luminance_weights(WL, "srgb")
     mapped, s = gamut.desaturate_to_gamut(c, w, n_phi=32)
     assert (s < 1).any() and (s == 1).any()

@@ -15,7 +15,11 @@ import pytest
 
 from flakedb.bsdf import open_bsdf
 from flakedb.colour import gamut
-from flakedb.compose.orchestrate import compose, gamut_safe_file_channels, solver_warnings
+from flakedb.compose.orchestrate import (
+    compose,
+    gamut_safe_file_channels,
+    solver_warnings,
+)
 from flakedb.compose.report import flop_index, flop_index_standard
 from flakedb.paint.recipe import parse_recipe
 from flakedb.paint.species import load_catalog
@@ -55,8 +59,13 @@ def test_saturated_yellow_is_mapped_into_gamut_and_its_cost_recorded(catalog, tm
     assert b.metadata["rgb_space"].startswith("linear sRGB")
     ft, info = gamut_safe_file_channels(res.table, "spectral", res.paint.wavelength_nm)
     assert info["max_dE00"] == pytest.approx(g["max_dE00"])
+    from flakedb.colour.colorimetry import (
+        XYZ_to_Lab,
+        delta_E_2000,
+        reflectance_to_XYZ,
+        white_XYZ,
+    )
     from flakedb.compose.report import eval_table, multiangle_geometry
-    from flakedb.colour.colorimetry import XYZ_to_Lab, delta_E_2000, reflectance_to_XYZ, white_XYZ
     wl = res.paint.wavelength_nm
     mi, mo, ph, _ = multiangle_geometry(45.0)
     true_lab = XYZ_to_Lab(reflectance_to_XYZ(np.pi * eval_table(res.table, mi, mo, ph) / abs(mo), wl),
