@@ -8,7 +8,8 @@ basis (docs/model.md).  Conventions: :mod:`flakedb.conventions`.  The package is
 The main entry points are importable from here:
 
 * :func:`load_recipe` / :func:`parse_recipe` — a recipe (YAML) → :class:`flakedb.paint.recipe.Recipe`;
-* :func:`compose` — a recipe → ``.bsdf``, ``.h5`` and colour report in a directory;
+* :func:`compose_recipe` — a recipe → ``.bsdf``, ``.h5`` and colour report in a directory
+  (:func:`flakedb.compose.orchestrate.compose`);
 * :func:`solve_stack` — a stack of interfaces, slabs and a primer → its BSDF (the solver);
 * :func:`open_bsdf` — read a ``.bsdf`` or ``.h5`` file and evaluate it.
 
@@ -40,7 +41,7 @@ Composing a recipe into files:
 ...           optical_depth: 1.0
 ...   - primer: {color: white}
 ... ''')
->>> out = flakedb.compose(recipe, tempfile.mkdtemp())
+>>> out = flakedb.compose_recipe(recipe, tempfile.mkdtemp())
 >>> sorted(out.paths)
 ['bsdf', 'h5', 'json']
 >>> bsdf = flakedb.open_bsdf(out.paths["bsdf"])
@@ -52,14 +53,15 @@ import importlib
 
 __version__ = "0.1.0"
 
-#: name → module of the entry points; imported on first use (PEP 562), so that importing a kernel
+#: name → (module, attribute) of the entry points (``compose_recipe``, not ``compose``: that name is the
+#: ``flakedb.compose`` subpackage); imported on first use (PEP 562), so that importing a kernel
 #: (``flakedb.rt.quadrature``) does not import the whole package.
 _ENTRY_POINTS = {
-    "load_recipe": "flakedb.paint.recipe",
-    "parse_recipe": "flakedb.paint.recipe",
-    "compose": "flakedb.compose.orchestrate",
-    "solve_stack": "flakedb.rt.stack",
-    "open_bsdf": "flakedb.bsdf",
+    "load_recipe": ("flakedb.paint.recipe", "load_recipe"),
+    "parse_recipe": ("flakedb.paint.recipe", "parse_recipe"),
+    "compose_recipe": ("flakedb.compose.orchestrate", "compose"),
+    "solve_stack": ("flakedb.rt.stack", "solve_stack"),
+    "open_bsdf": ("flakedb.bsdf", "open_bsdf"),
 }
 
 __all__ = ["__version__", *_ENTRY_POINTS]
@@ -67,5 +69,6 @@ __all__ = ["__version__", *_ENTRY_POINTS]
 
 def __getattr__(name):
     if name in _ENTRY_POINTS:
-        return getattr(importlib.import_module(_ENTRY_POINTS[name]), name)
+        module, attr = _ENTRY_POINTS[name]
+        return getattr(importlib.import_module(module), attr)
     raise AttributeError(f"module 'flakedb' has no attribute {name!r}")

@@ -3,6 +3,8 @@
 import click
 
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.progress import StageProgress
+from flakedb.colour.gamut import RGB_SPACES
 from flakedb.compose.orchestrate import OutputError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
@@ -28,7 +30,11 @@ from flakedb.store.versions import StoreError
                    "the flag is recorded.")
 @click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
-def compose(recipe, out_dir, n, store, raw, catalog_path):
+@click.option("--rgb-space", "rgb_space", default="srgb", show_default=True, type=click.Choice(list(RGB_SPACES)),
+              help="Working space of the RGB .bsdf: linear sRGB (what .bsdf readers assume), or the wide-gamut "
+                   "linear Rec.2020 / ACEScg (tell the renderer; docs/renderers.md).  Recorded in the metadata.")
+@click.option("--quiet", is_flag=True, help="No progress lines on stderr (warnings are still printed).")
+def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet):
     """Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report."""
     if n is not None and (n < 8 or n % 2):
         raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8 (n/2 nodes per hemisphere), "
@@ -49,11 +55,15 @@ def compose(recipe, out_dir, n, store, raw, catalog_path):
         click.echo(f"compose {rec.name}: store: none needed (no catalogue species); optics computed directly")
     else:
         click.echo(f"compose {rec.name}: store: {store} ({'raw samples' if raw else 'compressed factors'})")
+    bar = StageProgress()
+    progress = bar if not quiet else (lambda stage, d: bar(stage, d) if stage == "warning" else None)
     try:
         res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"),
-                             store=store)
+                             store=store, rgb_space=rgb_space, progress=progress)
     except StoreError as exc:
         raise FlakedbError(str(exc)) from exc
+    finally:
+        bar.close()
 
     click.echo(format_report(res.report))
     s = res.bsdf_summary

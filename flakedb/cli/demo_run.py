@@ -15,7 +15,7 @@ from flakedb.paint.catalog import load_catalog
 from flakedb.paint.recipe import parse_recipe
 from flakedb.paint.species import optics_table
 from flakedb.pipelines.build import build, make_request
-from flakedb.render import preview
+from flakedb.render import look, preview
 from flakedb.render.imageio import write_exr, write_png
 from flakedb.render.plots import plot_optics
 from flakedb.resources import RECIPES_DIR
@@ -71,11 +71,12 @@ def _build_demo_store(out_dir):
 
 def _render_demo(bsdf_path, out_dir):
     bsdf = open_bsdf(bsdf_path)
-    result = preview.render_sphere(bsdf, preview.studio_environment(), preview.studio_sun(), size=DEMO_PREVIEW_PX,
+    result = preview.render_sphere(bsdf, look.softbox_studio(), None, size=DEMO_PREVIEW_PX,
                                    spp=preview.DEFAULT_SPP)
     stem = Path(bsdf_path).stem
     exr = write_exr(Path(out_dir) / f"{stem}.exr", result.image)
-    png = write_png(Path(out_dir) / f"{stem}.png", result.image)
+    scale = look.auto_exposure(result.image, result.coverage >= 1.0)
+    png = write_png(Path(out_dir) / f"{stem}.png", look.tone_map(result.image, scale))
     print(f"preview {DEMO_PREVIEW_PX}×{DEMO_PREVIEW_PX} rendered in {result.seconds:.1f} s: {exr}, {png}")
 
 

@@ -4,6 +4,7 @@ Thin: the work is in :func:`flakedb.render.mitsuba.export_measured`.
 """
 
 import json
+from pathlib import Path
 
 import click
 
@@ -11,11 +12,16 @@ from flakedb.bsdf import BSDFFileError
 from flakedb.cli.errors import FlakedbError
 from flakedb.render import mitsuba as fm
 
+#: The export's own extension: the content is an RGL tensor file, not a Fourier .bsdf (Mitsuba's
+#: `measured` plugin reads it by content, whatever the name).
+MEASURED_SUFFIX = ".measured.tensor"
+
 
 @click.command("export-mitsuba")
 @click.argument("file", type=click.Path(dir_okay=False))
-@click.option("--out", "out", required=True, type=click.Path(dir_okay=False),
-              help="Output tensor file (e.g. paint_measured.bsdf) for Mitsuba 3's `measured` plugin.")
+@click.option("--out", "out", default=None, type=click.Path(dir_okay=False),
+              help=f"Output tensor file for Mitsuba 3's `measured` plugin [default: FILE's stem + {MEASURED_SUFFIX}, "
+                   f"next to FILE].")
 @click.option("--variant", type=click.Choice(["rgb", "spectral"]), default="rgb", show_default=True,
               help="rgb: an `rgb` field (RGB variants); spectral: `spectra` + `wavelengths` from a "
                    "spectral flakedb .h5 (spectral variants).")
@@ -29,6 +35,8 @@ def export_mitsuba(file, out, variant, res, n_theta, as_json):
     reflection only).  The smooth coat's mirror term cannot be carried and is dropped: the summary
     lists the albedo it loses.  Render the full paint with the `flakedb` plugin instead
     (docs/renderers.md)."""
+    if out is None:
+        out = str(Path(file).with_name(Path(file).stem + MEASURED_SUFFIX))
     try:
         s = fm.export_measured(file, out, variant=variant, res=res or fm.RES_DEFAULT,
                                n_theta=n_theta or fm.N_THETA_DEFAULT)

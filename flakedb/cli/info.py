@@ -1,19 +1,99 @@
-"""`flakedb info FILE`: what is in a Fourier ``.bsdf`` or flakedb HDF5 BSDF file."""
+"""`flakedb info FILE`: what a file holds, for a person (text) or a machine (``--json``).
+
+Three kinds, recognised by their first bytes (not by the extension): a Fourier ``.bsdf`` (``SCATFUN``),
+a flakedb HDF5 BSDF (``.h5``, the full-precision result) and a Mitsuba 3 ``measured`` tensor file
+(``tensor_file``, what ``flakedb export-mitsuba`` writes, ``NAME.measured.tensor``).  For the two
+Fourier files the checks are stated in words: energy (the directional albedo at every incident
+node, with the smooth coat's mirror term, is ≤ 1), colour (no negative channel in the order-0
+coefficients or the albedo; the RGB working space and its gamut mapping), and, for an ``.h5``, the
+solver's convergence in the same words compose printed (:func:`flakedb.compose.orchestrate.solver_warnings`).
+"""
 
 import json
+import struct
+from pathlib import Path
 
 import click
 import numpy as np
 
 from flakedb.bsdf import BSDFFileError, open_bsdf
 from flakedb.cli.errors import FlakedbError
+from flakedb.colour.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
+from flakedb.compose.orchestrate import solver_warnings
+from flakedb.optics.fresnel import fresnel_dielectric
+from flakedb.render.mitsuba import read_tensor_file
 
 #: Incident zenith angles [deg] (light arriving from above) at which the albedo is listed.
 INFO_THETA_DEG = (0.0, 30.0, 45.0, 60.0, 75.0, 85.0)
+#: First bytes of a Mitsuba / RGL tensor file.
+MAGIC_TENSOR = b"tensor_file\0"
+#: Slack of the energy check (the readers' float32 and the Catmull-Rom integral).
+ENERGY_SLACK = 1e-3
+
+
+def file_kind(path) -> str:
+    """'tensor' for a Mitsuba tensor file, else 'fourier' (open_bsdf tells .bsdf from .h5 or refuses)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(len(MAGIC_TENSOR))
+    except FileNotFoundError:
+        raise BSDFFileError(f"{path}: no such file") from None
+    except OSError as e:
+        raise BSDFFileError(f"{path}: cannot read ({e.strerror})") from None
+    return "tensor" if head == MAGIC_TENSOR else "fourier"
+
+
+def _short(v):
+    """A metadata value for people: scalars and short strings as they are, long things summarised."""
+    if isinstance(v, str):
+        first = v.strip().split("\n")[0]
+        return first if len(first) <= 100 and "\n" not in v.strip() else f"{first[:80]}… ({len(v)} characters)"
+    if isinstance(v, (list, tuple)):
+        return json.dumps(v) if len(json.dumps(v)) <= 80 else f"[{len(v)} values]"
+    if isinstance(v, dict):
+        return json.dumps(v) if len(json.dumps(v)) <= 80 else f"{{{len(v)} entries: {', '.join(list(v)[:5])}…}}"
+    return v
+
+
+def _checks(b):
+    """Energy and colour checks of a Fourier file, in words: list of {check, ok, text}."""
+    t = b.to_table()
+    h = t.n // 2
+    mu_in = t.mu[h:]                                             # light from above
+    alb = t.albedo()[:, h:]                                      # (C, h) table albedo per channel
+    F = np.zeros(h) if not b.delta else fresnel_dielectric(mu_in, float(b.delta["eta"])).R
+    tot = alb + F[None, :]
+    a0 = t.coeffs[:, h:, :, 0]
+    out = []
+    hi = float(tot.max())
+    ok = hi <= 1.0 + ENERGY_SLACK
+    out.append({"check": "energy", "ok": ok, "max_albedo": hi,
+                "text": (f"energy conserved: the albedo (reflected + transmitted{' + mirror term' if b.delta else ''}) "
+                         f"is at most {hi:.4f} over the {h} incident nodes and {t.n_channels} channel(s)" if ok else
+                         f"ENERGY NOT CONSERVED: the albedo reaches {hi:.4f} > 1 at an incident node")})
+    neg_a0 = float(a0.min())
+    neg_alb = float(alb.min())
+    scale = max(float(np.abs(a0).max()), 1e-300)
+    ok = neg_alb >= 0 and neg_a0 >= -1e-6 * scale
+    out.append({"check": "colour", "ok": ok, "min_order0": neg_a0, "min_albedo": neg_alb,
+                "text": ("no negative channel: every order-0 coefficient and every channel's albedo is >= 0" if ok else
+                         f"NEGATIVE CHANNELS: order-0 coefficient down to {neg_a0:.3g}, albedo down to {neg_alb:.3g} "
+                         f"(renderers clamp these: out-of-gamut colour not mapped; recompose with this flakedb)")})
+    md = b.metadata or {}
+    if "rgb_space" in md:
+        out.append({"check": "gamut", "ok": True,
+                    "text": (f"RGB space {md['rgb_space']}; gamut mapping desaturated {md.get('gamut_pairs_mapped')} "
+                             f"node pair(s), largest ΔE00 {md.get('gamut_max_dE00')}")})
+    elif b.n_channels == 3 and b.kind == "bsdf":
+        out.append({"check": "gamut", "ok": None,
+                    "text": "RGB space not recorded: readers assume white-normalised linear sRGB"})
+    return out, tot
 
 
 def describe(path):
-    """A JSON-able summary of the BSDF file at ``path`` (raises BSDFFileError when unreadable)."""
+    """A JSON-able summary of the file at ``path`` (raises BSDFFileError when unreadable)."""
+    if file_kind(path) == "tensor":
+        return describe_tensor(path)
     b = open_bsdf(path)
     size = b.path.stat().st_size
     mu = np.cos(np.radians(INFO_THETA_DEG))
@@ -26,7 +106,21 @@ def describe(path):
         stored = ", ".join(b.channels)
         full = b.n_coeffs
         fmt = f"flakedb HDF5 BSDF, format version {b.metadata.get('h5_format_version')}"
-    return {
+    checks, _ = _checks(b)
+    md = b.metadata or {}
+    solver = []
+    if b.kind == "h5" and isinstance(md.get("solver_info"), dict):
+        n = md.get("n_nodes", b.n_nodes - 2)
+        solver = solver_warnings(md["solver_info"], n)
+        orders = md["solver_info"].get("orders")
+        conv = md["solver_info"].get("order_converged")
+        head = (f"Fourier orders: {orders} kept" + ("" if conv is None else
+                (f", order tail {md['solver_info'].get('order_tail', 0):.1e} within tolerance "
+                 f"{md['solver_info'].get('order_tol', 0):.0e}" if conv else ", NOT converged")))
+        checks.append({"check": "solver", "ok": not solver, "text": head + (
+            "; no convergence warnings" if not solver else f"; {len(solver)} warning(s) (below)")})
+    d = {
+        "kind": b.kind,
         "file": str(b.path),
         "format": fmt,
         "size_bytes": size,
@@ -46,51 +140,133 @@ def describe(path):
                    for t, m, a in zip(INFO_THETA_DEG, mu, albedo)],
         "albedo_sampling_channel_range": [float(np.min(b.albedo_nodes()[b.nodes != 0])),
                                           float(np.max(b.albedo_nodes()[b.nodes != 0]))],
+        "checks": checks,
+        "warnings": list(dict.fromkeys(list(md.get("warnings") or []) + solver)),
     }
+    if b.kind == "h5" and md.get("wavelength_nm") and len(md["wavelength_nm"]) == b.n_channels:
+        wl = np.asarray(md["wavelength_nm"], float)
+        XYZ = reflectance_to_XYZ(albedo, wl)
+        lab = XYZ_to_Lab(XYZ, white=white_XYZ(wl))
+        for row, x, c in zip(d["albedo"], XYZ, lab):
+            row["albedo_Y"] = float(x[1])
+            row["albedo_Lab"] = [float(v) for v in c]
+    return d
+
+
+def describe_tensor(path):
+    """A JSON-able summary of a Mitsuba 3 ``measured`` tensor file."""
+    p = Path(path)
+    try:
+        f = read_tensor_file(p)
+    except (ValueError, KeyError, IndexError, struct.error) as e:  # a damaged file
+        raise BSDFFileError(f"{p}: a tensor file that cannot be read ({e})") from None
+    data_key = "rgb" if "rgb" in f else ("spectra" if "spectra" in f else None)
+    desc = bytes(np.asarray(f.get("description", np.zeros(0, np.uint8)))).decode("utf-8", "replace")
+    d = {"kind": "mitsuba-measured", "file": str(p), "size_bytes": p.stat().st_size,
+         "format": "Mitsuba 3 `measured` tensor file (RGL; Dupuy & Jakob 2018)",
+         "fields": {k: list(np.shape(v)) for k, v in f.items()}, "description": desc,
+         "variant": {"rgb": "rgb", "spectra": "spectral"}.get(data_key)}
+    if data_key is None:
+        d["checks"] = [{"check": "data", "ok": False, "text": "no rgb or spectra field: not a measured BSDF"}]
+        return d
+    data = np.asarray(f[data_key], float)
+    th = np.degrees(np.asarray(f.get("theta_i", []), float))
+    d["theta_i_deg"] = [float(th.min()), float(th.max()), int(th.size)] if th.size else None
+    d["resolution"] = list(data.shape[-2:])
+    if "wavelengths" in f:
+        wl = np.asarray(f["wavelengths"], float)
+        d["wavelengths_nm"] = [float(wl.min()), float(wl.max()), int(wl.size)]
+    mn = float(data.min())
+    d["checks"] = [
+        {"check": "colour", "ok": mn >= 0, "min_value": mn,
+         "text": ("no negative value in the tabulated f·cos" if mn >= 0 else f"NEGATIVE values down to {mn:.3g}")},
+        {"check": "content", "ok": True,
+         "text": "front-side reflection only; a smooth coat's mirror term is not in this format (see the description)"},
+    ]
+    return d
+
+
+def _print_fourier(d):
+    echo = click.echo
+    md = d["metadata"] or {}
+    what = "full-precision result of flakedb compose" if d["kind"] == "h5" else "renderer file"
+    echo(f"file:          {d['file']} ({d['size_bytes'] / 1e6:.2f} MB): {d['format']}, {what}")
+    if md.get("recipe"):
+        extra = ", ".join(f"{k} {_short(md[k])}" for k in ("mode", "store") if k in md)
+        echo(f"paint:         {md['recipe']} ({extra}; {md.get('generator', 'flakedb')} {md.get('flakedb_version', '')})")
+    echo(f"nodes:         {d['nodes']} ({d['quadrature_nodes']} quadrature nodes + 2 zero nodes)")
+    if d["kind"] == "h5" and md.get("wavelength_nm") and len(md["wavelength_nm"]) == d["channels"]:
+        wl = md["wavelength_nm"]
+        chans = f"{d['channels']} spectral bands {wl[0]:g}-{wl[-1]:g} nm"
+    else:
+        chans = f"{d['channels']} (stored {d['stored_channels']}; eval returns {', '.join(d['eval_channels'])})"
+        if d["channels"] == 3 and d["kind"] == "bsdf":
+            chans += f"; {md.get('rgb_space', 'linear sRGB assumed (not recorded)')}"
+    echo(f"channels:      {chans}")
+    pct = 100.0 * d["coefficients"] / max(d["coefficients_untruncated"], 1)
+    echo(f"max order:     {d['max_order']} ({d['coefficients']} coefficients, {pct:.1f}% of a full table)")
+    echo(f"eta:           {d['eta']:g} (eta_below / eta_above); alpha {d['alpha'][0]:g}, {d['alpha'][1]:g}")
+    delta = d["delta"]
+    if delta is None:
+        echo("clear coat:    no mirror term: everything is in the table")
+    else:
+        fields = ", ".join(f"{k}={v}" for k, v in delta.items() if k != "kind")
+        echo(f"clear coat:    smooth ({delta.get('kind')}, {fields}): its mirror reflection is NOT in the table; "
+             f"flakedb render and the Mitsuba plugin add it back, pbrt-v3's `fourier` does not")
+    echo("checks:")
+    for c in d["checks"]:
+        mark = {True: "ok  ", False: "warn" if c["check"] == "solver" else "FAIL", None: "note"}[c["ok"]]
+        echo(f"  [{mark}] {c['text']}")
+    for w in d["warnings"]:
+        echo(f"  warning: {w}")
+    if d["albedo"] and "albedo_Y" in d["albedo"][0]:
+        echo("albedo (table only, light from above): luminance Y and CIELAB of the albedo colour")
+        for row in d["albedo"]:
+            L, a, b_ = row["albedo_Lab"]
+            echo(f"  theta_i = {row['theta_i_deg']:4.0f} deg:  Y {row['albedo_Y']:.4f}   L* {L:6.2f}  a* {a:6.2f}  b* {b_:6.2f}")
+    else:
+        echo(f"albedo (R + T, table only, light from above), per channel {', '.join(d['eval_channels'])}:")
+        for row in d["albedo"]:
+            vals = "  ".join(f"{x:.5f}" for x in row["albedo"])
+            echo(f"  theta_i = {row['theta_i_deg']:4.0f} deg (mu_i = {row['mu_i']:.4f}):  {vals}")
+    short = {k: _short(v) for k, v in md.items() if k not in ("recipe", "mode", "store", "warnings")}
+    if short:
+        echo("metadata (--json for everything):")
+        for k, v in short.items():
+            echo(f"  {k}: {v}")
+
+
+def _print_tensor(d):
+    echo = click.echo
+    echo(f"file:          {d['file']} ({d['size_bytes'] / 1e6:.2f} MB): {d['format']}")
+    echo(f"variant:       {d['variant']} (use {{\"type\": \"measured\", \"filename\": \"{d['file']}\"}} in Mitsuba 3)")
+    if d.get("theta_i_deg"):
+        lo, hi, k = d["theta_i_deg"]
+        echo(f"incidence:     {k} elevations {lo:.0f}-{hi:.0f} deg; half-vector grid {d['resolution'][0]} x {d['resolution'][1]}")
+    if d.get("wavelengths_nm"):
+        lo, hi, k = d["wavelengths_nm"]
+        echo(f"wavelengths:   {k} from {lo:g} to {hi:g} nm")
+    echo(f"description:   {d['description']}")
+    echo("checks:")
+    for c in d["checks"]:
+        echo(f"  [{'ok  ' if c['ok'] else 'FAIL'}] {c['text']}")
 
 
 @click.command()
 @click.argument("file", type=click.Path(dir_okay=False))
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (everything, for machines).")
 def info(file, as_json):
-    """Describe a Fourier .bsdf or flakedb .h5 BSDF file: nodes, channels, orders, eta, alpha,
-    the smooth coat's delta term, metadata, and the albedo (R + T) at a few incident angles."""
+    """Describe a Fourier .bsdf, a flakedb .h5 or a Mitsuba 3 `measured` export: what paint, which
+    channels and colour space, the smooth coat's mirror term, energy / colour / convergence checks in
+    words, and the albedo at a few incident angles."""
     try:
         d = describe(file)
     except BSDFFileError as e:
-        raise FlakedbError(f"{e}\nflakedb info reads Fourier .bsdf files (SCATFUN) and flakedb HDF5 BSDF files.") from None
+        raise FlakedbError(f"{e}\nflakedb info reads Fourier .bsdf files (SCATFUN), flakedb HDF5 BSDF files and "
+                           f"Mitsuba 3 `measured` tensor files.") from None
     if as_json:
         click.echo(json.dumps(d, indent=2, default=str))
-        return
-    echo = click.echo
-    echo(f"file:          {d['file']} ({d['size_bytes']} bytes)")
-    echo(f"format:        {d['format']}")
-    echo(f"nodes:         {d['nodes']} ({d['quadrature_nodes']} quadrature nodes + 2 zero nodes)")
-    echo(f"channels:      {d['channels']} (stored {d['stored_channels']}; eval returns {', '.join(d['eval_channels'])})")
-    echo(f"max order:     {d['max_order']}")
-    pct = 100.0 * d["coefficients"] / max(d["coefficients_untruncated"], 1)
-    echo(f"coefficients:  {d['coefficients']} ({pct:.1f}% of {d['coefficients_untruncated']} untruncated)")
-    echo(f"eta:           {d['eta']:g} (eta_below / eta_above)")
-    echo(f"alpha:         {d['alpha'][0]:g}, {d['alpha'][1]:g}")
-    delta = d["delta"]
-    if delta is None:
-        echo("delta term:    none (everything is in the table)")
+    elif d["kind"] == "mitsuba-measured":
+        _print_tensor(d)
     else:
-        fields = ", ".join(f"{k}={v}" for k, v in delta.items() if k != "kind")
-        echo(f"delta term:    {delta.get('kind')} ({fields}): first-surface mirror reflection, NOT in the table")
-    if d["metadata"]:
-        echo("metadata:")
-        for k, v in d["metadata"].items():
-            text = v if isinstance(v, str) else json.dumps(v)
-            lines = text.split("\n")
-            echo(f"  {k}: {lines[0]}")
-            for ln in lines[1:]:
-                echo(f"    {ln}")
-    else:
-        echo("metadata:      (none)")
-    echo(f"albedo (R + T, light from above), per channel {', '.join(d['eval_channels'])}:")
-    for row in d["albedo"]:
-        vals = "  ".join(f"{x:.5f}" for x in row["albedo"])
-        echo(f"  theta_i = {row['theta_i_deg']:4.0f} deg (mu_i = {row['mu_i']:.4f}):  {vals}")
-    lo, hi = d["albedo_sampling_channel_range"]
-    echo(f"sampling-channel albedo at the nodes (2 pi cdf[i][N-1]): {lo:.5f} … {hi:.5f}")
+        _print_fourier(d)

@@ -1,71 +1,127 @@
-"""`flakedb render FILE`: a preview image of a composed BSDF file on a sphere (OpenEXR + PNG)."""
+"""`flakedb render FILE…`: preview images of composed BSDF files on a sphere (OpenEXR + PNG), and a
+side-by-side sheet of several paints or of one paint under several lights."""
 
 import sys
 from pathlib import Path
 
 import click
+import numpy as np
 
-from flakedb.bsdf import BSDFFileError, open_bsdf
+from flakedb.bsdf import BSDFFileError, open_bsdf, table_evaluator
 from flakedb.cli.errors import FlakedbError
-from flakedb.render import preview
+from flakedb.compose.orchestrate import gamut_safe_file_channels
+from flakedb.render import look, preview
 from flakedb.render.imageio import write_exr, write_png
+from flakedb.render.mitsuba import channel_wavelengths
 
 ENV_CONSTANT_RADIANCE = 0.5  # the furnace of renderers.md
+ENVS = ("softbox", "studio", "constant")
+
+
+def renderable(path):
+    """The FourierBSDF to render for ``path``: the file itself, or for a spectral flakedb ``.h5`` its
+    gamut-safe white-normalised linear sRGB (CIE 1931 2° / D65, :func:`flakedb.compose.orchestrate.
+    gamut_safe_file_channels`, what compose writes into the ``.bsdf``), evaluated in memory."""
+    b = open_bsdf(path)
+    wl = channel_wavelengths(b) if b.kind == "h5" and b.n_channels not in (1, 3) else None
+    if wl is None:
+        preview.check_renderable(b)
+        return b
+    order = np.argsort(wl)
+    t = b.to_table()
+    t.coeffs = t.coeffs[order]
+    ft, _ = gamut_safe_file_channels(t, "spectral", wl[order], "srgb")
+    rb = table_evaluator(ft, path=b.path)
+    preview.check_renderable(rb)
+    return rb
+
+
+def environment(kind):
+    if kind == "constant":
+        return preview.constant_environment(ENV_CONSTANT_RADIANCE)
+    if kind == "studio":
+        return preview.studio_environment()
+    return look.softbox_studio()
 
 
 @click.command()
-@click.argument("file", type=click.Path(dir_okay=False))
+@click.argument("files", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--out", "out_dir", default="out", show_default=True, type=click.Path(file_okay=False),
-              help="Directory for FILE-stem.exr (linear RGB float32) and FILE-stem.png (sRGB 8-bit).")
+              help="Directory for <stem>.exr (linear RGB float32) and <stem>.png (tone-mapped sRGB 8-bit).")
 @click.option("--size", default=256, show_default=True, type=click.IntRange(8, 8192),
               help="Image width and height [pixels].")
 @click.option("--spp", default=None, type=click.IntRange(1, 1 << 16),
               help="Samples per pixel (default: flakedb.render.preview.DEFAULT_SPP, 32).")
-@click.option("--env", "env_kind", default="studio", show_default=True, type=click.Choice(["studio", "constant"]),
-              help=f"'studio': bright sky dome over a dim ground (+y up); 'constant': radiance "
-                   f"{ENV_CONSTANT_RADIANCE} everywhere (the white-furnace check).")
+@click.option("--env", "env_kinds", multiple=True, type=click.Choice(ENVS),
+              help="'softbox' (default): a studio with soft boxes over a gradient and a dark ground, no hard "
+                   "horizon; 'studio': the older sky dome with a key light; 'constant': radiance "
+                   f"{ENV_CONSTANT_RADIANCE} everywhere (the white-furnace check).  Repeat for a sheet of one "
+                   "paint under several lights.")
 @click.option("--sun/--no-sun", default=None,
-              help="Add the studio key light (a 2° disk, sampled directly). Default: on with "
-                   "--env studio, off with --env constant.")
+              help="Add the key light (a 2° disk, sampled directly). Default: on with --env studio only.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Random seed.")
-@click.option("--exposure", default=0.0, show_default=True, type=float,
-              help="PNG exposure [stops]; the EXR is always unscaled linear radiance.")
+@click.option("--exposure", default=None, type=float,
+              help="PNG exposure [stops] relative to the automatic one (default: automatic, Reinhard 2002 key "
+                   "0.18; with --tone clip: stops on the raw radiance).  The EXR is always unscaled radiance.")
+@click.option("--tone", default="filmic", show_default=True, type=click.Choice(["filmic", "clip"]),
+              help="PNG tone curve: 'filmic' (ACES fit, Narkowicz 2016, with automatic exposure) or 'clip' "
+                   "(exposure, clip at 1: the raw radiance).")
+@click.option("--sheet", "sheet_name", default=None,
+              help="File name of the side-by-side PNG in --out (default: sheet.png when there are several "
+                   "images).")
 @click.option("--threads", default=None, type=click.IntRange(1, 1024),
               help="Worker threads (default: the CPUs available).")
-def render(file, out_dir, size, spp, env_kind, sun, seed, exposure, threads):
-    """Render a unit sphere of the BSDF in FILE (.bsdf or flakedb .h5) under an environment.
+def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, sheet_name, threads):
+    """Render unit spheres of the BSDFs in FILES (.bsdf, or a flakedb .h5 — a spectral one is converted
+    to linear sRGB by the colour module) under a studio.
 
     Orthographic camera looking down -z; BSDF importance sampling from the file's CDF combined
     with sun sampling (MIS, power heuristic); the smooth coat's mirror term (the file's delta)
-    added exactly.  Writes OUT/<stem>.exr and OUT/<stem>.png atomically."""
-    try:
-        bsdf = open_bsdf(file)
-        preview.check_renderable(bsdf)
-    except BSDFFileError as e:
-        raise FlakedbError(f"{e}\nflakedb render reads Fourier .bsdf files (SCATFUN) and flakedb HDF5 "
-                           "BSDF files.") from None
-    except ValueError as e:
-        raise FlakedbError(str(e)) from None
-    if env_kind == "constant":
-        env = preview.constant_environment(ENV_CONSTANT_RADIANCE)
-    else:
-        env = preview.studio_environment()
-    if sun is None:
-        sun = env_kind == "studio"
+    added exactly.  Writes OUT/<stem>[-<env>].exr and .png atomically, and a sheet for several."""
+    env_kinds = env_kinds or ("softbox",)
+    bsdfs = []
+    for f in files:
+        try:
+            bsdfs.append((f, renderable(f)))
+        except BSDFFileError as e:
+            raise FlakedbError(f"{e}\nflakedb render reads Fourier .bsdf files (SCATFUN) and flakedb HDF5 "
+                               "BSDF files.") from None
+        except ValueError as e:
+            raise FlakedbError(str(e)) from None
     spp = preview.DEFAULT_SPP if spp is None else spp
-
-    with click.progressbar(length=size, label=f"rendering {size}x{size} at {spp} spp",
-                           file=sys.stderr) as bar:
-        result = preview.render_sphere(bsdf, env, preview.studio_sun() if sun else None, size=size, spp=spp,
-                                       seed=seed, threads=threads, progress=bar.update)
+    jobs = [(f, b, k) for f, b in bsdfs for k in env_kinds]
+    results = []
+    for f, b, kind in jobs:
+        use_sun = (kind == "studio") if sun is None else sun
+        label = f"rendering {Path(f).name} ({kind}) {size}x{size} at {spp} spp"
+        with click.progressbar(length=size, label=label, file=sys.stderr) as bar:
+            r = preview.render_sphere(b, environment(kind), preview.studio_sun() if use_sun else None, size=size,
+                                      spp=spp, seed=seed, threads=threads, progress=bar.update)
+        results.append((f, kind, r))
+    sphere = [r.coverage >= 1.0 for _, _, r in results]
+    if tone == "filmic":
+        # one exposure for every image of the run, so a sheet compares like with like
+        stack = np.concatenate([r.image[m] for (_, _, r), m in zip(results, sphere)] or [np.zeros((1, 3))])
+        scale = look.auto_exposure(stack) * 2.0 ** float(exposure or 0.0)
+    else:
+        scale = 2.0 ** float(exposure or 0.0)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    stem = Path(file).stem
-    exr = write_exr(out / f"{stem}.exr", result.image)
-    png = write_png(out / f"{stem}.png", result.image, exposure=exposure)
-    sphere = result.coverage >= 1.0
-    mean = result.image[sphere].mean(axis=0) if sphere.any() else [float("nan")] * 3
-    click.echo(f"rendered in {result.seconds:.1f} s ({result.settings['threads']} threads); "
-               f"sphere mean RGB {mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f}")
-    click.echo(f"wrote {exr}")
-    click.echo(f"wrote {png}")
+    shown = []
+    for (f, kind, r), m in zip(results, sphere):
+        stem = Path(f).stem + (f"-{kind}" if len(env_kinds) > 1 else "")
+        disp = look.tone_map(r.image, scale) if tone == "filmic" else np.clip(r.image * scale, 0.0, 1.0)
+        exr = write_exr(out / f"{stem}.exr", r.image)
+        png = write_png(out / f"{stem}.png", disp)
+        shown.append(disp)
+        mean = r.image[m].mean(axis=0) if m.any() else [float("nan")] * 3
+        click.echo(f"{Path(f).name} ({kind}): rendered in {r.seconds:.1f} s ({r.settings['threads']} threads); "
+                   f"sphere mean RGB {mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f}; "
+                   f"{100 * look.clipped_fraction(disp, m):.2f}% of sphere pixels clip")
+        click.echo(f"wrote {exr}")
+        click.echo(f"wrote {png}")
+    if len(results) > 1 or sheet_name:
+        sheet = write_png(out / (sheet_name or "sheet.png"), look.contact_sheet(shown))
+        click.echo(f"wrote {sheet} ({len(shown)} images side by side, one exposure)")
+    if tone == "filmic":
+        click.echo(f"exposure: automatic x{scale:.3g} ({np.log2(scale):+.2f} stops), ACES filmic curve")

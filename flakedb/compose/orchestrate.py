@@ -47,8 +47,14 @@ import numpy as np
 import flakedb.bsdf as bsdf_files  # the module, so a test can replace its writers
 from flakedb import __version__
 from flakedb.bsdf.convert import stack_to_table
+from flakedb.colour import gamut
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
-from flakedb.compose.report import colour_report
+from flakedb.compose.report import (
+    ASPECULAR_DEG,
+    colour_report,
+    eval_table,
+    multiangle_geometry,
+)
 from flakedb.compose.store_context import StoreContext
 from flakedb.paint.mapping import auto_resolution, build_paint, catalog_species, solve_paint
 from flakedb.store import versions as st
@@ -114,6 +120,72 @@ def table_to_file_channels(table, mode, wavelength_nm=None):
     return dataclasses.replace(table, coeffs=np.ascontiguousarray(c), channels=channels)
 
 
+def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
+    """The ``.bsdf`` version of a full table, gamut-safe: ``(file_table, gamut_info)``.
+
+    Spectral channels → white-normalised linear RGB of ``space`` (:func:`flakedb.colour.gamut.spectra_to_space_matrix`;
+    ``"srgb"`` is :func:`table_to_file_channels`' map), RGB-mode channels (white-normalised linear sRGB) → ``space``
+    (:func:`flakedb.colour.gamut.rgb_mode_to_space_matrix`), then out-of-gamut node pairs desaturated at constant
+    luminance (:func:`flakedb.colour.gamut.desaturate_to_gamut`, docs/gamut.md), so the file holds no negative
+    channel at any node pair's order-0 coefficient nor at its sampled azimuths where the luminance is > 0.
+    A mono paint is returned as :func:`table_to_file_channels` makes it (``gamut_info`` None).
+
+    ``gamut_info`` (JSON-able) records the space, the method, how many reflection node pairs were
+    mapped, the largest CIEDE2000 the mapping costs (over the mapped reflection node pairs' order-0
+    colour as reflectance factor π a_0 / |μ_o|, the directional albedo per incident node, and the
+    report's multi-angle geometries) and the largest channel albedo before and after.
+    """
+    gamut.check_space(space)
+    if mode == "mono":
+        return table_to_file_channels(table, mode, wavelength_nm), None
+    c = table.coeffs
+    wl = np.asarray(wavelength_nm, float)
+    if mode == "spectral":
+        c = np.einsum("bk,b...->k...", gamut.spectra_to_space_matrix(wl, space), c)
+    else:
+        c = np.einsum("jk,j...->k...", gamut.rgb_mode_to_space_matrix(wl, space), c)
+    w = gamut.luminance_weights(wl, space)
+    mapped, s = gamut.desaturate_to_gamut(c, w)
+    before = dataclasses.replace(table, coeffs=c, channels=("R", "G", "B"))
+    after = dataclasses.replace(table, coeffs=np.ascontiguousarray(mapped), channels=("R", "G", "B"))
+    n, h = table.n, table.n // 2
+    refl = np.zeros((n, n), bool)
+    refl[h:, :h] = True                                       # light from above, reflected
+    changed = refl & (s < 1.0)
+    mu_o = np.abs(table.mu)[None, :]
+    de_pairs = 0.0
+    if changed.any():
+        rf = np.pi * c[..., 0] / mu_o                          # (3, n, n) reflectance factor
+        rf2 = np.pi * mapped[..., 0] / mu_o
+        de_pairs = float(np.max(gamut.mapping_delta_e(rf[:, changed].T, rf2[:, changed].T, wl, space)))
+    a_before, a_after = before.albedo()[:, h:], after.albedo()[:, h:]
+    de_albedo = float(np.max(gamut.mapping_delta_e(a_before.T, a_after.T, wl, space)))
+    geo = [multiangle_geometry(g) for g in ASPECULAR_DEG]
+    mi, mo, ph = (np.array([g[k] for g in geo]) for k in range(3))
+    rg1 = np.pi * eval_table(before, mi, mo, ph) / np.abs(mo)[:, None]
+    rg2 = np.pi * eval_table(after, mi, mo, ph) / np.abs(mo)[:, None]
+    de_geo = gamut.mapping_delta_e(rg1, rg2, wl, space)
+    info = {
+        "rgb_space": gamut.RGB_SPACES[space][1], "rgb_space_key": space,
+        "method": gamut.GAMUT_METHOD,
+        "pairs_mapped": int(changed.sum()), "pairs_reflection": int(refl.sum()),
+        "min_desaturation_factor": float(s[refl].min()),
+        "max_dE00": max(de_pairs, de_albedo, float(de_geo.max())),
+        "max_dE00_node_pairs": de_pairs, "max_dE00_albedo": de_albedo,
+        "dE00_geometries": {f"{g:g}": float(d) for g, d in zip(ASPECULAR_DEG, de_geo)},
+        "min_channel_before": float(c[:, refl, 0].min()),
+        "min_channel_after": float(mapped[:, refl, 0].min()),
+        "max_channel_albedo_before": float(a_before.max()), "max_channel_albedo_after": float(a_after.max()),
+        "min_channel_albedo_before": float(a_before.min()), "min_channel_albedo_after": float(a_after.min()),
+    }
+    file_table = table_to_file_channels(after, "rgb")
+    file_table.metadata.update({
+        "rgb_space": info["rgb_space"], "gamut_mapping": gamut.GAMUT_METHOD,
+        "gamut_pairs_mapped": info["pairs_mapped"], "gamut_max_dE00": round(info["max_dE00"], 4),
+    })
+    return file_table, info
+
+
 @dataclass
 class ComposeResult:
     paths: dict
@@ -151,7 +223,8 @@ def write_outputs(out_dir, name, table, file_table, report, h5_metadata):
     return {k: str(v) for k, v in final.items()}, summary
 
 
-def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=None, verify=True) -> ComposeResult:
+def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=None, verify=True,
+            rgb_space="srgb", progress=None) -> ComposeResult:
     """Compose ``recipe`` (a :class:`flakedb.paint.recipe.Recipe`) into ``out_dir``; see the module docstring.
 
     ``n`` overrides the recipe's resolution; ``log`` (callable taking a line) reports progress.
@@ -179,6 +252,8 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
 
     version = None
     store_label = STORE_NONE
+    gamut.check_space(rgb_space)
+    progress = progress or (lambda stage, detail: None)
     if store is not None and catalog_species(recipe):
         t0 = time.perf_counter()
         version = store if isinstance(store, st.StoreVersion) else st.open_version(str(store), verify=verify)
@@ -186,26 +261,33 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
         store_label = f"{version.url} version {version.version} ({'raw' if raw else 'compressed'})"
         log(f"store: {store_label}, opened{' and verified' if verify else ''} in {t['store_open']:.2f} s")
     t0 = time.perf_counter()
+    progress("optics", {"start": True})
     stored = None if version is None else StoreContext.for_recipe(version, recipe, n_used, raw)
     paint = build_paint(recipe, catalog, stored=stored)
     t["optics"] = time.perf_counter() - t0
     log(f"optics: {len(paint.components)} component(s), {paint.n_channels} channel(s) ({paint.mode}), "
         f"{t['optics']:.2f} s")
+    progress("optics", {"seconds": t["optics"], "channels": paint.n_channels})
     t0 = time.perf_counter()
     budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
     stack = solve_paint(paint, n_used, memory_budget_bytes=float(budget) if budget else None,
-                        threads=os.cpu_count() or 1)
+                        threads=os.cpu_count() or 1, progress=progress)
     t["solve"] = time.perf_counter() - t0
     log(f"solve: n = {n_used} ({reason}), {stack.info.get('orders')} Fourier orders, {t['solve']:.2f} s")
+    solver_notes = solver_warnings(stack.info, n_used)
+    for w in solver_notes:
+        progress("warning", {"message": w})
+    warnings += solver_notes
+    progress("write", {"start": True})
     t0 = time.perf_counter()
     md = {"recipe": recipe.name, "flakedb_version": __version__, "mode": paint.mode, "n_nodes": n_used,
           "store": store_label, "generator": "flakedb compose"}
     if recipe.description:
         md["description"] = " ".join(str(recipe.description).split())
     table = stack_to_table(stack, paint.channels, paint.eta, paint.top_alpha, paint.delta, md)
-    file_table = table_to_file_channels(table, paint.mode, paint.wavelength_nm)
+    file_table, gamut_info = gamut_safe_file_channels(table, paint.mode, paint.wavelength_nm, rgb_space)
     if paint.mode == "spectral" and file_table.channels != ("mono",):
-        file_table.metadata["channels_from"] = "spectral bands -> CIE 1931 2deg / D65 -> white-normalised linear sRGB"
+        file_table.metadata["channels_from"] = f"spectral bands -> CIE 1931 2deg / D65 -> {gamut_info['rgb_space']}"
     report = colour_report(table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
                            paint.eta if paint.delta else None, recipe.name)
     t["table_report"] = time.perf_counter() - t0
@@ -227,11 +309,52 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
         "timings_s": dict(t),
     }
     report["store"] = store_label
+    report["rgb_file"] = gamut_info
+    report["warnings"] = list(warnings)
+    h5_md["rgb_file"] = gamut_info
     t0 = time.perf_counter()
     paths, summary = write_outputs(out_dir, recipe.name, table, file_table, report, h5_md)
     t["write"] = time.perf_counter() - t0
+    progress("write", {"seconds": t["write"], "paths": paths})
     return ComposeResult(paths=paths, report=report, n=n_used, n_reason=reason, timings_s=t, bsdf_summary=summary,
                          warnings=warnings, paint=paint, stack=stack, table=table)
+
+
+#: Above this, the kernel renormalisation (flakedb.rt.stack.project_medium: σ_s of the discrete kernel made equal to
+#: the accurately integrated one) is reported as a warning: the nodes under-resolve the kernel's peaks.
+RENORM_WARN = 0.01
+
+
+def solver_warnings(info, n) -> list:
+    """Convergence problems in the solver's ``info`` (:func:`flakedb.rt.stack.solve_stack`), as one-line
+    warnings in words: a kernel whose azimuthal projection stopped at its sampling limit before its
+    tolerance, a renormalisation larger than :data:`RENORM_WARN`, an order choice that did not converge.
+    The same text goes to the terminal, the ``.h5`` (``warnings``) and the colour report."""
+    out = []
+    groups = info.get("groups") or [info]
+    seen = set()
+    for g in groups:
+        for k in sorted(key for key in g if key.startswith("slab")):
+            sl = g[k]
+            layer = int(k[4:]) + 1
+            if sl.get("converged") is False and ("conv", layer) not in seen:
+                seen.add(("conv", layer))
+                out.append(f"basecoat layer {layer}: the azimuthal projection of its scattering kernel stopped at "
+                           f"{sl.get('n_phi')} azimuth samples before reaching its tolerance (tail "
+                           f"{sl.get('tail', 0):.1e}); orders are capped at {sl.get('orders')} for n = {n}: "
+                           f"a larger --n resolves narrower lobes")
+            dev = sl.get("renorm_max_dev")
+            if dev is not None and dev > RENORM_WARN and ("renorm", layer) not in seen:
+                seen.add(("renorm", layer))
+                out.append(f"basecoat layer {layer}: the kernel was renormalised by up to {100 * dev:.1f}% to "
+                           f"conserve its scattering (nodes coarser than its peaks at n = {n}); a larger --n "
+                           f"reduces it")
+        if g.get("order_converged") is False and "orders" not in seen:
+            seen.add("orders")
+            out.append(f"Fourier orders: the dropped tail {g.get('order_tail', float('nan')):.1e} is above the "
+                       f"tolerance {g.get('order_tol', float('nan')):.0e} at the cap of {g.get('orders_available')} "
+                       f"orders (n = {n})")
+    return out
 
 
 def _jsonable(o):

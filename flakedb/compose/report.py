@@ -25,9 +25,15 @@ perfect white); RGB-mode channels (white-normalised linear sRGB) → XYZ by the 
 is a grey (XYZ = v · white).  CIELAB relative to the white integrated on the same grid, so the
 perfect white is exactly L* = 100, a* = b* = 0.
 
-Flop index (X-Rite): FI = 2.69 (L*15 − L*110)^1.11 / L*45^0.86.  When L*15 < L*110 the power is
-taken of |L*15 − L*110| with the sign kept (the formula is only defined for a positive difference;
-such paints brighten towards the illuminator, a negative flop).  Undefined (None) when L*45 = 0.
+Flop index (X-Rite's, after Alman 1987, "Directional color measurement of metallic flake
+finishes"): FI = 2.69 (L*15 − L*110)^1.11 / L*45^0.86.  **Sign convention**: FI ≥ 0, and larger
+means a stronger lightness travel from near-specular (15°) to the flop angle (110°); a solid colour
+gives ≈ 0.  The formula is defined for L*15 ≥ L*110 only (a negative base has no
+real non-integer power), and a flop index is by construction ≥ 0: a paint that is *darker* near the
+specular than at 110° (a "reverse flop", e.g. a black paint whose coat reflection misses 15°) gets
+the standard value 0.  ``flop_index`` is that standard value; ``flop_index_signed`` extends the formula
+as sign(d)·2.69 |d|^1.11 / L*45^0.86, d = L*15 − L*110, so a reverse flop shows as negative, and
+``flop_note`` says which case applies.  Both are None when L*45 = 0.
 
 Directional albedo per incident angle: the solver's albedo at its nodes (quadrature, exact for
 the table) including the mirror term's Fresnel reflectance F(θ_i; η), interpolated in μ_i by a
@@ -118,11 +124,19 @@ def reference_white(mode, wavelength_nm=None) -> np.ndarray:
 
 
 def flop_index(L15, L45, L110):
-    """X-Rite flop index 2.69 (L*15 − L*110)^1.11 / L*45^0.86 (sign kept; None when L*45 = 0)."""
+    """Signed X-Rite flop index sign(d) 2.69 |d|^1.11 / L*45^0.86, d = L*15 − L*110 (None when
+    L*45 = 0); the standard value is :func:`flop_index_standard` (module docstring)."""
     if not L45 > 0:
         return None
     d = float(L15) - float(L110)
     return float(2.69 * np.sign(d) * abs(d) ** 1.11 / float(L45) ** 0.86)
+
+
+def flop_index_standard(L15, L45, L110):
+    """The X-Rite flop index as instruments report it: 2.69 (L*15 − L*110)^1.11 / L*45^0.86 for
+    L*15 ≥ L*110, 0 for a reverse flop (L*15 < L*110), None when L*45 = 0 (module docstring)."""
+    fi = flop_index(L15, L45, L110)
+    return None if fi is None else max(fi, 0.0)
 
 
 def directional_albedo(x_nodes, albedo_nodes, theta_deg, delta_eta=None):
@@ -172,6 +186,14 @@ def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=N
         })
     Ls = {r["aspecular_deg"]: r["L"] for r in rows}
     fi = flop_index(Ls[15.0], Ls[45.0], Ls[110.0])
+    fi_std = flop_index_standard(Ls[15.0], Ls[45.0], Ls[110.0])
+    if fi is None:
+        note = "undefined: L*45 = 0"
+    elif fi < 0:
+        note = (f"reverse flop: L*15 ({Ls[15.0]:.2f}) < L*110 ({Ls[110.0]:.2f}); the X-Rite formula is defined for "
+                f"L*15 >= L*110, so the standard value is 0 (signed extension {fi:.2f})")
+    else:
+        note = "L*15 >= L*110: the standard X-Rite value (>= 0; larger = stronger lightness flop)"
     tot, tab, mirror = directional_albedo(x_nodes, albedo_nodes, ALBEDO_THETA_DEG, delta_eta)
     Y_tot = channels_to_XYZ(tot, mode, wavelength_nm)[:, 1] / white[1]
     Y_tab = channels_to_XYZ(tab, mode, wavelength_nm)[:, 1] / white[1]
@@ -185,8 +207,11 @@ def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=N
         "illumination_deg": ILLUMINATION_DEG,
         "reflectance_factor": "pi * f(omega_i, omega_o), tabulated part (no aspecular angle hits the mirror delta)",
         "geometries": rows,
-        "flop_index": fi,
-        "flop_index_formula": "X-Rite: 2.69 (L*15 - L*110)^1.11 / L*45^0.86",
+        "flop_index": fi_std,
+        "flop_index_signed": fi,
+        "flop_note": note,
+        "flop_index_formula": ("X-Rite: 2.69 (L*15 - L*110)^1.11 / L*45^0.86, >= 0; defined for L*15 >= L*110 "
+                               "(0 for a reverse flop; flop_index_signed keeps the sign of L*15 - L*110)"),
         "albedo": albedo,
         "albedo_note": ("directional albedo (reflected flux / incident flux) from above; albedo_Y is its luminance "
                         "(Y, D65) including the mirror term 'mirror' = F(theta_i) of a smooth coat"),
@@ -202,7 +227,18 @@ def format_report(rep) -> str:
         view = f"{r['theta_view_deg']:g}° {r['side'][:5]}"
         lines.append(f"{r['aspecular_deg']:>9g}° {view:>12} {r['L']:8.2f} {r['a']:8.2f} {r['b']:8.2f}")
     fi = rep["flop_index"]
-    lines.append(f"flop index (X-Rite): {'undefined (L*45 = 0)' if fi is None else f'{fi:.2f}'}")
+    if fi is None:
+        lines.append("flop index (X-Rite): undefined (L*45 = 0)")
+    elif (rep.get("flop_index_signed") or 0.0) < 0:
+        lines.append(f"flop index (X-Rite): 0 (reverse flop: L*15 < L*110, darker near the specular; "
+                     f"signed extension {rep['flop_index_signed']:.2f})")
+    else:
+        lines.append(f"flop index (X-Rite): {fi:.2f} (>= 0; larger = stronger lightness flop, 15° vs 110°)")
+    g = rep.get("rgb_file")
+    if g:
+        lines.append(f"RGB file: {g['rgb_space']}; {g['pairs_mapped']} of {g['pairs_reflection']} reflection node "
+                     f"pairs desaturated into gamut (luminance kept), largest ΔE00 {g['max_dE00']:.2f}; "
+                     f"the .h5 keeps the exact colour")
     lines.append(f"{'theta_i':>8} {'albedo Y':>9} {'tabulated':>10} {'mirror':>8}")
     for a in rep["albedo"]:
         lines.append(f"{a['theta_i_deg']:>7g}° {a['albedo_Y']:9.4f} {a['tabulated_Y']:10.4f} {a['mirror']:8.4f}")

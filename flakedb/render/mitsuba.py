@@ -88,6 +88,7 @@ from flakedb.bsdf import catmull_rom_cdf, catmull_rom_weights, open_bsdf
 from flakedb.bsdf.kernels import cr_weights_1, sample_kernel, series_kernel
 from flakedb.bsdf.table import G_FROM_YRB
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
+from flakedb.colour.gamut import desaturate_points
 from flakedb.optics.fresnel import fresnel_dielectric
 
 __all__ = [
@@ -315,7 +316,11 @@ def measured_tensors(b, variant: str = "rgb", res: int = RES_DEFAULT, n_theta: i
     wi, wo, J, valid = _half_vector_grid(theta_i, res)
     mu_i, mu_o, phi_d = file_coordinates(np.broadcast_to(wi, wo.shape), wo)
     vals = np.zeros(valid.shape + (mix.shape[1],))
-    vals[valid] = b.eval(mu_i[valid], mu_o[valid], phi_d[valid], clamp="all") @ mix
+    if variant == "rgb" and wl is not None:
+        # a spectral file's out-of-sRGB colours: desaturated at constant luminance (docs/gamut.md), not clamped
+        vals[valid] = desaturate_points(b.eval(mu_i[valid], mu_o[valid], phi_d[valid], clamp="none") @ mix, lum_w)
+    else:
+        vals[valid] = b.eval(mu_i[valid], mu_o[valid], phi_d[valid], clamp="all") @ mix
     vals = np.maximum(vals, 0.0)                          # (T, n_j, n_k, C)
     lum = (vals @ lum_w) * J
     mean = lum.mean(axis=(1, 2), keepdims=True)

@@ -109,6 +109,13 @@ class SolverSettings:
     #: Threads over the (orders, channels) batch of the doubling (:func:`flakedb.rt.layer.double_symmetric`);
     #: compose sets the machine's core count.  BLAS itself runs one thread per call during a solve.
     threads: int = 1
+    #: Progress callback ``progress(stage, detail)`` (stage "projection" or "solve", detail a dict),
+    #: called after each slab's kernel projection and each layer of each order block; None: silent.
+    progress: object = None
+
+    def report(self, stage, **detail):
+        if self.progress is not None:
+            self.progress(stage, detail)
 
     @classmethod
     def product(cls, n, **kw):
@@ -316,6 +323,7 @@ def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
             else:
                 a = np.atleast_1d(np.asarray(bottom.albedo, dtype=float))
                 sub_bottom = Lambertian(a if a.size == 1 else a[idx])
+        s.report("channels", channels=(int(c0), int(idx[-1]) + 1), of=int(C))
         parts.append(_solve_stack(top, sub_slabs, sub_bottom, s))
         sizes.append(len(idx))
     L = max(p.n_orders for p in parts)
@@ -366,6 +374,7 @@ def _solve_stack(top, slabs, bottom, s):
         pk, pinfo = project_medium(slab.medium, q_in.x, q_in.w, s.tol, s.order_cap, basis=s.kernel_basis)
         projected.append((pk, sig, slab.thickness_um))
         info[f"slab{k}"] = {"orders": pk.n_orders, **pinfo}
+        s.report("projection", layer=k + 1, layers=len(slabs), orders=pk.n_orders)
 
     top_layer = None
     delta_F = None
@@ -411,9 +420,10 @@ def _solve_stack(top, slabs, bottom, s):
 
     # all orders at once (transmissive stacks, or order_tol None)
     body = None
-    for pk, sig, d in projected:
+    for k, (pk, sig, d) in enumerate(projected):
         layer = slab_block(pk, sig, d, 0, L)
         body = layer if body is None else add(body, layer)
+        s.report("solve", layer=k + 1, layers=len(projected), orders=(0, L), of=L)
     if body is None:
         body = identity_layer(L, q_in.h)
     top_layer_L = None if top is None else top_block(0, L)
@@ -451,8 +461,9 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L_max, s,
         R = None
         if Rc is not None:  # a rough conductor bottom carries orders of its own
             Rb = pad_orders(Rc, max(l1, Rc.shape[0]))[l0:l1]
-            for pk, sig, d in reversed(projected):
+            for k, (pk, sig, d) in enumerate(reversed(projected)):
                 Rb = reflection_over(slab_block(pk, sig, d, l0, l1), Rb)
+                s.report("solve", layer=len(projected) - k, layers=len(projected), orders=(l0, l1), of=L_max)
             return Rb
         if l0 == 0:  # the Lambertian primer has order 0 only: its adding runs for that order alone
             prim = itf.lambertian(q_in, bottom.albedo, 1).Rt
@@ -463,8 +474,9 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L_max, s,
             l0 = 1
         if l1 > l0:
             Rr = None
-            for pk, sig, d in reversed(projected):
+            for k, (pk, sig, d) in enumerate(reversed(projected)):
                 Rr = reflection_over(slab_block(pk, sig, d, l0, l1), Rr)
+                s.report("solve", layer=len(projected) - k, layers=len(projected), orders=(l0, l1), of=L_max)
             if Rr is None:
                 Rr = np.zeros((l1 - l0, 1, q_in.h, q_in.h))
             if R is None:

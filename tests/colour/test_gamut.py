@@ -1,0 +1,75 @@
+"""Gamut mapping of tabulated BSDFs (flakedb.colour.gamut, docs/gamut.md).
+
+Guards against: negative channels left in an RGB file; a mapping that changes luminance (the
+sampling channel and the energy balance), breaks reciprocity (different factors for a pair and its
+reciprocal), touches in-gamut pairs, or raises a channel's albedo above 1; working-space matrices
+that do not keep a flat spectrum grey or that disagree with the RGB mode's sRGB map.
+"""
+
+import numpy as np
+import pytest
+
+from flakedb.colour import gamut
+from flakedb.colour.colorimetry import spectra_to_rgb_matrix, spectral_grid
+
+WL = spectral_grid((380, 780), 10)
+
+
+@pytest.mark.parametrize("space", list(gamut.RGB_SPACES))
+def test_spaces_keep_a_flat_spectrum_grey_and_luminance_weights_sum_to_one(space):
+    M = gamut.spectra_to_space_matrix(WL, space)
+    np.testing.assert_allclose(np.full(WL.size, 0.37) @ M, [0.37] * 3, rtol=1e-12)
+    w = gamut.luminance_weights(WL, space)
+    assert w.sum() == pytest.approx(1.0, abs=1e-12)
+    # luminance in the space = Y of the spectrum
+    from flakedb.colour.colorimetry import reflectance_to_XYZ
+    spec = np.linspace(0.1, 0.9, WL.size)
+    assert (spec @ M) @ w == pytest.approx(reflectance_to_XYZ(spec, WL)[1], rel=1e-10)
+    # the RGB mode's sRGB → space map agrees with going through the spectrum
+    T = gamut.rgb_mode_to_space_matrix(WL, space)
+    np.testing.assert_allclose((spec @ spectra_to_rgb_matrix(WL)) @ T, spec @ M, rtol=1e-10, atol=1e-12)
+
+
+def test_srgb_is_the_rgb_mode_map():
+    np.testing.assert_array_equal(gamut.spectra_to_space_matrix(WL, "srgb"), spectra_to_rgb_matrix(WL))
+
+
+def _reciprocal_table(rng, n=8, L=5):
+    """Coefficients (3, n, n, L) of f·|mu_o| with f(i, o) = f(n-1-o, n-1-i) (reflection reciprocity),
+    saturated so that the blue channel is negative at some pairs."""
+    mu = np.concatenate([-np.linspace(0.9, 0.1, n // 2), np.linspace(0.1, 0.9, n // 2)])
+    f = rng.random((3, n, n, L)) * np.array([1.0, 0.5, 0.3, 0.1, 0.05])
+    f = 0.5 * (f + f[:, ::-1, ::-1].transpose(0, 2, 1, 3))                # reciprocal
+    f[2] -= 0.35 * f[0]                                                   # push blue out of gamut
+    return mu, f * np.abs(mu)[None, None, :, None], f
+
+
+def test_desaturation_keeps_luminance_reciprocity_and_removes_negatives():
+    rng = np.random.default_rng(1)
+    mu, c, _ = _reciprocal_table(rng)
+    w = gamut.luminance_weights(WL, "srgb")
+    mapped, s = gamut.desaturate_to_gamut(c, w, n_phi=32)
+    assert (s < 1).any() and (s == 1).any()
+    np.testing.assert_allclose(np.einsum("k,k...->...", w, mapped), np.einsum("k,k...->...", w, c), atol=1e-14)
+    np.testing.assert_array_equal(s, s[::-1, ::-1].T)
+    g = mapped / np.abs(mu)[None, None, :, None]
+    np.testing.assert_allclose(g, g[:, ::-1, ::-1].transpose(0, 2, 1, 3), atol=1e-13)   # still reciprocal
+    keep = s == 1
+    np.testing.assert_array_equal(mapped[:, keep], c[:, keep])                          # in gamut untouched
+    phi = np.linspace(0, np.pi, 32)
+    v = mapped @ np.cos(np.arange(c.shape[-1])[:, None] * phi[None, :])
+    Y = np.einsum("k,k...->...", w, v)
+    assert v[:, Y > 0].min() >= -1e-15 and mapped[..., 0].min() >= -1e-15
+    # a channel lies between its value and the luminance: never above max(c, Y)
+    Yc = np.einsum("k,k...->...", w, c)
+    assert np.all(mapped <= np.maximum(c, Yc[None]) + 1e-15)
+
+
+def test_points_desaturation():
+    w = gamut.luminance_weights(WL, "srgb")
+    rgb = np.array([[0.6, 0.3, -0.05], [0.2, 0.2, 0.2], [-0.1, -0.1, -0.1]])
+    out = gamut.desaturate_points(rgb, w)
+    assert out.min() >= 0 and out[0, 2] == pytest.approx(0, abs=1e-9)
+    assert out[0] @ w == pytest.approx(rgb[0] @ w)
+    np.testing.assert_array_equal(out[1], rgb[1])
+    np.testing.assert_array_equal(out[2], 0.0)
