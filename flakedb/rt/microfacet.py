@@ -203,6 +203,69 @@ def microfacet_albedo(mu, eta_rel, alpha, fresnel=None, n=48):
 
 
 # ------------------------------------------------------------------------------------------------
+# multiple-scattering energy compensation (Kulla & Conty 2017; docs/rough-interfaces.md)
+# ------------------------------------------------------------------------------------------------
+
+
+def dielectric_compensation(m, E_above, E_below, eta):
+    """Reciprocal, lossless multiple-scattering lobe of a rough dielectric, order 0 of f (1/sr).
+
+    The single-scattering interface keeps the fraction E_a(μ) (from above) or E_b(μ) (from below)
+    of the flux; g = 1 − E is what masking/shadowing drops.  With the étendue weights u = μ dμ in
+    air and η² μ dμ in the binder (the η² rule of reciprocity), the flux fraction carried from
+    direction i to direction o is
+
+        P(o ← i) = g(i) · u(o) g(o) / Z,     Z = Σ_air u g + Σ_binder u g,
+
+    symmetric after multiplying by u(i) (reciprocal), and Σ_o P(o ← i) = g(i) (exactly lossless
+    together with the single-scattering part).  It is Kulla & Conty's (2017) separable
+    compensation f_ms ∝ (1 − E(μ_i))(1 − E(μ_o)) with both sides of the interface in one étendue
+    space; it fixes the split between reflection and transmission of the compensated energy
+    (Σ_binder u g / Z, the same from either side).  In the solver's blocks (basic radiance,
+    P = 2π w_o μ_o f in air, 2π η² w_o μ_o f into the binder):
+
+        f_Rt = g_a g_aᵀ / (2πZ),  f_Ttb = g_b g_aᵀ / (2πZ),  f_Rb = η² g_b g_bᵀ / (2πZ),
+        f_Tbt = η² g_a g_bᵀ / (2πZ),   Z = Σ m g_a + η² Σ m g_b,
+
+    with m = w μ the nodes' flux weights.  Returns the four (h, h) additions [o, i].
+    """
+    ga = np.clip(1.0 - np.asarray(E_above, dtype=float), 0.0, None)
+    gb = np.clip(1.0 - np.asarray(E_below, dtype=float), 0.0, None)
+    Z = float(m @ ga + eta**2 * (m @ gb))
+    if Z <= 0.0:
+        z = np.zeros((len(m), len(m)))
+        return z, z, z, z
+    c = 1.0 / (2.0 * np.pi * Z)
+    return (c * np.outer(ga, ga), c * np.outer(gb, ga), c * eta**2 * np.outer(gb, gb),
+            c * eta**2 * np.outer(ga, gb))
+
+
+def conductor_compensation(m, x, alpha, fresnel):
+    """Kulla & Conty (2017) multiple-scattering lobe of a rough conductor, order 0 of f (C, h, h).
+
+    E₁(μ) is the single-scattering albedo of the same surface with F ≡ 1 (:func:`microfacet_albedo`),
+    Ē₁ = 2 Σ m E₁ its cosine-weighted average, F̄ = 2 Σ m F(μ) the Fresnel average, and
+
+        f_ms(o, i) = F_ms (1 − E₁(μ_i))(1 − E₁(μ_o)) / (2π Σ m (1 − E₁)),
+        F_ms = F̄² Ē₁ / (1 − F̄ (1 − Ē₁))
+
+    (Kulla & Conty, "Revisiting physically based shading at Imageworks", SIGGRAPH 2017 course:
+    1/(π(1 − Ē₁)) = 1/(2π Σ m (1 − E₁)) on the discrete rule).  Reciprocal, and with F ≡ 1 exactly
+    lossless; F_ms accounts for the Fresnel absorption of the repeated bounces.
+    """
+    E1, _ = microfacet_albedo(x, 1.0, alpha, fresnel=lambda c: np.ones((1,) + np.shape(c)))
+    g = np.clip(1.0 - E1[0], 0.0, None)
+    Z = float(m @ g)
+    mu = np.asarray(x, dtype=float)
+    Fbar = 2.0 * np.sum(m[None, :] * fresnel(mu), axis=-1)  # (C,)
+    Ebar = 2.0 * float(m @ E1[0])
+    Fms = Fbar**2 * Ebar / (1.0 - Fbar * (1.0 - Ebar))
+    if Z <= 0.0:
+        return np.zeros((len(Fms), len(m), len(m)))
+    return Fms[:, None, None] * np.outer(g, g)[None] / (2.0 * np.pi * Z)
+
+
+# ------------------------------------------------------------------------------------------------
 # cells and the composite rule
 # ------------------------------------------------------------------------------------------------
 
@@ -360,9 +423,14 @@ def _to_S(fbar, x, w):
     return cl * fbar * (w * x)[None, None, None, :]
 
 
-def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width=None):
+def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width=None,
+                           energy_compensation=True):
     """Rough dielectric interface (Beckmann α, binder/air index η) with the same rule (x, w) on
     both sides, by flux-cell integration; returns the four blocks (L, 1, h, h) and an info dict.
+
+    With ``energy_compensation`` (default) the reciprocal multiple-scattering lobe of
+    :func:`dielectric_compensation` is added to order 0, so that every column carries exactly 1
+    (lossless interface, docs/rough-interfaces.md); without it, the single-scattering Walter model.
 
     Blocks as in :class:`flakedb.rt.layer.Layer` (basic radiance): Rt, Ttb from above, Rb, Tbt
     from below; Tbt is the reciprocal of Ttb (f_bt[i, o] = η² f_tb[o, i]).
@@ -396,6 +464,10 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     Ttb = Ttb * sb[:, None] * sa[None, :]
     Rb = Rb * sb[:, None] * sb[None, :]
     Tbt = Tbt * sa[:, None] * sb[None, :]
+    if energy_compensation:
+        ms = dielectric_compensation(m, (R_a + T_a)[0], (R_b + T_b)[0], eta)
+        for b, add in zip((Rt, Ttb, Rb, Tbt), ms):
+            b[0, 0] += add
     blocks = [_to_S(b, x, w) for b in (Rt, Ttb, Rb, Tbt)]
     Lt = _truncate_orders(blocks, [(m, np.ones(h))] * 4, tol)
     info = {"orders": Lt, "orders_computed": L, "sub_points": len(rule[0]),
@@ -405,10 +477,12 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     return [b[:Lt] for b in blocks], info
 
 
-def rough_conductor_cells(x, w, eta_complex, alpha, tol=1e-5, max_orders=512, sub_width=None):
+def rough_conductor_cells(x, w, eta_complex, alpha, tol=1e-5, max_orders=512, sub_width=None,
+                          energy_compensation=True):
     """Rough conductor (Beckmann α, complex relative index per channel (C,)) seen from the
     dielectric above it, by flux-cell integration: the reflection block Rt (L, C, h, h) and info.
-    Only reflection: the transmitted part is absorbed by the metal."""
+    Only reflection: the transmitted part is absorbed by the metal.  With ``energy_compensation``
+    (default) the Kulla–Conty lobe of :func:`conductor_compensation` is added to order 0."""
     x = np.asarray(x, dtype=float)
     w = np.asarray(w, dtype=float)
     h = len(x)
@@ -424,11 +498,15 @@ def rough_conductor_cells(x, w, eta_complex, alpha, tol=1e-5, max_orders=512, su
     before = E.sum(axis=1)
     s = _symmetric_energy_scale(E, R)
     Rt = Rt * s[None, :, :, None] * s[None, :, None, :]
+    dev = float(np.abs(before - R).max())
+    if energy_compensation:
+        Rt[0] += conductor_compensation(m, x, alpha, F)
+        R = np.einsum("coi,o->ci", Rt[0], 2.0 * np.pi * m)
     S = _to_S(Rt, x, w)
     Lt = _truncate_orders([S], [(m, np.ones(h))], tol)
     info = {"orders": Lt, "orders_computed": L, "sub_points": len(rule[0]),
             "renorm_max_dev": float(np.abs(s**2 - 1.0).max()),
-            "energy_before_max_dev": float(np.abs(before - R).max()), "albedo": R}
+            "energy_before_max_dev": dev, "albedo": R}
     return S[:Lt], info
 
 
