@@ -45,7 +45,9 @@ from flakedb.optics.fresnel import fresnel_conductor
 #: Pairs whose Beckmann factor exp(−tan²θ_h/α²) stays below exp(−PRUNE_T2) for every φ are skipped.
 PRUNE_T2 = 40.0
 #: Cells wider in θ than SUB_WIDTH · α are split into sub-intervals of at most that width.
-SUB_WIDTH = 0.25
+SUB_WIDTH = 0.35
+#: Gauss–Legendre points (in μ²) per sub-interval.
+SUB_POINTS = 2
 #: Orders added to the von Mises estimate for the smooth factors (Fresnel, Jacobians, 1/cos⁴θ_h).
 ORDER_MARGIN = 12
 #: Gauss–Legendre nodes in φ per pair: at least this many, more when many orders oscillate in [0, φ_max].
@@ -276,11 +278,12 @@ def flux_cell_edges(x, w):
     return np.sqrt(np.concatenate([[0.0], np.cumsum(m)]) / m.sum())
 
 
-def cell_rule(x, w, width):
+def cell_rule(x, w, width, points=None):
     """Composite rule for ∫_cell g(μ) μ dμ over every flux cell: points ``t`` (M,), weights ``omega``
     (M,) and owning node ``cell`` (M,).  Cells wider than ``width`` in θ are split into equal θ
     sub-intervals, each with a 2-point Gauss–Legendre rule in μ² (so the weights of a cell sum to
     w_j x_j exactly); narrower cells keep their node with weight w_j x_j."""
+    points = SUB_POINTS if points is None else int(points)
     x = np.asarray(x, dtype=float)
     w = np.asarray(w, dtype=float)
     h = len(x)
@@ -302,10 +305,10 @@ def cell_rule(x, w, width):
     th_b = th_a - dth
     s_a, s_b = np.cos(th_a) ** 2, np.cos(th_b) ** 2  # s = μ², s_a < s_b
     mid, half = 0.5 * (s_a + s_b), 0.5 * (s_b - s_a)
-    g = half / np.sqrt(3.0)
-    t_s = np.sqrt(np.concatenate([mid - g, mid + g]))
-    om_s = np.concatenate([0.5 * half, 0.5 * half])  # ∫ g μ dμ = ½ ∫ g ds
-    c_s = np.concatenate([owner, owner])
+    gx, gw = roots_legendre(points)
+    t_s = np.sqrt(np.concatenate([mid + half * g for g in gx]))
+    om_s = np.concatenate([0.5 * half * g for g in gw])  # ∫ g μ dμ = ½ ∫ g ds
+    c_s = np.concatenate([owner] * points)
     t = np.concatenate([t_p, t_s])
     om = np.concatenate([om_p, om_s])
     cell = np.concatenate([c_p, c_s])
@@ -445,36 +448,65 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     Rb, L2 = _cell_block(rule, rule, h, h, 1.0 / eta, alpha, False, None, 1, tol, max_orders, symmetric=True)
     Ttb, L3 = _cell_block(rule, rule, h, h, eta, alpha, True, None, 1, tol, max_orders)
     L = max(L1, L2, L3)
-    Rt, Rb, Ttb = (_pad(b, L) / (m[:, None] * m[None, :]) for b in (Rt, Rb, Ttb))  # cell averages f̃
-    Tbt = eta**2 * np.swapaxes(Ttb, -1, -2)
+    Rt, Rb, Ttb = (_pad(b, L) for b in (Rt, Rb, Ttb))  # Σ ω ω f_l; f̃ = that / (m_o m_i)
+    mm = m[:, None] * m[None, :]
     # exact energy: columns of order 0 carry the continuous albedo at the node
     R_a, T_a = microfacet_albedo(x, eta, alpha)
     R_b, T_b = microfacet_albedo(x, 1.0 / eta, alpha)
     two_pi_m = 2.0 * np.pi * m
     E = np.zeros((1, 2 * h, 2 * h))  # rows: outgoing [air ↑, binder ↓]; columns: incident [air ↓, binder ↑]
-    E[0, :h, :h] = Rt[0, 0] * two_pi_m[:, None]
-    E[0, h:, :h] = eta**2 * Ttb[0, 0] * two_pi_m[:, None]
-    E[0, h:, h:] = Rb[0, 0] * two_pi_m[:, None]
-    E[0, :h, h:] = Tbt[0, 0] * two_pi_m[:, None] / eta**2
+    E[0, :h, :h] = Rt[0, 0] / mm * two_pi_m[:, None]
+    E[0, h:, :h] = eta**2 * Ttb[0, 0] / mm * two_pi_m[:, None]
+    E[0, h:, h:] = Rb[0, 0] / mm * two_pi_m[:, None]
+    E[0, :h, h:] = (Ttb[0, 0] / mm).T * two_pi_m[:, None]
     target = np.concatenate([R_a + T_a, R_b + T_b], axis=1)
     before = E[0].sum(axis=0)
     s = _symmetric_energy_scale(E, target)[0]
     sa, sb = s[:h], s[h:]
-    Rt = Rt * sa[:, None] * sa[None, :]
-    Ttb = Ttb * sb[:, None] * sa[None, :]
-    Rb = Rb * sb[:, None] * sb[None, :]
-    Tbt = Tbt * sa[:, None] * sb[None, :]
-    if energy_compensation:
-        ms = dielectric_compensation(m, (R_a + T_a)[0], (R_b + T_b)[0], eta)
-        for b, add in zip((Rt, Ttb, Rb, Tbt), ms):
-            b[0, 0] += add
-    blocks = [_to_S(b, x, w) for b in (Rt, Ttb, Rb, Tbt)]
-    Lt = _truncate_orders(blocks, [(m, np.ones(h))] * 4, tol)
+    ms = (dielectric_compensation(m, (R_a + T_a)[0], (R_b + T_b)[0], eta) if energy_compensation
+          else (0.0, 0.0, 0.0, 0.0))
+    # S_l[o, i] = c_l w_i μ_i f̃_l[o, i] (conventions), f̃ scaled by s_o s_i, fused in place:
+    # S_l = c_l · X_l · (s_o / m_o) · s_i, plus the compensation lobe in order 0
+    cl = fourier_weight(np.arange(L))[:, None, None, None]
+    blocks = []
+    for X, so, si, add in ((Rt, sa, sa, ms[0]), (Ttb, sb, sa, ms[1]), (Rb, sb, sb, ms[2])):
+        X *= ((so / m)[:, None] * si[None, :])[None, None]
+        X[0, 0] += add * m[None, :]
+        X *= cl
+        blocks.append(X)
+    # T^bt = η² (T^tb)ᵀ in f̃ (reciprocity): S^bt_l[o, i] = η² S^tb_l[i, o] m_i / m_o
+    Tbt = np.swapaxes(blocks[1], -1, -2) * (eta**2 * m[None, :] / m[:, None])[None, None]
+    blocks = [blocks[0], blocks[1], blocks[2], Tbt]
+    Lt = _truncate_orders_from_top(blocks, m, tol)
     info = {"orders": Lt, "orders_computed": L, "sub_points": len(rule[0]),
             "renorm_max_dev": float(np.abs(s**2 - 1.0).max()),
             "energy_before_max_dev": float(np.abs(before / target[0] - 1.0).max()),
             "albedo_above": (R_a + T_a)[0], "albedo_below": (R_b + T_b)[0]}
     return [b[:Lt] for b in blocks], info
+
+
+def _truncate_orders_from_top(blocks, m, tol, chunk=16):
+    """:func:`_truncate_orders` evaluated from the highest order down, a chunk of orders at a time,
+    stopping as soon as the dropped tail exceeds the budget (usually after one chunk when the order
+    cap binds): the same L, without a pass over every order."""
+    L = max(b.shape[0] for b in blocks)
+    scale = max(float(np.einsum("coi,o->ci", np.abs(b[0]), m).max()) for b in blocks)
+    if scale == 0.0:
+        return 1
+    tail = 0.0
+    for hi in range(L, 0, -chunk):
+        lo = max(0, hi - chunk)
+        worst = np.zeros(hi - lo)
+        for b in blocks:
+            if b.shape[0] > lo:
+                part = np.abs(b[lo:hi])
+                col = np.einsum("lcoi,o->lci", part, m).reshape(part.shape[0], -1).max(axis=1)
+                worst[: len(col)] = np.maximum(worst[: len(col)], col)
+        for k in range(hi - lo - 1, -1, -1):
+            if tail + worst[k] > tol * scale:
+                return max(1, lo + k + 1)
+            tail += worst[k]
+    return 1
 
 
 def rough_conductor_cells(x, w, eta_complex, alpha, tol=1e-5, max_orders=512, sub_width=None,
