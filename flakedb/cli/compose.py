@@ -3,7 +3,7 @@
 import click
 
 from flakedb.cli.errors import FlakedbError
-from flakedb.compose.orchestrate import OutputError, check_output_dir
+from flakedb.compose.orchestrate import OutputError, UnphysicalResultError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
 from flakedb.paint.mapping import catalog_species
@@ -28,7 +28,10 @@ from flakedb.store.versions import StoreError
                    "the flag is recorded.")
 @click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
-def compose(recipe, out_dir, n, store, raw, catalog_path):
+@click.option("--allow-unphysical", is_flag=True,
+              help="Write the result even when the self-check finds an albedo above 1 + 1e-3, a negative BSDF "
+                   "value or unconverged Fourier orders (printed as loud warnings); without it that is an error.")
+def compose(recipe, out_dir, n, store, raw, catalog_path, allow_unphysical):
     """Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report."""
     if n is not None and (n < 8 or n % 2):
         raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8 (n/2 nodes per hemisphere), "
@@ -51,9 +54,12 @@ def compose(recipe, out_dir, n, store, raw, catalog_path):
         click.echo(f"compose {rec.name}: store: {store} ({'raw samples' if raw else 'compressed factors'})")
     try:
         res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"),
-                             store=store)
-    except StoreError as exc:
+                             store=store, allow_unphysical=allow_unphysical)
+    except (StoreError, UnphysicalResultError) as exc:
         raise FlakedbError(str(exc)) from exc
+    for w in res.warnings:
+        if w.startswith("UNPHYSICAL"):
+            click.echo(f"WARNING: {w}", err=True)
 
     click.echo(format_report(res.report))
     s = res.bsdf_summary
