@@ -2,6 +2,11 @@
 flux-cell integration (flakedb.rt.microfacet) against the former node-sampled projection, and the
 rough conductor base.  Accuracy is in tests/test_rough_energy.py; here only the time."""
 
+import os
+import subprocess
+import sys
+import time
+
 from flakedb.rt import interface as itf
 from flakedb.rt.quadrature import radau_hemisphere
 
@@ -31,5 +36,27 @@ def _conductor(n, alpha):
             {"n": n, "alpha": alpha, "channels": 3})
 
 
+def _whole_stack(n=200):
+    """The rough / HG / Lambertian stack at n RGB as a whole process (import + interface + solve),
+    single-threaded BLAS so that the number is not the machine's thread contention."""
+
+    def setup():
+        return None
+
+    def run(_):
+        code = ("import numpy as np; from flakedb.rt.stack import Rough, Slab, Lambertian, SolverSettings, solve_stack; "
+                "from flakedb.rt.media import PhaseMedium; "
+                "slab = Slab(2.0, PhaseMedium(np.ones(3), np.full(3, 0.95), ('hg', np.full(3, 0.7)))); "
+                f"solve_stack(Rough(1.5, 0.1), [slab], Lambertian(np.full(3, 0.5)), SolverSettings.product({n}))")
+        env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", code], check=True, env=env)
+        return {"process_s": time.perf_counter() - t0}
+
+    return (f"whole process: rough 0.1 / HG / Lambertian, RGB, n={n}", setup, run,
+            {"n": n, "channels": 3, "what": "python -c import + interface + solve, order_tol 1e-4"})
+
+
 BENCHMARKS = [_coat(200, 0.1, "cells"), _coat(200, 0.1, "points"), _coat(64, 0.1, "cells"),
-              _coat(64, 0.1, "points"), _coat(64, 0.02, "cells"), _conductor(64, 0.1)]
+              _coat(64, 0.1, "points"), _coat(64, 0.02, "cells"), _coat(64, 0.01, "cells"), _conductor(64, 0.1),
+              _whole_stack(200)]

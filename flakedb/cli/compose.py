@@ -5,7 +5,7 @@ import click
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.progress import StageProgress
 from flakedb.colour.gamut import RGB_SPACES
-from flakedb.compose.orchestrate import OutputError, check_output_dir
+from flakedb.compose.orchestrate import OutputError, UnphysicalResultError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
 from flakedb.paint.catalog import CatalogError, load_catalog
@@ -34,7 +34,10 @@ from flakedb.store.versions import StoreError
               help="Working space of the RGB .bsdf: linear sRGB (what .bsdf readers assume), or the wide-gamut "
                    "linear Rec.2020 / ACEScg (tell the renderer; docs/renderers.md).  Recorded in the metadata.")
 @click.option("--quiet", is_flag=True, help="No progress lines on stderr (warnings are still printed).")
-def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet):
+@click.option("--allow-unphysical", is_flag=True,
+              help="Write the result even when the self-check finds an albedo above 1 + 1e-3, a negative BSDF "
+                   "value or unconverged Fourier orders (printed as loud warnings); without it that is an error.")
+def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, allow_unphysical):
     """Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report."""
     if n is not None and (n < 8 or n % 2):
         raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8 (n/2 nodes per hemisphere), "
@@ -59,11 +62,15 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet):
     progress = bar if not quiet else (lambda stage, d: bar(stage, d) if stage == "warning" else None)
     try:
         res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"),
-                             store=store, rgb_space=rgb_space, progress=progress)
-    except StoreError as exc:
+                             store=store, rgb_space=rgb_space, progress=progress,
+                             allow_unphysical=allow_unphysical)
+    except (StoreError, UnphysicalResultError) as exc:
         raise FlakedbError(str(exc)) from exc
     finally:
         bar.close()
+    for w in res.warnings:
+        if w.startswith("UNPHYSICAL"):
+            click.echo(f"WARNING: {w}", err=True)
 
     click.echo(format_report(res.report))
     s = res.bsdf_summary

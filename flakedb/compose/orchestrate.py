@@ -223,15 +223,59 @@ def write_outputs(out_dir, name, table, file_table, report, h5_metadata):
     return {k: str(v) for k, v in final.items()}, summary
 
 
+class UnphysicalResultError(ValueError):
+    """The solved BSDF fails :func:`check_physical` (compose writes nothing)."""
+
+
+#: A passive stack may not reflect more than 1 + ALBEDO_SLACK of the incident flux.
+ALBEDO_SLACK = 1e-3
+#: Negative cosine-weighted BSDF values below −NEGATIVE_SLACK × its maximum are errors.  Not round-off:
+#: the interfaces' order cap (2n) truncates the φ series of the narrow lobes at grazing node pairs,
+#: which rings to −0.4 % … −3 % of the maximum today (measured, rough coat α 0.1–0.3 over white, n
+#: 32–128; docs/rough-interfaces.md, "Not done"); this threshold flags anything worse.
+NEGATIVE_SLACK = 0.05
+
+
+def check_physical(stack, n_phi=13):
+    """Problems of a solved (passive) stack, as one-line strings (empty: none).
+
+    * directional albedo (table + delta) above 1 + :data:`ALBEDO_SLACK` at any node and channel;
+    * a negative cosine-weighted BSDF f μ_i μ_o (node pairs × ``n_phi`` azimuths in [0, π]) below
+      −:data:`NEGATIVE_SLACK` × its maximum;
+    * the order choice did not converge (``info['order_converged']`` False) or the rough interface's
+      energy scaling failed (non-finite values).
+    """
+    problems = []
+    A = stack.albedo()
+    if not np.all(np.isfinite(A)) or not np.all(np.isfinite(stack.Rt)):
+        return ["the BSDF has non-finite values (solver failure)"]
+    amax = float(A.max())
+    if amax > 1.0 + ALBEDO_SLACK:
+        c, i = np.unravel_index(int(np.argmax(A)), A.shape)
+        problems.append(f"albedo {amax:.6f} > 1 + {ALBEDO_SLACK:g} at θ_i = {np.degrees(np.arccos(stack.x[i])):.1f}° "
+                        f"(channel {c}) for a passive stack")
+    g = stack.eval_nodes(np.linspace(0.0, np.pi, n_phi)) * (stack.x[:, None] * stack.x[None, :])[None, :, :, None]
+    gmax, gmin = float(g.max()), float(g.min())
+    if gmax > 0 and gmin < -NEGATIVE_SLACK * gmax:
+        problems.append(f"negative BSDF value: f·μ_i·μ_o = {gmin:.3g} (max {gmax:.3g}, allowed down to "
+                        f"−{NEGATIVE_SLACK:g} × max)")
+    if stack.info.get("order_converged") is False:
+        problems.append(f"Fourier orders did not converge (dropped tail {stack.info.get('order_tail', float('nan')):.2g} "
+                        f"> order_tol {stack.info.get('order_tol')})")
+    return problems
+
+
 def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=None, verify=True,
-            rgb_space="srgb", progress=None) -> ComposeResult:
+            rgb_space="srgb", progress=None, allow_unphysical=False) -> ComposeResult:
     """Compose ``recipe`` (a :class:`flakedb.paint.recipe.Recipe`) into ``out_dir``; see the module docstring.
 
     ``n`` overrides the recipe's resolution; ``log`` (callable taking a line) reports progress.
     ``store``: None (species optics computed directly from the catalogue), a store URL or an open
     :class:`flakedb.store.versions.StoreVersion`: the catalogue species' reflectance functions come from its
     latest complete version (checksums verified first with ``verify``; compressed factors, or the
-    raw samples with ``raw``).  A recipe without catalogue species does not open the store.  Raises
+    raw samples with ``raw``).  A recipe without catalogue species does not open the store.  The solved
+    BSDF is checked (:func:`check_physical`): a problem raises :class:`UnphysicalResultError` before
+    anything is written, or with ``allow_unphysical`` becomes a loud warning.  Raises
     :class:`flakedb.store.versions.StoreError` (:class:`~flakedb.store.versions.StoreIntegrityError` for a corrupted
     store) before writing anything.
     """
@@ -246,8 +290,6 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     if n_used % 2 or n_used < 8:
         raise ValueError(f"n = {n_used}: the node count must be even and ≥ 8")
     warnings = list(recipe.warnings)
-    if recipe.clearcoat is not None and recipe.clearcoat.roughness > 0 and n_used < 128:
-        warnings.append(f"rough coat at n = {n_used} < 128: expect energy errors of several %")
     t = {}
 
     version = None
@@ -274,6 +316,13 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
                         threads=os.cpu_count() or 1, progress=progress)
     t["solve"] = time.perf_counter() - t0
     log(f"solve: n = {n_used} ({reason}), {stack.info.get('orders')} Fourier orders, {t['solve']:.2f} s")
+    problems = check_physical(stack)
+    if problems and not allow_unphysical:
+        raise UnphysicalResultError(
+            f"recipe {recipe.name}: unphysical result at n = {n_used}: " + "; ".join(problems)
+            + "; nothing written.  Raise the resolution (--n) or rerun with --allow-unphysical to write it anyway.")
+    for p in problems:
+        warnings.append(f"UNPHYSICAL RESULT (written because of --allow-unphysical): {p}")
     solver_notes = solver_warnings(stack.info, n_used)
     for w in solver_notes:
         progress("warning", {"message": w})

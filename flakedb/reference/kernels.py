@@ -331,10 +331,117 @@ def _rough_conductor(dx, dy, mu, n, k, alpha, s):
     return ox, oy, -oz, w
 
 
+# ---- multiple-scattering energy compensation (docs/rough-interfaces.md) ---------------------------
+# Tables on the grid μ_k = (k/K)², k = 0 … K: rows 0 (rough dielectric, light from the air), 1 (from
+# the binder), 2 (rough conductor with F ≡ 1).  ``ms_E[r, k]`` is the single-scattering albedo E_r(μ_k);
+# ``ms_cdf[r, k]`` the CDF over the intervals [μ_k, μ_{k+1}] of the pdf ∝ μ (1 − E_r(μ)).
+# ``ms_par`` = [dielectric compensation on, probability that the dielectric lobe leaves into the air,
+# conductor compensation on, the conductor's F_ms].
+
+
+@njit(cache=True)
+def single_scatter_albedo(mu_grid, eta_rel, alpha, white, xs, ws):
+    """Expected weight of one hit of :func:`_rough_interface` (``white`` False, relative index
+    ``eta_rel``) or of a rough reflector with F ≡ 1 (``white`` True) for light arriving at cosine μ,
+    for every μ of ``mu_grid``: the integral over the sampled normal (u₁, φ) of Walter's eq. 41 weight
+    summed over both branches with their probabilities F and 1 − F, by a tensor rule (``xs``, ``ws``:
+    nodes and weights on [0, 1], Σ ws = 1) in u₁ and in φ/π (the integrand is even in φ)."""
+    out = np.zeros(mu_grid.shape[0])
+    for j in range(mu_grid.shape[0]):
+        iz = max(mu_grid[j], 1e-9)
+        ix = math.sqrt(max(0.0, 1.0 - iz * iz))
+        total = 0.0
+        for a in range(xs.shape[0]):
+            tan2 = -alpha * alpha * math.log(1.0 - xs[a])
+            mz = 1.0 / math.sqrt(1.0 + tan2)
+            sm = math.sqrt(max(0.0, 1.0 - mz * mz))
+            for b in range(xs.shape[0]):
+                mx = sm * math.cos(math.pi * xs[b])
+                c = ix * mx + iz * mz
+                if c <= 0.0:
+                    continue
+                base = ws[a] * ws[b] * c * smith_g1_beckmann(iz, c, alpha) / (iz * mz)
+                F = 1.0 if white else fresnel_unpolarized(c, eta_rel)
+                oz = 2.0 * c * mz - iz
+                if oz > 0.0:
+                    total += F * base * smith_g1_beckmann(oz, c, alpha)
+                if not white and F < 1.0:
+                    sin2_t = (1.0 - c * c) / (eta_rel * eta_rel)
+                    cos_t = math.sqrt(max(0.0, 1.0 - sin2_t))
+                    oz = -iz / eta_rel + (c / eta_rel - cos_t) * mz
+                    if oz < 0.0:
+                        total += (1.0 - F) * base * smith_g1_beckmann(oz, -cos_t, alpha)
+        out[j] = total
+    return out
+
+
+@njit(cache=True)
+def _table_E(ms_E, row, mu):
+    """E_row(μ), linear in √μ between the nodes μ_k = (k/K)²."""
+    K = ms_E.shape[1] - 1
+    t = math.sqrt(max(mu, 0.0)) * K
+    k = int(t)
+    if k >= K:
+        k = K - 1
+    f = t - k
+    return ms_E[row, k] * (1.0 - f) + ms_E[row, k + 1] * f
+
+
+@njit(cache=True)
+def _sample_ms_mu(ms_grid, ms_cdf, row, s):
+    """μ from the pdf ∝ μ (1 − E_row(μ)): an interval by its CDF, then ∝ μ inside it."""
+    u = _uniform(s)
+    lo = 0
+    hi = ms_cdf.shape[1] - 1
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if ms_cdf[row, mid] > u:
+            hi = mid
+        else:
+            lo = mid + 1
+    a = ms_grid[lo]
+    b = ms_grid[lo + 1]
+    return math.sqrt(a * a + _uniform(s) * (b * b - a * a))
+
+
+@njit(cache=True)
+def _rough_interface_ms(dx, dy, mu, from_above, eta, alpha, ms_grid, ms_E, ms_cdf, ms_par, s):
+    """One hit of the rough dielectric with the multiple-scattering compensation: with probability
+    p = E(μ) (the table) the single-scattering event of :func:`_rough_interface` with its weight
+    divided by p; otherwise the compensation lobe, weight (1 − E)/(1 − p) = 1: the side is the air
+    with probability ``ms_par[1]``, μ ∝ μ (1 − E_side(μ)), φ uniform.  Expected weight
+    E_true + 1 − E_table: lossless up to the table's quadrature error."""
+    cos_in = mu if from_above else -mu
+    p = _table_E(ms_E, 0 if from_above else 1, cos_in)
+    if _uniform(s) < p:
+        dx, dy, mu, f = _rough_interface(dx, dy, mu, from_above, eta, alpha, s)
+        return dx, dy, mu, f / p
+    air = _uniform(s) < ms_par[1]
+    m = _sample_ms_mu(ms_grid, ms_cdf, 0 if air else 1, s)
+    ph = _TWO_PI * _uniform(s)
+    st = math.sqrt(max(0.0, 1.0 - m * m))
+    return st * math.cos(ph), st * math.sin(ph), (-m if air else m), 1.0
+
+
+@njit(cache=True)
+def _rough_conductor_ms(dx, dy, mu, n, k, alpha, ms_grid, ms_E, ms_cdf, ms_par, s):
+    """One hit of the rough conductor with Kulla & Conty's compensation: with probability p = E₁(μ)
+    the single-scattering reflection (weight / p), otherwise the lobe μ ∝ μ (1 − E₁(μ)), φ uniform,
+    travelling up, weight F_ms (1 − E₁)/(1 − p) = F_ms (``ms_par[3]``)."""
+    p = _table_E(ms_E, 2, mu)
+    if _uniform(s) < p:
+        dx, dy, mu, f = _rough_conductor(dx, dy, mu, n, k, alpha, s)
+        return dx, dy, mu, f / p
+    m = _sample_ms_mu(ms_grid, ms_cdf, 2, s)
+    ph = _TWO_PI * _uniform(s)
+    st = math.sqrt(max(0.0, 1.0 - m * m))
+    return st * math.cos(ph), st * math.sin(ph), -m, ms_par[3]
+
+
 @njit(cache=True)
 def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k, bot_alpha, z_edges, sigma_bar, comp_start,
            comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha, comp_off, comp_n, tab,
-           w_start, max_orders, max_events, rr_threshold):
+           w_start, max_orders, max_events, rr_threshold, ms_grid, ms_E, ms_cdf, ms_par):
     """Trace one path; returns (outcome, weight, dx, dy, mu, interface_loss, events)."""
     n_slabs = sigma_bar.shape[0]
     w = w_start
@@ -352,9 +459,12 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
         dx = sin_t
         mu = math.sqrt(1.0 - sin_t * sin_t)
     elif top_type == TOP_ROUGH:
-        dx, dy, mu, f = _rough_interface(dx, dy, mu, True, eta, top_alpha, s)
+        if ms_par[0] > 0.0:
+            dx, dy, mu, f = _rough_interface_ms(dx, dy, mu, True, eta, top_alpha, ms_grid, ms_E, ms_cdf, ms_par, s)
+        else:
+            dx, dy, mu, f = _rough_interface(dx, dy, mu, True, eta, top_alpha, s)
+            loss += w * (1.0 - f)
         events += 1
-        loss += w * (1.0 - f)
         w *= f
         direct = False
         if w == 0.0:
@@ -406,7 +516,11 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
                     dx = st * math.cos(ph)
                     dy = st * math.sin(ph)
                 elif bot_type == BOTTOM_ROUGH_CONDUCTOR:
-                    dx, dy, mu, f = _rough_conductor(dx, dy, mu, bot_n, bot_k, bot_alpha, s)
+                    if ms_par[2] > 0.0:
+                        dx, dy, mu, f = _rough_conductor_ms(dx, dy, mu, bot_n, bot_k, bot_alpha, ms_grid, ms_E,
+                                                            ms_cdf, ms_par, s)
+                    else:
+                        dx, dy, mu, f = _rough_conductor(dx, dy, mu, bot_n, bot_k, bot_alpha, s)
                     w *= f
                     direct = False
                     if w == 0.0:
@@ -444,8 +558,12 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
                             dy *= scale
                         return _EXIT_TOP, w, dx, dy, mu_out, loss, events
                 else:
-                    dx, dy, mu, f = _rough_interface(dx, dy, mu, False, eta, top_alpha, s)
-                    loss += w * (1.0 - f)
+                    if ms_par[0] > 0.0:
+                        dx, dy, mu, f = _rough_interface_ms(dx, dy, mu, False, eta, top_alpha, ms_grid, ms_E,
+                                                            ms_cdf, ms_par, s)
+                    else:
+                        dx, dy, mu, f = _rough_interface(dx, dy, mu, False, eta, top_alpha, s)
+                        loss += w * (1.0 - f)
                     w *= f
                     direct = False
                     if w == 0.0:
@@ -536,7 +654,7 @@ def simulate_kernel(path_counts, seeds, mu_i, top_type, eta, top_alpha, bot_type
                     bot_alpha, z_edges,
                     sigma_bar, comp_start, comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha,
                     comp_off, comp_n, tab, w_start, mu_edges, phi_edges, max_orders, max_events,
-                    rr_threshold):
+                    rr_threshold, ms_grid, ms_E, ms_cdf, ms_par):
     """Run ``path_counts[b]`` paths for every batch b (in parallel, each with its own RNG stream).
 
     Returns per-batch tallies: ``scal`` (B, N_SCALARS) with the layout S_*; ``rbin`` / ``tbin``
@@ -557,7 +675,7 @@ def simulate_kernel(path_counts, seeds, mu_i, top_type, eta, top_alpha, bot_type
                 s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k, bot_alpha, z_edges,
                 sigma_bar, comp_start,
                 comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha, comp_off, comp_n, tab,
-                w_start, max_orders, max_events, rr_threshold)
+                w_start, max_orders, max_events, rr_threshold, ms_grid, ms_E, ms_cdf, ms_par)
             scal[b, S_EVENTS] += events
             if loss != 0.0:
                 scal[b, S_LOSS] += loss

@@ -43,7 +43,18 @@ Interfaces
   D(m)|m·n| (Walter eq. 35), branch chosen with probability F(i·m), weight Walter eq. 41.  This
   single-scattering microfacet model is not energy conserving (it loses the masked/shadowed part:
   1.36 % of the incident power for a white Lambertian under α = 0.1, η = 1.5 at μ_i = 0.6, where
-  light meets the interface ~2.5 times); the loss is tallied as ``Result.interface_loss``.  There is no delta term for a rough top.
+  light meets the interface ~2.5 times); with ``energy_compensation=False`` the loss is tallied as
+  ``Result.interface_loss``.  There is no delta term for a rough top.
+* Energy compensation (default; docs/rough-interfaces.md): the single-scattering albedos E_a(μ)
+  (light from the air) and E_b(μ) (from the binder) are tabulated here by a 192 × 192 tensor
+  quadrature of the kernel's own expected weight (:func:`flakedb.reference.kernels.single_scatter_albedo`).
+  At each hit the single-scattering event is taken with probability E(μ_i) (weight divided by it),
+  otherwise the compensation lobe with weight 1: it leaves into the air with probability Z_a/Z, into
+  the binder otherwise, with μ_o ∝ μ_o (1 − E_side(μ_o)) and φ uniform, where
+  Z_a = ∫ μ (1 − E_a) dμ, Z = Z_a + η² ∫ μ (1 − E_b) dμ (the η²-weighted étendue of the binder
+  side makes it reciprocal).  A rough conductor bottom gets Kulla & Conty's lobe: taken with
+  probability 1 − E₁(μ_i) (E₁ its albedo with F ≡ 1), weight F_ms = F̄² Ē₁/(1 − F̄(1 − Ē₁)),
+  μ_o ∝ μ_o (1 − E₁(μ_o)).
 
 Estimators
 ----------
@@ -67,6 +78,7 @@ of a multi-channel problem equals the same problem with that channel alone, bit 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -93,6 +105,7 @@ __all__ = [
     "binned_reflectance",
     "bin_average",
     "flake_ndf_Beckmann",
+    "compensation_table",
 ]
 
 #: number of independent RNG streams (path batches); fixed so results depend on seed and n_paths only
@@ -184,10 +197,12 @@ class Smooth:
 @dataclass(frozen=True)
 class Rough:
     """Rough dielectric top interface (Walter et al. 2007, Beckmann, roughness ``alpha`` > 0),
-    ``eta`` = n_binder / n_air."""
+    ``eta`` = n_binder / n_air.  ``energy_compensation`` (default): the masked/shadowed energy is
+    returned by the reciprocal multiple-scattering lobe (module docstring); False: single scattering."""
 
     eta: float
     alpha: float
+    energy_compensation: bool = True
 
 
 @dataclass(frozen=True)
@@ -202,10 +217,12 @@ class RoughConductor:
     """Beckmann microfacet metal at the bottom of the last slab (Walter et al. 2007 reflection with
     the conductor Fresnel factor, separable Smith G, exact Beckmann G1): complex index ``N`` = n + ik
     of the metal relative to vacuum (scalar or (C,)); it is divided by the binder's index.  The
-    masked/shadowed part and the metal's absorption are both lost (counted in ``absorbed``)."""
+    masked/shadowed part and the metal's absorption are both lost (counted in ``absorbed``) unless
+    ``energy_compensation`` (default) adds Kulla & Conty's multiple-scattering lobe."""
 
     N: Any
     alpha: float
+    energy_compensation: bool = True
 
 
 @dataclass(frozen=True)
@@ -518,6 +535,60 @@ def _edges(edges, hi, name):
     return e
 
 
+#: μ grid of the compensation tables, μ_k = (k/K)² (dense at grazing, where E changes fastest)
+MS_TABLE_K = 384
+#: Gauss–Legendre nodes per dimension of the tables' quadrature
+MS_TABLE_QUAD = 192
+
+
+def compensation_table(eta_rel, alpha, white=False):
+    """The compensation table of a rough interface: (μ grid, E on the grid, CDF of μ(1 − E) over the
+    intervals, Z = ∫ μ (1 − E) dμ); ``white``: a rough reflector with F ≡ 1 (the conductor's E₁)."""
+    E, cdf, Z = _ms_row(float(eta_rel), float(alpha), bool(white))
+    return (np.arange(MS_TABLE_K + 1) / MS_TABLE_K) ** 2, E.copy(), cdf.copy(), Z
+
+
+@functools.lru_cache(maxsize=64)
+def _ms_row(eta_rel, alpha, white):
+    """(E on the grid, CDF of μ(1 − E) over the intervals, ∫ μ (1 − E) dμ) for one table row."""
+    grid = (np.arange(MS_TABLE_K + 1) / MS_TABLE_K) ** 2
+    x, w = np.polynomial.legendre.leggauss(MS_TABLE_QUAD)
+    E = _k.single_scatter_albedo(grid, float(eta_rel), float(alpha), bool(white), 0.5 * (x + 1.0), 0.5 * w)
+    g = np.clip(1.0 - E, 0.0, None)
+    W = 0.5 * (g[1:] + g[:-1]) * 0.5 * np.diff(grid**2)
+    Z = float(W.sum())
+    cdf = np.cumsum(W) / Z if Z > 0 else np.linspace(1.0 / len(W), 1.0, len(W))
+    cdf[-1] = 1.0
+    return E, cdf, Z
+
+
+def _ms_tables(problem, c):
+    """The kernel's compensation arrays (ms_grid, ms_E, ms_cdf, ms_par) for channel c."""
+    grid = (np.arange(MS_TABLE_K + 1) / MS_TABLE_K) ** 2
+    E = np.zeros((3, MS_TABLE_K + 1))
+    cdf = np.ones((3, MS_TABLE_K))
+    par = np.zeros(4)
+    top, bot = problem.top, problem.bottom
+    if isinstance(top, Rough) and top.energy_compensation:
+        eta = float(top.eta)
+        E[0], cdf[0], Za = _ms_row(eta, float(top.alpha), False)
+        E[1], cdf[1], Zb = _ms_row(1.0 / eta, float(top.alpha), False)
+        par[0] = 1.0
+        par[1] = Za / (Za + eta**2 * Zb) if Za + Zb > 0 else 1.0
+    if isinstance(bot, RoughConductor) and bot.energy_compensation:
+        E[2], cdf[2], Z1 = _ms_row(1.0, float(bot.alpha), True)
+        Nc = np.atleast_1d(np.asarray(bot.N, dtype=complex))
+        Nc = complex(Nc[0] if Nc.size == 1 else Nc[c]) / problem.eta_binder
+        x, w = np.polynomial.legendre.leggauss(400)
+        mu, w = 0.5 * (x + 1.0), 0.5 * w
+        F = np.array([_k.fresnel_conductor_unpolarized(float(m), Nc.real, Nc.imag) for m in mu])
+        Fbar = 2.0 * float(np.sum(w * mu * F))
+        Ebar = 1.0 - 2.0 * Z1
+        par[2] = 1.0
+        par[3] = Fbar**2 * Ebar / (1.0 - Fbar * (1.0 - Ebar))
+    return grid, E, cdf, par
+
+
 def _fresnel_scalar(cos_i, eta):
     """Unpolarised Fresnel reflectance (the same closed form the kernels use), for the delta term."""
     return float(_k.fresnel_unpolarized(float(cos_i), float(eta)))
@@ -600,12 +671,14 @@ def simulate(problem, mu_i, n_paths, seed, mu_edges=None, phi_edges=None, *, max
         else:
             bot_type, bot_alb = _k.BOTTOM_NONE, 0.0
         pk = _pack(problem, c)
+        ms_grid, ms_E, ms_cdf, ms_par = _ms_tables(problem, c)
         scal, rbin, tbin = _k.simulate_kernel(
             counts, seeds, mu_i, np.int64(top_type), eta, top_alpha, np.int64(bot_type), bot_alb, bot_n, bot_k,
             bot_alpha,
             pk["z_edges"], pk["sigma_bar"], pk["comp_start"], pk["comp_type"], pk["comp_sigma"],
             pk["comp_albedo"], pk["comp_g"], pk["comp_alpha"], pk["comp_off"], pk["comp_n"], pk["tab"],
-            w_start, me, pe, np.int64(max_orders), np.int64(MAX_EVENTS), float(rr_threshold))
+            w_start, me, pe, np.int64(max_orders), np.int64(MAX_EVENTS), float(rr_threshold),
+            ms_grid, ms_E, ms_cdf, ms_par)
         t = scal.sum(axis=0)
         out["R"][c], out["Rse"][c] = mean_se(t[_k.S_R], t[_k.S_R2])
         out["Td"][c], out["Tdse"][c] = mean_se(t[_k.S_TDIR], t[_k.S_TDIR2])

@@ -151,24 +151,27 @@ def _bsdf_block(fn, x_in, w_in, x_out, w_out, tol, n_start, max_orders):
     return S, info
 
 
-def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512):
+def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512, energy_compensation=True):
     """Rough dielectric interface (Beckmann α, relative index η) as a :class:`Layer`, by flux-cell
     integration (:func:`flakedb.rt.microfacet.rough_dielectric_cells`): every column of order 0
     carries the continuous BSDF's directional albedo, the blocks are reciprocal, and as α → 0 it
     tends to the smooth interface.  Both sides use the same rule (``q_in`` nodes equal ``q_out``'s).
-    Returns ``(layer, info)``.
+    ``energy_compensation``: add the reciprocal multiple-scattering lobe (lossless interface,
+    :func:`flakedb.rt.microfacet.dielectric_compensation`).  Returns ``(layer, info)``.
     """
     if q_in.h != q_out.h or not np.allclose(q_in.x, q_out.x):
         raise ValueError("the rough interface needs the same quadrature on both sides")
-    blocks, info = rough_dielectric_cells(q_out.x, q_out.w, eta, alpha, tol=tol, max_orders=max_orders)
+    blocks, info = rough_dielectric_cells(q_out.x, q_out.w, eta, alpha, tol=tol, max_orders=max_orders,
+                                          energy_compensation=energy_compensation)
     return Layer(*blocks), info
 
 
-def rough_conductor(q, eta_complex, alpha, tol=1e-5, max_orders=512):
+def rough_conductor(q, eta_complex, alpha, tol=1e-5, max_orders=512, energy_compensation=True):
     """Rough conductor (Beckmann α, complex index relative to the binder above, scalar or (C,)) at
     the bottom of the stack: reflection only, by flux-cell integration
     (:func:`flakedb.rt.microfacet.rough_conductor_cells`).  Returns ``(Rt, info)``, Rt (L, C, h, h)."""
-    return rough_conductor_cells(q.x, q.w, eta_complex, alpha, tol=tol, max_orders=max_orders)
+    return rough_conductor_cells(q.x, q.w, eta_complex, alpha, tol=tol, max_orders=max_orders,
+                                 energy_compensation=energy_compensation)
 
 
 def rough_dielectric_point_sampled(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512):

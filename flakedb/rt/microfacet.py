@@ -45,7 +45,9 @@ from flakedb.optics.fresnel import fresnel_conductor
 #: Pairs whose Beckmann factor exp(−tan²θ_h/α²) stays below exp(−PRUNE_T2) for every φ are skipped.
 PRUNE_T2 = 40.0
 #: Cells wider in θ than SUB_WIDTH · α are split into sub-intervals of at most that width.
-SUB_WIDTH = 0.25
+SUB_WIDTH = 0.35
+#: Gauss–Legendre points (in μ²) per sub-interval.
+SUB_POINTS = 2
 #: Orders added to the von Mises estimate for the smooth factors (Fresnel, Jacobians, 1/cos⁴θ_h).
 ORDER_MARGIN = 12
 #: Gauss–Legendre nodes in φ per pair: at least this many, more when many orders oscillate in [0, φ_max].
@@ -203,6 +205,69 @@ def microfacet_albedo(mu, eta_rel, alpha, fresnel=None, n=48):
 
 
 # ------------------------------------------------------------------------------------------------
+# multiple-scattering energy compensation (Kulla & Conty 2017; docs/rough-interfaces.md)
+# ------------------------------------------------------------------------------------------------
+
+
+def dielectric_compensation(m, E_above, E_below, eta):
+    """Reciprocal, lossless multiple-scattering lobe of a rough dielectric, order 0 of f (1/sr).
+
+    The single-scattering interface keeps the fraction E_a(μ) (from above) or E_b(μ) (from below)
+    of the flux; g = 1 − E is what masking/shadowing drops.  With the étendue weights u = μ dμ in
+    air and η² μ dμ in the binder (the η² rule of reciprocity), the flux fraction carried from
+    direction i to direction o is
+
+        P(o ← i) = g(i) · u(o) g(o) / Z,     Z = Σ_air u g + Σ_binder u g,
+
+    symmetric after multiplying by u(i) (reciprocal), and Σ_o P(o ← i) = g(i) (exactly lossless
+    together with the single-scattering part).  It is Kulla & Conty's (2017) separable
+    compensation f_ms ∝ (1 − E(μ_i))(1 − E(μ_o)) with both sides of the interface in one étendue
+    space; it fixes the split between reflection and transmission of the compensated energy
+    (Σ_binder u g / Z, the same from either side).  In the solver's blocks (basic radiance,
+    P = 2π w_o μ_o f in air, 2π η² w_o μ_o f into the binder):
+
+        f_Rt = g_a g_aᵀ / (2πZ),  f_Ttb = g_b g_aᵀ / (2πZ),  f_Rb = η² g_b g_bᵀ / (2πZ),
+        f_Tbt = η² g_a g_bᵀ / (2πZ),   Z = Σ m g_a + η² Σ m g_b,
+
+    with m = w μ the nodes' flux weights.  Returns the four (h, h) additions [o, i].
+    """
+    ga = np.clip(1.0 - np.asarray(E_above, dtype=float), 0.0, None)
+    gb = np.clip(1.0 - np.asarray(E_below, dtype=float), 0.0, None)
+    Z = float(m @ ga + eta**2 * (m @ gb))
+    if Z <= 0.0:
+        z = np.zeros((len(m), len(m)))
+        return z, z, z, z
+    c = 1.0 / (2.0 * np.pi * Z)
+    return (c * np.outer(ga, ga), c * np.outer(gb, ga), c * eta**2 * np.outer(gb, gb),
+            c * eta**2 * np.outer(ga, gb))
+
+
+def conductor_compensation(m, x, alpha, fresnel):
+    """Kulla & Conty (2017) multiple-scattering lobe of a rough conductor, order 0 of f (C, h, h).
+
+    E₁(μ) is the single-scattering albedo of the same surface with F ≡ 1 (:func:`microfacet_albedo`),
+    Ē₁ = 2 Σ m E₁ its cosine-weighted average, F̄ = 2 Σ m F(μ) the Fresnel average, and
+
+        f_ms(o, i) = F_ms (1 − E₁(μ_i))(1 − E₁(μ_o)) / (2π Σ m (1 − E₁)),
+        F_ms = F̄² Ē₁ / (1 − F̄ (1 − Ē₁))
+
+    (Kulla & Conty, "Revisiting physically based shading at Imageworks", SIGGRAPH 2017 course:
+    1/(π(1 − Ē₁)) = 1/(2π Σ m (1 − E₁)) on the discrete rule).  Reciprocal, and with F ≡ 1 exactly
+    lossless; F_ms accounts for the Fresnel absorption of the repeated bounces.
+    """
+    E1, _ = microfacet_albedo(x, 1.0, alpha, fresnel=lambda c: np.ones((1,) + np.shape(c)))
+    g = np.clip(1.0 - E1[0], 0.0, None)
+    Z = float(m @ g)
+    mu = np.asarray(x, dtype=float)
+    Fbar = 2.0 * np.sum(m[None, :] * fresnel(mu), axis=-1)  # (C,)
+    Ebar = 2.0 * float(m @ E1[0])
+    Fms = Fbar**2 * Ebar / (1.0 - Fbar * (1.0 - Ebar))
+    if Z <= 0.0:
+        return np.zeros((len(Fms), len(m), len(m)))
+    return Fms[:, None, None] * np.outer(g, g)[None] / (2.0 * np.pi * Z)
+
+
+# ------------------------------------------------------------------------------------------------
 # cells and the composite rule
 # ------------------------------------------------------------------------------------------------
 
@@ -213,11 +278,12 @@ def flux_cell_edges(x, w):
     return np.sqrt(np.concatenate([[0.0], np.cumsum(m)]) / m.sum())
 
 
-def cell_rule(x, w, width):
+def cell_rule(x, w, width, points=None):
     """Composite rule for ∫_cell g(μ) μ dμ over every flux cell: points ``t`` (M,), weights ``omega``
     (M,) and owning node ``cell`` (M,).  Cells wider than ``width`` in θ are split into equal θ
     sub-intervals, each with a 2-point Gauss–Legendre rule in μ² (so the weights of a cell sum to
     w_j x_j exactly); narrower cells keep their node with weight w_j x_j."""
+    points = SUB_POINTS if points is None else int(points)
     x = np.asarray(x, dtype=float)
     w = np.asarray(w, dtype=float)
     h = len(x)
@@ -239,10 +305,10 @@ def cell_rule(x, w, width):
     th_b = th_a - dth
     s_a, s_b = np.cos(th_a) ** 2, np.cos(th_b) ** 2  # s = μ², s_a < s_b
     mid, half = 0.5 * (s_a + s_b), 0.5 * (s_b - s_a)
-    g = half / np.sqrt(3.0)
-    t_s = np.sqrt(np.concatenate([mid - g, mid + g]))
-    om_s = np.concatenate([0.5 * half, 0.5 * half])  # ∫ g μ dμ = ½ ∫ g ds
-    c_s = np.concatenate([owner, owner])
+    gx, gw = roots_legendre(points)
+    t_s = np.sqrt(np.concatenate([mid + half * g for g in gx]))
+    om_s = np.concatenate([0.5 * half * g for g in gw])  # ∫ g μ dμ = ½ ∫ g ds
+    c_s = np.concatenate([owner] * points)
     t = np.concatenate([t_p, t_s])
     om = np.concatenate([om_p, om_s])
     cell = np.concatenate([c_p, c_s])
@@ -360,9 +426,14 @@ def _to_S(fbar, x, w):
     return cl * fbar * (w * x)[None, None, None, :]
 
 
-def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width=None):
+def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width=None,
+                           energy_compensation=True):
     """Rough dielectric interface (Beckmann α, binder/air index η) with the same rule (x, w) on
     both sides, by flux-cell integration; returns the four blocks (L, 1, h, h) and an info dict.
+
+    With ``energy_compensation`` (default) the reciprocal multiple-scattering lobe of
+    :func:`dielectric_compensation` is added to order 0, so that every column carries exactly 1
+    (lossless interface, docs/rough-interfaces.md); without it, the single-scattering Walter model.
 
     Blocks as in :class:`flakedb.rt.layer.Layer` (basic radiance): Rt, Ttb from above, Rb, Tbt
     from below; Tbt is the reciprocal of Ttb (f_bt[i, o] = η² f_tb[o, i]).
@@ -377,27 +448,36 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     Rb, L2 = _cell_block(rule, rule, h, h, 1.0 / eta, alpha, False, None, 1, tol, max_orders, symmetric=True)
     Ttb, L3 = _cell_block(rule, rule, h, h, eta, alpha, True, None, 1, tol, max_orders)
     L = max(L1, L2, L3)
-    Rt, Rb, Ttb = (_pad(b, L) / (m[:, None] * m[None, :]) for b in (Rt, Rb, Ttb))  # cell averages f̃
-    Tbt = eta**2 * np.swapaxes(Ttb, -1, -2)
+    Rt, Rb, Ttb = (_pad(b, L) for b in (Rt, Rb, Ttb))  # Σ ω ω f_l; f̃ = that / (m_o m_i)
+    mm = m[:, None] * m[None, :]
     # exact energy: columns of order 0 carry the continuous albedo at the node
     R_a, T_a = microfacet_albedo(x, eta, alpha)
     R_b, T_b = microfacet_albedo(x, 1.0 / eta, alpha)
     two_pi_m = 2.0 * np.pi * m
     E = np.zeros((1, 2 * h, 2 * h))  # rows: outgoing [air ↑, binder ↓]; columns: incident [air ↓, binder ↑]
-    E[0, :h, :h] = Rt[0, 0] * two_pi_m[:, None]
-    E[0, h:, :h] = eta**2 * Ttb[0, 0] * two_pi_m[:, None]
-    E[0, h:, h:] = Rb[0, 0] * two_pi_m[:, None]
-    E[0, :h, h:] = Tbt[0, 0] * two_pi_m[:, None] / eta**2
+    E[0, :h, :h] = Rt[0, 0] / mm * two_pi_m[:, None]
+    E[0, h:, :h] = eta**2 * Ttb[0, 0] / mm * two_pi_m[:, None]
+    E[0, h:, h:] = Rb[0, 0] / mm * two_pi_m[:, None]
+    E[0, :h, h:] = (Ttb[0, 0] / mm).T * two_pi_m[:, None]
     target = np.concatenate([R_a + T_a, R_b + T_b], axis=1)
     before = E[0].sum(axis=0)
     s = _symmetric_energy_scale(E, target)[0]
     sa, sb = s[:h], s[h:]
-    Rt = Rt * sa[:, None] * sa[None, :]
-    Ttb = Ttb * sb[:, None] * sa[None, :]
-    Rb = Rb * sb[:, None] * sb[None, :]
-    Tbt = Tbt * sa[:, None] * sb[None, :]
-    blocks = [_to_S(b, x, w) for b in (Rt, Ttb, Rb, Tbt)]
-    Lt = _truncate_orders(blocks, [(m, np.ones(h))] * 4, tol)
+    ms = (dielectric_compensation(m, (R_a + T_a)[0], (R_b + T_b)[0], eta) if energy_compensation
+          else (0.0, 0.0, 0.0, 0.0))
+    # S_l[o, i] = c_l w_i μ_i f̃_l[o, i] (conventions), f̃ scaled by s_o s_i, fused in place:
+    # S_l = c_l · X_l · (s_o / m_o) · s_i, plus the compensation lobe in order 0
+    cl = fourier_weight(np.arange(L))[:, None, None, None]
+    blocks = []
+    for X, so, si, add in ((Rt, sa, sa, ms[0]), (Ttb, sb, sa, ms[1]), (Rb, sb, sb, ms[2])):
+        X *= ((so / m)[:, None] * si[None, :])[None, None]
+        X[0, 0] += add * m[None, :]
+        X *= cl
+        blocks.append(X)
+    # T^bt = η² (T^tb)ᵀ in f̃ (reciprocity): S^bt_l[o, i] = η² S^tb_l[i, o] m_i / m_o
+    Tbt = np.swapaxes(blocks[1], -1, -2) * (eta**2 * m[None, :] / m[:, None])[None, None]
+    blocks = [blocks[0], blocks[1], blocks[2], Tbt]
+    Lt = _truncate_orders_from_top(blocks, m, tol)
     info = {"orders": Lt, "orders_computed": L, "sub_points": len(rule[0]),
             "renorm_max_dev": float(np.abs(s**2 - 1.0).max()),
             "energy_before_max_dev": float(np.abs(before / target[0] - 1.0).max()),
@@ -405,10 +485,36 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     return [b[:Lt] for b in blocks], info
 
 
-def rough_conductor_cells(x, w, eta_complex, alpha, tol=1e-5, max_orders=512, sub_width=None):
+def _truncate_orders_from_top(blocks, m, tol, chunk=16):
+    """:func:`_truncate_orders` evaluated from the highest order down, a chunk of orders at a time,
+    stopping as soon as the dropped tail exceeds the budget (usually after one chunk when the order
+    cap binds): the same L, without a pass over every order."""
+    L = max(b.shape[0] for b in blocks)
+    scale = max(float(np.einsum("coi,o->ci", np.abs(b[0]), m).max()) for b in blocks)
+    if scale == 0.0:
+        return 1
+    tail = 0.0
+    for hi in range(L, 0, -chunk):
+        lo = max(0, hi - chunk)
+        worst = np.zeros(hi - lo)
+        for b in blocks:
+            if b.shape[0] > lo:
+                part = np.abs(b[lo:hi])
+                col = np.einsum("lcoi,o->lci", part, m).reshape(part.shape[0], -1).max(axis=1)
+                worst[: len(col)] = np.maximum(worst[: len(col)], col)
+        for k in range(hi - lo - 1, -1, -1):
+            if tail + worst[k] > tol * scale:
+                return max(1, lo + k + 1)
+            tail += worst[k]
+    return 1
+
+
+def rough_conductor_cells(x, w, eta_complex, alpha, tol=1e-5, max_orders=512, sub_width=None,
+                          energy_compensation=True):
     """Rough conductor (Beckmann α, complex relative index per channel (C,)) seen from the
     dielectric above it, by flux-cell integration: the reflection block Rt (L, C, h, h) and info.
-    Only reflection: the transmitted part is absorbed by the metal."""
+    Only reflection: the transmitted part is absorbed by the metal.  With ``energy_compensation``
+    (default) the Kulla–Conty lobe of :func:`conductor_compensation` is added to order 0."""
     x = np.asarray(x, dtype=float)
     w = np.asarray(w, dtype=float)
     h = len(x)
@@ -424,11 +530,15 @@ def rough_conductor_cells(x, w, eta_complex, alpha, tol=1e-5, max_orders=512, su
     before = E.sum(axis=1)
     s = _symmetric_energy_scale(E, R)
     Rt = Rt * s[None, :, :, None] * s[None, :, None, :]
+    dev = float(np.abs(before - R).max())
+    if energy_compensation:
+        Rt[0] += conductor_compensation(m, x, alpha, F)
+        R = np.einsum("coi,o->ci", Rt[0], 2.0 * np.pi * m)
     S = _to_S(Rt, x, w)
     Lt = _truncate_orders([S], [(m, np.ones(h))], tol)
     info = {"orders": Lt, "orders_computed": L, "sub_points": len(rule[0]),
             "renorm_max_dev": float(np.abs(s**2 - 1.0).max()),
-            "energy_before_max_dev": float(np.abs(before - R).max()), "albedo": R}
+            "energy_before_max_dev": dev, "albedo": R}
     return S[:Lt], info
 
 

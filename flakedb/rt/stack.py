@@ -41,10 +41,13 @@ class Smooth:
 
 @dataclass
 class Rough:
-    """Rough dielectric top interface: Beckmann roughness alpha, relative index eta."""
+    """Rough dielectric top interface: Beckmann roughness alpha, relative index eta.
+    ``energy_compensation`` (default): lossless, with the multiple-scattering lobe of
+    docs/rough-interfaces.md; False: the single-scattering Walter et al. 2007 model."""
 
     eta: float
     alpha: float
+    energy_compensation: bool = True
 
 
 @dataclass
@@ -71,10 +74,12 @@ ORDER_TOL = 1e-4
 class RoughConductor:
     """Beckmann microfacet metal at the bottom of the stack (Walter et al. 2007 reflection with a
     conductor's Fresnel factor): complex index ``N`` = n + ik of the metal (scalar or per channel),
-    relative to vacuum; the solver divides by the binder's index above it.  ``alpha`` > 0."""
+    relative to vacuum; the solver divides by the binder's index above it.  ``alpha`` > 0.
+    ``energy_compensation``: add Kulla & Conty's multiple-scattering lobe (default)."""
 
     N: object
     alpha: float
+    energy_compensation: bool = True
 
 
 @dataclass
@@ -319,7 +324,7 @@ def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
         if bottom is not None:
             if isinstance(bottom, RoughConductor):
                 N = np.atleast_1d(bottom.N)
-                sub_bottom = RoughConductor(N if N.size == 1 else N[idx], bottom.alpha)
+                sub_bottom = RoughConductor(N if N.size == 1 else N[idx], bottom.alpha, bottom.energy_compensation)
             else:
                 a = np.atleast_1d(np.asarray(bottom.albedo, dtype=float))
                 sub_bottom = Lambertian(a if a.size == 1 else a[idx])
@@ -381,14 +386,16 @@ def _solve_stack(top, slabs, bottom, s):
     L_top = 0
     if isinstance(top, Rough):
         top_layer, rinfo = itf.rough_dielectric(q_out, q_in, top.eta, top.alpha, tol=s.tol,
-                                                max_orders=s.order_cap)
+                                                max_orders=s.order_cap,
+                                                energy_compensation=top.energy_compensation)
         L_top = top_layer.n_orders
         info["top"] = {"orders": L_top}
     L_bottom = 0
     Rc = None
     if isinstance(bottom, RoughConductor):
         Rc, cinfo = itf.rough_conductor(q_in, np.asarray(bottom.N, dtype=complex) / eta, bottom.alpha,
-                                        tol=s.tol, max_orders=s.order_cap)
+                                        tol=s.tol, max_orders=s.order_cap,
+                                        energy_compensation=bottom.energy_compensation)
         L_bottom = Rc.shape[0]
         info["bottom"] = {k: v for k, v in cinfo.items() if k != "albedo"}
     L = min(max([L_top, L_bottom, 1] + [pk.n_orders for pk, _, _ in projected]), s.order_cap)

@@ -12,6 +12,7 @@ half-written outputs when writing fails.
 """
 
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -272,3 +273,39 @@ def test_cli_compose_end_to_end(tmp_path):
     assert res.exit_code == 0, res.output
     assert "store: none" in res.output and "flop index" in res.output and "aspecular" in res.output
     assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["cli-paint.bsdf", "cli-paint.h5", "cli-paint.json"]
+
+
+def test_check_physical_flags_energy_gain_negative_values_and_unconverged_orders():
+    """compose's self-check (issue 12): a lossless rough coat over a white primer passes; the same
+    stack scaled by 1.01, with a negative coefficient, or flagged unconverged does not."""
+    import copy
+
+    from flakedb.compose.orchestrate import check_physical
+    from flakedb.rt.stack import Lambertian, Rough, SolverSettings, solve_stack
+
+    r = solve_stack(Rough(1.5, 0.1), [], Lambertian(1.0), SolverSettings.product(32))
+    assert check_physical(r) == []
+    hot = copy.copy(r)
+    hot.Rt = r.Rt * 1.01
+    assert any("albedo" in p for p in check_physical(hot))
+    neg = copy.copy(r)
+    neg.Rt = r.Rt.copy()
+    neg.Rt[1] -= 0.5 * np.abs(r.Rt[0]).max()  # a cos φ term that drives f negative somewhere
+    assert any("negative" in p for p in check_physical(neg))
+    unc = copy.copy(r)
+    unc.info = dict(r.info, order_converged=False, order_tail=0.01)
+    assert any("converge" in p for p in check_physical(unc))
+
+
+def test_compose_refuses_an_unphysical_result_unless_allowed(tmp_path, monkeypatch):
+    """A result failing the self-check is an error and writes nothing; --allow-unphysical writes it
+    with a loud warning."""
+    import flakedb.compose.orchestrate as orch
+
+    monkeypatch.setattr(orch, "check_physical", lambda stack: ["albedo 1.2 > 1 + 0.001 (injected)"])
+    rec = recipe([{"basecoat": {"thickness_um": 5, "ior": 1.0, "particles": [HG]}}], n=16)
+    with pytest.raises(orch.UnphysicalResultError, match="unphysical result"):
+        orch.compose(rec, tmp_path / "a", n=16)
+    assert not (tmp_path / "a").exists() or not any((tmp_path / "a").iterdir())
+    res = orch.compose(rec, tmp_path / "b", n=16, allow_unphysical=True)
+    assert any(w.startswith("UNPHYSICAL") for w in res.warnings) and Path(res.paths["bsdf"]).exists()

@@ -28,6 +28,7 @@ from flakedb.reference.montecarlo import (
     Smooth,
     TabulatedPhase,
     bin_average,
+    compensation_table,
     simulate,
 )
 
@@ -437,7 +438,7 @@ def test_rough_interface_white_furnace():
     path by path, R ≈ 1 within the single-scattering microfacet loss, and R matches the closed form
     built from a quadrature of Walter's BSDF (which checks the sampling weights)."""
     eta, alpha, mu_i = 1.5, 0.1, 0.6
-    p = Problem((slab(1.0),), top=Rough(eta, alpha), bottom=Lambertian(1.0))
+    p = Problem((slab(1.0),), top=Rough(eta, alpha, energy_compensation=False), bottom=Lambertian(1.0))
     r = simulate(p, mu_i, 100_000, seed=16)
     assert abs(r.albedo[0] + r.interface_loss[0] - 1.0) < 1e-12  # no roulette: weights only move
     assert 0.97 < r.albedo[0] < 1.0
@@ -446,7 +447,8 @@ def test_rough_interface_white_furnace():
 
 def test_rough_interface_gray_primer_and_smooth_limit():
     eta, mu_i, a = 1.5, 0.8, 0.5
-    r = simulate(Problem((slab(1.0),), top=Rough(eta, 0.3), bottom=Lambertian(a)), mu_i, 100_000, seed=17)
+    r = simulate(Problem((slab(1.0),), top=Rough(eta, 0.3, energy_compensation=False), bottom=Lambertian(a)), mu_i, 100_000,
+                 seed=17)
     agree(r.albedo[0], r.albedo_se[0], _rough_over_lambertian(eta, 0.3, a, mu_i), abs_tol=5e-4)
     # α → 0: the rough code path must reproduce the smooth closed form
     Fi_bar = hemispherical_fresnel(1 / eta)
@@ -454,6 +456,30 @@ def test_rough_interface_gray_primer_and_smooth_limit():
     smooth_ref = F + (1 - F) * a * (1 - Fi_bar) / (1 - a * Fi_bar)
     r = simulate(Problem((slab(1.0),), top=Rough(eta, 1e-3), bottom=Lambertian(a)), mu_i, 100_000, seed=18)
     agree(r.albedo[0], r.albedo_se[0], smooth_ref, abs_tol=2e-4)
+
+
+@pytest.mark.parametrize("alpha", [0.02, 0.1, 0.3])
+def test_compensated_rough_interface_is_lossless(alpha):
+    """With the multiple-scattering compensation (default) a white primer under a rough coat
+    reflects everything, at normal and grazing incidence, and nothing is tallied as lost."""
+    p = Problem((slab(1.0),), top=Rough(1.5, alpha), bottom=Lambertian(1.0))
+    for j, mu_i in enumerate((1.0, 0.5, 0.18)):
+        r = simulate(p, mu_i, 60_000, seed=40 + j)
+        agree(r.albedo[0], r.albedo_se[0], 1.0, abs_tol=3e-4)
+        assert r.interface_loss[0] == 0.0
+
+
+def test_compensation_tables_match_an_independent_quadrature():
+    """The tabulated single-scattering albedo E(μ) (the kernel's own expected weight) equals the
+    half-vector quadrature of Walter's BSDF (_walter_albedos), both sides, α 0.3 and 0.05."""
+    for alpha in (0.3, 0.05):
+        for eta_rel in (1.5, 1 / 1.5):
+            grid, E, cdf, Z = compensation_table(eta_rel, alpha)
+            for mu in (1.0, 0.6, 0.3, 0.1):
+                k = int(np.argmin(np.abs(grid - mu)))
+                R, T = _walter_albedos(grid[k], eta_rel, alpha)
+                assert abs(E[k] - (R + T)) < 1e-3, (alpha, eta_rel, mu, E[k], R + T)
+            assert abs(cdf[-1] - 1.0) < 1e-15 and np.all(np.diff(cdf) >= 0) and Z > 0
 
 
 # ---------------------------------------------------------------------------------------------
