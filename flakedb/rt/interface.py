@@ -20,13 +20,12 @@ All matrices act on basic radiance (conventions, "Radiance across interfaces").
 """
 
 import numpy as np
-from scipy.special import erf
 
 from flakedb.conventions import fourier_weight
-from flakedb.optics.fresnel import fresnel_dielectric
+from flakedb.optics.fresnel import fresnel_dielectric, fresnel_dielectric_real
 from flakedb.rt.fourier import project_azimuthal
 from flakedb.rt.layer import Layer, pad_orders
-from flakedb.rt.microfacet import rough_conductor_cells, rough_dielectric_cells
+from flakedb.rt.microfacet import rough_conductor_cells, rough_dielectric_cells, smith_G1
 
 
 def smooth_dielectric(q_out, q_in, eta, L):
@@ -58,30 +57,6 @@ def smooth_dielectric(q_out, q_in, eta, L):
     return layer, F_out
 
 
-def _smith_G1_Beckmann(cos_v, alpha):
-    """Smith masking for the Beckmann distribution, exact form (Walter et al. 2007, eq. 27)."""
-    cos_v = np.clip(np.abs(cos_v), 1e-300, 1.0)
-    tan_v = np.sqrt(np.maximum(1.0 - cos_v**2, 0.0)) / cos_v
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a = 1.0 / (alpha * tan_v)
-        g = 2.0 / (1.0 + erf(a) + np.exp(-a * a) / (a * np.sqrt(np.pi)))
-    return np.where(tan_v == 0.0, 1.0, g)
-
-
-def fresnel_dielectric_unpolarised(cos_i, eta_rel):
-    """Unpolarised Fresnel reflectance of a dielectric for 0 ≤ cos_i ≤ 1 and real relative index
-    ``eta_rel`` (transmitted / incident side), in real arithmetic (Walter et al. 2007 eq. 22):
-    g² = η² − 1 + c²;  F = ½ ((g − c)/(g + c))² (1 + ((c(g + c) − 1)/(c(g − c) + 1))²), F = 1 if g² < 0.
-    The hot path of the rough interface; tested against :func:`flakedb.optics.fresnel.fresnel_dielectric`.
-    """
-    c = np.clip(cos_i, 0.0, 1.0)
-    g2 = eta_rel * eta_rel - 1.0 + c * c
-    g = np.sqrt(np.maximum(g2, 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a = (g - c) / (g + c)
-        b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
-        F = 0.5 * a * a * (1.0 + b * b)
-    return np.where(g2 <= 0.0, 1.0, np.where(np.isfinite(F), F, 1.0))
 
 
 def microfacet_Beckmann_ndf(cos_h, alpha):
@@ -120,9 +95,9 @@ def microfacet_dielectric_Walter2007(mu_i, mu_o, phi_d, eta_rel, alpha, transmit
     i_h = wi[0] * hx + wi[1] * hy + wi[2] * hz
     o_h = wo[0] * hx + wo[1] * hy + wo[2] * hz
     D = microfacet_Beckmann_ndf(hz, alpha)
-    G = _smith_G1_Beckmann(mu_i, alpha) * _smith_G1_Beckmann(mu_o, alpha)
+    G = smith_G1(mu_i, alpha) * smith_G1(mu_o, alpha)
     # the facet must face both directions consistently (χ⁺ terms)
-    F = fresnel_dielectric_unpolarised(i_h, eta_rel)
+    F = fresnel_dielectric_real(i_h, eta_rel)
     if not transmit:
         valid = (i_h > 0) & (o_h > 0)
         f = F * D * G / (4.0 * mu_i * mu_o)

@@ -40,7 +40,7 @@ import scipy.sparse as sp
 from scipy.special import erf, roots_legendre
 
 from flakedb.conventions import fourier_weight
-from flakedb.optics.fresnel import fresnel_conductor
+from flakedb.optics.fresnel import fresnel_conductor, fresnel_dielectric_real
 
 #: Pairs whose Beckmann factor exp(−tan²θ_h/α²) stays below exp(−PRUNE_T2) for every φ are skipped.
 PRUNE_T2 = 40.0
@@ -72,16 +72,6 @@ def smith_G1(mu, alpha):
     return np.where((s == 0.0) | (a > 30.0), 1.0, g)
 
 
-def fresnel_real(c, eta_rel):
-    """Unpolarised Fresnel reflectance, real relative index (Walter et al. 2007 eq. 22), 1 under TIR."""
-    c = np.clip(c, 0.0, 1.0)
-    g2 = eta_rel * eta_rel - 1.0 + c * c
-    g = np.sqrt(np.maximum(g2, 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a = (g - c) / (g + c)
-        b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
-        F = 0.5 * a * a * (1.0 + b * b)
-    return np.where(g2 <= 0.0, 1.0, np.where(np.isfinite(F), F, 1.0))
 
 
 def conductor_fresnel(eta_complex):
@@ -134,7 +124,7 @@ def walter_bsdf(mu_i, mu_o, cos_phi, eta_rel, alpha, transmit, G, fresnel=None):
         tan2 = np.maximum(h2 - hz * hz, 0.0) / (hz * hz)
         i_h = 0.5 * np.sqrt(h2)
         D = np.exp(-tan2 / alpha**2) * (1.0 + tan2) ** 2 / (np.pi * alpha**2)
-        F = fresnel(i_h) if fresnel is not None else fresnel_real(i_h, eta_rel)
+        F = fresnel(i_h) if fresnel is not None else fresnel_dielectric_real(i_h, eta_rel)
         return F * (D * G / (4.0 * mu_i * mu_o))
     dot = -mu_i * mu_o - si * so * cos_phi
     h2 = np.maximum(1.0 + eta_rel**2 + 2.0 * eta_rel * dot, 1e-300)
@@ -147,7 +137,7 @@ def walter_bsdf(mu_i, mu_o, cos_phi, eta_rel, alpha, transmit, G, fresnel=None):
         tan2 = np.maximum(h2 - hz_un * hz_un, 0.0) / (hz_un * hz_un)
         D = np.exp(-tan2 / alpha**2) * (1.0 + tan2) ** 2 / (np.pi * alpha**2)
         denom = (i_h + eta_rel * o_h) ** 2
-        f = np.abs(i_h * o_h) * (1.0 - fresnel_real(i_h, eta_rel)) * D * G / (mu_i * mu_o * denom)
+        f = np.abs(i_h * o_h) * (1.0 - fresnel_dielectric_real(i_h, eta_rel)) * D * G / (mu_i * mu_o * denom)
     valid = (i_h > 0) & (o_h < 0) & (hz_un != 0) & (denom > 0)
     return np.where(valid, f, 0.0)
 
@@ -186,7 +176,7 @@ def microfacet_albedo(mu, eta_rel, alpha, fresnel=None, n=48):
         base = np.where(ok, c * G1i / (mi * m[2][None]), 0.0)
         # reflection
         orz = 2.0 * c * m[2][None] - mi
-        F = fresnel(c) if fresnel is not None else fresnel_real(c, eta_rel)
+        F = fresnel(c) if fresnel is not None else fresnel_dielectric_real(c, eta_rel)
         gr = np.where(orz > 0, smith_G1(orz, alpha), 0.0)
         R = np.einsum("...kab,ab->...k", F * base * gr, W)
         if fresnel is not None:
