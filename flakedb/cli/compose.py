@@ -3,9 +3,11 @@
 import click
 
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import probe_writable, remove_created_dirs
 from flakedb.compose.orchestrate import OutputError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
+from flakedb.paint.checks import MAX_RESOLUTION
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.paint.species import CatalogError, load_catalog
@@ -30,14 +32,15 @@ from flakedb.store.versions import StoreError
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
 def compose(recipe, out_dir, n, store, raw, catalog_path):
     """Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report."""
-    if n is not None and (n < 8 or n % 2):
-        raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8 (n/2 nodes per hemisphere), "
-                           f"e.g. --n 64")
+    if n is not None and (n < 8 or n % 2 or n > MAX_RESOLUTION):
+        raise FlakedbError(f"--n {n}: the node count must be even, 8 ≤ n ≤ {MAX_RESOLUTION} (n/2 nodes per "
+                           f"hemisphere), e.g. --n 64")
 
     try:
         catalog = load_catalog(catalog_path)
         rec = load_recipe(recipe, catalog)
         check_output_dir(out_dir)
+        probe_writable(out_dir)
     except (RecipeError, CatalogError, OutputError) as exc:
         raise FlakedbError(str(exc)) from exc
     for w in rec.warnings:
@@ -50,8 +53,9 @@ def compose(recipe, out_dir, n, store, raw, catalog_path):
     else:
         click.echo(f"compose {rec.name}: store: {store} ({'raw samples' if raw else 'compressed factors'})")
     try:
-        res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"),
-                             store=store)
+        with remove_created_dirs(out_dir):
+            res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"),
+                                 store=store)
     except StoreError as exc:
         raise FlakedbError(str(exc)) from exc
 

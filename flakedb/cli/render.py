@@ -7,6 +7,8 @@ import click
 
 from flakedb.bsdf import BSDFFileError, open_bsdf
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import probe_writable, remove_created_dirs
+from flakedb.compose.orchestrate import OutputError, check_output_dir
 from flakedb.render import preview
 from flakedb.render.imageio import write_exr, write_png
 
@@ -46,6 +48,11 @@ def render(file, out_dir, size, spp, env_kind, sun, seed, exposure, threads):
                            "BSDF files.") from None
     except ValueError as e:
         raise FlakedbError(str(e)) from None
+    try:
+        check_output_dir(out_dir)  # before the work, not after it
+        probe_writable(out_dir)
+    except OutputError as e:
+        raise FlakedbError(str(e)) from None
     if env_kind == "constant":
         env = preview.constant_environment(ENV_CONSTANT_RADIANCE)
     else:
@@ -59,10 +66,15 @@ def render(file, out_dir, size, spp, env_kind, sun, seed, exposure, threads):
         result = preview.render_sphere(bsdf, env, preview.studio_sun() if sun else None, size=size, spp=spp,
                                        seed=seed, threads=threads, progress=bar.update)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     stem = Path(file).stem
-    exr = write_exr(out / f"{stem}.exr", result.image)
-    png = write_png(out / f"{stem}.png", result.image, exposure=exposure)
+    with remove_created_dirs(out):
+        out.mkdir(parents=True, exist_ok=True)
+        exr = write_exr(out / f"{stem}.exr", result.image)
+        try:
+            png = write_png(out / f"{stem}.png", result.image, exposure=exposure)
+        except BaseException:
+            exr.unlink(missing_ok=True)  # both images or none
+            raise
     sphere = result.coverage >= 1.0
     mean = result.image[sphere].mean(axis=0) if sphere.any() else [float("nan")] * 3
     click.echo(f"rendered in {result.seconds:.1f} s ({result.settings['threads']} threads); "
