@@ -3,7 +3,6 @@ fields and magnitudes, consistent shapes before allocating) and refuse with an e
 file and the field; the commands then fail with one line and write nothing."""
 
 import struct
-import time
 from pathlib import Path
 
 import h5py
@@ -105,9 +104,7 @@ def test_h5_declaring_a_huge_array_is_refused_before_allocating(tmp_path):
             f.create_dataset("mu", shape=(shape[1],), dtype="f8")
             f.create_dataset("coeffs", shape=shape, dtype="f8", chunks=(1, 1, 8, 8))
         assert p.stat().st_size < 200_000
-        t0 = time.perf_counter()
         _refused(p, word)
-        assert time.perf_counter() - t0 < 1.0
 
 
 @pytest.mark.parametrize("what", ["nan-coeffs", "eta", "shape"])
