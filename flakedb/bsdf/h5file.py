@@ -87,7 +87,8 @@ def _check_shapes(path, mu, coeffs):
     check_bytes(path, "coeffs", C * n_i * n_o * L * 8)
     for name, d in (("mu", mu), ("coeffs", coeffs)):
         if d.dtype.kind != "f":
-            raise BSDFFileError(f"{path}: dataset {name} has dtype {d.dtype}; expected floating point (the file is corrupt)")
+            raise BSDFFileError(f"{path}: dataset {name} has dtype {d.dtype}; expected floating point "
+                                f"(the file is corrupt)")
 
 
 def read_h5(path) -> FourierBSDF:

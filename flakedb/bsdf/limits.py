@@ -38,7 +38,8 @@ def check_bytes(path, field, nbytes):
     """Refuse an array of more than :data:`MAX_COEFF_BYTES` before it is allocated."""
     if nbytes > MAX_COEFF_BYTES:
         raise BSDFFileError(f"{path}: {field} declares {nbytes / 2**30:.1f} GiB; the limit is "
-                            f"{MAX_COEFF_BYTES / 2**30:.0f} GiB (the file is corrupt or far larger than any paint needs)")
+                            f"{MAX_COEFF_BYTES / 2**30:.0f} GiB (the file is corrupt or far larger than any "
+                            f"paint needs)")
 
 
 def check_values(path, field, a, lo=-MAX_MAGNITUDE, hi=MAX_MAGNITUDE):

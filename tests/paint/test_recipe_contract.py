@@ -7,11 +7,9 @@ hundred examples, n = 8 so a valid paint composes in well under a second."""
 
 import json
 import math
-import textwrap
 
 import h5py
 import numpy as np
-import pytest
 import yaml
 from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings

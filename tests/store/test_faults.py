@@ -17,7 +17,6 @@ import pytest
 from click.testing import CliRunner
 
 from flakedb.cli.main import cli
-from flakedb.pipelines import build as pb
 from flakedb.pipelines.build import build, make_request
 from flakedb.pipelines.progress import BuildProgress
 from flakedb.store import versions as st
