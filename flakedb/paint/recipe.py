@@ -265,6 +265,14 @@ def _json_short(v) -> str:
     return s if len(s) <= 60 else s[:57] + "..."
 
 
+def _looks_numeric(text) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _describe_error(err) -> str:
     path = fmt_path(err.absolute_path)
     v = err.validator
@@ -294,6 +302,8 @@ def _describe_error(err) -> str:
             msg = f"value {_json_short(err.instance)} must be {_json_short(err.validator_value)}"
     elif v == "type":
         msg = f"value {_json_short(err.instance)} has the wrong type; expected {err.validator_value}"
+        if isinstance(err.instance, str) and _looks_numeric(err.instance):
+            msg += " (YAML reads a number without a '.' before its exponent, like 1e-3, as text: write 1.0e-3)"
     elif v == "multipleOf":
         msg = f"value {err.instance!r} must be a multiple of {err.validator_value:g}"
     elif v in ("minProperties", "maxProperties"):

@@ -170,3 +170,8 @@ def test_value_problems_walk():
     assert value_problems({"a": [1.0, {"b": math.nan}], "c": "ok"}) == [
         "a[1].b: value nan is not a finite number (NaN and infinity are refused everywhere) (hint: give a finite number)"]
     assert value_problems(yaml.safe_load(BASE)) == []
+
+
+def test_exponent_without_a_dot_explained():
+    p = problems(BASE.replace("albedo: 0.9", "albedo: 9e-1"))
+    assert "has the wrong type" in p[0] and "write 1.0e-3" in p[0]
