@@ -47,11 +47,11 @@ def check_values(path, field, a, lo=-MAX_MAGNITUDE, hi=MAX_MAGNITUDE):
     a = np.asarray(a)
     bad = ~np.isfinite(a)
     if bad.any():
-        k = np.unravel_index(int(np.argmax(bad)), a.shape)
+        k = tuple(int(i) for i in np.unravel_index(int(np.argmax(bad)), a.shape))
         raise BSDFFileError(f"{path}: {field}{list(k)} is {a[k]}; every value must be finite (the file is corrupt)")
     out = (a < lo) | (a > hi)
     if out.any():
-        k = np.unravel_index(int(np.argmax(out)), a.shape)
+        k = tuple(int(i) for i in np.unravel_index(int(np.argmax(out)), a.shape))
         raise BSDFFileError(f"{path}: {field}{list(k)} = {a[k]:.6g} is outside the allowed range "
                             f"{lo:g} ≤ value ≤ {hi:g} (the file is corrupt)")
 
