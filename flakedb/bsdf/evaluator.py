@@ -132,7 +132,7 @@ class FourierBSDF:
         for a in range(4):
             for b in range(4):
                 w = ww[:, a, b]
-                if not w.any():
+                if not w.any() or flat.size == 0:  # a file with no coefficients (a black table) adds 0
                     continue
                 K = kk_all[:, a, b]
                 st = start[ii[:, a], jj[:, b]]

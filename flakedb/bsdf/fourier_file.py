@@ -13,6 +13,7 @@ import numpy as np
 
 from flakedb.atomic import atomic_path
 from flakedb.bsdf.evaluator import FourierBSDF
+from flakedb.bsdf.limits import MAX_NODES, MAX_ORDERS, check_alpha, check_bytes, check_count, check_eta, check_values
 from flakedb.bsdf.metadata import format_metadata, parse_metadata
 from flakedb.bsdf.spline import catmull_rom_cdf, insert_zero_nodes
 from flakedb.bsdf.table import G_FROM_YRB, RGB_TO_Y, TRUNCATION_DEFAULT, BSDFFileError, BSDFTable
@@ -177,6 +178,7 @@ def read_bsdf(path) -> FourierBSDF:
     """
     path = Path(path)
     try:
+        check_bytes(path, "the file", path.stat().st_size)
         raw = path.read_bytes()
     except FileNotFoundError:
         raise BSDFFileError(f"{path}: no such file") from None
@@ -198,6 +200,10 @@ def read_bsdf(path) -> FourierBSDF:
         raise BSDFFileError(f"{path}: nChannels = {C}; a .bsdf holds 1 or 3 channels")
     if N < 4 or N % 2:
         raise BSDFFileError(f"{path}: nNodes = {N} must be even and >= 4 (n + 2 with the two zero nodes)")
+    check_count(path, "nNodes", N, 4, MAX_NODES)
+    check_count(path, "nMaxOrder", max_order, 0, MAX_ORDERS)
+    check_eta(path, float(eta))
+    check_alpha(path, (float(alpha0), float(alpha1)))
     expect = bsdf_file_size(N, n_coeffs, n_meta)
     if len(raw) != expect:
         raise BSDFFileError(f"{path}: file is {len(raw)} bytes, the header implies {expect}; it is truncated or corrupt")
@@ -211,8 +217,13 @@ def read_bsdf(path) -> FourierBSDF:
     coeffs = np.frombuffer(raw, "<f4", n_coeffs, pos).copy()
     pos += 4 * n_coeffs
     meta_text = raw[pos:pos + n_meta].decode("utf-8", errors="replace")
-    if not (np.all(np.isfinite(nodes)) and np.all(np.diff(nodes) >= 0) and nodes[0] >= -1 and nodes[-1] <= 1):
-        raise BSDFFileError(f"{path}: nodes are not ascending within [-1, 1]")
+    h = (N - 2) // 2
+    if not (np.all(np.isfinite(nodes)) and np.all(np.diff(nodes[:h + 1]) > 0) and np.all(np.diff(nodes[h + 1:]) > 0)
+            and nodes[0] >= -1 and nodes[-1] <= 1):
+        raise BSDFFileError(f"{path}: nodes are not strictly ascending within [-1, 1] (apart from the two zero "
+                            f"nodes); the file is corrupt")
+    check_values(path, "cdf", cdf)
+    check_values(path, "coefficients", coeffs)
     K = offsets[:, 1].astype(np.int64)
     start = offsets[:, 0].astype(np.int64)
     ends = start + K * C

@@ -12,6 +12,16 @@ import numpy as np
 from flakedb import __version__
 from flakedb.atomic import atomic_path
 from flakedb.bsdf.evaluator import FourierBSDF, table_evaluator
+from flakedb.bsdf.limits import (
+    MAX_CHANNELS,
+    MAX_NODES,
+    MAX_ORDERS,
+    check_alpha,
+    check_bytes,
+    check_count,
+    check_eta,
+    check_values,
+)
 from flakedb.bsdf.table import BSDFFileError, BSDFTable
 
 #: An HDF5 file's first eight bytes.
@@ -62,6 +72,26 @@ def _json_default(o):
     raise TypeError(f"metadata value {o!r} is not JSON-able")
 
 
+def _check_shapes(path, mu, coeffs):
+    """Refuse datasets whose declared shapes are not (n,) and (C, n, n, L) within the limits of
+    :mod:`flakedb.bsdf.limits` (a 57 KB file may declare a 512 GiB array)."""
+    if mu.ndim != 1 or coeffs.ndim != 4:
+        raise BSDFFileError(f"{path}: datasets mu {mu.shape} and coeffs {coeffs.shape} must be 1-D (n,) and "
+                            f"4-D (C, n, n, L); the file is corrupt")
+    C, n_i, n_o, L = coeffs.shape
+    check_count(path, "mu length n", mu.shape[0], 2, MAX_NODES)
+    if (n_i, n_o) != (mu.shape[0], mu.shape[0]):
+        raise BSDFFileError(f"{path}: coeffs has shape {coeffs.shape} but mu has {mu.shape[0]} nodes; expected "
+                            f"(C, {mu.shape[0]}, {mu.shape[0]}, L) (the file is corrupt)")
+    check_count(path, "channels C", C, 1, MAX_CHANNELS)
+    check_count(path, "orders L", L, 1, MAX_ORDERS)
+    check_bytes(path, "coeffs", C * n_i * n_o * L * 8)
+    for name, d in (("mu", mu), ("coeffs", coeffs)):
+        if d.dtype.kind != "f":
+            raise BSDFFileError(f"{path}: dataset {name} has dtype {d.dtype}; expected floating point "
+                                f"(the file is corrupt)")
+
+
 def read_h5(path) -> FourierBSDF:
     """Read a file written by :func:`write_h5` into a :class:`FourierBSDF` (float64, channels as
     stored; the zero nodes inserted as in the ``.bsdf``; cdf computed from the sampling channel)."""
@@ -77,6 +107,7 @@ def read_h5(path) -> FourierBSDF:
             if ver > H5_FORMAT_VERSION:
                 raise BSDFFileError(f"{path}: format_version {ver} is newer than this flakedb reads "
                                     f"({H5_FORMAT_VERSION}); upgrade flakedb")
+            _check_shapes(path, f["mu"], f["coeffs"])   # before anything is allocated
             mu = f["mu"][...]
             coeffs = f["coeffs"][...]
             eta = float(f.attrs["eta"])
@@ -85,10 +116,19 @@ def read_h5(path) -> FourierBSDF:
             delta = json.loads(f.attrs["delta"])
             stored = json.loads(f.attrs["metadata"])
             written_by = str(f.attrs["flakedb_version"])
-    except (OSError, KeyError, ValueError) as e:
+    except BSDFFileError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError, AttributeError) as e:
         raise BSDFFileError(f"{path}: corrupt or incomplete flakedb HDF5 file ({e})") from None
-    table = BSDFTable(mu=mu, coeffs=coeffs, eta=eta, alpha=alpha, delta=delta, metadata=stored,
-                      channels=channels)
+    check_values(path, "mu", mu, -1.0, 1.0)
+    check_values(path, "coeffs", coeffs)
+    check_eta(path, eta)
+    check_alpha(path, alpha)
+    try:
+        table = BSDFTable(mu=mu, coeffs=coeffs, eta=eta, alpha=alpha, delta=delta, metadata=stored,
+                          channels=channels)
+    except ValueError as e:
+        raise BSDFFileError(f"{path}: {e} (the file is corrupt)") from None
     # what FourierBSDF.metadata shows: the stored metadata plus who wrote the file, in which format
     return table_evaluator(table, path=path,
                        metadata={**stored, "flakedb_version": written_by, "h5_format_version": ver})

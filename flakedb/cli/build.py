@@ -5,9 +5,24 @@ import click
 
 from flakedb.cli.errors import FlakedbError
 from flakedb.colour.colorimetry import spectral_grid
+from flakedb.paint.checks import MAX_RESOLUTION
 from flakedb.pipelines.build import DEFAULT_N, make_request
 from flakedb.pipelines.build import build as run_build
 from flakedb.store import versions as st
+
+#: Largest φ_d sample count (--m) and uncompressed size of one build [bytes] (64 GiB).
+MAX_M = 4096
+MAX_BUILD_BYTES = 64 * 1024 ** 3
+
+
+def check_build_sizes(n, m):
+    """Refuse node counts compose cannot use and φ_d counts outside the allowed range, before planning."""
+    for x in n:
+        if x < 8 or x % 2 or x > MAX_RESOLUTION:
+            raise FlakedbError(f"--n {x}: the node count must be even, 8 ≤ n ≤ {MAX_RESOLUTION} (the range compose "
+                               f"accepts; n/2 nodes per hemisphere), e.g. --n 32")
+    if m is not None and not (2 <= m <= MAX_M):
+        raise FlakedbError(f"--m {m}: the φ_d sample count must be in 2 ≤ m ≤ {MAX_M} (default: = n)")
 
 
 @click.command()
@@ -31,6 +46,7 @@ from flakedb.store import versions as st
 def build(store, workers, processes, scheduler, dry_run, n, m, rank, species, range_nm, step_nm, eta_top, raw):
     """Build (or reuse) the compressed reflectance store and point `latest` at it."""
     url = store or st.default_store()
+    check_build_sizes(n or DEFAULT_N, m)
     if str(eta_top).strip().lower() in ("none", "null"):
         eta = None
     else:
@@ -44,6 +60,10 @@ def build(store, workers, processes, scheduler, dry_run, n, m, rank, species, ra
         plan = st.plan_build(req)
     except ValueError as exc:
         raise FlakedbError(str(exc)) from exc
+    if plan.nbytes() > MAX_BUILD_BYTES:
+        raise FlakedbError(f"the build would hold {plan.nbytes() / 2**30:,.1f} GiB uncompressed; the limit is "
+                           f"{MAX_BUILD_BYTES / 2**30:.0f} GiB (hint: fewer --species, a smaller --n or --m, or "
+                           f"no --raw)")
     if dry_run:
         click.echo(f"store {url}: version state {st.version_state(url, plan.version)}")
         click.echo(plan.describe())

@@ -3,12 +3,14 @@
 import click
 
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import probe_writable, remove_created_dirs
 from flakedb.cli.progress import StageProgress
 from flakedb.colour.gamut import RGB_SPACES
 from flakedb.compose.orchestrate import OutputError, UnphysicalResultError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
 from flakedb.paint.catalog import CatalogError, load_catalog
+from flakedb.paint.checks import MAX_RESOLUTION
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.store.versions import StoreError
@@ -39,14 +41,15 @@ from flakedb.store.versions import StoreError
                    "value or unconverged Fourier orders (printed as loud warnings); without it that is an error.")
 def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, allow_unphysical):
     """Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report."""
-    if n is not None and (n < 8 or n % 2):
-        raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8 (n/2 nodes per hemisphere), "
-                           f"e.g. --n 64")
+    if n is not None and (n < 8 or n % 2 or n > MAX_RESOLUTION):
+        raise FlakedbError(f"--n {n}: the node count must be even, 8 ≤ n ≤ {MAX_RESOLUTION} (n/2 nodes per "
+                           f"hemisphere), e.g. --n 64")
 
     try:
         catalog = load_catalog(catalog_path)
         rec = load_recipe(recipe, catalog)
         check_output_dir(out_dir)
+        probe_writable(out_dir)
     except (RecipeError, CatalogError, OutputError) as exc:
         raise FlakedbError(str(exc)) from exc
     for w in rec.warnings:
@@ -61,9 +64,10 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, allo
     bar = StageProgress()
     progress = bar if not quiet else (lambda stage, d: bar(stage, d) if stage == "warning" else None)
     try:
-        res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"),
-                             store=store, rgb_space=rgb_space, progress=progress,
-                             allow_unphysical=allow_unphysical)
+        with remove_created_dirs(out_dir):
+            res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"),
+                                 store=store, rgb_space=rgb_space, progress=progress,
+                                 allow_unphysical=allow_unphysical)
     except (StoreError, UnphysicalResultError) as exc:
         raise FlakedbError(str(exc)) from exc
     finally:

@@ -10,6 +10,8 @@ import click
 
 from flakedb.bsdf import BSDFFileError
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import probe_writable, remove_created_dirs
+from flakedb.compose.orchestrate import OutputError, check_output_dir
 from flakedb.render import mitsuba as fm
 
 #: The export's own extension: the content is an RGL tensor file, not a Fourier .bsdf (Mitsuba's
@@ -35,11 +37,21 @@ def export_mitsuba(file, out, variant, res, n_theta, as_json):
     reflection only).  The smooth coat's mirror term cannot be carried and is dropped: the summary
     lists the albedo it loses.  Render the full paint with the `flakedb` plugin instead
     (docs/renderers.md)."""
+    res = fm.RES_DEFAULT if res is None else res
+    n_theta = fm.N_THETA_DEFAULT if n_theta is None else n_theta
     if out is None:
         out = str(Path(file).with_name(Path(file).stem + MEASURED_SUFFIX))
     try:
-        s = fm.export_measured(file, out, variant=variant, res=res or fm.RES_DEFAULT,
-                               n_theta=n_theta or fm.N_THETA_DEFAULT)
+        fm.check_export_size(res, n_theta)
+        check_output_dir(Path(out).absolute().parent)  # before any work
+        probe_writable(Path(out).absolute().parent)
+    except fm.MeasuredExportError as e:
+        raise FlakedbError(str(e).replace("n_theta = ", "--n-theta ").replace("res = ", "--res ")) from None
+    except OutputError as e:
+        raise FlakedbError(str(e).replace("--out ", "--out directory ", 1)) from None
+    try:
+        with remove_created_dirs(Path(out).absolute().parent):
+            s = fm.export_measured(file, out, variant=variant, res=res, n_theta=n_theta)
     except (BSDFFileError, fm.MeasuredExportError) as e:
         raise FlakedbError(str(e)) from None
     if as_json:

@@ -9,7 +9,8 @@ import numpy as np
 
 from flakedb.bsdf import BSDFFileError, open_bsdf, table_evaluator
 from flakedb.cli.errors import FlakedbError
-from flakedb.compose.orchestrate import gamut_safe_file_channels
+from flakedb.cli.failures import probe_writable, remove_created_dirs
+from flakedb.compose.orchestrate import OutputError, check_output_dir, gamut_safe_file_channels
 from flakedb.render import look, preview
 from flakedb.render.imageio import write_exr, write_png
 from flakedb.render.mitsuba import channel_wavelengths
@@ -88,6 +89,11 @@ def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, shee
                                "BSDF files.") from None
         except ValueError as e:
             raise FlakedbError(str(e)) from None
+    try:
+        check_output_dir(out_dir)  # before the work, not after it
+        probe_writable(out_dir)
+    except OutputError as e:
+        raise FlakedbError(str(e)) from None
     spp = preview.DEFAULT_SPP if spp is None else spp
     jobs = [(f, b, k) for f, b in bsdfs for k in env_kinds]
     results = []
@@ -106,22 +112,31 @@ def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, shee
     else:
         scale = 2.0 ** float(exposure or 0.0)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    shown = []
-    for (f, kind, r), m in zip(results, sphere):
-        stem = Path(f).stem + (f"-{kind}" if len(env_kinds) > 1 else "")
-        disp = look.tone_map(r.image, scale) if tone == "filmic" else np.clip(r.image * scale, 0.0, 1.0)
-        exr = write_exr(out / f"{stem}.exr", r.image)
-        png = write_png(out / f"{stem}.png", disp)
-        shown.append(disp)
-        mean = r.image[m].mean(axis=0) if m.any() else [float("nan")] * 3
-        click.echo(f"{Path(f).name} ({kind}): rendered in {r.seconds:.1f} s ({r.settings['threads']} threads); "
-                   f"sphere mean RGB {mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f}; "
-                   f"{100 * look.clipped_fraction(disp, m):.2f}% of sphere pixels clip")
-        click.echo(f"wrote {exr}")
-        click.echo(f"wrote {png}")
-    if len(results) > 1 or sheet_name:
-        sheet = write_png(out / (sheet_name or "sheet.png"), look.contact_sheet(shown))
-        click.echo(f"wrote {sheet} ({len(shown)} images side by side, one exposure)")
+    shown, written = [], []
+    with remove_created_dirs(out):
+        out.mkdir(parents=True, exist_ok=True)
+        try:
+            for (f, kind, r), m in zip(results, sphere):
+                stem = Path(f).stem + (f"-{kind}" if len(env_kinds) > 1 else "")
+                disp = look.tone_map(r.image, scale) if tone == "filmic" else np.clip(r.image * scale, 0.0, 1.0)
+                exr = write_exr(out / f"{stem}.exr", r.image)
+                written.append(exr)
+                png = write_png(out / f"{stem}.png", disp)
+                written.append(png)
+                shown.append(disp)
+                mean = r.image[m].mean(axis=0) if m.any() else [float("nan")] * 3
+                click.echo(f"{Path(f).name} ({kind}): rendered in {r.seconds:.1f} s ({r.settings['threads']} threads); "
+                           f"sphere mean RGB {mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f}; "
+                           f"{100 * look.clipped_fraction(disp, m):.2f}% of sphere pixels clip")
+            if len(results) > 1 or sheet_name:
+                sheet = write_png(out / (sheet_name or "sheet.png"), look.contact_sheet(shown))
+                written.append(sheet)
+        except BaseException:
+            for w in written:  # every image or none
+                Path(w).unlink(missing_ok=True)
+            raise
+    for w in written:
+        click.echo(f"wrote {w}" + (f" ({len(shown)} images side by side, one exposure)" if w == written[-1] and
+                                   (len(results) > 1 or sheet_name) else ""))
     if tone == "filmic":
         click.echo(f"exposure: automatic x{scale:.3g} ({np.log2(scale):+.2f} stops), ACES filmic curve")

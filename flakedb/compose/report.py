@@ -106,6 +106,9 @@ def eval_table(table, mu_i, mu_o, phi_d) -> np.ndarray:
 def channels_to_XYZ(values, mode, wavelength_nm=None) -> np.ndarray:
     """XYZ (Y = 1 for white) of reflectance-type values (..., C) in a paint's channels."""
     v = np.asarray(values, float)
+    if v.shape[-1] == 1 and mode in ("spectral", "rgb") and wavelength_nm is not None:
+        # a wavelength-independent table (e.g. an index-matched coat alone): the same value everywhere
+        v = np.broadcast_to(v, v.shape[:-1] + ((len(wavelength_nm),) if mode == "spectral" else (3,)))
     if mode == "spectral":
         return reflectance_to_XYZ(v, wavelength_nm)
     if mode == "rgb":

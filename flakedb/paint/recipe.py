@@ -56,6 +56,7 @@ import yaml
 
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint.catalog import expand_sweeps, load_catalog
+from flakedb.paint.checks import MAX_RECIPE_BYTES, RecipeInputError, load_yaml_strict, too_large_message, value_problems
 from flakedb.paint.materials import refractive_index
 from flakedb.resources import PACKAGE_DIR, SCHEMAS_DIR
 
@@ -264,6 +265,14 @@ def _json_short(v) -> str:
     return s if len(s) <= 60 else s[:57] + "..."
 
 
+def _looks_numeric(text) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _describe_error(err) -> str:
     path = fmt_path(err.absolute_path)
     v = err.validator
@@ -283,13 +292,18 @@ def _describe_error(err) -> str:
     elif v == "enum":
         msg = f"value {_json_short(err.instance)} is not one of {', '.join(map(str, err.validator_value))}"
     elif v == "const":
-        if path == "flakedb":
+        if path == "flakedb" and str(err.instance).strip() == str(FORMAT_VERSION):
+            msg = (f"recipe format version {_json_short(err.instance)} is a {type(err.instance).__name__}, not "
+                   f"the number {FORMAT_VERSION} (write `flakedb: {FORMAT_VERSION}` without quotes)")
+        elif path == "flakedb":
             msg = (f"recipe format version {_json_short(err.instance)} is not supported; this flakedb reads "
                    f"version {FORMAT_VERSION} (write `flakedb: {FORMAT_VERSION}` as the first line)")
         else:
             msg = f"value {_json_short(err.instance)} must be {_json_short(err.validator_value)}"
     elif v == "type":
         msg = f"value {_json_short(err.instance)} has the wrong type; expected {err.validator_value}"
+        if isinstance(err.instance, str) and _looks_numeric(err.instance):
+            msg += " (YAML reads a number without a '.' before its exponent, like 1e-3, as text: write 1.0e-3)"
     elif v == "multipleOf":
         msg = f"value {err.instance!r} must be a multiple of {err.validator_value:g}"
     elif v in ("minProperties", "maxProperties"):
@@ -298,9 +312,16 @@ def _describe_error(err) -> str:
     elif v == "pattern":
         msg = f"value {_json_short(err.instance)} does not match the pattern {err.validator_value}"
     elif v in ("minItems", "maxItems"):
-        msg = f"{_json_short(err.instance)}: {err.message}"
+        n = len(err.instance) if isinstance(err.instance, (list, dict, str)) else "?"
+        bound = "at least" if v == "minItems" else "at most"
+        msg = f"{n} entries; the allowed range is {bound} {err.validator_value} entries"
+    elif v in ("minLength", "maxLength"):
+        n = len(err.instance) if isinstance(err.instance, str) else "?"
+        bound = "at least" if v == "minLength" else "at most"
+        msg = f"value {_json_short(err.instance)} has {n} characters; the allowed length is {bound} {err.validator_value}"
     else:
-        msg = f"{_json_short(err.instance)}: {err.message}"
+        text = err.message if len(err.message) <= 200 else err.message[:197] + "..."
+        msg = f"{_json_short(err.instance)}: {text}"
     return f"{path}: {msg}" + (f" (hint: {hint})" if hint else "")
 
 
@@ -420,18 +441,9 @@ def _material_coverage_problems(path, entry, grid):
     return out
 
 
-def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
-    """Checks beyond the schema on a schema-valid document.
-
-    Returns ``(problems, warnings, parts)`` where ``parts`` holds the typed pieces built on the way
-    (used by :func:`build_recipe` when there are no problems).
-    """
-    problems, warnings = [], []
-    mode, grid, p = spectral_grid_of(doc)
-    problems += p
-    layers = doc["layers"]
-    kinds = [next(iter(item)) for item in layers]
-    # --- order --------------------------------------------------------------------------------
+def _order_problems(kinds) -> list[str]:
+    """At most one clearcoat, first; at most one primer, last."""
+    problems = []
     for i, k in enumerate(kinds):
         if k == "clearcoat" and i != 0:
             problems.append(f"layers[{i}].clearcoat: a clear coat must be the first (top) layer; layers go top to bottom "
@@ -443,13 +455,12 @@ def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
         problems.append(f"layers: {kinds.count('clearcoat')} clear coats; at most one (the top layer)")
     if kinds.count("primer") > 1:
         problems.append(f"layers: {kinds.count('primer')} primers; at most one (the bottom layer)")
+    return problems
 
-    clear = None
-    basecoats = []
-    primer = None
-    catalog = catalog if catalog is not None else load_catalog()
-    allsp = expand_sweeps(catalog)
-    # --- binder index ----------------------------------------------------------------------------
+
+def _binder_index_problems(layers, kinds) -> list[str]:
+    """One binder index below the top interface: every layer's ior equals the first one's."""
+    problems = []
     iors = [(f"layers[{i}].{k}.ior", float(layers[i][k]["ior"])) for i, k in enumerate(kinds) if k != "primer"]
     if iors:
         ref_path, ref = iors[0]
@@ -458,140 +469,180 @@ def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
                 problems.append(
                     f"{pth}: value {v:g} differs from {ref_path} = {ref:g}; not supported yet: flakedb solves one "
                     f"binder index below the top interface (no internal interfaces) (hint: set it to {ref:g})")
+    return problems
 
-    for i, k in enumerate(kinds):
-        base = f"layers[{i}].{k}"
-        L = layers[i][k]
-        if k == "clearcoat":
-            ab = L.get("absorption_per_um")
-            if isinstance(ab, dict):
-                if mode == "mono":
-                    problems.append(f"{base}.absorption_per_um: a spectrum needs spectral or rgb mode; mono mode takes "
-                                    f"wavelength-independent inputs only (hint: give a number, or set spectral.mode)")
-                else:
-                    problems += _spectrum_problems(f"{base}.absorption_per_um", ab, grid, 0.0, None, "absorption_per_um")
-                ab = Spectrum(np.asarray(ab["wavelength_nm"], float), np.asarray(ab["value"], float))
-            rough = float(L.get("roughness", 0.0))
-            if float(L["ior"]) == 1.0 and rough > 0:
-                problems.append(f"{base}.roughness: value {rough:g} with ior 1: an index-matched coat has no interface "
-                                f"to be rough (hint: set roughness to 0, or ior > 1)")
-            if rough > 0:
-                warnings.append(f"{base}.roughness: {rough:g}: the rough top interface is still inaccurate at small n "
-                                f"(energy errors of several % below n ≈ 128); prefer resolution ≥ 128 or a smooth coat")
-            clear = Clearcoat(float(L["thickness_um"]), float(L["ior"]), rough, ab, base)
-        elif k == "basecoat":
-            bc = Basecoat(float(L["thickness_um"]), float(L["ior"]), [], base)
-            d = bc.thickness_um
-            sum_pig = sum_all = 0.0
-            for j, P in enumerate(L["particles"]):
-                pp = f"{base}.particles[{j}]"
-                if "custom" in P:
-                    C = P["custom"]
-                    tau = float(P["optical_depth"])
-                    if C["kind"] == "flake":
-                        for key in ("R", "T"):
-                            problems += _flake_table_problems(f"{pp}.custom.{key}", C[key])
-                        R, T = _flake_table(C["R"]), _flake_table(C["T"])
-                        if R.c.size == R.value.size and T.c.size == T.value.size:
-                            cc = np.union1d(R.c, T.c)
-                            s = np.interp(cc, R.c, R.value) + np.interp(cc, T.c, T.value)
-                            if np.any(s > 1 + 1e-12):
-                                m = int(np.argmax(s))
-                                problems.append(
-                                    f"{pp}.custom: R + T = {s[m]:.6g} at c = {cc[m]:g} exceeds 1 (energy conservation: "
-                                    f"allowed R + T ≤ 1, the rest is absorbed) (hint: lower R or T)")
-                            if np.all(np.interp(cc, T.c, T.value) >= 1.0 - 1e-12):
-                                problems.append(f"{pp}.optical_depth: value {tau:g} cannot be met: a flake with T = 1 "
-                                                f"at every c has no extinction (hint: T < 1 somewhere)")
-                        bc.particles.append(CustomFlake(R, T, float(C["orientation_alpha"]), tau,
-                                                        C.get("name", "custom-flake"), pp))
-                    else:
-                        ph = C["phase"]
-                        if ph == "isotropic":
-                            phase = "isotropic"
-                        elif "hg" in ph:
-                            phase = ("hg", float(ph["hg"]))
-                        else:
-                            ct = np.asarray(ph["table"]["cos_theta"], float)
-                            pv = np.asarray(ph["table"]["value"], float)
-                            phase = ("table", ct, pv)
-                            tp = f"{pp}.custom.phase.table"
-                            if ct.size != pv.size:
-                                problems.append(f"{tp}: cos_theta has {ct.size} entries and value {pv.size}")
-                            elif np.any(np.diff(ct) <= 0) or ct[0] != -1.0 or ct[-1] != 1.0:
-                                problems.append(f"{tp}.cos_theta: must increase strictly from -1 to 1 (both ends "
-                                                f"included), got {_json_short(ct.tolist())}")
-                            elif not np.any(pv > 0):
-                                problems.append(f"{tp}.value: all zero; a phase function must integrate to 1 "
-                                                f"(hint: give relative values; compose normalises them)")
-                        bc.particles.append(CustomMedium(float(C["albedo"]), phase, tau,
-                                                         C.get("name", "custom-medium"), pp))
-                    continue
-                name = P["species"]
-                vf = float(P["volume_fraction"])
-                if name not in allsp:
-                    close = difflib.get_close_matches(name, list(allsp), n=3)
-                    problems.append(f"{pp}.species: unknown species {name!r}"
-                                    + (f" (did you mean {', '.join(map(repr, close))}?)" if close else "")
-                                    + " (hint: `flakedb species list` shows the catalogue; or describe it inline "
-                                      "with `custom:` and an optical_depth)")
-                    continue
-                entry = allsp[name]
-                is_flake = entry["kind"] != "pigment"
-                flake_only = ("orientation_alpha", "diameter_um", "opaque")
-                pig_only = ("median_diameter_um", "gsd")
-                for key in (pig_only if is_flake else flake_only):
-                    if key in P:
-                        problems.append(f"{pp}.{key}: {name!r} is a {entry['kind']}; {key} applies to "
-                                        f"{'pigments' if key in pig_only else 'flakes'} only (hint: remove it)")
-                if mode == "mono":
-                    problems.append(f"{pp}.species: catalogue species have spectral optics; mono mode takes "
-                                    f"wavelength-independent inputs only (hint: set spectral.mode to spectral or rgb)")
-                elif grid is not None:
-                    problems += _material_coverage_problems(f"{pp}.species ({name})", entry, grid)
-                if is_flake:
-                    t_flake = float(entry["thickness_um"]["value"])
-                    if t_flake > d:
-                        problems.append(f"{pp}: the flake is {t_flake:g} µm thick but {base}.thickness_um is {d:g} µm "
-                                        f"(hint: a layer must be thicker than its flakes)")
-                    if P.get("opaque") and entry["kind"] == "mirror_flake":
-                        warnings.append(f"{pp}.opaque: a mirror flake is opaque already (T = 0)")
-                else:
-                    dm = float(P.get("median_diameter_um", entry["median_diameter_um"]["value"]))
-                    if dm > d:
-                        problems.append(f"{pp}: median particle diameter {dm:g} µm exceeds {base}.thickness_um = {d:g} µm "
-                                        f"(hint: a layer must be thicker than its pigment particles)")
-                    sum_pig += vf
-                sum_all += vf
-                bc.particles.append(CatalogParticle(
-                    name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
-                    P.get("median_diameter_um"), P.get("gsd"), pp))
-            if sum_pig > PIGMENT_PACKING_LIMIT:
-                problems.append(f"{base}.particles: the pigments' volume fractions add up to {sum_pig:.4g}, above the "
-                                f"random close packing of spheres {PIGMENT_PACKING_LIMIT} (allowed range: Σ ≤ "
-                                f"{PIGMENT_PACKING_LIMIT}) (hint: lower the volume_fraction values)")
-            if sum_all >= 1.0:
-                problems.append(f"{base}.particles: the volume fractions add up to {sum_all:.4g}; they must stay below 1 "
-                                f"(the particles cannot fill more than the layer) (hint: lower them)")
-            elif sum_all > DILUTE_WARNING:
-                warnings.append(f"{base}.particles: volume fractions add up to {sum_all:.3g} > {DILUTE_WARNING}: the "
-                                f"independent-scattering model (eq. 2 adds cross-sections) is doubtful this dense")
-            basecoats.append(bc)
-        else:  # primer
-            if "color" in L:
-                primer = Primer(PRIMER_ALBEDO[L["color"]], L["color"], base)
-            elif "albedo" in L:
-                primer = Primer(float(L["albedo"]), f"albedo {float(L['albedo']):g}", base)
-            else:
-                if mode == "mono":
-                    problems.append(f"{base}.spectrum: a spectrum needs spectral or rgb mode; mono mode takes "
-                                    f"wavelength-independent inputs only (hint: give an albedo)")
-                else:
-                    problems += _spectrum_problems(f"{base}.spectrum", L["spectrum"], grid, 0.0, 1.0, "albedo")
-                sp = L["spectrum"]
-                primer = Primer(Spectrum(np.asarray(sp["wavelength_nm"], float), np.asarray(sp["value"], float)),
-                                "spectrum", base)
 
+def _clearcoat_checks(base, L, mode, grid):
+    """(problems, warnings, Clearcoat) of a clearcoat layer ``L``."""
+    problems, warnings = [], []
+    ab = L.get("absorption_per_um")
+    if isinstance(ab, dict):
+        if mode == "mono":
+            problems.append(f"{base}.absorption_per_um: a spectrum needs spectral or rgb mode; mono mode takes "
+                            f"wavelength-independent inputs only (hint: give a number, or set spectral.mode)")
+        else:
+            problems += _spectrum_problems(f"{base}.absorption_per_um", ab, grid, 0.0, None, "absorption_per_um")
+        ab = Spectrum(np.asarray(ab["wavelength_nm"], float), np.asarray(ab["value"], float))
+    rough = float(L.get("roughness", 0.0))
+    if float(L["ior"]) == 1.0 and rough > 0:
+        problems.append(f"{base}.roughness: value {rough:g} with ior 1: an index-matched coat has no interface "
+                        f"to be rough (hint: set roughness to 0, or ior > 1)")
+    if rough > 0:
+        warnings.append(f"{base}.roughness: {rough:g}: the rough top interface is still inaccurate at small n "
+                        f"(energy errors of several % below n ≈ 128); prefer resolution ≥ 128 or a smooth coat")
+    return problems, warnings, Clearcoat(float(L["thickness_um"]), float(L["ior"]), rough, ab, base)
+
+
+def _custom_flake_checks(pp, C, tau):
+    """(problems, CustomFlake): tables well formed, R + T ≤ 1, some extinction."""
+    problems = []
+    for key in ("R", "T"):
+        problems += _flake_table_problems(f"{pp}.custom.{key}", C[key])
+    R, T = _flake_table(C["R"]), _flake_table(C["T"])
+    if R.c.size == R.value.size and T.c.size == T.value.size:
+        cc = np.union1d(R.c, T.c)
+        s = np.interp(cc, R.c, R.value) + np.interp(cc, T.c, T.value)
+        if np.any(s > 1 + 1e-12):
+            m = int(np.argmax(s))
+            problems.append(
+                f"{pp}.custom: R + T = {s[m]:.6g} at c = {cc[m]:g} exceeds 1 (energy conservation: "
+                f"allowed R + T ≤ 1, the rest is absorbed) (hint: lower R or T)")
+        if np.all(np.interp(cc, T.c, T.value) >= 1.0 - 1e-12):
+            problems.append(f"{pp}.optical_depth: value {tau:g} cannot be met: a flake with T = 1 "
+                            f"at every c has no extinction (hint: T < 1 somewhere)")
+    return problems, CustomFlake(R, T, float(C["orientation_alpha"]), tau, C.get("name", "custom-flake"), pp)
+
+
+def _custom_medium_checks(pp, C, tau):
+    """(problems, CustomMedium): a phase table from -1 to 1, not all zero."""
+    problems = []
+    ph = C["phase"]
+    if ph == "isotropic":
+        phase = "isotropic"
+    elif "hg" in ph:
+        phase = ("hg", float(ph["hg"]))
+    else:
+        ct = np.asarray(ph["table"]["cos_theta"], float)
+        pv = np.asarray(ph["table"]["value"], float)
+        phase = ("table", ct, pv)
+        tp = f"{pp}.custom.phase.table"
+        if ct.size != pv.size:
+            problems.append(f"{tp}: cos_theta has {ct.size} entries and value {pv.size}")
+        elif np.any(np.diff(ct) <= 0) or ct[0] != -1.0 or ct[-1] != 1.0:
+            problems.append(f"{tp}.cos_theta: must increase strictly from -1 to 1 (both ends "
+                            f"included), got {_json_short(ct.tolist())}")
+        elif not np.any(pv > 0):
+            problems.append(f"{tp}.value: all zero; a phase function must integrate to 1 "
+                            f"(hint: give relative values; compose normalises them)")
+    return problems, CustomMedium(float(C["albedo"]), phase, tau, C.get("name", "custom-medium"), pp)
+
+
+def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
+    """(problems, warnings, CatalogParticle or None): species known, overrides of its kind, grid
+    covered, particle thinner than the layer ``d`` [µm]."""
+    problems, warnings = [], []
+    name = P["species"]
+    vf = float(P["volume_fraction"])
+    if name not in allsp:
+        close = difflib.get_close_matches(name, list(allsp), n=3)
+        problems.append(f"{pp}.species: unknown species {name!r}"
+                        + (f" (did you mean {', '.join(map(repr, close))}?)" if close else "")
+                        + " (hint: `flakedb species list` shows the catalogue; or describe it inline "
+                          "with `custom:` and an optical_depth)")
+        return problems, warnings, None
+    entry = allsp[name]
+    is_flake = entry["kind"] != "pigment"
+    flake_only = ("orientation_alpha", "diameter_um", "opaque")
+    pig_only = ("median_diameter_um", "gsd")
+    for key in (pig_only if is_flake else flake_only):
+        if key in P:
+            problems.append(f"{pp}.{key}: {name!r} is a {entry['kind']}; {key} applies to "
+                            f"{'pigments' if key in pig_only else 'flakes'} only (hint: remove it)")
+    if mode == "mono":
+        problems.append(f"{pp}.species: catalogue species have spectral optics; mono mode takes "
+                        f"wavelength-independent inputs only (hint: set spectral.mode to spectral or rgb)")
+    elif grid is not None:
+        problems += _material_coverage_problems(f"{pp}.species ({name})", entry, grid)
+    if is_flake:
+        t_flake = float(entry["thickness_um"]["value"])
+        if t_flake > d:
+            problems.append(f"{pp}: the flake is {t_flake:g} µm thick but {base}.thickness_um is {d:g} µm "
+                            f"(hint: a layer must be thicker than its flakes)")
+        if P.get("opaque") and entry["kind"] == "mirror_flake":
+            warnings.append(f"{pp}.opaque: a mirror flake is opaque already (T = 0)")
+    else:
+        dm = float(P.get("median_diameter_um", entry["median_diameter_um"]["value"]))
+        if dm > d:
+            problems.append(f"{pp}: median particle diameter {dm:g} µm exceeds {base}.thickness_um = {d:g} µm "
+                            f"(hint: a layer must be thicker than its pigment particles)")
+    particle = CatalogParticle(
+        name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
+        P.get("median_diameter_um"), P.get("gsd"), pp)
+    return problems, warnings, particle
+
+
+def _packing_checks(base, particles):
+    """(problems, warnings) of a basecoat's catalogue particles' Σ volume fractions (module docstring)."""
+    problems, warnings = [], []
+    sum_pig = sum(p.volume_fraction for p in particles if not p.is_flake)
+    sum_all = sum(p.volume_fraction for p in particles)
+    if sum_pig > PIGMENT_PACKING_LIMIT:
+        problems.append(f"{base}.particles: the pigments' volume fractions add up to {sum_pig:.4g}, above the "
+                        f"random close packing of spheres {PIGMENT_PACKING_LIMIT} (allowed range: Σ ≤ "
+                        f"{PIGMENT_PACKING_LIMIT}) (hint: lower the volume_fraction values)")
+    if sum_all >= 1.0:
+        problems.append(f"{base}.particles: the volume fractions add up to {sum_all:.4g}; they must stay below 1 "
+                        f"(the particles cannot fill more than the layer) (hint: lower them)")
+    elif sum_all > DILUTE_WARNING:
+        warnings.append(f"{base}.particles: volume fractions add up to {sum_all:.3g} > {DILUTE_WARNING}: the "
+                        f"independent-scattering model (eq. 2 adds cross-sections) is doubtful this dense")
+    return problems, warnings
+
+
+def _basecoat_checks(base, L, mode, grid, allsp):
+    """(problems, warnings, Basecoat): every particle checked, then the packing of the layer."""
+    problems, warnings = [], []
+    bc = Basecoat(float(L["thickness_um"]), float(L["ior"]), [], base)
+    catalogued = []
+    for j, P in enumerate(L["particles"]):
+        pp = f"{base}.particles[{j}]"
+        if "custom" in P:
+            C, tau = P["custom"], float(P["optical_depth"])
+            check = _custom_flake_checks if C["kind"] == "flake" else _custom_medium_checks
+            p, particle = check(pp, C, tau)
+            problems += p
+        else:
+            p, w, particle = _catalog_particle_checks(pp, base, P, bc.thickness_um, mode, grid, allsp)
+            problems += p
+            warnings += w
+            if particle is None:
+                continue
+            catalogued.append(particle)
+        bc.particles.append(particle)
+    p, w = _packing_checks(base, catalogued)
+    return problems + p, warnings + w, bc
+
+
+def _primer_checks(base, L, mode, grid):
+    """(problems, Primer): a colour, an albedo, or a spectrum in [0, 1] covering the grid."""
+    problems = []
+    if "color" in L:
+        return problems, Primer(PRIMER_ALBEDO[L["color"]], L["color"], base)
+    if "albedo" in L:
+        return problems, Primer(float(L["albedo"]), f"albedo {float(L['albedo']):g}", base)
+    if mode == "mono":
+        problems.append(f"{base}.spectrum: a spectrum needs spectral or rgb mode; mono mode takes "
+                        f"wavelength-independent inputs only (hint: give an albedo)")
+    else:
+        problems += _spectrum_problems(f"{base}.spectrum", L["spectrum"], grid, 0.0, 1.0, "albedo")
+    sp = L["spectrum"]
+    return problems, Primer(Spectrum(np.asarray(sp["wavelength_nm"], float), np.asarray(sp["value"], float)),
+                            "spectrum", base)
+
+
+def _stack_problems(clear, basecoats, primer) -> list[str]:
+    """A transmissive stack (no primer) only without a top interface; something to compose."""
+    problems = []
     top_ior = clear.ior if clear is not None else (basecoats[0].ior if basecoats else 1.0)
     if primer is None and top_ior != 1.0:
         problems.append(
@@ -600,6 +651,41 @@ def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
             f"top interface) has (hint: add a primer as the last layer, or set every ior to 1)")
     if not basecoats and clear is None and primer is None:
         problems.append("layers: nothing to compose (hint: add a primer, a basecoat or a clearcoat)")
+    return problems
+
+
+def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
+    """Checks beyond the schema on a schema-valid document: the dispatcher over the checks above
+    (spectral grid, layer order, binder index, then each layer by kind, then the stack).
+
+    Returns ``(problems, warnings, parts)`` where ``parts`` holds the typed pieces built on the way
+    (used by :func:`build_recipe` when there are no problems).
+    """
+    problems, warnings = [], []
+    mode, grid, p = spectral_grid_of(doc)
+    problems += p
+    layers = doc["layers"]
+    kinds = [next(iter(item)) for item in layers]
+    problems += _order_problems(kinds)
+    catalog = catalog if catalog is not None else load_catalog()
+    allsp = expand_sweeps(catalog)
+    problems += _binder_index_problems(layers, kinds)
+
+    clear, basecoats, primer = None, [], None
+    for i, k in enumerate(kinds):
+        base = f"layers[{i}].{k}"
+        L = layers[i][k]
+        if k == "clearcoat":
+            p, w, clear = _clearcoat_checks(base, L, mode, grid)
+        elif k == "basecoat":
+            p, w, bc = _basecoat_checks(base, L, mode, grid, allsp)
+            basecoats.append(bc)
+        else:  # primer
+            (p, primer), w = _primer_checks(base, L, mode, grid), []
+        problems += p
+        warnings += w
+
+    problems += _stack_problems(clear, basecoats, primer)
     parts = {"mode": mode, "grid": grid, "clearcoat": clear, "basecoats": basecoats, "primer": primer}
     return problems, warnings, parts
 
@@ -614,7 +700,7 @@ def validate_recipe(doc, catalog=None) -> list[str]:
     the schema passes (the checks rely on its shapes)."""
     if not isinstance(doc, dict):
         return [f"(top level): a recipe is a YAML mapping (flakedb: 1, name: …, layers: …), got {type(doc).__name__}"]
-    problems = schema_problems(doc)
+    problems = value_problems(doc) or schema_problems(doc)
     if problems:
         return problems
     return semantic_problems(doc, catalog)[0]
@@ -624,14 +710,18 @@ def parse_recipe(text: str, source="<recipe>", catalog=None) -> Recipe:
     """Parse, validate and check recipe YAML ``text``; returns a :class:`Recipe` or raises
     :class:`RecipeError` listing every problem."""
     try:
-        doc = yaml.safe_load(text)
+        doc = load_yaml_strict(text)
+    except RecipeInputError as exc:
+        raise RecipeError(source, [exc.problem]) from None
+    except RecursionError:
+        raise RecipeError(source, ["YAML nesting is too deep (hint: a recipe nests a few levels)"]) from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
         raise RecipeError(source, [f"YAML syntax error at {where}: {getattr(exc, 'problem', exc)}"]) from None
     if not isinstance(doc, dict):
         raise RecipeError(source, validate_recipe(doc, catalog))
-    problems = schema_problems(doc)
+    problems = value_problems(doc) or schema_problems(doc)
     if problems:
         raise RecipeError(source, problems)
     problems, warnings, parts = semantic_problems(doc, catalog)
@@ -650,6 +740,9 @@ def load_recipe(path, catalog=None) -> Recipe:
     """Read and check the recipe file at ``path`` (see :func:`parse_recipe`)."""
     path = Path(path)
     try:
+        size = path.stat().st_size
+        if size > MAX_RECIPE_BYTES:
+            raise RecipeError(path, [too_large_message(size)])
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise RecipeError(path, ["no such file"]) from None

@@ -10,12 +10,16 @@ bytes (tests/test_store.py).
 from __future__ import annotations
 
 import hashlib
+import sys
 import time
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint import catalog as cat
 from flakedb.paint.materials import materials_dir
+from flakedb.pipelines.progress import BuildProgress
+from flakedb.pipelines.workers import MAX_POOL_RESTARTS, process_pool
 from flakedb.store import versions as st
 from flakedb.store.compress import DEFAULT_N_TABLE
 
@@ -58,29 +62,69 @@ def _execute(url, plan, tasks, scheduler, workers, client, progress):
     import dask  # lazy: Dask only where a build runs
 
     graph = [dask.delayed(st.run_task, pure=False)(url, plan, t, dask_key_name=f"task-{t.id}") for t in tasks]
-    if client is not None or (scheduler and "://" in str(scheduler)):
-        from distributed import Client  # lazy: Dask only where a build runs
-        from distributed import progress as dprogress  # lazy: Dask only where a build runs
-
-        own = client is None
-        client = client or Client(scheduler)
+    bar = BuildProgress(len(tasks)) if progress else None
+    try:
+        if client is not None or (scheduler and "://" in str(scheduler)):
+            return _execute_distributed(graph, scheduler, client, bar)
+        kwargs = {"scheduler": scheduler or "threads"}
+        if workers:
+            kwargs["num_workers"] = int(workers)
+        if kwargs["scheduler"] == "processes":
+            kwargs["pool"] = process_pool(workers)  # workers end with this process (pipelines/workers.py)
         try:
-            futures = client.compute(graph)
-            if progress:
-                dprogress(futures)
-            return client.gather(futures)
+            with _TaskCallback(bar):
+                return dask.compute(*graph, **kwargs)
         finally:
-            if own:
-                client.close()
-    kwargs = {"scheduler": scheduler or "threads"}
-    if workers:
-        kwargs["num_workers"] = int(workers)
-    if progress:
-        from dask.diagnostics import ProgressBar  # lazy: Dask only where a build runs
+            if "pool" in kwargs:
+                kwargs["pool"].shutdown(wait=False, cancel_futures=True)
+    finally:
+        if bar is not None:
+            bar.close()
 
-        with ProgressBar():
-            return dask.compute(*graph, **kwargs)
-    return dask.compute(*graph, **kwargs)
+
+def _execute_distributed(graph, scheduler, client, bar):
+    from distributed import Client, as_completed  # lazy: Dask only where a build runs
+
+    own = client is None
+    client = client or Client(scheduler)
+    try:
+        futures = client.compute(graph)
+        for _ in as_completed(futures):
+            if bar is not None:
+                bar.update(1)
+        return client.gather(futures)
+    finally:
+        if own:
+            client.close()
+
+
+class _TaskCallback:
+    """A dask local-scheduler callback counting finished ``task-*`` keys into a :class:`BuildProgress`."""
+
+    def __init__(self, bar):
+        from dask.callbacks import Callback  # lazy: Dask only where a build runs
+
+        def posttask(key, result, dsk, state, worker_id):
+            name = key if isinstance(key, str) else str(key[0] if isinstance(key, tuple) else key)
+            if name.startswith("task-"):
+                bar.update(1)
+
+        self._cb = Callback(posttask=posttask) if bar is not None else None
+
+    def __enter__(self):
+        if self._cb is not None:
+            self._cb.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        if self._cb is not None:
+            self._cb.__exit__(*exc)
+        return False
+
+
+def _worker_died(exc) -> bool:
+    """A lost worker process: a broken local pool, or a dask.distributed KilledWorker."""
+    return isinstance(exc, BrokenProcessPool) or type(exc).__name__ == "KilledWorker"
 
 
 def build(request: st.BuildRequest, store=None, scheduler=None, workers=None, client=None, progress=False,
@@ -105,11 +149,29 @@ def build(request: st.BuildRequest, store=None, scheduler=None, workers=None, cl
     todo = st.pending_tasks(url, plan)
     if max_tasks is not None:
         todo = todo[: int(max_tasks)]
-    if todo:
-        _execute(url, plan, todo, scheduler, workers, client, progress)
+    n_todo, restarts = len(todo), 0
+    while todo:
+        try:
+            _execute(url, plan, todo, scheduler, workers, client, progress)
+            break
+        except Exception as exc:  # a killed worker: retry the tasks without a record, then stop clearly
+            if not _worker_died(exc):
+                raise
+            left = st.pending_tasks(url, plan)
+            restarts += 1
+            if restarts > MAX_POOL_RESTARTS or client is not None or "://" in str(scheduler or ""):
+                raise st.StoreError(
+                    f"build of version {plan.version[:16]}… stopped: a worker process died ({type(exc).__name__}); "
+                    f"{len(plan.tasks) - len(left)} of {len(plan.tasks)} tasks are done and kept (hint: rerun "
+                    f"`flakedb build` with the same options to resume; use fewer --workers if memory ran out)") from exc
+            if progress:
+                print(f"build: a worker process died; restarting the pool for the {len(left)} task(s) left",
+                      file=sys.stderr)
+            left_ids = {t.id for t in left}
+            todo = [t for t in todo if t.id in left_ids]
     if st.pending_tasks(url, plan):
-        return {**out, "status": "partial", "tasks_run": len(todo), "seconds": time.perf_counter() - t0}
+        return {**out, "status": "partial", "tasks_run": n_todo, "seconds": time.perf_counter() - t0}
     st.finalize(url, plan)
     if publish:
         st.publish(url, plan.version)
-    return {**out, "status": "built", "tasks_run": len(todo), "seconds": time.perf_counter() - t0}
+    return {**out, "status": "built", "tasks_run": n_todo, "seconds": time.perf_counter() - t0}

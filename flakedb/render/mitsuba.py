@@ -116,6 +116,12 @@ __all__ = [
 RES_DEFAULT = 96
 #: Number of incident elevations theta_i in the measured export (over [0°, 90°], denser at grazing).
 N_THETA_DEFAULT = 24
+#: Largest half-vector grid and θ_i count of an export: the evaluation holds ~10 float64 arrays of
+#: n_theta × res² entries (res 512, 24 θ_i: ≈ 0.5 GB); res 100000 would ask for 74.5 GiB.
+RES_MAX = 512
+N_THETA_MAX = 256
+#: Largest tensor file :func:`read_tensor_file` reads [bytes].
+TENSOR_FILE_MAX_BYTES = 4 * 1024 ** 3
 #: The luminance floor of the measured export, as a fraction of each slice's mean.
 FLOOR_DEFAULT = 1e-3
 #: Where Debian's libllvm19 puts the library the ``llvm_ad_*`` variants need (renderers.md).
@@ -276,6 +282,16 @@ def _half_vector_grid(theta_i, res):
     return wi, wo, J, valid
 
 
+def check_export_size(res, n_theta):
+    """Refuse a half-vector grid ``res`` or θ_i count ``n_theta`` outside the allowed ranges."""
+    if not (8 <= int(res) <= RES_MAX):
+        raise MeasuredExportError(f"res = {res} is outside the allowed range 8 ≤ res ≤ {RES_MAX} half-vector "
+                                  f"vertices per axis (default {RES_DEFAULT})")
+    if not (4 <= int(n_theta) <= N_THETA_MAX):
+        raise MeasuredExportError(f"n_theta = {n_theta} is outside the allowed range 4 ≤ n_theta ≤ {N_THETA_MAX} "
+                                  f"incident elevations (default {N_THETA_DEFAULT})")
+
+
 def measured_tensors(b, variant: str = "rgb", res: int = RES_DEFAULT, n_theta: int = N_THETA_DEFAULT,
                      floor: float = FLOOR_DEFAULT, description: str | None = None) -> dict:
     """The fields of a ``measured`` tensor file for the FourierBSDF ``b`` (module docstring).
@@ -292,11 +308,7 @@ def measured_tensors(b, variant: str = "rgb", res: int = RES_DEFAULT, n_theta: i
     if variant not in ("rgb", "spectral"):
         raise MeasuredExportError(f"variant must be 'rgb' or 'spectral', got {variant!r}")
     res, n_theta = int(res), int(n_theta)
-    if res < 8:
-        raise MeasuredExportError(f"res = {res}: use at least 8 half-vector vertices per axis (default {RES_DEFAULT})")
-    if n_theta < 4:
-        raise MeasuredExportError(f"n_theta = {n_theta}: use at least 4 incident elevations "
-                                  f"(default {N_THETA_DEFAULT})")
+    check_export_size(res, n_theta)
     wl = channel_wavelengths(b)
     if variant == "spectral":
         if wl is None:
@@ -394,24 +406,55 @@ def write_tensor_file(path, fields: dict, align: int = 8) -> int:
 
 
 def read_tensor_file(path) -> dict:
-    """Read a tensor file written by :func:`write_tensor_file` (or ``tensor_io``): name -> array."""
+    """Read a tensor file written by :func:`write_tensor_file` (or ``tensor_io``): name -> array.
+
+    Checks what it reads (header, field count, dtype codes, shapes and offsets inside the file,
+    finite floating-point values) and raises :class:`MeasuredExportError` naming the file and the
+    field otherwise."""
     codes = {v: k for k, v in _TENSOR_DTYPES.items()}
-    raw = Path(path).read_bytes()
+    path = Path(path)
+
+    def bad(what):
+        return MeasuredExportError(f"{path}: {what}; not a valid tensor file (corrupt or truncated)")
+
+    try:
+        size = path.stat().st_size
+        if size > TENSOR_FILE_MAX_BYTES:
+            raise MeasuredExportError(f"{path}: {size} bytes; the limit is {TENSOR_FILE_MAX_BYTES} bytes")
+        raw = path.read_bytes()
+    except OSError as e:
+        raise MeasuredExportError(f"{path}: cannot read ({e.strerror})") from None
     if raw[:12] != b"tensor_file\0" or raw[12:14] != b"\x01\x00":
-        raise ValueError(f"{path}: not a version 1.0 tensor file")
-    (count,) = struct.unpack_from("<I", raw, 14)
-    pos = 18
-    out = {}
-    for _ in range(count):
-        (ln,) = struct.unpack_from("<H", raw, pos)
-        name = raw[pos + 2:pos + 2 + ln].decode("utf-8")
-        pos += 2 + ln
-        ndim, code = struct.unpack_from("<HB", raw, pos)
-        (off,) = struct.unpack_from("<Q", raw, pos + 3)
-        shape = struct.unpack_from("<" + "Q" * ndim, raw, pos + 11)
-        pos += 11 + 8 * ndim
-        dt = codes[code].newbyteorder("<")
-        out[name] = np.frombuffer(raw, dt, int(np.prod(shape)), off).reshape(shape)
+        raise MeasuredExportError(f"{path}: not a version 1.0 tensor file")
+    try:
+        (count,) = struct.unpack_from("<I", raw, 14)
+        if count > 1024:
+            raise bad(f"field count {count} is outside the allowed range 0 ≤ count ≤ 1024")
+        pos = 18
+        out = {}
+        for _ in range(count):
+            (ln,) = struct.unpack_from("<H", raw, pos)
+            name = raw[pos + 2:pos + 2 + ln].decode("utf-8")
+            pos += 2 + ln
+            ndim, code = struct.unpack_from("<HB", raw, pos)
+            (off,) = struct.unpack_from("<Q", raw, pos + 3)
+            if ndim > 16 or code not in codes:
+                raise bad(f"field {name!r}: ndim {ndim} / dtype code {code} is not supported")
+            shape = struct.unpack_from("<" + "Q" * ndim, raw, pos + 11)
+            pos += 11 + 8 * ndim
+            dt = codes[code].newbyteorder("<")
+            count_el = int(np.prod(shape, dtype=object))
+            if off + count_el * dt.itemsize > len(raw):
+                raise bad(f"field {name!r}: shape {tuple(shape)} at offset {off} runs past the end of the "
+                          f"{len(raw)}-byte file")
+            a = np.frombuffer(raw, dt, count_el, off).reshape(shape)
+            if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+                raise bad(f"field {name!r} holds NaN or infinite values")
+            out[name] = a
+    except struct.error as e:
+        raise bad(f"header ends early ({e})") from None
+    except UnicodeDecodeError:
+        raise bad("a field name is not UTF-8") from None
     return out
 
 
@@ -424,11 +467,14 @@ def export_measured(src, out, variant: str = "rgb", res: int = RES_DEFAULT, n_th
     incident angles: the mirror term (``delta_albedo``: F(θ_i; η)) and any transmission
     (``transmitted_albedo``: total minus reflected albedo of the table).
     """
+    check_export_size(res, n_theta)
     b = open_bsdf(src)
     desc = (f"flakedb {__version__} export of {Path(src).name}: front-side reflection, "
             f"res {res}, {n_theta} theta_i; the mirror term delta={b.delta} is not included")
     fields = measured_tensors(b, variant, res, n_theta, floor, description=desc)
-    size = write_tensor_file(out, fields)
+    for k, v in fields.items():
+        if isinstance(v, np.ndarray) and v.dtype.kind == "f" and not np.all(np.isfinite(v)):
+            raise MeasuredExportError(f"{src}: the export's {k!r} field has non-finite values; nothing written")
     theta = np.array([0.0, 30.0, 45.0, 60.0, 75.0, 85.0])
     mu = np.cos(np.radians(theta))
     refl = reflectance_albedo(b, mu)
@@ -440,6 +486,7 @@ def export_measured(src, out, variant: str = "rgb", res: int = RES_DEFAULT, n_th
     if np.max(trans) > 1e-6 * max(np.max(refl), 1e-300):
         dropped["transmitted_albedo"] = trans.tolist()
     data = fields.get("rgb", fields.get("spectra"))
+    size = write_tensor_file(out, fields)  # last: a failure above leaves no file
     return {"out": str(out), "size": size, "variant": variant, "res": res, "n_theta": n_theta,
             "channels": ["R", "G", "B"] if variant == "rgb" else fields["wavelengths"].tolist(),
             "shape": list(data.shape), "reflected_albedo": refl.tolist(), "dropped": dropped}

@@ -503,7 +503,16 @@ def read_latest(url) -> str | None:
     p = posixpath.join(root, "latest")
     if not fs.exists(p):
         return None
-    return _read_json(fs, p)["version"]
+    try:
+        version = _read_json(fs, p)["version"]
+    except (OSError, ValueError, UnicodeDecodeError, KeyError, TypeError) as exc:
+        raise StoreError(f"{url}: `latest` is unreadable ({type(exc).__name__}: {exc}); it must be a JSON file "
+                         f'{{"version": "<hash>"}} (hint: remove it and rerun `flakedb build` with the same '
+                         f"inputs, which rewrites it)") from None
+    if not isinstance(version, str):
+        raise StoreError(f"{url}: `latest` names version {version!r}, not a version hash (hint: remove it and rerun "
+                         f"`flakedb build`)")
+    return version
 
 
 # --------------------------------------------------------------------------------------------
@@ -521,7 +530,7 @@ def verify_version(url, version) -> list[str]:
     problems = []
     try:
         meta = _read_json(fs, posixpath.join(vroot, "zarr.json")).get("attributes", {})
-    except (ValueError, UnicodeDecodeError) as exc:
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
         return [f"{where}/zarr.json: unreadable ({exc})"]
     problems += [f"{where}: {p}" for p in schema_problems(meta, "metadata")]
     if meta.get("version") != version:
@@ -550,7 +559,11 @@ def verify_version(url, version) -> list[str]:
         if not fs.exists(p):
             problems.append(f"{where}/{key}: missing")
             continue
-        got = _sha256(fs.cat_file(p))
+        try:
+            got = _sha256(fs.cat_file(p))
+        except OSError as exc:  # e.g. a chunk replaced by a directory
+            problems.append(f"{where}/{key}: unreadable ({exc.strerror or type(exc).__name__})")
+            continue
         if got != expected:
             problems.append(f"{where}/{key}: sha256 {got[:16]}… != recorded {expected[:16]}… (corrupted)")
     return problems
@@ -576,8 +589,8 @@ def verify_store(url, all_versions=False) -> list[str]:
         try:
             doc = _read_json(fs, lp)
             problems += [f"latest: {p}" for p in schema_problems(doc, "latest")]
-            latest = doc.get("version")
-        except (ValueError, UnicodeDecodeError) as exc:
+            latest = doc.get("version") if isinstance(doc, dict) else None
+        except (OSError, ValueError, UnicodeDecodeError) as exc:
             problems.append(f"latest: unreadable ({exc})")
     else:
         problems.append("latest: missing (nothing was published)")
@@ -585,6 +598,8 @@ def verify_store(url, all_versions=False) -> list[str]:
     vdir = posixpath.join(root, "versions")
     if all_versions and fs.exists(vdir):
         versions = sorted(posixpath.basename(p.rstrip("/")) for p in fs.ls(vdir, detail=False))
+        # `.tmp-*`: a template being written, or left by a build killed while writing it; not a version
+        versions = [v for v in versions if not v.startswith(".")]
     if latest and latest not in versions:
         versions.insert(0, latest)
     for v in versions:

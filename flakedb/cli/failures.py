@@ -1,0 +1,110 @@
+"""How a command fails: one line, an exit status, nothing left behind (issue 13).
+
+* :class:`FlakedbFailure`: an error that is not the input's fault (disk full, a store that cannot be
+  written, a worker that died): one line, exit status 1.  Bad input is
+  :class:`flakedb.cli.errors.FlakedbError` (exit status 2).
+* :func:`as_failure`: any other exception as a one-line :class:`FlakedbFailure` naming what failed
+  and what to do; the group in :mod:`flakedb.cli.main` applies it unless ``--debug`` is given.
+* :func:`remove_created_dirs`: a context manager that removes the directories a command created
+  for its outputs when the command fails and they are still empty.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import tempfile
+from pathlib import Path
+
+import click
+
+from flakedb.bsdf.table import BSDFFileError
+from flakedb.store.versions import StoreError
+
+#: Longest message kept on the one line (a longer one is cut, its start kept).
+MAX_MESSAGE_CHARS = 500
+
+
+class FlakedbFailure(click.ClickException):
+    """A failure that is not bad input: printed as one line without a traceback, exit status 1."""
+
+    exit_code = 1
+
+
+def _one_line(text) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= MAX_MESSAGE_CHARS else text[:MAX_MESSAGE_CHARS - 3] + "..."
+
+
+_OS_HINTS = {
+    errno.ENOSPC: "free some space, then rerun the command (finished work is kept)",
+    errno.EDQUOT: "free some space, then rerun the command (finished work is kept)",
+    errno.EACCES: "choose a location you can write, or fix its permissions",
+    errno.EPERM: "choose a location you can write, or fix its permissions",
+    errno.EROFS: "the file system is read-only; choose a writable location",
+    errno.EISDIR: "a directory is where a file should be; remove or rename it",
+    errno.ENOTDIR: "a file is where a directory should be; remove or rename it",
+    errno.ENOENT: "check the path",
+}
+
+
+def as_failure(exc: BaseException) -> click.ClickException:
+    """A one-line ClickException for ``exc`` (exit status 1; 2 for a BSDF file that cannot be read)."""
+    if isinstance(exc, OSError):
+        where = f"{exc.filename}: " if exc.filename else ""
+        what = exc.strerror or type(exc).__name__
+        hint = _OS_HINTS.get(exc.errno)
+        return FlakedbFailure(_one_line(f"{where}{what}" + (f" (hint: {hint})" if hint else "")))
+    if isinstance(exc, MemoryError):
+        return FlakedbFailure("out of memory (hint: use a smaller resolution --n, --res or --size)")
+    if isinstance(exc, BSDFFileError):
+        err = click.ClickException(_one_line(exc))
+        err.exit_code = 2
+        return err
+    if isinstance(exc, StoreError):
+        return FlakedbFailure(_one_line(exc))
+    return FlakedbFailure(_one_line(f"internal error: {type(exc).__name__}: {exc} (hint: rerun with "
+                                    f"`flakedb --debug ...` for the traceback and report it)"))
+
+
+def missing_dirs(path) -> list[Path]:
+    """The directories ``path`` and its ancestors that do not exist yet, deepest first."""
+    out = []
+    p = Path(path).absolute()
+    while not p.exists() and p != p.parent:
+        out.append(p)
+        p = p.parent
+    return out
+
+
+@contextlib.contextmanager
+def remove_created_dirs(path):
+    """On an exception inside the block, remove ``path`` and the ancestors the block created when
+    they are empty (deepest first), then re-raise."""
+    created = missing_dirs(path)
+    try:
+        yield
+    except BaseException:
+        for d in created:
+            try:
+                d.rmdir()  # only an empty directory goes
+            except OSError:
+                break
+        raise
+
+
+def probe_writable(out_dir, option="--out"):
+    """Refuse (:class:`flakedb.cli.errors.FlakedbError`-like, exit 2) an output directory in which
+    no file can be created, before any work: a temporary file is created and removed in ``out_dir``
+    or its nearest existing ancestor (permissions alone do not tell: root, read-only mounts, /proc)."""
+    p = Path(out_dir).absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        with tempfile.TemporaryFile(dir=p):
+            pass
+    except OSError as e:
+        err = click.ClickException(f"{option} {out_dir}: cannot create files in {p} ({e.strerror}) "
+                                   f"(hint: choose a directory you can write)")
+        err.exit_code = 2
+        raise err from None
