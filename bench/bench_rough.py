@@ -57,6 +57,34 @@ def _whole_stack(n=200):
             {"n": n, "channels": 3, "what": "python -c import + interface + solve, order_tol 1e-4"})
 
 
-BENCHMARKS = [_coat(200, 0.1, "cells"), _coat(200, 0.1, "points"), _coat(64, 0.1, "cells"),
+def _auto_stack(alpha, slab=True):
+    """Solve (all orders, order_tol 1e-4) of a rough coat [/ HG g 0.7 slab] / diffuse primer at the n that
+    ``resolution: auto`` picks (docs/resolution.md), mono."""
+    import yaml
+
+    from flakedb.paint.mapping import auto_resolution, build_paint, solve_paint
+    from flakedb.paint.recipe import parse_recipe
+
+    layers = [{"clearcoat": {"thickness_um": 40, "ior": 1.5, "roughness": alpha}}]
+    if slab:
+        layers.append({"basecoat": {"thickness_um": 10, "ior": 1.5, "particles": [
+            {"custom": {"kind": "medium", "name": "hg", "albedo": 0.9, "phase": {"hg": 0.7}}, "optical_depth": 1.0}]}})
+    layers.append({"primer": {"albedo": 0.5}})
+    rec = parse_recipe(yaml.safe_dump({"flakedb": 1, "name": "b", "spectral": {"mode": "mono"},
+                                       "resolution": "auto", "layers": layers}))
+    n, _ = auto_resolution(rec)
+
+    def setup():
+        return build_paint(rec)
+
+    def run(paint):
+        st = solve_paint(paint, n)
+        return {"n": n, "orders": int(st.info.get("orders", 0))}
+
+    return (f"auto stack: rough {alpha}{' / HG' if slab else ''} / diffuse, n={n}", setup, run,
+            {"alpha": alpha, "n": n, "slab": slab})
+
+
+BENCHMARKS = [_auto_stack(0.3), _auto_stack(0.1), _auto_stack(0.05), _auto_stack(0.02), _coat(200, 0.1, "cells"), _coat(200, 0.1, "points"), _coat(64, 0.1, "cells"),
               _coat(64, 0.1, "points"), _coat(64, 0.02, "cells"), _coat(64, 0.01, "cells"), _conductor(64, 0.1),
               _whole_stack(200)]

@@ -68,7 +68,7 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, allo
             res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"),
                                  store=store, rgb_space=rgb_space, progress=progress,
                                  allow_unphysical=allow_unphysical)
-    except (StoreError, UnphysicalResultError) as exc:
+    except (StoreError, UnphysicalResultError, RecipeError) as exc:
         raise FlakedbError(str(exc)) from exc
     finally:
         bar.close()

@@ -81,7 +81,7 @@ Channels
   cross-sections ≥ 0 with C_sca ≤ C_ext; phase ≥ 0) and the largest clip is reported in ``info``.
 * ``mono``: one grey channel; every input is wavelength-independent (checked by the recipe).
 
-Resolution (:func:`auto_resolution`) is a stated heuristic, see its docstring.
+Resolution (:func:`auto_resolution`) from accuracy targets and measured error envelopes (docs/resolution.md).
 """
 
 from __future__ import annotations
@@ -97,6 +97,7 @@ from flakedb.paint.recipe import (
     CatalogParticle,
     CustomFlake,
     CustomMedium,
+    RecipeError,
     Spectrum,
 )
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
@@ -474,43 +475,118 @@ def catalog_species(recipe) -> list:
     return [p for _, p in recipe.particles() if isinstance(p, CatalogParticle)]
 
 
+#: Default accuracy targets of ``resolution: auto`` (a recipe's ``resolution: {albedo_error: …,
+#: lobe_error: …}`` overrides them); docs/resolution.md.
+AUTO_TARGETS = {"albedo_error": 0.03, "lobe_error": 0.05}
+#: The largest node count auto may choose: the schema's maximum resolution.
+AUTO_MAX_N = 512
+#: Measured envelopes (docs/resolution.md), (h·α, worst error at that h·α or above), h = n/2:
+#: * rough coat lobe: reflection of the interface at normal incidence binned in 5° θ_o bins (Σ |Δ| per bin
+#:   over the reflected total, the Monte Carlo criterion of issue 12) against n = 384, α ∈ {0.02, 0.05,
+#:   0.1, 0.3}, η ∈ {1.3, 1.5, 1.7};
+#: * directional albedo (θ_i ≤ 80°, relative) of coat / flake slab / diffuse primer against n = 192, by the
+#:   flakes' α_f, over coat α ∈ {0.01 … 0.3}, η ∈ {1.3, 1.5, 1.7}, flake α_f ∈ {0.1, 0.2}.
+COAT_LOBE_ERROR = ((1.6, 0.105), (2.4, 0.034), (3.2, 0.019), (4.8, 0.005), (6.4, 0.004), (9.6, 0.0015))
+FLAKE_ALBEDO_ERROR = ((1.6, 0.051), (2.4, 0.033), (3.2, 0.028), (4.8, 0.019), (6.4, 0.012), (9.6, 0.008))
+#: Directional albedo error (θ_i ≤ 80°) without flakes (coat α 0.01–0.3 / HG g 0.7, 0.9 slab / diffuse,
+#: η 1.3–1.7) by n, against n = 192.
+PLAIN_ALBEDO_ERROR = ((32, 0.0061), (48, 0.0026), (64, 0.0014), (96, 0.0007))
+
+
+def _needed(table, target):
+    """Smallest tabulated abscissa whose measured error is ≤ target, and that error (None if none is)."""
+    for x, e in table:
+        if e <= target:
+            return x, e
+    return None, None
+
+
+def _error_at(table, x):
+    """Measured error envelope at abscissa ``x`` (the last row at or below it; None below the table)."""
+    rows = [e for xx, e in table if xx <= x + 1e-12]
+    return rows[-1] if rows else None
+
+
 def auto_resolution(recipe) -> tuple[int, str]:
-    """Node count n for ``resolution: auto`` and the reason, a stated heuristic.
+    """Node count n for ``resolution: auto`` from accuracy targets, and the reason (docs/resolution.md).
 
-    The narrowest angular feature sets n: h = n/2 = ⌈3/α⌉ for flakes of Beckmann spread α (the
-    flake lobe is ≈ 1.4 α wide) and ⌈3/(1 − |g|)⌉ for a Henyey–Greenstein medium; n = 2h rounded
-    up to a multiple of 8 and clamped to [32, 128] (the per-band cost grows as n³, files as n²).
-    Without flakes or peaked phase functions (Lambertian primer, pigments: smooth Mie lobes after
-    the log-normal average) n = 32.  A rough coat gets n ≥ 128: its interface is lossless at every
-    n (docs/rough-interfaces.md), but the lobe's shape is resolved only with cells narrower than it
-    (α = 0.03 at n = 64: the reflectance bin next to the specular peak is 15 % high against the
-    Monte Carlo; within 2 % at n = 128).
+    Targets (``recipe.targets`` over :data:`AUTO_TARGETS`): ``albedo_error``, the relative error of the
+    directional albedo for θ_i ≤ 80°, and ``lobe_error``, the rough coat's reflection lobe binned in 5°
+    bins (per bin, over the reflected total).  Each rule is a measured envelope, not a guess:
 
-    Measured (metallic-silver in RGB mode, CIEDE2000 of the six multi-angle colours against the
-    finest n): α = 0.2: n = 32 → ΔE00 ≤ 0.08 (vs n = 128), n = 48 → ≤ 0.02;  α = 0.08: n = 32 →
-    ≤ 1.02, n = 48 → ≤ 0.11, n = 64 → ≤ 0.08 (vs n = 96).  ΔE00 ≈ 0.1 is reached at h ≈ 2/α;
-    ⌈3/α⌉ keeps a 1.5× margin for the lobe shape renderers see between the report's geometries.
+    * rough coat of roughness α: h α ≥ the smallest h α of :data:`COAT_LOBE_ERROR` meeting lobe_error
+      (the flux-cell interface is lossless at every n, so its albedo is not what limits n);
+    * flakes of Beckmann spread α_f: h α_f from :data:`FLAKE_ALBEDO_ERROR` for albedo_error, and at
+      least the ΔE00 rule h ≥ 3/α_f (metallic-silver, RGB: ΔE00 ≈ 0.1 at h ≈ 2/α_f);
+    * HG media: h ≥ 3/(1 − |g|); stacks without flakes: n from :data:`PLAIN_ALBEDO_ERROR`.
+
+    The binder index enters through the measurements (η ∈ [1.3, 1.7] measured; outside it a warning
+    in the reason).  n = 2h is rounded up to a multiple of 8, at least 32.  Orders: chosen by the
+    solver from the BSDF's own Fourier tail (order_tol), the interfaces' lobes capped at 2n with a
+    positive (Jackson) φ filter.  Raises :class:`flakedb.paint.recipe.RecipeError` naming the
+    target, the n it needs, the largest allowed (:data:`AUTO_MAX_N`) and a suggestion when a target
+    cannot be met.
     """
-    h = 16
-    reasons = ["default 32 (Lambertian primer / pigments: smooth lobes)"]
+    targets = dict(AUTO_TARGETS)
+    targets.update(getattr(recipe, "targets", None) or {})
+    t_alb, t_lobe = float(targets["albedo_error"]), float(targets["lobe_error"])
+    need = []  # (h, reason, problem-or-None)
+
+    def fail(what, target, table, alpha, label):
+        best = _error_at(table, AUTO_MAX_N // 2 * alpha)
+        raise RecipeError(getattr(recipe, "source", "<recipe>"), [
+            f"resolution: {what} {target:g} for {label} is not reachable: the smallest measured error is "
+            f"{table[-1][1]:g} (at h·α = {table[-1][0]:g}; docs/resolution.md) and n ≤ {AUTO_MAX_N} "
+            f"(hint: set resolution: {AUTO_MAX_N}" + (f", measured {what} ≤ {best:g}" if best is not None else "")
+            + f", or raise {what} to ≥ {table[-1][1]:g})"])
+
+    def add(table, target, alpha, label, what):
+        x, err = _needed(table, target)
+        if x is None:
+            fail(what, target, table, alpha, label)
+        h_real = x / alpha - 1e-9
+        h = int(np.ceil(h_real)) if np.isfinite(h_real) and h_real < AUTO_MAX_N else AUTO_MAX_N
+        if 2 * h > AUTO_MAX_N:
+            best = _error_at(table, AUTO_MAX_N // 2 * alpha)
+            raise RecipeError(getattr(recipe, "source", "<recipe>"), [
+                f"resolution: {what} {target:g} for {label} needs n ≥ {2 * h} (h·α ≥ {x:g}, measured error "
+                f"{err:g}; docs/resolution.md), above the largest allowed n = {AUTO_MAX_N} (hint: set "
+                f"resolution: {AUTO_MAX_N}" + (f" (measured {what} ≤ {best:g})" if best is not None else "")
+                + f", or raise {what})"])
+        need.append((h, f"{label}: h·α ≥ {x:g} for {what} ≤ {target:g} (measured {err:g})"))
+
+    cc = recipe.clearcoat
+    if cc is not None and cc.roughness > 0:
+        add(COAT_LOBE_ERROR, t_lobe, float(cc.roughness), f"rough coat α = {cc.roughness:g}", "lobe_error")
+    flakes = False
     for _, p in recipe.particles():
+        a = None
         if isinstance(p, CatalogParticle) and p.is_flake:
             a = float(p.orientation_alpha if p.orientation_alpha is not None else p.entry["orientation_alpha"]["value"])
-            hh = int(np.ceil(3.0 / a))
-            if hh > h:
-                h, reasons = hh, [f"flake lobe α = {a:g} ({p.path})"]
         elif isinstance(p, CustomFlake):
-            hh = int(np.ceil(3.0 / p.orientation_alpha))
-            if hh > h:
-                h, reasons = hh, [f"flake lobe α = {p.orientation_alpha:g} ({p.path})"]
+            a = float(p.orientation_alpha)
         elif isinstance(p, CustomMedium) and isinstance(p.phase, tuple) and p.phase[0] == "hg":
             hh = int(np.ceil(3.0 / max(1e-3, 1.0 - abs(p.phase[1]))))
-            if hh > h:
-                h, reasons = hh, [f"HG lobe g = {p.phase[1]:g} ({p.path})"]
-    n = int(np.clip(8 * int(np.ceil(2 * h / 8)), 32, 128))
-    if recipe.clearcoat is not None and recipe.clearcoat.roughness > 0 and n < 128:
-        n, reasons = 128, [f"rough coat (roughness {recipe.clearcoat.roughness:g})"]
-    return n, "; ".join(reasons) + f" → n = {n}"
+            need.append((hh, f"HG lobe g = {p.phase[1]:g} ({p.path}): h ≥ 3/(1 − |g|)"))
+        if a is not None:
+            flakes = True
+            add(FLAKE_ALBEDO_ERROR, t_alb, a, f"flakes α = {a:g} ({p.path})", "albedo_error")
+            need.append((int(np.ceil(min(3.0 / a, AUTO_MAX_N))), f"flakes α = {a:g} ({p.path}): h ≥ 3/α (ΔE00 ≲ 0.1)"))
+    if not flakes:
+        n_alb, err = _needed(PLAIN_ALBEDO_ERROR, t_alb)
+        if n_alb is None:
+            fail("albedo_error", t_alb, PLAIN_ALBEDO_ERROR, 1.0, "this stack")
+        need.append((n_alb // 2, f"albedo_error ≤ {t_alb:g} without flakes: n ≥ {n_alb} (measured {err:g})"))
+    h = max(hh for hh, _ in need)
+    n = max(32, 8 * int(np.ceil(2 * h / 8)))
+    if n > AUTO_MAX_N:
+        raise RecipeError(getattr(recipe, "source", "<recipe>"), [
+            f"resolution: auto needs n = {n} ({max(need)[1]}), above the largest allowed n = {AUTO_MAX_N} "
+            f"(hint: set resolution: {AUTO_MAX_N}, or relax the targets)"])
+    binding = [r for hh, r in need if hh == h]
+    eta = float(recipe.binder_ior)
+    note = "" if 1.3 <= eta <= 1.7 or eta == 1.0 else f"; binder index {eta:g} outside the measured 1.3–1.7"
+    return n, "; ".join(binding) + note + f" → n = {n}"
 
 
 def solve_paint(paint: Paint, n: int, **settings):

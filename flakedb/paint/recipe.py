@@ -5,7 +5,7 @@ A recipe describes a paint as layers, top to bottom (docs/model.md §1)::
     flakedb: 1                       # format version
     name: pearl-white                # names the outputs DIR/NAME.bsdf, .h5, .json
     spectral: {mode: spectral, range_nm: [380, 780], step_nm: 10}     # or rgb / mono
-    resolution: auto                 # or the node count n (even)
+    resolution: auto                 # or the node count n (even), or targets {albedo_error: 0.01, lobe_error: 0.05}
     layers:
       - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
       - basecoat:
@@ -197,6 +197,9 @@ class Recipe:
     source: str = "<recipe>"
     warnings: list = field(default_factory=list)
     doc: dict = field(default_factory=dict)
+    #: accuracy targets of ``resolution: auto`` ({albedo_error, lobe_error}; empty: the defaults of
+    #: :data:`flakedb.paint.mapping.AUTO_TARGETS`)
+    targets: dict = field(default_factory=dict)
 
     @property
     def binder_ior(self) -> float:
@@ -487,9 +490,6 @@ def _clearcoat_checks(base, L, mode, grid):
     if float(L["ior"]) == 1.0 and rough > 0:
         problems.append(f"{base}.roughness: value {rough:g} with ior 1: an index-matched coat has no interface "
                         f"to be rough (hint: set roughness to 0, or ior > 1)")
-    if rough > 0:
-        warnings.append(f"{base}.roughness: {rough:g}: the rough top interface is still inaccurate at small n "
-                        f"(energy errors of several % below n ≈ 128); prefer resolution ≥ 128 or a smooth coat")
     return problems, warnings, Clearcoat(float(L["thickness_um"]), float(L["ior"]), rough, ab, base)
 
 
@@ -730,9 +730,9 @@ def parse_recipe(text: str, source="<recipe>", catalog=None) -> Recipe:
     res = doc.get("resolution", "auto")
     return Recipe(
         name=doc["name"], mode=parts["mode"], wavelength_nm=parts["grid"],
-        n=None if res == "auto" else int(res), clearcoat=parts["clearcoat"], basecoats=parts["basecoats"],
+        n=None if res == "auto" or isinstance(res, dict) else int(res), clearcoat=parts["clearcoat"], basecoats=parts["basecoats"],
         primer=parts["primer"], description=doc.get("description", ""), text=text, source=str(source),
-        warnings=warnings, doc=doc,
+        warnings=warnings, doc=doc, targets=dict(res) if isinstance(res, dict) else {},
     )
 
 

@@ -221,7 +221,7 @@ class FlakeMedium:
     def phi_bandwidth(self):
         # the mirror lobe's width in φ at 45° is ≈ √2 α (microflake.kernel_phi_bandwidth); start
         # from a few samples per lobe width, the projection refines adaptively
-        return int(2 ** np.ceil(np.log2(max(8.0, 8.0 * np.pi / (np.sqrt(2.0) * self.alpha)))))
+        return int(2 ** np.ceil(np.log2(min(max(8.0, 8.0 * np.pi / (np.sqrt(2.0) * self.alpha)), 2.0**20))))
 
 
 class ChannelSubset:

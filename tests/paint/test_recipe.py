@@ -224,8 +224,8 @@ def test_stack_shape_checks():
     d["layers"][1]["basecoat"]["thickness_um"] = 0.3  # thinner than the 0.54 µm flake
     assert any("the flake is 0.54 µm thick" in p for p in problems_of(d))
     d = doc()
-    d["layers"][0]["clearcoat"]["roughness"] = 0.05
-    assert any("rough top interface is still inaccurate" in w for w in parse_recipe(yaml.safe_dump(d)).warnings)
+    d["layers"][0]["clearcoat"]["roughness"] = 0.05  # lossless at every n now: no blanket warning
+    assert not any("roughness" in w for w in parse_recipe(yaml.safe_dump(d)).warnings)
 
 
 def test_yaml_syntax_error_names_line():
@@ -233,20 +233,30 @@ def test_yaml_syntax_error_names_line():
         parse_recipe("flakedb: 1\nname: a: b\nlayers: []\n")
 
 
-def test_auto_resolution_heuristic():
+def test_auto_resolution_from_targets():
+    """n from the measured envelopes of flakedb.paint.mapping (docs/resolution.md), and refusals."""
     from flakedb.paint.mapping import auto_resolution
 
     d = doc()
     d["resolution"] = "auto"
-    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 32          # α = 0.2: h = 15 → 32
+    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 32          # α_f 0.2: h·α_f ≥ 3.2 → h 16
     d["layers"][1]["basecoat"]["particles"][0]["orientation_alpha"] = 0.05
-    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 120         # h = 60 → 120
+    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 128         # h = 3.2/0.05 = 64
+    d["resolution"] = {"albedo_error": 0.01}                                     # h·α_f ≥ 9.6 → h 192
+    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 384
     d["layers"][1]["basecoat"]["particles"][0]["orientation_alpha"] = 0.01
-    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 128         # clamped
+    d["resolution"] = "auto"
+    with pytest.raises(RecipeError, match=r"needs n ≥ 640 .* largest allowed n = 512 \(hint: set resolution: 512"):
+        auto_resolution(parse_recipe(yaml.safe_dump(d)))
     d["layers"][1]["basecoat"]["particles"] = [{"species": "titanium-white", "volume_fraction": 0.1}]
     d["layers"][0]["clearcoat"]["roughness"] = 0.1
     n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))
-    assert n == 128 and "rough coat" in why
+    assert n == 48 and "rough coat α = 0.1" in why and "measured 0.034" in why   # h·α ≥ 2.4
+    d["resolution"] = {"lobe_error": 0.0001}
+    with pytest.raises(RecipeError, match="lobe_error 0.0001 .* not reachable: the smallest measured error is 0.0015"):
+        auto_resolution(parse_recipe(yaml.safe_dump(d)))
+    d["resolution"] = {"lobe_errr": 0.01}
+    assert any("resolution" in p for p in problems_of(d))
 
 
 # --- the command line refuses bad input before computing and leaves nothing behind --------------
