@@ -168,10 +168,13 @@ def legendre_moments_gauss(nodes, weights, values, tol=LEGENDRE_TOL, k_max=LEGEN
     for k in range(2, K + 1):
         P[k] = ((2 * k - 1) * t * P[k - 1] - (k - 1) * P[k - 2]) / k
     chi = 2.0 * np.pi * (values * np.asarray(weights, dtype=float)[None]) @ P.T  # (C, K + 1)
-    return _truncate(chi, tol)
+    return truncate_legendre(chi, tol)
 
 
-def _truncate(chi, tol):
+def truncate_legendre(chi, tol=LEGENDRE_TOL):
+    """Moments ``chi`` (C, K + 1) truncated at the first degree whose dropped tail is ≤ ``tol`` (module
+    docstring); returns ``(chi, info)`` as :func:`legendre_moments`."""
+    chi = np.atleast_2d(np.asarray(chi, dtype=float))
     K = chi.shape[1] - 1
     term = np.abs(chi) * (2 * np.arange(K + 1) + 1) / (4.0 * np.pi)
     scale = term.sum(axis=1)
