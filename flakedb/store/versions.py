@@ -499,8 +499,7 @@ def run_task(url, plan: BuildPlan, task: Task) -> dict:
             chunks = list(arr.shape) if name != "V" else [arr.shape[0], ORDER_CHUNK] + list(arr.shape[2:])
             chunks[1 if name == "V" else 0] = min(chunks[1 if name == "V" else 0], arr.shape[1 if name == "V" else 0])
             spec = {"shape": list(arr.shape), "chunks": chunks, "dtype": str(arr.dtype), "units": "see metadata"}
-            za = zarr.create_array(vurl, name=path, shape=arr.shape, chunks=tuple(chunks), dtype=arr.dtype,
-                                   fill_value=np.nan, overwrite=True, attributes={"units": spec["units"], "info": info})
+            za = _sized_array(vurl, path, arr, chunks, {"units": spec["units"], "info": info})
             za[...] = arr
             created[path] = spec
     fs, root = _fs(url)
@@ -510,6 +509,27 @@ def run_task(url, plan: BuildPlan, task: Task) -> dict:
               "info": json.loads(json.dumps(info, default=float))}
     _write_json(fs, posixpath.join(vroot, task.record_name), record)  # written last: the task is done
     return record
+
+
+def _sized_array(vurl, path, arr, chunks, attributes):
+    """The array a task sizes (U, V): reused when it exists with this shape (a re-run, or the same task
+    running in another build at the same time writes the same bytes into it), else (re)created.
+    Never deleted while another writer may be hashing it."""
+    try:
+        za = zarr.open_array(vurl, path=path, mode="r+")
+        if za.shape == arr.shape and za.dtype == arr.dtype and tuple(za.chunks) == tuple(chunks):
+            return za
+    except (FileNotFoundError, KeyError, ValueError, zarr.errors.NodeNotFoundError, zarr.errors.NodeTypeValidationError):
+        pass
+    try:
+        return zarr.create_array(vurl, name=path, shape=arr.shape, chunks=tuple(chunks), dtype=arr.dtype,
+                                 fill_value=np.nan, overwrite=False, attributes=attributes)
+    except zarr.errors.ContainsArrayError:  # created by a concurrent run of the same task, or another shape
+        za = zarr.open_array(vurl, path=path, mode="r+")
+        if za.shape == arr.shape and za.dtype == arr.dtype:
+            return za
+        return zarr.create_array(vurl, name=path, shape=arr.shape, chunks=tuple(chunks), dtype=arr.dtype,
+                                 fill_value=np.nan, overwrite=True, attributes=attributes)
 
 
 def pending_tasks(url, plan: BuildPlan) -> list:
