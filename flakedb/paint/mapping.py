@@ -101,7 +101,7 @@ from flakedb.paint.recipe import (
 )
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
-from flakedb.rt.microflake import FlakeOptics, extinction_Ergun, scattering_Ergun
+from flakedb.rt.microflake import FlakeOptics, extinction_Ergun
 from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.stored import StoredMixture, StoredPigmentMedium

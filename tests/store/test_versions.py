@@ -13,7 +13,6 @@ from click.testing import CliRunner
 
 from flakedb.cli.main import cli
 from flakedb.pipelines.build import build, make_request
-from flakedb.store import compress as C
 from flakedb.store import versions as st
 
 SPECIES = ["pearlescent", "cadmium-yellow"]
