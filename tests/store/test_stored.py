@@ -271,3 +271,30 @@ layers:
                                  str(tmp_path / "no-such-store")])
     assert r.exit_code == 0, r.output
     assert "none needed" in r.output
+
+
+REPRESENTATIVE = ("particle-metallic", "fig5-opaque-gray", "tri-coat-pearl-white", "particle-titanium-white")
+
+
+@pytest.mark.parametrize("name", REPRESENTATIVE)
+def test_catalogue_recipe_from_the_store_matches_direct(name, tmp_path):
+    """Issue #11 acceptance on a representative subset (flakes, opaque flakes, two basecoats with an α
+    override, a pigment) at small n: `build --recipe` then compose from the store against the direct
+    compose: ΔE00 ≤ 0.05 at the six report angles and the BSDF within 1e-3 of its maximum
+    (bench/store_accuracy.py runs every catalogue recipe at its own settings)."""
+    import re
+
+    from flakedb.pipelines.build import request_for_recipe
+    from flakedb.resources import RECIPES_DIR
+
+    text = (RECIPES_DIR / f"{name}.yaml").read_text(encoding="utf-8")
+    text = re.sub(r"step_nm: 10", "step_nm: 20", text)
+    text = re.sub(r"(?m)^resolution:.*$", "resolution: 16", text)
+    rec = parse_recipe(text, source=name)
+    url = str(tmp_path / "store")
+    assert build(request_for_recipe(rec), url, scheduler="sync")["status"] == "built"
+    direct = compose(rec, tmp_path / "d")
+    comp = compose(rec, tmp_path / "c", store=url)
+    fd = _f(direct)
+    assert np.abs(_f(comp) - fd).max() <= 1e-3 * np.abs(fd).max()
+    assert delta_E_2000(_lab(comp), _lab(direct)).max() <= 0.05
