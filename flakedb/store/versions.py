@@ -67,6 +67,7 @@ import zarr
 
 from flakedb import __version__
 from flakedb.paint import species as sp
+from flakedb.paint.mapping import FLAKE_C_TOL
 from flakedb.resources import SCHEMAS_DIR
 from flakedb.rt.stored import RANK_TOL, FlakeFactors
 from flakedb.store.compress import (
@@ -202,6 +203,7 @@ class BuildRequest:
             "rank_tol": None if self.store_raw else float(self.rank_tol),
             "projection_tol": float(self.projection_tol),
             "legendre_degree": int(self.legendre_degree),
+            "flake_c_tol": FLAKE_C_TOL,
             "eta_top": None if self.eta_top is None else float(self.eta_top),
             "recipe": self.recipe,
         }
