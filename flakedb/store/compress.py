@@ -431,14 +431,16 @@ def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, proj
             "projected_area": f["projected_area"], "info": info}
 
 
-def pigment_task(entry, wavelength_nm, n_binder, degree=LEGENDRE_STORE_DEGREE, nodes=LEGENDRE_STORE_NODES):
+def pigment_task(entry, wavelength_nm, n_binder, degree=LEGENDRE_STORE_DEGREE, nodes=LEGENDRE_STORE_NODES,
+                 n_quad=None):
     """A pigment's stored optics over ``wavelength_nm``: ⟨C_ext⟩, ⟨C_sca⟩ (µm²), ⟨V⟩ (µm³) and the
     Legendre moments χ_0 … χ_degree of its ensemble Mie phase function (normalised, χ_0 = 1),
     from the phase function at ``nodes`` Gauss–Legendre cosines (:func:`flakedb.rt.legendre.legendre_moments_gauss`;
-    no table, no interpolation)."""
+    no table, no interpolation).  ``n_quad``: the size quadrature (the store passes the one of its whole
+    wavelength grid, :func:`flakedb.paint.species.pigment_n_quad`, so every block gets the same)."""
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     t, wt = np.polynomial.legendre.leggauss(int(nodes))
-    po = sp.pigment_optics(entry, wl, n_binder, mu=t)
+    po = sp.pigment_optics(entry, wl, n_binder, mu=t, n_quad=n_quad)
     p = np.asarray(po.phase_function, dtype=float)
     chi, _ = legendre_moments_gauss(t, wt, p, tol=0.0, k_max=int(degree))
     chi = chi / chi[:, :1]

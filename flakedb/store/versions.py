@@ -478,7 +478,12 @@ def compute_task(request_inputs: dict, task: Task) -> dict:
     if task.is_flake:
         return flake_task(entry, wl, nb, task.n, task.alpha, eta_top, request_inputs["rank_tol"],
                           request_inputs["projection_tol"])
-    return pigment_task(entry, wl, nb, request_inputs["legendre_degree"])
+    nb_all = np.full(wl_all.shape, float(eta_top)) if eta_top is not None else sp.binder_index(
+        {"binder": request_inputs["binder"]}, wl_all)
+    # the size quadrature of the whole grid (the log-normal Mie nodes follow the shortest wavelength):
+    # every block, and a compose of any bands starting at the grid's first, gets the same nodes
+    return pigment_task(entry, wl, nb, request_inputs["legendre_degree"],
+                        n_quad=sp.pigment_n_quad(entry, wl_all, nb_all))
 
 
 def run_task(url, plan: BuildPlan, task: Task) -> dict:
