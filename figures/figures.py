@@ -617,10 +617,11 @@ def fig6(out, cfg, log):
         diff = np.clip(8.0 * np.abs(srgb_encode(ref) - srgb_encode(images["compressed"])), 0, 1) * mask[..., None]
         panels = [(srgb_encode(ref), f"Monte Carlo reference\n(MC halves: {rec['psnr_mc_half_vs_half_db']:.1f} dB)"),
                   (srgb_encode(images["direct"]), f"solver, direct optics\nPSNR {rec['psnr_solver_vs_mc_db']:.1f} dB"),
-                  (srgb_encode(images["raw"]), f"store, raw samples\nPSNR {rec['psnr_store_raw_vs_mc_db']:.1f} dB"),
+                  (srgb_encode(images["raw"]), f"store, untruncated\nPSNR {rec['psnr_store_raw_vs_mc_db']:.1f} dB"),
                   (srgb_encode(images["compressed"]), "store, compressed\n"
                    f"PSNR {rec['psnr_store_compressed_vs_mc_db']:.1f} dB "
-                   f"(vs raw {rec['psnr_compressed_vs_raw_db']:.1f})"),
+                   + ("(= raw)" if rec['psnr_compressed_vs_raw_db'] is None
+                      else f"(vs raw {rec['psnr_compressed_vs_raw_db']:.1f})")),
                   (diff, "|compressed − MC| × 8")]
         for c, (im, title) in enumerate(panels):
             ax = axes[k, c]
