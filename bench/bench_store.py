@@ -115,16 +115,20 @@ def _three_species(n):
 
 
 _CHILD = r"""
-import json, resource, sys, time
+import json, sys, time
 from flakedb.compose.orchestrate import compose
 from flakedb.paint.recipe import load_recipe
+def hwm():  # this process's peak RSS in kB (VmHWM: reset by exec, unlike ru_maxrss)
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return float(line.split()[1])
 rec = load_recipe(sys.argv[1])
 t0 = time.perf_counter()
 res = compose(rec, sys.argv[2], n=int(sys.argv[3]), store=None if sys.argv[4] == "-" else sys.argv[4])
 t = time.perf_counter() - t0
 info = res.stack.info
 print(json.dumps({"seconds": t, "stages": res.timings_s, "orders": info.get("orders"),
-                  "peak_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "peak_rss_MB": hwm() / 1024,
                   "lab": [[g["L"], g["a"], g["b"]] for g in res.report["geometries"]]}))
 """
 

@@ -67,8 +67,8 @@ def _build_demo_store(out_dir, catalog):
     for name in sorted(req.species):
         for a in v.alphas(name):
             i = v.flake_info(name, n, a)
-            print(f"  {name} α = {a:g}: spectral rank {i['rank']} of {i['numerical_rank']} (error bound "
-                  f"{i['max_error_bound']:.1e} of max R), {i['orders']} orders, storage ratio {i['storage_ratio']:.1f}")
+            print(f"  {name} α = {a:g}: spectral rank {i['rank']} of {i['numerical_rank']} (max error "
+                  f"{i['max_error']:.1e} of max R), {i['orders']} orders, storage ratio {i['storage_ratio']:.1f}")
     return url
 
 

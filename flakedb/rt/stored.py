@@ -239,37 +239,41 @@ class StoredMixture:
         return SumKernel(parts), {"components": infos}
 
 
-#: Truncation of the spectral SVD of a flake's R(c) table: the dropped part changes no entry of R by
-#: more than RANK_TOL × max R (|E_ij| ≤ ‖E‖₂ = s_{r+1}), hence no kernel value by more than that
-#: fraction of the R = max R kernel (the kernel is linear in R with a positive geometric factor).
+#: Truncation of the spectral SVD of a flake's R(c) table: the smallest rank whose reconstruction
+#: differs from the table by at most RANK_TOL × max R at every entry (measured, not bounded), hence no
+#: kernel value by more than that fraction of the R = max R kernel (the kernel is linear in R with a
+#: positive geometric factor, paper eq. 2; linear interpolation in c keeps the entry-wise bound).
 RANK_TOL = 1e-5
 
 
 def spectral_factors(table, rank_tol=RANK_TOL):
     """Truncated SVD of a (W, nc) table across wavelength: ``(U (W, r), basis (r, nc), info)`` with
-    table ≈ U @ basis, r the smallest rank with s_{r+1} ≤ rank_tol · max |table| (rank_tol ≤ 0 or
-    None: the numerical rank, 1e-13 of s_1).  ``info``: ``rank``, ``singular_values`` (relative to
-    max |table|), ``max_error_bound`` (s_{r+1} / max |table|, a bound of every entry's error),
-    ``error_vs_rank`` (the bound for r = 1 … the numerical rank)."""
+    table ≈ U @ basis, r the smallest rank whose largest entry error max |table − U basis| is
+    ≤ rank_tol · max |table| (rank_tol ≤ 0 or None: the numerical rank, 1e-13 of s_1).  ``info``:
+    ``rank``, ``numerical_rank``, ``singular_values`` (relative to s_1), ``max_error`` (the largest
+    entry error relative to max |table|), ``error_vs_rank`` (that error for r = 1 … the numerical rank)."""
     table = np.atleast_2d(np.asarray(table, dtype=float))
     top = float(np.abs(table).max())
     if top == 0.0:
         return np.zeros((table.shape[0], 1)), np.zeros((1, table.shape[1])), {
-            "rank": 1, "singular_values": [0.0], "max_error_bound": 0.0, "error_vs_rank": [0.0]}
+            "rank": 1, "numerical_rank": 1, "singular_values": [0.0], "max_error": 0.0, "error_vs_rank": [0.0]}
     U, S, Vt = np.linalg.svd(table, full_matrices=False)
     num = max(1, int(np.sum(S > 1e-13 * S[0])))
-    rel = S / top
-    nxt = np.concatenate([rel[1:], [0.0]])  # nxt[r − 1] = s_{r+1}: the bound at rank r
+    resid = table.copy()
+    err = []
+    for k in range(num):  # the residual after rank k + 1, entry-wise
+        resid -= S[k] * np.outer(U[:, k], Vt[k])
+        err.append(float(np.abs(resid).max()) / top)
     if rank_tol is None or rank_tol <= 0:
         r = num
     else:
-        ok = np.nonzero(nxt <= rank_tol)[0]
-        r = min(num, int(ok[0]) + 1 if len(ok) else len(S))
+        ok = [k for k, e in enumerate(err) if e <= rank_tol]
+        r = ok[0] + 1 if ok else num
     # a deterministic sign: each basis row's largest entry positive
     sign = np.sign(Vt[np.arange(r), np.argmax(np.abs(Vt[:r]), axis=1)])
     sign[sign == 0] = 1.0
-    info = {"rank": int(r), "numerical_rank": num, "singular_values": rel[:num].tolist(),
-            "max_error_bound": float(nxt[r - 1]), "error_vs_rank": nxt[:num].tolist()}
+    info = {"rank": int(r), "numerical_rank": num, "singular_values": (S[:num] / S[0]).tolist(),
+            "max_error": err[r - 1], "error_vs_rank": err}
     return U[:, :r] * sign, (S[:r, None] * Vt[:r]) * sign[:, None], info
 
 
