@@ -218,3 +218,20 @@ def test_two_builds_at_once_do_not_corrupt_the_store(serial, tmp_path):
     assert _checksums(url2, res["version"]) == _checksums(url, res["version"])
     latest = st.read_latest(url2)
     assert st.version_state(url2, latest) == "complete"
+
+
+def test_a_format_1_store_is_refused_with_rebuild(serial, tmp_path):
+    """A store of the R-sample format (1) is refused with a one-line 'rebuild with flakedb build'
+    (issue #11 changed the format; nothing of an old store is read as if it were new)."""
+    import shutil
+
+    url0, req, res = serial
+    url = str(tmp_path / "old")
+    shutil.copytree(url0, url)
+    zj = Path(url) / "versions" / res["version"] / "zarr.json"
+    doc = json.loads(zj.read_text())
+    doc["attributes"]["format_version"] = 1
+    zj.write_text(json.dumps(doc))
+    with pytest.raises(st.StoreError, match="rebuild with `flakedb build"):
+        st.open_version(url)
+    assert any("rebuild with `flakedb build`" in p for p in st.verify_store(url))
