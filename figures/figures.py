@@ -22,8 +22,8 @@ Figures
   same deterministic sphere shader (:func:`render_binned`), so the images differ only by the two
   BSDFs; PSNR over the sphere's pixels.  The MC runs as two independent halves, so its own noise
   level is measured too.  The paper's raw / compressed columns: a store of the two species is built
-  (:func:`flakedb.pipelines.build.build`, the recipes' 380–780 nm grid, the coat's η, n = ``fig6_n``, rank
-  :data:`FIG6_RANK`, raw samples kept) into the temporary directory, timed (the "compression" time),
+  (:func:`flakedb.pipelines.build.build`, the recipes' 380–780 nm grid, the coat's η, n = ``fig6_n``; one version with
+  the flakes' spectral SVD untruncated (``--raw``), one at the default truncation) into the temporary directory, timed (the "compression" time),
   and each paint is composed three times — directly, from the store's raw samples, from its
   compressed factors — and all three are shaded like the MC reference.
 * **fig7**: the eight ``catalog/recipes/fig7-*.yaml`` paints (TiO₂ 70–140 nm) as spheres, with the
@@ -85,8 +85,6 @@ QUICK = {"n": 16, "step_nm": 20, "size": 40, "spp": 4, "fig4": {"n": 12, "m": 12
 FIG5_PAINTS = [(op, pr) for op in ("opaque", "translucent") for pr in ("black", "gray", "white")]
 FIG7_THICKNESS_NM = tuple(range(70, 141, 10))
 FIG6_PAINTS = (("pigment", "particle-cadmium-yellow"), ("mirror flakes", "particle-gray-mirror"))
-#: √R SVD rank of the Figure 6 store (the paper's choice, the build default).
-FIG6_RANK = 8
 #: Thread count for the preview renderer (the machine this runs on has 2 cores).
 THREADS = min(2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
@@ -513,8 +511,8 @@ def _finite(v):
 
 
 def fig6_store(names, cfg, work, log):
-    """Build the Figure 6 store (both species, the recipes' grid, n = fig6_n, rank FIG6_RANK, raw
-    samples kept) in ``work``; returns (open StoreVersion, build record)."""
+    """Build the Figure 6 store (both species, the recipes' grid, n = fig6_n) in ``work``: an untruncated
+    (``raw``) and a default (``compressed``) version; returns ({kind: open StoreVersion}, build record)."""
     recs = [load_variant(nm, mode="rgb")[0] for nm in names]
     wl, eta = recs[0].wavelength_nm, float(recs[0].binder_ior)
     for r in recs[1:]:
@@ -522,18 +520,21 @@ def fig6_store(names, cfg, work, log):
             raise ValueError("the Figure 6 paints need one wavelength grid and binder index to share a store")
     species = [p.species for r in recs for p in catalog_species(r)]
     url = str(Path(work) / "store")
-    req = make_request(species=species, n=cfg["fig6_n"], rank=FIG6_RANK, wavelength_nm=wl, store_raw=True,
-                       eta_top=eta)
     t0 = time.perf_counter()
-    res = build(req, url, scheduler="threads", workers=THREADS)
+    versions, ranks = {}, {}
+    for kind in ("raw", "compressed"):  # two versions: untruncated spectral SVD (--raw) and the default
+        req = make_request(species=species, n=cfg["fig6_n"], wavelength_nm=wl, store_raw=kind == "raw", eta_top=eta)
+        res = build(req, url, scheduler="threads", workers=THREADS)
+        versions[kind] = st.open_version(url, res["version"], verify=True)
+        ranks[kind] = {f"{s}": [versions[kind].flake_info(s, cfg["fig6_n"], a).get("rank")
+                                for a in versions[kind].alphas(s)] for s in species if versions[kind].alphas(s)}
     t_build = time.perf_counter() - t0
-    version = st.open_version(url, verify=True)
-    log(f"  store: {len(species)} species, n = {cfg['fig6_n']}, {len(wl)} bands, rank {FIG6_RANK}: "
-        f"{res['status']} in {t_build:.1f} s")
-    return version, {"species": species, "n": cfg["fig6_n"], "m": list(version.resolutions)[0][1],
-                     "rank": FIG6_RANK, "bands": len(wl), "range_nm": [float(wl[0]), float(wl[-1])],
-                     "eta_top": eta, "version": version.version, "tasks": res["tasks_total"],
-                     "build_s": t_build}
+    log(f"  store: {len(species)} species, n = {cfg['fig6_n']}, {len(wl)} bands, flake spectral ranks {ranks}: "
+        f"built in {t_build:.1f} s")
+    return versions, {"species": species, "n": cfg["fig6_n"], "flake_ranks": ranks,
+                      "bands": len(wl), "range_nm": [float(wl[0]), float(wl[-1])],
+                      "eta_top": eta, "version": versions["compressed"].version, "tasks": res["tasks_total"],
+                      "build_s": t_build}
 
 
 def fig6_case(label, name, cfg, work, log, store=None):
@@ -562,7 +563,7 @@ def fig6_case(label, name, cfg, work, log, store=None):
     stored, images = {}, {"direct": sol}
     for kind in (("raw", "compressed") if store is not None else ()):
         t0 = time.perf_counter()
-        sres = compose(r["recipe"], Path(work) / kind, n=cfg["fig6_n"], store=store, raw=kind == "raw")
+        sres = compose(r["recipe"], Path(work) / kind, n=cfg["fig6_n"], store=store[kind], raw=kind == "raw")
         t_c = time.perf_counter() - t0
         if not np.array_equal(np.asarray(sres.stack.x), x):
             raise AssertionError("store-backed compose solved on other incident nodes than the direct one")
@@ -616,10 +617,11 @@ def fig6(out, cfg, log):
         diff = np.clip(8.0 * np.abs(srgb_encode(ref) - srgb_encode(images["compressed"])), 0, 1) * mask[..., None]
         panels = [(srgb_encode(ref), f"Monte Carlo reference\n(MC halves: {rec['psnr_mc_half_vs_half_db']:.1f} dB)"),
                   (srgb_encode(images["direct"]), f"solver, direct optics\nPSNR {rec['psnr_solver_vs_mc_db']:.1f} dB"),
-                  (srgb_encode(images["raw"]), f"store, raw samples\nPSNR {rec['psnr_store_raw_vs_mc_db']:.1f} dB"),
-                  (srgb_encode(images["compressed"]), f"store, compressed (r = {FIG6_RANK})\n"
+                  (srgb_encode(images["raw"]), f"store, untruncated\nPSNR {rec['psnr_store_raw_vs_mc_db']:.1f} dB"),
+                  (srgb_encode(images["compressed"]), "store, compressed\n"
                    f"PSNR {rec['psnr_store_compressed_vs_mc_db']:.1f} dB "
-                   f"(vs raw {rec['psnr_compressed_vs_raw_db']:.1f})"),
+                   + ("(= raw)" if rec['psnr_compressed_vs_raw_db'] is None
+                      else f"(vs raw {rec['psnr_compressed_vs_raw_db']:.1f})")),
                   (diff, "|compressed − MC| × 8")]
         for c, (im, title) in enumerate(panels):
             ax = axes[k, c]
@@ -719,9 +721,9 @@ def write_readme(out):
         if sr:
             L += [f"Each paint is composed three times: with the species' optics computed directly, and from a "
                   f"store (`flakedb.pipelines.build`) of both species built for this figure — {sr['bands']} bands "
-                  f"{sr['range_nm'][0]:g}–{sr['range_nm'][1]:g} nm, n = {sr['n']}, m = {sr['m']} φ_d samples, "
-                  f"η_top = {sr['eta_top']:g}, √R SVD rank {sr['rank']} — read as raw samples (`--raw`) and as "
-                  f"compressed factors. Building that store (sampling R on the grid and compressing it, "
+                  f"{sr['range_nm'][0]:g}–{sr['range_nm'][1]:g} nm, n = {sr['n']}, "
+                  f"η_top = {sr['eta_top']:g}, flake spectral SVD ranks {sr['flake_ranks']} — read untruncated (`--raw`) and as "
+                  f"truncated factors. Building that store (projecting the kernels once, two versions, "
                   f"{sr['tasks']} tasks) took {sr['build_s']:.1f} s.", ""]
         L += ["| paint | PSNR direct vs MC | store raw vs MC | store compressed vs MC | compressed vs raw | "
               "MC noise limit | max diffuse-albedo \\|Δ\\| (R, G, B; all nodes) | max \\|Δ\\|/σ_MC | mean \\|Δ\\|/σ_MC |",

@@ -5,8 +5,10 @@ import click
 
 from flakedb.cli.errors import FlakedbError
 from flakedb.colour.colorimetry import spectral_grid
+from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.checks import MAX_RESOLUTION
-from flakedb.pipelines.build import DEFAULT_N, make_request
+from flakedb.paint.recipe import RecipeError, load_recipe
+from flakedb.pipelines.build import DEFAULT_N, make_request, request_for_recipe
 from flakedb.pipelines.build import build as run_build
 from flakedb.store import versions as st
 
@@ -27,26 +29,34 @@ def check_build_sizes(n, m):
 
 @click.command()
 @click.option("--store", default=None, help="store path or fsspec URL [default: $FLAKEDB_STORE or ./flakedb-store]")
+@click.option("--recipe", "recipe_path", default=None, type=click.Path(dir_okay=False),
+              help="build exactly what this recipe needs (its species, α's, wavelengths, binder index, and n: --n or "
+                   "the recipe's own resolution)")
 @click.option("--workers", type=int, default=None, help="local worker count (threads, or processes with --processes)")
 @click.option("--processes", is_flag=True, help="local processes instead of threads")
 @click.option("--scheduler", default=None, help="address of a dask.distributed scheduler, e.g. tcp://host:8786")
 @click.option("--dry-run", is_flag=True, help="print what would be built and its size, build nothing")
-@click.option("--n", "n", type=int, multiple=True, help="μ node count (even); repeat for several resolutions [32]")
-@click.option("--m", "m", type=int, default=None, help="φ_d samples on [0, π] [default: = n]")
-@click.option("--rank", type=int, default=8, show_default=True, help="rank r of the √R SVD")
+@click.option("--n", "n", type=int, multiple=True, help="node count in air (even); repeat for several [32]")
 @click.option("--species", "species", multiple=True, help="species name (repeatable) [default: the whole catalogue]")
-@click.option("--range-nm", type=float, nargs=2, default=(400.0, 700.0), show_default=True,
-              help="first and last wavelength (nm) of the bands")
-@click.option("--step-nm", type=float, default=20.0, show_default=True, help="wavelength step (nm)")
+@click.option("--alpha", "alpha", multiple=True, metavar="SPECIES=ALPHA",
+              help="also project flake SPECIES for orientation spread ALPHA (repeatable) [default: the catalogue's "
+                   "α and those the shipped recipes use]")
+@click.option("--range-nm", type=float, nargs=2, default=(380.0, 780.0), show_default=True,
+              help="first and last wavelength (nm) of the store")
+@click.option("--step-nm", type=float, default=5.0, show_default=True, help="wavelength step (nm)")
 @click.option("--eta-top", default="1.5", show_default=True,
-              help="relative index of the paints' smooth top (clear-coat) interface: the μ grid is the solver's "
+              help="relative index of the paints' smooth top (clear-coat) interface: the nodes are the solver's "
                    "node set inside the binder below it and the optics use it as the binder index; 1 = no "
                    "interface / index-matched; 'none' = plain Radau nodes with the catalogue binder's index")
-@click.option("--raw", is_flag=True, help="also store the raw R samples (compose --raw needs them)")
-def build(store, workers, processes, scheduler, dry_run, n, m, rank, species, range_nm, step_nm, eta_top, raw):
-    """Build (or reuse) the compressed reflectance store and point `latest` at it."""
+@click.option("--rank-tol", type=float, default=None,
+              help="truncation of the flakes' spectral SVD: the dropped part changes no R(c) by more than this "
+                   "fraction of max R [1e-5]")
+@click.option("--raw", is_flag=True, help="keep the spectral SVD at its numerical rank (compose --raw needs it)")
+def build(store, recipe_path, workers, processes, scheduler, dry_run, n, species, alpha, range_nm, step_nm, eta_top,
+          rank_tol, raw):
+    """Build (or reuse) the projected-kernel store and point `latest` at it."""
     url = store or st.default_store()
-    check_build_sizes(n or DEFAULT_N, m)
+    check_build_sizes(n or DEFAULT_N, None)
     if str(eta_top).strip().lower() in ("none", "null"):
         eta = None
     else:
@@ -54,10 +64,33 @@ def build(store, workers, processes, scheduler, dry_run, n, m, rank, species, ra
             eta = float(eta_top)
         except ValueError:
             raise FlakedbError(f"--eta-top {eta_top}: give a number ≥ 1 (e.g. 1.5) or 'none'") from None
+    alphas = None
+    if alpha:
+        alphas = {}
+        for a in alpha:
+            name, _, val = a.partition("=")
+            try:
+                alphas.setdefault(name.strip(), []).append(float(val))
+            except ValueError:
+                raise FlakedbError(f"--alpha {a}: give SPECIES=ALPHA with ALPHA a number > 0, e.g. metallic=0.2") from None
     try:
-        req = make_request(species=species or None, n=n or DEFAULT_N, m=m, rank=rank,
-                           wavelength_nm=spectral_grid(tuple(range_nm), step_nm), store_raw=raw, eta_top=eta)
+        if recipe_path is not None:
+            if len(n) > 1:
+                raise ValueError(f"--recipe builds one node count; got --n {' '.join(map(str, n))}")
+            rec = load_recipe(recipe_path, load_catalog())
+            req = request_for_recipe(rec, n=n[0] if n else None, store_raw=raw)
+        else:
+            if alphas is not None:
+                base = make_request(species=species or None, n=n or DEFAULT_N).alphas
+                for k, v in alphas.items():
+                    base[k] = sorted({*base.get(k, []), *v})
+                alphas = base
+            req = make_request(species=species or None, n=n or DEFAULT_N, alphas=alphas,
+                               wavelength_nm=spectral_grid(tuple(range_nm), step_nm), store_raw=raw, eta_top=eta,
+                               rank_tol=rank_tol)
         plan = st.plan_build(req)
+    except (RecipeError, CatalogError) as exc:
+        raise FlakedbError(str(exc)) from exc
     except ValueError as exc:
         raise FlakedbError(str(exc)) from exc
     if plan.nbytes() > MAX_BUILD_BYTES:

@@ -4,17 +4,14 @@ import os
 import time
 from pathlib import Path
 
-import yaml
-
 from flakedb import __version__
 from flakedb.bsdf import open_bsdf
-from flakedb.colour.colorimetry import spectral_grid
 from flakedb.compose.orchestrate import compose
 from flakedb.compose.report import format_report
 from flakedb.paint.catalog import load_catalog
-from flakedb.paint.recipe import parse_recipe
+from flakedb.paint.recipe import load_recipe
 from flakedb.paint.species import optics_table
-from flakedb.pipelines.build import build, make_request
+from flakedb.pipelines.build import build, request_for_recipe
 from flakedb.render import look, preview
 from flakedb.render.imageio import write_exr, write_png
 from flakedb.render.plots import plot_optics
@@ -39,7 +36,7 @@ def run_demo(out_dir):
 
     # Stage 2: build the default catalogue into a versioned store (same code as `flakedb build`).
     print()
-    store_url = _build_demo_store(out_dir)
+    store_url = _build_demo_store(out_dir, catalog)
 
     # Stage 3: compose an example recipe from the store (same code as `flakedb compose --store`).
     print()
@@ -52,12 +49,14 @@ def run_demo(out_dir):
     print(f"demo done in {time.perf_counter() - t_all:.0f} s")
 
 
-def _build_demo_store(out_dir):
+def _build_demo_store(out_dir, catalog):
+    """`flakedb build --recipe` for the demo recipe: exactly its species, α's, bands, binder index and n."""
     url = os.path.join(out_dir, "flakedb-store")
-    wl = spectral_grid((DEMO_RANGE_NM[0], DEMO_RANGE_NM[1]), DEMO_STEP_NM)
-    req = make_request(n=DEMO_N, wavelength_nm=wl, eta_top=DEMO_ETA)
-    print(f"build the default catalogue ({len(req.species)} species, n = {DEMO_N}, η_top = {DEMO_ETA}, "
-          f"{len(wl)} bands) into {url}")
+    recipe = load_recipe(RECIPES_DIR / f"{DEMO_RECIPE}.yaml", catalog)
+    req = request_for_recipe(recipe)
+    n = req.resolutions[0]
+    print(f"build what {DEMO_RECIPE} needs ({', '.join(sorted(req.species))}; n = {n}, η_top = {req.eta_top}, "
+          f"{len(req.wavelength_nm)} bands) into {url}")
     t0 = time.perf_counter()
     res = build(req, url, scheduler="threads", workers=None, progress=True)
     print(f"  {res['status']}: version {res['version']} ({res['tasks_run']} of {res['tasks_total']} tasks run, "
@@ -66,6 +65,12 @@ def _build_demo_store(out_dir):
     print(f"  verify: {'OK' if not problems else problems}")
     if problems:
         raise SystemExit(1)
+    v = st.open_version(url, verify=False)
+    for name in sorted(req.species):
+        for a in v.alphas(name):
+            i = v.flake_info(name, n, a)
+            print(f"  {name} α = {a:g}: spectral rank {i['rank']} of {i['numerical_rank']} (max error "
+                  f"{i['max_error']:.1e} of max R), {i['orders']} orders, storage ratio {i['storage_ratio']:.1f}")
     return url
 
 
@@ -80,24 +85,16 @@ def _render_demo(bsdf_path, out_dir):
     print(f"preview {DEMO_PREVIEW_PX}×{DEMO_PREVIEW_PX} rendered in {result.seconds:.1f} s: {exr}, {png}")
 
 
-#: The example recipe the demo composes, and the demo's lighter settings (the recipe's own are
-#: 10 nm bands and resolution auto; `flakedb compose` uses those).
+#: The example recipe the demo composes, at its own settings (bands, resolution), from the store.
 DEMO_RECIPE = "tri-coat-pearl-white"
-DEMO_STEP_NM = 20
-DEMO_RANGE_NM = (380, 780)
-DEMO_N = 48
-DEMO_ETA = 1.5
 DEMO_PREVIEW_PX = 256
 
 
 def _compose_demo(out_dir, catalog, store_url=None):
     path = RECIPES_DIR / f"{DEMO_RECIPE}.yaml"
-    doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    doc["spectral"] = {**doc.get("spectral", {}), "step_nm": DEMO_STEP_NM}
-    recipe = parse_recipe(yaml.safe_dump(doc, sort_keys=False), source=path, catalog=catalog)
-    print(f"compose {path.name} (demo settings: {DEMO_STEP_NM} nm bands, n = {DEMO_N}; "
-          f"`flakedb compose` uses the recipe's own) from the store's compressed factors")
-    res = compose(recipe, out_dir, n=DEMO_N, catalog=catalog, store=store_url, log=lambda s: print(f"  {s}"))
+    recipe = load_recipe(path, catalog)
+    print(f"compose {path.name} at its own settings from the store's projected kernel factors")
+    res = compose(recipe, out_dir, catalog=catalog, store=store_url, log=lambda s: print(f"  {s}"))
     print(format_report(res.report))
     for k in ("bsdf", "h5", "json"):
         print(f"{k}: {res.paths[k]}")

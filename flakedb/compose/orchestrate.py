@@ -294,19 +294,21 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     warnings = list(recipe.warnings)
     t = {}
 
-    version = None
+    version = stored = None
     store_label = STORE_NONE
     gamut.check_space(rgb_space)
     progress = progress or (lambda stage, detail: None)
     if store is not None and catalog_species(recipe):
         t0 = time.perf_counter()
-        version = store if isinstance(store, st.StoreVersion) else st.open_version(str(store), verify=verify)
+        version = store if isinstance(store, st.StoreVersion) else st.open_version(str(store), verify=False)
+        stored = StoreContext.for_recipe(version, recipe, n_used, raw)
+        if verify:  # the checksums of every file this recipe reads (docs/store.md)
+            st.open_version(version.url, version.version, verify=stored.prefixes(recipe))
         t["store_open"] = time.perf_counter() - t0
         store_label = f"{version.url} version {version.version} ({'raw' if raw else 'compressed'})"
         log(f"store: {store_label}, opened{' and verified' if verify else ''} in {t['store_open']:.2f} s")
     t0 = time.perf_counter()
     progress("optics", {"start": True})
-    stored = None if version is None else StoreContext.for_recipe(version, recipe, n_used, raw)
     paint = build_paint(recipe, catalog, stored=stored)
     t["optics"] = time.perf_counter() - t0
     log(f"optics: {len(paint.components)} component(s), {paint.n_channels} channel(s) ({paint.mode}), "
@@ -348,9 +350,10 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
         "store_url": None if version is None else version.url,
         "species_optics": ("computed directly from the catalogue (flakedb.paint.species); no precomputed store"
                            if version is None else
-                           "kernel reflectance functions R(mu_i, mu_o, phi_d) of catalogue species from the store "
-                           f"({'raw samples' if raw else 'compressed sqrt-SVD factors'}); loadings, sigma_t, sigma_s "
-                           "and D(h) computed directly (flakedb.paint.mapping, flakedb.rt.stored)"),
+                           "projected kernel factors of catalogue species from the store (flakes: spectral factor U "
+                           f"and projected blocks V{', untruncated' if raw else ''}, sigma_t, sigma_s per unit loading; "
+                           "pigments: Mie cross-sections and Legendre moments): no azimuthal projection "
+                           "(flakedb.paint.mapping, flakedb.rt.stored, docs/store.md)"),
         "raw": bool(raw), "n_reason": reason,
         "wavelength_nm": None if paint.wavelength_nm is None else paint.wavelength_nm.tolist(),
         "components": paint.components, "paint_info": paint.info,

@@ -1,6 +1,6 @@
 """An open store version checked against a recipe: what it lacks (:func:`store_problems`), the
-`flakedb build` command that adds it, and how its bands become the paint's channels
-(:class:`StoreContext`, handed to :func:`flakedb.paint.mapping.build_paint`)."""
+`flakedb build` command that adds it, and how its wavelengths become the paint's channels
+(:class:`StoreContext`, handed to :func:`flakedb.paint.mapping.build_paint`; docs/store.md)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
-from flakedb.paint.mapping import catalog_species
+from flakedb.paint.mapping import catalog_species, recipe_alpha
+from flakedb.rt.stored import StoredFlakeMedium
 from flakedb.store.versions import StoreError
 
 
@@ -19,11 +20,39 @@ def _same_entry(a, b) -> bool:
     return norm(a) == norm(b)
 
 
+def wavelength_map(store_nm, recipe_nm, tol_nm=1e-9):
+    """(C, W) map from the store's wavelengths to the recipe's bands: a band on the store's grid
+    selects it (exact: the direct path samples its optics at the band's wavelength too); a band
+    between two store wavelengths is their linear interpolation (the kernel is linear in U).  Returns
+    ``(map, info)`` with ``selected`` / ``interpolated`` counts and the largest gap bridged (nm); raises
+    ValueError for a band outside the store's range."""
+    swl = np.asarray(store_nm, float)
+    wl = np.asarray(recipe_nm, float)
+    Mp = np.zeros((wl.size, swl.size))
+    sel = interp = 0
+    gap = 0.0
+    for c, w in enumerate(wl):
+        j = int(np.argmin(np.abs(swl - w)))
+        if abs(swl[j] - w) <= tol_nm:
+            Mp[c, j] = 1.0
+            sel += 1
+            continue
+        if w < swl.min() or w > swl.max():
+            raise ValueError(f"{w:g} nm is outside the store's {swl.min():g}-{swl.max():g} nm")
+        k = int(np.searchsorted(swl, w))
+        t = (w - swl[k - 1]) / (swl[k] - swl[k - 1])
+        Mp[c, k - 1], Mp[c, k] = 1.0 - t, t
+        interp += 1
+        gap = max(gap, float(swl[k] - swl[k - 1]))
+    return Mp, {"selected": sel, "interpolated": interp, "largest_gap_nm": gap}
+
+
 def store_problems(version, recipe, n, raw=False) -> list[str]:
     """What the open store ``version`` lacks to serve ``recipe``'s catalogue species at node count ``n``
     (empty: it can).  Checks the top interface (a smooth coat of the recipe's index η, or η = 1),
-    the resolution n, every species (present, and built from the same catalogue entry), the
-    wavelengths, the raw samples when ``raw``, and recipe overrides the store cannot honour."""
+    the node count n, every species (present, built from the same catalogue entry, flakes at the
+    recipe's α), the wavelength range, ``--raw`` (a version built with --raw), and recipe overrides the
+    store cannot honour."""
     probs = []
     eta = float(recipe.binder_ior)
     cc = recipe.clearcoat
@@ -34,39 +63,44 @@ def store_problems(version, recipe, n, raw=False) -> list[str]:
     if st_eta is None or abs(float(st_eta) - eta) > 1e-12:
         probs.append(f"top interface: the recipe's binder / coat index is η = {eta:g}, the store version was built "
                      f"for eta_top = {st_eta} ({'plain Radau grid, catalogue binder index' if st_eta is None else 'η'})")
-    if not any(nn == n for nn, _ in version.resolutions):
-        probs.append(f"node count: the solve uses n = {n}, the store has (n, m) = {version.resolutions}")
+    if int(n) not in version.resolutions:
+        probs.append(f"node count: the solve uses n = {n}, the store has n {version.resolutions}")
     have = set(version.species)
     stored_inputs = version.metadata["inputs"]["species"]
     for p in catalog_species(recipe):
         if p.species not in have:
             probs.append(f"species {p.species!r} ({p.path}) is not in the store")
-        elif not _same_entry(stored_inputs[p.species], p.entry):
+            continue
+        if not _same_entry(stored_inputs[p.species], p.entry):
             probs.append(f"species {p.species!r}: the store was built from a different catalogue entry "
                          f"(the catalogue changed since): rebuild")
+        if p.is_flake:
+            a = recipe_alpha(p)
+            if not any(abs(a - x) <= 1e-12 for x in version.alphas(p.species)):
+                probs.append(f"{p.path}: orientation α = {a:g} is not in the store (it has α "
+                             f"{version.alphas(p.species)} for {p.species!r}); the kernel depends on α through D(h): "
+                             f"add it as a new version with the command below (projected once, not per compose)")
         if p.kind == "pigment" and (p.median_diameter_um is not None or p.gsd is not None):
             probs.append(f"{p.path}: the recipe overrides the pigment's size distribution; the store holds the "
                          f"catalogue's: compose without --store")
     if recipe.wavelength_nm is not None:
-        swl = np.asarray(version.wavelength_nm, float)
-        miss = [float(w) for w in recipe.wavelength_nm if not np.any(np.abs(swl - w) <= 1e-9)]
-        if miss:
-            probs.append(f"wavelengths: the recipe's grid {recipe.wavelength_nm[0]:g}-{recipe.wavelength_nm[-1]:g} nm has "
-                         f"{len(miss)} band(s) the store lacks (e.g. {miss[0]:g} nm); the store has "
-                         f"{swl.min():g}-{swl.max():g} nm in {swl.size} bands")
-    if raw and not version.metadata["inputs"]["store_raw"]:
-        probs.append("--raw: the store version holds only the compressed factors (build it with --raw)")
+        try:
+            wavelength_map(version.wavelength_nm, recipe.wavelength_nm)
+        except ValueError as exc:
+            swl = version.wavelength_nm
+            probs.append(f"wavelengths: the recipe's grid {recipe.wavelength_nm[0]:g}-{recipe.wavelength_nm[-1]:g} nm "
+                         f"has a band the store cannot give ({exc}); the store has {swl.min():g}-{swl.max():g} nm in "
+                         f"{swl.size} bands")
+    if raw and not version.raw:
+        probs.append("--raw: the store version holds truncated factors (build it with --raw)")
     return probs
 
 
 def store_build_command(version, recipe, n, raw=False) -> str:
     """The `flakedb build` command that makes a version serving ``recipe`` at ``n``."""
-    wl = recipe.wavelength_nm
-    names = sorted({p.species for p in catalog_species(recipe)})
-    cmd = [f"flakedb build --store {version.url if version is not None else 'STORE'} --n {n} --eta-top {float(recipe.binder_ior):g}"]
-    if wl is not None and len(wl) > 1:
-        cmd.append(f"--range-nm {wl[0]:g} {wl[-1]:g} --step-nm {wl[1] - wl[0]:g}")
-    cmd += [f"--species {s}" for s in names]
+    src = recipe.source if recipe.source and not str(recipe.source).startswith("<") else "RECIPE.yaml"
+    cmd = [f"flakedb build --recipe {src} "
+           f"--store {version.url if version is not None else 'STORE'} --n {n} --eta-top {float(recipe.binder_ior):g}"]
     if raw:
         cmd.append("--raw")
     return " ".join(cmd)
@@ -74,13 +108,15 @@ def store_build_command(version, recipe, n, raw=False) -> str:
 
 @dataclass
 class StoreContext:
-    """An open store version checked against a recipe, and how its bands become the paint's channels."""
+    """An open store version checked against a recipe, and how its wavelengths become the paint's
+    channels: ``channel_map`` (C, W) = (RGB map @) band selection / interpolation."""
 
     version: object
     n: int
     raw: bool
-    channel_index: np.ndarray
-    channel_map: np.ndarray | None
+    band_map: np.ndarray
+    channel_map: np.ndarray
+    map_info: dict
 
     @classmethod
     def for_recipe(cls, version, recipe, n, raw=False):
@@ -89,24 +125,41 @@ class StoreContext:
             raise StoreError(
                 f"store {version.url} (version {version.version[:12]}) cannot serve recipe {recipe.name!r} at n = {n}:\n  "
                 + "\n  ".join(probs)
-                + f"\nthe store has: species {', '.join(version.species)}; (n, m) {version.resolutions}; "
+                + f"\nthe store has: species {', '.join(version.species)}; n {version.resolutions}; "
                   f"eta_top {version.eta_top}; {len(version.wavelength_nm)} bands "
-                  f"{version.wavelength_nm.min():g}-{version.wavelength_nm.max():g} nm; raw samples "
-                  f"{'yes' if version.metadata['inputs']['store_raw'] else 'no'}"
+                  f"{version.wavelength_nm.min():g}-{version.wavelength_nm.max():g} nm; raw (untruncated) "
+                  f"{'yes' if version.raw else 'no'}"
                 + f"\nto add what is missing: {store_build_command(version, recipe, n, raw)}")
-        swl = np.asarray(version.wavelength_nm, float)
         wl = np.asarray(recipe.wavelength_nm, float)
-        idx = np.array([int(np.argmin(np.abs(swl - w))) for w in wl])
-        cmap = None
+        band_map, info = wavelength_map(version.wavelength_nm, wl)
+        cmap = band_map
         if recipe.mode == "rgb":
-            cmap = spectra_to_rgb_matrix(wl)  # (W, 3): spectra @ cmap = linear sRGB (the map is linear)
-        return cls(version, int(n), bool(raw), idx, cmap)
+            cmap = spectra_to_rgb_matrix(wl).T @ band_map  # (3, W): linear sRGB of the band spectra
+        return cls(version, int(n), bool(raw), band_map, cmap, info)
 
-    def reflectance(self, species, weights=None):
-        """The species' stored R series in the paint's channels (:meth:`StoreVersion.stored_reflectance`)."""
-        return self.version.stored_reflectance(species, self.n, raw=self.raw, channel_index=self.channel_index,
-                                        channel_map=self.channel_map, weights=weights)
+    def prefixes(self, recipe) -> list[str]:
+        """The store paths this recipe reads (what compose verifies)."""
+        out = [f"grid/n{self.n}/"]
+        for p in catalog_species(recipe):
+            out.append(self.version.flake_prefix(p.species, self.n, recipe_alpha(p)) + "/" if p.is_flake
+                       else f"species/{p.species}/")
+        return out
+
+    def flake_medium(self, species, alpha, a_rho, opaque=False):
+        """A :class:`flakedb.rt.stored.StoredFlakeMedium` of the species at the recipe's α and loading."""
+        return StoredFlakeMedium(self.version.flake_factors(species, self.n, alpha), float(a_rho), self.channel_map,
+                                 bool(opaque))
+
+    def pigment(self, species) -> dict:
+        """The pigment's stored Mie optics at the recipe's bands (selected / interpolated, not RGB-mapped)."""
+        d = self.version.pigment(species)
+        B = self.band_map
+        return {"c_ext_um2": B @ d["c_ext_um2"], "c_sca_um2": B @ d["c_sca_um2"],
+                "mean_volume_um3": float(np.mean(d["mean_volume_um3"])),
+                "legendre_moments": B @ d["legendre_moments"],
+                "source": f"store {self.version.url} version {self.version.version[:12]} {species}"}
 
     def record(self) -> dict:
         """What the outputs record of the store."""
-        return {"url": self.version.url, "version": self.version.version, "raw": self.raw, "n": self.n}
+        return {"url": self.version.url, "version": self.version.version, "raw": self.raw, "n": self.n,
+                "bands": self.map_info}

@@ -101,10 +101,11 @@ from flakedb.paint.recipe import (
     Spectrum,
 )
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
+from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
-from flakedb.rt.microflake import FlakeOptics, extinction_Ergun, scattering_Ergun
+from flakedb.rt.microflake import FlakeOptics, extinction_Ergun
 from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
-from flakedb.rt.stored import StoredFlakeMedium, StoredPigmentMedium
+from flakedb.rt.stored import StoredMixture, StoredPigmentMedium
 
 #: Flake-cosine grid: start from FLAKE_C_START nodes c = cos θ, θ uniform on [0°, 90°], and bisect
 #: every interval whose midpoint differs from the linear interpolant by more than FLAKE_C_TOL in R
@@ -112,13 +113,23 @@ from flakedb.rt.stored import StoredFlakeMedium, StoredPigmentMedium
 #: 300 nm SiO2 pearlescent flake has R dropping from 0.26 to 0.001 within Δc = 0.015 at 400 nm), so
 #: a fixed grid is not enough: 48 θ-uniform nodes leave errors of 0.15 there.  Measured against a
 #: 20001-node grid (10 nm bands): max error 1.0e-3 for every catalogue flake with 68 (metallic) to
-#: 323 (pearlescent) nodes.
+#: 323 (pearlescent) nodes at a tolerance of 1e-3.  That table error moved the composed BSDF of the
+#: fig7 pearlescent paints by 1.7e-3 of its maximum (ΔE00 0.024) against a 1e-4 table (issue #11,
+#: docs/store.md), above the store's 1e-3 acceptance; at 1e-4: 192 (metallic) to 1003 (pearlescent)
+#: nodes, a few tenths of a second of thin-film evaluation more, no change in the projection's cost
+#: (the kernel basis has at most one row per band).
 FLAKE_C_START = 33
-FLAKE_C_TOL = 1e-3
+FLAKE_C_TOL = 1e-4
 FLAKE_C_MAX = 2049
 #: Scattering-angle step of the tabulated Mie phase function (uniform in Θ, dense near forward in
 #: cos Θ).  Error of linear interpolation in cos Θ measured in tests/test_compose.py.
 PHASE_THETA_STEP_DEG = 0.5
+
+
+def recipe_alpha(p) -> float:
+    """The Beckmann orientation spread α of a catalogue flake in a recipe: its ``orientation_alpha``
+    override, else the catalogue's."""
+    return float(p.orientation_alpha if p.orientation_alpha is not None else p.entry["orientation_alpha"]["value"])
 
 
 def flake_cos_grid(n=FLAKE_C_START) -> np.ndarray:
@@ -268,7 +279,15 @@ def _spectrum_or_const(value, wl, C):
 
 def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
     """FlakeMedium (or StoredFlakeMedium with ``stored``) and its record for a catalogue or custom flake."""
-    if isinstance(p, CatalogParticle):
+    if isinstance(p, CatalogParticle) and stored is not None:
+        alpha = recipe_alpha(p)
+        t = float(p.entry["thickness_um"]["value"])
+        a_rho = flake_a_rho_from_volume_fraction(p.volume_fraction, t)
+        rec = {"path": p.path, "species": p.species, "kind": p.kind, "volume_fraction": p.volume_fraction,
+               "flake_thickness_um": t, "orientation_alpha": alpha, "a_rho_per_um": a_rho, "opaque": p.opaque,
+               "diameter_um": float(p.diameter_um if p.diameter_um is not None else p.entry["diameter_um"]["value"]),
+               "loading": "volume_fraction / flake thickness (model.md §3)"}
+    elif isinstance(p, CatalogParticle):
         c, R, T, c_err = adaptive_flake_optics(
             lambda cc: flake_reflectance_transmittance(p.entry, wl, cc, n_binder))  # (W, nc) each
         info.setdefault("flake_c_grid", {})[p.path] = {"nodes": int(c.size), "max_midpoint_error": c_err}
@@ -277,7 +296,7 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
         if recipe.mode == "rgb":
             R, T, clip = flake_rt_tospectra_to_rgb_mode(R, T, wl)
             info.setdefault("rgb_clip", {})[p.path] = clip
-        alpha = float(p.orientation_alpha if p.orientation_alpha is not None else p.entry["orientation_alpha"]["value"])
+        alpha = recipe_alpha(p)
         t = float(p.entry["thickness_um"]["value"])
         a_rho = flake_a_rho_from_volume_fraction(p.volume_fraction, t)
         optics = FlakeOptics(c, R, T)
@@ -296,10 +315,8 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
                "orientation_alpha": alpha, "a_rho_per_um": a_rho,
                "loading": "optical depth: sigma_t(mu=1) x layer thickness"}
     if stored is not None and isinstance(p, CatalogParticle):
-        src = stored.reflectance(p.species)
-        med = StoredFlakeMedium(alpha, a_rho, src, lambda mu: extinction_Ergun(mu, alpha, optics, a_rho),
-                                lambda mu: scattering_Ergun(mu, alpha, optics, a_rho))
-        rec["kernel_R"] = src.source
+        med = stored.flake_medium(p.species, alpha, a_rho, opaque=p.opaque)
+        rec["kernel"] = med.factors.source
     else:
         med = FlakeMedium(alpha, optics, a_rho)
     st = np.atleast_2d(med.sigma_t(np.array([1.0])))[:, 0]
@@ -309,36 +326,53 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
 
 
 def _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored):
-    """StoredPigmentMedium: R = 4π ϖ p from the store, ρ <C_ext>, <C_sca> from the Mie code."""
-    po = pigment_optics(p.entry, wl, n_binder)  # cross-sections only, no phase function
-    c_ext, c_sca = np.asarray(po.c_ext_um2, float), np.asarray(po.c_sca_um2, float)
-    rho = pigment_number_density(p.volume_fraction, po.mean_volume_um3)
-    src = stored.reflectance(p.species, weights=rho * c_ext)  # kernel = ρ C_ext R / (4π) per band, then mapped
+    """StoredPigmentMedium: ⟨C_ext⟩, ⟨C_sca⟩, ⟨V⟩ and the phase function's Legendre moments from the
+    store (:meth:`flakedb.compose.store_context.StoreContext.pigment`), the RGB mode's clips as
+    :func:`pigment_tospectra_to_rgb_mode` (the phase ≥ 0 clip on the series, :func:`rgb_phase_moments`)."""
+    po = stored.pigment(p.species)  # per recipe band: c_ext_um2, c_sca_um2, mean_volume_um3 (scalar), chi
+    c_ext, c_sca, chi = po["c_ext_um2"], po["c_sca_um2"], po["legendre_moments"]
     if recipe.mode == "rgb":
-        # the same constraints as pigment_to_rgb: C_ext ≥ 0, 0 ≤ C_sca ≤ C_ext (the mapped kernel
-        # ρ rgb(C_sca p) scaled per channel by clipped / unclipped C_sca, a linear per-channel factor)
-        # and phase ≥ 0 (the medium clips its kernel at 0: not linear, applied at evaluation)
         e = spectra_to_rgb_mode(c_ext, wl)
-        s = spectra_to_rgb_mode(c_sca, wl)
-        c_ext, c_sca = np.maximum(e, 0.0), np.clip(s, 0.0, np.maximum(e, 0.0))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            f = np.where(s > 0, c_sca / s, 0.0)
-        src = type(src)(src.mu, src.coeffs * f[:, None, None, None], src.source)
+        s_ = spectra_to_rgb_mode(c_sca, wl)
+        c_ext, c_sca = np.maximum(e, 0.0), np.clip(s_, 0.0, np.maximum(e, 0.0))
+        chi, clip_p = rgb_phase_moments(spectra_to_rgb_mode((po["c_sca_um2"][:, None] * po["legendre_moments"]).T, wl).T, s_)
         info.setdefault("rgb_clip", {})[p.path] = float(max(np.abs(c_ext - e).max() / max(np.abs(e).max(), 1e-300),
-                                                            np.abs(c_sca - s).max() / max(np.abs(s).max(), 1e-300)))
+                                                            np.abs(c_sca - s_).max() / max(np.abs(s_).max(), 1e-300),
+                                                            clip_p))
+    chi, linfo = truncate_legendre(chi)
+    rho = pigment_number_density(p.volume_fraction, po["mean_volume_um3"])
     sigma_t, sigma_s = rho * c_ext, rho * c_sca
     with np.errstate(divide="ignore", invalid="ignore"):
         albedo = np.where(c_ext > 0, c_sca / c_ext, 0.0)
-    med = StoredPigmentMedium(src, sigma_t, sigma_s, nonnegative=recipe.mode == "rgb")
+    med = StoredPigmentMedium(sigma_t, sigma_s, chi, po["source"])
     rec = {"path": p.path, "species": p.species, "kind": "pigment", "volume_fraction": p.volume_fraction,
            "median_diameter_um": float(p.entry["median_diameter_um"]["value"]), "gsd": float(p.entry["gsd"]["value"]),
-           "mean_volume_um3": float(po.mean_volume_um3), "number_density_per_um3": rho,
+           "mean_volume_um3": float(po["mean_volume_um3"]), "number_density_per_um3": rho,
            "sigma_t_per_um": [float(sigma_t.min()), float(sigma_t.max())],
            "albedo": [float(albedo.min()), float(albedo.max())],
            "optical_depth": [float(sigma_t.min() * layer_um), float(sigma_t.max() * layer_um)],
            "loading": "number density = volume_fraction / mean particle volume; sigma_t = rho C_ext",
-           "kernel_R": src.source}
+           "kernel": f"{po['source']}: Legendre degree {linfo['degree']} (tail {linfo['tail']:.1e}), addition theorem"}
     return med, rec
+
+
+def rgb_phase_moments(sp_chi, s):
+    """RGB-mode phase moments from the mapped rgb(C_sca χ) (3, K + 1) and rgb(C_sca) (3,): χ = rgb(C_sca χ)/rgb(C_sca)
+    (each channel's phase is its scattering-weighted mean, as :func:`pigment_tospectra_to_rgb_mode`), its
+    negative lobes clipped to 0 and renormalised (the series evaluated and re-projected on Gauss–Legendre
+    nodes).  Returns (χ (3, K + 1), the largest clip relative to max p)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        chi = np.where(np.asarray(s)[:, None] > 0, sp_chi / np.asarray(s)[:, None], 0.0)
+    K = chi.shape[1] - 1
+    t, wt = np.polynomial.legendre.leggauss(2 * K + 2)
+    p = legendre_series(chi, t)
+    pc = np.maximum(p, 0.0)
+    clip = float(np.abs(pc - p).max() / max(np.abs(p).max(), 1e-300))
+    if clip > 0:
+        chi, _ = legendre_moments_gauss(t, wt, pc, tol=0.0, k_max=K)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            chi = np.where(chi[:, :1] > 0, chi / chi[:, :1], 0.0)
+    return chi, clip
 
 
 def _pigment_component(p, recipe, layer_um, n_binder, wl, info, stored=None):
@@ -450,7 +484,8 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
             meds.append(med)
             components.append(rec)
         if meds:
-            slabs.append(Slab(b.thickness_um, meds[0] if len(meds) == 1 else Mixture(meds)))
+            mix = StoredMixture if any(hasattr(m, "projected_kernel") for m in meds) else Mixture
+            slabs.append(Slab(b.thickness_um, meds[0] if len(meds) == 1 else mix(meds)))
 
     bottom = None
     if recipe.primer is not None:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from flakedb.optics.mie import lognormal_pigment
+from flakedb.optics.mie import default_n_quad, lognormal_pigment
 from flakedb.optics.thinfilm import flake_reflectance_transmittance as tmm_flake
 from flakedb.paint.catalog import get_species, load_catalog
 from flakedb.paint.materials import refractive_index
@@ -78,11 +78,23 @@ def flake_reflectance_transmittance(entry: dict, wavelength_nm, cos_theta, n_bin
     raise ValueError(f"a {entry['kind']} is not a flake; use pigment_optics")
 
 
-def pigment_optics(entry: dict, wavelength_nm, n_binder, mu=None):
+def pigment_n_quad(entry: dict, wavelength_nm, n_binder) -> int:
+    """The size-quadrature node count :func:`pigment_optics` uses for these wavelengths together
+    (:func:`flakedb.optics.mie.default_n_quad` at the largest π n_binder / λ)."""
+    wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
+    nb = np.broadcast_to(np.asarray(n_binder, dtype=float), wl.shape)
+    return default_n_quad(float(np.max(np.pi * nb / (wl * 1e-3))), float(entry["median_diameter_um"]["value"]),
+                          float(entry["gsd"]["value"]))
+
+
+def pigment_optics(entry: dict, wavelength_nm, n_binder, mu=None, n_quad=None):
     """Per-particle Mie optics of a pigment species per wavelength (number-weighted log-normal).
 
     Returns :class:`flakedb.optics.mie.LognormalPigment`: ``c_ext_um2``, ``c_sca_um2`` (µm² per
     particle), ``g``, ``mean_volume_um3`` and, with ``mu`` (cos Θ, (M,)), the phase function (W, M).
+    ``n_quad``: the size quadrature's node count (default: from the shortest wavelength given,
+    :func:`flakedb.optics.mie.default_n_quad`; the store passes the one of its whole grid so that a
+    wavelength block gets the nodes a compose of all bands gets).
     """
     if entry["kind"] != "pigment":
         raise ValueError(f"a {entry['kind']} is not a pigment; use flake_reflectance_transmittance")
@@ -91,7 +103,7 @@ def pigment_optics(entry: dict, wavelength_nm, n_binder, mu=None):
     nb = np.broadcast_to(np.asarray(n_binder, dtype=float), wl.shape)
     m = refractive_index(entry["material"], wl) / nb
     return lognormal_pigment(
-        m, wl, nb, float(entry["median_diameter_um"]["value"]), float(entry["gsd"]["value"]), mu=mu
+        m, wl, nb, float(entry["median_diameter_um"]["value"]), float(entry["gsd"]["value"]), mu=mu, n_quad=n_quad
     )
 
 

@@ -17,16 +17,21 @@ from pathlib import Path
 
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint import catalog as cat
+from flakedb.paint import species as sp
+from flakedb.paint.mapping import auto_resolution, catalog_species, recipe_alpha
 from flakedb.paint.materials import materials_dir
+from flakedb.paint.recipe import load_recipe
 from flakedb.pipelines.progress import BuildProgress
 from flakedb.pipelines.workers import MAX_POOL_RESTARTS, process_pool
+from flakedb.resources import RECIPES_DIR
+from flakedb.rt.stored import RANK_TOL
 from flakedb.store import versions as st
-from flakedb.store.compress import DEFAULT_N_TABLE
 
 DEFAULT_N = (32,)
-DEFAULT_RANK = 8
-DEFAULT_RANGE_NM = (400.0, 700.0)
-DEFAULT_STEP_NM = 20.0
+#: The default store's wavelengths: 380–780 nm every 5 nm, so every recipe band on a 5, 10 or 20 nm
+#: grid from 380 nm is selected exactly (others are interpolated between neighbours, stated in info).
+DEFAULT_RANGE_NM = (380.0, 780.0)
+DEFAULT_STEP_NM = 5.0
 #: top interface index of ``flakedb build``: the catalogue's paints have a smooth 1.5 clear coat.
 DEFAULT_ETA_TOP = 1.5
 
@@ -37,12 +42,26 @@ def material_checksums() -> dict:
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.iterdir()) if p.is_file()}
 
 
-def make_request(species=None, n=DEFAULT_N, m=None, rank=DEFAULT_RANK, wavelength_nm=None, channel_block=4,
-                 store_raw=False, catalog_path=None, n_table=None, eta_top=None) -> st.BuildRequest:
+def shipped_alphas(catalog=None) -> dict:
+    """Flake species → the orientation spreads α the shipped recipes (catalog/recipes/) use for them
+    (the catalogue's own α or a recipe's ``orientation_alpha``): the default store projects these."""
+    catalog = catalog or sp.load_catalog()
+    out = {}
+    for path in sorted(Path(RECIPES_DIR).glob("*.yaml")):
+        rec = load_recipe(path, catalog)
+        for p in catalog_species(rec):
+            if p.is_flake:
+                out.setdefault(p.species, set()).add(recipe_alpha(p))
+    return {k: sorted(v) for k, v in out.items()}
+
+
+def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, channel_block=8, store_raw=False,
+                 catalog_path=None, eta_top=None, rank_tol=None, recipe=None) -> st.BuildRequest:
     """A :class:`flakedb.store.versions.BuildRequest` from the catalogue (default: every species, sweeps
-    included).  ``n``: node counts (one resolution each, m = n unless ``m`` is given);
-    ``wavelength_nm``: default 400–700 nm every 20 nm; ``eta_top``: the paints' smooth top index
-    (None: plain Radau grid and the catalogue binder's index; see :mod:`flakedb.store.versions`)."""
+    included).  ``n``: node counts; ``wavelength_nm``: default 380–780 nm every 5 nm; ``alphas``:
+    flake species → α's (default: the catalogue's α and those the shipped recipes use);
+    ``eta_top``: the paints' smooth top index (None: plain Radau grid and the catalogue binder's
+    index; see :mod:`flakedb.store.versions`); ``rank_tol``: the flakes' spectral SVD truncation."""
     catalog = cat.load_catalog(catalog_path)
     allsp = cat.expand_sweeps(catalog)
     names = list(allsp) if not species else list(species)
@@ -51,11 +70,38 @@ def make_request(species=None, n=DEFAULT_N, m=None, rank=DEFAULT_RANK, wavelengt
         raise ValueError(f"unknown species {', '.join(unknown)}; known: {', '.join(allsp)}")
     ns = (int(n),) if isinstance(n, int) else tuple(int(x) for x in n)
     wl = spectral_grid(DEFAULT_RANGE_NM, DEFAULT_STEP_NM) if wavelength_nm is None else wavelength_nm
+    if alphas is None:
+        ship = shipped_alphas(catalog) if catalog_path is None else {}
+        alphas = {}
+        for s in names:
+            if allsp[s]["kind"] != "pigment":
+                alphas[s] = sorted({float(allsp[s]["orientation_alpha"]["value"]), *ship.get(s, [])})
     return st.BuildRequest(
         species={s: allsp[s] for s in names}, binder=catalog["binder"], material_checksums=material_checksums(),
-        resolutions=tuple((x, int(m) if m else x) for x in ns), rank=int(rank),
-        wavelength_nm=tuple(float(w) for w in wl), channel_block=int(channel_block), store_raw=bool(store_raw),
-        n_table=int(n_table or DEFAULT_N_TABLE), eta_top=None if eta_top is None else float(eta_top))
+        resolutions=tuple(ns), wavelength_nm=tuple(float(w) for w in wl),
+        alphas={k: [float(a) for a in v] for k, v in alphas.items() if k in names},
+        channel_block=int(channel_block), store_raw=bool(store_raw),
+        rank_tol=float(rank_tol) if rank_tol is not None else RANK_TOL,
+        eta_top=None if eta_top is None else float(eta_top), recipe=recipe)
+
+
+def request_for_recipe(recipe, n=None, store_raw=False, catalog_path=None) -> st.BuildRequest:
+    """Exactly what ``recipe`` needs (``flakedb build --recipe``): its catalogue species, its node
+    count (``n`` or the recipe's own: resolution or auto), its α's, its wavelengths and its binder
+    index as the top interface's."""
+    if n is None:
+        n = int(recipe.n) if recipe.n is not None else auto_resolution(recipe)[0]
+    names = sorted({p.species for p in catalog_species(recipe)})
+    if not names:
+        raise ValueError(f"recipe {recipe.name!r} has no catalogue species: it needs no store")
+    alphas = {}
+    for p in catalog_species(recipe):
+        if p.is_flake:
+            alphas.setdefault(p.species, set()).add(recipe_alpha(p))
+    wl = recipe.wavelength_nm if recipe.wavelength_nm is not None else spectral_grid(DEFAULT_RANGE_NM, DEFAULT_STEP_NM)
+    return make_request(species=names, n=int(n), wavelength_nm=wl, alphas={k: sorted(v) for k, v in alphas.items()},
+                        store_raw=store_raw, catalog_path=catalog_path, eta_top=float(recipe.binder_ior),
+                        recipe=recipe.name)
 
 
 def _execute(url, plan, tasks, scheduler, workers, client, progress):

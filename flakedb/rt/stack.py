@@ -231,12 +231,16 @@ def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True):
     # kept orders is far below the truncation itself
     n_max = max(2 * max_orders, 128)
     n_start = min(max(4, _component_orders_hint(medium)), n_max)
-    kb = kernel_basis(medium) if basis else None
-    fn, M = (medium.kernel, None) if kb is None else (kb.fn, kb.M)
-    coeffs, info = project_kernel_basis(fn, M, x, mu_o, tol=tol, n_start=n_start, n_max=n_max, weights=W)
-    pk = ProjectedKernel(coeffs[:max_orders], M)
-    if M is not None:
-        info["basis_functions"] = int(M.shape[1])
+    if hasattr(medium, "projected_kernel"):  # precomputed factors (flakedb.rt.stored): no projection here
+        pk, info = medium.projected_kernel(
+            x, max_orders, lambda m: project_medium(m, x, w, tol, max_orders, renormalize=False, basis=basis))
+    else:
+        kb = kernel_basis(medium) if basis else None
+        fn, M = (medium.kernel, None) if kb is None else (kb.fn, kb.M)
+        coeffs, info = project_kernel_basis(fn, M, x, mu_o, tol=tol, n_start=n_start, n_max=n_max, weights=W)
+        pk = ProjectedKernel(coeffs[:max_orders], M)
+        if M is not None:
+            info["basis_functions"] = int(M.shape[1])
     h = len(x)
     if renormalize and hasattr(medium, "sigma_s"):
         target = np.atleast_2d(medium.sigma_s(x))  # (C, h)

@@ -1,34 +1,22 @@
-"""Media whose reflectance function comes from the precomputed store (issue #6, docs/model.md §5).
+"""Media assembled from precomputed, projected kernel factors (issue #11, docs/store.md).
 
-The store (:mod:`flakedb.store.versions`) holds a species' R(μ_i, μ_o, φ_d) on the grid of
-:func:`flakedb.store.compress.grid_nodes`: μ the solver's full node set inside the binder, φ_d the m points
-π k/(m − 1) of [0, π], as cosine-series coefficients in φ_d (orders 0 … m − 1): the DCT-I of the raw
-samples, or the compressed factors' product U_pairs · Fourier(V_pairs) (paper §4 end: "R's Fourier
-coefficients are then one matrix product").  :class:`StoredReflectance` evaluates that series
+The kernel of every species is linear in what varies with wavelength (paper eq. 2: a flake's R(c);
+a pigment's σ_s p(cos Θ)) and in its loading.  The store (:mod:`flakedb.store.versions`) therefore
+holds, per species and per (n, η, α), the *projected* kernel blocks per unit loading compressed
+across wavelength,
 
-    R(μ_i, μ_o, φ) = Σ_{l<m} R_l(μ_i, μ_o) cos(l φ)
+    K_λ[l, o, i] = Σ_r U[λ, r] V_r[l, o, i]        (flakes; V float32, orders chunked)
 
-at grid nodes only (the solver's nodes are the grid's nodes; anything else is refused, not
-interpolated) and at any φ the projector asks for (the trigonometric interpolant through the m
-stored samples: exact at the stored φ_k, band-limited to order m − 1 between them).
+and for pigments the Legendre moments χ_k(λ) of the phase function with C_ext, C_sca (the addition
+theorem gives the blocks without azimuthal quadrature, :mod:`flakedb.rt.legendre`).  Compose then
+only contracts: a recipe's channels are a linear map of the store's wavelengths (selection,
+interpolation, or the RGB mode's spectra → linear sRGB), so a channel's kernel is
+(loading · map @ U) @ V — :class:`FactorKernel` — and a layer's kernel is the sum over its species
+(:class:`SumKernel`).  Nothing is sampled in φ or transformed.
 
-Media (the interface of :mod:`flakedb.rt.media`: ``sigma_t``, ``sigma_s``, ``kernel``, ``phi_bandwidth``):
-
-* :class:`StoredFlakeMedium`: kernel = (aρ/2) R(μ_i, μ_o, φ_d) D(h), the formula of
-  :func:`flakedb.rt.microflake.kernel_Ergun` ((aρ/4) R(c) (D(h) + D(−h)), D even) with R(c(μ_i, μ_o,
-  φ_d)) read from the store and D(h) (the Beckmann density at the half vector, which depends on the
-  recipe's α, not stored) evaluated directly.  σ_t(μ) and σ_s(μ) are *not* in the store: they need
-  the flake's T(c) (σ_t) and a 1-D integral over flake normals; they stay the accurate 1-D
-  integrals :func:`flakedb.rt.microflake.extinction_Ergun` / :func:`~flakedb.rt.microflake.scattering_Ergun`
-  of the species' FlakeOptics, passed in as callables (they are cheap: a few ms per band).
-* :class:`StoredPigmentMedium`: the store's pigment R is 4π ϖ p(cos Θ) (:mod:`flakedb.store.compress`;
-  ϖ = C_sca/C_ext), so the kernel ρ C_sca p = ρ C_ext · R/(4π) = σ_t R/(4π), with σ_t = ρ C_ext and
-  σ_s = ρ C_sca, direction-independent.
-
-Channels: the coefficients may be any linear combination of the stored wavelengths (a band
-selection, or the RGB mode's spectra → linear sRGB map), applied before the solve
-(:meth:`flakedb.store.versions.StoreVersion.stored_reflectance`); a pigment's per-band weight ρ C_ext goes in before that map
-(``weights``), since the RGB mode converts C_sca p, not p.
+Both kernels follow :class:`flakedb.rt.projection.ProjectedKernel`'s interface (``n_orders``,
+``channels``, ``blocks(l0, l1)``, ``scale``), so :func:`flakedb.rt.stack.project_medium` renormalises
+them as any projected kernel and the solver asks only for the orders it uses.
 """
 
 from __future__ import annotations
@@ -37,147 +25,290 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flakedb.rt.microflake import flake_ndf_at_halfvector
+from flakedb.rt.legendre import LegendreKernel
+from flakedb.rt.media import FlakeMedium, channel_subset
+from flakedb.rt.microflake import (
+    FlakeOptics,
+    extinction_Ergun,
+    kernel_Ergun_basis,
+    projected_area_Beckmann,
+    scattering_Ergun,
+)
+from flakedb.rt.projection import project_kernel_basis
 
-#: Solver nodes and store grid nodes must agree to this (absolute, in μ).
+#: Solver nodes and the store's nodes must agree to this (absolute, in μ).
 NODE_TOL = 1e-12
 
 
 class StoredGridMismatch(ValueError):
-    """The solver asked for the reflectance at a μ that is not a node of the store's grid."""
+    """The solver's nodes are not the nodes the stored kernel was projected on."""
 
 
-@dataclass(frozen=True, eq=False)
-class StoredReflectance:
-    """R's cosine series on the store grid: ``mu`` (n_mu,) ascending grid cosines, ``coeffs``
-    (C, n_mu, n_mu, L) [channel, incident node, outgoing node, order]; ``source`` a description
-    (store, version, species, raw / compressed) for error messages and records."""
+def check_nodes(x_store, x, source="the store"):
+    """Refuse a solve whose inside nodes ``x`` differ from the stored ones."""
+    x_store, x = np.asarray(x_store, float), np.asarray(x, float)
+    if x_store.shape != x.shape or np.abs(x_store - x).max() > NODE_TOL:
+        raise StoredGridMismatch(
+            f"the solve's {x.size} inside nodes are not the {x_store.size} nodes {source} was projected on: "
+            f"it was built for another node count n or top interface index η; rebuild it with "
+            f"`flakedb build --n N --eta-top ETA` for the recipe's n and binder index")
 
-    mu: np.ndarray
-    coeffs: np.ndarray
+
+class FactorKernel:
+    """Projected kernel Σ_r weights[c, r] V_r of C channels from factors V (r, L, 2, h, h)
+    [rank, order, block (0: K_T down→down, 1: K_R down→up), outgoing, incident] per unit loading.
+
+    ``read(l0, l1)`` → V[:, l0:l1] (float32 or float64; a lazy reader of the store's chunks, or an
+    array's slice); ``weights`` (C, r) = loading × channel map @ U; ``n_orders`` the stored count."""
+
+    def __init__(self, read, weights, n_orders, h):
+        self.read = read
+        self.weights = np.atleast_2d(np.asarray(weights, dtype=float))
+        self._L = int(n_orders)
+        self.h = int(h)
+        self.scale = None
+
+    @property
+    def n_orders(self):
+        return self._L
+
+    @property
+    def channels(self):
+        return self.weights.shape[0]
+
+    def raw_blocks(self, l0, l1):
+        """(l1 − l0, C, 2, h, h) without the renormalisation; zero beyond the stored orders."""
+        h, C = self.h, self.channels
+        out = np.zeros((max(0, l1 - l0), C, 2, h, h))
+        k1 = min(l1, self._L)
+        if k1 > l0:
+            V = np.asarray(self.read(l0, k1), dtype=float)  # (r, l, 2, h, h)
+            r = V.shape[0]
+            # the contraction: (C, r) @ (r, l·2·h·h)
+            out[: k1 - l0] = np.moveaxis((self.weights @ V.reshape(r, -1)).reshape((C, k1 - l0, 2, h, h)), 0, 1)
+        return out
+
+    def blocks(self, l0=0, l1=None):
+        l1 = self._L if l1 is None else int(l1)
+        out = self.raw_blocks(l0, l1)
+        return _scaled(out[:, :, 0], out[:, :, 1], self.scale)
+
+
+def _scaled(K_T, K_R, scale):
+    if scale is not None:
+        f = scale[None, :, :, None] * scale[None, :, None, :]
+        K_T = K_T * f
+        K_R = K_R * f
+    return K_T, K_R
+
+
+class SumKernel:
+    """The kernel of a mixture: the sum of its parts' kernels (each with the ProjectedKernel
+    interface and the same channels or one channel), renormalised as a whole by ``scale``."""
+
+    def __init__(self, parts):
+        self.parts = list(parts)
+        self.scale = None
+
+    @property
+    def n_orders(self):
+        return max(p.n_orders for p in self.parts)
+
+    @property
+    def channels(self):
+        return max(p.channels for p in self.parts)
+
+    def blocks(self, l0=0, l1=None):
+        l1 = self.n_orders if l1 is None else int(l1)
+        K_T = K_R = 0.0
+        for p in self.parts:
+            a, b = p.blocks(l0, l1)
+            K_T, K_R = K_T + a, K_R + b
+        return _scaled(K_T, K_R, self.scale)
+
+
+@dataclass(eq=False)
+class FlakeFactors:
+    """One flake species' stored factors at one (n, η, α), per unit loading aρ = 1/µm:
+    ``x`` (h,) the inside nodes; ``U`` (W, r); ``read(l0, l1)`` → V (r, l1 − l0, 2, h, h);
+    ``n_orders``; ``sigma_t`` (W, h) and ``sigma_s`` (W, h) (1-D integrals of paper eq. 2 with the
+    flake's T and R); ``projected_area`` (h,) = ∫ |ω·m| D dm (σ_t of an opaque flake per unit aρ)."""
+
+    x: np.ndarray
+    U: np.ndarray
+    read: object
+    n_orders: int
+    sigma_t: np.ndarray
+    sigma_s: np.ndarray
+    projected_area: np.ndarray
     source: str = "store"
-
-    def __post_init__(self):
-        mu = np.asarray(self.mu, dtype=float)
-        c = np.asarray(self.coeffs, dtype=float)
-        if c.ndim == 3:
-            c = c[None]
-        if mu.ndim != 1 or np.any(np.diff(mu) <= 0):
-            raise ValueError(f"StoredReflectance.mu must be strictly ascending (the store grid), got shape {mu.shape}")
-        if c.ndim != 4 or c.shape[1] != mu.size or c.shape[2] != mu.size:
-            raise ValueError(f"StoredReflectance.coeffs must be (C, {mu.size}, {mu.size}, L), got {c.shape}")
-        object.__setattr__(self, "mu", mu)
-        object.__setattr__(self, "coeffs", np.ascontiguousarray(c))
-
-    @property
-    def channels(self) -> int:
-        return self.coeffs.shape[0]
-
-    @property
-    def n_orders(self) -> int:
-        return self.coeffs.shape[-1]
-
-    def node_index(self, mu):
-        """Indices of the grid nodes equal (within :data:`NODE_TOL`) to ``mu`` (any shape); refuses others."""
-        mu = np.asarray(mu, dtype=float)
-        j = np.clip(np.searchsorted(self.mu, mu), 1, self.mu.size - 1)
-        left, right = self.mu[j - 1], self.mu[j]
-        j = np.where(np.abs(mu - left) <= np.abs(right - mu), j - 1, j)
-        err = np.abs(self.mu[j] - mu)
-        if err.size and err.max() > NODE_TOL:
-            k = int(np.argmax(err))
-            raise StoredGridMismatch(
-                f"μ = {mu.ravel()[k]:.15g} is not a node of the stored grid (nearest {self.mu[j.ravel()[k]]:.15g}, "
-                f"off by {err.max():.3g} > {NODE_TOL:g}) of {self.source}: the store was built for another "
-                f"node count n or top interface index η than the solve ({self.mu.size} grid nodes); rebuild it "
-                f"with `flakedb build --n N --eta-top ETA` for the recipe's n and binder index")
-        return j
-
-    def evaluate(self, mu_i, mu_o, phi_d):
-        """R (C, *broadcast shape) at grid nodes ``mu_i``, ``mu_o`` and any azimuths ``phi_d``."""
-        mu_i, mu_o, phi = (np.asarray(a, dtype=float) for a in (mu_i, mu_o, phi_d))
-        ndim = max(mu_i.ndim, mu_o.ndim, phi.ndim)
-        mu_i, mu_o, phi = (a.reshape((1,) * (ndim - a.ndim) + a.shape) for a in (mu_i, mu_o, phi))
-        bm = np.broadcast_shapes(mu_i.shape, mu_o.shape)
-        ii, oo = np.broadcast_arrays(self.node_index(mu_i), self.node_index(mu_o))
-        L = self.n_orders
-        if ndim >= 1 and bm[-1] == 1 and all(s == 1 for s in phi.shape[:-1]):
-            # the projector's layout: nodes on the leading axes, φ on the last: one matrix product
-            g = self.coeffs[:, ii[..., 0], oo[..., 0], :]  # (C, *bm[:-1], L)
-            cos = np.cos(np.arange(L)[:, None] * phi.reshape(-1)[None, :])  # (L, P)
-            return g @ cos
-        full = np.broadcast_shapes(bm, phi.shape)
-        ii, oo = np.broadcast_to(ii, full), np.broadcast_to(oo, full)
-        ph = np.broadcast_to(phi, full)
-        cos = np.cos(np.arange(L) * ph[..., None])  # (*full, L)
-        return np.einsum("c...l,...l->c...", self.coeffs[:, ii, oo, :], cos)
-
-
-def _per_channel(x, ndim):
-    x = np.atleast_1d(np.asarray(x, dtype=float))
-    return x.reshape((-1,) + (1,) * ndim)
 
 
 @dataclass(eq=False)
 class StoredFlakeMedium:
-    """Micro-flakes with R from the store (module docstring).  ``alpha``: Beckmann spread;
-    ``a_rho_per_um``: loading aρ (1/µm); ``R_source``: :class:`StoredReflectance`;
-    ``sigma_t_fn``, ``sigma_s_fn``: callables μ → (C, *μ.shape) in 1/µm (the 1-D integrals)."""
+    """Micro-flakes from stored factors: loading ``a_rho_per_um``, the recipe's channels as
+    ``channel_map`` (C, W) @ (store wavelengths), ``opaque`` (T = 0: σ_t is the projected area)."""
 
-    alpha: float
+    factors: FlakeFactors
     a_rho_per_um: float
-    R_source: StoredReflectance
-    sigma_t_fn: object
-    sigma_s_fn: object
+    channel_map: np.ndarray
+    opaque: bool = False
+
+    def _nodes(self, mu):
+        mu = np.abs(np.asarray(mu, dtype=float))
+        idx = np.clip(np.searchsorted(self.factors.x, mu), 0, self.factors.x.size - 1)
+        lo = np.clip(idx - 1, 0, self.factors.x.size - 1)
+        idx = np.where(np.abs(self.factors.x[lo] - mu) < np.abs(self.factors.x[idx] - mu), lo, idx)
+        if np.abs(self.factors.x[idx] - mu).max(initial=0.0) > NODE_TOL:
+            check_nodes(self.factors.x, mu, self.factors.source)
+        return idx
 
     def sigma_t(self, mu):
-        return self.sigma_t_fn(np.abs(np.asarray(mu, dtype=float)))
+        idx = self._nodes(mu)
+        if self.opaque:
+            s = self.a_rho_per_um * self.factors.projected_area[idx]
+            return np.broadcast_to(s, (self.channel_map.shape[0],) + np.shape(mu)).copy()
+        return self.a_rho_per_um * (self.channel_map @ self.factors.sigma_t)[:, idx]
 
     def sigma_s(self, mu):
-        return self.sigma_s_fn(np.abs(np.asarray(mu, dtype=float)))
+        return self.a_rho_per_um * (self.channel_map @ self.factors.sigma_s)[:, self._nodes(mu)]
 
-    def kernel(self, mu_i, mu_o, phi_d):
-        """(aρ/2) R(μ_i, μ_o, φ_d) D(h), h = normalize(ω_o − ω_i) (as kernel_Ergun), 1/(µm·sr)."""
-        d = flake_ndf_at_halfvector(mu_i, mu_o, phi_d, self.alpha)
-        R = self.R_source.evaluate(mu_i, mu_o, phi_d)
-        return (0.5 * self.a_rho_per_um) * R * d[None]
+    def subset(self, idx):
+        return StoredFlakeMedium(self.factors, self.a_rho_per_um, self.channel_map[idx], self.opaque)
 
-    @property
-    def phi_bandwidth(self):
-        # as FlakeMedium: a few samples per lobe width √2 α, refined adaptively by the projection
-        return int(2 ** np.ceil(np.log2(max(8.0, 8.0 * np.pi / (np.sqrt(2.0) * self.alpha)))))
+    def projected_kernel(self, x, max_orders, direct=None):
+        check_nodes(self.factors.x, x, self.factors.source)
+        w = self.a_rho_per_um * (self.channel_map @ self.factors.U)
+        return FactorKernel(self.factors.read, w, min(self.factors.n_orders, int(max_orders)), x.size), {
+            "kernel": f"stored factors, rank {self.factors.U.shape[1]} ({self.factors.source})"}
 
 
 @dataclass(eq=False)
 class StoredPigmentMedium:
-    """Pigments with R = 4π ϖ p from the store (module docstring).  ``R_source`` must already carry
-    the per-channel weight ρ C_ext (``StoreVersion.stored_reflectance(weights=ρ C_ext)``), so that the
-    kernel is R_source/(4π) = ρ C_sca p; ``sigma_t_per_um`` = ρ C_ext and ``sigma_s_per_um`` =
-    ρ C_sca per channel (C,).  ``nonnegative``: the kernel is clipped at 0 (the RGB mode's phase ≥ 0;
-    the solver's renormalisation to σ_s then plays the part of the direct path's re-normalisation of
-    the clipped phase table)."""
+    """Pigments from stored Mie optics: σ_t = ρ C_ext, σ_s = ρ C_sca per channel (C,) in 1/µm, and
+    the phase function's Legendre moments ``chi`` (C, K + 1) (:class:`flakedb.rt.legendre.LegendreKernel`)."""
 
-    R_source: StoredReflectance
-    sigma_t_per_um: object
-    sigma_s_per_um: object
-    #: clip the kernel at 0 (RGB mode: the linear sRGB map of the stored spectral series has negative
-    #: lobes where the direct path clips its RGB phase function to ≥ 0; see flakedb.paint.mapping)
-    nonnegative: bool = False
+    sigma_t_per_um: np.ndarray
+    sigma_s_per_um: np.ndarray
+    chi: np.ndarray
+    source: str = "store"
 
     def sigma_t(self, mu):
         mu = np.asarray(mu, dtype=float)
-        return _per_channel(self.sigma_t_per_um, mu.ndim) * np.ones_like(mu)
+        return np.asarray(self.sigma_t_per_um, float).reshape((-1,) + (1,) * mu.ndim) * np.ones_like(mu)
 
     def sigma_s(self, mu):
         mu = np.asarray(mu, dtype=float)
-        return _per_channel(self.sigma_s_per_um, mu.ndim) * np.ones_like(mu)
+        return np.asarray(self.sigma_s_per_um, float).reshape((-1,) + (1,) * mu.ndim) * np.ones_like(mu)
 
-    def kernel(self, mu_i, mu_o, phi_d):
-        """ρ C_ext R/(4π) = ρ C_sca p(cos Θ), 1/(µm·sr) (≥ 0 with ``nonnegative``)."""
-        k = self.R_source.evaluate(mu_i, mu_o, phi_d) / (4.0 * np.pi)
-        return np.maximum(k, 0.0) if self.nonnegative else k
+    def subset(self, idx):
+        take = lambda a: np.asarray(a, float)[idx] if np.ndim(a) and np.shape(a)[0] > 1 else a
+        return StoredPigmentMedium(take(self.sigma_t_per_um), take(self.sigma_s_per_um), take(self.chi), self.source)
 
-    @property
-    def phi_bandwidth(self):
-        # the stored series has m orders; sampling it at 2 (m − 1) intervals resolves it exactly
-        return int(2 ** np.ceil(np.log2(max(8, self.R_source.n_orders - 1))))
+    def projected_kernel(self, x, max_orders, direct=None):
+        k = LegendreKernel(x, self.chi, self.sigma_s_per_um, max_orders=max_orders)
+        return k, {"kernel": f"Legendre moments (degree {k.K}) and the addition theorem ({self.source})"}
+
+
+@dataclass(eq=False)
+class StoredMixture:
+    """Several stored (or otherwise pre-projected) components in one layer: σ's and kernels add."""
+
+    components: list
+
+    def sigma_t(self, mu):
+        return sum(np.asarray(c.sigma_t(mu), float) for c in self.components)
+
+    def sigma_s(self, mu):
+        return sum(np.asarray(c.sigma_s(mu), float) for c in self.components)
+
+    def subset(self, idx):
+        return StoredMixture([channel_subset(c, idx) for c in self.components])
+
+    def projected_kernel(self, x, max_orders, direct=None):
+        """``direct(medium)`` → (kernel, info) projects a component without stored factors (a custom
+        species next to catalogue ones) the usual way."""
+        parts, infos = [], []
+        for c in self.components:
+            if hasattr(c, "projected_kernel"):
+                k, info = c.projected_kernel(x, max_orders)
+            else:
+                k, info = direct(c)
+            parts.append(k)
+            infos.append(info)
+        return SumKernel(parts), {"components": infos}
+
+
+#: Truncation of the spectral SVD of a flake's R(c) table: the smallest rank whose reconstruction
+#: differs from the table by at most RANK_TOL × max R at every entry (measured, not bounded), hence no
+#: kernel value by more than that fraction of the R = max R kernel (the kernel is linear in R with a
+#: positive geometric factor, paper eq. 2; linear interpolation in c keeps the entry-wise bound).
+RANK_TOL = 1e-5
+
+
+def spectral_factors(table, rank_tol=RANK_TOL):
+    """Truncated SVD of a (W, nc) table across wavelength: ``(U (W, r), basis (r, nc), info)`` with
+    table ≈ U @ basis, r the smallest rank whose largest entry error max |table − U basis| is
+    ≤ rank_tol · max |table| (rank_tol ≤ 0 or None: the numerical rank, 1e-13 of s_1).  ``info``:
+    ``rank``, ``numerical_rank``, ``singular_values`` (relative to s_1), ``max_error`` (the largest
+    entry error relative to max |table|), ``error_vs_rank`` (that error for r = 1 … the numerical rank)."""
+    table = np.atleast_2d(np.asarray(table, dtype=float))
+    top = float(np.abs(table).max())
+    if top == 0.0:
+        return np.zeros((table.shape[0], 1)), np.zeros((1, table.shape[1])), {
+            "rank": 1, "numerical_rank": 1, "singular_values": [0.0], "max_error": 0.0, "error_vs_rank": [0.0]}
+    U, S, Vt = np.linalg.svd(table, full_matrices=False)
+    num = max(1, int(np.sum(S > 1e-13 * S[0])))
+    resid = table.copy()
+    err = []
+    for k in range(num):  # the residual after rank k + 1, entry-wise
+        resid -= S[k] * np.outer(U[:, k], Vt[k])
+        err.append(float(np.abs(resid).max()) / top)
+    if rank_tol is None or rank_tol <= 0:
+        r = num
+    else:
+        ok = [k for k, e in enumerate(err) if e <= rank_tol]
+        r = ok[0] + 1 if ok else num
+    # a deterministic sign: each basis row's largest entry positive
+    sign = np.sign(Vt[np.arange(r), np.argmax(np.abs(Vt[:r]), axis=1)])
+    sign[sign == 0] = 1.0
+    info = {"rank": int(r), "numerical_rank": num, "singular_values": (S[:num] / S[0]).tolist(),
+            "max_error": err[r - 1], "error_vs_rank": err}
+    return U[:, :r] * sign, (S[:r, None] * Vt[:r]) * sign[:, None], info
+
+
+def flake_factors(c, R, T, alpha, x, w, tol=1e-5, max_orders=None, rank_tol=RANK_TOL):
+    """The stored quantities of one flake species at one (nodes, α), per unit loading aρ = 1/µm.
+
+    ``c`` (nc,), ``R``, ``T`` (W, nc): the flake's tables (:class:`flakedb.rt.microflake.FlakeOptics`);
+    ``x``, ``w`` (h,) the solver's inside hemisphere rule; ``tol``, ``max_orders`` as the solver's
+    projection (:func:`flakedb.rt.stack.project_medium`: same φ sampling, weights and criteria, here
+    on the W wavelengths as channels).  The kernel (aρ/2) R(c) D(h) is linear in R, so with
+    R ≈ U @ basis (:func:`spectral_factors`) the kernel of wavelength λ is Σ_r U[λ, r] k_r, and the
+    basis kernels k_r are projected once (:func:`flakedb.rt.projection.project_kernel_basis`).
+
+    Returns a dict: ``U`` (W, r), ``V`` (r, L, 2, h, h) [rank, order, (K_T, K_R), outgoing, incident]
+    in 1/(µm·sr), ``sigma_t``, ``sigma_s`` (W, h) in 1/µm, ``projected_area`` (h,), ``info``.
+    """
+    x = np.asarray(x, dtype=float)
+    w = np.asarray(w, dtype=float)
+    h = x.size
+    max_orders = int(max_orders) if max_orders else 4 * h
+    U, basis, sinfo = spectral_factors(R, rank_tol)
+    optics = FlakeOptics(c, R, T)
+    sigma_t = extinction_Ergun(x, alpha, optics, 1.0)
+    sigma_s = scattering_Ergun(x, alpha, optics, 1.0)
+    area = projected_area_Beckmann(x, alpha)
+    mu_o = np.concatenate([-x, x])
+    Wt = w[:, None] * np.concatenate([w, w])[None, :]
+    n_max = max(2 * max_orders, 128)
+    n_start = min(max(4, FlakeMedium(alpha, optics, 1.0).phi_bandwidth), n_max)
+    coeffs, pinfo = project_kernel_basis(lambda mi, mo, ph: kernel_Ergun_basis(mi, mo, ph, alpha, c, basis, 1.0),
+                                         U, x, mu_o, tol=tol, n_start=n_start, n_max=n_max, weights=Wt)
+    coeffs = coeffs[:max_orders]  # (L, r, 2h, h), outgoing [−x, +x]
+    L = coeffs.shape[0]
+    V = np.empty((U.shape[1], L, 2, h, h))
+    V[:, :, 0] = np.moveaxis(coeffs[:, :, h:, :], 1, 0)  # K_T: down → down
+    V[:, :, 1] = np.moveaxis(coeffs[:, :, :h, :], 1, 0)  # K_R: down → up
+    return {"U": U, "V": V, "sigma_t": sigma_t, "sigma_s": sigma_s, "projected_area": area,
+            "info": {**sinfo, "orders": int(L), "n_phi": pinfo["n_phi"], "projection_converged": pinfo["converged"]}}

@@ -61,8 +61,11 @@ import numpy as np
 
 from flakedb.paint import catalog as cat
 from flakedb.paint import species as sp
+from flakedb.paint.mapping import adaptive_flake_optics
 from flakedb.rt.fourier import cosine_coefficients, phi_samples
+from flakedb.rt.legendre import legendre_moments_gauss
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
+from flakedb.rt.stored import flake_factors
 
 __all__ = [
     "grid_nodes",
@@ -376,3 +379,71 @@ def figure4(out_dir="docs/figures", species=FIGURE4_SPECIES, wavelength_nm=550.0
     plt.close(fig)
     (out / "figure4.json").write_text(json.dumps(table, indent=1, sort_keys=True) + "\n", encoding="utf-8")
     return table
+
+
+# --------------------------------------------------------------------------------------------
+# The projected-kernel store (format 2, issue #11, docs/store.md)
+# --------------------------------------------------------------------------------------------
+
+#: Largest Legendre degree of the pigments' stored phase moments (the catalogue's need 38–53 at a
+#: 1e-6 tail, flakedb.rt.legendre) and the Gauss–Legendre nodes the Mie phase function is evaluated on.
+LEGENDRE_STORE_DEGREE = 127
+LEGENDRE_STORE_NODES = 192
+#: Orders per chunk of a flake's V (compose reads only the chunks of the orders it solves).
+ORDER_CHUNK = 16
+
+
+def store_nodes(n, eta_top=None):
+    """The solver's positive inside nodes and weights ``(x, w)`` (h,) for n nodes in air below a smooth
+    top of index ``eta_top`` (None or 1: plain Gauss–Radau, h = n/2), as :func:`flakedb.rt.stack.solve_stack`
+    builds them (:func:`grid_nodes` gives the full signed set)."""
+    n = int(n)
+    if n < 2 or n % 2:
+        raise ValueError(f"n = {n}: the node count must be even and ≥ 2 (n/2 per hemisphere); use n = {max(2, n + n % 2)}")
+    q = radau_hemisphere(n // 2)
+    if eta_top is not None:
+        eta = float(eta_top)
+        if not np.isfinite(eta) or eta < 1.0:
+            raise ValueError(f"eta_top = {eta_top}: the top interface's index (binder / air) must be ≥ 1 "
+                             f"(1 or None: no smooth interface, plain Gauss–Radau nodes)")
+        if eta > 1.0:
+            q = snell_mapped_quadrature(q, eta, default_tir_nodes(q.h, eta))
+    return q.x, q.w
+
+
+def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, projection_tol):
+    """A flake species' stored factors at (n, η, α) over ``wavelength_nm`` (the whole spectrum): R(c),
+    T(c) tabulated on the adaptive c grid of the direct path (:func:`flakedb.paint.mapping.adaptive_flake_optics`),
+    then :func:`flakedb.rt.stored.flake_factors` (spectral SVD, projection of the basis kernels, σ's).
+    Returns ``U`` float64, ``V`` float32 (r, L, 2, h, h), ``sigma_t``, ``sigma_s``, ``projected_area`` and ``info``."""
+    wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
+    nb = np.broadcast_to(np.asarray(n_binder, dtype=float), wl.shape)
+    c, R, T, c_err = adaptive_flake_optics(lambda cc: sp.flake_reflectance_transmittance(entry, wl, cc, nb))
+    x, w = store_nodes(n, eta_top)
+    f = flake_factors(c, R, T, float(alpha), x, w, tol=projection_tol, max_orders=2 * int(n),
+                      rank_tol=rank_tol if rank_tol is not None else 0.0)
+    V = f["V"].astype(np.float32)
+    info = {**f["info"], "c_nodes": int(c.size), "c_grid_max_midpoint_error": c_err,
+            "V_float32_max_error": float(np.abs(V - f["V"]).max() / max(np.abs(f["V"]).max(), 1e-300))}
+    W, r = f["U"].shape
+    L, h = V.shape[1], x.size
+    info["storage_ratio"] = float(W * L * 2 * h * h / (r * L * 2 * h * h + W * r))  # per-wavelength blocks / factors
+    return {"U": f["U"], "V": V, "sigma_t": f["sigma_t"], "sigma_s": f["sigma_s"],
+            "projected_area": f["projected_area"], "info": info}
+
+
+def pigment_task(entry, wavelength_nm, n_binder, degree=LEGENDRE_STORE_DEGREE, nodes=LEGENDRE_STORE_NODES,
+                 n_quad=None):
+    """A pigment's stored optics over ``wavelength_nm``: ⟨C_ext⟩, ⟨C_sca⟩ (µm²), ⟨V⟩ (µm³) and the
+    Legendre moments χ_0 … χ_degree of its ensemble Mie phase function (normalised, χ_0 = 1),
+    from the phase function at ``nodes`` Gauss–Legendre cosines (:func:`flakedb.rt.legendre.legendre_moments_gauss`;
+    no table, no interpolation).  ``n_quad``: the size quadrature (the store passes the one of its whole
+    wavelength grid, :func:`flakedb.paint.species.pigment_n_quad`, so every block gets the same)."""
+    wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
+    t, wt = np.polynomial.legendre.leggauss(int(nodes))
+    po = sp.pigment_optics(entry, wl, n_binder, mu=t, n_quad=n_quad)
+    p = np.asarray(po.phase_function, dtype=float)
+    chi, _ = legendre_moments_gauss(t, wt, p, tol=0.0, k_max=int(degree))
+    chi = chi / chi[:, :1]
+    return {"c_ext_um2": np.asarray(po.c_ext_um2, float), "c_sca_um2": np.asarray(po.c_sca_um2, float),
+            "mean_volume_um3": np.full(wl.shape, float(po.mean_volume_um3)), "legendre_moments": chi}

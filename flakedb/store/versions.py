@@ -1,43 +1,47 @@
-"""The versioned Zarr v3 store of compressed flake reflectance functions (docs/model.md §5, issue #5).
+"""The versioned Zarr v3 store of projected, compressed kernel factors (docs/model.md §5, issues #5, #11;
+docs/store.md).
 
 Layout (``STORE`` a local directory or any fsspec URL)::
 
-    STORE/latest                          JSON {"version": <hash>}, replaced atomically (temp + rename)
-    STORE/versions/<hash>/                one immutable version, a Zarr v3 group
-        zarr.json                         group attributes = the metadata (schemas/store.schema.json#/$defs/metadata)
-        wavelength_nm                     (W,) vacuum wavelength, nm
-        grid/n<N>_m<M>/mu                 (n_mu,) cosines: the solver's full inside node set for n nodes in
-                                          air and the top index ``eta_top`` (flakedb.store.compress.grid_nodes;
-                                          conventions: μ > 0 travels down)
-        grid/n<N>_m<M>/phi_d              (m,) φ_d = π k/(m−1), rad (0 forward)
-        species/<name>/n<N>_m<M>/U_pairs  (W, n_mu², k) row i·n_mu + o ↔ (mu[i], mu[o]); see flakedb.store.compress
-        species/<name>/n<N>_m<M>/V_pairs  (W, k, m) φ factor on phi_d
-        species/<name>/n<N>_m<M>/fourier  (W, k, m) its cosine coefficients, orders 0 … m−1
-        species/<name>/n<N>_m<M>/singular_values      (W, r) of √R
-        species/<name>/n<N>_m<M>/mean_relative_error  (W,) of R̂ against R on the grid
-        species/<name>/n<N>_m<M>/raw      (W, n_mu, n_mu, m) R itself (only with ``store_raw``)
-        tasks/<task>.json                 one per finished task: sha256 of every chunk it wrote
-        checksums.json                    every chunk and zarr.json of the version with its sha256
-        complete                          written last, after every task finished
+    STORE/latest                              JSON {"version": <hash>}, replaced atomically (temp + rename)
+    STORE/versions/<hash>/                    one immutable version, a Zarr v3 group
+        zarr.json                             group attributes = the metadata (schemas/store.schema.json)
+        wavelength_nm                         (W,) vacuum wavelength, nm
+        grid/n<N>/x, grid/n<N>/w              (h,) the solver's positive inside nodes and weights for n
+                                              nodes in air below the top interface ``eta_top``
+        species/<flake>/n<N>/a<α>/U           (W, r) spectral factor (SVD of R(c) across wavelength)
+        species/<flake>/n<N>/a<α>/V           (r, L, 2, h, h) float32 projected basis kernels per unit
+                                              loading: [rank, order, (K_T, K_R), outgoing, incident],
+                                              chunked by ORDER_CHUNK orders
+        species/<flake>/n<N>/a<α>/sigma_t     (W, h) σ_t per unit aρ at the nodes (and sigma_s,
+                                              projected_area (h,) for opaque flakes)
+        species/<pigment>/c_ext_um2, c_sca_um2, mean_volume_um3   (W,) ensemble Mie optics
+        species/<pigment>/legendre_moments    (W, K + 1) χ_k of the phase function (χ_0 = 1)
+        tasks/<task>.json                     one per finished task: sha256 of every chunk it wrote
+                                              (and the arrays it sized: U, V)
+        checksums.json                        every chunk and zarr.json of the version with its sha256
+        complete                              written last, after every task finished
+
+So compose performs no azimuthal projection: a flake's kernel in the recipe's channels is
+(loading · map @ U) @ V, a pigment's the addition theorem on its moments (flakedb/rt/stored.py).
 
 A version is named by :func:`content_hash` of its inputs (catalogue entries, optical-data file
-checksums, grid, rank, wavelengths, flakedb version): the same inputs give the same name, so a
-rebuild with unchanged inputs finds the complete version and does nothing.  The build order
-(rechunker / pangeo-forge style): the template (all arrays and the metadata) is written first, then
-one task per (species, resolution, channel block) fills its chunk-aligned region and records the
-checksums of the chunks it wrote (so any task can be re-run, and a resumed build runs only the
-tasks without a record), then :func:`finalize` writes ``checksums.json`` and ``complete``, and
+checksums, node counts, α's, wavelengths, tolerances, flakedb version): the same inputs give the same
+name, so a rebuild with unchanged inputs finds the complete version and does nothing.  The build
+order (rechunker / pangeo-forge style): the template (fixed-shape arrays and the metadata) is written
+first, then one task per (flake species, n, α) or (pigment, wavelength block) fills its region —
+a flake task creates its U and V, whose rank and order count come from the data — and records the
+checksums of the chunks it wrote (so any task can be re-run, and a resumed build runs only the tasks
+without a record), then :func:`finalize` writes ``checksums.json`` and ``complete``, and
 :func:`publish` moves ``latest``.  An interrupted build leaves ``latest`` on the previous version.
+Versions of an older format (:data:`FORMAT_VERSION`) are refused with "rebuild with flakedb build".
 
-The top interface (``eta_top``, issue #6: compose reads the store).  The solver projects a medium's
-kernel on its nodes *inside the binder*; below a smooth coat of index η those are the Snell image
-of the air-side Radau nodes plus nodes in the TIR range, not the Radau set.  A version built with
-``eta_top = η`` samples R on exactly that node set (:func:`flakedb.store.compress.grid_nodes`), and
-evaluates the species' optics with the binder index η (constant over wavelength): a recipe has one
-index for its coat and basecoats (``flakedb.paint.recipe``), which is the flakes' and pigments' embedding
-index in :mod:`flakedb.paint.mapping`.  η = 1 is an index-matched stack (plain Radau nodes, embedding
-index 1).  ``eta_top`` None keeps the catalogue binder's dispersion and the plain Radau nodes (no
-compose can use such a version directly unless its stack has no smooth coat).
+The top interface (``eta_top``): the solver projects a medium's kernel on its nodes *inside the
+binder*; below a smooth coat of index η those are the Snell image of the air-side Radau nodes plus
+nodes in the TIR range.  A version built with ``eta_top = η`` projects on exactly that node set and
+evaluates the species' optics with the binder index η (a recipe has one index for its coat and
+basecoats).  η = 1 is an index-matched stack; ``eta_top`` None keeps the catalogue binder's
+dispersion and the plain Radau nodes.
 
 This module holds the planning (pure), the per-task work and the readers; Dask lives in
 ``flakedb/pipelines/build.py``.
@@ -63,21 +67,19 @@ import zarr
 
 from flakedb import __version__
 from flakedb.paint import species as sp
+from flakedb.paint.mapping import FLAKE_C_TOL
 from flakedb.resources import SCHEMAS_DIR
-from flakedb.rt.fourier import cosine_coefficients
-from flakedb.rt.stored import StoredReflectance
+from flakedb.rt.stored import RANK_TOL, FlakeFactors
 from flakedb.store.compress import (
-    DEFAULT_N_TABLE,
-    fourier_factors,
-    grid_nodes,
-    mean_relative_error,
-    reconstruct,
-    sample_reflectance,
-    sqrt_svd_compress,
+    LEGENDRE_STORE_DEGREE,
+    ORDER_CHUNK,
+    flake_task,
+    pigment_task,
+    store_nodes,
 )
 
 FORMAT = "flakedb-store"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 DEFAULT_STORE = "./flakedb-store"
 
 __all__ = [
@@ -144,32 +146,48 @@ def content_hash(inputs: dict) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
+def _alpha_key(alpha) -> str:
+    return f"a{float(alpha):.6g}"
+
+
 @dataclass(frozen=True)
 class BuildRequest:
     """Everything a build depends on (all of it enters the content hash).
 
     ``species``: name → catalogue entry (as :func:`flakedb.paint.catalog.expand_sweeps` gives it);
     ``binder``: the catalogue's binder entry; ``material_checksums``: optical-data file name → sha256;
-    ``resolutions``: (n, m) pairs; ``rank`` r of the √R SVD; ``wavelength_nm``: channels (nm);
-    ``channel_block``: channels per task (and per chunk); ``store_raw``: also store R itself;
-    ``n_table``: table nodes of R(c) / p(cos Θ) (flakedb.store.compress.sample_reflectance);
-    ``eta_top``: relative index of the paint's smooth top interface (module docstring): the μ grid
-    is the solver's inside node set below it and the optics use it as the binder index; None: plain
-    Radau nodes and the catalogue binder's index.
+    ``resolutions``: node counts n in air; ``wavelength_nm``: the store's wavelengths (nm);
+    ``alphas``: flake species → the Beckmann spreads α to project for (default: the catalogue's);
+    ``channel_block``: pigment wavelengths per task (and per chunk); ``store_raw``: keep the spectral
+    SVD at its numerical rank (no truncation: ``compose --raw``); ``rank_tol``: otherwise its
+    truncation (:data:`flakedb.rt.stored.RANK_TOL`); ``projection_tol``: the solver's φ-projection
+    tolerance (:class:`flakedb.rt.stack.SolverSettings` ``tol``); ``legendre_degree``: the largest
+    Legendre degree of the pigments' phase moments; ``eta_top``: relative index of the paint's smooth
+    top interface (module docstring): the nodes are the solver's inside nodes below it and the optics
+    use it as the binder index; None or 1: plain Radau nodes (no / a rough interface) with the
+    catalogue binder's index (None) or index 1; ``recipe``: the recipe name of a ``--recipe`` build.
     """
 
     species: dict
     binder: dict
     material_checksums: dict
     resolutions: tuple
-    rank: int
     wavelength_nm: tuple
-    channel_block: int = 4
+    alphas: dict = field(default_factory=dict)
+    channel_block: int = 8
     store_raw: bool = False
-    n_table: int = DEFAULT_N_TABLE
+    rank_tol: float = RANK_TOL
+    projection_tol: float = 1e-5
+    legendre_degree: int = LEGENDRE_STORE_DEGREE
     eta_top: float | None = None
+    recipe: str | None = None
 
     def inputs(self) -> dict:
+        flakes = [k for k in sorted(self.species) if self.species[k]["kind"] != "pigment"]
+        alphas = {}
+        for k in flakes:
+            a = self.alphas.get(k) or [float(self.species[k]["orientation_alpha"]["value"])]
+            alphas[k] = sorted({float(x) for x in a})
         return {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
@@ -177,38 +195,55 @@ class BuildRequest:
             "species": {k: self.species[k] for k in sorted(self.species)},
             "binder": self.binder,
             "material_checksums": dict(sorted(self.material_checksums.items())),
-            "resolutions": [[int(n), int(m)] for n, m in self.resolutions],
-            "rank": int(self.rank),
+            "resolutions": sorted({int(n) for n in self.resolutions}),
             "wavelength_nm": [float(w) for w in self.wavelength_nm],
+            "alphas": alphas,
             "channel_block": int(self.channel_block),
             "store_raw": bool(self.store_raw),
-            "n_table": int(self.n_table),
+            "rank_tol": None if self.store_raw else float(self.rank_tol),
+            "projection_tol": float(self.projection_tol),
+            "legendre_degree": int(self.legendre_degree),
+            "flake_c_tol": FLAKE_C_TOL,
             "eta_top": None if self.eta_top is None else float(self.eta_top),
+            "recipe": self.recipe,
         }
 
 
 @dataclass(frozen=True)
 class Task:
-    """One unit of work: species × resolution × channel block [c0, c1)."""
+    """One unit of work: a flake species at one (n, α) over every wavelength (the spectral SVD needs
+    them all), or a pigment's wavelength block [c0, c1) (n-independent)."""
 
     species: str
-    n: int
-    m: int
-    c0: int
-    c1: int
+    n: int = 0
+    alpha: float = 0.0
+    c0: int = 0
+    c1: int = 0
+
+    @property
+    def is_flake(self) -> bool:
+        return self.n > 0
 
     @property
     def id(self) -> str:
-        return f"{self.species}/n{self.n}_m{self.m}/ch{self.c0:04d}-{self.c1:04d}"
+        if self.is_flake:
+            return f"{self.species}/n{self.n}/{_alpha_key(self.alpha)}"
+        return f"{self.species}/ch{self.c0:04d}-{self.c1:04d}"
 
     @property
     def record_name(self) -> str:
         return "tasks/" + self.id.replace("/", "__") + ".json"
 
+    @property
+    def prefix(self) -> str:
+        return f"species/{self.species}/n{self.n}/{_alpha_key(self.alpha)}" if self.is_flake else f"species/{self.species}"
+
 
 @dataclass(frozen=True)
 class BuildPlan:
-    """The pure plan: version name, inputs, tasks and arrays (path → shape, chunks, dtype)."""
+    """The pure plan: version name, inputs, tasks and the arrays whose shape is known before the build
+    (path → shape, chunks, dtype); a flake task adds its factors U, V (their rank and order count
+    come from the data) and records them."""
 
     version: str
     inputs: dict
@@ -219,88 +254,107 @@ class BuildPlan:
         return int(sum(np.prod(a["shape"]) * np.dtype(a["dtype"]).itemsize for a in self.arrays.values()))
 
     def describe(self) -> str:
-        lines = [f"version {self.version}", f"{len(self.tasks)} tasks (species × resolution × channel block)",
-                 f"{len(self.arrays)} arrays, {self.nbytes() / 2**20:.2f} MiB uncompressed"]
-        for path, a in self.arrays.items():
-            if path.startswith("species/") and path.endswith(("U_pairs", "raw")):
-                lines.append(f"  {path}: shape {tuple(a['shape'])}, chunks {tuple(a['chunks'])}, {a['dtype']}")
+        inp = self.inputs
+        lines = [f"version {self.version}",
+                 f"{len(self.tasks)} tasks (flake species × n × α, pigment species × wavelength block)",
+                 f"{len(inp['wavelength_nm'])} wavelengths {inp['wavelength_nm'][0]:g}-{inp['wavelength_nm'][-1]:g} nm, "
+                 f"n {inp['resolutions']}, eta_top {inp['eta_top']}",
+                 f"fixed arrays {self.nbytes() / 2**20:.2f} MiB; flake factors U (W, r), V (r, L ≤ 2n, 2, h, h) "
+                 f"float32 sized by the data (rank from the spectral SVD at {inp['rank_tol']})"]
+        lines += [f"  {t.id}" for t in self.tasks]
         return "\n".join(lines)
 
 
-def _res_key(n, m):
-    return f"n{int(n)}_m{int(m)}"
+def _res_key(n):
+    return f"n{int(n)}"
 
 
 def plan_build(request: BuildRequest) -> BuildPlan:
-    """Tasks and arrays of a build; pure (no I/O).  Refuses a rank above min(n², m)."""
-    W = len(request.wavelength_nm)
+    """Tasks and fixed-shape arrays of a build; pure (no I/O)."""
+    inputs = request.inputs()
+    W = len(inputs["wavelength_nm"])
     if W < 1:
         raise ValueError("a build needs at least one wavelength (wavelength_nm)")
     cb = int(request.channel_block)
     if cb < 1:
         raise ValueError(f"channel_block must be ≥ 1, got {cb}")
-    r = int(request.rank)
-    k = r * (r + 1) // 2
+    K = int(inputs["legendre_degree"])
     arrays = {"wavelength_nm": {"shape": [W], "chunks": [W], "dtype": "float64", "units": "nm"}}
     tasks = []
-    for n, m in request.resolutions:
-        nm = len(grid_nodes(n, m, request.eta_top)[0])  # validates n, m, eta_top; n_mu nodes
-        if r < 1 or r > min(nm * nm, m):
-            raise ValueError(f"rank {r} is outside 1 … min(n_mu², m) = {min(nm * nm, m)} for n = {n}, m = {m}")
-        g = f"grid/{_res_key(n, m)}"
-        arrays[f"{g}/mu"] = {"shape": [nm], "chunks": [nm], "dtype": "float64", "units": "1"}
-        arrays[f"{g}/phi_d"] = {"shape": [m], "chunks": [m], "dtype": "float64", "units": "rad"}
-        for name in sorted(request.species):
-            p = f"species/{name}/{_res_key(n, m)}"
-            arrays[f"{p}/U_pairs"] = {"shape": [W, nm * nm, k], "chunks": [cb, nm * nm, k], "dtype": "float64", "units": "1"}
-            arrays[f"{p}/V_pairs"] = {"shape": [W, k, m], "chunks": [cb, k, m], "dtype": "float64", "units": "1"}
-            arrays[f"{p}/fourier"] = {"shape": [W, k, m], "chunks": [cb, k, m], "dtype": "float64", "units": "1"}
-            arrays[f"{p}/singular_values"] = {"shape": [W, r], "chunks": [cb, r], "dtype": "float64", "units": "1"}
-            arrays[f"{p}/mean_relative_error"] = {"shape": [W], "chunks": [cb], "dtype": "float64", "units": "1"}
-            if request.store_raw:
-                arrays[f"{p}/raw"] = {"shape": [W, nm, nm, m], "chunks": [cb, nm, nm, m], "dtype": "float64", "units": "1"}
-            for c0 in range(0, W, cb):
-                tasks.append(Task(name, int(n), int(m), c0, min(W, c0 + cb)))
-    inputs = request.inputs()
+    names = sorted(inputs["species"])
+    for n in inputs["resolutions"]:
+        x, _ = store_nodes(n, inputs["eta_top"])  # validates n, eta_top
+        h = x.size
+        arrays[f"grid/{_res_key(n)}/x"] = {"shape": [h], "chunks": [h], "dtype": "float64", "units": "1"}
+        arrays[f"grid/{_res_key(n)}/w"] = {"shape": [h], "chunks": [h], "dtype": "float64", "units": "1"}
+        for name in names:
+            if inputs["species"][name]["kind"] == "pigment":
+                continue
+            for a in inputs["alphas"][name]:
+                t = Task(name, int(n), float(a))
+                tasks.append(t)
+                arrays[f"{t.prefix}/sigma_t"] = {"shape": [W, h], "chunks": [W, h], "dtype": "float64", "units": "1/um per 1/um"}
+                arrays[f"{t.prefix}/sigma_s"] = {"shape": [W, h], "chunks": [W, h], "dtype": "float64", "units": "1/um per 1/um"}
+                arrays[f"{t.prefix}/projected_area"] = {"shape": [h], "chunks": [h], "dtype": "float64", "units": "1"}
+    for name in names:
+        if inputs["species"][name]["kind"] != "pigment":
+            continue
+        p = f"species/{name}"
+        arrays[f"{p}/c_ext_um2"] = {"shape": [W], "chunks": [cb], "dtype": "float64", "units": "um2"}
+        arrays[f"{p}/c_sca_um2"] = {"shape": [W], "chunks": [cb], "dtype": "float64", "units": "um2"}
+        arrays[f"{p}/mean_volume_um3"] = {"shape": [W], "chunks": [cb], "dtype": "float64", "units": "um3"}
+        arrays[f"{p}/legendre_moments"] = {"shape": [W, K + 1], "chunks": [cb, K + 1], "dtype": "float64", "units": "1"}
+        for c0 in range(0, W, cb):
+            tasks.append(Task(name, c0=c0, c1=min(W, c0 + cb)))
     return BuildPlan(content_hash(inputs), inputs, tuple(tasks), arrays)
 
 
 def _chunk_keys(path, spec):
-    """Every chunk key (relative to the version root) of an array in the plan."""
+    """Every chunk key (relative to the version root) of an array."""
     grid = [range(-(-s // c)) for s, c in zip(spec["shape"], spec["chunks"])]
     return [f"{path}/c/" + "/".join(map(str, idx)) for idx in itertools.product(*grid)]
 
 
-def _task_chunk_keys(plan: BuildPlan, task: Task):
+def _task_chunk_keys(plan: BuildPlan, task: Task, extra_arrays=None):
+    """The chunks a task writes: its fixed arrays' chunks (a pigment: its channel block's) and those of
+    the arrays it created (``extra_arrays``)."""
     cb = plan.inputs["channel_block"]
     out = []
     for path, spec in plan.arrays.items():
-        if path.startswith(f"species/{task.species}/{_res_key(task.n, task.m)}/"):
-            rest = "/".join(["0"] * (len(spec["shape"]) - 1))
-            out.append(f"{path}/c/{task.c0 // cb}" + (f"/{rest}" if rest else ""))
+        if path.startswith(task.prefix + "/") and path.count("/") == task.prefix.count("/") + 1:
+            if task.is_flake:
+                out += _chunk_keys(path, spec)
+            else:
+                rest = "/".join(["0"] * (len(spec["shape"]) - 1))
+                out.append(f"{path}/c/{task.c0 // cb}" + (f"/{rest}" if rest else ""))
+    for path, spec in (extra_arrays or {}).items():
+        out += _chunk_keys(path, spec)
     return out
 
 
 def metadata(plan: BuildPlan) -> dict:
     """The version's metadata (group attributes), schema ``$defs/metadata``."""
+    eta = plan.inputs.get("eta_top")
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "version": plan.version,
-        "quantity": ("flake reflectance function R(mu_i, mu_o, phi_d) = R(c), c = |omega_i . h| = "
-                     "sqrt((1 - cos Theta)/2); pigments: R = 4 pi albedo p(cos Theta) (paper eq. 8 with a = 2 C_ext); "
-                     "dimensionless; compressed as sqrt-SVD pairs R ~= U_pairs @ V_pairs (flakedb.store.compress)"),
+        "quantity": ("projected micro-flake kernels per unit loading (paper eq. 2; docs/store.md): flakes "
+                     "K_lambda[l, o, i] = sum_r U[lambda, r] V[r, l, block, o, i], block 0 K_T (down->down), 1 K_R "
+                     "(down->up), in 1/(um sr) per a_rho = 1/um, with sigma_t, sigma_s (1/um per 1/um) at the nodes; "
+                     "pigments: C_ext, C_sca (um^2) and the Legendre moments chi_k of the phase function"),
         "conventions": "flakedb.conventions: mu > 0 travels down (propagation directions), phi_d = phi_o - phi_i, "
                        "phi_d = 0 forward / mirror reflection; wavelengths in vacuum nm",
-        "grid": {"mu": ("the solver's full inside node set [-x_h..-x_1, x_1..x_h] for n nodes in air "
-                        + ("and no smooth top interface: Gauss-Radau, n/2 per hemisphere (flakedb.rt.quadrature)"
-                           if plan.inputs.get("eta_top") in (None, 1.0) else
-                           f"below a smooth top interface of relative index eta_top = {plan.inputs['eta_top']:g}: "
-                           "the Snell image of the n/2 air-side Gauss-Radau nodes plus default_tir_nodes(n/2, eta_top) "
-                           "Gauss-Legendre nodes in the TIR range (flakedb.rt.quadrature.snell_mapped_quadrature)")),
-                 "phi_d": "phi_k = pi k/(m-1), k = 0..m-1", "fourier": "DCT-I cosine coefficients, orders 0..m-1 "
-                 "(flakedb.rt.fourier.cosine_coefficients)", "row_order": "U_pairs row i*n_mu + o <-> (mu[i], mu[o]), n_mu = len(mu)"},
-        "units": {"wavelength_nm": "nm", "mu": "1", "phi_d": "rad", "R": "1"},
+        "grid": {"x": ("the solver's positive inside nodes for n nodes in air "
+                       + ("and no smooth top interface: Gauss-Radau, n/2 (flakedb.rt.quadrature)"
+                          if eta in (None, 1.0) else
+                          f"below a smooth top interface of relative index eta_top = {eta:g}: the Snell image of "
+                          "the n/2 air-side Gauss-Radau nodes plus default_tir_nodes(n/2, eta_top) Gauss-Legendre "
+                          "nodes in the TIR range (flakedb.rt.quadrature.snell_mapped_quadrature)")),
+                 "w": "the weights of that hemisphere rule",
+                 "orders": "cosine orders 0..L-1 of phi_d, L <= 2n (the solver's order cap), chunked by "
+                           f"{ORDER_CHUNK} orders"},
+        "units": {"wavelength_nm": "nm", "x": "1", "V": "1/(um sr) per 1/um", "sigma": "1/um per 1/um"},
         "inputs": plan.inputs,
         "tasks": [t.id for t in plan.tasks],
         "arrays": plan.arrays,
@@ -400,57 +454,89 @@ def _fill_template(vurl, plan: BuildPlan, meta: dict):
     for path, spec in plan.arrays.items():
         g.create_array(path, shape=tuple(spec["shape"]), chunks=tuple(spec["chunks"]), dtype=spec["dtype"],
                        fill_value=np.nan, attributes={"units": spec["units"]})
+    for t in plan.tasks:  # the group a flake task's own arrays go in exists before any task runs
+        if t.is_flake:
+            g.require_group(t.prefix)
     g["wavelength_nm"][:] = np.asarray(plan.inputs["wavelength_nm"], dtype=float)
-    for n, m in plan.inputs["resolutions"]:
-        mu, phi = grid_nodes(n, m, plan.inputs.get("eta_top"))
-        g[f"grid/{_res_key(n, m)}/mu"][:] = mu
-        g[f"grid/{_res_key(n, m)}/phi_d"][:] = phi
+    for n in plan.inputs["resolutions"]:
+        x, w = store_nodes(n, plan.inputs.get("eta_top"))
+        g[f"grid/{_res_key(n)}/x"][:] = x
+        g[f"grid/{_res_key(n)}/w"][:] = w
     g.attrs.update(meta)  # the group's zarr.json is written last: its presence marks the template
 
 
 def compute_task(request_inputs: dict, task: Task) -> dict:
-    """The numbers of one task (pure): name → array for the channel block [c0, c1)."""
+    """The numbers of one task (pure): name → array (and ``info``, the compression record)."""
     entry = request_inputs["species"][task.species]
-    wl = np.asarray(request_inputs["wavelength_nm"], dtype=float)[task.c0:task.c1]
+    wl_all = np.asarray(request_inputs["wavelength_nm"], dtype=float)
+    wl = wl_all if task.is_flake else wl_all[task.c0:task.c1]
     eta_top = request_inputs.get("eta_top")
     # the binder index of the optics: the paint's one index below the top interface when eta_top is
     # given (module docstring), else the catalogue binder's dispersion
     nb = np.full(wl.shape, float(eta_top)) if eta_top is not None else sp.binder_index(
         {"binder": request_inputs["binder"]}, wl)
-    R = sample_reflectance(entry, wl, nb, task.n, task.m, n_table=request_inputs["n_table"], eta_top=eta_top)
-    nm = R.shape[1]
-    r = request_inputs["rank"]
-    out = {"U_pairs": [], "V_pairs": [], "fourier": [], "singular_values": [], "mean_relative_error": []}
-    for ch in range(R.shape[0]):
-        f = sqrt_svd_compress(R[ch], r)
-        out["U_pairs"].append(f.U_pairs)
-        out["V_pairs"].append(f.V_pairs)
-        out["fourier"].append(fourier_factors(f.V_pairs))
-        out["singular_values"].append(f.singular_values)
-        out["mean_relative_error"].append(mean_relative_error(R[ch], reconstruct(f.U_pairs, f.V_pairs, nm)))
-    out = {k: np.asarray(v) for k, v in out.items()}
-    if request_inputs["store_raw"]:
-        out["raw"] = R
-    return out
+    if task.is_flake:
+        return flake_task(entry, wl, nb, task.n, task.alpha, eta_top, request_inputs["rank_tol"],
+                          request_inputs["projection_tol"])
+    nb_all = np.full(wl_all.shape, float(eta_top)) if eta_top is not None else sp.binder_index(
+        {"binder": request_inputs["binder"]}, wl_all)
+    # the size quadrature of the whole grid (the log-normal Mie nodes follow the shortest wavelength):
+    # every block, and a compose of any bands starting at the grid's first, gets the same nodes
+    return pigment_task(entry, wl, nb, request_inputs["legendre_degree"],
+                        n_quad=sp.pigment_n_quad(entry, wl_all, nb_all))
 
 
 def run_task(url, plan: BuildPlan, task: Task) -> dict:
-    """Compute one task, write its chunk-aligned region, record its chunks' sha256; returns the record.
-
-    Safe to re-run: it overwrites exactly its own chunks and its own record.
-    """
+    """Compute one task, write its arrays (a flake task creates U and V, sized by its rank and orders),
+    record its chunks' sha256; returns the record.  Safe to re-run: it overwrites exactly its own
+    chunks and arrays and its own record."""
     data = compute_task(plan.inputs, task)
+    info = data.pop("info", {})
     vurl = _version_url(url, plan.version)
-    base = f"species/{task.species}/{_res_key(task.n, task.m)}"
+    created = {}
     for name, arr in data.items():
-        za = zarr.open_array(vurl, path=f"{base}/{name}", mode="r+")
-        za[task.c0:task.c1] = arr
+        path = f"{task.prefix}/{name}"
+        if path in plan.arrays:
+            za = zarr.open_array(vurl, path=path, mode="r+")
+            if task.is_flake:
+                za[...] = arr
+            else:
+                za[task.c0:task.c1] = arr
+        else:  # U (W, r) and V (r, L, 2, h, h): shapes from the data
+            chunks = list(arr.shape) if name != "V" else [arr.shape[0], ORDER_CHUNK] + list(arr.shape[2:])
+            chunks[1 if name == "V" else 0] = min(chunks[1 if name == "V" else 0], arr.shape[1 if name == "V" else 0])
+            spec = {"shape": list(arr.shape), "chunks": chunks, "dtype": str(arr.dtype), "units": "see metadata"}
+            za = _sized_array(vurl, path, arr, chunks, {"units": spec["units"], "info": info})
+            za[...] = arr
+            created[path] = spec
     fs, root = _fs(url)
     vroot = posixpath.join(root, "versions", plan.version)
-    chunks = {key: _sha256(fs.cat_file(posixpath.join(vroot, key))) for key in _task_chunk_keys(plan, task)}
-    record = {"task": task.id, "version": plan.version, "chunks": chunks}
+    chunks = {key: _sha256(fs.cat_file(posixpath.join(vroot, key))) for key in _task_chunk_keys(plan, task, created)}
+    record = {"task": task.id, "version": plan.version, "chunks": chunks, "arrays": created,
+              "info": json.loads(json.dumps(info, default=float))}
     _write_json(fs, posixpath.join(vroot, task.record_name), record)  # written last: the task is done
     return record
+
+
+def _sized_array(vurl, path, arr, chunks, attributes):
+    """The array a task sizes (U, V): reused when it exists with this shape (a re-run, or the same task
+    running in another build at the same time writes the same bytes into it), else (re)created.
+    Never deleted while another writer may be hashing it."""
+    try:
+        za = zarr.open_array(vurl, path=path, mode="r+")
+        if za.shape == arr.shape and za.dtype == arr.dtype and tuple(za.chunks) == tuple(chunks):
+            return za
+    except (FileNotFoundError, KeyError, ValueError, zarr.errors.NodeNotFoundError, zarr.errors.NodeTypeValidationError):
+        pass
+    try:
+        return zarr.create_array(vurl, name=path, shape=arr.shape, chunks=tuple(chunks), dtype=arr.dtype,
+                                 fill_value=np.nan, overwrite=False, attributes=attributes)
+    except zarr.errors.ContainsArrayError:  # created by a concurrent run of the same task, or another shape
+        za = zarr.open_array(vurl, path=path, mode="r+")
+        if za.shape == arr.shape and za.dtype == arr.dtype:
+            return za
+        return zarr.create_array(vurl, name=path, shape=arr.shape, chunks=tuple(chunks), dtype=arr.dtype,
+                                 fill_value=np.nan, overwrite=True, attributes=attributes)
 
 
 def pending_tasks(url, plan: BuildPlan) -> list:
@@ -472,16 +558,19 @@ def finalize(url, plan: BuildPlan):
     missing = pending_tasks(url, plan)
     if missing:
         raise StoreError(f"cannot finalize {plan.version}: {len(missing)} task(s) not done, e.g. {missing[0].id}")
-    sums = {}
+    sums, sized = {}, {}
     for t in plan.tasks:
-        sums.update(_read_json(fs, posixpath.join(vroot, t.record_name))["chunks"])
+        rec = _read_json(fs, posixpath.join(vroot, t.record_name))
+        sums.update(rec["chunks"])
+        sized.update(rec.get("arrays", {}))
     for key in _all_chunk_keys(plan.arrays):
         if key not in sums:  # coordinates, written with the template
             sums[key] = _sha256(fs.cat_file(posixpath.join(vroot, key)))
     for p in fs.find(vroot):
         if p.endswith("zarr.json"):
             sums[posixpath.relpath(p, vroot)] = _sha256(fs.cat_file(p))
-    doc = {"version": plan.version, "algorithm": "sha256", "files": dict(sorted(sums.items()))}
+    doc = {"version": plan.version, "algorithm": "sha256", "files": dict(sorted(sums.items())),
+           "arrays": dict(sorted(sized.items()))}
     _write_json(fs, posixpath.join(vroot, "checksums.json"), doc)
     cs = _sha256(fs.cat_file(posixpath.join(vroot, "checksums.json")))
     _write_json(fs, posixpath.join(vroot, "complete"), {"version": plan.version, "checksums_sha256": cs,
@@ -520,8 +609,11 @@ def read_latest(url) -> str | None:
 # --------------------------------------------------------------------------------------------
 
 
-def verify_version(url, version) -> list[str]:
-    """Problems of one version: completeness, schema, every file's sha256.  Empty list = sound."""
+def verify_version(url, version, only=None) -> list[str]:
+    """Problems of one version: completeness, schema, every file's sha256.  Empty list = sound.
+
+    ``only``: path prefixes (e.g. ``species/metallic/n32/a0.25/``): hash only the files under them
+    (and the version's top-level files) — what a compose reads."""
     fs, root = _fs(url)
     vroot = posixpath.join(root, "versions", version)
     where = f"versions/{version}"
@@ -532,11 +624,14 @@ def verify_version(url, version) -> list[str]:
         meta = _read_json(fs, posixpath.join(vroot, "zarr.json")).get("attributes", {})
     except (OSError, ValueError, UnicodeDecodeError) as exc:
         return [f"{where}/zarr.json: unreadable ({exc})"]
+    if meta.get("format_version") != FORMAT_VERSION:
+        return [f"{where}: store format {meta.get('format_version')} (this flakedb reads format {FORMAT_VERSION}: "
+                "projected kernel factors); rebuild with `flakedb build`"]
     problems += [f"{where}: {p}" for p in schema_problems(meta, "metadata")]
     if meta.get("version") != version:
         problems.append(f"{where}: metadata names version {meta.get('version')!r}")
     if not fs.exists(posixpath.join(vroot, "complete")):
-        done = sum(fs.exists(posixpath.join(vroot, Task(*_parse_task(t)).record_name)) for t in meta.get("tasks", []))
+        done = sum(fs.exists(posixpath.join(vroot, "tasks/" + t.replace("/", "__") + ".json")) for t in meta.get("tasks", []))
         problems.append(f"{where}: incomplete build ({done} of {len(meta.get('tasks', []))} tasks done); "
                         "rerun `flakedb build` with the same inputs to finish it")
         return problems
@@ -550,8 +645,13 @@ def verify_version(url, version) -> list[str]:
     problems += [f"{where}: {p}" for p in schema_problems(sums, "checksums")]
     if complete.get("checksums_sha256") != _sha256(cs_bytes):
         problems.append(f"{where}/checksums.json: sha256 differs from the one recorded in `complete`")
+    if meta.get("format_version") != FORMAT_VERSION:
+        return problems
     files = sums.get("files", {})
-    for key in _all_chunk_keys(meta.get("arrays", {})):
+    if only is not None:
+        files = {k: v for k, v in files.items() if "/" not in k or any(k.startswith(p) for p in only)}
+    arrays = {**meta.get("arrays", {}), **sums.get("arrays", {})}
+    for key in _all_chunk_keys({p: a for p, a in arrays.items() if only is None or any(p.startswith(q) for q in only)}):
         if key not in files:
             problems.append(f"{where}/{key}: chunk has no recorded checksum")
     for key, expected in files.items():
@@ -567,13 +667,6 @@ def verify_version(url, version) -> list[str]:
         if got != expected:
             problems.append(f"{where}/{key}: sha256 {got[:16]}… != recorded {expected[:16]}… (corrupted)")
     return problems
-
-
-def _parse_task(task_id):
-    name, res, ch = task_id.rsplit("/", 2)
-    n, m = res[1:].split("_m")
-    c0, c1 = ch[2:].split("-")
-    return name, int(n), int(m), int(c0), int(c1)
 
 
 def verify_store(url, all_versions=False) -> list[str]:
@@ -610,9 +703,10 @@ def verify_store(url, all_versions=False) -> list[str]:
 def open_version(url=None, version=None, verify=True) -> "StoreVersion":
     """Open a complete version for reading (``version`` None: the one ``latest`` points at).
 
-    With ``verify`` (default) every file's sha256 is checked against ``checksums.json`` first and a
+    With ``verify`` (default) every file's sha256 is checked against ``checksums.json`` first (a list
+    of path prefixes: only the files under them, :func:`verify_version` ``only``) and a
     :class:`StoreIntegrityError` lists what does not match; an incomplete version raises
-    :class:`StoreError`.
+    :class:`StoreError`, a version of another store format too ("rebuild with flakedb build").
     """
     url = url if url is not None else default_store()
     if version is None:
@@ -622,13 +716,18 @@ def open_version(url=None, version=None, verify=True) -> "StoreVersion":
     state = version_state(url, version)
     if state != "complete":
         raise StoreError(f"{url}: version {version} is {state}; rerun `flakedb build` with the same inputs to finish it")
+    g = zarr.open_group(_version_url(url, version), mode="r")
+    fmt = dict(g.attrs).get("format_version")
+    if fmt != FORMAT_VERSION:
+        raise StoreError(f"{url}: version {version[:12]} has store format {fmt}; this flakedb reads format "
+                         f"{FORMAT_VERSION} (projected kernel factors, issue #11): rebuild with `flakedb build "
+                         f"--store {url}` (or `flakedb build --recipe RECIPE --store {url}`)")
     if verify:
-        problems = verify_version(url, version)
+        problems = verify_version(url, version, only=verify if isinstance(verify, (list, tuple)) else None)
         if problems:
             raise StoreIntegrityError(
                 f"{url}: version {version} failed verification ({len(problems)} problem(s)); delete "
                 f"versions/{version} and rebuild:\n  " + "\n  ".join(problems[:20]))
-    g = zarr.open_group(_version_url(url, version), mode="r")
     return StoreVersion(str(url), version, g, dict(g.attrs))
 
 
@@ -655,78 +754,63 @@ class StoreVersion:
         return self.metadata["inputs"].get("eta_top")
 
     @property
-    def resolutions(self) -> list[tuple[int, int]]:
-        return [tuple(x) for x in self.metadata["inputs"]["resolutions"]]
+    def resolutions(self) -> list[int]:
+        return [int(n) for n in self.metadata["inputs"]["resolutions"]]
 
-    def _res(self, n, m):
-        if m is None:
-            ms = [mm for nn, mm in self.resolutions if nn == n]
-            if not ms:
-                raise StoreError(f"version {self.version} has no resolution n = {n}; it has {self.resolutions}")
-            m = ms[0]
-        if (n, m) not in self.resolutions:
-            raise StoreError(f"version {self.version} has no resolution (n, m) = ({n}, {m}); it has {self.resolutions}")
-        return n, m
+    @property
+    def raw(self) -> bool:
+        """Whether the flakes' spectral SVD was kept at its numerical rank (``flakedb build --raw``)."""
+        return bool(self.metadata["inputs"]["store_raw"])
 
-    def grid(self, n, m=None):
-        """(mu (n,), phi_d (m,)) of a resolution."""
-        n, m = self._res(n, m)
-        g = self.group[f"grid/{_res_key(n, m)}"]
-        return g["mu"][:], g["phi_d"][:]
+    def alphas(self, species) -> list[float]:
+        return [float(a) for a in self.metadata["inputs"]["alphas"].get(species, [])]
 
-    def _arr(self, species, n, m, name):
+    def _check(self, species, n=None, alpha=None):
         if species not in self.species:
             raise StoreError(f"version {self.version} has no species {species!r}; it has {', '.join(self.species)}")
-        n, m = self._res(n, m)
-        path = f"species/{species}/{_res_key(n, m)}/{name}"
-        if name == "raw" and not self.metadata["inputs"]["store_raw"]:
-            raise StoreError(f"version {self.version} was built without raw data (build with store_raw / --raw)")
-        return self.group[path][:]
+        if n is not None and int(n) not in self.resolutions:
+            raise StoreError(f"version {self.version} has no resolution n = {n}; it has {self.resolutions}")
+        if alpha is not None and not any(abs(a - float(alpha)) <= 1e-12 for a in self.alphas(species)):
+            raise StoreError(f"version {self.version} has {species!r} at α {self.alphas(species)}, not {alpha:g}")
 
-    def factors(self, species, n, m=None) -> dict:
-        """``U_pairs`` (W, n², k), ``V_pairs`` (W, k, m), ``fourier`` (W, k, m), ``singular_values``
-        (W, r), ``mean_relative_error`` (W,)."""
-        return {k: self._arr(species, n, m, k) for k in
-                ("U_pairs", "V_pairs", "fourier", "singular_values", "mean_relative_error")}
+    def grid(self, n):
+        """(x, w) (h,) the positive inside nodes and weights of resolution n."""
+        self._check(self.species[0], n)
+        g = self.group[f"grid/{_res_key(n)}"]
+        return g["x"][:], g["w"][:]
 
-    def fourier_coefficients(self, species, n, m=None, raw=False) -> np.ndarray:
-        """R's cosine coefficients (W, n_mu, n_mu, m), [ch, i, o, l], orders 0 … m−1: from the compressed
-        factors (U_pairs @ fourier), or with ``raw`` the DCT-I of the stored raw R (a version built
-        with ``store_raw``)."""
-        if raw:
-            return cosine_coefficients(self.raw(species, n, m))
-        f = self.factors(species, n, m)
-        W, nn, _ = f["U_pairs"].shape
-        nm = int(round(np.sqrt(nn)))
-        return np.matmul(f["U_pairs"], f["fourier"]).reshape(W, nm, nm, -1)
+    def flake_prefix(self, species, n, alpha) -> str:
+        return Task(species, int(n), float(alpha)).prefix
 
-    def reflectance(self, species, n, m=None) -> np.ndarray:
-        """The compressed R̂ on the grid, (W, n_mu, n_mu, m)."""
-        f = self.factors(species, n, m)
-        W, nn, _ = f["U_pairs"].shape
-        nm = int(round(np.sqrt(nn)))
-        return np.matmul(f["U_pairs"], f["V_pairs"]).reshape(W, nm, nm, -1)
+    def flake_factors(self, species, n, alpha) -> FlakeFactors:
+        """The stored factors of a flake species at (n, α) (:class:`flakedb.rt.stored.FlakeFactors`);
+        V is read lazily, a chunk of :data:`ORDER_CHUNK` orders at a time, as the solver asks."""
+        self._check(species, n, alpha)
+        p = self.flake_prefix(species, n, alpha)
+        g = self.group[p]
+        V = g["V"]
+        cache = {}
 
-    def raw(self, species, n, m=None) -> np.ndarray:
-        """R itself, (W, n_mu, n_mu, m) (only in a version built with ``store_raw``)."""
-        return self._arr(species, n, m, "raw")
+        def read(l0, l1):
+            c0, c1 = l0 // ORDER_CHUNK, -(-l1 // ORDER_CHUNK)
+            key = (c0, c1)
+            if key not in cache:
+                cache.clear()
+                cache[key] = V[:, c0 * ORDER_CHUNK: c1 * ORDER_CHUNK]
+            return cache[key][:, l0 - c0 * ORDER_CHUNK: l1 - c0 * ORDER_CHUNK]
 
-    def stored_reflectance(self, species, n, m=None, raw=False, channel_index=None, channel_map=None,
-                   weights=None):
-        """R's series of ``species`` at resolution ``n`` (and ``m``) of this version, as a
-        :class:`flakedb.rt.stored.StoredReflectance`; compressed factors by default, the raw samples with ``raw``.
+        x, _ = self.grid(n)
+        return FlakeFactors(x, g["U"][:], read, int(V.shape[1]), g["sigma_t"][:], g["sigma_s"][:],
+                            g["projected_area"][:],
+                            f"store {self.url} version {self.version[:12]} {species} n = {n} α = {alpha:g}")
 
-        ``channel_index`` (C,) picks stored wavelengths; ``weights`` (C,) multiplies each picked band
-        (a pigment's ρ C_ext); ``channel_map`` (C, K) then maps the bands linearly to K output
-        channels (e.g. spectra → RGB).  Order: pick, weight, map.
-        """
-        mu, _ = self.grid(n, m)
-        co = self.fourier_coefficients(species, n, m, raw=raw)  # (W, n_mu, n_mu, L)
-        if channel_index is not None:
-            co = co[np.asarray(channel_index, dtype=int)]
-        if weights is not None:
-            co = co * np.asarray(weights, dtype=float)[:, None, None, None]
-        if channel_map is not None:
-            co = np.tensordot(np.asarray(channel_map, dtype=float), co, axes=([0], [0]))
-        what = "raw samples (DCT-I)" if raw else "compressed factors (U_pairs @ fourier)"
-        return StoredReflectance(mu, co, f"store {self.url} version {self.version[:12]} species {species} n = {n}: {what}")
+    def flake_info(self, species, n, alpha) -> dict:
+        """The compression record of a flake task (rank, singular values, error bound, storage ratio)."""
+        self._check(species, n, alpha)
+        return dict(self.group[f"{self.flake_prefix(species, n, alpha)}/U"].attrs.get("info", {}))
+
+    def pigment(self, species) -> dict:
+        """``c_ext_um2``, ``c_sca_um2``, ``mean_volume_um3`` (W,) and ``legendre_moments`` (W, K + 1)."""
+        self._check(species)
+        g = self.group[f"species/{species}"]
+        return {k: g[k][:] for k in ("c_ext_um2", "c_sca_um2", "mean_volume_um3", "legendre_moments")}

@@ -113,8 +113,6 @@ def test_unwritable_output_refused_before_the_work(tmp_path, cmd, monkeypatch):
     (["compose", "R", "--n", "0"], ["8 ≤ n ≤ 512"]),
     (["build", "--n", "100000", "--dry-run", "--store", "S"], ["--n 100000", "8 ≤ n ≤ 512"]),
     (["build", "--n", "0", "--dry-run", "--store", "S"], ["8 ≤ n ≤ 512", "the range compose accepts"]),
-    (["build", "--m", "0", "--dry-run", "--store", "S"], ["--m 0", "2 ≤ m ≤ 4096"]),
-    (["build", "--n", "512", "--m", "4096", "--raw", "--dry-run", "--store", "S"], ["the limit is 64 GiB"]),
     (["export-mitsuba", "F", "--out", "O/x.bsdf", "--res", "100000"], ["--res 100000", "8 ≤ res ≤ 512"]),
     (["export-mitsuba", "F", "--out", "O/x.bsdf", "--res", "0"], ["--res 0", "8 ≤ res ≤ 512"]),
     (["export-mitsuba", "F", "--out", "O/x.bsdf", "--n-theta", "100000"], ["4 ≤ n_theta ≤ 256"]),

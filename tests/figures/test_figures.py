@@ -68,10 +68,11 @@ def test_figure6_solver_matches_monte_carlo(tmp_path):
         assert p["psnr_store_compressed_vs_mc_db"] > p["psnr_mc_noise_limit_db"] - 3.0, p["label"]
         assert p["store"]["compressed"]["albedo_max_abs_diff_vs_direct"] < 2e-3, p["label"]
     sr = data["store"]
-    assert sr["rank"] == 8 and sr["build_s"] > 0 and sr["range_nm"] == [380.0, 780.0] and sr["n"] == F.QUICK["fig6_n"]
+    assert "flake_ranks" in sr and sr["build_s"] > 0 and sr["range_nm"] == [380.0, 780.0] and sr["n"] == F.QUICK["fig6_n"]
     assert "TODO" not in readme and f"{sr['build_s']:.1f} s" in readme
     pig = next(p for p in data["paints"] if p["label"] == "pigment")
-    assert f"{pig['psnr_compressed_vs_raw_db']:.1f} dB (pigment)" in readme
+    v = pig["psnr_compressed_vs_raw_db"]  # None: identical (issue #11: a pigment's stored moments are not truncated)
+    assert (f"{v:.1f} dB (pigment)" if v is not None else "(pigment)") in readme
 
 
 def test_binned_shader_furnace():

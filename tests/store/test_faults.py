@@ -23,8 +23,7 @@ from flakedb.store import versions as st
 
 
 def _request(**kw):
-    args = dict(species=["cadmium-yellow"], n=8, m=16, wavelength_nm=[450.0, 550.0, 650.0], channel_block=1,
-                n_table=257)
+    args = dict(species=["cadmium-yellow"], n=8, wavelength_nm=[450.0, 550.0, 650.0], channel_block=1)
     args.update(kw)
     return make_request(**args)
 
@@ -69,7 +68,7 @@ def test_broken_latest_is_a_clear_error(built, tmp_path, kind):
 
 def test_chunk_replaced_by_a_directory_is_reported(built, tmp_path):
     url = _copy(built, tmp_path)
-    key = "species/cadmium-yellow/n8_m16/U_pairs/c/0/0/0"
+    key = "species/cadmium-yellow/c_ext_um2/c/0"
     p = Path(url) / "versions" / built[1]["version"] / key
     p.unlink()
     p.mkdir()
@@ -100,7 +99,7 @@ def test_disk_full_during_build_is_one_line_and_resumes(tmp_path, monkeypatch):
         return real(u, plan, task)
 
     monkeypatch.setattr(st, "run_task", full)
-    args = ["build", "--store", url, "--n", "8", "--m", "16", "--species", "cadmium-yellow", "--range-nm", "450",
+    args = ["build", "--store", url, "--n", "8", "--species", "cadmium-yellow", "--range-nm", "450",
             "650", "--step-nm", "100", "--workers", "1"]
     r = CliRunner().invoke(cli, args)
     assert r.exit_code == 1, r.output
@@ -118,7 +117,7 @@ def test_debug_flag_shows_the_traceback(tmp_path, monkeypatch):
         raise RuntimeError("boom")
 
     monkeypatch.setattr(st, "run_task", boom)
-    args = ["build", "--store", str(tmp_path / "s"), "--n", "8", "--m", "16", "--species", "cadmium-yellow",
+    args = ["build", "--store", str(tmp_path / "s"), "--n", "8", "--species", "cadmium-yellow",
             "--range-nm", "450", "650", "--step-nm", "100"]
     r = CliRunner().invoke(cli, args)
     assert r.exit_code == 1 and "internal error: RuntimeError: boom" in r.output and "--debug" in r.output
@@ -147,8 +146,7 @@ def test_progress_lines_in_a_log_and_a_bar_on_a_terminal():
 
 def test_build_progress_goes_to_stderr_not_stdout(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
-    r = subprocess.run([sys.executable, "-m", "flakedb", "build", "--store", str(tmp_path / "s"), "--n", "8", "--m",
-                        "16", "--species", "cadmium-yellow", "--range-nm", "450", "650", "--step-nm", "100"],
+    r = subprocess.run([sys.executable, "-m", "flakedb", "build", "--store", str(tmp_path / "s"), "--n", "8", "--species", "cadmium-yellow", "--range-nm", "450", "650", "--step-nm", "100"],
                        capture_output=True, text=True, env=env, timeout=300)
     assert r.returncode == 0, r.stderr
     assert "tasks done" not in r.stdout and "\r" not in r.stdout and r.stdout.startswith("built")
@@ -205,7 +203,7 @@ def test_workers_that_keep_dying_stop_the_build_clearly_and_it_resumes(tmp_path)
 def test_killing_the_parent_ends_its_workers(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
     p = subprocess.Popen([sys.executable, "-m", "flakedb", "build", "--store", str(tmp_path / "s"), "--processes",
-                          "--workers", "2", "--n", "64", "--m", "64", "--species", "pearlescent"],
+                          "--workers", "2", "--n", "64", "--species", "pearlescent"],
                          env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     parent = psutil.Process(p.pid)
     deadline = time.time() + 120

@@ -13,14 +13,13 @@ from click.testing import CliRunner
 
 from flakedb.cli.main import cli
 from flakedb.pipelines.build import build, make_request
-from flakedb.store import compress as C
 from flakedb.store import versions as st
 
 SPECIES = ["pearlescent", "cadmium-yellow"]
 
 
 def _request(**kw):
-    args = dict(species=SPECIES, n=8, m=16, wavelength_nm=[450.0, 550.0, 650.0], channel_block=2, n_table=257)
+    args = dict(species=SPECIES, n=8, wavelength_nm=[450.0, 550.0, 650.0], channel_block=2)
     args.update(kw)
     return make_request(**args)
 
@@ -34,14 +33,15 @@ def serial(tmp_path_factory):
     url = str(tmp_path_factory.mktemp("serial") / "store")
     req = _request(store_raw=True)
     res = build(req, url, scheduler="sync")
-    assert res["status"] == "built" and res["tasks_run"] == res["tasks_total"] == 4
+    assert res["status"] == "built" and res["tasks_run"] == res["tasks_total"] == 4  # 2 flake (n, α: catalogue 0.25, recipes 0.2) + 2 pigment blocks
     return url, req, res
 
 
 def test_content_hash_is_deterministic_and_sensitive():
     a, b = _request(), _request(species=list(reversed(SPECIES)))
     assert st.plan_build(a).version == st.plan_build(b).version
-    assert st.plan_build(_request(rank=4)).version != st.plan_build(a).version
+    assert st.plan_build(_request(rank_tol=1e-3)).version != st.plan_build(a).version
+    assert st.plan_build(_request(alphas={"pearlescent": [0.2]})).version != st.plan_build(a).version
     changed = dict(a.species)
     changed["pearlescent"] = json.loads(json.dumps(changed["pearlescent"]))
     changed["pearlescent"]["coating"][0]["thickness_nm"]["value"] += 1
@@ -49,26 +49,39 @@ def test_content_hash_is_deterministic_and_sensitive():
 
 
 def test_reader_values(serial):
+    """Adapted to the format-2 readers (issue #11): the stored factors reproduce the direct projection
+    of the flake's kernel on the stored nodes, the pigment's moments its Mie phase function."""
+    from flakedb.paint import species as sp
+    from flakedb.rt.media import FlakeMedium
+    from flakedb.rt.microflake import FlakeOptics
+    from flakedb.rt.stack import project_medium
+    from flakedb.rt.stored import StoredFlakeMedium
+    from flakedb.store.compress import store_nodes
+
     url, req, res = serial
     v = st.open_version(url)
     assert v.version == res["version"] and v.species == sorted(SPECIES)
     assert st.schema_problems(v.metadata, "metadata") == []
     np.testing.assert_array_equal(v.wavelength_nm, [450.0, 550.0, 650.0])
-    mu, phi = v.grid(8)
-    np.testing.assert_array_equal(mu, C.grid_nodes(8, 16)[0])
-    for name in SPECIES:
-        raw = v.raw(name, 8)
-        assert raw.shape == (3, 8, 8, 16) and np.all(np.isfinite(raw))
-        Rh = v.reflectance(name, 8)
-        f = v.factors(name, 8)
-        for ch in range(3):
-            assert f["mean_relative_error"][ch] == pytest.approx(C.mean_relative_error(raw[ch], Rh[ch]), rel=1e-12)
-        assert f["mean_relative_error"].max() < 0.05
-        from flakedb.rt.fourier import cosine_coefficients
-
-        np.testing.assert_allclose(v.fourier_coefficients(name, 8), cosine_coefficients(Rh), rtol=0, atol=1e-12)
+    x, w = v.grid(8)
+    np.testing.assert_array_equal(x, store_nodes(8)[0])
+    f = v.flake_factors("pearlescent", 8, 0.25)
+    assert f.U.shape[0] == 3 and np.all(np.isfinite(f.sigma_t))
+    from flakedb.paint.mapping import adaptive_flake_optics
+    e = req.species["pearlescent"]
+    nb = sp.binder_index({"binder": req.binder}, np.array([450.0, 550.0, 650.0]))
+    c, R, T, _ = adaptive_flake_optics(lambda cc: sp.flake_reflectance_transmittance(e, np.array([450.0, 550.0, 650.0]), cc, nb))
+    direct, _ = project_medium(FlakeMedium(0.25, FlakeOptics(c, R, T), 1.0), x, w, 1e-5, 16, renormalize=False)
+    stored, _ = StoredFlakeMedium(f, 1.0, np.eye(3)).projected_kernel(x, 16)
+    L = max(direct.n_orders, stored.n_orders)
+    a, b = direct.blocks(0, L), stored.blocks(0, L)
+    scale = max(np.abs(a[0]).max(), np.abs(a[1]).max())
+    assert max(np.abs(a[0] - b[0]).max(), np.abs(a[1] - b[1]).max()) <= 1e-5 * scale
+    pig = v.pigment("cadmium-yellow")
+    assert pig["legendre_moments"].shape[0] == 3 and np.allclose(pig["legendre_moments"][:, 0], 1.0)
+    assert np.all(pig["c_sca_um2"] <= pig["c_ext_um2"])
     with pytest.raises(st.StoreError, match="no species"):
-        v.factors("titanium-white", 8)
+        v.pigment("titanium-white")
 
 
 def test_unchanged_inputs_do_no_work(serial):
@@ -91,9 +104,10 @@ def test_distributed_build_is_bit_for_bit_the_serial_build(serial, tmp_path):
     assert res2["status"] == "built" and res2["version"] == res["version"]
     assert _checksums(url2, res2["version"]) == _checksums(url, res["version"])  # every chunk, byte for byte
     a, b = st.open_version(url), st.open_version(url2)
-    for name in SPECIES:
-        for k, x in a.factors(name, 8).items():
-            assert np.array_equal(x, b.factors(name, 8)[k])
+    fa, fb = a.flake_factors("pearlescent", 8, 0.25), b.flake_factors("pearlescent", 8, 0.25)
+    assert np.array_equal(fa.U, fb.U) and np.array_equal(fa.read(0, fa.n_orders), fb.read(0, fb.n_orders))
+    for k, x in a.pigment("cadmium-yellow").items():
+        assert np.array_equal(x, b.pigment("cadmium-yellow")[k])
 
 
 def test_interrupted_build_keeps_latest_and_resumes(serial, tmp_path):
@@ -131,24 +145,24 @@ def test_corrupted_chunk_is_reported_and_refused(serial, tmp_path):
     url0, req, res = serial
     url = str(tmp_path / "copy")
     shutil.copytree(url0, url)
-    key = "species/cadmium-yellow/n8_m16/U_pairs/c/0/0/0"
+    key = "species/cadmium-yellow/legendre_moments/c/0/0"
     p = Path(url) / "versions" / res["version"] / key
     data = bytearray(p.read_bytes())
     data[len(data) // 2] ^= 0xFF
     p.write_bytes(bytes(data))
     r = CliRunner().invoke(cli, ["verify", url])
     assert r.exit_code == 1 and key in r.output and "corrupted" in r.output
-    with pytest.raises(st.StoreIntegrityError, match="U_pairs/c/0/0/0"):
+    with pytest.raises(st.StoreIntegrityError, match="legendre_moments/c/0/0"):
         st.open_version(url)
     assert CliRunner().invoke(cli, ["verify", url0]).exit_code == 0
 
 
 def test_cli_dry_run_builds_nothing(tmp_path):
     url = str(tmp_path / "none")
-    r = CliRunner().invoke(cli, ["build", "--store", url, "--dry-run", "--n", "8", "--m", "16",
+    r = CliRunner().invoke(cli, ["build", "--store", url, "--dry-run", "--n", "8",
                                  "--species", "metallic", "--step-nm", "100"])
     assert r.exit_code == 0, r.output
-    assert "1 tasks" in r.output and "MiB uncompressed" in r.output and "absent" in r.output
+    assert "2 tasks" in r.output and "MiB" in r.output and "absent" in r.output  # metallic at α 0.2 and 0.25
     assert not os.path.exists(url)
     r = CliRunner().invoke(cli, ["build", "--store", url, "--dry-run", "--n", "7"])
     assert r.exit_code == 2 and "even" in r.output
@@ -163,7 +177,7 @@ def test_build_to_an_fsspec_url_round_trips():
     from flakedb.pipelines.build import build, make_request
     from flakedb.store import versions as st
 
-    req = make_request(species=["gray-mirror"], n=8, m=8, wavelength_nm=spectral_grid((400, 700), 100))
+    req = make_request(species=["gray-mirror"], n=8, wavelength_nm=spectral_grid((400, 700), 100))
     url = "memory://flakedb-test-fsspec/store"
     assert build(req, url, scheduler="sync", progress=False)["status"] == "built"
     assert st.verify_store(url) == []
@@ -171,9 +185,13 @@ def test_build_to_an_fsspec_url_round_trips():
 
     with tempfile.TemporaryDirectory() as d:
         build(req, d + "/store", scheduler="sync", progress=False)
-        a = st.open_version(url).fourier_coefficients("gray-mirror", 8)
-        b = st.open_version(d + "/store").fourier_coefficients("gray-mirror", 8)
-        np.testing.assert_array_equal(a, b)
+        for k in ("U", "sigma_t"):
+            a = getattr(st.open_version(url).flake_factors("gray-mirror", 8, 0.25), k)
+            b = getattr(st.open_version(d + "/store").flake_factors("gray-mirror", 8, 0.25), k)
+            np.testing.assert_array_equal(a, b)
+        fa = st.open_version(url).flake_factors("gray-mirror", 8, 0.25)
+        fb = st.open_version(d + "/store").flake_factors("gray-mirror", 8, 0.25)
+        np.testing.assert_array_equal(fa.read(0, fa.n_orders), fb.read(0, fb.n_orders))
 
 
 def _build_in_process(args):
@@ -192,7 +210,7 @@ def test_two_builds_at_once_do_not_corrupt_the_store(serial, tmp_path):
 
     url, req, res = serial
     url2 = str(tmp_path / "shared-store")
-    jobs = [(url2, {"store_raw": True}), (url2, {"store_raw": True}), (url2, {"store_raw": True, "rank": 4})]
+    jobs = [(url2, {"store_raw": True}), (url2, {"store_raw": True}), (url2, {"store_raw": False})]
     with mp.get_context("spawn").Pool(3) as pool:
         statuses = pool.map(_build_in_process, jobs)
     assert all(s in ("built", "reused") for s in statuses), statuses
@@ -200,3 +218,20 @@ def test_two_builds_at_once_do_not_corrupt_the_store(serial, tmp_path):
     assert _checksums(url2, res["version"]) == _checksums(url, res["version"])
     latest = st.read_latest(url2)
     assert st.version_state(url2, latest) == "complete"
+
+
+def test_a_format_1_store_is_refused_with_rebuild(serial, tmp_path):
+    """A store of the R-sample format (1) is refused with a one-line 'rebuild with flakedb build'
+    (issue #11 changed the format; nothing of an old store is read as if it were new)."""
+    import shutil
+
+    url0, req, res = serial
+    url = str(tmp_path / "old")
+    shutil.copytree(url0, url)
+    zj = Path(url) / "versions" / res["version"] / "zarr.json"
+    doc = json.loads(zj.read_text())
+    doc["attributes"]["format_version"] = 1
+    zj.write_text(json.dumps(doc))
+    with pytest.raises(st.StoreError, match="rebuild with `flakedb build"):
+        st.open_version(url)
+    assert any("rebuild with `flakedb build`" in p for p in st.verify_store(url))
