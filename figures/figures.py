@@ -4,13 +4,13 @@
 
 A pipeline at the edge: it drives the core (:func:`flakedb.compose.orchestrate.compose`,
 :func:`flakedb.render.preview.render_sphere`, :func:`flakedb.compose.report.colour_report`,
-:func:`flakedb.reference.montecarlo.simulate`, :func:`flakedb.store.compress.figure4`) and only lays out and writes
+:func:`flakedb.reference.montecarlo.simulate`, :func:`figures.figure4.figure4`) and only lays out and writes
 what they return.  Every number in ``docs/figures/README.md`` is written by :func:`write_readme`
 from the figure JSON files, which this module writes from the computed results.
 
 Figures
 -------
-* **fig4**: :func:`flakedb.store.compress.figure4` (figures/figure4.py's defaults: n = m = 64, 200 NMF sweeps).
+* **fig4**: :func:`figures.figure4.figure4` (figures/figure4.py's defaults: n = m = 64, 200 NMF sweeps).
 * **fig5**: the six ``catalog/recipes/fig5-*.yaml`` paints (opaque / translucent TiO₂-coated flakes
   on black, gray, white primers) composed at ``n`` nodes with ``step_nm`` bands, rendered as spheres
   (studio environment + sun), plus the in-plane luminance BSDF at 45° incidence and the directional
@@ -52,7 +52,12 @@ import flakedb.reference.montecarlo as mc
 from flakedb.atomic import atomic_write
 from flakedb.bsdf import open_bsdf
 from flakedb.compose.orchestrate import compose
-from flakedb.compose.report import channels_to_XYZ, directional_albedo, eval_table, reference_white
+from flakedb.compose.report import (
+    channels_to_XYZ,
+    directional_albedo,
+    eval_table,
+    reference_white,
+)
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import parse_recipe
@@ -70,7 +75,7 @@ from flakedb.render.preview import (
 from flakedb.rt import media as rm
 from flakedb.rt import stack as rs
 from flakedb.store import versions as st
-from flakedb.store.compress import figure4
+from figures.figure4 import figure4
 
 ROOT = Path(__file__).resolve().parents[1]
 RECIPES = ROOT / "catalog" / "recipes"
@@ -229,7 +234,7 @@ def _settings(cfg, keys):
 # Figure 4
 # --------------------------------------------------------------------------------------------
 def fig4(out, cfg, log):
-    """Reuse :func:`flakedb.store.compress.figure4`, written into a temporary directory then moved in."""
+    """Reuse :func:`figures.figure4.figure4`, written into a temporary directory then moved in."""
     p = cfg["fig4"]
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

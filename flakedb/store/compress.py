@@ -1,5 +1,5 @@
 """Sampling and compression of the flake reflectance function R(μ_i, μ_o, φ_d) (docs/model.md §5, paper §4
-end and §6, Figure 4).  Pure numpy: arrays in, arrays out; the only I/O is :func:`figure4`'s output.
+end and §6, Figure 4).  Pure numpy: arrays in, arrays out; the paper's Figure 4 plot is drawn by figures/figure4.py.
 
 What is sampled
 ---------------
@@ -53,18 +53,19 @@ k(n² + m) numbers per channel instead of n² m.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from flakedb.paint import catalog as cat
 from flakedb.paint import species as sp
 from flakedb.paint.mapping import adaptive_flake_optics
 from flakedb.rt.fourier import cosine_coefficients, phi_samples
 from flakedb.rt.legendre import legendre_moments_gauss
-from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
+from flakedb.rt.quadrature import (
+    default_tir_nodes,
+    radau_hemisphere,
+    snell_mapped_quadrature,
+)
 from flakedb.rt.stored import flake_factors
 
 __all__ = [
@@ -81,7 +82,6 @@ __all__ = [
     "nmf_compress",
     "mean_relative_error",
     "storage_bytes",
-    "figure4",
 ]
 
 #: default number of table nodes for R(c) / p(cos Θ) before interpolation onto the grid.
@@ -342,43 +342,6 @@ def figure4_table(R_by_species, ranks=range(1, 13), nmf_iter=500, seed=0):
     return out
 
 
-def figure4(out_dir="docs/figures", species=FIGURE4_SPECIES, wavelength_nm=550.0, n=64, m=64,
-            ranks=range(1, 13), nmf_iter=500, catalog=None):
-    """Reproduce the paper's Figure 4 (mean relative error vs rank, SVD and NMF) on catalogue species
-    at one wavelength (nm) on the (n, n, m) grid.  Writes ``figure4.png`` (matplotlib Agg) and
-    ``figure4.json`` (the table and its parameters) into ``out_dir``; returns the table dict."""
-    import matplotlib  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
-
-    catalog = catalog if catalog is not None else cat.load_catalog()
-    allsp = cat.expand_sweeps(catalog)
-    wl = np.array([float(wavelength_nm)])
-    nb = sp.binder_index(catalog, wl)
-    R_by = {name: sample_reflectance(allsp[name], wl, nb, n, m)[0] for name in species}
-    table = figure4_table(R_by, ranks, nmf_iter=nmf_iter)
-    table.update({"n": int(n), "m": int(m), "wavelength_nm": float(wavelength_nm), "nmf_iter": int(nmf_iter),
-                  "error_definition": f"mean over entries with R > {MRE_THRESHOLD:g}·max R of |R − R̂|/R",
-                  "storage_paper_setup": storage_bytes(200, 200, 8)})
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    styles = {"sqrt_svd": "-o", "svd": "--s", "nmf": ":^"}
-    labels = {"sqrt_svd": "√R SVD (paper)", "svd": "SVD of R", "nmf": "NMF"}
-    for k, (name, rows) in enumerate(table["errors"].items()):
-        for meth, st in styles.items():
-            ax.semilogy(table["ranks"], np.maximum(rows[meth], 1e-16), st, color=f"C{k}", ms=3,
-                        label=f"{name}: {labels[meth]}")
-    ax.set_xlabel("rank r")
-    ax.set_ylabel("mean relative error")
-    ax.set_title(f"Figure 4 reproduction: n = {n}, m = {m}, λ = {wavelength_nm:g} nm")
-    ax.legend(fontsize=6, ncol=2)
-    fig.tight_layout()
-    fig.savefig(out / "figure4.png", dpi=130)
-    plt.close(fig)
-    (out / "figure4.json").write_text(json.dumps(table, indent=1, sort_keys=True) + "\n", encoding="utf-8")
-    return table
 
 
 # --------------------------------------------------------------------------------------------

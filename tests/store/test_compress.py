@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from figures.figure4 import figure4
 from flakedb.paint import catalog as cat
 from flakedb.paint import species as sp
 from flakedb.rt.fourier import cosine_coefficients
@@ -166,7 +167,7 @@ def test_storage_matches_the_paper():
 
 
 def test_figure4_writes_plot_and_table(tmp_path, catalog):
-    t = C.figure4(tmp_path, species=("metallic", "cadmium-yellow"), n=8, m=16, ranks=range(1, 5), nmf_iter=50,
+    t = figure4(tmp_path, species=("metallic", "cadmium-yellow"), n=8, m=16, ranks=range(1, 5), nmf_iter=50,
                   catalog=catalog)
     assert (tmp_path / "figure4.png").stat().st_size > 1000
     doc = json.loads((tmp_path / "figure4.json").read_text())
