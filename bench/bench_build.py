@@ -25,9 +25,9 @@ def _compress_setup(name):
         from flakedb.paint import catalog as cat
         from flakedb.paint import species as sp
 
-        cat = cat.load_catalog()
+        catalog = cat.load_catalog()
         wl = np.array([550.0])
-        return cat.get_species(name, cat), wl, sp.binder_index(cat, wl)
+        return cat.get_species(name, catalog), wl, sp.binder_index(catalog, wl)
 
     return setup
 
@@ -51,7 +51,7 @@ def _compress_run(arg):
 def _build_setup():
     from flakedb.pipelines.build import make_request
 
-    req = make_request(n=8, m=16, wavelength_nm=[400.0, 500.0, 600.0, 700.0], channel_block=2)
+    req = make_request(n=8, wavelength_nm=[400.0, 500.0, 600.0, 700.0], channel_block=2)
     return req, tempfile.mkdtemp(prefix="flakedb-bench-")
 
 
@@ -79,8 +79,8 @@ BENCHMARKS = [
      {"n": N, "m": M, "rank": RANK, "channels": 1, "paper_grid": "n = m = 200", "paper_storage": _storage_meta()})
     for p in PARTICLES
 ] + [
-    ("build/catalogue-14-species n=8 m=16 4ch serial", _build_setup, _build_run("sync", None),
+    ("build/catalogue-14-species n=8 4ch serial", _build_setup, _build_run("sync", None),
      {"n": 8, "m": 16, "channels": 4, "scheduler": "sync", "workers": 1}),
-    ("build/catalogue-14-species n=8 m=16 4ch 2-processes", _build_setup, _build_run("processes", 2),
+    ("build/catalogue-14-species n=8 4ch 2-processes", _build_setup, _build_run("processes", 2),
      {"n": 8, "m": 16, "channels": 4, "scheduler": "processes", "workers": 2}),
 ]

@@ -72,18 +72,24 @@ def main():
         for name, setup, run, meta in mod.BENCHMARKS:
             if (args.only and args.only not in name) or (args.skip and args.skip in name):
                 continue
-            arg = setup()
-            # The first run is a warm-up (JIT compilation, caches).  A benchmark whose first run
-            # takes longer than --long seconds is measured once more only (compilation is a
-            # negligible part of it), so `make bench` stays affordable on 2 cores.
-            t0 = time.perf_counter()
-            extra = run(arg)
-            first = time.perf_counter() - t0
-            times = []
-            for _ in range(1 if first > args.long else args.repeat):
+            try:
+                arg = setup()
+                # The first run is a warm-up (JIT compilation, caches).  A benchmark whose first run
+                # takes longer than --long seconds is not run again: that run is its measurement
+                # (compilation is a negligible part of it), so `make bench` stays affordable on 2 cores.
                 t0 = time.perf_counter()
                 extra = run(arg)
-                times.append(time.perf_counter() - t0)
+                first = time.perf_counter() - t0
+                times = [first] if first > args.long else []
+                for _ in range(0 if times else args.repeat):
+                    t0 = time.perf_counter()
+                    extra = run(arg)
+                    times.append(time.perf_counter() - t0)
+            except Exception as e:  # a broken benchmark is recorded, the others still run
+                results.append({"name": name, "module": path.name, "error": f"{type(e).__name__}: {e}"})
+                print(f"{name:60s} FAILED: {type(e).__name__}: {e}", flush=True)
+                write()
+                continue
             row = {"name": name, "module": path.name, "best_s": min(times), "times_s": times, **meta}
             if isinstance(extra, dict):
                 row.update(extra)
