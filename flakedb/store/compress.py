@@ -95,6 +95,21 @@ MRE_THRESHOLD = 1e-6
 # --------------------------------------------------------------------------------------------
 
 
+
+def _inside_quadrature(n, eta_top):
+    """The solver's hemisphere rule inside the binder for n nodes in air (n even, checked by the
+    caller) below a smooth top of index ``eta_top`` (None or 1: plain Gauss–Radau)."""
+    q = radau_hemisphere(n // 2)
+    if eta_top is not None:
+        eta = float(eta_top)
+        if not np.isfinite(eta) or eta < 1.0:
+            raise ValueError(f"eta_top = {eta_top}: the top interface's index (binder / air) must be ≥ 1 "
+                             f"(1 or None: no smooth interface, plain Gauss–Radau nodes)")
+        if eta > 1.0:
+            q = snell_mapped_quadrature(q, eta, default_tir_nodes(q.h, eta))
+    return q
+
+
 def grid_nodes(n, m, eta_top=None):
     """The sampling grid: ``mu`` (n_mu,) the solver's full inside node set, ``phi`` (m,) radians on [0, π].
 
@@ -108,14 +123,7 @@ def grid_nodes(n, m, eta_top=None):
         raise ValueError(f"n = {n}: the μ grid needs an even node count ≥ 2 (n/2 per hemisphere); use n = {max(2, n + n % 2)}")
     if m < 2:
         raise ValueError(f"m = {m}: the φ_d grid needs at least 2 samples on [0, π] (both ends)")
-    q = radau_hemisphere(n // 2)
-    if eta_top is not None:
-        eta = float(eta_top)
-        if not np.isfinite(eta) or eta < 1.0:
-            raise ValueError(f"eta_top = {eta_top}: the top interface's index (binder / air) must be ≥ 1 "
-                             f"(1 or None: no smooth interface, plain Gauss–Radau nodes)")
-        if eta > 1.0:
-            q = snell_mapped_quadrature(q, eta, default_tir_nodes(q.h, eta))
+    q = _inside_quadrature(n, eta_top)
     mu, _ = q.full()
     return mu, phi_samples(m - 1)
 
@@ -363,14 +371,7 @@ def store_nodes(n, eta_top=None):
     n = int(n)
     if n < 2 or n % 2:
         raise ValueError(f"n = {n}: the node count must be even and ≥ 2 (n/2 per hemisphere); use n = {max(2, n + n % 2)}")
-    q = radau_hemisphere(n // 2)
-    if eta_top is not None:
-        eta = float(eta_top)
-        if not np.isfinite(eta) or eta < 1.0:
-            raise ValueError(f"eta_top = {eta_top}: the top interface's index (binder / air) must be ≥ 1 "
-                             f"(1 or None: no smooth interface, plain Gauss–Radau nodes)")
-        if eta > 1.0:
-            q = snell_mapped_quadrature(q, eta, default_tir_nodes(q.h, eta))
+    q = _inside_quadrature(n, eta_top)
     return q.x, q.w
 
 
