@@ -9,6 +9,7 @@ import click
 import numpy as np
 
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.options import RAW_HELP, check_node_count
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
 from flakedb.match.fit import predict
 from flakedb.match.targets import GEOMETRY_SETS, TargetError, read_target, write_target
@@ -66,14 +67,13 @@ def open_store(store, recipe, verify=True):
 @click.option("--n", "n", default=None, type=int, help="Node count (even, >= 8); overrides the recipe's.")
 @click.option("--store", "store", default=None, envvar="FLAKEDB_STORE",
               help="Precomputed species store (path or URL; default $FLAKEDB_STORE).")
-@click.option("--raw", is_flag=True, help="With --store: the raw R samples instead of the compressed factors.")
+@click.option("--raw", is_flag=True, help=RAW_HELP)
 @click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
 def compare(recipe, target_path, observer, illuminant, mi_illuminant, max_de, limits, geometry_set, csv_out, n,
             store, raw, catalog_path):
     """Predict RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, dE00, pass/fail."""
-    if n is not None and (n < 8 or n % 2):
-        raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8, e.g. --n 32")
+    check_node_count(n)
     if target_path is None and csv_out is None:
         raise FlakedbError("give --target T.csv (compare) and/or --write-csv P.csv (write the prediction)")
 

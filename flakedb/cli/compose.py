@@ -4,13 +4,13 @@ import click
 
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import probe_writable, remove_created_dirs
+from flakedb.cli.options import RAW_HELP, check_node_count
 from flakedb.cli.progress import StageProgress
 from flakedb.colour.gamut import RGB_SPACES
 from flakedb.compose.orchestrate import OutputError, UnphysicalResultError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
 from flakedb.paint.catalog import CatalogError, load_catalog
-from flakedb.paint.checks import MAX_RESOLUTION
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.store.versions import StoreError
@@ -26,10 +26,7 @@ from flakedb.store.versions import StoreError
               help="Precomputed species store of `flakedb build` (path or fsspec URL; default $FLAKEDB_STORE): "
                    "catalogue species' reflectance functions come from its latest version, checksums verified. "
                    "Without it, species optics are computed directly.")
-@click.option("--raw", is_flag=True,
-              help="With --store: use the raw R samples instead of the compressed factors (a version built "
-                   "with `flakedb build --raw`).  Without a store the optics are always computed directly; "
-                   "the flag is recorded.")
+@click.option("--raw", is_flag=True, help=RAW_HELP)
 @click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
 @click.option("--rgb-space", "rgb_space", default="srgb", show_default=True, type=click.Choice(list(RGB_SPACES)),
@@ -41,9 +38,7 @@ from flakedb.store.versions import StoreError
                    "value or unconverged Fourier orders (printed as loud warnings); without it that is an error.")
 def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, allow_unphysical):
     """Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report."""
-    if n is not None and (n < 8 or n % 2 or n > MAX_RESOLUTION):
-        raise FlakedbError(f"--n {n}: the node count must be even, 8 ≤ n ≤ {MAX_RESOLUTION} (n/2 nodes per "
-                           f"hemisphere), e.g. --n 64")
+    check_node_count(n)
 
     try:
         catalog = load_catalog(catalog_path)

@@ -16,6 +16,7 @@ import yaml
 from flakedb.atomic import atomic_write_text
 from flakedb.cli.compare import open_store, parse_limits
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.options import RAW_HELP, check_node_count
 from flakedb.compose.orchestrate import OutputError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.match import fit as cm
@@ -40,13 +41,12 @@ from flakedb.store.versions import StoreError
 @click.option("--n", "n", default=None, type=int, help="Node count (even, >= 8); overrides the recipe's.")
 @click.option("--store", "store", default=None, envvar="FLAKEDB_STORE",
               help="Precomputed species store (path or URL; default $FLAKEDB_STORE).")
-@click.option("--raw", is_flag=True, help="With --store: the raw R samples instead of the compressed factors.")
+@click.option("--raw", is_flag=True, help=RAW_HELP)
 @click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
 def match(base, target_path, out_dir, observer, illuminant, weights, max_nfev, n, store, raw, catalog_path):
     """Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target."""
-    if n is not None and (n < 8 or n % 2):
-        raise FlakedbError(f"--n {n}: the node count must be even and ≥ 8, e.g. --n 32")
+    check_node_count(n)
 
     try:
         catalog = load_catalog(catalog_path)
