@@ -22,8 +22,9 @@ the symmetric rescaling is the one of :func:`flakedb.rt.stack.medium_kernel_bloc
 3. **Azimuth.**  For a pair of directions the Beckmann factor is exp(−(A − B cos φ)/α²) with A, B
    closed forms (:func:`_tan2_half_coeffs`), a von Mises lobe around the specular/refracted azimuth.
    Pairs whose lobe is below exp(−``PRUNE_T2``) everywhere are skipped; for the others φ is
-   integrated by Gauss–Legendre on [0, φ_max] (the support above exp(−PRUNE_T2)) and the cosine
-   coefficients are accumulated by the Chebyshev recurrence, up to the order the lobe needs
+   integrated by Gauss–Legendre on [0, φ_max] (the support above exp(−PRUNE_T2), rounded up to one
+   of the widths π·2^(−j/8)) and the cosine coefficients of the pairs that share a width and a node
+   count are one matrix product with a shared cos(lφ) table, up to the order the lobe needs
    (√(2κ ln(1/tol)) plus a margin for the smooth factors; κ = B/α²), capped at ``max_orders``.
 4. **Exact energy.**  The blocks are rescaled symmetrically, f̃(i, o) → s_o f̃(i, o) s_i (which
    keeps reciprocity), so that every column of order 0 carries exactly the continuous BSDF's
@@ -34,6 +35,8 @@ The continuous model is Walter et al. 2007 (single scattering, Beckmann, separab
 the exact Beckmann G1); it loses the masked/shadowed energy (e.g. 0.4 % at normal incidence and
 several % at grazing for α = 0.3) and the discretisation carries exactly that, no more, no less.
 """
+
+import functools
 
 import numpy as np
 import scipy.sparse as sp
@@ -52,6 +55,8 @@ SUB_POINTS = 2
 ORDER_MARGIN = 12
 #: Gauss–Legendre nodes in φ per pair: at least this many, more when many orders oscillate in [0, φ_max].
 MIN_PHI_NODES = 24
+#: φ supports are rounded up to π·2^(−j/PHI_GRID_STEPS) (at most 9 % wider), so pairs share cos(lφ) tables.
+PHI_GRID_STEPS = 8
 
 _SQRT_PI = np.sqrt(np.pi)
 
@@ -336,6 +341,12 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
     with np.errstate(divide="ignore", invalid="ignore"):
         cmin = np.where(kappa > 0, (A / alpha**2 - PRUNE_T2) / kappa, -1.0)
     phi_max = np.arccos(np.clip(cmin, -1.0, 1.0))
+    # the support is widened to the next of the shared widths π·2^(−j/PHI_GRID_STEPS): beyond φ_max the
+    # integrand is below exp(−PRUNE_T2), and pairs sharing (width, node count) share one cos(lφ) table,
+    # so their coefficients are one matrix product (docs/rough-interfaces.md, "Azimuth")
+    j_phi = np.floor(-PHI_GRID_STEPS * np.log2(np.maximum(phi_max, 1e-300) / np.pi) + 1e-9).astype(int)
+    j_phi = np.clip(j_phi, 0, None)
+    phi_max = np.pi * 2.0 ** (-j_phi / PHI_GRID_STEPS)
     L_need = np.ceil(np.sqrt(2.0 * kappa * np.log(1.0 / tol))).astype(int) + ORDER_MARGIN
     L_pair = np.minimum(max_orders, L_need)
     # pairs whose lobe needs more orders than the cap: the truncated series would ring (negative
@@ -353,30 +364,28 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
     pair_cell = cell_o[ob] * h_i + cell_i[ia]
     L_used = int(L_pair.max()) if len(L_pair) else 1
     out = np.zeros((L_used, C, h_o * h_i))
-    for b in np.unique(bucket):
-        sel = np.nonzero(bucket == b)[0]
-        P = int(np.ceil(MIN_PHI_NODES * 2.0 ** (b / 2.0)))
-        gx, gw = roots_legendre(P)
-        gx, gw = 0.5 * (gx + 1.0), 0.5 * gw
+    group = bucket * (j_phi.max(initial=0) + 1) + j_phi
+    for g in np.unique(group):
+        sel = np.nonzero(group == g)[0]
+        P = int(np.ceil(MIN_PHI_NODES * 2.0 ** (bucket[sel[0]] / 2.0)))
+        gx, gw = _gauss_legendre(P)
+        phi = phi_max[sel[0]] * 0.5 * (gx + 1.0)  # (P,) shared by the group
+        Lg_all = int(L_pair[sel].max())
+        # cos(l φ_p) for l < Lg, with the Fourier normalisation (1 for l = 0, 2 otherwise) and the
+        # Gauss weights (φ_max/π) · ½ w_p folded in: coefficients = f @ table
+        table = np.cos(phi[:, None] * np.arange(Lg_all)[None, :])
+        table *= np.where(np.arange(Lg_all) == 0, 1.0, 2.0)[None, :]
+        table *= (phi_max[sel[0]] / np.pi * 0.5 * gw)[:, None]
+        cphi = np.cos(phi)[None, :]
         step = max(1, chunk_elems // (P * C))
         for s0 in range(0, len(sel), step):
             k = sel[s0:s0 + step]
             Lg = int(L_pair[k].max())
-            phi = phi_max[k, None] * gx[None, :]  # (K, P)
-            cphi = np.cos(phi)
             f = walter_bsdf(t_i[ia[k], None], t_o[ob[k], None], cphi, eta_rel, alpha, transmit,
                             G[k, None], fresnel)
-            f = np.broadcast_to(f, (C,) + phi.shape) if f.ndim == 2 else f
-            v = f * ((phi_max[k] * weight[k] / np.pi)[:, None] * gw[None, :])  # (C, K, P)
-            coef = np.empty((Lg, C, len(k)))
-            coef[0] = v.sum(axis=-1)
-            if Lg > 1:
-                c_prev, c_cur = np.ones_like(cphi), cphi
-                coef[1] = 2.0 * (v * c_cur).sum(axis=-1)
-                two_c = 2.0 * cphi
-                for l in range(2, Lg):  # Chebyshev recurrence cos(lφ) = 2 cos φ cos((l−1)φ) − cos((l−2)φ)
-                    c_prev, c_cur = c_cur, two_c * c_cur - c_prev
-                    coef[l] = 2.0 * np.einsum("ckp,kp->ck", v, c_cur)
+            f = np.broadcast_to(f, (C,) + (len(k), P)) if f.ndim == 2 else f
+            f = f * weight[k][None, :, None]  # (C, K, P)
+            coef = (f.reshape(C * len(k), P) @ table[:, :Lg]).T.reshape(Lg, C, len(k))
             # each pair keeps its own orders (a pair's few φ nodes alias beyond them: the discrete
             # sum's series does not decay and would ring), Jackson-damped where the cap binds
             ls = np.arange(Lg)[:, None]
@@ -384,12 +393,20 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
             if jack is not None and truncated[k].any():
                 damp *= np.where(truncated[k][None, :], jack[:Lg, None], 1.0)
             coef *= damp[:, None, :]
-            agg = sp.csr_matrix((np.ones(len(k)), (pair_cell[k], np.arange(len(k)))), shape=(h_o * h_i, len(k)))
-            out[:Lg] += (agg @ coef.reshape(Lg * C, len(k)).T).T.reshape(Lg, C, h_o * h_i)
+            # sum the sub-pairs of each cell pair, touching only the cells this chunk reaches
+            cells, inv = np.unique(pair_cell[k], return_inverse=True)
+            agg = sp.csr_matrix((np.ones(len(k)), (inv, np.arange(len(k)))), shape=(len(cells), len(k)))
+            out[:Lg, :, cells] += (agg @ coef.reshape(Lg * C, len(k)).T).T.reshape(Lg, C, len(cells))
     out = out.reshape(L_used, C, h_o, h_i)
     if symmetric:
         out = out + np.swapaxes(out, -1, -2)
     return out, L_used
+
+
+@functools.lru_cache(maxsize=64)
+def _gauss_legendre(P):
+    """Gauss–Legendre nodes and weights on [−1, 1] (cached: the cell blocks reuse a few counts)."""
+    return roots_legendre(P)
 
 
 def jackson_factors(L):
