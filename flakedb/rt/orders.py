@@ -21,6 +21,18 @@ def reflection_over(top, bottom_Rt):
     ``bottom_Rt`` (None: a black bottom, R^t = top.R^t): paper eq. 4's first line, one LU solve."""
     if bottom_Rt is None:
         return top.Rt
+    # orders where the bottom reflects nothing (beyond a slab's kernel orders only the direct beam
+    # is left) leave R^t = R1^t: no solve for them
+    live = np.any(bottom_Rt, axis=tuple(range(1, bottom_Rt.ndim)))
+    if not live.all():
+        L = max(top.Rt.shape[0], bottom_Rt.shape[0])
+        shape = np.broadcast_shapes(top.Rt.shape[1:], top.Tbt.shape[1:], bottom_Rt.shape[1:])
+        out = np.array(np.broadcast_to(top.Rt, (L,) + shape))
+        if live.any():
+            idx = np.nonzero(np.broadcast_to(live, (L,)))[0]
+            sub = type(top)(*(b if b.shape[0] == 1 else b[idx] for b in (top.Rt, top.Ttb, top.Rb, top.Tbt)))
+            out[idx] = reflection_over(sub, bottom_Rt if bottom_Rt.shape[0] == 1 else bottom_Rt[idx])
+        return out
     A = -(top.Rb @ bottom_Rt)
     idx = np.arange(A.shape[-1])
     A[..., idx, idx] += 1.0

@@ -4,6 +4,7 @@ BSDF's decay, reflection-only adding of opaque stacks (docs/projection.md, docs/
 import numpy as np
 import pytest
 
+from flakedb.rt.layer import Layer
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, kernel_basis
 from flakedb.rt.microflake import FlakeOptics, table_basis
 from flakedb.rt.orders import order_tail, reflection_over, reflection_under_smooth
@@ -127,3 +128,18 @@ def test_reflection_only_adding_equals_full_adding():
     lay = type(top)(*(0.05 * rng.random((4, 2, h, h)) for _ in range(4)))
     full2 = add(lay, type(top)(R2, np.zeros_like(R2), np.zeros_like(R2), np.zeros_like(R2)))
     np.testing.assert_allclose(reflection_over(lay, R2), full2.Rt, atol=1e-15)
+
+
+def test_reflection_over_skips_only_orders_where_the_bottom_is_black():
+    """Orders whose bottom reflection is exactly zero keep R1^t; the others equal eq. 4's first line."""
+    rng = np.random.default_rng(1)
+    L, C, h = 6, 3, 5
+    top = Layer(*(0.1 * rng.random((L, 1, h, h)) for _ in range(4)))
+    bottom = 0.1 * rng.random((L, C, h, h))
+    bottom[2] = 0.0
+    bottom[4:] = 0.0
+    A = np.eye(h) - top.Rb @ bottom
+    expected = top.Rt + top.Tbt @ (bottom @ np.linalg.solve(A, top.Ttb))
+    got = reflection_over(top, bottom)
+    assert got.shape == (L, C, h, h)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-15)
