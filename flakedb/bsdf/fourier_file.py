@@ -113,10 +113,18 @@ def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -
     # Pass 1: orders K[i, o] (file indices) and stored Y a_0 (float32) for the cdf.
     K = np.zeros((N, N), dtype=np.int64)
     a0 = np.zeros((N, N), dtype=np.float64)
+    live_rows = np.zeros(n, dtype=bool)
     for ti in range(n):
         row = table.coeffs[:, ti]                                    # (C, n_o, L)
+        live = np.any(row[..., 0] != 0, axis=0) | np.any(row[..., -1] != 0, axis=0)
+        if not live.all():  # entries with a zero first and last coefficient: look at every order
+            live |= np.any(row != 0, axis=(0, 2))
+        if not live.any():  # nothing scatters from this incident direction (an opaque paint's lower half)
+            continue
+        live_rows[ti] = True
         i = fidx(ti)
-        k = _truncation_orders(row, truncation)
+        k = np.zeros(n, dtype=np.int64)
+        k[live] = _truncation_orders(row[:, live], truncation)
         K[i, :h] = k[:h]
         K[i, h + 2:] = k[h:]
         y0 = _file_channels(row[..., 0])[0].astype(np.float32)       # (n_o,)
@@ -147,7 +155,7 @@ def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -
             fh.write(offsets.tobytes())
             L = table.coeffs.shape[3]
             kk = np.arange(L)
-            for ti in range(n):                                      # pass 2: coefficients, row by row
+            for ti in np.nonzero(live_rows)[0]:                     # pass 2: coefficients, row by row
                 i = fidx(ti)
                 fc = _file_channels(table.coeffs[:, ti]).astype("<f4")   # (C, n_o, L)
                 k_row = np.concatenate([K[i, :h], K[i, h + 2:]])
