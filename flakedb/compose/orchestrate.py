@@ -302,8 +302,8 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
         t0 = time.perf_counter()
         version = store if isinstance(store, st.StoreVersion) else st.open_version(str(store), verify=False)
         stored = StoreContext.for_recipe(version, recipe, n_used, raw)
-        if verify:  # the checksums of every file this recipe reads (docs/store.md)
-            st.open_version(version.url, version.version, verify=stored.prefixes(recipe))
+        if verify:  # the checksums of every file this recipe reads, V's order chunks as read (docs/store.md)
+            version.verify(stored.prefixes(recipe))
         t["store_open"] = time.perf_counter() - t0
         store_label = f"{version.url} version {version.version} ({'raw' if raw else 'compressed'})"
         log(f"store: {store_label}, opened{' and verified' if verify else ''} in {t['store_open']:.2f} s")

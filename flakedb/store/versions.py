@@ -609,11 +609,14 @@ def read_latest(url) -> str | None:
 # --------------------------------------------------------------------------------------------
 
 
-def verify_version(url, version, only=None) -> list[str]:
+def verify_version(url, version, only=None, deferred=None, sums_out=None) -> list[str]:
     """Problems of one version: completeness, schema, every file's sha256.  Empty list = sound.
 
     ``only``: path prefixes (e.g. ``species/metallic/n32/a0.25/``): hash only the files under them
-    (and the version's top-level files) — what a compose reads."""
+    (and the version's top-level files) — what a compose reads.  ``deferred``: a predicate on a file
+    key; those files are not hashed here (their checksum must be recorded) but left to the reader,
+    which hashes each one before it reads it (:meth:`StoreVersion.verify`).  ``sums_out``: a dict that
+    receives the recorded checksums (key → sha256) of the files selected."""
     fs, root = _fs(url)
     vroot = posixpath.join(root, "versions", version)
     where = f"versions/{version}"
@@ -654,7 +657,11 @@ def verify_version(url, version, only=None) -> list[str]:
     for key in _all_chunk_keys({p: a for p, a in arrays.items() if only is None or any(p.startswith(q) for q in only)}):
         if key not in files:
             problems.append(f"{where}/{key}: chunk has no recorded checksum")
+    if sums_out is not None:
+        sums_out.update(files)
     for key, expected in files.items():
+        if deferred is not None and deferred(key):
+            continue
         p = posixpath.join(vroot, key)
         if not fs.exists(p):
             problems.append(f"{where}/{key}: missing")
@@ -722,13 +729,28 @@ def open_version(url=None, version=None, verify=True) -> "StoreVersion":
         raise StoreError(f"{url}: version {version[:12]} has store format {fmt}; this flakedb reads format "
                          f"{FORMAT_VERSION} (projected kernel factors, issue #11): rebuild with `flakedb build "
                          f"--store {url}` (or `flakedb build --recipe RECIPE --store {url}`)")
+    sv = StoreVersion(str(url), version, g, dict(g.attrs))
     if verify:
-        problems = verify_version(url, version, only=verify if isinstance(verify, (list, tuple)) else None)
-        if problems:
-            raise StoreIntegrityError(
-                f"{url}: version {version} failed verification ({len(problems)} problem(s)); delete "
-                f"versions/{version} and rebuild:\n  " + "\n  ".join(problems[:20]))
-    return StoreVersion(str(url), version, g, dict(g.attrs))
+        sv.verify(verify if isinstance(verify, (list, tuple)) else None)
+    return sv
+
+
+def _integrity_error(url, version, problems):
+    return StoreIntegrityError(
+        f"{url}: version {version} failed verification ({len(problems)} problem(s)); delete "
+        f"versions/{version} and rebuild:\n  " + "\n  ".join(problems[:20]))
+
+
+def _is_order_chunk(key) -> bool:
+    """Whether a file key is a chunk of a flake's V (orders on axis 1, :data:`ORDER_CHUNK` per chunk)."""
+    return "/V/c/" in key
+
+
+def _order_chunk_keys(path, shape, chunks, c0, c1):
+    """Keys of the chunks of array ``path`` holding order chunks c0 … c1 − 1 (axis 1), every other axis whole."""
+    grid = [range(-(-s // c)) for s, c in zip(shape, chunks)]
+    grid[1] = range(c0, min(c1, len(grid[1])))
+    return [f"{path}/c/" + "/".join(map(str, idx)) for idx in itertools.product(*grid)]
 
 
 @dataclass
@@ -739,6 +761,41 @@ class StoreVersion:
     version: str
     group: object
     metadata: dict
+    #: recorded sha256 of the files still to be hashed when first read (:meth:`verify`); None: no checks
+    pending_checksums: dict | None = None
+
+    def verify(self, prefixes=None):
+        """Check this version's files under ``prefixes`` (None: all) against ``checksums.json``:
+        everything now except the flakes' V order chunks, which are hashed as the solver first reads
+        each one (a compose reads the first 16–32 of up to 2n orders; hashing all of V cost more
+        than the solve at n = 100).  Raises :class:`StoreIntegrityError` (now or at that read)."""
+        sums = {}
+        problems = verify_version(self.url, self.version, only=prefixes, deferred=_is_order_chunk, sums_out=sums)
+        if problems:
+            raise _integrity_error(self.url, self.version, problems)
+        self.pending_checksums = {k: v for k, v in sums.items() if _is_order_chunk(k)}
+
+    def _verify_chunks(self, keys):
+        if self.pending_checksums is None:
+            return
+        fs, root = _fs(self.url)
+        problems = []
+        for key in keys:
+            expected = self.pending_checksums.get(key)
+            if expected is None:
+                continue
+            try:
+                got = _sha256(fs.cat_file(posixpath.join(root, "versions", self.version, key)))
+            except OSError as exc:
+                problems.append(f"versions/{self.version}/{key}: unreadable ({exc.strerror or type(exc).__name__})")
+                continue
+            if got != expected:
+                problems.append(f"versions/{self.version}/{key}: sha256 {got[:16]}… != recorded {expected[:16]}… "
+                                "(corrupted)")
+                continue
+            del self.pending_checksums[key]
+        if problems:
+            raise _integrity_error(self.url, self.version, problems)
 
     @property
     def wavelength_nm(self) -> np.ndarray:
@@ -795,6 +852,7 @@ class StoreVersion:
             c0, c1 = l0 // ORDER_CHUNK, -(-l1 // ORDER_CHUNK)
             key = (c0, c1)
             if key not in cache:
+                self._verify_chunks(_order_chunk_keys(f"{p}/V", V.shape, V.chunks, c0, c1))
                 cache.clear()
                 cache[key] = V[:, c0 * ORDER_CHUNK: c1 * ORDER_CHUNK]
             return cache[key][:, l0 - c0 * ORDER_CHUNK: l1 - c0 * ORDER_CHUNK]
