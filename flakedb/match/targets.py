@@ -123,6 +123,11 @@ def _validate_geometries(geoms, where):
                               f"mirror delta): not a colour geometry")
 
 
+def validate_geometries(geoms, where) -> None:
+    """Refuse geometries flakedb cannot predict (TargetError naming ``where`` and the row); for other readers."""
+    _validate_geometries(geoms, where)
+
+
 def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Target:
     """Read a target CSV (module docstring) from a path, or from text when it contains a newline.
 
