@@ -12,7 +12,8 @@ from flakedb.cli.errors import FlakedbError
 from flakedb.cli.options import RAW_HELP, check_node_count
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
 from flakedb.match.fit import predict
-from flakedb.match.targets import GEOMETRY_SETS, TargetError, read_target, write_target
+from flakedb.match.cxf import load_target
+from flakedb.match.targets import GEOMETRY_SETS, TargetError, write_target
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
@@ -49,7 +50,10 @@ def open_store(store, recipe, verify=True):
 @click.command()
 @click.argument("recipe", type=click.Path(dir_okay=False))
 @click.option("--target", "target_path", default=None, type=click.Path(dir_okay=False),
-              help="Target CSV (docs/colour-matching.md): illumination_deg,aspecular_deg, then L*,a*,b* or R_<nm>.")
+              help="Target CSV (docs/colour-matching.md): illumination_deg,aspecular_deg, then L*,a*,b* or R_<nm>; "
+                   "or a CxF3 file (*.cxf) with multi-angle values.")
+@click.option("--cxf-object", "cxf_object", default=None,
+              help="With a .cxf target: the object (Name or Id) to compare with, when the file has several.")
 @click.option("--observer", default=None, help="2 or 10 (default: the target's, else 2).")
 @click.option("--illuminant", default=None, help="D65, A, F11, ... (default: the target's, else D65).")
 @click.option("--metamerism", "mi_illuminant", default=None,
@@ -70,7 +74,7 @@ def open_store(store, recipe, verify=True):
 @click.option("--raw", is_flag=True, help=RAW_HELP)
 @click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
-def compare(recipe, target_path, observer, illuminant, mi_illuminant, max_de, limits, geometry_set, csv_out, n,
+def compare(recipe, target_path, cxf_object, observer, illuminant, mi_illuminant, max_de, limits, geometry_set, csv_out, n,
             store, raw, catalog_path):
     """Predict RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, dE00, pass/fail."""
     check_node_count(n)
@@ -80,7 +84,7 @@ def compare(recipe, target_path, observer, illuminant, mi_illuminant, max_de, li
     try:
         catalog = load_catalog(catalog_path)
         rec = load_recipe(recipe, catalog)
-        target = read_target(target_path, observer, illuminant) if target_path else None
+        target = load_target(target_path, observer, illuminant, cxf_object) if target_path else None
         version = open_store(store, rec)
     except (RecipeError, CatalogError, TargetError, StoreError) as exc:
         raise FlakedbError(str(exc)) from exc

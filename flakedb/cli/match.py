@@ -20,7 +20,8 @@ from flakedb.cli.options import RAW_HELP, check_node_count
 from flakedb.compose.orchestrate import OutputError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.match import fit as cm
-from flakedb.match.targets import TargetError, read_target, write_target
+from flakedb.match.cxf import load_target
+from flakedb.match.targets import TargetError, write_target
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.recipe import RecipeError
 from flakedb.store.versions import StoreError
@@ -29,7 +30,9 @@ from flakedb.store.versions import StoreError
 @click.command()
 @click.argument("base", type=click.Path(dir_okay=False))
 @click.option("--target", "target_path", required=True, type=click.Path(dir_okay=False),
-              help="Target CSV (docs/colour-matching.md).")
+              help="Target CSV, or a CxF3 file (*.cxf) with multi-angle values (docs/colour-matching.md).")
+@click.option("--cxf-object", "cxf_object", default=None,
+              help="With a .cxf target: the object (Name or Id) to match, when the file has several.")
 @click.option("--out", "out_dir", default="out", show_default=True, type=click.Path(),
               help="Output directory for the fitted recipe, its BSDF files and the fit record.")
 @click.option("--observer", default=None, help="2 or 10 (default: the target's).")
@@ -44,7 +47,7 @@ from flakedb.store.versions import StoreError
 @click.option("--raw", is_flag=True, help=RAW_HELP)
 @click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
-def match(base, target_path, out_dir, observer, illuminant, weights, max_nfev, n, store, raw, catalog_path):
+def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights, max_nfev, n, store, raw, catalog_path):
     """Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target."""
     check_node_count(n)
 
@@ -58,7 +61,7 @@ def match(base, target_path, out_dir, observer, illuminant, weights, max_nfev, n
             raise RecipeError(base, [f"YAML syntax error: {exc}"]) from None
         if not isinstance(doc, dict):
             raise RecipeError(base, ["a recipe is a YAML mapping"])
-        target = read_target(target_path, observer, illuminant)
+        target = load_target(target_path, observer, illuminant, cxf_object)
         check_output_dir(out_dir)
         params = cm.find_fit_parameters(doc, base)
         rec0 = cm.recipe_from_doc(cm.substitute(doc, params, [p.start for p in params]), base, catalog)

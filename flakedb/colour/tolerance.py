@@ -22,7 +22,7 @@ What is computed (docs/colour-tolerances.md states the sources and the formulas 
   illuminant XYZ by the ratio of the pair's reference-illuminant XYZ (X'₂ = X₂ X₁ʳ/X₂ʳ, Y, Z
   alike), which makes a pair that differs only by a scale factor exactly non-metameric.
 * **Tolerances**: per-geometry ΔE00 limits (:class:`PerAngleLimits`), and the weighted
-  ΔL*/ΔC*/ΔH* structure of the German automotive schemes (:class:`WeightedLCH`: per geometry
+  ΔL*/ΔC*/ΔH* form (:class:`WeightedLCH`: per geometry
   ΔE_w = √((ΔL*/δL)² + (ΔC*/δC)² + (ΔH*/δH)²), pass when ΔE_w ≤ 1) with tolerances supplied by the
   user; docs/colour-tolerances.md says why no DIN 6175-2 / AUDI2000 coefficient table is shipped.
 """
@@ -225,7 +225,9 @@ class PerAngleLimits:
 
 @dataclass
 class WeightedLCH:
-    """The weighted-difference structure of DIN 6175-2 / AUDI2000-type schemes with given tolerances.
+    """Weighted ΔL*/ΔC*/ΔH* tolerances given per geometry.
+
+    Whether DIN 6175-2 or AUDI2000 reduce to this form is not verified (docs/colour-tolerances.md).
 
     ``tolerances`` maps (illumination_deg, aspecular_deg) → (δL, δC, δH), the allowed ΔL*, ΔC*ab,
     ΔH*ab at that geometry (CIELAB units).  Per geometry ΔE_w = √((ΔL*/δL)² + (ΔC*/δC)² + (ΔH*/δH)²);

@@ -31,15 +31,21 @@ illuminant (to 0.01 ΔE00) so a file whose two halves disagree is refused.
 
 Geometries (in-plane)
 ---------------------
-* :data:`E2194_GEOMETRIES`: ASTM E2194 (metallic / effect pigments) as realised by the X-Rite MA-T
-  and MA98 instruments: illumination 45°, aspecular −15°, 15°, 25°, 45°, 75°, 110° (the set the
-  colour report has always used).
-* :data:`E2539_EXTRA`: the extra in-plane geometries with illumination at 15° that ASTM E2539
-  (interference pigments) adds and that E2539-class instruments (X-Rite MA98) measure: aspecular
-  −45°, −15°, 15°, 45°, 80° (detectors at 60°, 30°, 0°, −30°, −65° from the normal, the same
-  detectors as the 45° set).  The standard's text was not available when this was written: the
-  list follows the MA98's in-plane 15° geometries, which that instrument documents as E2539's; check
-  it against E2539 before relying on it for acceptance.
+* :data:`E2194_GEOMETRIES`: the 45° set of multi-angle instruments (X-Rite MA-T / MA98 class):
+  illumination 45°, aspecular −15°, 15°, 25°, 45°, 75°, 110° (the set the colour report has always
+  used).  ASTM E2194 itself (metal flake) asks for three aspecular angles (its public scope page:
+  "requires three angles of measurement"); the −15° geometry, beyond the specular, is one of the
+  additions of ASTM E2539 (see below), kept in this set because the instruments measure it with
+  the 45° illuminator.
+* :data:`E2539_EXTRA`: illumination at 15°, aspecular −45°, −15°, 15°, 45°, 80° (detectors at 60°,
+  30°, 0°, −30°, −65° from the normal: the same detectors as the 45° set).  What public sources
+  confirm (docs/colour-matching.md, "Geometries"): E2539 (interference pigments, 2008) adds a second
+  illumination angle at 15° and an aspecular angle on the far side of the specular (W. R. Cramer,
+  "Modern measurement of effect pigments – useful and useless geometries", European Coatings
+  Show Conference 2019, abstract); these five are the 15° geometries X-Rite names 15as-45, 15as-15,
+  15as15, 15as45, 15as80 in its instrument data.  Not verified: that E2539's table lists exactly
+  these five aspecular angles at 15° (the standard's text is paid and was not available); check it
+  before relying on the set for acceptance testing.
 """
 
 from __future__ import annotations
@@ -55,9 +61,9 @@ import numpy as np
 from flakedb.atomic import atomic_write_text
 from flakedb.colour.tolerance import delta_E_2000, illuminant_name, observer_name, reflectance_to_Lab
 
-#: ASTM E2194 geometries: (illumination_deg, aspecular_deg).
+#: The 45° set, (illumination_deg, aspecular_deg): E2194's angles and E2539's −15° (module docstring).
 E2194_GEOMETRIES = tuple((45.0, g) for g in (-15.0, 15.0, 25.0, 45.0, 75.0, 110.0))
-#: Extra in-plane geometries of ASTM E2539-class instruments (module docstring: not checked against the text).
+#: Extra in-plane geometries at 15° illumination of ASTM E2539-class instruments (module docstring: what is verified).
 E2539_EXTRA = tuple((15.0, g) for g in (-45.0, -15.0, 15.0, 45.0, 80.0))
 #: Both sets.
 E2539_GEOMETRIES = E2194_GEOMETRIES + E2539_EXTRA
@@ -121,6 +127,11 @@ def _validate_geometries(geoms, where):
         if asp == 0.0:
             raise TargetError(f"{where} row {i + 1}: aspecular 0° is the specular direction (the smooth coat's "
                               f"mirror delta): not a colour geometry")
+
+
+def validate_geometries(geoms, where) -> None:
+    """Refuse geometries flakedb cannot predict (TargetError naming ``where`` and the row); for other readers."""
+    _validate_geometries(geoms, where)
 
 
 def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Target:

@@ -1,0 +1,244 @@
+"""Multi-angle colour targets from CxF3 files (ISO 17972-1 / X-Rite CxF 3.0 core schema).
+
+What is read (docs/colour-matching.md, section "CxF3"; the element names are the schema's,
+``CxF3_Core.xsd`` 3.0.018, namespace ``http://colorexchangeformat.com/CxF3-core``)
+---------------------------------------------------------------------------------------------
+* ``Resources/ColorSpecificationCollection/ColorSpecification[@Id]``: its
+  ``MeasurementSpec/GeometryChoice/MultiAngle/BRDFAngle[@Notation]`` elements give the geometries
+  (``IlluminationAngle``, ``Aspecular``; an ``Azimuth`` means out of plane and is refused: flakedb
+  predicts in-plane geometries only), ``MeasurementSpec/WavelengthRange[@StartWL, @Increment]`` the
+  spectral grid, and ``TristimulusSpec/Illuminant`` / ``Observer`` (``2_Degree`` / ``10_Degree``)
+  the conditions of any CIELab values.
+* ``Resources/ObjectCollection/Object``: its ``ColorValues`` hold ``ReflectanceSpectrum`` (a
+  whitespace-separated list, 1.0 = 100 %, from ``@StartWL`` or the specification's, at its
+  ``@Increment``) and/or ``ColorCIELab`` (``L``, ``A``, ``B``), each naming its
+  ``@ColorSpecification``.
+* **Which geometry a value belongs to.**  The schema ties a value to a colour specification, not
+  to one of several ``BRDFAngle`` elements inside it.  flakedb therefore reads (a) a specification
+  with one ``BRDFAngle``: every value naming it is at that geometry; (b) a specification with
+  several: a value's ``@Name`` must equal one ``BRDFAngle/@Notation`` (e.g. ``45as15``).  Anything
+  else is refused with a message, not guessed.
+* **Sign of the aspecular angle**: the schema does not state one; the angle is read with ASTM
+  E2194's sign (positive towards the illuminator, as in the ``45as110`` notation), the sign of the
+  CSV layout (:mod:`flakedb.match.targets`).
+
+One object is one target: the object named by ``object_name`` (its ``@Name`` or ``@Id``), or the
+only object that has multi-angle values.  Spectra, when every geometry has one, are what is
+compared (any observer and illuminant); CIELab values are used only when there are no spectra.
+The result is the same :class:`flakedb.match.targets.Target` the CSV reader returns.
+
+Parsing uses the standard library's expat parser (no DTD loading, no external entities; expat
+≥ 2.4 refuses entity-expansion bombs), after a size check (:data:`MAX_BYTES`).
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from flakedb.colour.tolerance import illuminant_name, observer_name, reflectance_to_Lab
+from flakedb.match.targets import Target, TargetError, read_target, validate_geometries
+
+#: The CxF3 core namespace.
+NS = "http://colorexchangeformat.com/CxF3-core"
+#: Largest CxF file read (bytes); multi-angle targets are a few hundred kB at most.
+MAX_BYTES = 64 * 1024 * 1024
+#: CxF3 observer names → flakedb's.
+OBSERVERS = {"2_Degree": "2", "10_Degree": "10"}
+#: CxF3 ``reflectance_list`` increments allowed by the schema (nm).
+INCREMENTS = (1, 2, 5, 10, 20)
+
+
+def _q(tag: str) -> str:
+    return f"{{{NS}}}{tag}"
+
+
+def _float(text, what, where) -> float:
+    try:
+        v = float(str(text).strip())
+    except (TypeError, ValueError):
+        raise TargetError(f"{where}: {what} {text!r} is not a number") from None
+    if not np.isfinite(v):
+        raise TargetError(f"{where}: {what} {text!r} is not a finite number")
+    return v
+
+
+def _specifications(root, where) -> dict:
+    """Id → {'angles': {notation: (illum, aspec)}, 'start', 'increment', 'observer', 'illuminant'}."""
+    specs = {}
+    for cs in root.iter(_q("ColorSpecification")):
+        sid = cs.get("Id")
+        if sid is None:
+            continue  # a ColorSpecification *reference* element elsewhere has no Id
+        w = f"{where}: ColorSpecification {sid}"
+        angles = {}
+        for b in cs.iter(_q("BRDFAngle")):
+            notation = b.get("Notation")
+            if notation is None:
+                raise TargetError(f"{w}: a BRDFAngle has no Notation attribute (the schema requires one)")
+            if b.find(_q("Azimuth")) is not None and _float(b.findtext(_q("Azimuth")), "Azimuth", w) != 0.0:
+                raise TargetError(f"{w}: BRDFAngle {notation} is out of plane (Azimuth given); flakedb predicts "
+                                  f"in-plane geometries only (docs/colour-matching.md, Limits)")
+            th = _float(b.findtext(_q("IlluminationAngle")), f"BRDFAngle {notation} IlluminationAngle", w)
+            asp = _float(b.findtext(_q("Aspecular")), f"BRDFAngle {notation} Aspecular", w)
+            angles[notation] = (th, asp)
+        wr = cs.find(f"{_q('MeasurementSpec')}/{_q('WavelengthRange')}")
+        start = inc = None
+        if wr is not None:
+            start = _float(wr.get("StartWL"), "WavelengthRange StartWL", w)
+            inc = _float(wr.get("Increment"), "WavelengthRange Increment", w)
+        ts = cs.find(_q("TristimulusSpec"))
+        obs = ill = None
+        if ts is not None:
+            o = (ts.findtext(_q("Observer")) or "").strip()
+            obs = OBSERVERS.get(o, o or None)
+            ill = (ts.findtext(_q("Illuminant")) or "").strip() or None
+        specs[sid] = {"angles": angles, "start": start, "increment": inc, "observer": obs, "illuminant": ill}
+    return specs
+
+
+def _geometry(value, spec, sid, where):
+    angles = spec["angles"]
+    if len(angles) == 1:
+        return next(iter(angles.values()))
+    name = value.get("Name")
+    if name in angles:
+        return angles[name]
+    raise TargetError(f"{where}: a {value.tag.split('}')[1]} names ColorSpecification {sid}, which lists "
+                      f"{len(angles)} BRDFAngles ({', '.join(angles)}), but its Name {name!r} is none of their "
+                      f"Notations; give the value Name=\"<Notation>\" (or one BRDFAngle per ColorSpecification)")
+
+
+def read_cxf_target(path_or_bytes, object_name=None, observer=None, illuminant=None, source=None) -> Target:
+    """Read one object's multi-angle colour from a CxF3 file (module docstring) as a :class:`Target`.
+
+    ``path_or_bytes``: a path, or the file's bytes.  ``object_name``: the object's Name or Id (needed
+    when several objects have multi-angle values).  ``observer`` / ``illuminant``: the conditions a
+    spectral target is compared under (as :func:`flakedb.match.targets.read_target`).
+    """
+    if isinstance(path_or_bytes, (bytes, bytearray)):
+        data, where = bytes(path_or_bytes), source or "<cxf>"
+    else:
+        p = Path(path_or_bytes)
+        where = source or str(p)
+        try:
+            size = p.stat().st_size
+        except FileNotFoundError:
+            raise TargetError(f"{where}: no such file") from None
+        if size > MAX_BYTES:
+            raise TargetError(f"{where}: {size:,} bytes is more than the limit of {MAX_BYTES:,} for a CxF target")
+        data = p.read_bytes()
+    if len(data) > MAX_BYTES:
+        raise TargetError(f"{where}: {len(data):,} bytes is more than the limit of {MAX_BYTES:,} for a CxF target")
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError as exc:
+        raise TargetError(f"{where}: not a readable CxF3 (XML) file: {exc}") from None
+    if root.tag != _q("CxF"):
+        raise TargetError(f"{where}: the root element is {root.tag!r}, not CxF in the CxF3 namespace {NS} "
+                          f"(CxF/X-4 and CxF3 files only)")
+    specs = _specifications(root, where)
+    multi = {sid for sid, s in specs.items() if s["angles"]}
+    candidates = []
+    for obj in root.iter(_q("Object")):
+        cv = obj.find(_q("ColorValues"))
+        values = [] if cv is None else [v for v in cv if v.get("ColorSpecification") in multi
+                                        and v.tag in (_q("ReflectanceSpectrum"), _q("ColorCIELab"))]
+        if values:
+            candidates.append((obj, values))
+    if not candidates:
+        raise TargetError(f"{where}: no object has ReflectanceSpectrum or ColorCIELab values under a multi-angle "
+                          f"ColorSpecification (MeasurementSpec/GeometryChoice/MultiAngle)")
+    if object_name is None:
+        if len(candidates) > 1:
+            names = ", ".join(repr(o.get("Name") or o.get("Id")) for o, _ in candidates[:8])
+            raise TargetError(f"{where}: {len(candidates)} objects have multi-angle values ({names}); choose one "
+                              f"with --cxf-object NAME")
+        obj, values = candidates[0]
+    else:
+        hits = [(o, v) for o, v in candidates if object_name in (o.get("Name"), o.get("Id"))]
+        if not hits:
+            names = ", ".join(repr(o.get("Name") or o.get("Id")) for o, _ in candidates[:8])
+            raise TargetError(f"{where}: no object named {object_name!r} with multi-angle values (have: {names})")
+        obj, values = hits[0]
+    oname = obj.get("Name") or obj.get("Id") or ""
+    w = f"{where}: object {oname!r}"
+    spectra, labs, lab_cond = {}, {}, set()
+    grids = set()
+    for v in values:
+        sid = v.get("ColorSpecification")
+        spec = specs[sid]
+        g = _geometry(v, spec, sid, w)
+        if v.tag == _q("ReflectanceSpectrum"):
+            start = v.get("StartWL")
+            start = _float(start, "ReflectanceSpectrum StartWL", w) if start is not None else spec["start"]
+            inc = spec["increment"]
+            if start is None or inc is None:
+                raise TargetError(f"{w}: ColorSpecification {sid} has no MeasurementSpec/WavelengthRange "
+                                  f"(StartWL, Increment): the spectrum's wavelengths are unknown")
+            if inc not in INCREMENTS:
+                raise TargetError(f"{w}: WavelengthRange Increment {inc:g} nm; the schema allows 1, 2, 5, 10 or 20")
+            try:
+                r = np.array([float(x) for x in (v.text or "").split()])
+            except ValueError:
+                raise TargetError(f"{w}: a ReflectanceSpectrum value is not a number") from None
+            if r.size < 2 or not np.all(np.isfinite(r)):
+                raise TargetError(f"{w}: a ReflectanceSpectrum needs ≥ 2 finite values (got {r.size})")
+            if g in spectra:
+                raise TargetError(f"{w}: two spectra at geometry {g[0]:g}as{g[1]:g}")
+            spectra[g] = r
+            grids.add((start, inc, r.size))
+        else:
+            lab = [_float(v.findtext(_q(k)), k, w) for k in ("L", "A", "B")]
+            if g in labs:
+                raise TargetError(f"{w}: two CIELab values at geometry {g[0]:g}as{g[1]:g}")
+            labs[g] = lab
+            lab_cond.add((spec["observer"], spec["illuminant"]))
+    if spectra:
+        if len(grids) != 1:
+            raise TargetError(f"{w}: the spectra are on {len(grids)} different wavelength grids; one grid is needed")
+        geoms = list(spectra)
+        start, inc, nw = grids.pop()
+        wl = start + inc * np.arange(nw)
+        R = np.stack([spectra[g] for g in geoms])
+        obs = str(observer) if observer is not None else "2"
+        ill = str(illuminant) if illuminant is not None else "D65"
+        notes = {"cxf_object": oname}
+        if labs:
+            notes["cxf_lab"] = "CIELab values in the file not used (the spectra are)"
+    else:
+        if len(lab_cond) != 1:
+            raise TargetError(f"{w}: the CIELab values use {len(lab_cond)} different TristimulusSpecs; one is needed")
+        obs, ill = lab_cond.pop()
+        if obs is None or ill is None:
+            raise TargetError(f"{w}: CIELab values without TristimulusSpec Observer and Illuminant (their conditions "
+                              f"are unknown); add them, or give spectra")
+        geoms, R, wl = list(labs), None, None
+        notes = {"cxf_object": oname}
+    try:
+        observer_name(obs), illuminant_name(ill)
+    except ValueError as exc:
+        raise TargetError(f"{w}: {exc}") from None
+    g_arr = np.asarray(geoms, float)
+    validate_geometries(g_arr, w)
+    t = Target(geometries=g_arr, observer=obs, illuminant=ill, name=oname, notes=notes, source=where)
+    if R is not None:
+        try:
+            reflectance_to_Lab(R[:1], wl, obs, ill)
+        except ValueError as exc:
+            raise TargetError(f"{w}: reflectance grid: {exc}") from None
+        t.reflectance, t.wavelength_nm = R, wl
+    else:
+        t.lab = np.asarray([labs[g] for g in geoms], float)
+    return t
+
+
+def load_target(path, observer=None, illuminant=None, object_name=None) -> Target:
+    """A target from a CSV (:func:`flakedb.match.targets.read_target`) or, for ``*.cxf``, a CxF3 file."""
+    if str(path).lower().endswith(".cxf"):
+        return read_cxf_target(path, object_name, observer, illuminant)
+    if object_name is not None:
+        raise TargetError(f"--cxf-object {object_name}: only a .cxf target has objects ({path} is read as CSV)")
+    return read_target(path, observer, illuminant)
