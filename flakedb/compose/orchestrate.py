@@ -300,8 +300,11 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     progress = progress or (lambda stage, detail: None)
     if store is not None and catalog_species(recipe):
         t0 = time.perf_counter()
-        version = store if isinstance(store, st.StoreVersion) else st.open_version(str(store), verify=False)
-        stored = StoreContext.for_recipe(version, recipe, n_used, raw)
+        if isinstance(store, st.StoreVersion):
+            version, stored = store, StoreContext.for_recipe(store, recipe, n_used, raw)
+        else:
+            stored = StoreContext.open_for_recipe(str(store), recipe, n_used, raw)
+            version = stored.version
         if verify:  # the checksums of every file this recipe reads, V's order chunks as read (docs/store.md)
             version.verify(stored.prefixes(recipe))
         t["store_open"] = time.perf_counter() - t0

@@ -12,6 +12,7 @@ import numpy as np
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.paint.mapping import catalog_species, recipe_alpha
 from flakedb.rt.stored import StoredFlakeMedium
+from flakedb.store import versions as st
 from flakedb.store.versions import StoreError
 
 
@@ -136,6 +137,24 @@ class StoreContext:
         if recipe.mode == "rgb":
             cmap = spectra_to_rgb_matrix(wl).T @ band_map  # (3, W): linear sRGB of the band spectra
         return cls(version, int(n), bool(raw), band_map, cmap, info)
+
+    @classmethod
+    def open_for_recipe(cls, url, recipe, n, raw=False):
+        """The newest complete version of the store at ``url`` that serves ``recipe`` at ``n`` (``latest``
+        first; a store accumulates versions as `flakedb build --recipe` adds what recipes need), as a
+        :class:`StoreContext`.  None serving it: the StoreError of ``latest`` (what it lacks, and
+        the build command that adds it)."""
+        first_error = None
+        versions = st.complete_versions(url)
+        if not versions:
+            st.open_version(url, verify=False)  # raises: no published / no complete version
+        for v in versions:
+            try:
+                version = st.open_version(url, v, verify=False)
+                return cls.for_recipe(version, recipe, n, raw)
+            except StoreError as exc:
+                first_error = first_error or exc
+        raise first_error
 
     def prefixes(self, recipe) -> list[str]:
         """The store paths this recipe reads (what compose verifies)."""

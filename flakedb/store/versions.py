@@ -99,6 +99,7 @@ __all__ = [
     "publish",
     "read_latest",
     "verify_version",
+    "complete_versions",
     "verify_store",
     "open_version",
     "StoreVersion",
@@ -584,6 +585,35 @@ def publish(url, version):
         raise StoreError(f"refusing to publish version {version}: it is not complete")
     fs, root = _fs(url)
     _write_json(fs, posixpath.join(root, "latest"), {"version": version})
+
+
+def complete_versions(url) -> list[str]:
+    """The store's complete versions, ``latest`` first, then the others newest first (by the time
+    their ``complete`` marker was written; a version of another store format is listed too, and
+    refused when opened)."""
+    fs, root = _fs(url)
+    vdir = posixpath.join(root, "versions")
+    if not fs.exists(vdir):
+        return []
+    found = []
+    for p in fs.ls(vdir, detail=False):
+        v = posixpath.basename(p.rstrip("/"))
+        if v.startswith(".") or version_state(url, v) != "complete":
+            continue
+        try:
+            t = fs.modified(posixpath.join(vdir, v, "complete")).timestamp()
+        except (OSError, NotImplementedError, AttributeError):
+            t = 0.0
+        found.append((t, v))
+    ordered = [v for _, v in sorted(found, key=lambda tv: (-tv[0], tv[1]))]
+    try:
+        latest = read_latest(url)
+    except StoreError:
+        latest = None
+    if latest in ordered:
+        ordered.remove(latest)
+        ordered.insert(0, latest)
+    return ordered
 
 
 def read_latest(url) -> str | None:

@@ -298,3 +298,24 @@ def test_catalogue_recipe_from_the_store_matches_direct(name, tmp_path):
     fd = _f(direct)
     assert np.abs(_f(comp) - fd).max() <= 1e-3 * np.abs(fd).max()
     assert delta_E_2000(_lab(comp), _lab(direct)).max() <= 0.05
+
+
+def test_compose_finds_the_version_that_serves_the_recipe(tiny, tmp_path):
+    """A store holds several versions (`build --recipe` adds one per need): compose uses the newest
+    one that serves the recipe, not only `latest`; with none serving it, latest's error is raised."""
+    url0, req, v = tiny
+    url = str(tmp_path / "two")
+    shutil.copytree(url0, url)
+    # a second version, published as latest, that holds only the pigment at α-free inputs
+    req2 = make_request(species=[PIGMENT], n=N, wavelength_nm=WL, eta_top=ETA)
+    res2 = build(req2, url, scheduler="sync")
+    assert st.read_latest(url) == res2["version"] != v.version
+    assert st.complete_versions(url) == [res2["version"], v.version]
+    flake = parse_recipe(_recipe(FLAKE, name="f"))
+    res = compose(flake, tmp_path / "f", store=url)
+    assert open_bsdf(tmp_path / "f" / "f.h5").metadata["store_version"] == v.version
+    pig = parse_recipe(_recipe(PIGMENT, name="p"))
+    compose(pig, tmp_path / "p", store=url)
+    assert open_bsdf(tmp_path / "p" / "p.h5").metadata["store_version"] == res2["version"]
+    with pytest.raises(st.StoreError, match="is not in the store"):
+        compose(parse_recipe(_recipe("gray-mirror", name="g")), tmp_path / "g", store=url)
