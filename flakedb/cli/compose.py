@@ -13,7 +13,9 @@ from flakedb.compose.report import format_report
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
-from flakedb.store.versions import StoreError
+from flakedb.pipelines.build import build as run_build
+from flakedb.pipelines.build import request_for_recipe
+from flakedb.store.versions import StoreError, StoreIntegrityError
 
 
 @click.command()
@@ -33,10 +35,14 @@ from flakedb.store.versions import StoreError
               help="Working space of the RGB .bsdf: linear sRGB (what .bsdf readers assume), or the wide-gamut "
                    "linear Rec.2020 / ACEScg (tell the renderer; docs/renderers.md).  Recorded in the metadata.")
 @click.option("--quiet", is_flag=True, help="No progress lines on stderr (warnings are still printed).")
+@click.option("--build-missing", is_flag=True,
+              help="When the store cannot serve the recipe (a species, α, n or band range it lacks), build "
+                   "exactly what the recipe needs into it as a new version first (as `flakedb build --recipe`), "
+                   "then compose from it; later composes find that version.")
 @click.option("--allow-unphysical", is_flag=True,
               help="Write the result even when the self-check finds an albedo above 1 + 1e-3, a negative BSDF "
                    "value or unconverged Fourier orders (printed as loud warnings); without it that is an error.")
-def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, allow_unphysical):
+def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, build_missing, allow_unphysical):
     """Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report."""
     check_node_count(n)
 
@@ -56,17 +62,34 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, allo
         click.echo(f"compose {rec.name}: store: none needed (no catalogue species); optics computed directly")
     else:
         click.echo(f"compose {rec.name}: store: {store} ({'raw samples' if raw else 'compressed factors'})")
-    bar = StageProgress()
-    progress = bar if not quiet else (lambda stage, d: bar(stage, d) if stage == "warning" else None)
+    def attempt():
+        bar = StageProgress()
+        progress = bar if not quiet else (lambda stage, d: bar(stage, d) if stage == "warning" else None)
+        try:
+            with remove_created_dirs(out_dir):
+                return compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog,
+                                      log=lambda s: click.echo(f"  {s}"), store=store, rgb_space=rgb_space,
+                                      progress=progress, allow_unphysical=allow_unphysical)
+        finally:
+            bar.close()
+
     try:
-        with remove_created_dirs(out_dir):
-            res = compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog, log=lambda s: click.echo(f"  {s}"),
-                                 store=store, rgb_space=rgb_space, progress=progress,
-                                 allow_unphysical=allow_unphysical)
+        try:
+            res = attempt()
+        except StoreError as exc:
+            if not build_missing or isinstance(exc, StoreIntegrityError) or store is None:
+                raise
+            lines = str(exc).splitlines()
+            reason = lines[1].strip() if len(lines) > 1 else lines[0]
+            click.echo(f"compose {rec.name}: the store cannot serve the recipe yet ({reason}); --build-missing: "
+                       f"building what it needs into {store} as a new version", err=True)
+            b = run_build(request_for_recipe(rec, n=n, store_raw=raw), store, scheduler="threads",
+                          progress=not quiet)
+            click.echo(f"compose {rec.name}: {b['status']} version {b['version'][:12]} ({b['tasks_run']} of "
+                       f"{b['tasks_total']} tasks run, {b['seconds']:.1f} s)", err=True)
+            res = attempt()
     except (StoreError, UnphysicalResultError, RecipeError) as exc:
         raise FlakedbError(str(exc)) from exc
-    finally:
-        bar.close()
     for w in res.warnings:
         if w.startswith("UNPHYSICAL"):
             click.echo(f"WARNING: {w}", err=True)

@@ -319,3 +319,28 @@ def test_compose_finds_the_version_that_serves_the_recipe(tiny, tmp_path):
     assert open_bsdf(tmp_path / "p" / "p.h5").metadata["store_version"] == res2["version"]
     with pytest.raises(st.StoreError, match="is not in the store"):
         compose(parse_recipe(_recipe("gray-mirror", name="g")), tmp_path / "g", store=url)
+
+
+def test_cli_compose_build_missing_adds_a_version_once(tiny, tmp_path):
+    """compose --build-missing: an α the store lacks is projected once into a new version; without the
+    flag the same compose is refused with the build command; afterwards it composes from the store."""
+    url0, req, v = tiny
+    url = str(tmp_path / "grow")
+    shutil.copytree(url0, url)
+    rp = tmp_path / "a.yaml"
+    rp.write_text(_recipe(FLAKE, name="a", extra=", orientation_alpha: 0.35"))
+    r = CliRunner().invoke(cli, ["compose", str(rp), "--out", str(tmp_path / "no"), "--store", url])
+    assert r.exit_code != 0 and "α = 0.35 is not in the store" in r.output and "flakedb build --recipe" in r.output
+    r = CliRunner().invoke(cli, ["compose", str(rp), "--out", str(tmp_path / "yes"), "--store", url,
+                                 "--build-missing", "--quiet"])
+    assert r.exit_code == 0, r.output
+    assert "--build-missing: building" in r.output and "built version" in r.output
+    new = open_bsdf(tmp_path / "yes" / "a.h5").metadata["store_version"]
+    assert new != v.version and 0.35 in st.open_version(url, new, verify=False).alphas(FLAKE)
+    r = CliRunner().invoke(cli, ["compose", str(rp), "--out", str(tmp_path / "again"), "--store", url])
+    assert r.exit_code == 0 and "building" not in r.output
+    # the recipe of the first version is still served by it
+    rp2 = tmp_path / "b.yaml"
+    rp2.write_text(_recipe(FLAKE, name="b"))
+    r = CliRunner().invoke(cli, ["compose", str(rp2), "--out", str(tmp_path / "b"), "--store", url])
+    assert r.exit_code == 0, r.output
