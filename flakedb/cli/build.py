@@ -48,12 +48,15 @@ def check_build_sizes(n, m):
               help="relative index of the paints' smooth top (clear-coat) interface: the nodes are the solver's "
                    "node set inside the binder below it and the optics use it as the binder index; 1 = no "
                    "interface / index-matched; 'none' = plain Radau nodes with the catalogue binder's index")
+@click.option("--top", "top", type=click.Choice(["smooth", "rough"]), default="smooth", show_default=True,
+              help="the paints' top interface at --eta-top: smooth (Snell-mapped nodes) or rough (rough coats: "
+                   "the air-side nodes inside); --recipe chooses from the recipe")
 @click.option("--rank-tol", type=float, default=None,
               help="truncation of the flakes' spectral SVD: the dropped part changes no R(c) by more than this "
                    "fraction of max R [1e-5]")
 @click.option("--raw", is_flag=True, help="keep the spectral SVD at its numerical rank (compose --raw needs it)")
 def build(store, recipe_path, workers, processes, scheduler, dry_run, n, species, alpha, range_nm, step_nm, eta_top,
-          rank_tol, raw):
+          top, rank_tol, raw):
     """Build (or reuse) the projected-kernel store and point `latest` at it."""
     url = store or st.default_store()
     check_build_sizes(n or DEFAULT_N, None)
@@ -87,7 +90,7 @@ def build(store, recipe_path, workers, processes, scheduler, dry_run, n, species
                 alphas = base
             req = make_request(species=species or None, n=n or DEFAULT_N, alphas=alphas,
                                wavelength_nm=spectral_grid(tuple(range_nm), step_nm), store_raw=raw, eta_top=eta,
-                               rank_tol=rank_tol)
+                               rank_tol=rank_tol, top=top)
         plan = st.plan_build(req)
     except (RecipeError, CatalogError) as exc:
         raise FlakedbError(str(exc)) from exc

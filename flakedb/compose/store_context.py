@@ -57,13 +57,14 @@ def store_problems(version, recipe, n, raw=False) -> list[str]:
     probs = []
     eta = float(recipe.binder_ior)
     cc = recipe.clearcoat
-    if eta != 1.0 and cc is not None and cc.roughness > 0:
-        probs.append(f"the recipe has a rough coat (roughness {cc.roughness:g}); store versions serve smooth coats "
-                     f"and index-matched stacks only: compose without --store")
+    rough = eta != 1.0 and cc is not None and cc.roughness > 0
     st_eta = version.eta_top
     if st_eta is None or abs(float(st_eta) - eta) > 1e-12:
         probs.append(f"top interface: the recipe's binder / coat index is η = {eta:g}, the store version was built "
                      f"for eta_top = {st_eta} ({'plain Radau grid, catalogue binder index' if st_eta is None else 'η'})")
+    elif eta != 1.0 and rough != (version.top == "rough"):
+        probs.append(f"top interface: the recipe has a {'rough' if rough else 'smooth'} coat, the store version was "
+                     f"built for a {version.top} top (its nodes inside the binder differ)")
     if int(n) not in version.resolutions:
         probs.append(f"node count: the solve uses n = {n}, the store has n {version.resolutions}")
     have = set(version.species)

@@ -61,9 +61,10 @@ clip is applied to the evaluated kernel (:class:`flakedb.rt.stored.StoredPigment
 phase clip the store path differed from the direct one by ΔE00 0.83 (cadmium-yellow, n = 16, 380–780
 nm; the blue channel's phase goes negative over 14 % of cos Θ); with it 1.2e-3 (tests/test_stored.py).
 For flakes the direct path's per-c clip of R to [0, 1] with R + T ≤ 1 needs T, which the store does
-not hold: it is not applied (the direct path reports its size in ``info['rgb_clip']``).  Not supported from the store (compose without a store instead): a rough coat
-(the store's optics use the binder index η with the Snell-mapped grid of a smooth coat) and a
-pigment whose recipe overrides the catalogue's size distribution.
+not hold: it is not applied (the direct path reports its size in ``info['rgb_clip']``).  A rough coat needs a version built for a rough top (``flakedb build --recipe`` or ``--top rough``:
+the air-side Radau nodes inside, as the solver keeps them below a rough interface).  Not supported
+from the store (compose without a store instead): a pigment whose recipe overrides the catalogue's
+size distribution.
 
 Primer (Lambertian, docs/model.md §4): ``color`` black / gray / white → albedo 0.04 / 0.18 / 0.9
 (:data:`PRIMER_ALBEDO`); or an albedo; or a spectrum (linear in λ).

@@ -56,7 +56,7 @@ def shipped_alphas(catalog=None) -> dict:
 
 
 def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, channel_block=8, store_raw=False,
-                 catalog_path=None, eta_top=None, rank_tol=None, recipe=None) -> st.BuildRequest:
+                 catalog_path=None, eta_top=None, rank_tol=None, recipe=None, top="smooth") -> st.BuildRequest:
     """A :class:`flakedb.store.versions.BuildRequest` from the catalogue (default: every species, sweeps
     included).  ``n``: node counts; ``wavelength_nm``: default 380–780 nm every 5 nm; ``alphas``:
     flake species → α's (default: the catalogue's α and those the shipped recipes use);
@@ -82,13 +82,13 @@ def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, cha
         alphas={k: [float(a) for a in v] for k, v in alphas.items() if k in names},
         channel_block=int(channel_block), store_raw=bool(store_raw),
         rank_tol=float(rank_tol) if rank_tol is not None else RANK_TOL,
-        eta_top=None if eta_top is None else float(eta_top), recipe=recipe)
+        eta_top=None if eta_top is None else float(eta_top), recipe=recipe, top=str(top))
 
 
 def request_for_recipe(recipe, n=None, store_raw=False, catalog_path=None) -> st.BuildRequest:
     """Exactly what ``recipe`` needs (``flakedb build --recipe``): its catalogue species, its node
     count (``n`` or the recipe's own: resolution or auto), its α's, its wavelengths and its binder
-    index as the top interface's."""
+    index as the top interface's (a rough coat: the nodes of a rough top)."""
     if n is None:
         n = int(recipe.n) if recipe.n is not None else auto_resolution(recipe)[0]
     names = sorted({p.species for p in catalog_species(recipe)})
@@ -101,7 +101,14 @@ def request_for_recipe(recipe, n=None, store_raw=False, catalog_path=None) -> st
     wl = recipe.wavelength_nm if recipe.wavelength_nm is not None else spectral_grid(DEFAULT_RANGE_NM, DEFAULT_STEP_NM)
     return make_request(species=names, n=int(n), wavelength_nm=wl, alphas={k: sorted(v) for k, v in alphas.items()},
                         store_raw=store_raw, catalog_path=catalog_path, eta_top=float(recipe.binder_ior),
-                        recipe=recipe.name)
+                        recipe=recipe.name, top=recipe_top(recipe))
+
+
+def recipe_top(recipe) -> str:
+    """"rough" when the recipe's top interface is a rough coat (binder index ≠ 1), else "smooth"."""
+    cc = recipe.clearcoat
+    rough = cc is not None and cc.roughness > 0 and float(recipe.binder_ior) != 1.0
+    return "rough" if rough else "smooth"
 
 
 def _execute(url, plan, tasks, scheduler, workers, client, progress):

@@ -96,11 +96,14 @@ MRE_THRESHOLD = 1e-6
 
 
 
-def _inside_quadrature(n, eta_top):
+def _inside_quadrature(n, eta_top, top="smooth"):
     """The solver's hemisphere rule inside the binder for n nodes in air (n even, checked by the
-    caller) below a smooth top of index ``eta_top`` (None or 1: plain Gauss–Radau)."""
+    caller) below a smooth top of index ``eta_top`` (None or 1: plain Gauss–Radau); ``top`` "rough":
+    below a rough top, where the solver keeps the air-side Gauss–Radau rule inside too."""
     q = radau_hemisphere(n // 2)
-    if eta_top is not None:
+    if top not in ("smooth", "rough"):
+        raise ValueError(f"top = {top!r}: 'smooth' or 'rough'")
+    if eta_top is not None and top == "smooth":
         eta = float(eta_top)
         if not np.isfinite(eta) or eta < 1.0:
             raise ValueError(f"eta_top = {eta_top}: the top interface's index (binder / air) must be ≥ 1 "
@@ -110,7 +113,7 @@ def _inside_quadrature(n, eta_top):
     return q
 
 
-def grid_nodes(n, m, eta_top=None):
+def grid_nodes(n, m, eta_top=None, top="smooth"):
     """The sampling grid: ``mu`` (n_mu,) the solver's full inside node set, ``phi`` (m,) radians on [0, π].
 
     ``n`` (even, ≥ 2) is the solver's node count in air (n/2 per hemisphere).  ``eta_top``: None or
@@ -123,7 +126,7 @@ def grid_nodes(n, m, eta_top=None):
         raise ValueError(f"n = {n}: the μ grid needs an even node count ≥ 2 (n/2 per hemisphere); use n = {max(2, n + n % 2)}")
     if m < 2:
         raise ValueError(f"m = {m}: the φ_d grid needs at least 2 samples on [0, π] (both ends)")
-    q = _inside_quadrature(n, eta_top)
+    q = _inside_quadrature(n, eta_top, top)
     mu, _ = q.full()
     return mu, phi_samples(m - 1)
 
@@ -364,18 +367,18 @@ LEGENDRE_STORE_NODES = 192
 ORDER_CHUNK = 16
 
 
-def store_nodes(n, eta_top=None):
+def store_nodes(n, eta_top=None, top="smooth"):
     """The solver's positive inside nodes and weights ``(x, w)`` (h,) for n nodes in air below a smooth
     top of index ``eta_top`` (None or 1: plain Gauss–Radau, h = n/2), as :func:`flakedb.rt.stack.solve_stack`
     builds them (:func:`grid_nodes` gives the full signed set)."""
     n = int(n)
     if n < 2 or n % 2:
         raise ValueError(f"n = {n}: the node count must be even and ≥ 2 (n/2 per hemisphere); use n = {max(2, n + n % 2)}")
-    q = _inside_quadrature(n, eta_top)
+    q = _inside_quadrature(n, eta_top, top)
     return q.x, q.w
 
 
-def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, projection_tol):
+def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, projection_tol, top="smooth"):
     """A flake species' stored factors at (n, η, α) over ``wavelength_nm`` (the whole spectrum): R(c),
     T(c) tabulated on the adaptive c grid of the direct path (:func:`flakedb.paint.mapping.adaptive_flake_optics`),
     then :func:`flakedb.rt.stored.flake_factors` (spectral SVD, projection of the basis kernels, σ's).
@@ -383,7 +386,7 @@ def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, proj
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     nb = np.broadcast_to(np.asarray(n_binder, dtype=float), wl.shape)
     c, R, T, c_err = adaptive_flake_optics(lambda cc: sp.flake_reflectance_transmittance(entry, wl, cc, nb))
-    x, w = store_nodes(n, eta_top)
+    x, w = store_nodes(n, eta_top, top)
     f = flake_factors(c, R, T, float(alpha), x, w, tol=projection_tol, max_orders=2 * int(n),
                       rank_tol=rank_tol if rank_tol is not None else 0.0)
     V = f["V"].astype(np.float32)

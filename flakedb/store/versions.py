@@ -182,6 +182,9 @@ class BuildRequest:
     legendre_degree: int = LEGENDRE_STORE_DEGREE
     eta_top: float | None = None
     recipe: str | None = None
+    #: "rough": the nodes of a rough top (plain Gauss–Radau inside as in air) with the optics at
+    #: ``eta_top``; "smooth" (default): the Snell-mapped nodes below a smooth top of ``eta_top``
+    top: str = "smooth"
 
     def inputs(self) -> dict:
         flakes = [k for k in sorted(self.species) if self.species[k]["kind"] != "pigment"]
@@ -207,6 +210,8 @@ class BuildRequest:
             "flake_c_tol": FLAKE_C_TOL,
             "eta_top": None if self.eta_top is None else float(self.eta_top),
             "recipe": self.recipe,
+            # only a rough top is recorded, so the versions of smooth-top requests keep their hashes
+            **({"top": "rough"} if self.top == "rough" else {}),
         }
 
 
@@ -284,7 +289,7 @@ def plan_build(request: BuildRequest) -> BuildPlan:
     tasks = []
     names = sorted(inputs["species"])
     for n in inputs["resolutions"]:
-        x, _ = store_nodes(n, inputs["eta_top"])  # validates n, eta_top
+        x, _ = store_nodes(n, inputs["eta_top"], inputs.get("top", "smooth"))  # validates n, eta_top
         h = x.size
         arrays[f"grid/{_res_key(n)}/x"] = {"shape": [h], "chunks": [h], "dtype": "float64", "units": "1"}
         arrays[f"grid/{_res_key(n)}/w"] = {"shape": [h], "chunks": [h], "dtype": "float64", "units": "1"}
@@ -349,6 +354,9 @@ def metadata(plan: BuildPlan) -> dict:
         "grid": {"x": ("the solver's positive inside nodes for n nodes in air "
                        + ("and no smooth top interface: Gauss-Radau, n/2 (flakedb.rt.quadrature)"
                           if eta in (None, 1.0) else
+                          f"below a rough top interface (binder index eta_top = {eta:g}): the air-side "
+                          "Gauss-Radau rule, n/2 nodes (flakedb.rt.quadrature)"
+                          if plan.inputs.get("top") == "rough" else
                           f"below a smooth top interface of relative index eta_top = {eta:g}: the Snell image of "
                           "the n/2 air-side Gauss-Radau nodes plus default_tir_nodes(n/2, eta_top) Gauss-Legendre "
                           "nodes in the TIR range (flakedb.rt.quadrature.snell_mapped_quadrature)")),
@@ -460,7 +468,7 @@ def _fill_template(vurl, plan: BuildPlan, meta: dict):
             g.require_group(t.prefix)
     g["wavelength_nm"][:] = np.asarray(plan.inputs["wavelength_nm"], dtype=float)
     for n in plan.inputs["resolutions"]:
-        x, w = store_nodes(n, plan.inputs.get("eta_top"))
+        x, w = store_nodes(n, plan.inputs.get("eta_top"), plan.inputs.get("top", "smooth"))
         g[f"grid/{_res_key(n)}/x"][:] = x
         g[f"grid/{_res_key(n)}/w"][:] = w
     g.attrs.update(meta)  # the group's zarr.json is written last: its presence marks the template
@@ -478,7 +486,7 @@ def compute_task(request_inputs: dict, task: Task) -> dict:
         {"binder": request_inputs["binder"]}, wl)
     if task.is_flake:
         return flake_task(entry, wl, nb, task.n, task.alpha, eta_top, request_inputs["rank_tol"],
-                          request_inputs["projection_tol"])
+                          request_inputs["projection_tol"], request_inputs.get("top", "smooth"))
     nb_all = np.full(wl_all.shape, float(eta_top)) if eta_top is not None else sp.binder_index(
         {"binder": request_inputs["binder"]}, wl_all)
     # the size quadrature of the whole grid (the log-normal Mie nodes follow the shortest wavelength):
@@ -839,6 +847,11 @@ class StoreVersion:
     def eta_top(self) -> float | None:
         """The top interface index the version was built for (None: plain Radau nodes, catalogue binder)."""
         return self.metadata["inputs"].get("eta_top")
+
+    @property
+    def top(self) -> str:
+        """"rough" for a version built for rough top interfaces (plain Radau nodes inside), else "smooth"."""
+        return self.metadata["inputs"].get("top", "smooth")
 
     @property
     def resolutions(self) -> list[int]:

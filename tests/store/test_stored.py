@@ -344,3 +344,41 @@ def test_cli_compose_build_missing_adds_a_version_once(tiny, tmp_path):
     rp2.write_text(_recipe(FLAKE, name="b"))
     r = CliRunner().invoke(cli, ["compose", str(rp2), "--out", str(tmp_path / "b"), "--store", url])
     assert r.exit_code == 0, r.output
+
+
+def _rough(recipe_text, roughness=0.1):
+    return recipe_text.replace("roughness: 0}", f"roughness: {roughness}}}")
+
+
+def test_rough_coat_from_a_rough_top_store_matches_direct(tmp_path_factory, tmp_path):
+    """A rough-coated recipe composes from a version built for a rough top (`build --recipe` picks it:
+    the air-side Radau nodes inside, optics at the binder index) and agrees with the direct compose;
+    a smooth-top version refuses it and a rough-top version refuses a smooth coat, naming why."""
+    url = str(tmp_path_factory.mktemp("rough") / "store")
+    flake = parse_recipe(_rough(_recipe(FLAKE, name="rf")))
+    pig = parse_recipe(_rough(_recipe(PIGMENT, name="rp")))
+    from flakedb.pipelines.build import recipe_top, request_for_recipe
+
+    assert recipe_top(flake) == "rough" and recipe_top(parse_recipe(_recipe(FLAKE))) == "smooth"
+    for rec in (flake, pig):
+        res = build(request_for_recipe(rec), url, scheduler="sync")
+        assert res["status"] == "built"
+        assert st.open_version(url, res["version"]).top == "rough"
+        assert np.array_equal(st.open_version(url, res["version"]).grid(N)[0], radau_hemisphere(N // 2).x)
+    for rec in (flake, pig):
+        s = compose(rec, tmp_path / ("s" + rec.name), store=url)
+        d = compose(rec, tmp_path / ("d" + rec.name))
+        phi = np.linspace(0, np.pi, 7)
+        fs, fd = s.stack.eval_nodes(phi), d.stack.eval_nodes(phi)
+        assert np.abs(fs - fd).max() <= 1e-4 * np.abs(fd).max()
+        assert delta_E_2000(_lab(s), _lab(d)).max() <= 0.01
+    with pytest.raises(st.StoreError, match="rough coat, the store version was built for a smooth top"):
+        compose(flake, tmp_path / "x", store=tiny_url_smooth(tmp_path_factory))
+    with pytest.raises(st.StoreError, match="smooth coat, the store version was built for a rough top"):
+        compose(parse_recipe(_recipe(FLAKE, name="sm")), tmp_path / "y", store=url)
+
+
+def tiny_url_smooth(tmp_path_factory):
+    url = str(tmp_path_factory.mktemp("smooth") / "store")
+    build(make_request(species=[FLAKE], n=N, wavelength_nm=WL, eta_top=ETA), url, scheduler="sync")
+    return url
