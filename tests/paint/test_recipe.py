@@ -17,6 +17,7 @@ import yaml
 from click.testing import CliRunner
 
 from flakedb.cli.main import cli
+from flakedb.paint.mapping import auto_resolution
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError, load_recipe, parse_recipe
 
 RECIPES = sorted((Path(__file__).resolve().parents[2] / "catalog" / "recipes").glob("*.yaml"))
@@ -226,6 +227,49 @@ def test_stack_shape_checks():
     d = doc()
     d["layers"][0]["clearcoat"]["roughness"] = 0.05  # lossless at every n now: no blanket warning
     assert not any("roughness" in w for w in parse_recipe(yaml.safe_dump(d)).warnings)
+
+
+def test_metal_base_parses_and_is_checked():
+    """A metal base (issue 12 item 3(b)) in place of the primer: a catalogue material or {n, k}, with a
+    Beckmann roughness; each problem names the field, the value, the allowed range or names, a fix."""
+    d = doc()
+    d["layers"][2] = {"metal": {"material": "Al", "roughness": 0.1}}
+    r = parse_recipe(yaml.safe_dump(d))
+    assert r.primer is None and r.metal.material == "Al" and r.metal.roughness == 0.1 and r.metal.energy_compensation
+    assert r.metal.path == "layers[2].metal"
+    d["layers"][2]["metal"] = {"material": {"n": 1.2, "k": 7.0}, "roughness": 0.2, "energy_compensation": False}
+    r = parse_recipe(yaml.safe_dump(d))
+    assert r.metal.material == 1.2 + 7.0j and not r.metal.energy_compensation
+    d["layers"][2]["metal"] = {"material": "Alu", "roughness": 0.1}
+    assert any(p.startswith("layers[2].metal.material: unknown material \"Alu\" (did you mean 'Al'?)")
+               and "known materials: " in p for p in problems_of(d))
+    d["layers"][2]["metal"] = {"material": "Al", "roughness": 0.001}
+    assert "layers[2].metal.roughness: value 0.001 is outside the allowed range 0.01 ≤ value ≤ 1" in problems_of(d)[0]
+    d["layers"][2]["metal"] = {"material": {"n": 1.2, "k": -1}, "roughness": 0.1}
+    assert any("layers[2].metal.material.k: value -1 is outside the allowed range 0 ≤ value ≤ 100" in p
+               for p in problems_of(d))
+    d["layers"][2] = {"metal": {"material": "Al", "roughness": 0.1}}
+    d["layers"].append({"primer": {"color": "white"}})
+    probs = problems_of(d)
+    assert any(p.startswith("layers[2].metal: the metal base must be the last (bottom) layer") for p in probs)
+    assert any(p.startswith("layers: a primer and a metal base") for p in probs)
+    d = doc()
+    d["layers"] = [{"clearcoat": {"thickness_um": 40, "ior": 1.5}}, {"metal": {"material": "Al", "roughness": 0.1}}]
+    d["spectral"] = {"mode": "mono"}
+    assert any(p.startswith("layers[1].metal.material: 'Al' has a spectral index; mono mode") for p in problems_of(d))
+    d["layers"][1]["metal"]["material"] = "SiO2"
+    d["spectral"] = {"mode": "spectral", "range_nm": [400, 700], "step_nm": 10}
+    assert any("hardly a metal" in w for w in parse_recipe(yaml.safe_dump(d)).warnings)
+    # resolution: auto takes the metal lobe's measured envelope (docs/resolution.md "Metal base")
+    d["layers"][1]["metal"]["material"] = "Al"
+    n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))
+    assert n == 48 and "metal base α = 0.1" in why and "measured 0.048" in why
+    d["layers"][1]["metal"]["roughness"] = 0.01
+    n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))
+    assert n == 248 and "scaled by 0.05/α" in why
+    d["resolution"] = {"lobe_error": 0.001}
+    with pytest.raises(RecipeError, match="lobe_error 0.001 for a metal base is not reachable"):
+        auto_resolution(parse_recipe(yaml.safe_dump(d)))
 
 
 def test_yaml_syntax_error_names_line():
