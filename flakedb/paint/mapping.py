@@ -2,8 +2,10 @@
 
 A :class:`flakedb.paint.recipe.Recipe` becomes the arguments of :func:`flakedb.rt.stack.solve_stack`::
 
-    top     Smooth(η) | Rough(η, α) | None      η = the binder index (one index below the top: the
-                                                 clear coat's = every basecoat's; ior 1 = no interface)
+    top     Smooth(η) | Rough(η, α) | None      η = the top binder's index (the clear coat's, else the
+                                                 first basecoat's; ior 1 = no interface)
+            + InnerSmooth(η_b / η_a)             before a basecoat whose ior rises above the binder over
+                                                 it: a smooth inner interface (docs/model.md §4)
     slabs   [Slab(d_clear, absorbing coat)]      only when the coat absorbs: PhaseMedium(σ_a, albedo 0)
             + [Slab(d_base, Mixture(…)) …]       one per basecoat that holds particles
     bottom  Lambertian(albedo per channel)       the primer, or
@@ -123,7 +125,7 @@ from flakedb.paint.species import flake_reflectance_transmittance, pigment_optic
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
 from flakedb.rt.microflake import FlakeOptics, extinction_Ergun
-from flakedb.rt.stack import Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.stack import InnerSmooth, Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings, solve_stack
 from flakedb.rt.stored import StoredMixture, StoredPigmentMedium
 
 #: Flake-cosine grid: start from FLAKE_C_START nodes c = cos θ, θ uniform on [0°, 90°], and bisect
@@ -539,7 +541,13 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
                                "absorption_per_um": [float(a_ch.min()), float(a_ch.max())],
                                "optical_depth": [float(a_ch.min() * cc.thickness_um), float(a_ch.max() * cc.thickness_um)]})
 
+    n_above = eta  # the binder index above the next basecoat (the top binder's)
     for b in recipe.basecoats:
+        if b.ior != n_above:  # a rise of the binder index: a smooth inner interface (recipe checks: rises only)
+            slabs.append(InnerSmooth(b.ior / n_above))
+            components.append({"path": b.path, "kind": "inner interface", "eta_above": n_above, "eta_below": b.ior,
+                               "relative_index": b.ior / n_above})
+            n_above = b.ior
         meds = []
         for p in b.particles:
             if isinstance(p, CatalogParticle) and p.is_flake:

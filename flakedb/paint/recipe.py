@@ -22,7 +22,8 @@ Three stages, each reporting *every* problem with the recipe field path
 1. YAML → a document (:func:`parse_recipe`); YAML syntax errors name the line.
 2. JSON Schema 2020-12 (``schemas/recipe.schema.json``; unknown keys refused everywhere).
 3. Checks a schema cannot express (:func:`semantic_problems`): layer order (at most one clearcoat,
-   first; at most one primer or metal base, last), a single binder index below the top interface, species that
+   first; at most one primer or metal base, last), binder indices equal or rising downwards (each
+   rise is a smooth inner interface), species that
    exist in the catalogue, overrides that fit the species' kind, packing limits, flake R + T ≤ 1,
    tabulated spectra that cover the grid, optical constants that cover the grid (a metal base's
    material too), a transmissive stack (no primer or metal base) only without a top interface.
@@ -486,17 +487,21 @@ def _order_problems(kinds) -> list[str]:
 
 
 def _binder_index_problems(layers, kinds) -> list[str]:
-    """One binder index below the top interface: every layer's ior equals the first one's."""
+    """Binder indices below the top interface: equal, or rising downwards (each change is a smooth inner
+    interface, docs/model.md §4 "Inner interface"); a fall (into a less dense binder) is not supported."""
     problems = []
     iors = [(f"layers[{i}].{k}.ior", float(layers[i][k]["ior"])) for i, k in enumerate(kinds)
             if k not in ("primer", "metal")]
-    if iors:
-        ref_path, ref = iors[0]
-        for pth, v in iors[1:]:
-            if v != ref:
-                problems.append(
-                    f"{pth}: value {v:g} differs from {ref_path} = {ref:g}; not supported yet: flakedb solves one "
-                    f"binder index below the top interface (no internal interfaces) (hint: set it to {ref:g})")
+    for (p_above, above), (pth, v) in zip(iors, iors[1:]):
+        if v < above:
+            problems.append(
+                f"{pth}: value {v:g} is below {p_above} = {above:g}; an inner interface into a binder of lower index "
+                f"is not supported yet (allowed range: {pth.rsplit('.', 1)[0]}.ior ≥ {above:g}; the solver maps "
+                f"directions into a denser binder only) (hint: set it to {above:g} or more)")
+        elif v > above and above == 1.0:
+            problems.append(
+                f"{pth}: value {v:g} under {p_above} = 1 (index-matched): an inner interface needs a binder above it "
+                f"(hint: give {p_above} the binder's index, or set {pth} to 1)")
     return problems
 
 

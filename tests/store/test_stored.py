@@ -262,6 +262,12 @@ def test_store_of_another_n_or_eta_is_refused(tiny, tmp_path):
     r = CliRunner().invoke(cli, ["compose", str(rp), "--out", str(tmp_path / "o"), "--store", url])
     assert r.exit_code != 0 and "η = 1.3" in r.output and "eta_top 1.5" in r.output
     assert "--eta-top 1.3" in r.output
+    # two binders (an inner interface, issue 12 item 3(a)): refused in one line, compose without --store
+    rp.write_text(_recipe(FLAKE, name="other").replace("  - basecoat:\n      thickness_um: 15\n      ior: 1.5",
+                                                         "  - basecoat:\n      thickness_um: 15\n      ior: 1.6"))
+    r = CliRunner().invoke(cli, ["compose", str(rp), "--out", str(tmp_path / "o"), "--store", url])
+    assert r.exit_code == 2 and "store versions serve one binder index: compose without --store" in r.output
+    assert "Traceback" not in r.output and not (tmp_path / "o").exists()
 
 
 def test_recipe_without_catalogue_species_needs_no_store(tmp_path):
