@@ -58,6 +58,9 @@ def store_problems(version, recipe, n, raw=False) -> list[str]:
     eta = float(recipe.binder_ior)
     cc = recipe.clearcoat
     rough = eta != 1.0 and cc is not None and cc.roughness > 0
+    if any(b.ior != eta for b in recipe.basecoats):
+        probs.append(f"the recipe has basecoats of another binder index than η = {eta:g} (an inner interface); store "
+                     f"versions serve one binder index: compose without --store")
     st_eta = version.eta_top
     if st_eta is None or abs(float(st_eta) - eta) > 1e-12:
         probs.append(f"top interface: the recipe's binder / coat index is η = {eta:g}, the store version was built "

@@ -2,11 +2,15 @@
 
 A :class:`flakedb.paint.recipe.Recipe` becomes the arguments of :func:`flakedb.rt.stack.solve_stack`::
 
-    top     Smooth(η) | Rough(η, α) | None      η = the binder index (one index below the top: the
-                                                 clear coat's = every basecoat's; ior 1 = no interface)
+    top     Smooth(η) | Rough(η, α) | None      η = the top binder's index (the clear coat's, else the
+                                                 first basecoat's; ior 1 = no interface)
+            + InnerSmooth(η_b / η_a)             before a basecoat whose ior rises above the binder over
+                                                 it: a smooth inner interface (docs/model.md §4)
     slabs   [Slab(d_clear, absorbing coat)]      only when the coat absorbs: PhaseMedium(σ_a, albedo 0)
             + [Slab(d_base, Mixture(…)) …]       one per basecoat that holds particles
-    bottom  Lambertian(albedo per channel) | None
+    bottom  Lambertian(albedo per channel)       the primer, or
+            | RoughConductor(N per channel, α)    a metal base (N = n + ik relative to vacuum), or
+            | None                                nothing (a transmissive, index-matched stack)
 
 A non-absorbing clear coat adds no slab at all: inside one binder it changes nothing (the
 smooth or rough top interface is the coat's surface).  A basecoat without particles is likewise
@@ -69,6 +73,19 @@ size distribution.
 Primer (Lambertian, docs/model.md §4): ``color`` black / gray / white → albedo 0.04 / 0.18 / 0.9
 (:data:`PRIMER_ALBEDO`); or an albedo; or a spectrum (linear in λ).
 
+Metal base (docs/model.md §4 "metal base"): a :class:`flakedb.rt.stack.RoughConductor` of the recipe's
+Beckmann roughness, with its complex index N = n + ik relative to vacuum (the solver divides it by the
+binder's index above): per band from the catalogue material (:func:`flakedb.paint.materials.refractive_index`)
+in spectral mode, the recipe's constant {n, k} in every mode.  In ``rgb`` mode N itself cannot be
+converted (the reflectance is not linear in N, and an "RGB index" has no physical meaning); what is
+physical and linear in the light is the metal's reflectance.  So the smooth-metal Fresnel reflectance
+F(μ, λ) against the binder is converted to RGB like any reflectance, and each channel gets the N whose
+conductor Fresnel curve fits that RGB curve best in the cosine-weighted least-squares sense over μ
+(:func:`metal_index_rgb`; two parameters n, k per channel).  The fit's largest error in F is recorded in
+``info['metal_rgb_fit_error']`` (Al in the binder 1.5: measured in tests/paint/test_mapping.py).  The
+microfacet lobe then uses this N per channel; the Fresnel factor at the microfacets sees the same
+reflectance curve as the spectral solve, averaged over the band as the paper's RGB mode does.
+
 Channels
 --------
 * ``spectral``: one channel per band of the recipe's grid; every optical quantity per band.
@@ -91,8 +108,12 @@ import copy
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.special import roots_legendre
 
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
+from flakedb.optics.fresnel import fresnel_conductor
+from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import (
     PRIMER_ALBEDO,  # noqa: E402,F401  (defined with the recipe's primer colours)
     CatalogParticle,
@@ -105,7 +126,7 @@ from flakedb.paint.species import flake_reflectance_transmittance, pigment_optic
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
 from flakedb.rt.microflake import FlakeOptics, extinction_Ergun
-from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.stack import InnerSmooth, Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings, solve_stack
 from flakedb.rt.stored import StoredMixture, StoredPigmentMedium
 
 #: Flake-cosine grid: start from FLAKE_C_START nodes c = cos θ, θ uniform on [0°, 90°], and bisect
@@ -235,6 +256,58 @@ def pigment_tospectra_to_rgb_mode(c_ext, c_sca, phase, wl):
                      np.abs(sc - s).max() / max(np.abs(s).max(), 1e-300),
                      np.abs(pc - p).max() / max(np.abs(p).max(), 1e-300)))
     return ec, sc, pc, clip
+
+
+#: Gauss–Legendre nodes in μ ∈ [0, 1] of the RGB metal fit (:func:`metal_index_rgb`).
+METAL_FIT_NODES = 48
+
+
+def metal_index_rgb(N_spectral, eta, wl):
+    """RGB-mode complex index of a metal base (module docstring, "Metal base").
+
+    ``N_spectral`` (W,): the metal's index per band of ``wl`` relative to vacuum; ``eta``: the binder's
+    index.  The smooth-interface Fresnel reflectance F(μ, λ) of N/η (:func:`flakedb.optics.fresnel.fresnel_conductor`)
+    is converted to RGB (:func:`flakedb.colour.colorimetry.spectra_to_rgb_mode`, clipped to [0, 1]) at
+    :data:`METAL_FIT_NODES` Gauss–Legendre μ nodes, and per channel n, k > 0 minimise
+    Σ_j w_j μ_j (F(μ_j; (n + ik)/η) − F_rgb(μ_j))² (scipy least squares in log n, log k, started from
+    the band-averaged N).  Returns (N_rgb (3,) complex relative to vacuum, the largest |F − F_rgb| over μ
+    and channels, the largest clip of F_rgb)."""
+    N_spectral = np.asarray(N_spectral, dtype=complex)
+    g, wg = roots_legendre(METAL_FIT_NODES)
+    mu, wmu = 0.5 * (g + 1.0), 0.5 * wg
+    F = fresnel_conductor(mu[:, None], N_spectral[None, :] / float(eta)).R  # (M, W)
+    F_rgb = spectra_to_rgb_mode(F, wl)  # (M, 3)
+    F_c = np.clip(F_rgb, 0.0, 1.0)
+    clip = float(np.abs(F_c - F_rgb).max())
+    sw = np.sqrt(wmu * mu)
+    start = np.log(np.array([np.mean(N_spectral.real), max(np.mean(N_spectral.imag), 1e-3)]))
+    out, err = np.zeros(3, dtype=complex), 0.0
+    for c in range(3):
+        def resid(p, c=c):
+            return sw * (fresnel_conductor(mu, complex(np.exp(p[0]), np.exp(p[1])) / float(eta)).R - F_c[:, c])
+        sol = least_squares(resid, start, method="lm", xtol=1e-14, ftol=1e-14)
+        out[c] = complex(np.exp(sol.x[0]), np.exp(sol.x[1]))
+        err = max(err, float(np.abs(resid(sol.x) / sw).max()))
+    return out, err, clip
+
+
+def _metal_bottom(metal, mode, wl, C, eta, info):
+    """RoughConductor of a recipe's metal base and its record (module docstring, "Metal base")."""
+    if not isinstance(metal.material, str):
+        N = np.full(C, complex(metal.material))
+    elif mode == "rgb":
+        N, err, clip = metal_index_rgb(refractive_index(metal.material, wl), eta, wl)
+        info["metal_rgb_fit_error"] = err
+        info["metal_rgb_clip"] = clip
+    else:
+        N = np.asarray(refractive_index(metal.material, wl), dtype=complex)
+    bottom = RoughConductor(N, float(metal.roughness), bool(metal.energy_compensation))
+    F0 = fresnel_conductor(np.ones(1), N / eta).R
+    rec = {"path": metal.path, "kind": "metal base", "material": metal.label, "roughness": float(metal.roughness),
+           "energy_compensation": bool(metal.energy_compensation),
+           "n": [float(N.real.min()), float(N.real.max())], "k": [float(N.imag.min()), float(N.imag.max())],
+           "normal_reflectance_in_binder": [float(F0.min()), float(F0.max())]}
+    return bottom, rec
 
 
 # ----------------------------------------------------------------------------------------------
@@ -469,7 +542,13 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
                                "absorption_per_um": [float(a_ch.min()), float(a_ch.max())],
                                "optical_depth": [float(a_ch.min() * cc.thickness_um), float(a_ch.max() * cc.thickness_um)]})
 
+    n_above = eta  # the binder index above the next basecoat (the top binder's)
     for b in recipe.basecoats:
+        if b.ior != n_above:  # a rise of the binder index: a smooth inner interface (recipe checks: rises only)
+            slabs.append(InnerSmooth(b.ior / n_above))
+            components.append({"path": b.path, "kind": "inner interface", "eta_above": n_above, "eta_below": b.ior,
+                               "relative_index": b.ior / n_above})
+            n_above = b.ior
         meds = []
         for p in b.particles:
             if isinstance(p, CatalogParticle) and p.is_flake:
@@ -501,6 +580,10 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
         components.append({"path": pr.path, "kind": "primer", "label": pr.label,
                            "albedo": [float(np.min(alb)), float(np.max(alb))]})
 
+    if getattr(recipe, "metal", None) is not None:
+        bottom, rec = _metal_bottom(recipe.metal, mode, wl, C, eta, info)
+        components.append(rec)
+
     return Paint(top=top, slabs=slabs, bottom=bottom, channels=channels, mode=mode,
                  wavelength_nm=None if wl is None else np.asarray(wl), eta=eta, top_alpha=top_alpha,
                  components=components, info=info, warnings=list(recipe.warnings))
@@ -527,6 +610,14 @@ FLAKE_ALBEDO_ERROR = ((1.6, 0.051), (2.4, 0.033), (3.2, 0.028), (4.8, 0.019), (6
 #: Directional albedo error (θ_i ≤ 80°) without flakes (coat α 0.01–0.3 / HG g 0.7, 0.9 slab / diffuse,
 #: η 1.3–1.7) by n, against n = 192.
 PLAIN_ALBEDO_ERROR = ((32, 0.0061), (48, 0.0026), (64, 0.0014), (96, 0.0007))
+#: Metal base lobe (docs/resolution.md "Metal base"): reflection at normal incidence of a rough conductor
+#: (N = 1.2 + 7i) under a smooth coat of η 1.5 or none, binned in 5° θ_o bins (per bin over the total),
+#: against n = 384, worst over α ∈ {0.05, 0.1, 0.2, 0.3} at that n or above, by n.  The errors do not
+#: collapse on h·α (the smooth coat's Snell-mapped binder grid), hence a table in n.
+METAL_LOBE_ERROR = ((48, 0.048), (96, 0.021), (128, 0.013), (192, 0.0095))
+#: Smallest metal roughness of those measurements; below it n is scaled by METAL_ALPHA_MEASURED / α
+#: (the lobe's width is proportional to α), a stated extrapolation named in the reason.
+METAL_ALPHA_MEASURED = 0.05
 
 
 def _needed(table, target):
@@ -554,7 +645,8 @@ def auto_resolution(recipe) -> tuple[int, str]:
       (the flux-cell interface is lossless at every n, so its albedo is not what limits n);
     * flakes of Beckmann spread α_f: h α_f from :data:`FLAKE_ALBEDO_ERROR` for albedo_error, and at
       least the ΔE00 rule h ≥ 3/α_f (metallic-silver, RGB: ΔE00 ≈ 0.1 at h ≈ 2/α_f);
-    * HG media: h ≥ 3/(1 − |g|); stacks without flakes: n from :data:`PLAIN_ALBEDO_ERROR`.
+    * HG media: h ≥ 3/(1 − |g|); stacks without flakes: n from :data:`PLAIN_ALBEDO_ERROR`;
+    * a metal base: n from :data:`METAL_LOBE_ERROR` for lobe_error (scaled by 0.05/α below α 0.05).
 
     The binder index enters through the measurements (η ∈ [1.3, 1.7] measured; outside it a warning
     in the reason).  n = 2h is rounded up to a multiple of 8, at least 32.  Orders: chosen by the
@@ -608,6 +700,24 @@ def auto_resolution(recipe) -> tuple[int, str]:
             flakes = True
             add(FLAKE_ALBEDO_ERROR, t_alb, a, f"flakes α = {a:g} ({p.path})", "albedo_error")
             need.append((int(np.ceil(min(3.0 / a, AUTO_MAX_N))), f"flakes α = {a:g} ({p.path}): h ≥ 3/α (ΔE00 ≲ 0.1)"))
+    metal = getattr(recipe, "metal", None)
+    if metal is not None:
+        n_m, err = _needed(METAL_LOBE_ERROR, t_lobe)
+        if n_m is None:
+            raise RecipeError(getattr(recipe, "source", "<recipe>"), [
+                f"resolution: lobe_error {t_lobe:g} for a metal base is not reachable: the smallest measured error "
+                f"is {METAL_LOBE_ERROR[-1][1]:g} (at n = {METAL_LOBE_ERROR[-1][0]}; docs/resolution.md) (hint: raise "
+                f"lobe_error to ≥ {METAL_LOBE_ERROR[-1][1]:g}, or set resolution: {AUTO_MAX_N})"])
+        why = f"metal base α = {metal.roughness:g}: n ≥ {n_m} for lobe_error ≤ {t_lobe:g} (measured {err:g})"
+        if metal.roughness < METAL_ALPHA_MEASURED:
+            n_m = int(np.ceil(n_m * METAL_ALPHA_MEASURED / metal.roughness))
+            why += f", scaled by {METAL_ALPHA_MEASURED:g}/α below the measured α ≥ {METAL_ALPHA_MEASURED:g} → n ≥ {n_m}"
+        if n_m > AUTO_MAX_N:
+            raise RecipeError(getattr(recipe, "source", "<recipe>"), [
+                f"resolution: lobe_error {t_lobe:g} for a metal base of roughness {metal.roughness:g} needs n ≥ {n_m} "
+                f"({why}; docs/resolution.md), above the largest allowed n = {AUTO_MAX_N} (hint: set resolution: "
+                f"{AUTO_MAX_N}, raise lobe_error, or raise {metal.path}.roughness)"])
+        need.append((n_m // 2 + n_m % 2, why))
     if not flakes:
         n_alb, err = _needed(PLAIN_ALBEDO_ERROR, t_alb)
         if n_alb is None:

@@ -14,7 +14,7 @@ A recipe describes a paint as layers, top to bottom (docs/model.md §1)::
           particles:
             - {species: pearlescent, volume_fraction: 0.04, orientation_alpha: 0.2}
             - {species: titanium-white, volume_fraction: 0.02}
-      - primer: {color: white}
+      - primer: {color: white}         # or a metal base: metal: {material: Al, roughness: 0.1}
 
 Three stages, each reporting *every* problem with the recipe field path
 (``layers[1].basecoat.particles[0].volume_fraction``), the value, the allowed range and a hint:
@@ -22,10 +22,11 @@ Three stages, each reporting *every* problem with the recipe field path
 1. YAML → a document (:func:`parse_recipe`); YAML syntax errors name the line.
 2. JSON Schema 2020-12 (``schemas/recipe.schema.json``; unknown keys refused everywhere).
 3. Checks a schema cannot express (:func:`semantic_problems`): layer order (at most one clearcoat,
-   first; at most one primer, last), a single binder index below the top interface, species that
+   first; at most one primer or metal base, last), binder indices equal or rising downwards (each
+   rise is a smooth inner interface), species that
    exist in the catalogue, overrides that fit the species' kind, packing limits, flake R + T ≤ 1,
-   tabulated spectra that cover the grid, optical constants that cover the grid, a transmissive
-   stack (no primer) only without a top interface.
+   tabulated spectra that cover the grid, optical constants that cover the grid (a metal base's
+   material too), a transmissive stack (no primer or metal base) only without a top interface.
 
 Nothing here computes optics; everything is caught before any computation.  The physics mapping
 from a :class:`Recipe` to solver inputs is :mod:`flakedb.paint.mapping`.
@@ -57,7 +58,7 @@ import yaml
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint.catalog import expand_sweeps, load_catalog
 from flakedb.paint.checks import MAX_RECIPE_BYTES, RecipeInputError, load_yaml_strict, too_large_message, value_problems
-from flakedb.paint.materials import refractive_index
+from flakedb.paint.materials import material_names, refractive_index
 from flakedb.resources import PACKAGE_DIR, SCHEMAS_DIR
 
 #: Recipe format version this flakedb reads (the ``flakedb:`` key).
@@ -181,6 +182,20 @@ class Primer:
 
 
 @dataclass
+class MetalBase:
+    """A metal base in place of the primer (docs/model.md §4): a Beckmann microfacet conductor of
+    roughness ``roughness``.  ``material``: a catalogue material name (complex index n + ik per
+    wavelength, :func:`flakedb.paint.materials.refractive_index`) or a wavelength-independent complex
+    index n + ik (relative to vacuum).  ``energy_compensation``: Kulla & Conty's lobe (default)."""
+
+    material: str | complex
+    roughness: float
+    energy_compensation: bool = True
+    label: str = ""
+    path: str = ""
+
+
+@dataclass
 class Recipe:
     """A validated recipe.  ``wavelength_nm`` is the band grid (spectral mode) or the integration
     grid of the RGB conversion (rgb mode); None in mono mode.  ``n`` is None for ``auto``."""
@@ -200,6 +215,8 @@ class Recipe:
     #: accuracy targets of ``resolution: auto`` ({albedo_error, lobe_error}; empty: the defaults of
     #: :data:`flakedb.paint.mapping.AUTO_TARGETS`)
     targets: dict = field(default_factory=dict)
+    #: a metal base in place of the primer (None: the primer, or nothing)
+    metal: MetalBase | None = None
 
     @property
     def binder_ior(self) -> float:
@@ -445,7 +462,7 @@ def _material_coverage_problems(path, entry, grid):
 
 
 def _order_problems(kinds) -> list[str]:
-    """At most one clearcoat, first; at most one primer, last."""
+    """At most one clearcoat, first; at most one primer or metal base, last."""
     problems = []
     for i, k in enumerate(kinds):
         if k == "clearcoat" and i != 0:
@@ -454,24 +471,37 @@ def _order_problems(kinds) -> list[str]:
         if k == "primer" and i != len(kinds) - 1:
             problems.append(f"layers[{i}].primer: the primer must be the last (bottom) layer; layers go top to bottom "
                             f"(hint: move it to the end)")
+        if k == "metal" and i != len(kinds) - 1:
+            problems.append(f"layers[{i}].metal: the metal base must be the last (bottom) layer; layers go top to "
+                            f"bottom (hint: move it to the end)")
     if kinds.count("clearcoat") > 1:
         problems.append(f"layers: {kinds.count('clearcoat')} clear coats; at most one (the top layer)")
     if kinds.count("primer") > 1:
         problems.append(f"layers: {kinds.count('primer')} primers; at most one (the bottom layer)")
+    if kinds.count("metal") > 1:
+        problems.append(f"layers: {kinds.count('metal')} metal bases; at most one (the bottom layer)")
+    if "metal" in kinds and "primer" in kinds:
+        problems.append("layers: a primer and a metal base; the bottom is one or the other (hint: remove the "
+                        "primer over the metal, or the metal)")
     return problems
 
 
 def _binder_index_problems(layers, kinds) -> list[str]:
-    """One binder index below the top interface: every layer's ior equals the first one's."""
+    """Binder indices below the top interface: equal, or rising downwards (each change is a smooth inner
+    interface, docs/model.md §4 "Inner interface"); a fall (into a less dense binder) is not supported."""
     problems = []
-    iors = [(f"layers[{i}].{k}.ior", float(layers[i][k]["ior"])) for i, k in enumerate(kinds) if k != "primer"]
-    if iors:
-        ref_path, ref = iors[0]
-        for pth, v in iors[1:]:
-            if v != ref:
-                problems.append(
-                    f"{pth}: value {v:g} differs from {ref_path} = {ref:g}; not supported yet: flakedb solves one "
-                    f"binder index below the top interface (no internal interfaces) (hint: set it to {ref:g})")
+    iors = [(f"layers[{i}].{k}.ior", float(layers[i][k]["ior"])) for i, k in enumerate(kinds)
+            if k not in ("primer", "metal")]
+    for (p_above, above), (pth, v) in zip(iors, iors[1:]):
+        if v < above:
+            problems.append(
+                f"{pth}: value {v:g} is below {p_above} = {above:g}; an inner interface into a binder of lower index "
+                f"is not supported yet (allowed range: {pth.rsplit('.', 1)[0]}.ior ≥ {above:g}; the solver maps "
+                f"directions into a denser binder only) (hint: set it to {above:g} or more)")
+        elif v > above and above == 1.0:
+            problems.append(
+                f"{pth}: value {v:g} under {p_above} = 1 (index-matched): an inner interface needs a binder above it "
+                f"(hint: give {p_above} the binder's index, or set {pth} to 1)")
     return problems
 
 
@@ -640,16 +670,58 @@ def _primer_checks(base, L, mode, grid):
                             "spectrum", base)
 
 
-def _stack_problems(clear, basecoats, primer) -> list[str]:
-    """A transmissive stack (no primer) only without a top interface; something to compose."""
+#: Largest extinction coefficient k of a metal base's material below which a warning says it is
+#: hardly a metal: the base is opaque by construction (light refracted into it is absorbed), which
+#: for a dielectric such as SiO2 (k = 0) is not what a panel of that material would do.
+METAL_K_WARNING = 0.5
+
+
+def _metal_checks(base, L, mode, grid):
+    """(problems, warnings, MetalBase): a catalogue material (spectral or rgb mode) that exists and
+    covers the grid, or a constant {n, k}."""
+    problems, warnings = [], []
+    m = L["material"]
+    rough = float(L["roughness"])
+    comp = bool(L.get("energy_compensation", True))
+    if isinstance(m, dict):
+        N = complex(float(m["n"]), float(m["k"]))
+        k_max = N.imag
+        metal = MetalBase(N, rough, comp, f"n = {N.real:g}, k = {N.imag:g}", base)
+    else:
+        metal = MetalBase(str(m), rough, comp, str(m), base)
+        names = material_names()
+        if m not in names:
+            close = difflib.get_close_matches(str(m), names, n=3)
+            problems.append(f"{base}.material: unknown material {_json_short(m)}"
+                            + (f" (did you mean {', '.join(map(repr, close))}?)" if close else "")
+                            + f"; known materials: {', '.join(names)} (hint: name one of them, or give a "
+                              f"constant index {{n: …, k: …}})")
+            return problems, warnings, metal
+        if mode == "mono":
+            problems.append(f"{base}.material: {m!r} has a spectral index; mono mode takes wavelength-independent "
+                            f"inputs only (hint: give material: {{n: …, k: …}}, or set spectral.mode)")
+            return problems, warnings, metal
+        try:
+            k_max = float(np.max(refractive_index(m, grid).imag))
+        except ValueError as exc:
+            problems.append(f"{base}.material: {exc} (hint: narrow spectral.range_nm)")
+            return problems, warnings, metal
+    if k_max < METAL_K_WARNING:
+        warnings.append(f"{base}.material: k ≤ {k_max:.3g} < {METAL_K_WARNING:g} on the grid: hardly a metal; the "
+                        f"base is modelled as opaque (light refracted into it is absorbed)")
+    return problems, warnings, metal
+
+
+def _stack_problems(clear, basecoats, primer, metal=None) -> list[str]:
+    """A transmissive stack (no primer or metal base) only without a top interface; something to compose."""
     problems = []
     top_ior = clear.ior if clear is not None else (basecoats[0].ior if basecoats else 1.0)
-    if primer is None and top_ior != 1.0:
+    if primer is None and metal is None and top_ior != 1.0:
         problems.append(
             f"layers: no primer, so the stack transmits into a half-space of the binder (index {top_ior:g}); a "
             f"transmissive .bsdf needs one node set above and below, which only an index-matched stack (ior 1, no "
             f"top interface) has (hint: add a primer as the last layer, or set every ior to 1)")
-    if not basecoats and clear is None and primer is None:
+    if not basecoats and clear is None and primer is None and metal is None:
         problems.append("layers: nothing to compose (hint: add a primer, a basecoat or a clearcoat)")
     return problems
 
@@ -671,7 +743,7 @@ def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
     allsp = expand_sweeps(catalog)
     problems += _binder_index_problems(layers, kinds)
 
-    clear, basecoats, primer = None, [], None
+    clear, basecoats, primer, metal = None, [], None, None
     for i, k in enumerate(kinds):
         base = f"layers[{i}].{k}"
         L = layers[i][k]
@@ -680,13 +752,16 @@ def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
         elif k == "basecoat":
             p, w, bc = _basecoat_checks(base, L, mode, grid, allsp)
             basecoats.append(bc)
+        elif k == "metal":
+            p, w, metal = _metal_checks(base, L, mode, grid)
         else:  # primer
             (p, primer), w = _primer_checks(base, L, mode, grid), []
         problems += p
         warnings += w
 
-    problems += _stack_problems(clear, basecoats, primer)
-    parts = {"mode": mode, "grid": grid, "clearcoat": clear, "basecoats": basecoats, "primer": primer}
+    problems += _stack_problems(clear, basecoats, primer, metal)
+    parts = {"mode": mode, "grid": grid, "clearcoat": clear, "basecoats": basecoats, "primer": primer,
+             "metal": metal}
     return problems, warnings, parts
 
 
@@ -732,7 +807,7 @@ def parse_recipe(text: str, source="<recipe>", catalog=None) -> Recipe:
         name=doc["name"], mode=parts["mode"], wavelength_nm=parts["grid"],
         n=None if res == "auto" or isinstance(res, dict) else int(res), clearcoat=parts["clearcoat"], basecoats=parts["basecoats"],
         primer=parts["primer"], description=doc.get("description", ""), text=text, source=str(source),
-        warnings=warnings, doc=doc, targets=dict(res) if isinstance(res, dict) else {},
+        warnings=warnings, doc=doc, targets=dict(res) if isinstance(res, dict) else {}, metal=parts["metal"],
     )
 
 

@@ -441,8 +441,10 @@ def _rough_conductor_ms(dx, dy, mu, n, k, alpha, ms_grid, ms_E, ms_cdf, ms_par, 
 @njit(cache=True)
 def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k, bot_alpha, z_edges, sigma_bar, comp_start,
            comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha, comp_off, comp_n, tab,
-           w_start, max_orders, max_events, rr_threshold, ms_grid, ms_E, ms_cdf, ms_par):
-    """Trace one path; returns (outcome, weight, dx, dy, mu, interface_loss, events)."""
+           w_start, max_orders, max_events, rr_threshold, ms_grid, ms_E, ms_cdf, ms_par, slab_eta):
+    """Trace one path; returns (outcome, weight, dx, dy, mu, interface_loss, events).  ``slab_eta``
+    (n_slabs,): each slab's binder index; where neighbours differ, a smooth inner interface (Fresnel
+    reflection or Snell refraction, total internal reflection included)."""
     n_slabs = sigma_bar.shape[0]
     w = w_start
     loss = 0.0
@@ -495,6 +497,18 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
             if mu > 0.0:
                 z = z_edges[k + 1]
                 if k < n_slabs - 1:
+                    er = slab_eta[k + 1] / slab_eta[k]
+                    if er != 1.0:  # smooth inner interface, from above
+                        if _uniform(s) < fresnel_unpolarized(mu, er):
+                            mu = -mu
+                            direct = False
+                            continue
+                        sin_in = math.sqrt(max(0.0, 1.0 - mu * mu))
+                        sin_out = sin_in / er
+                        if sin_in > 0.0:
+                            dx *= sin_out / sin_in
+                            dy *= sin_out / sin_in
+                        mu = math.sqrt(max(0.0, 1.0 - sin_out * sin_out))
                     k += 1
                     continue
                 # bottom of the stack
@@ -537,6 +551,19 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
             else:
                 z = z_edges[k]
                 if k > 0:
+                    er = slab_eta[k - 1] / slab_eta[k]
+                    if er != 1.0:  # smooth inner interface, from below
+                        cos_in = -mu
+                        if _uniform(s) < fresnel_unpolarized(cos_in, er):
+                            mu = cos_in
+                            direct = False
+                            continue
+                        sin_in = math.sqrt(max(0.0, 1.0 - cos_in * cos_in))
+                        sin_out = sin_in / er
+                        if sin_in > 0.0:
+                            dx *= sin_out / sin_in
+                            dy *= sin_out / sin_in
+                        mu = -math.sqrt(max(0.0, 1.0 - sin_out * sin_out))
                     k -= 1
                     continue
                 # top interface from inside
@@ -654,7 +681,7 @@ def simulate_kernel(path_counts, seeds, mu_i, top_type, eta, top_alpha, bot_type
                     bot_alpha, z_edges,
                     sigma_bar, comp_start, comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha,
                     comp_off, comp_n, tab, w_start, mu_edges, phi_edges, max_orders, max_events,
-                    rr_threshold, ms_grid, ms_E, ms_cdf, ms_par):
+                    rr_threshold, ms_grid, ms_E, ms_cdf, ms_par, slab_eta):
     """Run ``path_counts[b]`` paths for every batch b (in parallel, each with its own RNG stream).
 
     Returns per-batch tallies: ``scal`` (B, N_SCALARS) with the layout S_*; ``rbin`` / ``tbin``
@@ -675,7 +702,7 @@ def simulate_kernel(path_counts, seeds, mu_i, top_type, eta, top_alpha, bot_type
                 s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k, bot_alpha, z_edges,
                 sigma_bar, comp_start,
                 comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha, comp_off, comp_n, tab,
-                w_start, max_orders, max_events, rr_threshold, ms_grid, ms_E, ms_cdf, ms_par)
+                w_start, max_orders, max_events, rr_threshold, ms_grid, ms_E, ms_cdf, ms_par, slab_eta)
             scal[b, S_EVENTS] += events
             if loss != 0.0:
                 scal[b, S_LOSS] += loss

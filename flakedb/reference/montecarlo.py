@@ -9,7 +9,9 @@ The problem
 -----------
 Air (index 1) above; a top interface (``None``: index-matched, :class:`Smooth`, :class:`Rough`);
 one or more :class:`Slab` s of the binder, whose real index is the ``eta`` of the top interface
-(1 when the top is ``None``; slabs are index-matched to each other); a bottom (:class:`Lambertian`
+(1 when the top is ``None``) unless a slab states its own ``eta``: between slabs of different index a
+smooth inner interface reflects (Fresnel, total internal reflection included) or refracts (Snell),
+drawn with probability F as at the top; a bottom (:class:`Lambertian`
 inside the binder at the bottom of the last slab, :class:`RoughConductor`, a Beckmann microfacet metal
 there, or ``None``: light leaving the last slab is
 counted as transmitted into a half-space of the binder's index).  Each slab holds zero or more media
@@ -181,10 +183,13 @@ class FlakeMedium:
 
 @dataclass(frozen=True)
 class Slab:
-    """A slab of binder of thickness ``thickness_um`` (µm) holding the media in ``media`` (which add)."""
+    """A slab of binder of thickness ``thickness_um`` (µm) holding the media in ``media`` (which add).
+    ``eta``: the binder's real index relative to the air above (None: the top interface's); where two
+    neighbouring slabs differ, a smooth inner interface separates them (module docstring)."""
 
     thickness_um: float
     media: tuple = ()
+    eta: float | None = None
 
 
 @dataclass(frozen=True)
@@ -238,6 +243,10 @@ class Problem:
     def eta_binder(self) -> float:
         """Real index of the binder relative to the air above (1 with an index-matched top)."""
         return 1.0 if self.top is None else float(self.top.eta)
+
+    def slab_eta(self) -> np.ndarray:
+        """Each slab's binder index relative to the air (``Slab.eta``, default :attr:`eta_binder`)."""
+        return np.array([self.eta_binder if sl.eta is None else float(sl.eta) for sl in self.slabs], dtype=float)
 
     @property
     def n_channels(self) -> int:
@@ -393,6 +402,8 @@ def _validate(problem):
             raise ValueError(f"slabs[{si}] = {slab!r} is not a Slab")
         if not (np.isfinite(slab.thickness_um) and slab.thickness_um > 0):
             raise ValueError(f"slabs[{si}].thickness_um = {slab.thickness_um}; it must be > 0 µm.")
+        if slab.eta is not None and not (np.isfinite(slab.eta) and slab.eta > 0):
+            raise ValueError(f"slabs[{si}].eta = {slab.eta}; it must be a positive real index relative to the air.")
         for mi, m in enumerate(slab.media):
             p = f"slabs[{si}].media[{mi}]"
             if isinstance(m, PhaseMedium):
@@ -578,7 +589,7 @@ def _ms_tables(problem, c):
     if isinstance(bot, RoughConductor) and bot.energy_compensation:
         E[2], cdf[2], Z1 = _ms_row(1.0, float(bot.alpha), True)
         Nc = np.atleast_1d(np.asarray(bot.N, dtype=complex))
-        Nc = complex(Nc[0] if Nc.size == 1 else Nc[c]) / problem.eta_binder
+        Nc = complex(Nc[0] if Nc.size == 1 else Nc[c]) / problem.slab_eta()[-1]
         x, w = np.polynomial.legendre.leggauss(400)
         mu, w = 0.5 * (x + 1.0), 0.5 * w
         F = np.array([_k.fresnel_conductor_unpolarized(float(m), Nc.real, Nc.imag) for m in mu])
@@ -665,7 +676,7 @@ def simulate(problem, mu_i, n_paths, seed, mu_edges=None, phi_edges=None, *, max
             bot_type, bot_alb = _k.BOTTOM_LAMBERT, float(_pick(problem.bottom.albedo, c, "bottom.albedo"))
         elif isinstance(problem.bottom, RoughConductor):
             Nc = np.atleast_1d(np.asarray(problem.bottom.N, dtype=complex))
-            Nc = complex(Nc[0] if Nc.size == 1 else Nc[c]) / eta
+            Nc = complex(Nc[0] if Nc.size == 1 else Nc[c]) / problem.slab_eta()[-1]
             bot_type, bot_alb = _k.BOTTOM_ROUGH_CONDUCTOR, 1.0
             bot_n, bot_k, bot_alpha = Nc.real, Nc.imag, float(problem.bottom.alpha)
         else:
@@ -678,7 +689,7 @@ def simulate(problem, mu_i, n_paths, seed, mu_edges=None, phi_edges=None, *, max
             pk["z_edges"], pk["sigma_bar"], pk["comp_start"], pk["comp_type"], pk["comp_sigma"],
             pk["comp_albedo"], pk["comp_g"], pk["comp_alpha"], pk["comp_off"], pk["comp_n"], pk["tab"],
             w_start, me, pe, np.int64(max_orders), np.int64(MAX_EVENTS), float(rr_threshold),
-            ms_grid, ms_E, ms_cdf, ms_par)
+            ms_grid, ms_E, ms_cdf, ms_par, problem.slab_eta())
         t = scal.sum(axis=0)
         out["R"][c], out["Rse"][c] = mean_se(t[_k.S_R], t[_k.S_R2])
         out["Td"][c], out["Tdse"][c] = mean_se(t[_k.S_TDIR], t[_k.S_TDIR2])

@@ -184,3 +184,30 @@ def lambertian(q, albedo, L):
     Rt[0] = 2.0 * albedo[:, None, None] * (q.w * q.x)[None, None, :]
     zero = np.zeros((L, 1, h, h))
     return Layer(Rt, zero, zero.copy(), zero.copy())
+
+
+def smooth_inner(q_above, q_below, ia, ib, eta_rel, L):
+    """Smooth interface *between two slabs* (docs/model.md §4 "Inner interface"), relative index
+    ``eta_rel`` = n_below / n_above, on the rules of :func:`flakedb.rt.quadrature.inner_interface_quadrature`
+    (mapped pairs ``ia`` ↔ ``ib``).  Unlike the top, its mirror reflection is inside the stack, so it is
+    in the matrix: R^t = diag(F_a), R^b = diag(F_b) (1 where no partner: total internal reflection),
+    T^tb[ib, ia] = 1 − F_a[ia], T^bt = (T^tb)ᵀ, in every Fourier order (a delta in φ_d).
+
+    Energy is conserved by construction: for each above node, R^t + T^tb carry F + (1 − F) = 1 of
+    its flux (the mapped weights satisfy η² w_b μ_b = w_a μ_a, basic radiance), and the same from
+    below; reciprocity: T^bt = (T^tb)ᵀ and diagonal reflections.  Returns a :class:`Layer` of L orders.
+    """
+    ha, hb = q_above.h, q_below.h
+    F_a = fresnel_dielectric(q_above.x, eta_rel).R
+    F_b = fresnel_dielectric(-q_below.x, eta_rel).R
+    F_a = np.where(np.isin(np.arange(ha), ia), F_a, 1.0)
+    F_b = np.where(np.isin(np.arange(hb), ib), F_b, 1.0)
+    T = np.zeros((hb, ha))
+    T[ib, ia] = 1.0 - F_a[ia]
+    shape = (L, 1)
+    return Layer(
+        Rt=np.broadcast_to(np.diag(F_a), shape + (ha, ha)).copy(),
+        Ttb=np.broadcast_to(T, shape + T.shape).copy(),
+        Rb=np.broadcast_to(np.diag(F_b), shape + (hb, hb)).copy(),
+        Tbt=np.broadcast_to(T.T, shape + T.T.shape).copy(),
+    )

@@ -119,3 +119,33 @@ def default_tir_nodes(h_out, eta):
     """
     mu_c = np.sqrt(1.0 - 1.0 / eta**2)
     return int(max(4, np.ceil(0.5 * h_out * mu_c)))
+
+
+def inner_interface_quadrature(above, eta_rel, h_tir):
+    """Quadrature in the binder below a smooth *inner* interface (docs/model.md §4 "Inner interface")
+    of relative index ``eta_rel`` = n_below / n_above, and the node pairs it maps.
+
+    Every direction that crosses the interface maps node to node (Snell, as
+    :func:`snell_mapped_quadrature`), with the Jacobian weights w_b = w_a μ_a / (η² μ_b):
+
+    * η > 1: all ``above.h`` nodes map into (μ_c, 1], μ_c = sqrt(1 − 1/η²); the range (0, μ_c) below,
+      reached only by light scattered there and totally internally reflected, gets ``h_tir``
+      Gauss–Legendre nodes (below-side TIR);
+    * η < 1: the above nodes with μ_a > μ_c = sqrt(1 − η²) map onto the whole hemisphere below; those
+      at or under μ_c are totally internally reflected (above-side TIR) and have no partner;
+    * η = 1: the same rule (every node maps to itself).
+
+    Returns ``(below, ia, ib)``: the rule below and the index arrays of mapped pairs (above node
+    ``ia[k]`` ↔ below node ``ib[k]``).
+    """
+    if eta_rel >= 1.0:
+        below = snell_mapped_quadrature(above, eta_rel, h_tir) if eta_rel > 1.0 else \
+            HemisphereQuadrature(above.x.copy(), above.w.copy(), above.h)
+        ia = np.arange(above.h)
+        return below, ia, below.h - above.h + ia
+    mu_c = np.sqrt(1.0 - eta_rel**2)
+    ia = np.nonzero(above.x > mu_c)[0]
+    xa, wa = above.x[ia], above.w[ia]
+    xb = np.sqrt(np.maximum(1.0 - (1.0 - xa**2) / eta_rel**2, 0.0))
+    wb = wa * xa / (eta_rel**2 * xb)
+    return HemisphereQuadrature(xb, wb, len(ia)), ia, np.arange(len(ia))

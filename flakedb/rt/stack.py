@@ -29,7 +29,12 @@ from flakedb.rt.layer import (
 from flakedb.rt.media import channel_subset, kernel_basis
 from flakedb.rt.orders import bsdf_orders, order_tail, reflection_over, reflection_under_smooth
 from flakedb.rt.projection import ProjectedKernel, project_kernel_basis
-from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
+from flakedb.rt.quadrature import (
+    default_tir_nodes,
+    inner_interface_quadrature,
+    radau_hemisphere,
+    snell_mapped_quadrature,
+)
 
 
 @dataclass
@@ -56,6 +61,16 @@ class Slab:
 
     thickness_um: float
     medium: object
+
+
+@dataclass
+class InnerSmooth:
+    """A smooth interface between two slabs (docs/model.md §4 "Inner interface"): relative index
+    ``eta`` = n_below / n_above (the binder below over the binder above).  Placed in the ``slabs``
+    list of :func:`solve_stack` between the slabs it separates; the slabs below it (and the bottom)
+    live on the rule of :func:`flakedb.rt.quadrature.inner_interface_quadrature`."""
+
+    eta: float
 
 
 @dataclass
@@ -271,6 +286,8 @@ def _n_channels(slabs, bottom):
     """Largest channel count among the media (σ_t at one node) and the primer's albedo."""
     C = 1
     for slab in slabs:
+        if isinstance(slab, InnerSmooth):
+            continue
         C = max(C, np.atleast_2d(slab.medium.sigma_t(np.array([0.5]))).shape[0])
     if bottom is not None:
         C = max(C, np.atleast_1d(bottom.N if isinstance(bottom, RoughConductor) else bottom.albedo).size)
@@ -323,7 +340,8 @@ def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
     parts, sizes = [], []
     for c0 in range(0, C, group):
         idx = np.arange(c0, min(C, c0 + group))
-        sub_slabs = [Slab(sl.thickness_um, channel_subset(sl.medium, idx)) for sl in slabs]
+        sub_slabs = [sl if isinstance(sl, InnerSmooth) else Slab(sl.thickness_um, channel_subset(sl.medium, idx))
+                     for sl in slabs]
         sub_bottom = None
         if bottom is not None:
             if isinstance(bottom, RoughConductor):
@@ -376,14 +394,35 @@ def _solve_stack(top, slabs, bottom, s):
     else:
         raise TypeError(f"unknown top interface {top!r}")
 
-    # kernels of the slabs projected once (each with its own order count)
+    # kernels of the slabs projected once (each with its own order count), each on the rule of its
+    # binder: inner interfaces (InnerSmooth) change the rule below them (docs/model.md §4)
     projected = []
-    for k, slab in enumerate(slabs):
+    q_top_binder = q_in
+    eta_binder = eta
+    k = 0
+    for item in slabs:
+        if isinstance(item, InnerSmooth):
+            if not item.eta >= 1.0:
+                raise ValueError(
+                    f"InnerSmooth(eta={item.eta:g}): an inner interface into a binder of lower index (eta < 1) is not "
+                    f"supported yet: the above rule would have to be split at the critical cosine "
+                    f"{np.sqrt(max(0.0, 1.0 - item.eta**2)):.4g} to conserve energy (docs/model.md §4 \"Inner interface\")")
+            h_tir = default_tir_nodes(q_in.h, item.eta) if item.eta > 1.0 else 0  # TIR nodes below, as at the top
+            q_below, ia, ib = inner_interface_quadrature(q_in, item.eta, h_tir)
+            projected.append(("interface", q_in, q_below, ia, ib, item.eta))
+            q_in = q_below
+            eta_binder = eta_binder * item.eta
+            info.setdefault("inner_interfaces", []).append({"eta": float(item.eta), "nodes_below": int(q_in.h)})
+            continue
+        slab = item
         sig = np.atleast_2d(slab.medium.sigma_t(q_in.x))
         pk, pinfo = project_medium(slab.medium, q_in.x, q_in.w, s.tol, s.order_cap, basis=s.kernel_basis)
-        projected.append((pk, sig, slab.thickness_um))
+        projected.append((pk, sig, slab.thickness_um, q_in))
         info[f"slab{k}"] = {"orders": pk.n_orders, **pinfo}
-        s.report("projection", layer=k + 1, layers=len(slabs), orders=pk.n_orders)
+        k += 1
+        s.report("projection", layer=k, layers=len(slabs), orders=pk.n_orders)
+    q_bottom = q_in
+    q_in = q_top_binder
 
     top_layer = None
     delta_F = None
@@ -397,24 +436,32 @@ def _solve_stack(top, slabs, bottom, s):
     L_bottom = 0
     Rc = None
     if isinstance(bottom, RoughConductor):
-        Rc, cinfo = itf.rough_conductor(q_in, np.asarray(bottom.N, dtype=complex) / eta, bottom.alpha,
+        Rc, cinfo = itf.rough_conductor(q_bottom, np.asarray(bottom.N, dtype=complex) / eta_binder, bottom.alpha,
                                         tol=s.tol, max_orders=s.order_cap,
                                         energy_compensation=bottom.energy_compensation)
         L_bottom = Rc.shape[0]
         info["bottom"] = {k: v for k, v in cinfo.items() if k != "albedo"}
-    L = min(max([L_top, L_bottom, 1] + [pk.n_orders for pk, _, _ in projected]), s.order_cap)
+    L = min(max([L_top, L_bottom, 1] + [p[0].n_orders for p in projected if not isinstance(p[0], str)]), s.order_cap)
     if isinstance(top, Smooth):
         smooth1, delta_F = itf.smooth_dielectric(q_out, q_in, top.eta, 1)
 
-    def slab_block(pk, sig, d, l0, l1):
+    def slab_block(pk, sig, d, q, l0, l1):
         """Layer of orders l0 … l1 − 1 of a slab: doubling where the kernel has orders, the exact
-        direct beam beyond (extend_orders)."""
+        direct beam beyond (extend_orders); an inner interface: the same blocks in every order."""
         k1 = min(l1, pk.n_orders)
         if k1 <= l0:
-            return direct_only_orders(q_in.x, sig, d, l1 - l0, max(pk.channels, sig.shape[0]))
+            return direct_only_orders(q.x, sig, d, l1 - l0, max(pk.channels, sig.shape[0]))
         K_T, K_R = pk.blocks(l0, k1)
-        layer = homogeneous_slab(q_in.x, q_in.w, sig, K_T, K_R, d, s.slice_tau, l0=l0, threads=s.threads)
-        return extend_orders(layer, l1 - l0, q_in.x, sig, d)
+        layer = homogeneous_slab(q.x, q.w, sig, K_T, K_R, d, s.slice_tau, l0=l0, threads=s.threads)
+        return extend_orders(layer, l1 - l0, q.x, sig, d)
+
+    def item_block(item, l0, l1):
+        """Layer of orders l0 … l1 − 1 of a slab or an inner interface."""
+        if isinstance(item[0], str):
+            _, q_a, q_b, ia, ib, eta_rel = item
+            return itf.smooth_inner(q_a, q_b, ia, ib, eta_rel, l1 - l0)
+        pk, sig, d, q = item
+        return slab_block(pk, sig, d, q, l0, l1)
 
     def top_block(l0, l1):
         if isinstance(top, Rough):
@@ -423,7 +470,7 @@ def _solve_stack(top, slabs, bottom, s):
 
     opaque = bottom is not None
     if opaque and s.order_tol is not None:
-        Rt, oinfo = _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L, s, slab_block,
+        Rt, oinfo = _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom, L, s, item_block,
                                                   top_block, smooth1 if isinstance(top, Smooth) else None, Rc)
         info.update(oinfo)
         return StackBSDF(x=q_out.x, w=q_out.w, Rt=Rt, eta=eta, delta_F=delta_F, x_in=q_in.x, w_in=q_in.w,
@@ -431,8 +478,8 @@ def _solve_stack(top, slabs, bottom, s):
 
     # all orders at once (transmissive stacks, or order_tol None)
     body = None
-    for k, (pk, sig, d) in enumerate(projected):
-        layer = slab_block(pk, sig, d, 0, L)
+    for k, item in enumerate(projected):
+        layer = item_block(item, 0, L)
         body = layer if body is None else add(body, layer)
         s.report("solve", layer=k + 1, layers=len(projected), orders=(0, L), of=L)
     if body is None:
@@ -442,14 +489,14 @@ def _solve_stack(top, slabs, bottom, s):
     if isinstance(bottom, RoughConductor):
         body = Layer(*_reflection_over(body, pad_orders(Rc, L)))
     elif bottom is not None:
-        prim = itf.lambertian(q_in, bottom.albedo, L)
+        prim = itf.lambertian(q_bottom, bottom.albedo, L)
         body = Layer(*_reflection_over(body, prim.Rt))
     whole = body if top_layer_L is None else add(top_layer_L, body)
     info["orders"] = L
     return StackBSDF(
         x=q_out.x, w=q_out.w, Rt=whole.Rt, eta=eta, delta_F=delta_F,
         Ttb=None if opaque else whole.Ttb, Rb=None if opaque else whole.Rb,
-        Tbt=None if opaque else whole.Tbt, x_in=q_in.x, w_in=q_in.w, info=info,
+        Tbt=None if opaque else whole.Tbt, x_in=q_bottom.x, w_in=q_bottom.w, info=info,
     )
 
 
@@ -457,7 +504,7 @@ def _solve_stack(top, slabs, bottom, s):
 FIRST_ORDER_BLOCK = 16
 
 
-def _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L_max, s, slab_block, top_block, smooth1,
+def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom, L_max, s, item_block, top_block, smooth1,
                                   Rc=None):
     """R^t of an opaque stack, orders solved in blocks (16, then doubling) bottom-up with
     reflection-only adding, until :func:`flakedb.rt.orders.order_tail` says the BSDF's dropped tail is
@@ -472,21 +519,21 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L_max, s,
         R = None
         if Rc is not None:  # a rough conductor bottom carries orders of its own
             Rb = pad_orders(Rc, max(l1, Rc.shape[0]))[l0:l1]
-            for k, (pk, sig, d) in enumerate(reversed(projected)):
-                Rb = reflection_over(slab_block(pk, sig, d, l0, l1), Rb)
+            for k, item in enumerate(reversed(projected)):
+                Rb = reflection_over(item_block(item, l0, l1), Rb)
                 s.report("solve", layer=len(projected) - k, layers=len(projected), orders=(l0, l1), of=L_max)
             return Rb
         if l0 == 0:  # the Lambertian primer has order 0 only: its adding runs for that order alone
-            prim = itf.lambertian(q_in, bottom.albedo, 1).Rt
+            prim = itf.lambertian(q_bottom, bottom.albedo, 1).Rt
             R0 = prim
-            for pk, sig, d in reversed(projected):
-                R0 = reflection_over(slab_block(pk, sig, d, 0, 1), R0)
+            for item in reversed(projected):
+                R0 = reflection_over(item_block(item, 0, 1), R0)
             R = R0
             l0 = 1
         if l1 > l0:
             Rr = None
-            for k, (pk, sig, d) in enumerate(reversed(projected)):
-                Rr = reflection_over(slab_block(pk, sig, d, l0, l1), Rr)
+            for k, item in enumerate(reversed(projected)):
+                Rr = reflection_over(item_block(item, l0, l1), Rr)
                 s.report("solve", layer=len(projected) - k, layers=len(projected), orders=(l0, l1), of=L_max)
             if Rr is None:
                 Rr = np.zeros((l1 - l0, 1, q_in.h, q_in.h))
@@ -533,5 +580,4 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, projected, bottom, L_max, s,
 def _reflection_over(layer, bottom_Rt):
     """(Rt, Ttb, Rb, Tbt) of ``layer`` over an opaque bottom: only Rt survives; the others are zero."""
     Rt = add_reflection_only(layer, bottom_Rt)
-    z = np.zeros((1, 1) + layer.Rb.shape[-2:])
-    return Rt, z, z, z
+    return (Rt,) + tuple(np.zeros((1, 1) + blk.shape[-2:]) for blk in (layer.Ttb, layer.Rb, layer.Tbt))

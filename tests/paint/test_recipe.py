@@ -17,7 +17,9 @@ import yaml
 from click.testing import CliRunner
 
 from flakedb.cli.main import cli
+from flakedb.paint.mapping import auto_resolution, build_paint, solve_paint
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError, load_recipe, parse_recipe
+from flakedb.rt.stack import InnerSmooth
 
 RECIPES = sorted((Path(__file__).resolve().parents[2] / "catalog" / "recipes").glob("*.yaml"))
 
@@ -139,13 +141,14 @@ def test_unknown_species_suggests():
 
 def test_semantic_problems_all_reported():
     d = doc()
-    d["layers"][1]["basecoat"]["ior"] = 1.6                       # second binder index
+    d["layers"][1]["basecoat"]["ior"] = 1.4                       # a binder less dense than the coat
     d["layers"].append({"clearcoat": {"thickness_um": 10, "ior": 1.5}})   # clear coat not on top
     d["layers"][1]["basecoat"]["particles"][1]["gsd"] = 1.2          # fine (pigment)
     d["layers"][1]["basecoat"]["particles"][0]["gsd"] = 1.2          # pigment-only key on a flake
     probs = problems_of(d)
     j = "\n".join(probs)
-    assert "layers[1].basecoat.ior: value 1.6 differs from layers[0].clearcoat.ior = 1.5; not supported yet" in j
+    assert ("layers[1].basecoat.ior: value 1.4 is below layers[0].clearcoat.ior = 1.5; an inner interface into a "
+            "binder of lower index is not supported yet (allowed range: layers[1].basecoat.ior ≥ 1.5") in j
     assert "layers[3].clearcoat: a clear coat must be the first (top) layer" in j
     assert "layers[2].primer: the primer must be the last (bottom) layer" in j
     assert "layers[1].basecoat.particles[0].gsd: 'pearlescent' is a interference_flake; gsd applies to pigments only" in j
@@ -226,6 +229,68 @@ def test_stack_shape_checks():
     d = doc()
     d["layers"][0]["clearcoat"]["roughness"] = 0.05  # lossless at every n now: no blanket warning
     assert not any("roughness" in w for w in parse_recipe(yaml.safe_dump(d)).warnings)
+
+
+def test_metal_base_parses_and_is_checked():
+    """A metal base (issue 12 item 3(b)) in place of the primer: a catalogue material or {n, k}, with a
+    Beckmann roughness; each problem names the field, the value, the allowed range or names, a fix."""
+    d = doc()
+    d["layers"][2] = {"metal": {"material": "Al", "roughness": 0.1}}
+    r = parse_recipe(yaml.safe_dump(d))
+    assert r.primer is None and r.metal.material == "Al" and r.metal.roughness == 0.1 and r.metal.energy_compensation
+    assert r.metal.path == "layers[2].metal"
+    d["layers"][2]["metal"] = {"material": {"n": 1.2, "k": 7.0}, "roughness": 0.2, "energy_compensation": False}
+    r = parse_recipe(yaml.safe_dump(d))
+    assert r.metal.material == 1.2 + 7.0j and not r.metal.energy_compensation
+    d["layers"][2]["metal"] = {"material": "Alu", "roughness": 0.1}
+    assert any(p.startswith("layers[2].metal.material: unknown material \"Alu\" (did you mean 'Al'?)")
+               and "known materials: " in p for p in problems_of(d))
+    d["layers"][2]["metal"] = {"material": "Al", "roughness": 0.001}
+    assert "layers[2].metal.roughness: value 0.001 is outside the allowed range 0.01 ≤ value ≤ 1" in problems_of(d)[0]
+    d["layers"][2]["metal"] = {"material": {"n": 1.2, "k": -1}, "roughness": 0.1}
+    assert any("layers[2].metal.material.k: value -1 is outside the allowed range 0 ≤ value ≤ 100" in p
+               for p in problems_of(d))
+    d["layers"][2] = {"metal": {"material": "Al", "roughness": 0.1}}
+    d["layers"].append({"primer": {"color": "white"}})
+    probs = problems_of(d)
+    assert any(p.startswith("layers[2].metal: the metal base must be the last (bottom) layer") for p in probs)
+    assert any(p.startswith("layers: a primer and a metal base") for p in probs)
+    d = doc()
+    d["layers"] = [{"clearcoat": {"thickness_um": 40, "ior": 1.5}}, {"metal": {"material": "Al", "roughness": 0.1}}]
+    d["spectral"] = {"mode": "mono"}
+    assert any(p.startswith("layers[1].metal.material: 'Al' has a spectral index; mono mode") for p in problems_of(d))
+    d["layers"][1]["metal"]["material"] = "SiO2"
+    d["spectral"] = {"mode": "spectral", "range_nm": [400, 700], "step_nm": 10}
+    assert any("hardly a metal" in w for w in parse_recipe(yaml.safe_dump(d)).warnings)
+    # resolution: auto takes the metal lobe's measured envelope (docs/resolution.md "Metal base")
+    d["layers"][1]["metal"]["material"] = "Al"
+    n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))
+    assert n == 48 and "metal base α = 0.1" in why and "measured 0.048" in why
+    d["layers"][1]["metal"]["roughness"] = 0.01
+    n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))
+    assert n == 248 and "scaled by 0.05/α" in why
+    d["resolution"] = {"lobe_error": 0.001}
+    with pytest.raises(RecipeError, match="lobe_error 0.001 for a metal base is not reachable"):
+        auto_resolution(parse_recipe(yaml.safe_dump(d)))
+
+
+def test_two_binders_map_to_an_inner_interface():
+    """Issue 12 item 3(a): a basecoat denser than the coat above is a smooth inner interface (η_b / η_a),
+    equal indices add none; the paint composes and stays passive."""
+    d = doc()
+    d["layers"][1]["basecoat"]["ior"] = 1.6
+    paint = build_paint(parse_recipe(yaml.safe_dump(d)))
+    inner = [s for s in paint.slabs if isinstance(s, InnerSmooth)]
+    assert len(inner) == 1 and inner[0].eta == pytest.approx(1.6 / 1.5) and paint.eta == 1.5
+    assert any(c["kind"] == "inner interface" and c["eta_below"] == 1.6 for c in paint.components)
+    assert not any(isinstance(s, InnerSmooth) for s in build_paint(parse_recipe(yaml.safe_dump(doc()))).slabs)
+    d["spectral"] = {"mode": "spectral", "range_nm": [400, 700], "step_nm": 20}
+    d["layers"][2] = {"primer": {"color": "white"}}
+    A = solve_paint(build_paint(parse_recipe(yaml.safe_dump(d))), 16).albedo()
+    assert A.max() <= 1.0 and A.min() > 0
+    d["layers"][0]["clearcoat"]["ior"] = 1.0
+    d["layers"][1]["basecoat"]["ior"] = 1.5
+    assert any("an inner interface needs a binder above it" in p for p in problems_of(d))
 
 
 def test_yaml_syntax_error_names_line():

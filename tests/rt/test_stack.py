@@ -19,7 +19,7 @@ from flakedb.rt.layer import add, identity_layer
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
 from flakedb.rt.microflake import FlakeOptics
 from flakedb.rt.quadrature import gauss_radau_unit, radau_hemisphere, snell_mapped_quadrature
-from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.stack import InnerSmooth, Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
 
 
 # ---------------------------------------------------------------- quadrature and projection
@@ -269,3 +269,39 @@ def test_channel_groups_equal_one_solve(monkeypatch):
     assert len(grouped.info["channel_groups"]) == 3
     L = min(whole.n_orders, grouped.n_orders)
     np.testing.assert_allclose(grouped.Rt[:L], whole.Rt[:L], rtol=1e-6, atol=1e-9 * np.abs(whole.Rt).max())
+
+
+# ------------------------------------------------------------------------------------------------
+# Inner interface (issue 12 item 3(a)): a smooth interface between two binders, η_below / η_above > 1
+# ------------------------------------------------------------------------------------------------
+
+def _hg(albedo, g=0.7, sigma=0.1):
+    return PhaseMedium(np.array([sigma]), np.array([albedo]), ("hg", g))
+
+
+@pytest.mark.parametrize("top", [Smooth(1.5), Rough(1.5, 0.1), None])
+@pytest.mark.parametrize("settings", [SolverSettings(n=32), SolverSettings.product(32)])
+def test_inner_interface_white_furnace(top, settings):
+    """Lossless stack (HG slabs of albedo 1, white primer) with a 1.5 → 1.6 inner interface: every photon
+    comes back, whatever the rules' mismatch (the interface conserves energy by construction)."""
+    eta_in = (1.6 / 1.5) if top is not None else 1.6
+    r = solve_stack(top, [Slab(10.0, _hg(1.0)), InnerSmooth(eta_in), Slab(10.0, _hg(1.0, 0.3))], Lambertian(1.0),
+                    settings)
+    assert np.abs(r.albedo() - 1.0).max() < 1e-3
+    assert np.abs(r.albedo() - 1.0).max() < 1e-10  # measured 1.5e-13
+    assert r.info["inner_interfaces"][0]["nodes_below"] > len(r.x)  # TIR nodes in the denser binder
+
+
+def test_inner_interface_reciprocity_and_equal_index_reduction():
+    slabs = [Slab(10.0, _hg(0.9)), InnerSmooth(1.6 / 1.5), Slab(10.0, _hg(0.9, 0.3))]
+    r = solve_stack(Smooth(1.5), slabs, Lambertian(0.5), SolverSettings(n=32))
+    f = r.f_coefficients("Rt")
+    assert np.allclose(f, np.swapaxes(f, -1, -2), rtol=1e-9, atol=1e-12 * np.abs(f).max())
+    a = solve_stack(Smooth(1.5), [slabs[0], InnerSmooth(1.0), slabs[2]], Lambertian(0.5), SolverSettings(n=32))
+    b = solve_stack(Smooth(1.5), [slabs[0], slabs[2]], Lambertian(0.5), SolverSettings(n=32))
+    assert np.abs(a.Rt - b.Rt).max() <= 1e-13 * np.abs(b.Rt).max()
+    # a change of index changes the result (the test above is not vacuous)
+    assert np.abs(r.Rt[0] - b.Rt[0]).max() > 1e-3 * np.abs(b.Rt[0]).max()
+    with pytest.raises(ValueError, match="not supported yet"):
+        solve_stack(Smooth(1.6), [Slab(10.0, _hg(0.9)), InnerSmooth(1.5 / 1.6), Slab(10.0, _hg(0.9))],
+                    Lambertian(0.5), SolverSettings(n=16))

@@ -181,6 +181,19 @@ def test_store_backed_compose_matches_direct(tiny, tmp_path, species):
     assert open_bsdf(Path(direct.paths["h5"])).metadata["store_version"] == "none: computed directly"
 
 
+def test_store_backed_compose_over_a_metal_base_matches_direct(tiny, tmp_path):
+    """A metal base (issue 12 item 3(b)) is the solver's bottom, not a store species: the store serves
+    the flakes above it and the result equals the direct compose as for a primer."""
+    url, req, v = tiny
+    rec = parse_recipe(_recipe(FLAKE).replace("- primer: {color: gray}", "- metal: {material: Al, roughness: 0.2}"))
+    assert rec.metal is not None and rec.primer is None
+    direct = compose(rec, tmp_path / "d")
+    raw = compose(rec, tmp_path / "r", store=url, raw=True)
+    fd = _f(direct)
+    assert np.abs(_f(raw) - fd).max() <= 3e-4 * np.abs(fd).max()
+    assert delta_E_2000(_lab(raw), _lab(direct)).max() < 0.01
+
+
 @pytest.fixture(scope="module")
 def tiny_visible(tmp_path_factory):
     """The pigment over the recipes' full visible grid (380–780 nm, 20 nm): the RGB mode's blue
@@ -249,6 +262,12 @@ def test_store_of_another_n_or_eta_is_refused(tiny, tmp_path):
     r = CliRunner().invoke(cli, ["compose", str(rp), "--out", str(tmp_path / "o"), "--store", url])
     assert r.exit_code != 0 and "η = 1.3" in r.output and "eta_top 1.5" in r.output
     assert "--eta-top 1.3" in r.output
+    # two binders (an inner interface, issue 12 item 3(a)): refused in one line, compose without --store
+    rp.write_text(_recipe(FLAKE, name="other").replace("  - basecoat:\n      thickness_um: 15\n      ior: 1.5",
+                                                         "  - basecoat:\n      thickness_um: 15\n      ior: 1.6"))
+    r = CliRunner().invoke(cli, ["compose", str(rp), "--out", str(tmp_path / "o"), "--store", url])
+    assert r.exit_code == 2 and "store versions serve one binder index: compose without --store" in r.output
+    assert "Traceback" not in r.output and not (tmp_path / "o").exists()
 
 
 def test_recipe_without_catalogue_species_needs_no_store(tmp_path):
