@@ -26,7 +26,8 @@ def reflection_over(top, bottom_Rt):
     live = np.any(bottom_Rt, axis=tuple(range(1, bottom_Rt.ndim)))
     if not live.all():
         L = max(top.Rt.shape[0], bottom_Rt.shape[0])
-        shape = np.broadcast_shapes(top.Rt.shape[1:], top.Tbt.shape[1:], bottom_Rt.shape[1:])
+        # channels broadcast; the result lives on the top layer's grid (an inner interface maps two grids)
+        shape = np.broadcast_shapes(top.Rt.shape[1:-2], top.Tbt.shape[1:-2], bottom_Rt.shape[1:-2]) + top.Rt.shape[-2:]
         out = np.array(np.broadcast_to(top.Rt, (L,) + shape))
         if live.any():
             idx = np.nonzero(np.broadcast_to(live, (L,)))[0]
