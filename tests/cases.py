@@ -65,5 +65,4 @@ def case(name):
 
 
 FAST = ["isotropic-slab", "hg-over-lambertian", "smooth-hg-gray", "mirror-flakes-black",
-        "mirror-flakes-white", "translucent-flakes-gray", "angle-dependent-flakes", "flakes-and-hg-pigment",
-        "smooth-vmf-spectral"]
+        "mirror-flakes-white", "translucent-flakes-gray", "angle-dependent-flakes", "flakes-and-hg-pigment"]
