@@ -225,11 +225,7 @@ def sample_vmf_cos(kappa, u):
         return 2.0 * u - 1.0
     v = 1.0 - u
     c = 1.0 + math.log(v + (1.0 - v) * math.exp(-2.0 * kappa)) / kappa
-    if c < -1.0:
-        c = -1.0
-    if c > 1.0:
-        c = 1.0
-    return c
+    return min(max(c, -1.0), 1.0)
 
 
 @njit(cache=True)

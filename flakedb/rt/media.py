@@ -19,7 +19,6 @@ import numpy as np
 from scipy.special import ive
 
 from flakedb.rt.legendre import LEGENDRE_K_MAX, LEGENDRE_TOL, truncate_legendre
-
 from flakedb.rt.microflake import (
     FlakeOptics,
     extinction_Ergun,
@@ -128,7 +127,7 @@ def vmf_legendre_degree(kappa, tol=LEGENDRE_TOL, k_max=LEGENDRE_K_MAX):
     k = np.atleast_1d(np.asarray(kappa, dtype=float))
     K = 64
     while True:
-        chi, info = truncate_legendre(vmf_legendre_moments(k, K), tol)
+        _, info = truncate_legendre(vmf_legendre_moments(k, K), tol)
         if info["converged"] and info["degree"] < K or K >= k_max:
             return int(info["degree"])
         K = min(2 * K, int(k_max))

@@ -71,7 +71,7 @@ def test_binned_reflectance_matches_monte_carlo(name):
 def _vmf_case(kappa):
     """smooth-vmf-spectral (tests/cases.py) with concentration ``kappa``: smooth η 1.5 coat / vMF slab,
     τ 2, one albedo per band (0.95 … 0.3) / diffuse 0.6."""
-    top, slabs, bottom, problem, n = _case("smooth-vmf-spectral")
+    top, slabs, bottom, problem, _ = _case("smooth-vmf-spectral")
     alb = slabs[0].medium.albedo
     slabs = [type(slabs[0])(slabs[0].thickness_um, type(slabs[0].medium)(0.2, alb, ("vmf", kappa)))]
     problem = mc.Problem([mc.Slab(10.0, [mc.PhaseMedium(0.2, alb, mc.VonMisesFisher(kappa))])],

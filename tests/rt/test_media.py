@@ -16,7 +16,14 @@ from scipy.special import eval_legendre, spherical_in
 from flakedb.rt import media as rm
 from flakedb.rt.legendre import LegendreKernel
 from flakedb.rt.quadrature import radau_hemisphere
-from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings, project_medium, solve_stack
+from flakedb.rt.stack import (
+    Lambertian,
+    Slab,
+    Smooth,
+    SolverSettings,
+    project_medium,
+    solve_stack,
+)
 
 KAPPAS = [0.0, 1e-4, 0.5, 3.0, 20.0, 200.0, 1000.0]
 
