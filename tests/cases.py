@@ -53,6 +53,11 @@ def case(name):
         return Smooth(1.5), [Slab(2.0, med)], Lambertian(0.3), mc.Problem(
             [mc.Slab(2.0, [mc.FlakeMedium(0.8, 0.2, 0.7, 0.1), mc.PhaseMedium(1.5, 0.85, ("hg", 0.6))])],
             top=mc.Smooth(1.5), bottom=mc.Lambertian(0.3)), 64
+    if name == "smooth-vmf-spectral":  # issue #12: smooth coat / vMF slab (κ 20) with a per-band albedo / diffuse
+        alb = np.linspace(0.95, 0.3, 6)  # the recipe's spectrum 0.95 (400 nm) → 0.3 (500 nm) at its 6 bands
+        return Smooth(1.5), [Slab(10.0, rm.PhaseMedium(0.2, alb, ("vmf", 20.0)))], Lambertian(0.6), mc.Problem(
+            [mc.Slab(10.0, [mc.PhaseMedium(0.2, alb, mc.VonMisesFisher(20.0))])], top=mc.Smooth(1.5),
+            bottom=mc.Lambertian(0.6)), 48
     if name == "rough-coat-lambertian":  # issue #3: rough coat α 0.1 over a Lambertian primer
         return Rough(1.5, 0.1), [], Lambertian(0.5), mc.Problem([mc.Slab(1.0, [])], top=mc.Rough(1.5, 0.1),
                                                                   bottom=mc.Lambertian(0.5)), 128

@@ -44,8 +44,11 @@ Particles (docs/model.md §3 "the anisotropic medium", §6 "particle optics")
   - a flake with constant or tabulated (vs c) grey R and T: ``aρ = τ / (d · s_t(1))`` with
     ``s_t(μ) = ∫ (1 − T(|ω·m|)) |ω·m| D(m) dm`` (σ_t per unit aρ, eq. 2) at normal incidence, so
     that σ_t(μ = 1) · d = τ;
-  - a medium with single-scattering albedo ϖ and an isotropic, Henyey–Greenstein or tabulated
-    phase function: ``σ_t = τ / d``.  A tabulated phase function is normalised so that its
+  - a medium with single-scattering albedo ϖ (a number, or a spectrum: per band, or in RGB mode
+    through the same linear map as every spectrum, clipped to [0, 1]; :func:`custom_medium_albedo`)
+    and an isotropic, Henyey–Greenstein, von Mises–Fisher (κ, or its mean cosine g converted to κ;
+    :func:`flakedb.rt.media.phase_vMF`) or tabulated phase function: ``σ_t = τ / d`` (the same in
+    every channel).  A tabulated phase function is normalised so that its
     piecewise-linear interpolant (what :class:`~flakedb.rt.media.PhaseMedium` evaluates) integrates
     to 1 over the sphere.
 
@@ -93,7 +96,7 @@ Channels
   white-normalised linear sRGB of :func:`flakedb.colour.colorimetry.spectra_to_rgb_mode` *before* the
   solve: flake R(c) and T(c) per c; pigments' <C_ext> and <C_sca>, and the phase function as
   rgb(C_sca p)/rgb(C_sca) (so a channel's phase is its scattering-weighted mean); the primer's
-  albedo; a coat's absorption through its normal-incidence transmittance,
+  albedo and a custom medium's albedo spectrum; a coat's absorption through its normal-incidence transmittance,
   a_rgb = −ln(rgb(exp(−a d)))/d.  sRGB weights have negative lobes, so a converted value may fall
   outside its physical range; it is clipped (R, T, albedo to [0, 1] with R + T ≤ 1 by scaling;
   cross-sections ≥ 0 with C_sca ≤ C_ext; phase ≥ 0) and the largest clip is reported in ``info``.
@@ -124,7 +127,7 @@ from flakedb.paint.recipe import (
 )
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
-from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
+from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, vmf_mean_cosine
 from flakedb.rt.microflake import FlakeOptics, extinction_Ergun
 from flakedb.rt.stack import InnerSmooth, Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings, solve_stack
 from flakedb.rt.stored import StoredMixture, StoredPigmentMedium
@@ -481,18 +484,47 @@ def _pigment_component(p, recipe, layer_um, n_binder, wl, info, stored=None):
     return med, rec
 
 
-def _custom_medium_component(p, layer_um, C, info):
+def custom_medium_albedo(albedo, mode, wl, C):
+    """A custom medium's single-scattering albedo per channel (C,), and the RGB mode's clip.
+
+    ``albedo`` a float or a :class:`flakedb.paint.recipe.Spectrum`.  Spectral mode: the spectrum at
+    the band centres; mono: the number; RGB mode: the white-normalised linear sRGB of the spectrum
+    (:func:`flakedb.colour.colorimetry.spectra_to_rgb_mode`, the map every other spectrum takes;
+    σ_t is the same in every channel, so this is rgb(σ_s)/rgb(σ_t) as for pigments), clipped to
+    [0, 1] like the primer's albedo (module docstring, "Channels").  Returns ``(albedo, clip)``, clip
+    the largest |clipped − converted| (0 outside RGB mode)."""
+    if not isinstance(albedo, Spectrum):
+        return np.full(C, float(albedo)), 0.0
+    if mode == "rgb":
+        a = spectra_to_rgb_mode(albedo.at(wl), wl)
+        ac = np.clip(a, 0.0, 1.0)
+        return ac, float(np.abs(ac - a).max())
+    return albedo.at(wl), 0.0
+
+
+def _custom_medium_component(p, layer_um, C, info, mode=None, wl=None):
     phase = p.phase
     if isinstance(phase, tuple) and phase[0] == "table":
         vals, integral = normalise_phase_table(phase[1], phase[2])
         info.setdefault("phase_table_normalised_from", {})[p.path] = float(integral)
         phase = ("table", np.asarray(phase[1], float), vals)
     sigma_t = float(p.optical_depth) / float(layer_um)
-    med = PhaseMedium(np.full(C, sigma_t), np.full(C, float(p.albedo)), phase)
+    albedo, clip = custom_medium_albedo(p.albedo, mode, wl, C)
+    if isinstance(p.albedo, Spectrum) and mode == "rgb":
+        info.setdefault("rgb_clip", {})[p.path] = clip
+    med = PhaseMedium(np.full(C, sigma_t), albedo, phase)
+    if isinstance(phase, str):
+        ph_rec = phase
+    elif phase[0] == "hg":
+        ph_rec = ["hg", phase[1]]
+    elif phase[0] == "vmf":
+        ph_rec = {"vmf": {"kappa": float(phase[1]), "g": float(vmf_mean_cosine(phase[1]))}}
+    else:
+        ph_rec = "table"
     rec = {"path": p.path, "species": p.name, "kind": "custom medium", "optical_depth": p.optical_depth,
-           "sigma_t_per_um": sigma_t, "albedo": p.albedo,
-           "phase": phase if isinstance(phase, str) else (["hg", phase[1]] if phase[0] == "hg" else "table"),
-           "loading": "optical depth: sigma_t x layer thickness"}
+           "sigma_t_per_um": sigma_t,
+           "albedo": float(p.albedo) if not isinstance(p.albedo, Spectrum) else [float(albedo.min()), float(albedo.max())],
+           "phase": ph_rec, "loading": "optical depth: sigma_t x layer thickness"}
     return med, rec
 
 
@@ -558,7 +590,7 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
             elif isinstance(p, CustomFlake):
                 med, rec = _flake_component(p, recipe, b.thickness_um, b.ior, wl, C, info)
             elif isinstance(p, CustomMedium):
-                med, rec = _custom_medium_component(p, b.thickness_um, C, info)
+                med, rec = _custom_medium_component(p, b.thickness_um, C, info, mode, wl)
             else:  # pragma: no cover - the recipe module builds only these
                 raise TypeError(f"unknown particle {p!r}")
             meds.append(med)
@@ -607,6 +639,10 @@ AUTO_MAX_N = 512
 #:   flakes' α_f, over coat α ∈ {0.01 … 0.3}, η ∈ {1.3, 1.5, 1.7}, flake α_f ∈ {0.1, 0.2}.
 COAT_LOBE_ERROR = ((1.6, 0.105), (2.4, 0.034), (3.2, 0.019), (4.8, 0.005), (6.4, 0.004), (9.6, 0.0015))
 FLAKE_ALBEDO_ERROR = ((1.6, 0.051), (2.4, 0.033), (3.2, 0.028), (4.8, 0.019), (6.4, 0.012), (9.6, 0.008))
+#: von Mises–Fisher media: the lobe's angular width is ≈ 1/√κ rad, so h ≥ VMF_H_PER_SQRT_KAPPA·√κ.
+#: Measured (coat η 1.5 / vMF slab τ 2, ϖ 0.9 / diffuse 0.5, against n = 256, κ 10–1000): directional
+#: albedo error (θ_i ≤ 80°) ≤ 2.3e-4 (the comparison's floor) for h/√κ ≥ 1.7; 1.4e-3 at 1.1, 3.6e-3 at 0.57.
+VMF_H_PER_SQRT_KAPPA = 1.7
 #: Directional albedo error (θ_i ≤ 80°) without flakes (coat α 0.01–0.3 / HG g 0.7, 0.9 slab / diffuse,
 #: η 1.3–1.7) by n, against n = 192.
 PLAIN_ALBEDO_ERROR = ((32, 0.0061), (48, 0.0026), (64, 0.0014), (96, 0.0007))
@@ -645,7 +681,8 @@ def auto_resolution(recipe) -> tuple[int, str]:
       (the flux-cell interface is lossless at every n, so its albedo is not what limits n);
     * flakes of Beckmann spread α_f: h α_f from :data:`FLAKE_ALBEDO_ERROR` for albedo_error, and at
       least the ΔE00 rule h ≥ 3/α_f (metallic-silver, RGB: ΔE00 ≈ 0.1 at h ≈ 2/α_f);
-    * HG media: h ≥ 3/(1 − |g|); stacks without flakes: n from :data:`PLAIN_ALBEDO_ERROR`;
+    * HG media: h ≥ 3/(1 − |g|); vMF media: h ≥ 1.7·√κ (:data:`VMF_H_PER_SQRT_KAPPA`); stacks without
+      flakes: n from :data:`PLAIN_ALBEDO_ERROR`;
     * a metal base: n from :data:`METAL_LOBE_ERROR` for lobe_error (scaled by 0.05/α below α 0.05).
 
     The binder index enters through the measurements (η ∈ [1.3, 1.7] measured; outside it a warning
@@ -696,6 +733,10 @@ def auto_resolution(recipe) -> tuple[int, str]:
         elif isinstance(p, CustomMedium) and isinstance(p.phase, tuple) and p.phase[0] == "hg":
             hh = int(np.ceil(3.0 / max(1e-3, 1.0 - abs(p.phase[1]))))
             need.append((hh, f"HG lobe g = {p.phase[1]:g} ({p.path}): h ≥ 3/(1 − |g|)"))
+        elif isinstance(p, CustomMedium) and isinstance(p.phase, tuple) and p.phase[0] == "vmf":
+            hh = int(np.ceil(VMF_H_PER_SQRT_KAPPA * np.sqrt(float(p.phase[1]))))
+            need.append((hh, f"vMF lobe κ = {p.phase[1]:g} ({p.path}): h ≥ {VMF_H_PER_SQRT_KAPPA:g}·√κ "
+                             f"(measured albedo error ≤ 2.3e-4)"))
         if a is not None:
             flakes = True
             add(FLAKE_ALBEDO_ERROR, t_alb, a, f"flakes α = {a:g} ({p.path})", "albedo_error")

@@ -60,6 +60,7 @@ from flakedb.paint.catalog import expand_sweeps, load_catalog
 from flakedb.paint.checks import MAX_RECIPE_BYTES, RecipeInputError, load_yaml_strict, too_large_message, value_problems
 from flakedb.paint.materials import material_names, refractive_index
 from flakedb.resources import PACKAGE_DIR, SCHEMAS_DIR
+from flakedb.rt.media import vmf_kappa_from_mean_cosine
 
 #: Recipe format version this flakedb reads (the ``flakedb:`` key).
 FORMAT_VERSION = 1
@@ -155,9 +156,11 @@ class CustomFlake:
 
 @dataclass
 class CustomMedium:
-    """``phase``: ``"isotropic"``, ``("hg", g)`` or ``("table", cos_theta, value)``."""
+    """``albedo``: a float or a :class:`Spectrum` (per band); ``phase``: ``"isotropic"``, ``("hg", g)``,
+    ``("vmf", kappa)`` (a recipe's mean cosine g converted to κ, :func:`flakedb.rt.media.vmf_kappa_from_mean_cosine`)
+    or ``("table", cos_theta, value)``."""
 
-    albedo: float
+    albedo: float | Spectrum
     phase: object
     optical_depth: float
     name: str = "custom-medium"
@@ -360,7 +363,11 @@ def schema_problems(doc) -> list[str]:
                 out.append(_describe_error(best))
                 continue
             hint = err.schema.get("description") if isinstance(err.schema, dict) else None
-            out.append(f"{fmt_path(err.absolute_path)}: value {_json_short(err.instance)} is not valid"
+            what = "is not valid"
+            if isinstance(err.instance, str) and _looks_numeric(err.instance):  # a number or a spectrum, given text
+                what = ("has the wrong type; expected a number (YAML reads a number without a '.' before its "
+                        "exponent, like 1e-3, as text: write 1.0e-3)")
+            out.append(f"{fmt_path(err.absolute_path)}: value {_json_short(err.instance)} {what}"
                        + (f" (hint: {hint})" if hint else ""))
             continue
         out.append(_describe_error(err))
@@ -543,14 +550,34 @@ def _custom_flake_checks(pp, C, tau):
     return problems, CustomFlake(R, T, float(C["orientation_alpha"]), tau, C.get("name", "custom-flake"), pp)
 
 
-def _custom_medium_checks(pp, C, tau):
-    """(problems, CustomMedium): a phase table from -1 to 1, not all zero."""
-    problems = []
+def _custom_medium_albedo(pp, C, mode, grid):
+    """(problems, albedo): a number, or a spectrum in [0, 1] covering the grid (spectral or rgb mode)."""
+    alb = C["albedo"]
+    if not isinstance(alb, dict):
+        return [], float(alb)
+    path = f"{pp}.custom.albedo"
+    if mode == "mono":
+        problems = [f"{path}: a spectrum needs spectral or rgb mode; mono mode takes wavelength-independent "
+                    f"inputs only (hint: give a number in [0, 1], or set spectral.mode)"]
+    else:
+        problems = [m + " (hint: a single-scattering albedo sigma_s / sigma_t lies in [0, 1])"
+                    if "outside the allowed range" in m else m
+                    for m in _spectrum_problems(path, alb, grid, 0.0, 1.0, "albedo")]
+    return problems, Spectrum(np.asarray(alb["wavelength_nm"], float), np.asarray(alb["value"], float))
+
+
+def _custom_medium_checks(pp, C, tau, mode=None, grid=None):
+    """(problems, CustomMedium): an albedo number or spectrum (:func:`_custom_medium_albedo`); a vMF
+    phase given by κ or by its mean cosine g; a phase table from -1 to 1, not all zero."""
+    problems, albedo = _custom_medium_albedo(pp, C, mode, grid)
     ph = C["phase"]
     if ph == "isotropic":
         phase = "isotropic"
     elif "hg" in ph:
         phase = ("hg", float(ph["hg"]))
+    elif "vmf" in ph:
+        v = ph["vmf"]
+        phase = ("vmf", float(v["kappa"]) if "kappa" in v else float(vmf_kappa_from_mean_cosine(float(v["g"]))))
     else:
         ct = np.asarray(ph["table"]["cos_theta"], float)
         pv = np.asarray(ph["table"]["value"], float)
@@ -564,7 +591,7 @@ def _custom_medium_checks(pp, C, tau):
         elif not np.any(pv > 0):
             problems.append(f"{tp}.value: all zero; a phase function must integrate to 1 "
                             f"(hint: give relative values; compose normalises them)")
-    return problems, CustomMedium(float(C["albedo"]), phase, tau, C.get("name", "custom-medium"), pp)
+    return problems, CustomMedium(albedo, phase, tau, C.get("name", "custom-medium"), pp)
 
 
 def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
@@ -638,8 +665,10 @@ def _basecoat_checks(base, L, mode, grid, allsp):
         pp = f"{base}.particles[{j}]"
         if "custom" in P:
             C, tau = P["custom"], float(P["optical_depth"])
-            check = _custom_flake_checks if C["kind"] == "flake" else _custom_medium_checks
-            p, particle = check(pp, C, tau)
+            if C["kind"] == "flake":
+                p, particle = _custom_flake_checks(pp, C, tau)
+            else:
+                p, particle = _custom_medium_checks(pp, C, tau, mode, grid)
             problems += p
         else:
             p, w, particle = _catalog_particle_checks(pp, base, P, bc.thickness_um, mode, grid, allsp)

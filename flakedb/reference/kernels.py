@@ -26,6 +26,7 @@ COMP_ISOTROPIC = 0
 COMP_HG = 1
 COMP_TABLE = 2
 COMP_FLAKE = 3
+COMP_VMF = 4
 
 TOP_NONE = 0
 TOP_SMOOTH = 1
@@ -212,6 +213,28 @@ def _sample_table_cos(tab, off, n, u):
     if c < -1.0:
         c = -1.0
     return c
+
+
+@njit(cache=True)
+def sample_vmf_cos(kappa, u):
+    """cos Θ of the von Mises–Fisher phase function p ∝ exp(κ cos Θ) by exact inversion of its CDF
+    (Wood 1994 for the sphere S²): with v = 1 − u ∈ (0, 1],
+    cos Θ = 1 + ln(v + (1 − v) e^{−2κ}) / κ  (the argument is ≥ v > 0, so no log(0) for any κ);
+    κ < 1e-8 is isotropic, cos Θ = 2u − 1."""
+    if kappa < 1e-8:
+        return 2.0 * u - 1.0
+    v = 1.0 - u
+    c = 1.0 + math.log(v + (1.0 - v) * math.exp(-2.0 * kappa)) / kappa
+    return min(max(c, -1.0), 1.0)
+
+
+@njit(cache=True)
+def sample_vmf_cos_array(kappa, u):
+    """:func:`sample_vmf_cos` over an array of uniforms ``u`` (for the sampling test)."""
+    out = np.empty(u.size)
+    for i in range(u.size):
+        out[i] = sample_vmf_cos(kappa, u[i])
+    return out
 
 
 @njit(cache=True)
@@ -651,6 +674,8 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
                         cos_t = 1.0
                     if cos_t < -1.0:
                         cos_t = -1.0
+            elif ctype == COMP_VMF:
+                cos_t = sample_vmf_cos(comp_g[j], _uniform(s))
             else:
                 cos_t = _sample_table_cos(tab, comp_off[j], comp_n[j], _uniform(s))
             ph = _TWO_PI * _uniform(s)

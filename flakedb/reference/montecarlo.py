@@ -18,7 +18,8 @@ counted as transmitted into a half-space of the binder's index).  Each slab hold
 whose extinctions and kernels add:
 
 * :class:`PhaseMedium` — direction-independent σ_t with a phase function (:class:`Isotropic`,
-  :class:`HenyeyGreenstein`, :class:`TabulatedPhase`).
+  :class:`HenyeyGreenstein`, :class:`VonMisesFisher`, :class:`TabulatedPhase`); per-channel σ_t,
+  albedo and phase parameters.
 * :class:`FlakeMedium` — translucent micro-flakes (paper eq. 2, docs/model.md §3): normals with the
   Beckmann density D(m) = exp(−tan²θ/α²)/(2π α² |cos θ|³) on the sphere (paper eq. 5), reflectance
   R(c) and transmittance T(c) of c = |ω·m|.
@@ -92,6 +93,7 @@ from flakedb.reference import kernels as _k
 __all__ = [
     "Isotropic",
     "HenyeyGreenstein",
+    "VonMisesFisher",
     "TabulatedPhase",
     "PhaseMedium",
     "FlakeMedium",
@@ -108,6 +110,7 @@ __all__ = [
     "bin_average",
     "flake_ndf_Beckmann",
     "compensation_table",
+    "sample_vmf_cosines",
 ]
 
 #: number of independent RNG streams (path batches); fixed so results depend on seed and n_paths only
@@ -139,6 +142,17 @@ class HenyeyGreenstein:
 
 
 @dataclass(frozen=True)
+class VonMisesFisher:
+    """von Mises–Fisher phase function p(cos Θ) = κ/(4π sinh κ) exp(κ cos Θ) sr⁻¹ (Fisher 1953),
+    sampled by exact inversion of its CDF (:func:`flakedb.reference.kernels.sample_vmf_cos`).
+
+    ``kappa``: concentration κ ≥ 0 (scalar or per channel (C,)); κ = 0 is isotropic.
+    """
+
+    kappa: Any
+
+
+@dataclass(frozen=True)
 class TabulatedPhase:
     """Tabulated phase function p(cos Θ) in 1/sr, linearly interpolated in cos Θ.
 
@@ -156,8 +170,9 @@ class TabulatedPhase:
 class PhaseMedium:
     """A direction-independent medium component: extinction ``sigma_t_per_um`` (1/µm), single-
     scattering ``albedo`` (both scalars or per channel (C,)) and a ``phase`` function
-    (:class:`Isotropic`, :class:`HenyeyGreenstein`, :class:`TabulatedPhase`; the solver-style specs
-    ``"isotropic"``, ``("hg", g)`` and ``("table", cos_theta, value)`` are accepted too)."""
+    (:class:`Isotropic`, :class:`HenyeyGreenstein`, :class:`VonMisesFisher`, :class:`TabulatedPhase`;
+    the solver-style specs ``"isotropic"``, ``("hg", g)``, ``("vmf", kappa)`` and
+    ``("table", cos_theta, value)`` are accepted too)."""
 
     sigma_t_per_um: Any
     albedo: Any
@@ -315,6 +330,8 @@ def _per_channel_sizes(problem):
                 ph = _normalise_phase(m.phase, p)
                 if isinstance(ph, HenyeyGreenstein) and _arr(ph.g).ndim == 1:
                     yield f"{p}.phase.g", _arr(ph.g).shape[0]
+                if isinstance(ph, VonMisesFisher) and _arr(ph.kappa).ndim == 1:
+                    yield f"{p}.phase.kappa", _arr(ph.kappa).shape[0]
                 if isinstance(ph, TabulatedPhase) and _arr(ph.value).ndim == 2:
                     yield f"{p}.phase.value", _arr(ph.value).shape[0]
             elif isinstance(m, FlakeMedium):
@@ -344,17 +361,20 @@ def _n_channels(problem):
 
 
 def _normalise_phase(ph, path):
-    if isinstance(ph, (Isotropic, HenyeyGreenstein, TabulatedPhase)):
+    if isinstance(ph, (Isotropic, HenyeyGreenstein, VonMisesFisher, TabulatedPhase)):
         return ph
     if isinstance(ph, str) and ph == "isotropic":
         return Isotropic()
     if isinstance(ph, tuple) and len(ph) == 2 and ph[0] == "hg":
         return HenyeyGreenstein(ph[1])
+    if isinstance(ph, tuple) and len(ph) == 2 and ph[0] == "vmf":
+        return VonMisesFisher(ph[1])
     if isinstance(ph, tuple) and len(ph) == 3 and ph[0] == "table":
         return TabulatedPhase(ph[1], ph[2])
     raise ValueError(
         f"{path}.phase = {ph!r} is not a phase function; use Isotropic(), HenyeyGreenstein(g), "
-        "TabulatedPhase(cos_theta, value) (or 'isotropic', ('hg', g), ('table', cos_theta, value))."
+        "VonMisesFisher(kappa), TabulatedPhase(cos_theta, value) (or 'isotropic', ('hg', g), ('vmf', kappa), "
+        "('table', cos_theta, value))."
     )
 
 
@@ -412,6 +432,8 @@ def _validate(problem):
                 ph = _normalise_phase(m.phase, p)
                 if isinstance(ph, HenyeyGreenstein):
                     _check_range(ph.g, -0.999999, 0.999999, f"{p}.phase.g", "the HG mean cosine, |g| < 1")
+                if isinstance(ph, VonMisesFisher):
+                    _check_range(ph.kappa, 0.0, 1e8, f"{p}.phase.kappa", "the vMF concentration, κ ≥ 0")
                 if isinstance(ph, TabulatedPhase):
                     _phase_table(ph, 0, p)  # raises on a bad table
             elif isinstance(m, FlakeMedium):
@@ -494,6 +516,9 @@ def _pack(problem, c):
                 elif isinstance(ph, HenyeyGreenstein):
                     t = _k.COMP_HG
                     g = float(_pick(ph.g, c, f"{p}.phase.g"))
+                elif isinstance(ph, VonMisesFisher):
+                    t = _k.COMP_VMF
+                    g = float(_pick(ph.kappa, c, f"{p}.phase.kappa"))  # the kernel reads κ from comp_g
                 else:
                     t = _k.COMP_TABLE
                     x, q, cdf = _phase_table(ph, c, p)
@@ -533,6 +558,14 @@ def _pack(problem, c):
         comp_alpha=np.array(calpha, dtype=float), comp_off=np.array(coff, dtype=i64),
         comp_n=np.array(cn, dtype=i64), tab=np.array(tab, dtype=float),
     )
+
+
+def sample_vmf_cosines(kappa, n, seed):
+    """``n`` scattering cosines cos Θ drawn from the von Mises–Fisher phase function with
+    concentration ``kappa`` by the sampler the tracer uses (:func:`flakedb.reference.kernels.sample_vmf_cos`),
+    from ``numpy.random.default_rng(seed)`` uniforms (for testing the sampler against the pdf)."""
+    u = np.random.default_rng(seed).random(int(n))
+    return _k.sample_vmf_cos_array(float(kappa), u)
 
 
 def _edges(edges, hi, name):

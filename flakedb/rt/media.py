@@ -1,5 +1,5 @@
 """Scattering media for the slab solver: phase-function media (isotropic, Henyey–Greenstein,
-tabulated) and mixtures of components (docs/model.md §3: "species mix in one layer by adding their
+von Mises–Fisher, tabulated) and mixtures of components (docs/model.md §3: "species mix in one layer by adding their
 σ_t, σ_s and kernels").
 
 A medium component provides
@@ -16,7 +16,9 @@ and is symmetric under z → −z (the solver relies on it, see :func:`flakedb.r
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.special import ive
 
+from flakedb.rt.legendre import LEGENDRE_K_MAX, LEGENDRE_TOL, truncate_legendre
 from flakedb.rt.microflake import (
     FlakeOptics,
     extinction_Ergun,
@@ -43,12 +45,101 @@ def _channels(a):
     return np.atleast_1d(np.asarray(a, dtype=float))
 
 
+# ---------------------------------------------------------------------------------------------
+# von Mises–Fisher phase function (docs/model.md §3 "von Mises–Fisher phase function")
+# ---------------------------------------------------------------------------------------------
+
+
+def phase_vMF(cos_theta, kappa):
+    """von Mises–Fisher phase function (Fisher 1953; Mardia & Jupp 2000, ch. 9, on the sphere S²)
+
+        p(cos Θ) = κ / (4π sinh κ) · exp(κ cos Θ)   [1/sr],   ∫_sphere p dω = 1,
+
+    evaluated as κ / (2π (1 − e^{−2κ})) · exp(κ (cos Θ − 1)), which neither overflows nor cancels
+    (κ = 0: 1/(4π), isotropic).  ``cos_theta`` (cos Θ = ω_i·ω_o of propagation directions, 1 forward)
+    and ``kappa`` (κ ≥ 0) broadcast.  docs/model.md §3."""
+    k = np.asarray(kappa, dtype=float)
+    if np.any(~(k >= 0.0)) or np.any(~np.isfinite(k)):
+        raise ValueError(f"phase_vMF needs a finite concentration kappa >= 0, got {kappa!r}")
+    ct = np.asarray(cos_theta, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        norm = np.where(k > 0.0, k / (2.0 * np.pi * -np.expm1(-2.0 * k)), 1.0 / (4.0 * np.pi))
+    return norm * np.exp(k * (ct - 1.0))
+
+
+def vmf_mean_cosine(kappa):
+    """Mean cosine g = <cos Θ> = coth κ − 1/κ of the vMF phase function (the Langevin function;
+    Mardia & Jupp 2000, ch. 9: A_3(κ) = I_{3/2}(κ)/I_{1/2}(κ)); series κ/3 − κ³/45 + 2κ⁵/945 below κ = 1e-2 (where the
+    closed form cancels).  docs/model.md §3."""
+    k = np.asarray(kappa, dtype=float)
+    small = k < 1e-2
+    ks = np.where(small, 1.0, k)
+    with np.errstate(over="ignore"):
+        big = ks / np.tanh(ks) - 1.0  # κ coth κ − 1, then / κ
+    return np.where(small, k / 3.0 - k**3 / 45.0 + 2.0 * k**5 / 945.0, big / ks)
+
+
+def vmf_kappa_from_mean_cosine(g):
+    """κ ≥ 0 with coth κ − 1/κ = g, for 0 ≤ g < 1 (the inverse of :func:`vmf_mean_cosine`, which is
+    increasing): vectorised bisection on [0, 1/(1 − g)] (coth κ − 1/κ ≥ 1 − 1/κ brackets it) to
+    relative 1e-14.  docs/model.md §3."""
+    g = np.asarray(g, dtype=float)
+    if np.any(~(g >= 0.0)) or np.any(~(g < 1.0)):
+        raise ValueError(f"a vMF mean cosine must be 0 <= g < 1 (the vMF lobe points forward), got {g!r}")
+    lo = np.zeros_like(g)
+    hi = 1.0 / (1.0 - g) + 1.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        up = vmf_mean_cosine(mid) < g
+        lo, hi = np.where(up, mid, lo), np.where(up, hi, mid)
+        if np.all(hi - lo <= 1e-14 * np.maximum(hi, 1e-300)):
+            break
+    return 0.5 * (lo + hi)
+
+
+def vmf_legendre_moments(kappa, K):
+    """Legendre moments χ_k = 2π ∫ p(t) P_k(t) dt, k = 0 … K, of the vMF phase function, (C, K + 1)
+    for ``kappa`` scalar or (C,):
+
+        χ_k = i_k(κ) / i_0(κ) = I_{k+1/2}(κ) / I_{1/2}(κ)
+
+    (i_k the modified spherical Bessel functions of the first kind: the Legendre expansion
+    e^{κt} = Σ_k (2k + 1) i_k(κ) P_k(t), Abramowitz & Stegun §10.2; Mardia & Jupp 2000, ch. 9).
+    Computed with the exponentially scaled Bessel function ``scipy.special.ive`` (the e^{−κ} factors
+    cancel in the ratio), so it neither overflows for large κ (tested to κ = 2000) nor needs
+    ``spherical_in`` (which overflows beyond κ ≈ 700); κ = 0 gives (1, 0, 0, …).  The moments
+    decay like exp(−k(k + 1)/(2κ)) for large κ.  docs/model.md §3."""
+    k = np.atleast_1d(np.asarray(kappa, dtype=float))
+    if np.any(~(k >= 0.0)) or np.any(~np.isfinite(k)):
+        raise ValueError(f"vMF moments need a finite kappa >= 0, got {kappa!r}")
+    deg = np.arange(int(K) + 1, dtype=float)
+    kk = np.where(k > 0.0, k, 1.0)[:, None]
+    with np.errstate(under="ignore"):
+        chi = ive(deg[None, :] + 0.5, kk) / ive(0.5, kk)
+    chi = np.where(k[:, None] > 0.0, chi, (deg[None, :] == 0).astype(float))
+    return np.nan_to_num(chi, nan=0.0)
+
+
+def vmf_legendre_degree(kappa, tol=LEGENDRE_TOL, k_max=LEGENDRE_K_MAX):
+    """The Legendre degree K at which the vMF series' relative dropped tail is ≤ ``tol``
+    (:func:`flakedb.rt.legendre.truncate_legendre`) for every κ in ``kappa``; the kernel has no
+    azimuthal order above it (addition theorem, :mod:`flakedb.rt.legendre`)."""
+    k = np.atleast_1d(np.asarray(kappa, dtype=float))
+    K = 64
+    while True:
+        _, info = truncate_legendre(vmf_legendre_moments(k, K), tol)
+        if info["converged"] and info["degree"] < K or K >= k_max:
+            return int(info["degree"])
+        K = min(2 * K, int(k_max))
+
+
 @dataclass
 class PhaseMedium:
     """Direction-independent extinction with a phase function of the scattering angle.
 
     ``sigma_t_per_um`` and ``albedo`` are per channel (C,) or scalars.  ``phase`` is ``"isotropic"``,
-    ``("hg", g)`` with g per channel or scalar, or ``("table", cos_theta, values)`` with values
+    ``("hg", g)`` with g per channel or scalar, ``("vmf", kappa)`` (von Mises–Fisher,
+    :func:`phase_vMF`, κ ≥ 0 per channel or scalar), or ``("table", cos_theta, values)`` with values
     (C, n) or (n,) in 1/sr (normalised to 1 over the sphere; linear interpolation in cos Θ).
     """
 
@@ -68,11 +159,15 @@ class PhaseMedium:
         if kind == "hg":
             g = _channels(ph[1]).reshape((-1,) + (1,) * np.ndim(cos_t))
             return phase_HG(cos_t[None], g)
+        if kind == "vmf":
+            k = _channels(ph[1]).reshape((-1,) + (1,) * np.ndim(cos_t))
+            return phase_vMF(cos_t[None], k)
         if kind == "table":
             ct = np.asarray(ph[1], dtype=float)
             vals = np.atleast_2d(np.asarray(ph[2], dtype=float))
             return np.stack([np.interp(cos_t, ct, v) for v in vals])
-        raise ValueError(f"unknown phase function {ph!r}; use 'isotropic', ('hg', g) or ('table', cos, p)")
+        raise ValueError(f"unknown phase function {ph!r}; use 'isotropic', ('hg', g), ('vmf', kappa) "
+                         "or ('table', cos, p)")
 
     def sigma_s(self, mu):
         return self.sigma_t(mu) * _channels(self.albedo).reshape((-1,) + (1,) * np.ndim(mu))
@@ -85,8 +180,8 @@ class PhaseMedium:
 
         ph = self.phase
         if ph != "isotropic":
-            if ph[0] == "hg":
-                ph = ("hg", take(ph[1]))
+            if ph[0] in ("hg", "vmf"):
+                ph = (ph[0], take(ph[1]))
             elif ph[0] == "table":
                 vals = np.asarray(ph[2], dtype=float)
                 ph = ("table", ph[1], vals[idx] if vals.ndim == 2 and vals.shape[0] > 1 else vals)
@@ -106,26 +201,28 @@ class PhaseMedium:
         if ph == "isotropic":
             return KernelBasis(lambda mi, mo, p: np.full((1,) + np.shape(cos_scattering_angle(mi, mo, p)),
                                                          1.0 / (4.0 * np.pi)), sig_s[:, None])
-        if ph[0] == "hg":
+        if ph[0] in ("hg", "vmf"):
             g = _channels(ph[1])
             C = max(sig_s.size, g.size)
             g = np.broadcast_to(g, (C,))
             uniq, inv = np.unique(g, return_inverse=True)
             M = np.zeros((C, uniq.size))
             M[np.arange(C), inv.ravel()] = np.broadcast_to(sig_s, (C,))
+            phase_fn = phase_HG if ph[0] == "hg" else phase_vMF
 
-            def hg(mi, mo, p):
+            def lobe(mi, mo, p):
                 cos_t = cos_scattering_angle(mi, mo, p)
-                return phase_HG(cos_t[None], uniq.reshape((-1,) + (1,) * cos_t.ndim))
+                return phase_fn(cos_t[None], uniq.reshape((-1,) + (1,) * cos_t.ndim))
 
-            return KernelBasis(hg, M)
+            return KernelBasis(lobe, M)
         if ph[0] == "table":
             ct = np.asarray(ph[1], dtype=float)
             U, V = table_basis(np.atleast_2d(np.asarray(ph[2], dtype=float)))
             C = max(sig_s.size, U.shape[0])
             M = np.broadcast_to(sig_s[:, None], (C, 1)) * np.broadcast_to(U, (C, U.shape[1]))
             return KernelBasis(lambda mi, mo, p: interp_rows(V, ct, cos_scattering_angle(mi, mo, p)), M)
-        raise ValueError(f"unknown phase function {ph!r}; use 'isotropic', ('hg', g) or ('table', cos, p)")
+        raise ValueError(f"unknown phase function {ph!r}; use 'isotropic', ('hg', g), ('vmf', kappa) "
+                         "or ('table', cos, p)")
 
     @property
     def phi_bandwidth(self):
@@ -134,6 +231,11 @@ class PhaseMedium:
         if self.phase[0] == "hg":
             g = float(np.max(np.abs(_channels(self.phase[1]))))
             return int(2 ** np.ceil(np.log2(max(8.0, 8.0 / max(1e-3, 1.0 - g)))))
+        if self.phase[0] == "vmf":
+            # no azimuthal order above the Legendre degree of the series (addition theorem): start
+            # the φ sampling at twice it
+            K = vmf_legendre_degree(np.max(_channels(self.phase[1])))
+            return int(2 ** np.ceil(np.log2(max(8.0, 2.0 * (K + 1)))))
         return 64
 
 

@@ -200,6 +200,49 @@ def test_custom_medium_phase_table_checked():
     assert any("phase" in p and "value 1" in p for p in problems_of(d))
 
 
+def _vmf_doc(albedo, phase):
+    d = doc()
+    d["layers"][1]["basecoat"]["particles"] = [
+        {"custom": {"kind": "medium", "albedo": albedo, "phase": phase}, "optical_depth": 2.0}]
+    return d
+
+
+SPECTRAL_ALBEDO = {"wavelength_nm": [400, 550, 700], "value": [0.9, 0.5, 0.2]}
+
+
+def test_custom_medium_spectral_albedo_and_vmf_parse():
+    r = parse_recipe(yaml.safe_dump(_vmf_doc(SPECTRAL_ALBEDO, {"vmf": {"kappa": 20}})))
+    (_, med), = r.particles()
+    assert isinstance(med, CustomMedium) and med.phase == ("vmf", 20.0)
+    np.testing.assert_allclose(med.albedo.at([400, 475, 700]), [0.9, 0.7, 0.2])
+    # the mean cosine g is converted to κ (g = coth κ − 1/κ; κ = 20 ↔ g = 0.95 to 1e-17)
+    r = parse_recipe(yaml.safe_dump(_vmf_doc(0.8, {"vmf": {"g": 0.95}})))
+    (_, med), = r.particles()
+    assert med.albedo == 0.8 and med.phase[0] == "vmf" and abs(med.phase[1] - 20.0) < 1e-9
+
+
+def test_custom_medium_bad_albedo_spectrum_and_kappa_refused():
+    bad = {"wavelength_nm": [400, 550, 700], "value": [0.9, 1.2, 0.2]}
+    (p,) = problems_of(_vmf_doc(bad, {"vmf": {"kappa": 20}}))
+    assert p.startswith("layers[1].basecoat.particles[0].custom.albedo.value[1]: value 1.2 is outside the "
+                        "allowed range 0 ≤ albedo ≤ 1 (hint:"), p
+    short = {"wavelength_nm": [450, 700], "value": [0.9, 0.2]}
+    (p,) = problems_of(_vmf_doc(short, "isotropic"))
+    assert p.startswith("layers[1].basecoat.particles[0].custom.albedo.wavelength_nm: covers 450-700 nm but the "
+                        "recipe's grid is 400-700 nm"), p
+    (p,) = problems_of(_vmf_doc(0.5, {"vmf": {"kappa": -1}}))
+    assert p.startswith("layers[1].basecoat.particles[0].custom.phase.vmf.kappa: value -1 is outside the allowed "
+                        "range 0 ≤ value ≤ 2000"), p
+    (p,) = problems_of(_vmf_doc(0.5, {"vmf": {"g": 1.0}}))
+    assert "custom.phase.vmf.g: value 1.0 is outside the allowed range 0 ≤ value ≤ 0.9995" in p, p
+    (p,) = problems_of(_vmf_doc(0.5, {"vmf": {"g": 0.9, "kappa": 3}}))
+    assert "custom.phase.vmf" in p and "exactly one of the keys g, kappa" in p, p
+    d = _vmf_doc(SPECTRAL_ALBEDO, "isotropic")
+    d["spectral"] = {"mode": "mono"}
+    assert any(p.startswith("layers[1].basecoat.particles[0].custom.albedo: a spectrum needs spectral or rgb mode")
+               for p in problems_of(d))
+
+
 def test_mode_and_spectrum_checks():
     d = doc()
     d["spectral"] = {"mode": "mono"}
@@ -371,3 +414,26 @@ def test_cli_unwritable_output_refused_before_computing(tmp_path):
         r = _run(["compose", str(rp), "--out", str(ro)])
         assert r.exit_code == 2 and "not writable" in r.output
     assert "optics:" not in r.output  # nothing was computed
+
+
+def test_cli_composes_spectral_albedo_vmf_medium_and_refuses_bad_ones(tmp_path):
+    """A recipe using a per-band albedo and a vMF phase composes end to end; an albedo spectrum
+    value of 1.2 and κ < 0 are refused with exit 2, one line naming the field, nothing written."""
+    d = _vmf_doc(SPECTRAL_ALBEDO, {"vmf": {"g": 0.9}})
+    rp = tmp_path / "vmf.yaml"
+    rp.write_text(yaml.safe_dump(d))
+    r = _run(["compose", str(rp), "--out", str(tmp_path / "ok"), "--n", "32"])
+    assert r.exit_code == 0, r.output
+    assert {p.suffix for p in (tmp_path / "ok").iterdir()} == {".bsdf", ".h5", ".json"}
+    for bad, field in ((_vmf_doc({"wavelength_nm": [400, 700], "value": [0.5, 1.2]}, "isotropic"),
+                        "layers[1].basecoat.particles[0].custom.albedo.value[1]: value 1.2 is outside"),
+                       (_vmf_doc(0.5, {"vmf": {"kappa": -2}}),
+                        "layers[1].basecoat.particles[0].custom.phase.vmf.kappa: value -2 is outside")):
+        rp.write_text(yaml.safe_dump(bad))
+        out = tmp_path / "bad"
+        r = _run(["compose", str(rp), "--out", str(out)])
+        assert r.exit_code == 2, r.output
+        lines = [ln for ln in r.output.splitlines() if ln.strip()]
+        assert lines[0].startswith("Error:") and "(1 problem)" in lines[0] and len(lines) == 2, r.output
+        assert lines[1].strip().startswith(field) and "hint" in lines[1], r.output
+        assert "Traceback" not in r.output and not out.exists()

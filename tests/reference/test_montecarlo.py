@@ -27,8 +27,10 @@ from flakedb.reference.montecarlo import (
     Slab,
     Smooth,
     TabulatedPhase,
+    VonMisesFisher,
     bin_average,
     compensation_table,
+    sample_vmf_cosines,
     simulate,
 )
 
@@ -168,7 +170,7 @@ def test_single_scattering_isotropic_closed_form():
     agree(r.albedo[0], r.albedo_se[0], R1)
 
 
-@pytest.mark.parametrize("phase", [Isotropic(), HenyeyGreenstein(0.7)])
+@pytest.mark.parametrize("phase", [Isotropic(), HenyeyGreenstein(0.7), VonMisesFisher(50.0)])
 def test_conservative_slab_conserves_energy_exactly(phase):
     p = Problem((slab(3.0, PhaseMedium(0.5, 1.0, phase)),))
     r = simulate(p, 0.7, 20_000, seed=6)
@@ -501,6 +503,39 @@ def test_deterministic_and_channels_are_independent():
     assert d.albedo[0] != c.albedo[0]
 
 
+def vmf_cdf(c, kappa):
+    """P(cos Θ ≤ c) of the vMF phase function, κ/(4π sinh κ) e^{κ t} integrated in closed form:
+    (e^{κ(c − 1)} − e^{−2κ}) / (1 − e^{−2κ})."""
+    if kappa == 0:
+        return 0.5 * (np.asarray(c) + 1.0)
+    return (np.exp(kappa * (np.asarray(c) - 1.0)) - np.exp(-2 * kappa)) / -np.expm1(-2 * kappa)
+
+
+@pytest.mark.parametrize("kappa", [0.0, 0.5, 5.0, 50.0, 200.0, 2000.0])
+def test_vmf_sampler_histogram_matches_the_pdf(kappa):
+    """The tracer's exact inverse-CDF vMF sampler: counts in bins of cos Θ (graded towards the lobe)
+    against the closed-form bin probabilities (chi-square over bins, and each bin within 5σ), and the
+    sample mean against g = coth κ − 1/κ."""
+    n = 400_000
+    c = sample_vmf_cosines(kappa, n, seed=11)
+    assert np.all((c >= -1) & (c <= 1))
+    s = np.unique(np.concatenate([[0.0], np.geomspace(1e-3 / max(kappa, 1.0), 2.0, 30)]))
+    edges = np.sort(1.0 - s)
+    edges[0] = -1.0
+    prob = np.diff(vmf_cdf(edges, kappa))
+    counts = np.histogram(c, bins=edges)[0]
+    expected = n * prob
+    keep = expected > 20
+    assert keep.sum() >= 8
+    z = (counts[keep] - expected[keep]) / np.sqrt(expected[keep] * (1 - prob[keep]))
+    assert np.abs(z).max() < 5, z
+    chi2 = np.sum(z**2)
+    dof = keep.sum()
+    assert chi2 < dof + 5 * np.sqrt(2 * dof), (chi2, dof)
+    g = 1 / np.tanh(kappa) - 1 / kappa if kappa > 0 else 0.0
+    agree(c.mean(), c.std() / np.sqrt(n), g, k=5)
+
+
 def test_validation_messages():
     with pytest.raises(ValueError, match="R \\+ T <= 1"):
         simulate(Problem((slab(1.0, FlakeMedium(1.0, 0.2, 0.6, 0.5)),)), 1.0, 10, 0)
@@ -510,3 +545,5 @@ def test_validation_messages():
         simulate(Problem((slab(1.0, PhaseMedium([1.0, 2.0], [0.5, 0.5, 0.5])),)), 1.0, 10, 0)
     with pytest.raises(ValueError, match="mu_i"):
         simulate(Problem((slab(1.0),)), -0.5, 10, 0)
+    with pytest.raises(ValueError, match="kappa"):
+        simulate(Problem((slab(1.0, PhaseMedium(1.0, 0.5, VonMisesFisher(-1.0))),)), 1.0, 10, 0)
