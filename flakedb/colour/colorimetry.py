@@ -1,9 +1,18 @@
 """Colour from spectra: CIE 1931 2° XYZ, linear sRGB, CIELAB, CIEDE2000, and the paper's RGB mode.
 
-Every CIE table comes from colour-science (``colour.MSDS_CMFS["CIE 1931 2 Degree Standard
-Observer"]``, 360–830 nm at 1 nm; ``colour.SDS_ILLUMINANTS``, D65 300–780 nm at 5 nm, CIE 15:2004),
-evaluated at the integration nodes with the interpolator colour-science attaches to each table
-(Sprague 1880 for the CMFs, linear for D65 as CIE 15 recommends).  Nothing is hand-copied.
+The CIE tables are colour-science's (``colour.MSDS_CMFS``: CIE 1931 2° and CIE 1964 10° observers,
+360–830 nm at 1 nm; ``colour.SDS_ILLUMINANTS``: D65 and A 300–780 nm, FL11 380–780 nm at 5 nm,
+CIE 15:2004), evaluated at the integration nodes with the interpolator colour-science attaches to each
+table (Sprague 1880 for the CMFs, linear for the illuminants as CIE 15 recommends).  Nothing is
+hand-copied.  The **default path** does not import colour-science (it takes 0.5–1.5 s to import:
+issue 11): for the 2° and 10° observers, illuminants D65, A and FL11 and grids whose fine nodes (below)
+are integer nm, the values colour-science returns at those nodes are read from
+:mod:`flakedb.colour.cie_tables` (generated from colour-science by ``tools/make_cie_tables.py``), the
+grid → fine-node map is :func:`flakedb.colour.sprague.sprague_matrix` (CIE 167:2005), the sRGB matrix
+is computed from the IEC 61966-2-1 primaries (:func:`srgb_matrices`), and CIELAB and CIEDE2000 are
+implemented here; each equals colour-science's result to ≤ 1e-12 (relative; tests/colour/, measured
+7e-16).  Every other case (another illuminant or observer, fine nodes off the integer nm) runs the
+colour-science code, :func:`tristimulus_weights_colour_science`.  docs/colorimetry.md.
 
 Normalisation and integration (stated once, used everywhere here)
 -----------------------------------------------------------------
@@ -14,8 +23,8 @@ that is 1 for a perfect white) sampled on a uniform grid λ_j,
 
 the CIE 15:2004 §7 weighted sum, taken on fine nodes λ_f that split each grid step into
 ceil(step / 1 nm) equal parts (the grid itself when its step is 1 nm).  ρ is carried from the grid
-to the fine nodes by Sprague (1880) interpolation (colour-science's ``SpragueInterpolator``, the
-method CIE 167:2005 recommends for uniform data and the one colour's ``align`` uses).  Since that
+to the fine nodes by Sprague (1880) interpolation (:func:`flakedb.colour.sprague.sprague_matrix`, the
+method CIE 167:2005 recommends for uniform data, equal to colour's ``SpragueInterpolator``).  Since that
 interpolation is linear in ρ, the whole thing is one weighted sum on the grid, X = Σ_j W_j ρ_j,
 with weights W (:func:`tristimulus_weights`) computed once per grid.  **Y = 1 for the perfect white
 diffuser** (colour-science's own functions return Y = 100: divide theirs by 100), and the white's
