@@ -1,9 +1,18 @@
 """Colour from spectra: CIE 1931 2° XYZ, linear sRGB, CIELAB, CIEDE2000, and the paper's RGB mode.
 
-Every CIE table comes from colour-science (``colour.MSDS_CMFS["CIE 1931 2 Degree Standard
-Observer"]``, 360–830 nm at 1 nm; ``colour.SDS_ILLUMINANTS``, D65 300–780 nm at 5 nm, CIE 15:2004),
-evaluated at the integration nodes with the interpolator colour-science attaches to each table
-(Sprague 1880 for the CMFs, linear for D65 as CIE 15 recommends).  Nothing is hand-copied.
+The CIE tables are colour-science's (``colour.MSDS_CMFS``: CIE 1931 2° and CIE 1964 10° observers,
+360–830 nm at 1 nm; ``colour.SDS_ILLUMINANTS``: D65 and A 300–780 nm, FL11 380–780 nm at 5 nm,
+CIE 15:2004), evaluated at the integration nodes with the interpolator colour-science attaches to each
+table (Sprague 1880 for the CMFs, linear for the illuminants as CIE 15 recommends).  Nothing is
+hand-copied.  The **default path** does not import colour-science (it takes 0.5–1.5 s to import:
+issue 11): for the 2° and 10° observers, illuminants D65, A and FL11 and grids whose fine nodes (below)
+are integer nm, the values colour-science returns at those nodes are read from
+:mod:`flakedb.colour.cie_tables` (generated from colour-science by ``tools/make_cie_tables.py``), the
+grid → fine-node map is :func:`flakedb.colour.sprague.sprague_matrix` (CIE 167:2005), the sRGB matrix
+is computed from the IEC 61966-2-1 primaries (:func:`srgb_matrices`), and CIELAB and CIEDE2000 are
+implemented here; each equals colour-science's result to ≤ 1e-12 (relative; tests/colour/, measured
+7e-16).  Every other case (another illuminant or observer, fine nodes off the integer nm) runs the
+colour-science code, :func:`tristimulus_weights_colour_science`.  docs/colorimetry.md.
 
 Normalisation and integration (stated once, used everywhere here)
 -----------------------------------------------------------------
@@ -14,8 +23,8 @@ that is 1 for a perfect white) sampled on a uniform grid λ_j,
 
 the CIE 15:2004 §7 weighted sum, taken on fine nodes λ_f that split each grid step into
 ceil(step / 1 nm) equal parts (the grid itself when its step is 1 nm).  ρ is carried from the grid
-to the fine nodes by Sprague (1880) interpolation (colour-science's ``SpragueInterpolator``, the
-method CIE 167:2005 recommends for uniform data and the one colour's ``align`` uses).  Since that
+to the fine nodes by Sprague (1880) interpolation (:func:`flakedb.colour.sprague.sprague_matrix`, the
+method CIE 167:2005 recommends for uniform data, equal to colour's ``SpragueInterpolator``).  Since that
 interpolation is linear in ρ, the whole thing is one weighted sum on the grid, X = Σ_j W_j ρ_j,
 with weights W (:func:`tristimulus_weights`) computed once per grid.  **Y = 1 for the perfect white
 diffuser** (colour-science's own functions return Y = 100: divide theirs by 100), and the white's
@@ -44,7 +53,14 @@ import functools
 
 import numpy as np
 
+from flakedb.colour import cie_tables
+from flakedb.colour.sprague import sprague_matrix
+
 CMFS_NAME = "CIE 1931 2 Degree Standard Observer"
+
+#: IEC 61966-2-1:1999 §5.1 (sRGB): chromaticities of the red, green, blue primaries and of the D65 white.
+SRGB_PRIMARIES_XY = ((0.64, 0.33), (0.30, 0.60), (0.15, 0.06))
+SRGB_WHITE_XY = cie_tables.D65_XY_2DEG
 
 
 def spectral_grid(range_nm=(380, 780), step_nm=10) -> np.ndarray:
@@ -83,24 +99,59 @@ def check_grid(wavelength_nm) -> np.ndarray:
     return wl
 
 
-@functools.lru_cache(maxsize=64)
-def _weights_cached(wl_key: tuple, illuminant: str, cmfs_name: str = CMFS_NAME) -> np.ndarray:
-    wl = np.asarray(wl_key)
-    cmfs, illuminants = _tables(cmfs_name)
-    if illuminant not in illuminants:
-        raise ValueError(f"unknown illuminant {illuminant!r}; colour-science knows e.g. D65, A, E")
-    sd = illuminants[illuminant]
-    lo = max(cmfs.domain[0], sd.domain[0])
-    hi = min(cmfs.domain[-1], sd.domain[-1])
+def _fine_nodes(wl):
+    """Fine nodes: every grid interval split into m = ceil(step / 1 nm) equal parts (<= 1 nm)."""
+    step = (wl[-1] - wl[0]) / (wl.size - 1)
+    m = int(np.ceil(step - 1e-9))
+    return m, np.linspace(wl[0], wl[-1], (wl.size - 1) * m + 1)
+
+
+def _check_domain(wl, lo, hi, cmfs_name, illuminant):
     if wl[0] < lo - 1e-9 or wl[-1] > hi + 1e-9:
         raise ValueError(
             f"wavelength grid {wl[0]:g}-{wl[-1]:g} nm is outside the {cmfs_name} x {illuminant} "
             f"tables' common domain {lo:g}-{hi:g} nm; nothing is extrapolated"
         )
-    # Fine nodes: every grid interval split into m = ceil(step / 1 nm) equal parts (<= 1 nm).
-    step = (wl[-1] - wl[0]) / (wl.size - 1)
-    m = int(np.ceil(step - 1e-9))
-    fine = np.linspace(wl[0], wl[-1], (wl.size - 1) * m + 1)
+
+
+def _weights_from(H, S, xyz_bar):
+    """W = H (S x̄ȳz̄) normalised so the Y column sums to 1; read-only."""
+    W = H @ (S[:, None] * xyz_bar)
+    W = W / W[:, 1].sum()
+    W.setflags(write=False)
+    return W
+
+
+def _weights_native(wl, illuminant, cmfs_name):
+    """The weights from :mod:`flakedb.colour.cie_tables` and :func:`flakedb.colour.sprague.sprague_matrix`
+    (no colour-science), or None where those do not cover the case: an observer or illuminant that is
+    not tabulated there, or fine nodes that are not integer nm (docs/colorimetry.md)."""
+    if cmfs_name not in cie_tables.CMFS_1NM or illuminant not in cie_tables.ILLUMINANTS_1NM:
+        return None
+    c_lo, c_hi = cie_tables.CMFS_DOMAIN_NM[cmfs_name]
+    s_lo, s_hi = cie_tables.ILLUMINANT_DOMAIN_NM[illuminant]
+    _check_domain(wl, max(c_lo, s_lo), min(c_hi, s_hi), cmfs_name, illuminant)
+    m, fine = _fine_nodes(wl)
+    if not np.array_equal(fine, np.round(fine)):
+        return None
+    k = fine.astype(np.int64)
+    S = cie_tables.ILLUMINANTS_1NM[illuminant][k - cie_tables.ILLUMINANT_START_NM[illuminant]]
+    xyz_bar = cie_tables.CMFS_1NM[cmfs_name][k - cie_tables.CMFS_START_NM[cmfs_name]]
+    H = np.eye(wl.size) if m == 1 else sprague_matrix(wl, fine).T    # (W, F)
+    return _weights_from(H, S, xyz_bar)
+
+
+def tristimulus_weights_colour_science(wavelength_nm, illuminant: str = "D65", cmfs_name: str = CMFS_NAME):
+    """:func:`tristimulus_weights` computed with colour-science (its tables, its interpolators, its
+    ``SpragueInterpolator``): the reference the native path is tested against, and the path for every
+    observer, illuminant or grid the native tables do not cover.  Imports colour-science (slow); not cached."""
+    wl = check_grid(wavelength_nm)
+    cmfs, illuminants = _tables(cmfs_name)
+    if illuminant not in illuminants:
+        raise ValueError(f"unknown illuminant {illuminant!r}; colour-science knows e.g. D65, A, E")
+    sd = illuminants[illuminant]
+    _check_domain(wl, max(cmfs.domain[0], sd.domain[0]), min(cmfs.domain[-1], sd.domain[-1]), cmfs_name, illuminant)
+    m, fine = _fine_nodes(wl)
     xyz_bar = np.asarray(cmfs[fine], dtype=float)  # colour-science's Sprague interpolation
     S = np.asarray(sd[fine], dtype=float)  # colour-science's interpolator for the illuminant
     # The spectrum is carried from the grid to the fine nodes by an interpolation that is linear in
@@ -116,10 +167,14 @@ def _weights_cached(wl_key: tuple, illuminant: str, cmfs_name: str = CMFS_NAME) 
 
         eye = np.eye(wl.size)
         H = np.stack([SpragueInterpolator(wl, eye[j])(fine) for j in range(wl.size)])  # (W, F)
-    W = H @ (S[:, None] * xyz_bar)
-    W = W / W[:, 1].sum()
-    W.setflags(write=False)
-    return W
+    return _weights_from(H, S, xyz_bar)
+
+
+@functools.lru_cache(maxsize=64)
+def _weights_cached(wl_key: tuple, illuminant: str, cmfs_name: str = CMFS_NAME) -> np.ndarray:
+    wl = np.asarray(wl_key)
+    W = _weights_native(wl, illuminant, cmfs_name)
+    return W if W is not None else tristimulus_weights_colour_science(wl, illuminant, cmfs_name)
 
 
 def tristimulus_weights(wavelength_nm, illuminant: str = "D65", cmfs_name: str = CMFS_NAME) -> np.ndarray:
@@ -151,46 +206,108 @@ def white_XYZ(wavelength_nm, illuminant: str = "D65") -> np.ndarray:
     return W.sum(axis=0)
 
 
+def normalised_primary_matrix(primaries_xy, white_xy) -> np.ndarray:
+    """RGB → XYZ matrix N (3, 3), XYZ = N rgb, of an RGB space with these primary and white
+    chromaticities (SMPTE RP 177-1993 §3.3): columns are the primaries' XYZ, P_k = (x/y, 1, (1−x−y)/y)_k,
+    scaled by s = P⁻¹ W so that rgb = (1, 1, 1) is the white W = (x/y, 1, (1−x−y)/y)_w (Y = 1)."""
+    def xyz(xy):
+        x, y = (np.asarray(c, dtype=float) for c in np.asarray(xy, dtype=float).T)
+        return np.stack([x / y, np.ones_like(x), (1.0 - x - y) / y])
+
+    P = xyz(primaries_xy)                         # (3, 3), column k = primary k
+    return P * np.linalg.solve(P, xyz(white_xy))[None, :]
+
+
+def srgb_matrices() -> tuple[np.ndarray, np.ndarray]:
+    """(RGB → XYZ, XYZ → RGB) of IEC 61966-2-1:1999 §5.2 as the standard prints them: the normalised
+    primary matrix of its primaries and D65 white rounded to 4 decimals, and the inverse of that rounded
+    matrix rounded to 4 decimals (3.2406, −1.5372, −0.4986; …), the pair colour-science's ``sRGB`` uses.
+    Computed, not pasted (tested equal to the printed values).  The unrounded inverse would differ by up
+    to 2e-4 (relative); the RGB mode's white normalisation removes the rounding's effect on the white."""
+    rgb_to_xyz = np.round(normalised_primary_matrix(SRGB_PRIMARIES_XY, SRGB_WHITE_XY), 4)
+    return rgb_to_xyz, np.round(np.linalg.inv(rgb_to_xyz), 4)
+
+
+_XYZ_TO_SRGB = srgb_matrices()[1]
+_XYZ_TO_SRGB.setflags(write=False)
+
+
 def XYZ_to_linear_sRGB(XYZ) -> np.ndarray:
-    """Linear (not gamma-encoded) sRGB of D65-relative XYZ (Y = 1 white), IEC 61966-2-1 primaries.
+    """Linear (not gamma-encoded) sRGB of D65-relative XYZ (Y = 1 white), IEC 61966-2-1 primaries
+    (the standard's 4-decimal XYZ → RGB matrix, :func:`srgb_matrices`).
 
     No chromatic adaptation (the XYZ are already relative to D65, sRGB's white).  (..., 3) → (..., 3).
     """
-    import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
+    return np.einsum("ij,...j->...i", _XYZ_TO_SRGB, np.asarray(XYZ, dtype=float))
 
-    cs = colour.RGB_COLOURSPACES["sRGB"]
-    return np.asarray(
-        colour.XYZ_to_RGB(
-            np.asarray(XYZ, dtype=float), cs, illuminant=cs.whitepoint,
-            chromatic_adaptation_transform=None, apply_cctf_encoding=False,
-        ),
-        dtype=float,
-    )
+
+def _lab_f(t):
+    """CIE 15:2004 §8.2.1: f(t) = t^(1/3) for t > (24/116)³, else (841/108) t + 16/116."""
+    with np.errstate(invalid="ignore"):
+        return np.where(t > (24.0 / 116.0) ** 3, np.power(t, 1.0 / 3.0), (841.0 / 108.0) * t + 16.0 / 116.0)
 
 
 def XYZ_to_Lab(XYZ, white="D65") -> np.ndarray:
     """CIE 1976 L*a*b* (CIE 15:2004 §8.2.1) of XYZ with Y = 1 for white.
 
-    ``white``: "D65" (CIE 15's D65 chromaticity for the 2° observer as colour-science tabulates it,
-    (0.3127, 0.3290), Y = 1) or an XYZ triple, e.g. :func:`white_XYZ` on the grid the spectra were
-    integrated on (then the perfect white is exactly (100, 0, 0)).
+    L* = 116 f(Y/Y_n) − 16, a* = 500 [f(X/X_n) − f(Y/Y_n)], b* = 200 [f(Y/Y_n) − f(Z/Z_n)], f as in
+    :func:`_lab_f`.  ``white``: "D65" (CIE 15's D65 chromaticity for the 2° observer as colour-science
+    tabulates it, (0.3127, 0.3290), Y_n = 1) or an XYZ triple, e.g. :func:`white_XYZ` on the grid the
+    spectra were integrated on (then the perfect white is exactly (100, 0, 0)).
     """
+    XYZ = np.asarray(XYZ, dtype=float)
+    if isinstance(white, str):
+        if white != "D65":
+            return _XYZ_to_Lab_colour_science(XYZ, white)
+        x, y = cie_tables.D65_XY_2DEG
+    else:
+        w = np.asarray(white, dtype=float)
+        x, y = w[0] / w.sum(), w[1] / w.sum()
+        XYZ = XYZ / float(w[1])
+    n = (x / y, 1.0, (1.0 - x - y) / y)                              # white (X_n, Y_n, Z_n), Y_n = 1
+    fx, fy, fz = (_lab_f(XYZ[..., k] / n[k]) for k in range(3))
+    return np.stack([116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)], axis=-1)
+
+
+def _XYZ_to_Lab_colour_science(XYZ, white):
     import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
 
-    if isinstance(white, str):
-        xy = colour.CCS_ILLUMINANTS[CMFS_NAME][white]
-    else:
-        xy = colour.XYZ_to_xy(np.asarray(white, dtype=float))
-        scale = float(np.asarray(white, dtype=float)[1])
-        XYZ = np.asarray(XYZ, dtype=float) / scale
-    return np.asarray(colour.XYZ_to_Lab(np.asarray(XYZ, dtype=float), xy), dtype=float)
+    xy = colour.CCS_ILLUMINANTS[CMFS_NAME][white]
+    return np.asarray(colour.XYZ_to_Lab(XYZ, xy), dtype=float)
 
 
 def delta_E_2000(lab1, lab2) -> np.ndarray:
-    """CIEDE2000 colour difference (Sharma, Wu & Dalal 2005, Color Res. Appl. 30, 21), k_L=k_C=k_H=1."""
-    import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
-
-    return np.asarray(colour.delta_E(np.asarray(lab1, float), np.asarray(lab2, float), method="CIE 2000"))
+    """CIEDE2000 colour difference (Sharma, Wu & Dalal 2005, Color Res. Appl. 30, 21, eqs. 1-22;
+    CIE 142-2001), k_L = k_C = k_H = 1, arrays (..., 3) broadcast."""
+    L1, a1, b1 = np.moveaxis(np.asarray(lab1, float), -1, 0)
+    L2, a2, b2 = np.moveaxis(np.asarray(lab2, float), -1, 0)
+    C7 = ((np.hypot(a1, b1) + np.hypot(a2, b2)) / 2.0) ** 7
+    G = 0.5 * (1.0 - np.sqrt(C7 / (C7 + 25.0 ** 7)))                          # eq. 3
+    ap1, ap2 = (1.0 + G) * a1, (1.0 + G) * a2                                # eq. 4
+    Cp1, Cp2 = np.hypot(ap1, b1), np.hypot(ap2, b2)                          # eq. 5
+    hp1 = np.where((b1 == 0) & (ap1 == 0), 0.0, np.degrees(np.arctan2(b1, ap1)) % 360.0)   # eq. 6
+    hp2 = np.where((b2 == 0) & (ap2 == 0), 0.0, np.degrees(np.arctan2(b2, ap2)) % 360.0)
+    CC = Cp1 * Cp2
+    d = hp2 - hp1
+    dhp = np.where(CC == 0, 0.0, np.where(d > 180.0, d - 360.0, np.where(d < -180.0, d + 360.0, d)))  # eq. 10
+    dLp, dCp = L2 - L1, Cp2 - Cp1                                            # eqs. 8, 9
+    dHp = 2.0 * np.sqrt(CC) * np.sin(np.radians(dhp / 2.0))                  # eq. 11
+    Lb, Cb = (L1 + L2) / 2.0, (Cp1 + Cp2) / 2.0                              # eqs. 12, 13
+    hs = hp1 + hp2
+    hb = np.where(CC == 0, hs, np.where(np.abs(hp1 - hp2) <= 180.0, hs / 2.0,
+                                        np.where(hs < 360.0, (hs + 360.0) / 2.0, (hs - 360.0) / 2.0)))  # eq. 14
+    T = (1.0 - 0.17 * np.cos(np.radians(hb - 30.0)) + 0.24 * np.cos(np.radians(2.0 * hb))
+         + 0.32 * np.cos(np.radians(3.0 * hb + 6.0)) - 0.20 * np.cos(np.radians(4.0 * hb - 63.0)))  # eq. 15
+    dtheta = 30.0 * np.exp(-(((hb - 275.0) / 25.0) ** 2))                    # eq. 16
+    Cb7 = Cb ** 7
+    RC = 2.0 * np.sqrt(Cb7 / (Cb7 + 25.0 ** 7))                              # eq. 17
+    L50 = (Lb - 50.0) ** 2
+    SL = 1.0 + 0.015 * L50 / np.sqrt(20.0 + L50)                             # eq. 18
+    SC = 1.0 + 0.045 * Cb                                                    # eq. 19
+    SH = 1.0 + 0.015 * Cb * T                                                # eq. 20
+    RT = -np.sin(np.radians(2.0 * dtheta)) * RC                              # eq. 21
+    tL, tC, tH = dLp / SL, dCp / SC, dHp / SH
+    return np.asarray(np.sqrt(tL * tL + tC * tC + tH * tH + RT * tC * tH))   # eq. 22
 
 
 def spectra_to_rgb_matrix(wavelength_nm, illuminant: str = "D65") -> np.ndarray:

@@ -1,5 +1,9 @@
 """Colour (flakedb.colour.colorimetry): spectra → XYZ → linear sRGB / CIELAB, CIEDE2000, RGB mode.
 
+The default path (2°/10° observers, D65/A/FL11, grids whose ≤ 1 nm fine nodes are integer nm, sRGB)
+runs on flakedb's own tables, Sprague matrix, sRGB matrix, CIELAB and CIEDE2000 without importing
+colour-science; ``TestNativeEqualsColourScience`` holds it to colour-science's results to 1e-12.
+
 Guards against: a wrong normalisation (the perfect white must give Y = 1 and D65's chromaticity,
 Lab (100, 0, 0)); mis-aligned or mis-interpolated CIE tables (1 nm results must equal
 colour-science's own integration to rounding; coarse grids must stay close to it on the 24
@@ -14,13 +18,19 @@ import numpy as np
 import pytest
 
 from flakedb.colour.colorimetry import (
+    SRGB_PRIMARIES_XY,
+    SRGB_WHITE_XY,
     XYZ_to_Lab,
     XYZ_to_linear_sRGB,
     delta_E_2000,
+    normalised_primary_matrix,
     reflectance_to_XYZ,
+    spectra_to_rgb_matrix,
     spectra_to_rgb_mode,
     spectral_grid,
+    srgb_matrices,
     tristimulus_weights,
+    tristimulus_weights_colour_science,
     white_XYZ,
 )
 
@@ -195,3 +205,91 @@ class TestRGBMode:
     def test_weights_are_cached_and_read_only(self):
         W = tristimulus_weights(spectral_grid())
         assert not W.flags.writeable and abs(W[:, 1].sum() - 1.0) < 1e-15
+
+
+OBSERVERS = ("CIE 1931 2 Degree Standard Observer", "CIE 1964 10 Degree Standard Observer")
+
+
+class TestNativeEqualsColourScience:
+    """The native default path against colour-science's own functions (docs/colorimetry.md)."""
+
+    @pytest.mark.parametrize("observer", OBSERVERS)
+    @pytest.mark.parametrize("illuminant", ["D65", "A", "FL11"])
+    @pytest.mark.parametrize("step", [1, 5, 10, 20])
+    def test_tristimulus_weights(self, observer, illuminant, step):
+        wl = spectral_grid((380, 780), step)
+        got = tristimulus_weights(wl, illuminant, observer)
+        ref = tristimulus_weights_colour_science(wl, illuminant, observer)
+        # measured: max |Δ| 7e-16 of the largest weight; 1e-13 relative on every weight above 1e-6 of it
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+        big = np.abs(ref) > 1e-6 * np.abs(ref).max()
+        np.testing.assert_allclose(got[big], ref[big], rtol=1e-12)
+
+    @pytest.mark.parametrize("observer", OBSERVERS)
+    def test_tristimulus_weights_from_360_nm(self, observer):
+        wl = spectral_grid((360, 780), 10)
+        np.testing.assert_allclose(tristimulus_weights(wl, "D65", observer),
+                                   tristimulus_weights_colour_science(wl, "D65", observer), rtol=0, atol=1e-15)
+
+    @pytest.mark.parametrize("wl, illuminant", [(spectral_grid((380, 780), 2.5), "D65"),   # 0.83 nm fine nodes
+                                                (spectral_grid((380.5, 770.5), 10), "D65"),  # half-nm nodes
+                                                (spectral_grid((380, 780), 10), "D50")])      # not tabulated
+    def test_other_cases_fall_back_to_colour_science(self, wl, illuminant):
+        assert np.array_equal(tristimulus_weights(wl, illuminant), tristimulus_weights_colour_science(wl, illuminant))
+
+    def test_same_domain_errors_as_colour_science(self):
+        wl = spectral_grid((370, 780), 10)
+        for f in (tristimulus_weights, tristimulus_weights_colour_science):
+            with pytest.raises(ValueError, match="common domain 380-780 nm"):
+                f(wl, "FL11")
+
+    def test_srgb_matrices_are_the_standards(self):
+        cs = colour.RGB_COLOURSPACES["sRGB"]
+        N = normalised_primary_matrix(SRGB_PRIMARIES_XY, SRGB_WHITE_XY)
+        np.testing.assert_allclose(N, colour.normalised_primary_matrix(cs.primaries, cs.whitepoint), rtol=1e-12)
+        np.testing.assert_allclose(N @ [1.0, 1.0, 1.0], colour.xy_to_XYZ(SRGB_WHITE_XY), rtol=1e-14)
+        to_xyz, to_rgb = srgb_matrices()
+        # IEC 61966-2-1 prints these (and colour-science uses them): equal to the last bit
+        assert np.array_equal(to_xyz, cs.matrix_RGB_to_XYZ) and np.array_equal(to_rgb, cs.matrix_XYZ_to_RGB)
+        assert to_rgb[0].tolist() == [3.2406, -1.5372, -0.4986]
+
+    def test_xyz_to_linear_srgb(self):
+        cs = colour.RGB_COLOURSPACES["sRGB"]
+        XYZ = np.random.default_rng(3).uniform(-0.1, 1.1, (50, 3))
+        ref = colour.XYZ_to_RGB(XYZ, cs, illuminant=cs.whitepoint, chromatic_adaptation_transform=None,
+                                apply_cctf_encoding=False)
+        np.testing.assert_allclose(XYZ_to_linear_sRGB(XYZ), ref, rtol=1e-12, atol=1e-15)
+        assert np.array_equal(XYZ_to_linear_sRGB(np.eye(3)), colour.XYZ_to_RGB(
+            np.eye(3), cs, illuminant=cs.whitepoint, chromatic_adaptation_transform=None, apply_cctf_encoding=False))
+
+    def test_xyz_to_lab(self):
+        rng = np.random.default_rng(4)
+        XYZ = np.concatenate([rng.uniform(0.0, 1.0, (40, 3)), rng.uniform(0.0, 0.01, (20, 3)),  # both branches
+                              rng.uniform(-0.01, 0.0, (5, 3))])
+        d65 = colour.CCS_ILLUMINANTS[OBSERVERS[0]]["D65"]
+        np.testing.assert_allclose(XYZ_to_Lab(XYZ), colour.XYZ_to_Lab(XYZ, d65), rtol=1e-12, atol=1e-12)
+        white = white_XYZ(spectral_grid()) * 0.97
+        ref = colour.XYZ_to_Lab(XYZ / white[1], colour.XYZ_to_xy(white))
+        np.testing.assert_allclose(XYZ_to_Lab(XYZ, white=white), ref, rtol=1e-12, atol=1e-12)
+        # another tabulated white goes through colour-science
+        np.testing.assert_allclose(XYZ_to_Lab(XYZ, white="D50"),
+                                   colour.XYZ_to_Lab(XYZ, colour.CCS_ILLUMINANTS[OBSERVERS[0]]["D50"]), rtol=1e-15)
+
+    def test_delta_e_2000(self):
+        rng = np.random.default_rng(5)
+        lab1 = np.column_stack([rng.uniform(0, 100, 200), rng.uniform(-80, 80, 200), rng.uniform(-80, 80, 200)])
+        lab2 = lab1 + rng.normal(0, 5, lab1.shape)
+        lab2[:20, 1:] = 0.0                                   # achromatic samples (h' = 0 branch)
+        lab2[20:40] = lab1[20:40] * [1, -1, -1]               # opposite hues (|Δh'| > 180° branches)
+        ref = colour.delta_E(lab1, lab2, method="CIE 2000")
+        np.testing.assert_allclose(delta_E_2000(lab1, lab2), ref, rtol=1e-12, atol=1e-13)
+
+    @pytest.mark.parametrize("step", [5, 10, 20])
+    def test_rgb_matrix(self, step):
+        wl = spectral_grid((380, 780), step)
+        cs = colour.RGB_COLOURSPACES["sRGB"]
+        W = tristimulus_weights_colour_science(wl)
+        A = colour.XYZ_to_RGB(np.eye(3), cs, illuminant=cs.whitepoint, chromatic_adaptation_transform=None,
+                              apply_cctf_encoding=False)
+        ref = (W @ A) / (W.sum(axis=0) @ A)[None, :]
+        np.testing.assert_allclose(spectra_to_rgb_matrix(wl), ref, rtol=0, atol=1e-12 * np.abs(ref).max())

@@ -11,6 +11,8 @@ L* = 116·0.9^(1/3) − 16 exactly); metadata missing from the files (delta term
 half-written outputs when writing fails.
 """
 
+import subprocess
+import sys
 import textwrap
 from pathlib import Path
 
@@ -309,3 +311,22 @@ def test_compose_refuses_an_unphysical_result_unless_allowed(tmp_path, monkeypat
     assert not (tmp_path / "a").exists() or not any((tmp_path / "a").iterdir())
     res = orch.compose(rec, tmp_path / "b", n=16, allow_unphysical=True)
     assert any(w.startswith("UNPHYSICAL") for w in res.warnings) and Path(res.paths["bsdf"]).exists()
+
+
+def test_compose_and_its_report_do_not_import_colour_science(tmp_path):
+    """Issue 11: the default colorimetry (CIE 1931 2°, D65, integer-nm grid, sRGB) is flakedb's own
+    (docs/colorimetry.md), so `flakedb compose` of a spectral recipe that needs gamut mapping (cadmium
+    yellow, outside sRGB) and its colour report import neither colour-science nor matplotlib."""
+    root = Path(__file__).resolve().parents[2]
+    code = textwrap.dedent(f"""
+        import sys
+        from flakedb.cli.main import cli
+        cli(["compose", {str(root / "catalog" / "recipes" / "particle-cadmium-yellow.yaml")!r}, "--n", "16",
+             "--quiet", "--out", {str(tmp_path)!r}], standalone_mode=False)
+        heavy = sorted(m for m in sys.modules if m.split(".")[0] in ("colour", "matplotlib"))
+        print("HEAVY", len(heavy), heavy[:3])
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, check=False)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "HEAVY 0 []" in r.stdout, r.stdout.splitlines()[-1]
+    assert "colour report" in r.stdout and (tmp_path / "particle-cadmium-yellow.json").exists()
