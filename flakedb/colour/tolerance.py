@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flakedb.colour import colorimetry
+from flakedb.colour.cie_tables import ILLUMINANT_DOMAIN_NM
 from flakedb.colour.colorimetry import XYZ_to_Lab
 
 #: Observer names accepted → colour-science's colour matching functions.
@@ -53,10 +54,13 @@ def observer_name(observer) -> str:
 
 
 def illuminant_name(illuminant) -> str:
-    """colour-science's SPD name of ``illuminant`` (D65, A, F11 → FL11, …)."""
+    """colour-science's SPD name of ``illuminant`` (D65, A, F11 → FL11, …); the tables flakedb carries
+    (:data:`flakedb.colour.cie_tables.ILLUMINANT_DOMAIN_NM`) are known without importing colour-science."""
+    name = ILLUMINANT_ALIASES.get(str(illuminant).upper(), str(illuminant))
+    if name in ILLUMINANT_DOMAIN_NM:
+        return name
     import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
 
-    name = ILLUMINANT_ALIASES.get(str(illuminant).upper(), str(illuminant))
     if name not in colour.SDS_ILLUMINANTS:
         raise ValueError(f"illuminant {illuminant!r} is not in colour-science's tables "
                          f"(e.g. D65, A, F11, D50)")
