@@ -183,18 +183,132 @@ def slice_doublings(thickness_um, sigma_t_max_per_um, slice_tau=2.0**-7):
     return int(np.ceil(np.log2(tau / slice_tau)))
 
 
-def homogeneous_slab(x, w, sigma_t, K_T, K_R, thickness_um, slice_tau=2.0**-7, l0=0, threads=1):
-    """A homogeneous slab of the given thickness: diamond start, then symmetric doubling.
+def eigen_slab(x, w, sigma_t, K_T, K_R, thickness_um, l0=0):
+    """Symmetric R, T of a homogeneous slab from the eigenvectors of the discrete-ordinate equations
+    (the exact solution of the equations :func:`thin_slab_diamond` integrates; docs/model.md §4,
+    "Homogeneous slabs").
+
+    With α, β as in :func:`thin_slab_diamond` (dI⁺/dz = −α I⁺ + β I⁻, dI⁻/dz = α I⁻ − β I⁺), a
+    solution (G⁺, G⁻) e^{−kz} has u = G⁺ + G⁻ an eigenvector of (α + β)(α − β) with eigenvalue k²
+    and G⁺ − G⁻ = k (α + β)⁻¹ u.  A reciprocal kernel (K symmetric) makes √(wμ)-scaled α ± β
+    symmetric: with S± = M^{−1/2}(Σ − c_l D(K_T ∓ K_R)D)M^{−1/2} (D = diag √w, M = diag μ) and
+    S₊ = L Lᵀ, the eigenproblem is the symmetric Lᵀ S₋ L z = k² z (one batched ``eigh``); u = V⁻¹ L z
+    and (α + β)⁻¹ u = V⁻¹ L⁻ᵀ z with V = diag √(wμ).  The slab's modes decaying from the top,
+    (G⁺, G⁻) e^{−kz}, and from the bottom, (G⁻, G⁺) e^{−k(d−z)}, meet the boundary conditions
+    (incident light at the top, none from below) through the sum and difference of their amplitudes:
+
+        R = (Y₁ + Y₂)/2,  T = (Y₁ − Y₂)/2,
+        Y₁ = [U(1+E) − kP(1−E)] [U(1+E) + kP(1−E)]⁻¹,
+        Y₂ = [U(1−E)/k − P(1+E)] [U(1−E)/k + P(1+E)]⁻¹,
+
+    with U, P the columns u, (α + β)⁻¹ u, E = diag e^{−kd}: only decaying exponentials, and
+    (1 − E)/k = d (1 − e^{−kd})/(kd) finite at k = 0, so thick slabs and conservative media
+    (k = 0 at order 0) need no special case.  Raises ``np.linalg.LinAlgError`` when S₊ is not
+    positive definite (not a physical medium); :func:`homogeneous_slab` then doubles instead.
+    Cost: one ``eigh``, one Cholesky and three solves per (order, channel), independent of the
+    thickness — doubling needs a solve and three products per doubling (7–14 for paint layers).
+    """
+    L, h = K_T.shape[0], K_T.shape[-1]
+    C = max(K_T.shape[1], K_R.shape[1], np.atleast_2d(sigma_t).shape[0])
+    K_T = np.broadcast_to(K_T, (L, C, h, h))
+    K_R = np.broadcast_to(K_R, (L, C, h, h))
+    d = float(thickness_um)
+    cl = fourier_weight(np.arange(l0, l0 + L))[:, None, None, None]
+    sw = np.sqrt(w)
+    sig = np.broadcast_to(np.atleast_2d(sigma_t), (C, h))
+    outer = (sw / np.sqrt(x))[:, None] * (sw / np.sqrt(x))[None, :]  # D M^{−1/2} on both sides
+    KT = cl * K_T * outer
+    KR = cl * K_R * outer
+    idx = np.arange(h)
+    Sp = KR - KT
+    Sm = -(KT + KR)
+    Sp[..., idx, idx] += sig / x
+    Sm[..., idx, idx] += sig / x
+    Lc = np.linalg.cholesky(0.5 * (Sp + np.swapaxes(Sp, -1, -2)))
+    lam, Z = np.linalg.eigh(np.swapaxes(Lc, -1, -2) @ (0.5 * (Sm + np.swapaxes(Sm, -1, -2))) @ Lc)
+    k = np.sqrt(np.clip(lam, 0.0, None))  # (L, C, h)
+    vinv = (1.0 / np.sqrt(w * x))[:, None]
+    U = vinv * (Lc @ Z)
+    P = vinv * np.linalg.solve(np.swapaxes(Lc, -1, -2), Z)
+    kd = k * d
+    E = np.exp(-kd)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        one_minus_E_over_k = d * np.where(kd > 1e-8, -np.expm1(-kd) / kd, 1.0 - 0.5 * kd)
+    Ep, Em = (1.0 + E)[..., None, :], (1.0 - E)[..., None, :]
+    kP = k[..., None, :] * P
+    Uk = U * one_minus_E_over_k[..., None, :]
+
+    def right_solve(num, den):  # num · den⁻¹
+        return np.swapaxes(np.linalg.solve(np.swapaxes(den, -1, -2), np.swapaxes(num, -1, -2)), -1, -2)
+
+    Y1 = right_solve(U * Ep - kP * Em, U * Ep + kP * Em)
+    Y2 = right_solve(Uk - P * Ep, Uk + P * Ep)
+    return 0.5 * (Y1 + Y2), 0.5 * (Y1 - Y2)
+
+
+#: Largest relative asymmetry max|K − Kᵀ| / max|K| of a kernel block that :func:`eigen_slab` accepts
+#: (it symmetrises; stored float32 factors are symmetric to ~1e-7); beyond it the slab is doubled.
+EIGEN_SYMMETRY_TOL = 1e-6
+
+
+def _symmetric_kernels(K_T, K_R):
+    scale = max(float(np.abs(K_T).max()), float(np.abs(K_R).max()), 1e-300)
+    asym = max(float(np.abs(K_T - np.swapaxes(K_T, -1, -2)).max()),
+               float(np.abs(K_R - np.swapaxes(K_R, -1, -2)).max()))
+    return asym <= EIGEN_SYMMETRY_TOL * scale
+
+
+def _eigen_slab_threads(x, w, sigma_t, K_T, K_R, thickness_um, l0, threads):
+    """:func:`eigen_slab` split over ``threads`` threads by orders, or by channels when there are
+    fewer orders than 2 × threads (LAPACK releases the GIL; BLAS runs one thread per call)."""
+    L = K_T.shape[0]
+    C = max(K_T.shape[1], K_R.shape[1], np.atleast_2d(sigma_t).shape[0])
+    threads = int(threads)
+    if threads <= 1 or max(L, C) < 2 * threads:
+        return eigen_slab(x, w, sigma_t, K_T, K_R, thickness_um, l0)
+    pool = _POOLS.setdefault(threads, ThreadPoolExecutor(threads))
+    if L >= 2 * threads:
+        parts = [p for p in np.array_split(np.arange(L), threads) if p.size]
+        futs = [pool.submit(eigen_slab, x, w, sigma_t, K_T[p[0]:p[-1] + 1], K_R[p[0]:p[-1] + 1], thickness_um,
+                            l0 + int(p[0])) for p in parts]
+        axis = 0
+    else:
+        sig = np.broadcast_to(np.atleast_2d(sigma_t), (C, len(x)))
+        K_T = np.broadcast_to(K_T, (L, C) + K_T.shape[2:])
+        K_R = np.broadcast_to(K_R, (L, C) + K_R.shape[2:])
+        parts = [p for p in np.array_split(np.arange(C), threads) if p.size]
+        futs = [pool.submit(eigen_slab, x, w, sig[p[0]:p[-1] + 1], K_T[:, p[0]:p[-1] + 1], K_R[:, p[0]:p[-1] + 1],
+                            thickness_um, l0) for p in parts]
+        axis = 1
+    res = [f.result() for f in futs]
+    return np.concatenate([r for r, _ in res], axis=axis), np.concatenate([t for _, t in res], axis=axis)
+
+
+def homogeneous_slab(x, w, sigma_t, K_T, K_R, thickness_um, slice_tau=2.0**-7, l0=0, threads=1, method="eigen"):
+    """A homogeneous slab of the given thickness: by default the exact eigen-solution of its
+    discrete-ordinate equations (:func:`eigen_slab`); with ``method="doubling"`` (or when the kernel
+    is not reciprocal to :data:`EIGEN_SYMMETRY_TOL`, or the eigen-solution fails or is not finite)
+    a diamond start and symmetric doubling (second order in the slice, :func:`slice_doublings`).
 
     Orders whose kernel vanishes (beyond the kernel's own count) carry only the direct beam, whose
     transmission exp(−σ_t Δz/μ) is diagonal and exact; they are not stored (the caller pads).
-    Returns a :class:`Layer` with L = K_T.shape[0] orders (orders l0 … l0 + L − 1); ``threads`` as
-    in :func:`double_symmetric`.
+    Returns a :class:`Layer` with L = K_T.shape[0] orders (orders l0 … l0 + L − 1); ``threads``:
+    parallel threads over orders (eigen) or over the (orders, channels) batch (doubling).
     """
     sigma_t = np.atleast_2d(sigma_t)
     if not np.any(K_T) and not np.any(K_R):  # a pure absorber: the exact diagonal attenuation
         C = max(sigma_t.shape[0], K_T.shape[1])
         return direct_only_orders(x, sigma_t, thickness_um, K_T.shape[0], C)
+    if method not in ("eigen", "doubling"):
+        raise ValueError(f"method = {method!r}: 'eigen' or 'doubling'")
+    if method == "eigen" and _symmetric_kernels(K_T, K_R):
+        try:
+            with np.errstate(over="ignore", under="ignore"):
+                R, T = _eigen_slab_threads(x, w, sigma_t, K_T, K_R, thickness_um, l0, threads)
+            if np.all(np.isfinite(R)) and np.all(np.isfinite(T)):
+                return Layer(R, T, R.copy(), T.copy())
+        except np.linalg.LinAlgError:
+            pass
     n = slice_doublings(thickness_um, sigma_t.max(), slice_tau)
     dz = thickness_um / 2.0**n
     R, T = thin_slab_diamond(x, w, sigma_t, K_T, K_R, dz, l0)

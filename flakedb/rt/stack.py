@@ -126,6 +126,10 @@ class SolverSettings:
     order_tol: float | None = None
     #: Project kernels through their spectral basis (docs/projection.md); False samples every channel.
     kernel_basis: bool = True
+    #: How homogeneous slabs are solved (:func:`flakedb.rt.layer.homogeneous_slab`): "eigen", the exact
+    #: eigen-solution of the discrete-ordinate equations (default), or "doubling" from a thin slice
+    #: of optical thickness ``slice_tau`` (the fallback for non-reciprocal kernels).
+    slab_method: str = "eigen"
     #: Threads over the (orders, channels) batch of the doubling (:func:`flakedb.rt.layer.double_symmetric`);
     #: compose sets the machine's core count.  BLAS itself runs one thread per call during a solve.
     threads: int = 1
@@ -452,7 +456,8 @@ def _solve_stack(top, slabs, bottom, s):
         if k1 <= l0:
             return direct_only_orders(q.x, sig, d, l1 - l0, max(pk.channels, sig.shape[0]))
         K_T, K_R = pk.blocks(l0, k1)
-        layer = homogeneous_slab(q.x, q.w, sig, K_T, K_R, d, s.slice_tau, l0=l0, threads=s.threads)
+        layer = homogeneous_slab(q.x, q.w, sig, K_T, K_R, d, s.slice_tau, l0=l0, threads=s.threads,
+                                 method=s.slab_method)
         return extend_orders(layer, l1 - l0, q.x, sig, d)
 
     def item_block(item, l0, l1):
