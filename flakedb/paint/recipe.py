@@ -444,10 +444,6 @@ def spectral_grid_of(doc) -> tuple[str, np.ndarray | None, list[str]]:
     if grid.size < 3:
         return mode, None, [f"spectral: the grid {grid.tolist()} nm has fewer than 3 bands; colour needs the visible range "
                             f"(hint: range_nm [380, 780])"]
-    if step > 1.0 and grid.size < 6:  # CIE 167:2005 Sprague interpolation to 1 nm needs 6 samples
-        return mode, None, [f"spectral: range_nm [{lo:g}, {hi:g}] at step_nm {step:g} gives {grid.size} bands; the "
-                            f"colorimetry interpolates the bands to 1 nm with Sprague's 6-point scheme (CIE 167:2005) "
-                            f"and needs at least 6 (hint: widen range_nm, e.g. [380, 780], or use step_nm 1)"]
     return mode, grid, []
 
 

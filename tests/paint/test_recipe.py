@@ -18,15 +18,7 @@ from click.testing import CliRunner
 
 from flakedb.cli.main import cli
 from flakedb.paint.mapping import auto_resolution, build_paint, solve_paint
-from flakedb.paint.recipe import (
-    CatalogParticle,
-    CustomFlake,
-    CustomMedium,
-    RecipeError,
-    load_recipe,
-    parse_recipe,
-    spectral_grid_of,
-)
+from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError, load_recipe, parse_recipe
 from flakedb.rt.stack import InnerSmooth
 
 RECIPES = sorted((Path(__file__).resolve().parents[2] / "catalog" / "recipes").glob("*.yaml"))
@@ -445,14 +437,3 @@ def test_cli_composes_spectral_albedo_vmf_medium_and_refuses_bad_ones(tmp_path):
         assert lines[0].startswith("Error:") and "(1 problem)" in lines[0] and len(lines) == 2, r.output
         assert lines[1].strip().startswith(field) and "hint" in lines[1], r.output
         assert "Traceback" not in r.output and not out.exists()
-
-
-@pytest.mark.parametrize("rng,step,ok", [((400, 480), 20, False), ((400, 500), 20, True), ((400, 404), 1, True)])
-def test_spectral_grid_needs_six_bands_for_sprague(rng, step, ok):
-    """Five bands at 20 nm passed validation and crashed while writing the report (Sprague's 6-point
-    interpolation to 1 nm, CIE 167:2005); now refused up front, naming the range, step and band count."""
-    mode, grid, probs = spectral_grid_of({"spectral": {"mode": "spectral", "range_nm": list(rng), "step_nm": step}})
-    if ok:
-        assert grid is not None and not probs
-    else:
-        assert grid is None and len(probs) == 1 and "gives 5 bands" in probs[0] and "at least 6" in probs[0]
