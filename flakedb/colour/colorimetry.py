@@ -137,8 +137,21 @@ def _weights_native(wl, illuminant, cmfs_name):
     k = fine.astype(np.int64)
     S = cie_tables.ILLUMINANTS_1NM[illuminant][k - cie_tables.ILLUMINANT_START_NM[illuminant]]
     xyz_bar = cie_tables.CMFS_1NM[cmfs_name][k - cie_tables.CMFS_START_NM[cmfs_name]]
-    H = np.eye(wl.size) if m == 1 else sprague_matrix(wl, fine).T    # (W, F)
+    H = np.eye(wl.size) if m == 1 else _carry_matrix(wl, fine)    # (W, F)
     return _weights_from(H, S, xyz_bar)
+
+
+#: Sprague's scheme (CIE 167:2005) needs 6 samples; fewer are carried to the fine nodes linearly.
+SPRAGUE_MIN_SAMPLES = 6
+
+
+def _carry_matrix(wl, fine):
+    """(W, F): the grid → fine-node interpolation, Sprague (CIE 167:2005) for ≥ 6 samples, else
+    piecewise linear (a 3–5 band grid is too short for Sprague's 6-point stencil; docs/colorimetry.md)."""
+    if wl.size >= SPRAGUE_MIN_SAMPLES:
+        return sprague_matrix(wl, fine).T
+    eye = np.eye(wl.size)
+    return np.stack([np.interp(fine, wl, eye[j]) for j in range(wl.size)])
 
 
 def tristimulus_weights_colour_science(wavelength_nm, illuminant: str = "D65", cmfs_name: str = CMFS_NAME):
@@ -160,6 +173,8 @@ def tristimulus_weights_colour_science(wavelength_nm, illuminant: str = "D65", c
     # interpolator, the one CIE 167:2005 recommends for uniform data (what colour's align uses).
     if m == 1:
         H = np.eye(wl.size)
+    elif wl.size < SPRAGUE_MIN_SAMPLES:
+        H = _carry_matrix(wl, fine)
     else:
         from colour.algebra import (
             SpragueInterpolator,  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)

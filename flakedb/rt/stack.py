@@ -27,6 +27,7 @@ from flakedb.rt.layer import (
     pad_orders,
 )
 from flakedb.rt.media import channel_subset, kernel_basis
+from flakedb.rt.microfacet import jackson_factors
 from flakedb.rt.orders import bsdf_orders, order_tail, reflection_over, reflection_under_smooth
 from flakedb.rt.projection import ProjectedKernel, project_kernel_basis
 from flakedb.rt.quadrature import (
@@ -130,6 +131,9 @@ class SolverSettings:
     #: eigen-solution of the discrete-ordinate equations (default), or "doubling" from a thin slice
     #: of optical thickness ``slice_tau`` (the fallback for non-reciprocal kernels).
     slab_method: str = "eigen"
+    #: Jackson-filter a medium kernel cut by the order cap (:func:`_damp_if_capped`): its truncated
+    #: series rings negative otherwise.  False: plain truncation (order-convergence studies).
+    filter_capped_kernels: bool = True
     #: Threads over the (orders, channels) batch of the doubling (:func:`flakedb.rt.layer.double_symmetric`);
     #: compose sets the machine's core count.  BLAS itself runs one thread per call during a solve.
     threads: int = 1
@@ -227,7 +231,7 @@ def medium_kernel_blocks(medium, x, w, tol, max_orders, renormalize=True, basis=
     return K_T, K_R, info
 
 
-def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True):
+def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True, filter_capped=True):
     """A medium's kernel projected on the cosine series: a :class:`flakedb.rt.projection.ProjectedKernel`
     (K_T, K_R blocks of any orders on demand) and the projection info.
 
@@ -252,7 +256,8 @@ def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True):
     n_start = min(max(4, _component_orders_hint(medium)), n_max)
     if hasattr(medium, "projected_kernel"):  # precomputed factors (flakedb.rt.stored): no projection here
         pk, info = medium.projected_kernel(
-            x, max_orders, lambda m: project_medium(m, x, w, tol, max_orders, renormalize=False, basis=basis))
+            x, max_orders, lambda m: project_medium(m, x, w, tol, max_orders, renormalize=False, basis=basis,
+                                                    filter_capped=False))
     else:
         kb = kernel_basis(medium) if basis else None
         fn, M = (medium.kernel, None) if kb is None else (kb.fn, kb.M)
@@ -277,7 +282,54 @@ def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True):
                 break
         info["renorm_max_dev"] = float(np.abs(scale**2 - 1.0).max())
         pk.scale = scale
-    return pk, info
+    return _damp_if_capped(pk, info, max_orders) if filter_capped else (pk, info)
+
+
+#: A kernel whose last kept order still exceeds CAPPED_TAIL × its order 0 was cut by the order cap.
+CAPPED_TAIL = 1e-4
+
+
+class DampedKernel:
+    """A projected kernel whose orders are multiplied by damping factors g_l (:func:`_damp_if_capped`)."""
+
+    def __init__(self, inner, g):
+        self.inner = inner
+        self.g = np.asarray(g, float)
+
+    @property
+    def n_orders(self):
+        return self.inner.n_orders
+
+    @property
+    def channels(self):
+        return self.inner.channels
+
+    def blocks(self, l0=0, l1=None):
+        K_T, K_R = self.inner.blocks(l0, l1)
+        k1 = min(l0 + K_T.shape[0], self.g.size)
+        g = np.zeros(K_T.shape[0])
+        g[: max(0, k1 - l0)] = self.g[l0:k1]
+        return K_T * g[:, None, None, None], K_R * g[:, None, None, None]
+
+
+def _damp_if_capped(pk, info, max_orders):
+    """A kernel cut by the order cap (its last order above :data:`CAPPED_TAIL` × order 0) rings: its
+    truncated cosine series goes negative (perfect mirror flakes α 0.15 in air at n = 32: the BSDF
+    reaches −3.5 % of its maximum).  Like the rough interfaces (docs/rough-interfaces.md,
+    "Positivity"), it is then smoothed in φ by the Jackson kernel's factors
+    (:func:`flakedb.rt.microfacet.jackson_factors`): a positive convolution ≈ π/L wide that keeps
+    order 0 (energy, the renormalisation) and reciprocity.  Decided from the blocks alone, so the
+    store's factors and the direct projection are treated alike."""
+    L = pk.n_orders
+    if L < int(max_orders) or L < 2:
+        return pk, info
+    K_T0, K_R0 = pk.blocks(0, 1)
+    K_TL, K_RL = pk.blocks(L - 1, L)
+    ref = max(float(np.abs(K_T0).max()), float(np.abs(K_R0).max()))
+    last = max(float(np.abs(K_TL).max()), float(np.abs(K_RL).max()))
+    if ref <= 0.0 or last <= CAPPED_TAIL * ref:
+        return pk, info
+    return DampedKernel(pk, jackson_factors(L)), {**info, "jackson_damped": True, "capped_last_order": last / ref}
 
 
 #: Memory the solver may use for one group of spectral channels (bytes); channels are independent,
@@ -420,7 +472,8 @@ def _solve_stack(top, slabs, bottom, s):
             continue
         slab = item
         sig = np.atleast_2d(slab.medium.sigma_t(q_in.x))
-        pk, pinfo = project_medium(slab.medium, q_in.x, q_in.w, s.tol, s.order_cap, basis=s.kernel_basis)
+        pk, pinfo = project_medium(slab.medium, q_in.x, q_in.w, s.tol, s.order_cap, basis=s.kernel_basis,
+                                   filter_capped=s.filter_capped_kernels)
         projected.append((pk, sig, slab.thickness_um, q_in))
         info[f"slab{k}"] = {"orders": pk.n_orders, **pinfo}
         k += 1

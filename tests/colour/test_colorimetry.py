@@ -17,7 +17,9 @@ import colour
 import numpy as np
 import pytest
 
+from flakedb.colour import cie_tables
 from flakedb.colour.colorimetry import (
+    CMFS_NAME,
     SRGB_PRIMARIES_XY,
     SRGB_WHITE_XY,
     XYZ_to_Lab,
@@ -293,3 +295,17 @@ class TestNativeEqualsColourScience:
                               apply_cctf_encoding=False)
         ref = (W @ A) / (W.sum(axis=0) @ A)[None, :]
         np.testing.assert_allclose(spectra_to_rgb_matrix(wl), ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
+def test_grids_of_three_to_five_bands_are_carried_linearly():
+    """A 5-band grid (too short for Sprague's 6-point scheme) gets weights from linear interpolation:
+    a linear ramp's XYZ equals the 1 nm CIE sum of the ramp itself (it crashed before)."""
+    wl = np.arange(400.0, 481.0, 20.0)
+    W = tristimulus_weights(wl)
+    assert W.shape == (5, 3) and np.isclose(W[:, 1].sum(), 1.0)
+    fine = np.arange(400, 481)
+    S = cie_tables.ILLUMINANTS_1NM["D65"][fine - cie_tables.ILLUMINANT_START_NM["D65"]]
+    cmfs = cie_tables.CMFS_1NM[CMFS_NAME][fine - cie_tables.CMFS_START_NM[CMFS_NAME]]
+    ramp = lambda w: 0.2 + 0.001 * (w - 400.0)  # noqa: E731
+    expect = (ramp(fine) * S) @ cmfs / (S @ cmfs[:, 1])
+    np.testing.assert_allclose(ramp(wl) @ W, expect, rtol=1e-13)

@@ -258,12 +258,13 @@ def test_convergence_in_orders():
     flake paint (measured: 3.7e-2, 7.9e-5, 1.4e-8, 5.6e-13 at 8, 16, 24, 32 orders, relative to the
     BSDF's maximum); the energy (order 0) barely depends on it."""
     m = FlakeMedium(0.15, FlakeOptics.constant(0.8, 0.0), 1.0)
-    full = solve_stack(Smooth(1.5), [Slab(2.0, m)], Lambertian(0.3), SolverSettings(n=32))
+    plain = dict(n=32, filter_capped_kernels=False)  # plain truncation (the cap's Jackson filter is tested apart)
+    full = solve_stack(Smooth(1.5), [Slab(2.0, m)], Lambertian(0.3), SolverSettings(**plain))
     phi = np.linspace(0, np.pi, 181)
     ref = full.eval_nodes(phi)
     errs = []
     for L in (8, 16, 24, 32):
-        r = solve_stack(Smooth(1.5), [Slab(2.0, m)], Lambertian(0.3), SolverSettings(n=32, max_orders=L))
+        r = solve_stack(Smooth(1.5), [Slab(2.0, m)], Lambertian(0.3), SolverSettings(max_orders=L, **plain))
         if L >= 16:
             np.testing.assert_allclose(r.albedo(), full.albedo(), rtol=1e-5)
         errs.append(np.abs(r.eval_nodes(phi) - ref).max() / np.abs(ref).max())
@@ -347,3 +348,21 @@ def test_inner_interface_reciprocity_and_equal_index_reduction():
     with pytest.raises(ValueError, match="not supported yet"):
         solve_stack(Smooth(1.6), [Slab(10.0, _hg(0.9)), InnerSmooth(1.5 / 1.6), Slab(10.0, _hg(0.9))],
                     Lambertian(0.5), SolverSettings(n=16))
+
+
+def test_kernel_cut_by_the_order_cap_is_jackson_filtered():
+    """Perfect mirror flakes α 0.15 in air (no coat) at n = 32: the kernel's series is cut by the 2n cap
+    and rang to −3.5 % of the BSDF's maximum; the Jackson filter keeps it ≥ −1e-4 (measured −2.4e-5) and
+    keeps the energy (order 0) exactly; a kernel that converges below the cap is left alone."""
+    m = FlakeMedium(0.15, FlakeOptics.constant(1.0, 0.0), 3.0)
+    phi = np.linspace(0, np.pi, 181)
+    out = {}
+    for filt in (True, False):
+        r = solve_stack(None, [Slab(1.0, m)], Lambertian(0.0), SolverSettings.product(32, filter_capped_kernels=filt))
+        g = r.eval_nodes(phi) * (r.x[:, None] * r.x[None, :])[None, :, :, None]
+        out[filt] = (g.min() / g.max(), r)
+    assert out[False][0] < -0.02 and out[True][0] > -1e-4, (out[False][0], out[True][0])
+    assert out[True][1].info["slab0"].get("jackson_damped")
+    np.testing.assert_allclose(out[True][1].albedo(), out[False][1].albedo(), rtol=0, atol=1e-12)
+    wide = solve_stack(None, [Slab(1.0, PhaseMedium(1.0, 0.9, ("hg", 0.5)))], Lambertian(0.0), SolverSettings.product(32))
+    assert not wide.info["slab0"].get("jackson_damped")

@@ -72,7 +72,7 @@ def test_reader_values(serial):
     nb = sp.binder_index({"binder": req.binder}, np.array([450.0, 550.0, 650.0]))
     c, R, T, _ = adaptive_flake_optics(lambda cc: sp.flake_reflectance_transmittance(e, np.array([450.0, 550.0, 650.0]), cc, nb))
     direct, _ = project_medium(FlakeMedium(0.25, FlakeOptics(c, R, T), 1.0), x, w, 1e-5, 16, renormalize=False)
-    stored, _ = StoredFlakeMedium(f, 1.0, np.eye(3)).projected_kernel(x, 16)
+    stored, _ = project_medium(StoredFlakeMedium(f, 1.0, np.eye(3)), x, w, 1e-5, 16, renormalize=False)
     L = max(direct.n_orders, stored.n_orders)
     a, b = direct.blocks(0, L), stored.blocks(0, L)
     scale = max(np.abs(a[0]).max(), np.abs(a[1]).max())
