@@ -427,17 +427,40 @@ def jackson_factors(L):
     return g
 
 
-def _symmetric_energy_scale(E, target, iters=2000, tol=1e-13):
+def _symmetric_energy_scale(E, target, iters=2000, tol=1e-13, newton_after=100):
     """Scale factors s (C, N) with s_i Σ_o E[c, o, i] s_o = target[c, i] (damped multiplicative
     fixed point, as :func:`flakedb.rt.stack.medium_kernel_blocks`), iterated until every column
-    is within ``tol`` of its target.  E (C, N, N) ≥ 0."""
+    is within ``tol`` of its target.  E (C, N, N) ≥ 0.
+
+    The fixed point converges slowly when E is close to a permutation (an interface of relative index
+    near 1, mostly transmission: measured 6e-9 left after 2000 iterations at η = 1.45/1.6); after
+    ``newton_after`` iterations Newton's method on F(s) = s ∘ (Eᵀ s) − target (Jacobian
+    diag(Eᵀ s) + diag(s) Eᵀ) finishes it, each step kept only if it lowers the largest deviation."""
     s = np.ones(target.shape)
-    for _ in range(iters):
+
+    def deviation(s):
         col = np.einsum("coi,co->ci", E, s)
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(col > 0, target / (s * col), 1.0)
-        if np.abs(ratio - 1.0).max() < tol:
+        return col, ratio, float(np.abs(ratio - 1.0).max())
+
+    for it in range(iters):
+        col, ratio, dev = deviation(s)
+        if dev < tol:
             break
+        if it >= newton_after:
+            J = np.swapaxes(E, -1, -2) * s[:, :, None]  # diag(s) Eᵀ
+            idx = np.arange(s.shape[1])
+            J[:, idx, idx] += col
+            try:
+                step = np.linalg.solve(J, (s * col - target)[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                step = None
+            if step is not None:
+                trial = s - step
+                if np.all(trial > 0) and deviation(trial)[2] < dev:
+                    s = trial
+                    continue
         s = s * np.sqrt(ratio)
     return s
 

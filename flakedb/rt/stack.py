@@ -70,6 +70,19 @@ class InnerSmooth:
 
 
 @dataclass
+class InnerRough:
+    """A rough interface between two slabs: Beckmann roughness ``alpha`` > 0, relative index ``eta`` =
+    n_below / n_above (a rise or a fall), by flux-cell integration between the two binders' rules
+    (:func:`flakedb.rt.interface.rough_dielectric`, docs/rough-interfaces.md, docs/model.md §4 "Inner
+    interface").  ``energy_compensation`` (default): lossless, with the multiple-scattering lobe; False:
+    the single-scattering Walter et al. 2007 model.  Placed in ``slabs`` as :class:`InnerSmooth` is."""
+
+    eta: float
+    alpha: float
+    energy_compensation: bool = True
+
+
+@dataclass
 class Lambertian:
     """Diffuse primer of albedo (scalar or per channel) at the bottom of the stack."""
 
@@ -286,7 +299,7 @@ def _n_channels(slabs, bottom):
     """Largest channel count among the media (σ_t at one node) and the primer's albedo."""
     C = 1
     for slab in slabs:
-        if isinstance(slab, InnerSmooth):
+        if isinstance(slab, (InnerSmooth, InnerRough)):
             continue
         C = max(C, np.atleast_2d(slab.medium.sigma_t(np.array([0.5]))).shape[0])
     if bottom is not None:
@@ -340,7 +353,7 @@ def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
     parts, sizes = [], []
     for c0 in range(0, C, group):
         idx = np.arange(c0, min(C, c0 + group))
-        sub_slabs = [sl if isinstance(sl, InnerSmooth) else Slab(sl.thickness_um, channel_subset(sl.medium, idx))
+        sub_slabs = [sl if isinstance(sl, (InnerSmooth, InnerRough)) else Slab(sl.thickness_um, channel_subset(sl.medium, idx))
                      for sl in slabs]
         sub_bottom = None
         if bottom is not None:
@@ -381,10 +394,12 @@ def _binder_chain(top, eta, slabs, q_out, s):
     top binder's rule is the air's, so no binder below may be less dense than it."""
     indices = [eta]
     for item in slabs:
-        if isinstance(item, InnerSmooth):
+        if isinstance(item, (InnerSmooth, InnerRough)):
             if not (np.isfinite(item.eta) and item.eta > 0):
-                raise ValueError(f"InnerSmooth(eta={item.eta!r}): the relative index n_below / n_above must be "
-                                 f"a positive real number")
+                raise ValueError(f"{item!r}: the relative index n_below / n_above must be a positive real number")
+            if isinstance(item, InnerRough) and not (np.isfinite(item.alpha) and item.alpha > 0):
+                raise ValueError(f"{item!r}: the Beckmann roughness alpha must be > 0 (a smooth inner interface "
+                                 f"is InnerSmooth)")
             indices.append(indices[-1] * float(item.eta))
     if isinstance(top, Smooth):
         if min(indices) < 1.0:
@@ -428,14 +443,20 @@ def _solve_stack(top, slabs, bottom, s):
     b = 0  # the binder the next item lies in
     k = 0
     for item in slabs:
-        if isinstance(item, InnerSmooth):
+        if isinstance(item, (InnerSmooth, InnerRough)):
             q_a, q_b = chain.rules[b], chain.rules[b + 1]
             ia, ib = chain.pairs[b]
-            projected.append(("interface", q_a, q_b, ia, ib, item.eta))
+            rec = {"eta": float(item.eta), "nodes_above": int(q_a.h), "nodes_below": int(q_b.h)}
+            if isinstance(item, InnerRough):
+                layer, rinfo = itf.rough_dielectric(q_a, q_b, item.eta, item.alpha, tol=s.tol, max_orders=s.order_cap,
+                                                    energy_compensation=item.energy_compensation)
+                projected.append(("rough", layer))
+                rec.update(alpha=float(item.alpha), orders=int(layer.n_orders))
+            else:
+                projected.append(("interface", q_a, q_b, ia, ib, item.eta))
             b += 1
             eta_binder = eta_binder * item.eta
-            info.setdefault("inner_interfaces", []).append(
-                {"eta": float(item.eta), "nodes_above": int(q_a.h), "nodes_below": int(q_b.h)})
+            info.setdefault("inner_interfaces", []).append(rec)
             continue
         slab = item
         q = chain.rules[b]
@@ -464,7 +485,8 @@ def _solve_stack(top, slabs, bottom, s):
                                         energy_compensation=bottom.energy_compensation)
         L_bottom = Rc.shape[0]
         info["bottom"] = {k: v for k, v in cinfo.items() if k != "albedo"}
-    L = min(max([L_top, L_bottom, 1] + [p[0].n_orders for p in projected if not isinstance(p[0], str)]), s.order_cap)
+    L = min(max([L_top, L_bottom, 1] + [p[0].n_orders for p in projected if not isinstance(p[0], str)]
+                + [p[1].n_orders for p in projected if p[0] == "rough"]), s.order_cap)
     if isinstance(top, Smooth):
         smooth1, delta_F = itf.smooth_dielectric(q_out, q_in, top.eta, 1)
 
@@ -481,6 +503,9 @@ def _solve_stack(top, slabs, bottom, s):
 
     def item_block(item, l0, l1):
         """Layer of orders l0 … l1 − 1 of a slab or an inner interface."""
+        if isinstance(item[0], str) and item[0] == "rough":  # its own orders, zero beyond them
+            lay = item[1]
+            return Layer(*(pad_orders(blk[l0:l1], l1 - l0) for blk in (lay.Rt, lay.Ttb, lay.Rb, lay.Tbt)))
         if isinstance(item[0], str):
             _, q_a, q_b, ia, ib, eta_rel = item
             return itf.smooth_inner(q_a, q_b, ia, ib, eta_rel, l1 - l0)
