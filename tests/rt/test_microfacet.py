@@ -290,7 +290,7 @@ def test_rough_dielectric_between_two_rules_is_lossless_and_reciprocal(eta):
     with one rule passed twice the result is the one-rule interface."""
     c = binder_chain_quadratures(radau_hemisphere(12), 1.0, [1.6, 1.6 * eta])
     qa, qb = c.rules
-    (Rt, Ttb, Rb, Tbt), info = mf.rough_dielectric_cells(qa.x, qa.w, eta, 0.2, x_below=qb.x, w_below=qb.w)
+    (Rt, Ttb, Rb, Tbt), _ = mf.rough_dielectric_cells(qa.x, qa.w, eta, 0.2, x_below=qb.x, w_below=qb.w)
     ma, mb = qa.w * qa.x, qb.w * qb.x
     from_above = (Rt[0, 0].T @ ma + eta**2 * (Ttb[0, 0].T @ mb)) / ma
     from_below = (Rb[0, 0].T @ mb + (Tbt[0, 0].T @ ma) / eta**2) / mb
