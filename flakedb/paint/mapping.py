@@ -4,8 +4,8 @@ A :class:`flakedb.paint.recipe.Recipe` becomes the arguments of :func:`flakedb.r
 
     top     Smooth(η) | Rough(η, α) | None      η = the top binder's index (the clear coat's, else the
                                                  first basecoat's; ior 1 = no interface)
-            + InnerSmooth(η_b / η_a)             before a basecoat whose ior rises above the binder over
-                                                 it: a smooth inner interface (docs/model.md §4)
+            + InnerSmooth(η_b / η_a)             before a basecoat whose ior differs from the binder over
+                                                 it (a rise or a fall): a smooth inner interface (docs/model.md §4)
     slabs   [Slab(d_clear, absorbing coat)]      only when the coat absorbs: PhaseMedium(σ_a, albedo 0)
             + [Slab(d_base, Mixture(…)) …]       one per basecoat that holds particles
     bottom  Lambertian(albedo per channel)       the primer, or
@@ -576,7 +576,7 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
 
     n_above = eta  # the binder index above the next basecoat (the top binder's)
     for b in recipe.basecoats:
-        if b.ior != n_above:  # a rise of the binder index: a smooth inner interface (recipe checks: rises only)
+        if b.ior != n_above:  # a change of the binder index (a rise or a fall): a smooth inner interface
             slabs.append(InnerSmooth(b.ior / n_above))
             components.append({"path": b.path, "kind": "inner interface", "eta_above": n_above, "eta_below": b.ior,
                                "relative_index": b.ior / n_above})

@@ -494,18 +494,14 @@ def _order_problems(kinds) -> list[str]:
 
 
 def _binder_index_problems(layers, kinds) -> list[str]:
-    """Binder indices below the top interface: equal, or rising downwards (each change is a smooth inner
-    interface, docs/model.md §4 "Inner interface"); a fall (into a less dense binder) is not supported."""
+    """Binder indices below the top interface: each change (a rise or a fall) is a smooth inner interface
+    (docs/model.md §4 "Inner interface"); an index-matched top binder (ior 1: no top interface) cannot sit
+    over one (the solver's output rule is then the top binder's own)."""
     problems = []
     iors = [(f"layers[{i}].{k}.ior", float(layers[i][k]["ior"])) for i, k in enumerate(kinds)
             if k not in ("primer", "metal")]
     for (p_above, above), (pth, v) in zip(iors, iors[1:]):
-        if v < above:
-            problems.append(
-                f"{pth}: value {v:g} is below {p_above} = {above:g}; an inner interface into a binder of lower index "
-                f"is not supported yet (allowed range: {pth.rsplit('.', 1)[0]}.ior ≥ {above:g}; the solver maps "
-                f"directions into a denser binder only) (hint: set it to {above:g} or more)")
-        elif v > above and above == 1.0:
+        if v > above and above == 1.0:
             problems.append(
                 f"{pth}: value {v:g} under {p_above} = 1 (index-matched): an inner interface needs a binder above it "
                 f"(hint: give {p_above} the binder's index, or set {pth} to 1)")

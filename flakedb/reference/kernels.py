@@ -464,10 +464,13 @@ def _rough_conductor_ms(dx, dy, mu, n, k, alpha, ms_grid, ms_E, ms_cdf, ms_par, 
 @njit(cache=True)
 def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k, bot_alpha, z_edges, sigma_bar, comp_start,
            comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha, comp_off, comp_n, tab,
-           w_start, max_orders, max_events, rr_threshold, ms_grid, ms_E, ms_cdf, ms_par, slab_eta):
+           w_start, max_orders, max_events, rr_threshold, ms_grid, ms_E, ms_cdf, ms_par, slab_eta, slab_alpha):
     """Trace one path; returns (outcome, weight, dx, dy, mu, interface_loss, events).  ``slab_eta``
     (n_slabs,): each slab's binder index; where neighbours differ, a smooth inner interface (Fresnel
-    reflection or Snell refraction, total internal reflection included)."""
+    reflection or Snell refraction, total internal reflection included).  ``slab_alpha`` (n_slabs,): the
+    Beckmann roughness of the interface at the top of each slab (entry 0 unused); where > 0 the inner
+    interface is a rough dielectric (:func:`_rough_interface`, single scattering: the masked/shadowed
+    part is lost and counted in the interface loss)."""
     n_slabs = sigma_bar.shape[0]
     w = w_start
     loss = 0.0
@@ -521,6 +524,16 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
                 z = z_edges[k + 1]
                 if k < n_slabs - 1:
                     er = slab_eta[k + 1] / slab_eta[k]
+                    if slab_alpha[k + 1] > 0.0:  # rough inner interface, from above
+                        dx, dy, mu, f = _rough_interface(dx, dy, mu, True, er, slab_alpha[k + 1], s)
+                        loss += w * (1.0 - f)
+                        w *= f
+                        direct = False
+                        if w == 0.0:
+                            return _ABSORBED, 0.0, dx, dy, mu, loss, events
+                        if mu > 0.0:
+                            k += 1
+                        continue
                     if er != 1.0:  # smooth inner interface, from above
                         if _uniform(s) < fresnel_unpolarized(mu, er):
                             mu = -mu
@@ -575,6 +588,16 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
                 z = z_edges[k]
                 if k > 0:
                     er = slab_eta[k - 1] / slab_eta[k]
+                    if slab_alpha[k] > 0.0:  # rough inner interface, from below (η = n_below / n_above)
+                        dx, dy, mu, f = _rough_interface(dx, dy, mu, False, 1.0 / er, slab_alpha[k], s)
+                        loss += w * (1.0 - f)
+                        w *= f
+                        direct = False
+                        if w == 0.0:
+                            return _ABSORBED, 0.0, dx, dy, mu, loss, events
+                        if mu < 0.0:
+                            k -= 1
+                        continue
                     if er != 1.0:  # smooth inner interface, from below
                         cos_in = -mu
                         if _uniform(s) < fresnel_unpolarized(cos_in, er):
@@ -706,7 +729,7 @@ def simulate_kernel(path_counts, seeds, mu_i, top_type, eta, top_alpha, bot_type
                     bot_alpha, z_edges,
                     sigma_bar, comp_start, comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha,
                     comp_off, comp_n, tab, w_start, mu_edges, phi_edges, max_orders, max_events,
-                    rr_threshold, ms_grid, ms_E, ms_cdf, ms_par, slab_eta):
+                    rr_threshold, ms_grid, ms_E, ms_cdf, ms_par, slab_eta, slab_alpha):
     """Run ``path_counts[b]`` paths for every batch b (in parallel, each with its own RNG stream).
 
     Returns per-batch tallies: ``scal`` (B, N_SCALARS) with the layout S_*; ``rbin`` / ``tbin``
@@ -727,7 +750,7 @@ def simulate_kernel(path_counts, seeds, mu_i, top_type, eta, top_alpha, bot_type
                 s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k, bot_alpha, z_edges,
                 sigma_bar, comp_start,
                 comp_type, comp_sigma, comp_albedo, comp_g, comp_alpha, comp_off, comp_n, tab,
-                w_start, max_orders, max_events, rr_threshold, ms_grid, ms_E, ms_cdf, ms_par, slab_eta)
+                w_start, max_orders, max_events, rr_threshold, ms_grid, ms_E, ms_cdf, ms_par, slab_eta, slab_alpha)
             scal[b, S_EVENTS] += events
             if loss != 0.0:
                 scal[b, S_LOSS] += loss

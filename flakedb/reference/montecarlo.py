@@ -11,7 +11,8 @@ Air (index 1) above; a top interface (``None``: index-matched, :class:`Smooth`, 
 one or more :class:`Slab` s of the binder, whose real index is the ``eta`` of the top interface
 (1 when the top is ``None``) unless a slab states its own ``eta``: between slabs of different index a
 smooth inner interface reflects (Fresnel, total internal reflection included) or refracts (Snell),
-drawn with probability F as at the top; a bottom (:class:`Lambertian`
+drawn with probability F as at the top, or, where the lower slab states a roughness ``alpha``, a rough
+dielectric interface samples a microfacet normal as the rough top does; a bottom (:class:`Lambertian`
 inside the binder at the bottom of the last slab, :class:`RoughConductor`, a Beckmann microfacet metal
 there, or ``None``: light leaving the last slab is
 counted as transmitted into a half-space of the binder's index).  Each slab holds zero or more media
@@ -200,11 +201,15 @@ class FlakeMedium:
 class Slab:
     """A slab of binder of thickness ``thickness_um`` (µm) holding the media in ``media`` (which add).
     ``eta``: the binder's real index relative to the air above (None: the top interface's); where two
-    neighbouring slabs differ, a smooth inner interface separates them (module docstring)."""
+    neighbouring slabs differ, a smooth inner interface separates them (module docstring).
+    ``alpha``: the Beckmann roughness of the interface between this slab and the one above it (0: smooth;
+    > 0: a rough dielectric, Walter et al. 2007 single scattering, sampled as the rough top is; ignored
+    for the first slab, whose top is the stack's top interface)."""
 
     thickness_um: float
     media: tuple = ()
     eta: float | None = None
+    alpha: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -262,6 +267,10 @@ class Problem:
     def slab_eta(self) -> np.ndarray:
         """Each slab's binder index relative to the air (``Slab.eta``, default :attr:`eta_binder`)."""
         return np.array([self.eta_binder if sl.eta is None else float(sl.eta) for sl in self.slabs], dtype=float)
+
+    def slab_alpha(self) -> np.ndarray:
+        """The roughness of the interface at the top of each slab (``Slab.alpha``; entry 0 unused)."""
+        return np.array([0.0] + [float(sl.alpha) for sl in self.slabs[1:]], dtype=float)
 
     @property
     def n_channels(self) -> int:
@@ -424,6 +433,8 @@ def _validate(problem):
             raise ValueError(f"slabs[{si}].thickness_um = {slab.thickness_um}; it must be > 0 µm.")
         if slab.eta is not None and not (np.isfinite(slab.eta) and slab.eta > 0):
             raise ValueError(f"slabs[{si}].eta = {slab.eta}; it must be a positive real index relative to the air.")
+        if not (np.isfinite(slab.alpha) and 0.0 <= slab.alpha <= 2.0):
+            raise ValueError(f"slabs[{si}].alpha = {slab.alpha}; a Beckmann roughness in [0, 2] (0: smooth).")
         for mi, m in enumerate(slab.media):
             p = f"slabs[{si}].media[{mi}]"
             if isinstance(m, PhaseMedium):
@@ -722,7 +733,7 @@ def simulate(problem, mu_i, n_paths, seed, mu_edges=None, phi_edges=None, *, max
             pk["z_edges"], pk["sigma_bar"], pk["comp_start"], pk["comp_type"], pk["comp_sigma"],
             pk["comp_albedo"], pk["comp_g"], pk["comp_alpha"], pk["comp_off"], pk["comp_n"], pk["tab"],
             w_start, me, pe, np.int64(max_orders), np.int64(MAX_EVENTS), float(rr_threshold),
-            ms_grid, ms_E, ms_cdf, ms_par, problem.slab_eta())
+            ms_grid, ms_E, ms_cdf, ms_par, problem.slab_eta(), problem.slab_alpha())
         t = scal.sum(axis=0)
         out["R"][c], out["Rse"][c] = mean_se(t[_k.S_R], t[_k.S_R2])
         out["Td"][c], out["Tdse"][c] = mean_se(t[_k.S_TDIR], t[_k.S_TDIR2])

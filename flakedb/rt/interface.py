@@ -130,14 +130,16 @@ def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512, energy_c
     """Rough dielectric interface (Beckmann α, relative index η) as a :class:`Layer`, by flux-cell
     integration (:func:`flakedb.rt.microfacet.rough_dielectric_cells`): every column of order 0
     carries the continuous BSDF's directional albedo, the blocks are reciprocal, and as α → 0 it
-    tends to the smooth interface.  Both sides use the same rule (``q_in`` nodes equal ``q_out``'s).
+    tends to the smooth interface.  ``q_out`` is the rule above (air, or the binder above an inner
+    interface), ``q_in`` the rule below; they may differ (the cells integrate between any two rules).
+    ``eta`` = n_below / n_above, > 1 or < 1.
     ``energy_compensation``: add the reciprocal multiple-scattering lobe (lossless interface,
     :func:`flakedb.rt.microfacet.dielectric_compensation`).  Returns ``(layer, info)``.
     """
-    if q_in.h != q_out.h or not np.allclose(q_in.x, q_out.x):
-        raise ValueError("the rough interface needs the same quadrature on both sides")
+    same = q_in.h == q_out.h and np.array_equal(q_in.x, q_out.x) and np.array_equal(q_in.w, q_out.w)
     blocks, info = rough_dielectric_cells(q_out.x, q_out.w, eta, alpha, tol=tol, max_orders=max_orders,
-                                          energy_compensation=energy_compensation)
+                                          energy_compensation=energy_compensation,
+                                          x_below=None if same else q_in.x, w_below=None if same else q_in.w)
     return Layer(*blocks), info
 
 
@@ -188,8 +190,9 @@ def lambertian(q, albedo, L):
 
 def smooth_inner(q_above, q_below, ia, ib, eta_rel, L):
     """Smooth interface *between two slabs* (docs/model.md §4 "Inner interface"), relative index
-    ``eta_rel`` = n_below / n_above, on the rules of :func:`flakedb.rt.quadrature.inner_interface_quadrature`
-    (mapped pairs ``ia`` ↔ ``ib``).  Unlike the top, its mirror reflection is inside the stack, so it is
+    ``eta_rel`` = n_below / n_above (a rise > 1 or a fall < 1), on the rules of
+    :func:`flakedb.rt.quadrature.binder_chain_quadratures` (mapped pairs ``ia`` ↔ ``ib``: the nodes of equal
+    Snell invariant; the others are totally reflected on their side).  Unlike the top, its mirror reflection is inside the stack, so it is
     in the matrix: R^t = diag(F_a), R^b = diag(F_b) (1 where no partner: total internal reflection),
     T^tb[ib, ia] = 1 − F_a[ia], T^bt = (T^tb)ᵀ, in every Fourier order (a delta in φ_d).
 

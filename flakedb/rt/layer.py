@@ -56,6 +56,19 @@ def pad_orders(a, L):
     return np.concatenate([a, pad], axis=0)
 
 
+def solve_regular(A, B):
+    """``np.linalg.solve(A, B)`` for the adding equations' A = I − R1 R2, where a row of A that vanishes
+    exactly gets a unit diagonal first.  Such a row is a direction totally reflected on both sides of a
+    binder that holds no slab (between a smooth top and a less dense binder, or between two inner
+    interfaces, docs/model.md §4 "Inner interface"): nothing enters it (its row of B and its column in
+    the transmissions around it are 0), so the unit diagonal only keeps the solve regular and changes
+    no result."""
+    dead = ~np.any(A, axis=-1)
+    if dead.any():
+        A = A + dead[..., :, None] * np.eye(A.shape[-1])
+    return np.linalg.solve(A, B)
+
+
 def add(top, bottom):
     """Stack ``top`` above ``bottom`` (paper eq. 4, docs/model.md §4), with solves instead of inverses.
 
@@ -71,11 +84,11 @@ def add(top, bottom):
     h = top.Rb.shape[-1]
     eye = np.eye(h)
     A = eye - top.Rb @ bottom.Rt  # (L, C, h, h)
-    X = np.linalg.solve(A, top.Ttb)  # (I − R1b R2t)^{-1} T1tb
+    X = solve_regular(A, top.Ttb)  # (I − R1b R2t)^{-1} T1tb
     Ttb = bottom.Ttb @ X
     Rt = top.Rt + top.Tbt @ (bottom.Rt @ X)
     B = eye - bottom.Rt @ top.Rb
-    Y = np.linalg.solve(B, bottom.Tbt)
+    Y = solve_regular(B, bottom.Tbt)
     Tbt = top.Tbt @ Y
     Rb = bottom.Rb + bottom.Ttb @ (top.Rb @ Y)
     return Layer(Rt, Ttb, Rb, Tbt)
@@ -88,7 +101,7 @@ def add_reflection_only(top, bottom_Rt):
     """
     h = top.Rb.shape[-1]
     A = np.eye(h) - top.Rb @ bottom_Rt
-    X = np.linalg.solve(A, top.Ttb)
+    X = solve_regular(A, top.Ttb)
     return top.Rt + top.Tbt @ (bottom_Rt @ X)
 
 

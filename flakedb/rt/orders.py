@@ -14,6 +14,7 @@ stated tolerance (:func:`order_tail`).
 import numpy as np
 
 from flakedb.conventions import fourier_weight
+from flakedb.rt.layer import solve_regular
 
 
 def reflection_over(top, bottom_Rt):
@@ -37,7 +38,7 @@ def reflection_over(top, bottom_Rt):
     A = -(top.Rb @ bottom_Rt)
     idx = np.arange(A.shape[-1])
     A[..., idx, idx] += 1.0
-    X = np.linalg.solve(A, top.Ttb)
+    X = solve_regular(A, top.Ttb)
     return top.Rt + top.Tbt @ (bottom_Rt @ X)
 
 
@@ -57,7 +58,7 @@ def reflection_under_smooth(t, F_in, h_tir, bottom_Rt):
     # X = (I − F R2)^{-1} E_mapped: the mapped columns of the inverse (A X = E)
     E = np.zeros((hi, hi - h_tir))
     E[h_tir + np.arange(hi - h_tir), np.arange(hi - h_tir)] = 1.0
-    X = np.linalg.solve(A, np.broadcast_to(E, A.shape[:-1] + E.shape[-1:]))
+    X = solve_regular(A, np.broadcast_to(E, A.shape[:-1] + E.shape[-1:]))
     R = bottom_Rt[..., h_tir:, :] @ X
     return t[:, None] * R * t[None, :]
 

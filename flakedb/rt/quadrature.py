@@ -121,31 +121,96 @@ def default_tir_nodes(h_out, eta):
     return int(max(4, np.ceil(0.5 * h_out * mu_c)))
 
 
-def inner_interface_quadrature(above, eta_rel, h_tir):
-    """Quadrature in the binder below a smooth *inner* interface (docs/model.md §4 "Inner interface")
-    of relative index ``eta_rel`` = n_below / n_above, and the node pairs it maps.
+@dataclass(frozen=True)
+class BinderChain:
+    """The rules of a chain of binders joined by inner interfaces (:func:`binder_chain_quadratures`):
+    ``rules[k]`` the hemisphere rule in binder k (top to bottom) and ``pairs[k] = (ia, ib)`` the node
+    pairs that cross the interface between binders k and k + 1 (node ``ia[j]`` of the rule above ↔
+    node ``ib[j]`` of the rule below)."""
 
-    Every direction that crosses the interface maps node to node (Snell, as
-    :func:`snell_mapped_quadrature`), with the Jacobian weights w_b = w_a μ_a / (η² μ_b):
+    rules: tuple
+    pairs: tuple
+    indices: tuple
 
-    * η > 1: all ``above.h`` nodes map into (μ_c, 1], μ_c = sqrt(1 − 1/η²); the range (0, μ_c) below,
-      reached only by light scattered there and totally internally reflected, gets ``h_tir``
-      Gauss–Legendre nodes (below-side TIR);
-    * η < 1: the above nodes with μ_a > μ_c = sqrt(1 − η²) map onto the whole hemisphere below; those
-      at or under μ_c are totally internally reflected (above-side TIR) and have no partner;
-    * η = 1: the same rule (every node maps to itself).
 
-    Returns ``(below, ia, ib)``: the rule below and the index arrays of mapped pairs (above node
-    ``ia[k]`` ↔ below node ``ib[k]``).
+def binder_chain_quadratures(anchor, n_anchor, indices, first_segment_nodes=None):
+    """Rules in every binder of a chain joined by smooth (or rough) inner interfaces, built on the
+    **Snell invariant** p = n sin θ (docs/model.md §4 "Inner interface"), in which a node is the same
+    direction in every binder it can propagate in; index rises *and* falls are lossless by construction.
+
+    A direction of invariant p propagates in every binder of index n_k > p.  With u = p², the flux
+    measure of a hemisphere, n_k² μ_k dμ_k = −½ du, is the same in every binder: a node is (u_j, m_j)
+    with the invariant flux weight m_j = n_k² w_k μ_k, and binder k's rule is every node with
+    u_j < n_k², at μ_k = sqrt(1 − u_j/n_k²), w_k = m_j / (n_k² μ_k).  The u axis is cut at the squared
+    indices {n_k²} of the chain:
+
+    * (0, n_anchor²]: the ``anchor`` rule (the air's Gauss–Radau rule under a smooth top, n_anchor = 1;
+      otherwise the Gauss–Radau rule of the least dense binder);
+    * each further segment (u_lo, u_hi] is the grazing range of the binder with n_K² = u_hi (totally
+      internally reflected in every less dense binder it touches): Gauss–Legendre in μ_K on
+      (0, sqrt(1 − u_lo/u_hi)), so every binder's rule is smooth images of Gauss rules plus a Gauss rule
+      of its own, exact for μ (Σ 2 w μ = 1) and a rule for anything smooth.  Node count: the heuristic of
+      :func:`default_tir_nodes`, half the density of the nodes already placed, max(4, ⌈½ N(u < u_lo) ℓ⌉)
+      over the segment's length ℓ in μ_K (``first_segment_nodes`` overrides it for the first segment);
+      for a smooth top and rising indices it gives the rules of :func:`snell_mapped_quadrature` applied
+      binder after binder.
+
+    Across an interface between binders a and b the nodes with u < min(n_a², n_b²) are shared: Snell's
+    law maps them node to node with η² w_b μ_b = w_a μ_a (basic radiance), the others are totally
+    internally reflected.  For a *fall* of the index (n_b < n_a) the rule above thus holds the Snell image
+    of the whole rule below plus Gauss nodes in its own totally reflected range (0, μ_c), μ_c =
+    sqrt(1 − (n_b/n_a)²): the mirror of a rise.
+
+    ``indices``: the binders' indices, top to bottom, relative to the medium the anchor's index is
+    relative to (all ≥ ``n_anchor``).  Returns a :class:`BinderChain`.
     """
-    if eta_rel >= 1.0:
-        below = snell_mapped_quadrature(above, eta_rel, h_tir) if eta_rel > 1.0 else \
-            HemisphereQuadrature(above.x.copy(), above.w.copy(), above.h)
-        ia = np.arange(above.h)
-        return below, ia, below.h - above.h + ia
-    mu_c = np.sqrt(1.0 - eta_rel**2)
-    ia = np.nonzero(above.x > mu_c)[0]
-    xa, wa = above.x[ia], above.w[ia]
-    xb = np.sqrt(np.maximum(1.0 - (1.0 - xa**2) / eta_rel**2, 0.0))
-    wb = wa * xa / (eta_rel**2 * xb)
-    return HemisphereQuadrature(xb, wb, len(ia)), ia, np.arange(len(ia))
+    n2 = [float(n) ** 2 for n in indices]
+    n0 = float(n_anchor) ** 2
+    if min(n2) < n0 * (1.0 - 1e-12):
+        raise ValueError(f"binder indices {[float(n) for n in indices]} fall below the anchor's {float(n_anchor):g}: "
+                         f"its rule cannot be split")
+    # the segments: (u_hi, μ and w in the binder whose grazing range the segment is), the anchor first
+    own = [(n0, anchor.x, anchor.w)]
+    placed = anchor.h
+    breaks = sorted({v for v in n2 if v > n0})
+    lo = n0
+    for k, hi in enumerate(breaks):
+        ell = np.sqrt(1.0 - lo / hi)
+        if k == 0 and first_segment_nodes is not None:
+            cnt = int(first_segment_nodes)
+        else:
+            cnt = int(max(4, np.ceil(0.5 * placed * ell)))
+        if cnt > 0:
+            xg, wg = gauss_legendre_interval(cnt, 0.0, ell)
+            own.append((hi, xg, wg))
+            placed += cnt
+        lo = hi
+    rules = []
+    for nk2 in n2:
+        parts_x, parts_w = [], []
+        for hi, xo, wo in own:
+            if hi > nk2 * (1.0 + 1e-12):
+                continue
+            if abs(hi - nk2) <= 1e-12 * nk2:  # the segment's own binder (or one of equal index): as built
+                parts_x.append(xo)
+                parts_w.append(wo)
+            else:
+                xk = np.sqrt(1.0 - hi * (1.0 - xo**2) / nk2)  # u = n_K² (1 − μ_K²) seen in binder k
+                parts_x.append(xk)
+                parts_w.append(hi * wo * xo / (nk2 * xk))  # m = n_K² w_K μ_K = n_k² w_k μ_k
+        x = np.concatenate(parts_x)
+        w = np.concatenate(parts_w)
+        order = np.argsort(x, kind="stable")
+        rules.append((x[order], w[order]))
+    pairs, quads = [], []
+    for k, (x, w) in enumerate(rules):
+        if k == 0:
+            n_mapped = anchor.h if n0 < n2[0] * (1.0 - 1e-12) else len(x)
+        else:
+            n_mapped = min(len(x), len(rules[k - 1][0]))
+        quads.append(HemisphereQuadrature(x, w, n_mapped))
+    for k in range(len(rules) - 1):
+        ha, hb = len(rules[k][0]), len(rules[k + 1][0])
+        N = min(ha, hb)
+        pairs.append((np.arange(ha - N, ha), np.arange(hb - N, hb)))
+    return BinderChain(tuple(quads), tuple(pairs), tuple(float(n) for n in indices))

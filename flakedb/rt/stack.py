@@ -30,12 +30,7 @@ from flakedb.rt.media import channel_subset, kernel_basis
 from flakedb.rt.microfacet import jackson_factors
 from flakedb.rt.orders import bsdf_orders, order_tail, reflection_over, reflection_under_smooth
 from flakedb.rt.projection import ProjectedKernel, project_kernel_basis
-from flakedb.rt.quadrature import (
-    default_tir_nodes,
-    inner_interface_quadrature,
-    radau_hemisphere,
-    snell_mapped_quadrature,
-)
+from flakedb.rt.quadrature import binder_chain_quadratures, default_tir_nodes, radau_hemisphere
 
 
 @dataclass
@@ -67,11 +62,25 @@ class Slab:
 @dataclass
 class InnerSmooth:
     """A smooth interface between two slabs (docs/model.md §4 "Inner interface"): relative index
-    ``eta`` = n_below / n_above (the binder below over the binder above).  Placed in the ``slabs``
-    list of :func:`solve_stack` between the slabs it separates; the slabs below it (and the bottom)
-    live on the rule of :func:`flakedb.rt.quadrature.inner_interface_quadrature`."""
+    ``eta`` = n_below / n_above (the binder below over the binder above; a rise > 1 or a fall < 1).
+    Placed in the ``slabs`` list of :func:`solve_stack` between the slabs it separates; every binder
+    lives on its rule of :func:`flakedb.rt.quadrature.binder_chain_quadratures` (one node set on the
+    Snell invariant: the interface maps shared nodes one to one, lossless and reciprocal)."""
 
     eta: float
+
+
+@dataclass
+class InnerRough:
+    """A rough interface between two slabs: Beckmann roughness ``alpha`` > 0, relative index ``eta`` =
+    n_below / n_above (a rise or a fall), by flux-cell integration between the two binders' rules
+    (:func:`flakedb.rt.interface.rough_dielectric`, docs/rough-interfaces.md, docs/model.md §4 "Inner
+    interface").  ``energy_compensation`` (default): lossless, with the multiple-scattering lobe; False:
+    the single-scattering Walter et al. 2007 model.  Placed in ``slabs`` as :class:`InnerSmooth` is."""
+
+    eta: float
+    alpha: float
+    energy_compensation: bool = True
 
 
 @dataclass
@@ -342,7 +351,7 @@ def _n_channels(slabs, bottom):
     """Largest channel count among the media (σ_t at one node) and the primer's albedo."""
     C = 1
     for slab in slabs:
-        if isinstance(slab, InnerSmooth):
+        if isinstance(slab, (InnerSmooth, InnerRough)):
             continue
         C = max(C, np.atleast_2d(slab.medium.sigma_t(np.array([0.5]))).shape[0])
     if bottom is not None:
@@ -396,7 +405,7 @@ def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
     parts, sizes = [], []
     for c0 in range(0, C, group):
         idx = np.arange(c0, min(C, c0 + group))
-        sub_slabs = [sl if isinstance(sl, InnerSmooth) else Slab(sl.thickness_um, channel_subset(sl.medium, idx))
+        sub_slabs = [sl if isinstance(sl, (InnerSmooth, InnerRough)) else Slab(sl.thickness_um, channel_subset(sl.medium, idx))
                      for sl in slabs]
         sub_bottom = None
         if bottom is not None:
@@ -429,6 +438,39 @@ def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
                      Ttb=join("Ttb"), Rb=join("Rb"), Tbt=join("Tbt"), x_in=first.x_in, w_in=first.w_in, info=info)
 
 
+def _binder_chain(top, eta, slabs, q_out, s):
+    """The rules of every binder of the stack (:func:`flakedb.rt.quadrature.binder_chain_quadratures`,
+    docs/model.md §4 "Inner interface"), top to bottom.  Under a smooth top the chain is anchored on the
+    air's rule (the top binder's rule holds its Snell image); under a rough top on the Gauss–Radau rule
+    of the least dense binder (the rough interface joins any two rules); without a top interface the
+    top binder's rule is the air's, so no binder below may be less dense than it."""
+    indices = [eta]
+    for item in slabs:
+        if isinstance(item, (InnerSmooth, InnerRough)):
+            if not (np.isfinite(item.eta) and item.eta > 0):
+                raise ValueError(f"{item!r}: the relative index n_below / n_above must be a positive real number")
+            if isinstance(item, InnerRough) and not (np.isfinite(item.alpha) and item.alpha > 0):
+                raise ValueError(f"{item!r}: the Beckmann roughness alpha must be > 0 (a smooth inner interface "
+                                 f"is InnerSmooth)")
+            indices.append(indices[-1] * float(item.eta))
+    if isinstance(top, Smooth):
+        if min(indices) < 1.0:
+            raise ValueError(
+                f"binder indices {[round(v, 6) for v in indices]} relative to the air: a binder below a smooth "
+                f"top must not be less dense than the air (allowed: every index ≥ 1)")
+        # ``h_tir`` counts the nodes of the top's totally reflected range, the first segment unless a binder
+        # below is less dense than the top one (that range is then split at its index)
+        h_first = s.h_tir if s.h_tir is not None and min(indices) >= indices[0] else None
+        return binder_chain_quadratures(q_out, 1.0, indices, first_segment_nodes=h_first)
+    if top is None and min(indices) < 1.0:
+        raise ValueError(
+            f"binder indices {[round(v, 6) for v in indices]} relative to the index-matched top: without a "
+            f"top interface the output rule is the top binder's, so no binder below may be less dense "
+            f"(allowed: every index ≥ 1; or give the stack a top interface)")
+    n_min = min(indices)
+    return binder_chain_quadratures(radau_hemisphere(s.n // 2), n_min, indices)
+
+
 def _solve_stack(top, slabs, bottom, s):
     if s.n % 2 or s.n < 2:
         raise ValueError(f"the node count n must be even and ≥ 2 (n/2 per hemisphere), got {s.n}")
@@ -437,49 +479,47 @@ def _solve_stack(top, slabs, bottom, s):
     if isinstance(top, Smooth):
         if top.eta == 1.0:
             top = None
-    if isinstance(top, Smooth):
-        h_tir = s.h_tir if s.h_tir is not None else default_tir_nodes(q_out.h, top.eta)
-        q_in = snell_mapped_quadrature(q_out, top.eta, h_tir)
-        eta = top.eta
-    elif isinstance(top, Rough):
-        q_in = q_out
+    if isinstance(top, (Smooth, Rough)):
         eta = top.eta
     elif top is None:
-        q_in = q_out
         eta = 1.0
     else:
         raise TypeError(f"unknown top interface {top!r}")
+    chain = _binder_chain(top, eta, slabs, q_out, s)
+    q_in = chain.rules[0]
 
     # kernels of the slabs projected once (each with its own order count), each on the rule of its
-    # binder: inner interfaces (InnerSmooth) change the rule below them (docs/model.md §4)
+    # binder: inner interfaces (InnerSmooth) separate binders (docs/model.md §4 "Inner interface")
     projected = []
-    q_top_binder = q_in
     eta_binder = eta
+    b = 0  # the binder the next item lies in
     k = 0
     for item in slabs:
-        if isinstance(item, InnerSmooth):
-            if not item.eta >= 1.0:
-                raise ValueError(
-                    f"InnerSmooth(eta={item.eta:g}): an inner interface into a binder of lower index (eta < 1) is not "
-                    f"supported yet: the above rule would have to be split at the critical cosine "
-                    f"{np.sqrt(max(0.0, 1.0 - item.eta**2)):.4g} to conserve energy (docs/model.md §4 \"Inner interface\")")
-            h_tir = default_tir_nodes(q_in.h, item.eta) if item.eta > 1.0 else 0  # TIR nodes below, as at the top
-            q_below, ia, ib = inner_interface_quadrature(q_in, item.eta, h_tir)
-            projected.append(("interface", q_in, q_below, ia, ib, item.eta))
-            q_in = q_below
+        if isinstance(item, (InnerSmooth, InnerRough)):
+            q_a, q_b = chain.rules[b], chain.rules[b + 1]
+            ia, ib = chain.pairs[b]
+            rec = {"eta": float(item.eta), "nodes_above": int(q_a.h), "nodes_below": int(q_b.h)}
+            if isinstance(item, InnerRough):
+                layer, rinfo = itf.rough_dielectric(q_a, q_b, item.eta, item.alpha, tol=s.tol, max_orders=s.order_cap,
+                                                    energy_compensation=item.energy_compensation)
+                projected.append(("rough", layer))
+                rec.update(alpha=float(item.alpha), orders=int(layer.n_orders))
+            else:
+                projected.append(("interface", q_a, q_b, ia, ib, item.eta))
+            b += 1
             eta_binder = eta_binder * item.eta
-            info.setdefault("inner_interfaces", []).append({"eta": float(item.eta), "nodes_below": int(q_in.h)})
+            info.setdefault("inner_interfaces", []).append(rec)
             continue
         slab = item
-        sig = np.atleast_2d(slab.medium.sigma_t(q_in.x))
-        pk, pinfo = project_medium(slab.medium, q_in.x, q_in.w, s.tol, s.order_cap, basis=s.kernel_basis,
+        q = chain.rules[b]
+        sig = np.atleast_2d(slab.medium.sigma_t(q.x))
+        pk, pinfo = project_medium(slab.medium, q.x, q.w, s.tol, s.order_cap, basis=s.kernel_basis,
                                    filter_capped=s.filter_capped_kernels)
-        projected.append((pk, sig, slab.thickness_um, q_in))
+        projected.append((pk, sig, slab.thickness_um, q))
         info[f"slab{k}"] = {"orders": pk.n_orders, **pinfo}
         k += 1
         s.report("projection", layer=k, layers=len(slabs), orders=pk.n_orders)
-    q_bottom = q_in
-    q_in = q_top_binder
+    q_bottom = chain.rules[-1]
 
     top_layer = None
     delta_F = None
@@ -498,7 +538,8 @@ def _solve_stack(top, slabs, bottom, s):
                                         energy_compensation=bottom.energy_compensation)
         L_bottom = Rc.shape[0]
         info["bottom"] = {k: v for k, v in cinfo.items() if k != "albedo"}
-    L = min(max([L_top, L_bottom, 1] + [p[0].n_orders for p in projected if not isinstance(p[0], str)]), s.order_cap)
+    L = min(max([L_top, L_bottom, 1] + [p[0].n_orders for p in projected if not isinstance(p[0], str)]
+                + [p[1].n_orders for p in projected if p[0] == "rough"]), s.order_cap)
     if isinstance(top, Smooth):
         smooth1, delta_F = itf.smooth_dielectric(q_out, q_in, top.eta, 1)
 
@@ -515,6 +556,9 @@ def _solve_stack(top, slabs, bottom, s):
 
     def item_block(item, l0, l1):
         """Layer of orders l0 … l1 − 1 of a slab or an inner interface."""
+        if isinstance(item[0], str) and item[0] == "rough":  # its own orders, zero beyond them
+            lay = item[1]
+            return Layer(*(pad_orders(blk[l0:l1], l1 - l0) for blk in (lay.Rt, lay.Ttb, lay.Rb, lay.Tbt)))
         if isinstance(item[0], str):
             _, q_a, q_b, ia, ib, eta_rel = item
             return itf.smooth_inner(q_a, q_b, ia, ib, eta_rel, l1 - l0)

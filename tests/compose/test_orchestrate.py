@@ -75,6 +75,30 @@ def test_white_furnace_smooth_coat_conservative_scatterers_white_primer(tmp_path
         assert a["albedo_Y"] == pytest.approx(1.0, abs=1e-6)   # spline of the nodal total
 
 
+@pytest.mark.parametrize("roughness", [0, 0.1])
+def test_falling_binder_index_composes_and_conserves_energy(tmp_path, roughness):
+    """A coat 1.6 over basecoats of 1.45 (a fall: a smooth inner interface into the less dense binder,
+    docs/model.md §4 "Inner interface") then 1.55 (a rise): the recipe composes to files end to end, the
+    conservative stack over a white primer returns all its light, and the fall changes the result."""
+    layers = [{"clearcoat": {"thickness_um": 20, "ior": 1.6, "roughness": roughness}},
+              {"basecoat": {"thickness_um": 8, "ior": 1.45, "particles": [HG, WHITE_FLAKE]}},
+              {"basecoat": {"thickness_um": 4, "ior": 1.55, "particles": [HG]}},
+              {"primer": {"albedo": 1.0}}]
+    res = compose(recipe(layers, n=16), tmp_path / "fall")
+    kinds = [c["kind"] for c in res.paint.components]
+    assert kinds.count("inner interface") == 2
+    np.testing.assert_allclose(res.stack.albedo(), 1.0, atol=1e-10)
+    assert sorted(p.name for p in (tmp_path / "fall").iterdir())  # files written
+    layers[1]["basecoat"]["ior"] = 1.6
+    layers[2]["basecoat"]["ior"] = 1.6
+    layers[3] = {"primer": {"albedo": 0.5}}
+    same = compose(recipe(layers, n=16), tmp_path / "same").stack.albedo()
+    layers[1]["basecoat"]["ior"] = 1.45
+    layers[2]["basecoat"]["ior"] = 1.55
+    fall = compose(recipe(layers, n=16), tmp_path / "fall2").stack.albedo()
+    assert np.abs(fall - same).max() > 1e-3
+
+
 def test_custom_flake_optical_depth_is_normal_incidence_extinction():
     r = recipe([{"basecoat": {"thickness_um": 4, "ior": 1.5, "particles": [WHITE_FLAKE]}},
                 {"primer": {"color": "black"}}])

@@ -141,14 +141,11 @@ def test_unknown_species_suggests():
 
 def test_semantic_problems_all_reported():
     d = doc()
-    d["layers"][1]["basecoat"]["ior"] = 1.4                       # a binder less dense than the coat
     d["layers"].append({"clearcoat": {"thickness_um": 10, "ior": 1.5}})   # clear coat not on top
     d["layers"][1]["basecoat"]["particles"][1]["gsd"] = 1.2          # fine (pigment)
     d["layers"][1]["basecoat"]["particles"][0]["gsd"] = 1.2          # pigment-only key on a flake
     probs = problems_of(d)
     j = "\n".join(probs)
-    assert ("layers[1].basecoat.ior: value 1.4 is below layers[0].clearcoat.ior = 1.5; an inner interface into a "
-            "binder of lower index is not supported yet (allowed range: layers[1].basecoat.ior ≥ 1.5") in j
     assert "layers[3].clearcoat: a clear coat must be the first (top) layer" in j
     assert "layers[2].primer: the primer must be the last (bottom) layer" in j
     assert "layers[1].basecoat.particles[0].gsd: 'pearlescent' is a interference_flake; gsd applies to pigments only" in j
@@ -318,7 +315,7 @@ def test_metal_base_parses_and_is_checked():
 
 
 def test_two_binders_map_to_an_inner_interface():
-    """Issue 12 item 3(a): a basecoat denser than the coat above is a smooth inner interface (η_b / η_a),
+    """Issue 12 item 3(a): a basecoat denser (or less dense) than the coat above is a smooth inner interface (η_b / η_a),
     equal indices add none; the paint composes and stays passive."""
     d = doc()
     d["layers"][1]["basecoat"]["ior"] = 1.6
@@ -331,6 +328,15 @@ def test_two_binders_map_to_an_inner_interface():
     d["layers"][2] = {"primer": {"color": "white"}}
     A = solve_paint(build_paint(parse_recipe(yaml.safe_dump(d))), 16).albedo()
     assert A.max() <= 1.0 and A.min() > 0
+    d["layers"][1]["basecoat"]["ior"] = 1.4  # a fall into a less dense binder: also a smooth inner interface
+    paint = build_paint(parse_recipe(yaml.safe_dump(d)))
+    inner = [s for s in paint.slabs if isinstance(s, InnerSmooth)]
+    assert len(inner) == 1 and inner[0].eta == pytest.approx(1.4 / 1.5)
+    d["layers"][2] = {"primer": {"albedo": 1.0}}
+    d["layers"][1]["basecoat"]["particles"] = [{"custom": {"kind": "medium", "albedo": 1.0, "phase": {"hg": 0.5}},
+                                                "optical_depth": 1.0}]
+    A = solve_paint(build_paint(parse_recipe(yaml.safe_dump(d))), 16).albedo()
+    assert np.abs(A - 1.0).max() < 1e-10
     d["layers"][0]["clearcoat"]["ior"] = 1.0
     d["layers"][1]["basecoat"]["ior"] = 1.5
     assert any("an inner interface needs a binder above it" in p for p in problems_of(d))

@@ -18,7 +18,7 @@ from flakedb.bsdf import table_evaluator
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.rt import microfacet as mf
 from flakedb.rt.media import PhaseMedium
-from flakedb.rt.stack import InnerSmooth, Lambertian, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.stack import InnerRough, InnerSmooth, Lambertian, Slab, Smooth, SolverSettings, solve_stack
 from tests.cases import C_GRID, FAST, N_PATHS, angle_dependent_flake  # noqa: E402,F401
 from tests.cases import case as _case  # noqa: E402
 
@@ -70,23 +70,27 @@ def test_binned_reflectance_matches_monte_carlo(name):
     assert np.all(np.abs(pred - ref) <= tol), (name, pred, ref, se)
 
 
-@pytest.mark.slow
-def test_inner_interface_matches_monte_carlo():
-    """Issue 12 item 3(a): smooth coat 1.5 | inner smooth interface 1.5 → 1.6 | HG slab (g 0.7, ϖ 0.9,
-    τ 1) in the 1.6 binder | diffuse 0.5, n = 64.  The Monte Carlo's inner interface is its own
-    (Fresnel / Snell per path, flakedb/reference/kernels.py), not the solver's node map.  Albedo within
-    3σ + 0.5 % at three incidences (measured ≤ 0.07 of that), binned reflectance at θ_i ≈ 45° within
-    3σ + 2 % of the total per bin."""
+def _inner_interface_vs_monte_carlo(eta_coat, eta_base, inner=None):
+    """Smooth coat η_coat | inner interface η_coat → η_base | HG slab (g 0.7, ϖ 0.9, τ 1) in the η_base binder
+    | diffuse 0.5, n = 64.  Albedo within 3σ + 0.5 % at three incidences, binned reflectance at θ_i ≈ 45°
+    within 3σ + 2 % of the total per bin (flux per (μ cell, φ) bin of the solver's own cells).  ``inner``:
+    the solver's inner interface (default InnerSmooth); an InnerRough's α is given to the Monte Carlo's
+    own rough interface (its single-scattering model: the solver's must be without compensation)."""
     med = PhaseMedium(np.array([0.1]), np.array([0.9]), ("hg", 0.7))
-    r = solve_stack(Smooth(1.5), [InnerSmooth(1.6 / 1.5), Slab(10.0, med)], Lambertian(0.5), SolverSettings.product(64))
-    prob = mc.Problem((mc.Slab(1.0, (), eta=1.5),
-                       mc.Slab(10.0, (mc.PhaseMedium(0.1, 0.9, mc.HenyeyGreenstein(0.7)),), eta=1.6)),
-                      top=mc.Smooth(1.5), bottom=mc.Lambertian(0.5))
+    inner = InnerSmooth(eta_base / eta_coat) if inner is None else inner
+    r = solve_stack(Smooth(eta_coat), [inner, Slab(10.0, med)], Lambertian(0.5), SolverSettings.product(64))
+    prob = mc.Problem((mc.Slab(1.0, (), eta=eta_coat),
+                       mc.Slab(10.0, (mc.PhaseMedium(0.1, 0.9, mc.HenyeyGreenstein(0.7)),), eta=eta_base,
+                               alpha=float(getattr(inner, "alpha", 0.0)))),
+                      top=mc.Smooth(eta_coat), bottom=mc.Lambertian(0.5))
     A = r.albedo(include_delta=False)[0]
+    rows = []
     for j, frac in enumerate((1.0, 0.7, 0.35)):
         k = int(np.argmin(np.abs(r.x - frac)))
         res = mc.simulate(prob, float(r.x[k]), 200_000, seed=21 + j)
-        assert abs(A[k] - res.diffuse_albedo[0]) <= 3 * res.albedo_se[0] + 0.005 * res.diffuse_albedo[0]
+        tol = 3 * res.albedo_se[0] + 0.005 * res.diffuse_albedo[0]
+        rows.append((float(r.x[k]), A[k], res.diffuse_albedo[0], tol))
+        assert abs(A[k] - res.diffuse_albedo[0]) <= tol, rows[-1]
     k = int(np.argmin(np.abs(r.x - 0.7)))
     C = mf.flux_cell_edges(r.x, r.w)
     idx = sorted({int(np.argmin(np.abs(C - v))) for v in (0.0, 0.3, 0.55, 0.68, 0.74, 0.85, 1.0)})
@@ -106,6 +110,32 @@ def test_inner_interface_matches_monte_carlo():
     ref, se = res.reflectance_binned[0] * omega, res.reflectance_binned_se[0] * omega  # flux per bin (±φ)
     pred = 2.0 * flux
     assert np.all(np.abs(pred - ref) <= 3 * se + 0.02 * ref.sum()), (pred, ref, se)
+    return rows, np.abs(pred - ref).max() / ref.sum()
+
+
+@pytest.mark.slow
+def test_inner_interface_matches_monte_carlo():
+    """Issue 12 item 3(a): smooth coat 1.5 | inner smooth interface 1.5 → 1.6 (a rise) | HG slab | diffuse.
+    The Monte Carlo's inner interface is its own (Fresnel / Snell per path, flakedb/reference/kernels.py),
+    not the solver's node map.  Measured: albedo within 0.07 of the tolerance."""
+    _inner_interface_vs_monte_carlo(1.5, 1.6)
+
+
+@pytest.mark.slow
+def test_inner_interface_fall_matches_monte_carlo():
+    """Issue 12 item 3(a), a fall: smooth coat 1.6 | inner smooth interface 1.6 → 1.45 | HG slab | diffuse.
+    Measured: albedo differences 0.08, 0.17, 0.02 of the tolerance (3σ + 0.5 %) at μ ≈ 1, 0.7, 0.35."""
+    _inner_interface_vs_monte_carlo(1.6, 1.45)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("eta_coat,eta_base,alpha", [(1.6, 1.45, 0.2), (1.5, 1.6, 0.2), (1.6, 1.45, 0.05)])
+def test_rough_inner_interface_matches_monte_carlo(eta_coat, eta_base, alpha):
+    """A rough inner interface (Beckmann α, single scattering on both sides: the Monte Carlo samples its own
+    microfacet normals, flakedb/reference/kernels.py _rough_interface) for a fall and a rise.  Measured:
+    albedo differences ≤ 0.23 of the tolerance (3σ + 0.5 %), bins ≤ 0.13 % of the total."""
+    _inner_interface_vs_monte_carlo(eta_coat, eta_base, inner=InnerRough(eta_base / eta_coat, alpha,
+                                                                         energy_compensation=False))
 
 
 def _vmf_case(kappa):

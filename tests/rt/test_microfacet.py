@@ -20,7 +20,7 @@ from scipy.special import roots_legendre
 import flakedb.reference.montecarlo as mc
 from flakedb.conventions import fourier_weight
 from flakedb.rt import microfacet as mf
-from flakedb.rt.quadrature import radau_hemisphere
+from flakedb.rt.quadrature import binder_chain_quadratures, radau_hemisphere
 from flakedb.rt.stack import Lambertian, Rough, RoughConductor, Smooth, SolverSettings, solve_stack
 
 ETA = 1.5
@@ -280,3 +280,27 @@ def test_jackson_factors_give_a_positive_kernel():
     phi = np.linspace(0.0, np.pi, 2001)
     K = 1.0 + 2.0 * np.cos(np.arange(1, 40)[:, None] * phi[None, :]).T @ g[1:]
     assert K.min() >= -1e-12 * K.max()
+
+
+@pytest.mark.parametrize("eta", [1.45 / 1.6, 1.6 / 1.45, 1.5])
+def test_rough_dielectric_between_two_rules_is_lossless_and_reciprocal(eta):
+    """The cells between two different rules (an inner interface: the binders' rules of
+    flakedb.rt.quadrature.binder_chain_quadratures): with the compensation lobe every column of order 0 carries
+    exactly 1 from either side (flux, η² across), T^bt is T^tb's reciprocal, R^t and R^b are symmetric in f;
+    with one rule passed twice the result is the one-rule interface."""
+    c = binder_chain_quadratures(radau_hemisphere(12), 1.0, [1.6, 1.6 * eta])
+    qa, qb = c.rules
+    (Rt, Ttb, Rb, Tbt), _ = mf.rough_dielectric_cells(qa.x, qa.w, eta, 0.2, x_below=qb.x, w_below=qb.w)
+    ma, mb = qa.w * qa.x, qb.w * qb.x
+    from_above = (Rt[0, 0].T @ ma + eta**2 * (Ttb[0, 0].T @ mb)) / ma
+    from_below = (Rb[0, 0].T @ mb + (Tbt[0, 0].T @ ma) / eta**2) / mb
+    assert np.abs(from_above - 1.0).max() < 1e-12 and np.abs(from_below - 1.0).max() < 1e-12
+    fa, fb = Rt / ma[None, None, None, :], Rb / mb[None, None, None, :]
+    assert np.allclose(fa, np.swapaxes(fa, -1, -2), atol=1e-12 * np.abs(fa).max())
+    assert np.allclose(fb, np.swapaxes(fb, -1, -2), atol=1e-12 * np.abs(fb).max())
+    ftb, fbt = Ttb / ma[None, None, None, :], Tbt / mb[None, None, None, :]
+    assert np.allclose(fbt, eta**2 * np.swapaxes(ftb, -1, -2), atol=1e-12 * np.abs(fbt).max())
+    one, _ = mf.rough_dielectric_cells(qa.x, qa.w, eta, 0.2)
+    two, _ = mf.rough_dielectric_cells(qa.x, qa.w, eta, 0.2, x_below=qa.x, w_below=qa.w)
+    for a, b in zip(one, two):
+        assert np.abs(a - b).max() <= 1e-12 * np.abs(a).max()
