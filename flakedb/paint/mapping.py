@@ -129,7 +129,7 @@ from flakedb.paint.species import flake_reflectance_transmittance, pigment_optic
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, vmf_mean_cosine
 from flakedb.rt.microflake import FlakeOptics, extinction_Ergun
-from flakedb.rt.stack import InnerSmooth, Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.stack import InnerRough, InnerSmooth, Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings, solve_stack
 from flakedb.rt.stored import StoredMixture, StoredPigmentMedium
 
 #: Flake-cosine grid: start from FLAKE_C_START nodes c = cos θ, θ uniform on [0°, 90°], and bisect
@@ -576,10 +576,11 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
 
     n_above = eta  # the binder index above the next basecoat (the top binder's)
     for b in recipe.basecoats:
-        if b.ior != n_above:  # a change of the binder index (a rise or a fall): a smooth inner interface
-            slabs.append(InnerSmooth(b.ior / n_above))
+        if b.ior != n_above:  # a change of the binder index (a rise or a fall): an inner interface
+            a_in = float(b.interface_roughness)
+            slabs.append(InnerRough(b.ior / n_above, a_in) if a_in > 0 else InnerSmooth(b.ior / n_above))
             components.append({"path": b.path, "kind": "inner interface", "eta_above": n_above, "eta_below": b.ior,
-                               "relative_index": b.ior / n_above})
+                               "relative_index": b.ior / n_above, "roughness": a_in})
             n_above = b.ior
         meds = []
         for p in b.particles:
@@ -723,6 +724,10 @@ def auto_resolution(recipe) -> tuple[int, str]:
     cc = recipe.clearcoat
     if cc is not None and cc.roughness > 0:
         add(COAT_LOBE_ERROR, t_lobe, float(cc.roughness), f"rough coat α = {cc.roughness:g}", "lobe_error")
+    for b in recipe.basecoats:  # a rough inner interface: the coat's measured lobe envelope (not measured for it)
+        if b.interface_roughness > 0:
+            add(COAT_LOBE_ERROR, t_lobe, float(b.interface_roughness),
+                f"rough inner interface α = {b.interface_roughness:g} (the rough coat's envelope)", "lobe_error")
     flakes = False
     for _, p in recipe.particles():
         a = None

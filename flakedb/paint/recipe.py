@@ -173,6 +173,8 @@ class Basecoat:
     ior: float
     particles: list = field(default_factory=list)
     path: str = ""
+    #: Beckmann α of the inner interface at this basecoat's top (0: smooth; only where the ior changes)
+    interface_roughness: float = 0.0
 
 
 @dataclass
@@ -508,6 +510,21 @@ def _binder_index_problems(layers, kinds) -> list[str]:
     return problems
 
 
+def _interface_roughness_warnings(layers, kinds) -> list[str]:
+    """A basecoat's ``interface_roughness`` acts only where its ior differs from the binder above."""
+    out = []
+    above = None
+    for i, k in enumerate(kinds):
+        if k in ("primer", "metal"):
+            continue
+        ior = float(layers[i][k]["ior"])
+        if k == "basecoat" and float(layers[i][k].get("interface_roughness", 0.0)) > 0 and (above is None or ior == above):
+            out.append(f"layers[{i}].basecoat.interface_roughness: ignored, the basecoat's ior {ior:g} equals the "
+                       f"binder's above it (no inner interface there)")
+        above = ior
+    return out
+
+
 def _clearcoat_checks(base, L, mode, grid):
     """(problems, warnings, Clearcoat) of a clearcoat layer ``L``."""
     problems, warnings = [], []
@@ -655,7 +672,10 @@ def _packing_checks(base, particles):
 def _basecoat_checks(base, L, mode, grid, allsp):
     """(problems, warnings, Basecoat): every particle checked, then the packing of the layer."""
     problems, warnings = [], []
-    bc = Basecoat(float(L["thickness_um"]), float(L["ior"]), [], base)
+    bc = Basecoat(float(L["thickness_um"]), float(L["ior"]), [], base, float(L.get("interface_roughness", 0.0)))
+    if 0.0 < bc.interface_roughness < 0.01:
+        problems.append(f"{base}.interface_roughness: value {bc.interface_roughness:g} is outside the allowed range "
+                        f"0 (smooth) or 0.01-1 (Beckmann α; hint: write 0 for a smooth interface)")
     catalogued = []
     for j, P in enumerate(L["particles"]):
         pp = f"{base}.particles[{j}]"
@@ -785,6 +805,7 @@ def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
         warnings += w
 
     problems += _stack_problems(clear, basecoats, primer, metal)
+    warnings += _interface_roughness_warnings(layers, kinds)
     parts = {"mode": mode, "grid": grid, "clearcoat": clear, "basecoats": basecoats, "primer": primer,
              "metal": metal}
     return problems, warnings, parts

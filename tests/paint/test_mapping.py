@@ -18,7 +18,8 @@ from flakedb.paint.mapping import auto_resolution, build_paint, metal_index_rgb,
 from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import parse_recipe
 from flakedb.rt import microfacet as mf
-from flakedb.rt.stack import RoughConductor
+from flakedb.paint.recipe import RecipeError
+from flakedb.rt.stack import InnerRough, InnerSmooth, RoughConductor
 
 
 def _recipe(alpha, slab=True, primer=0.5):
@@ -204,3 +205,45 @@ def test_auto_resolution_resolves_the_vmf_lobe():
     assert "vMF lobe κ = 400" in why and n >= 2 * 1.7 * np.sqrt(400)
     n0, why0 = auto_resolution(_medium_recipe(0.9, {"vmf": {"kappa": 1}}))
     assert n0 == 32 and "vMF" not in why0
+
+
+def _inner_recipe(roughness, ior_below=1.45, extra=""):
+    return parse_recipe(f"""flakedb: 1
+name: inner
+spectral: {{mode: mono}}
+resolution: auto
+layers:
+  - clearcoat: {{thickness_um: 40, ior: 1.6, roughness: 0}}
+  - basecoat:
+      thickness_um: 10
+      ior: {ior_below}
+      interface_roughness: {roughness}{extra}
+      particles:
+        - custom: {{kind: medium, albedo: 1.0, phase: {{hg: 0.7}}}}
+          optical_depth: 1.0
+  - primer: {{albedo: 1.0}}
+""")
+
+
+def test_recipe_rough_inner_interface_is_lossless_and_differs_from_smooth():
+    """`interface_roughness` on a basecoat whose ior falls below the coat's maps to InnerRough; a
+    lossless stack (albedo-1 medium, white primer) keeps |1 − albedo| ≤ 1e-3 for θ_i ≤ 80° at `auto`,
+    and the roughness changes the BSDF (the field is not ignored)."""
+    rough, smooth = _inner_recipe(0.2), _inner_recipe(0.0)
+    assert any(isinstance(s, InnerRough) and s.alpha == 0.2 for s in build_paint(rough).slabs)
+    assert any(isinstance(s, InnerSmooth) for s in build_paint(smooth).slabs)
+    n, _ = auto_resolution(rough)
+    n_narrow, reason = auto_resolution(_inner_recipe(0.03))
+    assert "rough inner interface" in reason and n_narrow > auto_resolution(smooth)[0]
+    st = solve_paint(build_paint(rough), n)
+    keep = st.x >= np.cos(np.radians(80.0))
+    assert np.abs(st.albedo()[0][keep] - 1.0).max() <= 1e-3
+    ss = solve_paint(build_paint(smooth), n)
+    assert np.abs(st.Rt[0] - ss.Rt[0]).max() > 1e-3 * np.abs(ss.Rt[0]).max()
+
+
+def test_recipe_interface_roughness_checks():
+    with pytest.raises(RecipeError, match=r"interface_roughness: value 0.005 is outside the allowed range"):
+        _inner_recipe(0.005)
+    same = _inner_recipe(0.2, ior_below=1.6)
+    assert any("interface_roughness: ignored" in w for w in same.warnings)
