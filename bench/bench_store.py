@@ -32,7 +32,7 @@ CHANNELS = 16
 BUCKETS = {
     "projection": ("project_kernel_basis",),
     "contraction": ("raw_blocks", "LegendreKernel.blocks"),
-    "doubling": ("double_symmetric", "thin_slab_diamond"),
+    "doubling": ("double_symmetric", "thin_slab_diamond", "eigen_slab"),  # homogeneous slabs (eigen or doubling)
     "adding": ("reflection_over", "reflection_under_smooth", "add_reflection_only"),
     "io": ("read",),
 }

@@ -219,6 +219,16 @@ def test_rough_coat_matches_monte_carlo(alpha, n):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("alpha", [0.02, 0.05, 0.1, 0.3])
+@pytest.mark.parametrize("primer", [0.9, 0.18])
+def test_rough_coat_over_white_and_gray_primers_matches_monte_carlo(alpha, primer):
+    """Issue #12 item 4: rough coats α ∈ {0.02, 0.05, 0.1, 0.3} over a white (0.9) and a gray (0.18)
+    primer, n = 64: directional albedo within 3σ + 0.5 % of the independent Monte Carlo at three
+    incidences (μ ≈ 1, 0.7, 0.35)."""
+    _mc_case(alpha, 64, Lambertian(primer), mc.Lambertian(primer), seed=1300 + int(1000 * alpha))
+
+
+@pytest.mark.slow
 def test_rough_conductor_base_matches_monte_carlo():
     N = np.array([0.27 + 3.4j, 1.3 + 7.0j])  # per-channel metal indices (gold-like, aluminium-like)
     _mc_case(0.05, 48, RoughConductor(N, 0.2), mc.RoughConductor(N, 0.2), seed=900)

@@ -12,6 +12,7 @@ import pytest
 from scipy.integrate import quad
 from scipy.special import ive
 
+import flakedb.rt.stack as stk
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.rt.fourier import cosine_coefficients, phi_samples, project_azimuthal
@@ -511,3 +512,29 @@ def test_rough_inner_interface_refuses_zero_roughness():
     with pytest.raises(ValueError, match="alpha must be > 0"):
         solve_stack(Smooth(1.5), [Slab(1.0, _hg(0.5)), InnerRough(0.9, 0.0), Slab(1.0, _hg(0.5))], Lambertian(0.5),
                     SolverSettings(n=16))
+
+
+def test_channel_groups_reuse_one_projection(monkeypatch):
+    """Channel groups (memory budget) solve exactly what one group solves, and the kernel is projected
+    once for all channels, not once per group (it was: 32 s against 2 s for 16 groups at n = 100)."""
+
+
+    med = Mixture([FlakeMedium(0.3, FlakeOptics.constant(np.linspace(0.5, 0.8, 6), np.zeros(6)), 0.5),
+                   PhaseMedium(np.full(6, 1.0), np.linspace(0.4, 0.9, 6), ("hg", 0.5))])
+    calls = []
+    real = stk.project_medium
+
+    def counting(medium, *a, **k):
+        calls.append(medium)
+        return real(medium, *a, **k)
+
+    monkeypatch.setattr(stk, "project_medium", counting)
+    one = solve_stack(Smooth(1.5), [Slab(5.0, med)], Lambertian(0.5), SolverSettings.product(24))
+    n_one = len(calls)
+    calls.clear()
+    grouped = solve_stack(Smooth(1.5), [Slab(5.0, med)], Lambertian(0.5),
+                          SolverSettings.product(24, memory_budget_bytes=1.0))  # one channel per group
+    assert len(grouped.info["channel_groups"]) == 6
+    assert len(calls) == n_one  # projected once, not 6 times
+    L = min(one.Rt.shape[0], grouped.Rt.shape[0])
+    assert np.abs(grouped.Rt[:L] - one.Rt[:L]).max() <= 1e-12 * np.abs(one.Rt).max()
