@@ -61,8 +61,11 @@ def main():
     def write():  # after every benchmark, so an interrupted run keeps what it measured
         from flakedb.atomic import atomic_write_text
 
+        latest = {r["name"]: r for r in results}  # a benchmark measured in this run replaces a merged one
+        kept = [latest[r["name"]] for i, r in enumerate(results) if r["name"] not in
+                {q["name"] for q in results[:i]}]
         doc = {"created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "machine": _machine(),
-               "versions": _versions(), "benchmarks": results}
+               "versions": _versions(), "benchmarks": kept}
         atomic_write_text(out, json.dumps(doc, indent=2))
 
     for path in sorted(here.glob("bench_*.py")):
