@@ -11,13 +11,13 @@ import numpy as np
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.options import RAW_HELP, check_node_count
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
-from flakedb.match.fit import predict
+from flakedb.compose.store_context import StoreContext
 from flakedb.match.cxf import load_target
+from flakedb.match.fit import predict, resolution
 from flakedb.match.targets import GEOMETRY_SETS, TargetError, write_target
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
-from flakedb.store import versions as st
 from flakedb.store.versions import StoreError
 
 
@@ -36,15 +36,17 @@ def parse_limits(items):
     return out
 
 
-def open_store(store, recipe, verify=True):
-    """An open store version when ``store`` is given and the recipe has catalogue species, else None."""
-    if store is None:
+def open_store(store, recipe, n=None, raw=False, verify=True):
+    """The store version serving ``recipe`` at its node count (``n`` or the recipe's own) when ``store``
+    is given and the recipe has catalogue species, else None: the newest complete version that serves
+    it (``StoreContext.open_for_recipe``, as compose), with the files the recipe reads verified (V's
+    order chunks as they are read)."""
+    if store is None or not catalog_species(recipe):
         return None
-
-    if not catalog_species(recipe):
-        return None
-
-    return st.open_version(str(store), verify=verify)
+    ctx = StoreContext.open_for_recipe(str(store), recipe, resolution(recipe, n), raw)
+    if verify:
+        ctx.version.verify(ctx.prefixes(recipe))
+    return ctx.version
 
 
 @click.command()
@@ -85,7 +87,7 @@ def compare(recipe, target_path, cxf_object, observer, illuminant, mi_illuminant
         catalog = load_catalog(catalog_path)
         rec = load_recipe(recipe, catalog)
         target = load_target(target_path, observer, illuminant, cxf_object) if target_path else None
-        version = open_store(store, rec)
+        version = open_store(store, rec, n, raw)
     except (RecipeError, CatalogError, TargetError, StoreError) as exc:
         raise FlakedbError(str(exc)) from exc
     obs = observer or (target.observer if target else "2")

@@ -65,7 +65,7 @@ def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights,
         check_output_dir(out_dir)
         params = cm.find_fit_parameters(doc, base)
         rec0 = cm.recipe_from_doc(cm.substitute(doc, params, [p.start for p in params]), base, catalog)
-        version = open_store(store, rec0)
+        version = open_store(store, rec0, n, raw)
     except (RecipeError, CatalogError, TargetError, OutputError, StoreError) as exc:
         raise FlakedbError(str(exc)) from exc
     w = np.ones(len(target.geometries))

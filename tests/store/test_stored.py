@@ -343,6 +343,11 @@ def test_compose_finds_the_version_that_serves_the_recipe(tiny, tmp_path):
     assert open_bsdf(tmp_path / "p" / "p.h5").metadata["store_version"] == res2["version"]
     with pytest.raises(st.StoreError, match="is not in the store"):
         compose(parse_recipe(_recipe("gray-mirror", name="g")), tmp_path / "g", store=url)
+    # compare (and match, through the same open_store) find the serving version too
+    rp = tmp_path / "f.yaml"
+    rp.write_text(_recipe(FLAKE, name="f"))
+    r = CliRunner().invoke(cli, ["compare", str(rp), "--store", url, "--write-csv", str(tmp_path / "p.csv")])
+    assert r.exit_code == 0, r.output
 
 
 def test_cli_compose_build_missing_adds_a_version_once(tiny, tmp_path):
