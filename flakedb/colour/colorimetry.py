@@ -291,38 +291,51 @@ def _XYZ_to_Lab_colour_science(XYZ, white):
     return np.asarray(colour.XYZ_to_Lab(XYZ, xy), dtype=float)
 
 
+def ciede2000_terms(lab_ref, lab_sample):
+    """(ΔL'/S_L, ΔC'/S_C, ΔH'/S_H, R_T) of CIEDE2000 (Sharma et al. 2005, eqs. 1–22), k = 1.
+
+    Arrays (..., 3) broadcast; returns four arrays of the broadcast leading shape.
+    """
+    r = np.asarray(lab_ref, float)
+    s = np.asarray(lab_sample, float)
+    L1, a1, b1 = r[..., 0], r[..., 1], r[..., 2]
+    L2, a2, b2 = s[..., 0], s[..., 1], s[..., 2]
+    Cbar = 0.5 * (np.hypot(a1, b1) + np.hypot(a2, b2))
+    c7 = Cbar**7
+    G = 0.5 * (1.0 - np.sqrt(c7 / (c7 + 25.0**7)))                      # eq. 4
+    a1p, a2p = (1.0 + G) * a1, (1.0 + G) * a2                            # eq. 5
+    C1p, C2p = np.hypot(a1p, b1), np.hypot(a2p, b2)                      # eq. 6
+    h1p = np.where((a1p == 0) & (b1 == 0), 0.0, np.degrees(np.arctan2(b1, a1p)) % 360.0)   # eq. 7
+    h2p = np.where((a2p == 0) & (b2 == 0), 0.0, np.degrees(np.arctan2(b2, a2p)) % 360.0)
+    dLp = L2 - L1                                                        # eq. 8
+    dCp = C2p - C1p                                                      # eq. 9
+    prod = C1p * C2p
+    dh = h2p - h1p
+    dhp = np.where(prod == 0, 0.0, np.where(dh > 180.0, dh - 360.0, np.where(dh < -180.0, dh + 360.0, dh)))  # eq. 10
+    dHp = 2.0 * np.sqrt(prod) * np.sin(np.radians(dhp) / 2.0)            # eq. 11
+    Lbp = 0.5 * (L1 + L2)                                                # eq. 12
+    Cbp = 0.5 * (C1p + C2p)                                              # eq. 13
+    hs = h1p + h2p
+    hbp = np.where(prod == 0, hs,
+                   np.where(np.abs(h1p - h2p) <= 180.0, 0.5 * hs,
+                            np.where(hs < 360.0, 0.5 * (hs + 360.0), 0.5 * (hs - 360.0))))   # eq. 14
+    T = (1.0 - 0.17 * np.cos(np.radians(hbp - 30.0)) + 0.24 * np.cos(np.radians(2.0 * hbp))
+         + 0.32 * np.cos(np.radians(3.0 * hbp + 6.0)) - 0.20 * np.cos(np.radians(4.0 * hbp - 63.0)))  # eq. 15
+    dtheta = 30.0 * np.exp(-(((hbp - 275.0) / 25.0) ** 2))              # eq. 16
+    c7p = Cbp**7
+    RC = 2.0 * np.sqrt(c7p / (c7p + 25.0**7))                            # eq. 17
+    SL = 1.0 + 0.015 * (Lbp - 50.0) ** 2 / np.sqrt(20.0 + (Lbp - 50.0) ** 2)   # eq. 18
+    SC = 1.0 + 0.045 * Cbp                                               # eq. 19
+    SH = 1.0 + 0.015 * Cbp * T                                           # eq. 20
+    RT = -np.sin(np.radians(2.0 * dtheta)) * RC                          # eq. 21
+    return dLp / SL, dCp / SC, dHp / SH, RT
+
+
 def delta_E_2000(lab1, lab2) -> np.ndarray:
-    """CIEDE2000 colour difference (Sharma, Wu & Dalal 2005, Color Res. Appl. 30, 21, eqs. 1-22;
-    CIE 142-2001), k_L = k_C = k_H = 1, arrays (..., 3) broadcast."""
-    L1, a1, b1 = np.moveaxis(np.asarray(lab1, float), -1, 0)
-    L2, a2, b2 = np.moveaxis(np.asarray(lab2, float), -1, 0)
-    C7 = ((np.hypot(a1, b1) + np.hypot(a2, b2)) / 2.0) ** 7
-    G = 0.5 * (1.0 - np.sqrt(C7 / (C7 + 25.0 ** 7)))                          # eq. 3
-    ap1, ap2 = (1.0 + G) * a1, (1.0 + G) * a2                                # eq. 4
-    Cp1, Cp2 = np.hypot(ap1, b1), np.hypot(ap2, b2)                          # eq. 5
-    hp1 = np.where((b1 == 0) & (ap1 == 0), 0.0, np.degrees(np.arctan2(b1, ap1)) % 360.0)   # eq. 6
-    hp2 = np.where((b2 == 0) & (ap2 == 0), 0.0, np.degrees(np.arctan2(b2, ap2)) % 360.0)
-    CC = Cp1 * Cp2
-    d = hp2 - hp1
-    dhp = np.where(CC == 0, 0.0, np.where(d > 180.0, d - 360.0, np.where(d < -180.0, d + 360.0, d)))  # eq. 10
-    dLp, dCp = L2 - L1, Cp2 - Cp1                                            # eqs. 8, 9
-    dHp = 2.0 * np.sqrt(CC) * np.sin(np.radians(dhp / 2.0))                  # eq. 11
-    Lb, Cb = (L1 + L2) / 2.0, (Cp1 + Cp2) / 2.0                              # eqs. 12, 13
-    hs = hp1 + hp2
-    hb = np.where(CC == 0, hs, np.where(np.abs(hp1 - hp2) <= 180.0, hs / 2.0,
-                                        np.where(hs < 360.0, (hs + 360.0) / 2.0, (hs - 360.0) / 2.0)))  # eq. 14
-    T = (1.0 - 0.17 * np.cos(np.radians(hb - 30.0)) + 0.24 * np.cos(np.radians(2.0 * hb))
-         + 0.32 * np.cos(np.radians(3.0 * hb + 6.0)) - 0.20 * np.cos(np.radians(4.0 * hb - 63.0)))  # eq. 15
-    dtheta = 30.0 * np.exp(-(((hb - 275.0) / 25.0) ** 2))                    # eq. 16
-    Cb7 = Cb ** 7
-    RC = 2.0 * np.sqrt(Cb7 / (Cb7 + 25.0 ** 7))                              # eq. 17
-    L50 = (Lb - 50.0) ** 2
-    SL = 1.0 + 0.015 * L50 / np.sqrt(20.0 + L50)                             # eq. 18
-    SC = 1.0 + 0.045 * Cb                                                    # eq. 19
-    SH = 1.0 + 0.015 * Cb * T                                                # eq. 20
-    RT = -np.sin(np.radians(2.0 * dtheta)) * RC                              # eq. 21
-    tL, tC, tH = dLp / SL, dCp / SC, dHp / SH
-    return np.asarray(np.sqrt(tL * tL + tC * tC + tH * tH + RT * tC * tH))   # eq. 22
+    """CIEDE2000 colour difference (Sharma, Wu & Dalal 2005, Color Res. Appl. 30, 21, eq. 22;
+    CIE 142-2001), k_L = k_C = k_H = 1, arrays (..., 3) broadcast (terms: :func:`ciede2000_terms`)."""
+    tL, tC, tH, RT = ciede2000_terms(lab1, lab2)
+    return np.asarray(np.sqrt(tL * tL + tC * tC + tH * tH + RT * tC * tH))
 
 
 def spectra_to_rgb_matrix(wavelength_nm, illuminant: str = "D65") -> np.ndarray:

@@ -35,7 +35,7 @@ import numpy as np
 
 from flakedb.colour import colorimetry
 from flakedb.colour.cie_tables import ILLUMINANT_DOMAIN_NM
-from flakedb.colour.colorimetry import XYZ_to_Lab
+from flakedb.colour.colorimetry import XYZ_to_Lab, ciede2000_terms
 
 #: Observer names accepted → colour-science's colour matching functions.
 OBSERVERS = {"2": "CIE 1931 2 Degree Standard Observer", "10": "CIE 1964 10 Degree Standard Observer"}
@@ -122,46 +122,6 @@ def lab_differences(lab_ref, lab_sample) -> dict:
         "dE_ab": np.sqrt(np.sum(d * d, axis=-1)),
         "dE00": delta_E_2000(r, s), "C_ref": C1, "h_ref_deg": np.degrees(h1) % 360.0,
     }
-
-
-def ciede2000_terms(lab_ref, lab_sample):
-    """(ΔL'/S_L, ΔC'/S_C, ΔH'/S_H, R_T) of CIEDE2000 (Sharma et al. 2005, eqs. 1–22), k = 1.
-
-    Arrays (..., 3) broadcast; returns four arrays of the broadcast leading shape.
-    """
-    r = np.asarray(lab_ref, float)
-    s = np.asarray(lab_sample, float)
-    L1, a1, b1 = r[..., 0], r[..., 1], r[..., 2]
-    L2, a2, b2 = s[..., 0], s[..., 1], s[..., 2]
-    Cbar = 0.5 * (np.hypot(a1, b1) + np.hypot(a2, b2))
-    c7 = Cbar**7
-    G = 0.5 * (1.0 - np.sqrt(c7 / (c7 + 25.0**7)))                      # eq. 4
-    a1p, a2p = (1.0 + G) * a1, (1.0 + G) * a2                            # eq. 5
-    C1p, C2p = np.hypot(a1p, b1), np.hypot(a2p, b2)                      # eq. 6
-    h1p = np.where((a1p == 0) & (b1 == 0), 0.0, np.degrees(np.arctan2(b1, a1p)) % 360.0)   # eq. 7
-    h2p = np.where((a2p == 0) & (b2 == 0), 0.0, np.degrees(np.arctan2(b2, a2p)) % 360.0)
-    dLp = L2 - L1                                                        # eq. 8
-    dCp = C2p - C1p                                                      # eq. 9
-    prod = C1p * C2p
-    dh = h2p - h1p
-    dhp = np.where(prod == 0, 0.0, np.where(dh > 180.0, dh - 360.0, np.where(dh < -180.0, dh + 360.0, dh)))  # eq. 10
-    dHp = 2.0 * np.sqrt(prod) * np.sin(np.radians(dhp) / 2.0)            # eq. 11
-    Lbp = 0.5 * (L1 + L2)                                                # eq. 12
-    Cbp = 0.5 * (C1p + C2p)                                              # eq. 13
-    hs = h1p + h2p
-    hbp = np.where(prod == 0, hs,
-                   np.where(np.abs(h1p - h2p) <= 180.0, 0.5 * hs,
-                            np.where(hs < 360.0, 0.5 * (hs + 360.0), 0.5 * (hs - 360.0))))   # eq. 14
-    T = (1.0 - 0.17 * np.cos(np.radians(hbp - 30.0)) + 0.24 * np.cos(np.radians(2.0 * hbp))
-         + 0.32 * np.cos(np.radians(3.0 * hbp + 6.0)) - 0.20 * np.cos(np.radians(4.0 * hbp - 63.0)))  # eq. 15
-    dtheta = 30.0 * np.exp(-(((hbp - 275.0) / 25.0) ** 2))              # eq. 16
-    c7p = Cbp**7
-    RC = 2.0 * np.sqrt(c7p / (c7p + 25.0**7))                            # eq. 17
-    SL = 1.0 + 0.015 * (Lbp - 50.0) ** 2 / np.sqrt(20.0 + (Lbp - 50.0) ** 2)   # eq. 18
-    SC = 1.0 + 0.045 * Cbp                                               # eq. 19
-    SH = 1.0 + 0.015 * Cbp * T                                           # eq. 20
-    RT = -np.sin(np.radians(2.0 * dtheta)) * RC                          # eq. 21
-    return dLp / SL, dCp / SC, dHp / SH, RT
 
 
 def ciede2000_residuals(lab_ref, lab_sample) -> np.ndarray:
