@@ -9,7 +9,7 @@ import click
 import numpy as np
 
 from flakedb.cli.errors import FlakedbError
-from flakedb.cli.options import RAW_HELP, check_node_count
+from flakedb.cli.options import check_node_count, prediction_options
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
 from flakedb.compose.store_context import StoreContext
 from flakedb.match.cxf import load_target
@@ -70,12 +70,7 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
               help="Without --target: the geometries to predict (E2194: 45° illumination; E2539 adds 15°).")
 @click.option("--write-csv", "csv_out", default=None, type=click.Path(dir_okay=False),
               help="Write the prediction in the target CSV layout (so it can serve as a target).")
-@click.option("--n", "n", default=None, type=int, help="Node count (even, >= 8); overrides the recipe's.")
-@click.option("--store", "store", default=None, envvar="FLAKEDB_STORE",
-              help="Precomputed species store (path or URL; default $FLAKEDB_STORE).")
-@click.option("--raw", is_flag=True, help=RAW_HELP)
-@click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
-              help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
+@prediction_options
 def compare(recipe, target_path, cxf_object, observer, illuminant, mi_illuminant, max_de, limits, geometry_set, csv_out, n,
             store, raw, catalog_path):
     """Predict RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, dE00, pass/fail."""

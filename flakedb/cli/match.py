@@ -16,7 +16,7 @@ import yaml
 from flakedb.atomic import atomic_write_text
 from flakedb.cli.compare import open_store, parse_limits
 from flakedb.cli.errors import FlakedbError
-from flakedb.cli.options import RAW_HELP, check_node_count
+from flakedb.cli.options import check_node_count, prediction_options
 from flakedb.compose.orchestrate import OutputError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.match import fit as cm
@@ -41,12 +41,7 @@ from flakedb.store.versions import StoreError
               help="Weight of a geometry in the fit, ASPECULAR=W or ILLUM/ASPECULAR=W (default 1); repeatable.")
 @click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=int,
               help="Most residual evaluations of the least-squares solver.")
-@click.option("--n", "n", default=None, type=int, help="Node count (even, >= 8); overrides the recipe's.")
-@click.option("--store", "store", default=None, envvar="FLAKEDB_STORE",
-              help="Precomputed species store (path or URL; default $FLAKEDB_STORE).")
-@click.option("--raw", is_flag=True, help=RAW_HELP)
-@click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
-              help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
+@prediction_options
 def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights, max_nfev, n, store, raw, catalog_path):
     """Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target."""
     check_node_count(n)
