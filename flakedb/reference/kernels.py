@@ -257,6 +257,19 @@ def _rotate(dx, dy, dz, cos_t, phi):
 
 
 @njit(cache=True)
+def _snell_refract(dx, dy, cos_in, eta):
+    """Refraction through a smooth interface of relative index ``eta`` (n_out / n_in) for a direction
+    (dx, dy, ·) with |cos| ``cos_in`` > 0 towards it (total internal reflection already excluded by the
+    caller's Fresnel draw): the tangential part scales by 1/η (Snell); returns (dx, dy, cos_out ≥ 0)."""
+    sin_in = math.sqrt(max(0.0, 1.0 - cos_in * cos_in))
+    sin_out = sin_in / eta
+    if sin_in > 0.0:
+        dx *= sin_out / sin_in
+        dy *= sin_out / sin_in
+    return dx, dy, math.sqrt(max(0.0, 1.0 - sin_out * sin_out))
+
+
+@njit(cache=True)
 def _rough_interface(dx, dy, mu, from_above, eta, alpha, s):
     """One hit of a Beckmann microfacet dielectric interface (Walter et al. 2007), both sides.
 
@@ -539,12 +552,7 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
                             mu = -mu
                             direct = False
                             continue
-                        sin_in = math.sqrt(max(0.0, 1.0 - mu * mu))
-                        sin_out = sin_in / er
-                        if sin_in > 0.0:
-                            dx *= sin_out / sin_in
-                            dy *= sin_out / sin_in
-                        mu = math.sqrt(max(0.0, 1.0 - sin_out * sin_out))
+                        dx, dy, mu = _snell_refract(dx, dy, mu, er)
                     k += 1
                     continue
                 # bottom of the stack
@@ -604,12 +612,8 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
                             mu = cos_in
                             direct = False
                             continue
-                        sin_in = math.sqrt(max(0.0, 1.0 - cos_in * cos_in))
-                        sin_out = sin_in / er
-                        if sin_in > 0.0:
-                            dx *= sin_out / sin_in
-                            dy *= sin_out / sin_in
-                        mu = -math.sqrt(max(0.0, 1.0 - sin_out * sin_out))
+                        dx, dy, cos_out = _snell_refract(dx, dy, cos_in, er)
+                        mu = -cos_out
                     k -= 1
                     continue
                 # top interface from inside
