@@ -2,7 +2,7 @@
 "Metal base"): normal-incidence reflection of a rough conductor under a smooth coat (η 1.5) or none,
 binned in 5° θ_o bins from the solver's flux cells, against n = 384.  Run: PYTHONPATH=. python
 bench/metal_lobe_envelope.py (about 5 minutes on 2 cores).  Not a benchmark: bench/run.py runs bench_*.py only."""
-import numpy as np, time, sys
+import numpy as np
 from flakedb.rt.stack import Smooth, RoughConductor, SolverSettings, solve_stack
 from flakedb.rt.microfacet import flux_cell_edges
 N = np.array([1.2 + 7.0j])

@@ -336,7 +336,7 @@ def test_compose_finds_the_version_that_serves_the_recipe(tiny, tmp_path):
     assert st.read_latest(url) == res2["version"] != v.version
     assert st.complete_versions(url) == [res2["version"], v.version]
     flake = parse_recipe(_recipe(FLAKE, name="f"))
-    res = compose(flake, tmp_path / "f", store=url)
+    compose(flake, tmp_path / "f", store=url)
     assert open_bsdf(tmp_path / "f" / "f.h5").metadata["store_version"] == v.version
     pig = parse_recipe(_recipe(PIGMENT, name="p"))
     compose(pig, tmp_path / "p", store=url)
