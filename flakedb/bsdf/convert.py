@@ -10,7 +10,8 @@ from above (+x_j → +x_k) and reflection and transmission from below, from the 
 blocks, in basic radiance: the file's ``eta`` tells a renderer to scale transmitted values by η² or
 1/η² (docs/bsdf-format.md, "Renderer mapping").  The unscattered transmitted beam stays in the
 transmission blocks as the solver carries it (the attenuated identity: a spike on the quadrature
-diagonal, in every order), as layerlab's files do.
+diagonal, in every order), as layerlab's files do.  An opaque paint's table is given as its
+reflection quadrant alone (:attr:`BSDFTable.reflection_only`).
 """
 
 from __future__ import annotations
@@ -39,25 +40,31 @@ def stack_to_table(stack, channels=None, eta=None, alpha=0.0, delta="auto", meta
             blocks[b] = stack.f_coefficients(b)
     C = max(b.shape[1] for b in blocks.values()) if channels is None else len(channels)
     L = max(b.shape[0] for b in blocks.values())
-    coeffs = np.zeros((C, n, n, L))
-    up = slice(h - 1, None, -1)  # table indices of -x_0 … -x_{h-1} (reversed: -x_1 is at h-1)
-    dn = slice(h, n)             # table indices of +x_0 … +x_{h-1}
 
-    def put(name, i_sl, o_sl):
+    def block(name, up_going):
+        """(C, h_i, h_o, L) of f·|μ_o|; ``up_going``: outgoing nodes in the table's order for μ_o < 0
+        (−x_{h−1} … −x_0, reversed), else +x_0 … +x_{h−1}.  Written in place (no (L, C, h, h) temporary)."""
         f = blocks[name]                                   # (L_b, C|1, h_o, h_i)
-        f = np.broadcast_to(f, (f.shape[0], C) + f.shape[2:])
-        v = np.transpose(f * x[None, None, :, None], (1, 3, 2, 0))   # (C, i, o, L_b) of f·|μ_o|
-        coeffs[:, i_sl, o_sl, : v.shape[-1]] = v
+        xo = x[::-1] if up_going else x
+        if up_going:
+            f = f[:, :, ::-1]
+        v = np.zeros((C, h, h, L))
+        np.multiply(f, xo[None, None, :, None], out=np.transpose(v[..., : f.shape[0]], (3, 0, 2, 1)))
+        return v
 
-    put("Rt", dn, up)
-    if "Ttb" in blocks:
-        put("Ttb", dn, dn)
-        put("Rb", up, dn)
-        put("Tbt", up, up)
     mu = np.concatenate([-x[::-1], x])
     if eta is None:
         eta = stack.eta
     if isinstance(delta, str) and delta == "auto":
         delta = {"kind": "fresnel", "eta": float(stack.eta)} if stack.delta_F is not None else None
-    return BSDFTable(mu=mu, coeffs=coeffs, eta=float(eta), alpha=(float(alpha), 0.0), delta=delta,
-                     metadata=dict(metadata or {}), channels=None if channels is None else tuple(channels))
+    kw = dict(mu=mu, eta=float(eta), alpha=(float(alpha), 0.0), delta=delta, metadata=dict(metadata or {}),
+              channels=None if channels is None else tuple(channels))
+    if "Ttb" not in blocks:  # an opaque paint: the reflection quadrant alone
+        return BSDFTable(reflection=block("Rt", True), **kw)
+    coeffs = np.zeros((C, n, n, L))
+    lo, hi = slice(0, h), slice(h, n)  # table indices of −x_{h−1} … −x_0 and of +x_0 … +x_{h−1}
+    coeffs[:, hi, lo] = block("Rt", True)
+    coeffs[:, hi, hi] = block("Ttb", False)
+    coeffs[:, lo, hi] = block("Rb", False)[:, ::-1]   # incident −x_j: rows reversed too
+    coeffs[:, lo, lo] = block("Tbt", True)[:, ::-1]
+    return BSDFTable(coeffs=coeffs, **kw)

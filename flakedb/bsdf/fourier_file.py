@@ -38,7 +38,7 @@ def bsdf_file_size(n_nodes: int, n_coeffs: int, n_metadata_bytes: int, n_paramet
 
 
 def _truncation_orders(c: np.ndarray, truncation: float) -> np.ndarray:
-    """K per entry for one incident row: ``c`` (C, n_o, L) -> int (n_o,).
+    """K per entry: ``c`` (C, ..., L) -> int (...) (entries: incident rows × outgoing nodes).
 
     Per channel: the smallest j >= 1 with ``Σ_{k>=j} |a_k| <= truncation·|a_0|``; max over
     channels; entries whose coefficients are all exactly 0 get K = 0.  ``truncation = 0`` keeps
@@ -50,8 +50,13 @@ def _truncation_orders(c: np.ndarray, truncation: float) -> np.ndarray:
     ok = tail_ext[..., 1:] <= truncation * a[..., :1]                  # ok[..., j-1] for j = 1 … L
     k = np.argmax(ok, axis=-1) + 1                                     # the last one (j = L) is always ok
     k = k.max(axis=0)
-    k[~np.any(c != 0, axis=(0, 2))] = 0
+    k[~np.any(c != 0, axis=(0, -1))] = 0
     return k
+
+
+#: Table elements (channels × rows × outgoing nodes × orders) the writer handles at once: small enough
+#: for the temporaries to stay in cache (measured at n = 200, 352 orders: 0.24 s at 4e6, 0.135 s at 2.5e5).
+WRITE_CHUNK_ELEMS = 250_000
 
 
 def _file_channels(coeffs_row: np.ndarray) -> np.ndarray:
@@ -107,30 +112,33 @@ def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -
     if not np.all(np.diff(nodes32[:h + 1]) > 0) or not np.all(np.diff(nodes32[h + 1:]) > 0):
         raise ValueError("the nodes are not strictly ascending in float32; use fewer nodes")
 
-    def fidx(t):  # table index -> file index
-        return t if t < h else t + 2
+    # the rows (incident nodes) and outgoing entries that can hold coefficients: all of them, or for a
+    # reflection-only table (an opaque paint) the incident mu > 0 rows and outgoing mu < 0 entries
+    # (its reflection quadrant, read without building the full coefficient array);
+    # rows are handled in chunks of bounded memory, vectorised within a chunk
+    if table.reflection_only:
+        src, row0, o_sl = table.live_quadrant(), h, slice(0, h)   # src row r is table row h + r
+    else:
+        src, row0, o_sl = table.coeffs, 0, slice(0, n)
+    src_o = slice(None) if table.reflection_only else o_sl
+    L = table.n_orders
+    step = max(1, WRITE_CHUNK_ELEMS // (C * (o_sl.stop - o_sl.start) * L))
+    chunks = [slice(r0, min(r0 + step, src.shape[1])) for r0 in range(0, src.shape[1], step)]
 
-    # Pass 1: orders K[i, o] (file indices) and stored Y a_0 (float32) for the cdf.
+    # Pass 1: orders K[i, o] and stored Y a_0 (float32) for the cdf, in table indices
+    Kt = np.zeros((n, n), dtype=np.int64)
+    a0t = np.zeros((n, n), dtype=np.float64)
+    for r in chunks:
+        c = src[:, r, src_o]                                         # (C, rows, n_o, L)
+        k = _truncation_orders(c, truncation)
+        t = slice(row0 + r.start, row0 + r.stop)
+        Kt[t, o_sl] = k
+        a0t[t, o_sl] = np.where(k > 0, _file_channels(c[..., 0])[0].astype(np.float32), 0.0)
+    fi = np.concatenate([np.arange(h), np.arange(h + 2, N)])        # table index -> file index
     K = np.zeros((N, N), dtype=np.int64)
     a0 = np.zeros((N, N), dtype=np.float64)
-    live_rows = np.zeros(n, dtype=bool)
-    for ti in range(n):
-        row = table.coeffs[:, ti]                                    # (C, n_o, L)
-        live = np.any(row[..., 0] != 0, axis=0) | np.any(row[..., -1] != 0, axis=0)
-        if not live.all():  # entries with a zero first and last coefficient: look at every order
-            live |= np.any(row != 0, axis=(0, 2))
-        if not live.any():  # nothing scatters from this incident direction (an opaque paint's lower half)
-            continue
-        live_rows[ti] = True
-        i = fidx(ti)
-        k = np.zeros(n, dtype=np.int64)
-        k[live] = _truncation_orders(row[:, live], truncation)
-        K[i, :h] = k[:h]
-        K[i, h + 2:] = k[h:]
-        y0 = _file_channels(row[..., 0])[0].astype(np.float32)       # (n_o,)
-        y0 = np.where(k > 0, y0, 0.0)
-        a0[i, :h] = y0[:h]
-        a0[i, h + 2:] = y0[h:]
+    K[np.ix_(fi, fi)] = Kt
+    a0[np.ix_(fi, fi)] = a0t
     n_coeffs = int(K.sum() * C)
     if n_coeffs >= 2**32:
         raise ValueError(f"{n_coeffs} coefficients do not fit the file's u32 count; raise truncation or use fewer nodes")
@@ -153,17 +161,13 @@ def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -
             fh.write(nodes32.astype("<f4").tobytes())
             fh.write(cdf.tobytes())
             fh.write(offsets.tobytes())
-            L = table.coeffs.shape[3]
             kk = np.arange(L)
-            for ti in np.nonzero(live_rows)[0]:                     # pass 2: coefficients, row by row
-                i = fidx(ti)
-                fc = _file_channels(table.coeffs[:, ti]).astype("<f4")   # (C, n_o, L)
-                k_row = np.concatenate([K[i, :h], K[i, h + 2:]])
-                block = np.transpose(fc, (1, 0, 2))                  # (n_o, C, L)
-                mask = np.broadcast_to(kk[None, None, :] < k_row[:, None, None], block.shape)
-                o_neg, o_pos = block[:h][mask[:h]], block[h:][mask[h:]]
-                fh.write(o_neg.tobytes())
-                fh.write(o_pos.tobytes())                            # the zero-node entries hold nothing
+            for r in chunks:                                         # pass 2: coefficients, in file order
+                fc = _file_channels(src[:, r, src_o]).astype("<f4")   # (C, rows, n_o, L)
+                block = np.transpose(fc, (1, 2, 0, 3))               # (rows, n_o, C, L): entry, channel, order
+                k = Kt[row0 + r.start:row0 + r.stop, o_sl]
+                mask = np.broadcast_to(kk < k[:, :, None, None], block.shape)
+                fh.write(block[mask].tobytes())                      # the zero-node entries hold nothing
             fh.write(meta_bytes)
         if os.path.getsize(tmp) != size:
             raise RuntimeError(f"internal error: wrote {os.path.getsize(tmp)} bytes, spec size is {size}")

@@ -3,7 +3,6 @@ constants shared by the codecs, and :class:`BSDFFileError`."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -24,7 +23,6 @@ class BSDFFileError(ValueError):
 # --------------------------------------------------------------------------------------------
 # The solver's table
 # --------------------------------------------------------------------------------------------
-@dataclasses.dataclass
 class BSDFTable:
     """A tabulated azimuthally-isotropic BSDF as the solver produces it.
 
@@ -38,6 +36,12 @@ class BSDFTable:
         incident node ``mu[i]``, outgoing node ``mu[o]``, channel ``c`` (``a_0`` is the mean over
         ``phi_d``; no quadrature weights, no extra 1/π).  C = 1 (mono) or 3 (linear R, G, B) for
         ``.bsdf``; any C for HDF5.
+    reflection : float64 (C, h, h, L) or None
+        An opaque paint's table can be given as this alone instead of ``coeffs``: the reflection
+        quadrant ``coeffs[:, h:, :h]`` (incident ``mu[h:]``, down into the paint; outgoing
+        ``mu[:h]``, up), the other three quadrants being zero.  The table is then
+        :attr:`reflection_only`: :attr:`coeffs` is built from it when first read (4× the memory),
+        and the ``.bsdf`` writer and :meth:`albedo` never build it.
     eta : float
         Relative index eta_below / eta_above of the whole stack (header field; renderers scale
         transmitted radiance with it).
@@ -53,18 +57,11 @@ class BSDFTable:
         ``("c0", "c1", …)`` otherwise.
     """
 
-    mu: np.ndarray
-    coeffs: np.ndarray
-    eta: float = 1.0
-    alpha: tuple = (0.0, 0.0)
-    delta: dict | None = None
-    metadata: dict = dataclasses.field(default_factory=dict)
-    channels: tuple | None = None
-
-    def __post_init__(self):
-        self.mu = np.asarray(self.mu, dtype=np.float64)
-        self.coeffs = np.asarray(self.coeffs, dtype=np.float64)
-        mu, c = self.mu, self.coeffs
+    def __init__(self, mu, coeffs=None, eta=1.0, alpha=(0.0, 0.0), delta=None, metadata=None, channels=None,
+                 reflection=None):
+        if (coeffs is None) == (reflection is None):
+            raise ValueError("BSDFTable needs exactly one of coeffs (C, n, n, L) and reflection (C, h, h, L)")
+        self.mu = mu = np.asarray(mu, dtype=np.float64)
         if mu.ndim != 1 or mu.size < 2 or mu.size % 2:
             raise ValueError(f"BSDFTable.mu must be a 1-D array of even length n = 2h >= 2, got shape {mu.shape}")
         h = mu.size // 2
@@ -76,26 +73,81 @@ class BSDFTable:
                 f"got mu[h-1] = {mu[h - 1]!r}, mu[h] = {mu[h]!r}, range [{mu[0]!r}, {mu[-1]!r}]")
         if not np.allclose(mu[:h], -mu[h:][::-1], rtol=0, atol=1e-12):
             raise ValueError("BSDFTable.mu must be symmetric: mu[:h] == -mu[h:][::-1] (one rule per hemisphere)")
-        if c.ndim != 4 or c.shape[1] != mu.size or c.shape[2] != mu.size or c.shape[3] < 1 or c.shape[0] < 1:
-            raise ValueError(f"BSDFTable.coeffs must have shape (C, n, n, L) with n = {mu.size}, got {c.shape}")
+        self._coeffs = self._reflection = None
+        if coeffs is not None:
+            c = np.asarray(coeffs, dtype=np.float64)
+            if c.ndim != 4 or c.shape[1] != mu.size or c.shape[2] != mu.size or c.shape[3] < 1 or c.shape[0] < 1:
+                raise ValueError(f"BSDFTable.coeffs must have shape (C, n, n, L) with n = {mu.size}, got {c.shape}")
+            self._coeffs = c
+        else:
+            c = np.asarray(reflection, dtype=np.float64)
+            if c.ndim != 4 or c.shape[1] != h or c.shape[2] != h or c.shape[3] < 1 or c.shape[0] < 1:
+                raise ValueError(f"BSDFTable.reflection must have shape (C, h, h, L) with h = {h}, got {c.shape}")
+            self._reflection = c
         if not np.all(np.isfinite(c)):
             raise ValueError("BSDFTable.coeffs contains NaN or inf")
-        self.eta = float(self.eta)
+        self.eta = float(eta)
         if not (math.isfinite(self.eta) and self.eta > 0):
-            raise ValueError(f"BSDFTable.eta must be a positive finite relative index, got {self.eta!r}")
-        alpha = tuple(float(a) for a in np.atleast_1d(self.alpha))
-        if len(alpha) != 2:
-            raise ValueError(f"BSDFTable.alpha must hold 2 roughness values (top, bottom), got {self.alpha!r}")
-        self.alpha = alpha
-        if self.delta is not None:
-            check_delta(self.delta)
-            self.delta = dict(self.delta)
-        self.metadata = dict(self.metadata or {})
-        if self.channels is None:
-            self.channels = _default_channels(c.shape[0])
-        self.channels = tuple(str(s) for s in self.channels)
+            raise ValueError(f"BSDFTable.eta must be a positive finite relative index, got {eta!r}")
+        alpha_t = tuple(float(a) for a in np.atleast_1d(alpha))
+        if len(alpha_t) != 2:
+            raise ValueError(f"BSDFTable.alpha must hold 2 roughness values (top, bottom), got {alpha!r}")
+        self.alpha = alpha_t
+        if delta is not None:
+            check_delta(delta)
+            delta = dict(delta)
+        self.delta = delta
+        self.metadata = dict(metadata or {})
+        if channels is None:
+            channels = _default_channels(c.shape[0])
+        self.channels = tuple(str(s) for s in channels)
         if len(self.channels) != c.shape[0]:
             raise ValueError(f"BSDFTable.channels names {len(self.channels)} channels, coeffs has {c.shape[0]}")
+
+    def __repr__(self):
+        return (f"BSDFTable(n={self.n}, channels={self.channels}, orders={self.n_orders}, eta={self.eta}, "
+                f"alpha={self.alpha}, delta={self.delta}, reflection_only={self.reflection_only})")
+
+    @property
+    def coeffs(self) -> np.ndarray:
+        """(C, n, n, L), built from :attr:`reflection` on first access for a reflection-only table."""
+        if self._coeffs is None:
+            r = self._reflection
+            C, h, _, L = r.shape
+            c = np.zeros((C, 2 * h, 2 * h, L))
+            c[:, h:, :h] = r
+            self._coeffs, self._reflection = c, None
+        return self._coeffs
+
+    @coeffs.setter
+    def coeffs(self, value):
+        c = np.asarray(value, dtype=np.float64)
+        if c.ndim != 4 or c.shape[1:3] != (self.n, self.n):
+            raise ValueError(f"BSDFTable.coeffs must have shape (C, n, n, L) with n = {self.n}, got {c.shape}")
+        self._coeffs, self._reflection = c, None
+
+    @property
+    def reflection_only(self) -> bool:
+        """True when the table was given as its reflection quadrant alone (and not densified since)."""
+        return self._reflection is not None
+
+    def live_quadrant(self) -> np.ndarray:
+        """(C, h, h, L): the reflection quadrant ``coeffs[:, h:, :h]`` (a view), without building
+        :attr:`coeffs` for a reflection-only table."""
+        if self._reflection is not None:
+            return self._reflection
+        h = self.n // 2
+        return self._coeffs[:, h:, :h]
+
+    def replace(self, **changes) -> "BSDFTable":
+        """A new table with the given constructor arguments changed (``coeffs=`` or ``reflection=``
+        replaces the coefficients; the other fields are kept)."""
+        kw = {"mu": self.mu, "eta": self.eta, "alpha": self.alpha, "delta": self.delta,
+              "metadata": self.metadata, "channels": self.channels}
+        if "coeffs" not in changes and "reflection" not in changes:
+            kw.update({"reflection": self._reflection} if self.reflection_only else {"coeffs": self._coeffs})
+        kw.update(changes)
+        return BSDFTable(**kw)
 
     @property
     def n(self) -> int:
@@ -103,7 +155,11 @@ class BSDFTable:
 
     @property
     def n_channels(self) -> int:
-        return self.coeffs.shape[0]
+        return (self._coeffs if self._coeffs is not None else self._reflection).shape[0]
+
+    @property
+    def n_orders(self) -> int:
+        return (self._coeffs if self._coeffs is not None else self._reflection).shape[3]
 
     def albedo(self) -> np.ndarray:
         """(C, n): ``2π ∫ a_0(mu_i, mu_o) dmu_o`` per channel and incident node, with the spec's
@@ -111,11 +167,16 @@ class BSDFTable:
         written ``.bsdf`` this is ``2π·cdf[i][N-1]``."""
         nodes = insert_zero_nodes(self.mu)
         h = self.n // 2
-        a0 = self.coeffs[..., 0]                                    # (C, n_i, n_o)
+        if self.reflection_only:
+            a0 = np.zeros((self.n_channels, self.n, self.n))
+            a0[:, h:, :h] = self._reflection[..., 0]
+        else:
+            a0 = self._coeffs[..., 0]                                # (C, n_i, n_o)
         v = np.zeros(a0.shape[:2] + (nodes.size,))
         v[..., :h] = a0[..., :h]
         v[..., h + 2:] = a0[..., h:]
         return 2.0 * np.pi * catmull_rom_cdf(nodes, v)[..., -1]
+
 
 def _default_channels(c: int) -> tuple:
     if c == 3:

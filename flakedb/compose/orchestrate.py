@@ -33,7 +33,6 @@ moved into place (``os.replace``) only when all three are complete; on any error
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import shutil
@@ -117,7 +116,7 @@ def table_to_file_channels(table, mode, wavelength_nm=None):
         if all(np.abs(c[k] - c[0]).max() <= 1e-12 * scale for k in range(1, c.shape[0])):
             c = c[:1]
             channels = ("mono",)
-    return dataclasses.replace(table, coeffs=np.ascontiguousarray(c), channels=channels)
+    return table.replace(coeffs=np.ascontiguousarray(c), channels=channels)
 
 
 def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
@@ -146,8 +145,8 @@ def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
         c = np.einsum("jk,j...->k...", gamut.rgb_mode_to_space_matrix(wl, space), c)
     w = gamut.luminance_weights(wl, space)
     mapped, s = gamut.desaturate_to_gamut(c, w)
-    before = dataclasses.replace(table, coeffs=c, channels=("R", "G", "B"))
-    after = dataclasses.replace(table, coeffs=np.ascontiguousarray(mapped), channels=("R", "G", "B"))
+    before = table.replace(coeffs=c, channels=("R", "G", "B"))
+    after = table.replace(coeffs=np.ascontiguousarray(mapped), channels=("R", "G", "B"))
     n, h = table.n, table.n // 2
     refl = np.zeros((n, n), bool)
     refl[h:, :h] = True                                       # light from above, reflected

@@ -39,7 +39,6 @@ several % at grazing for α = 0.3) and the discretisation carries exactly that, 
 import functools
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.special import erf, roots_legendre
 
 from flakedb.conventions import fourier_weight
@@ -366,10 +365,11 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
         weight = np.where(ia == ob, 0.5 * weight, weight)  # a = b counted once after X + Xᵀ
     pair_cell = cell_o[ob] * h_i + cell_i[ia]
     L_used = int(L_pair.max()) if len(L_pair) else 1
-    out = np.zeros((L_used, C, h_o * h_i))
+    out = np.zeros((h_o * h_i, C, L_used))  # [cell pair, channel, order]: a cell's orders are contiguous
     group = bucket * (j_phi.max(initial=0) + 1) + j_phi
     for g in np.unique(group):
         sel = np.nonzero(group == g)[0]
+        sel = sel[np.argsort(pair_cell[sel], kind="stable")]  # the sub-pairs of a cell pair adjacent
         P = int(np.ceil(MIN_PHI_NODES * 2.0 ** (bucket[sel[0]] / 2.0)))
         gx, gw = _gauss_legendre(P)
         phi = phi_max[sel[0]] * 0.5 * (gx + 1.0)  # (P,) shared by the group
@@ -386,24 +386,24 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
             Lg = int(L_pair[k].max())
             f = walter_bsdf(t_i[ia[k], None], t_o[ob[k], None], cphi, eta_rel, alpha, transmit,
                             G[k, None], fresnel)
-            f = np.broadcast_to(f, (C,) + (len(k), P)) if f.ndim == 2 else f
-            f = f * weight[k][None, :, None]  # (C, K, P)
-            coef = (f.reshape(C * len(k), P) @ table[:, :Lg]).T.reshape(Lg, C, len(k))
+            f = f * weight[k][:, None]                        # (K, P) or (C, K, P)
+            if f.ndim == 3:
+                f = np.transpose(f, (1, 0, 2))
+            coef = (f.reshape(-1, P) @ table[:, :Lg]).reshape(len(k), -1, Lg)  # (K, C|1, Lg)
             # each pair keeps its own orders (a pair's few φ nodes alias beyond them: the discrete
             # sum's series does not decay and would ring), Jackson-damped where the cap binds
-            ls = np.arange(Lg)[:, None]
-            damp = (ls < L_pair[k][None, :]).astype(float)
+            damp = (np.arange(Lg)[None, :] < L_pair[k][:, None]).astype(float)
             if jack is not None and truncated[k].any():
-                damp *= np.where(truncated[k][None, :], jack[:Lg, None], 1.0)
+                damp *= np.where(truncated[k][:, None], jack[None, :Lg], 1.0)
             coef *= damp[:, None, :]
-            # sum the sub-pairs of each cell pair, touching only the cells this chunk reaches
-            cells, inv = np.unique(pair_cell[k], return_inverse=True)
-            agg = sp.csr_matrix((np.ones(len(k)), (inv, np.arange(len(k)))), shape=(len(cells), len(k)))
-            out[:Lg, :, cells] += (agg @ coef.reshape(Lg * C, len(k)).T).T.reshape(Lg, C, len(cells))
-    out = out.reshape(L_used, C, h_o, h_i)
+            # sum the sub-pairs of each cell pair (adjacent in k): one segmented sum
+            pc = pair_cell[k]
+            starts = np.flatnonzero(np.concatenate([[True], pc[1:] != pc[:-1]]))
+            out[pc[starts], :, :Lg] += np.add.reduceat(coef, starts, axis=0)
+    out = np.transpose(out.reshape(h_o, h_i, C, L_used), (3, 2, 0, 1))  # (L, C, h_o, h_i)
     if symmetric:
-        out = out + np.swapaxes(out, -1, -2)
-    return out, L_used
+        return out + np.swapaxes(out, -1, -2), L_used
+    return np.ascontiguousarray(out), L_used
 
 
 @functools.lru_cache(maxsize=64)

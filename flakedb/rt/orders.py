@@ -13,7 +13,6 @@ stated tolerance (:func:`order_tail`).
 
 import numpy as np
 
-from flakedb.conventions import fourier_weight
 from flakedb.rt.layer import solve_regular
 
 
@@ -61,12 +60,6 @@ def reflection_under_smooth(t, F_in, h_tir, bottom_Rt):
     X = solve_regular(A, np.broadcast_to(E, A.shape[:-1] + E.shape[-1:]))
     R = bottom_Rt[..., h_tir:, :] @ X
     return t[:, None] * R * t[None, :]
-
-
-def bsdf_orders(Rt, x, w, l0=0):
-    """f_l = S_l[o, i] / (c_l w_i μ_i) (conventions) of a reflection block of orders l0 …, 1/sr."""
-    cl = fourier_weight(np.arange(l0, l0 + Rt.shape[0]))[:, None, None, None]
-    return Rt / (cl * (w * x)[None, None, None, :])
 
 
 def order_tail(a, L_max, tol, k=4):

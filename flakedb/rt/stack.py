@@ -9,6 +9,7 @@ BSDF of the stack seen from above (and the transmission blocks when the stack is
 analytic delta term of a smooth top, and evaluates them.
 """
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,7 +29,7 @@ from flakedb.rt.layer import (
 )
 from flakedb.rt.media import channel_subset, kernel_basis
 from flakedb.rt.microfacet import jackson_factors
-from flakedb.rt.orders import bsdf_orders, order_tail, reflection_over, reflection_under_smooth
+from flakedb.rt.orders import order_tail, reflection_over, reflection_under_smooth
 from flakedb.rt.projection import ProjectedKernel, project_kernel_basis
 from flakedb.rt.quadrature import binder_chain_quadratures, default_tir_nodes, radau_hemisphere
 
@@ -529,6 +530,29 @@ def _binder_chain(top, eta, slabs, q_out, s):
     return binder_chain_quadratures(radau_hemisphere(s.n // 2), n_min, indices)
 
 
+class _Done:
+    """The result of a call made in the caller's thread, with a future's ``result()``."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def result(self):
+        return self.value
+
+
+#: The background thread of :func:`_submit` (created on first use).
+_BACKGROUND: list = []
+
+
+def _submit(threads, fn, *args, **kw):
+    """``fn(*args, **kw)`` in the background thread when ``threads`` > 1 (a future), else now."""
+    if int(threads) <= 1:
+        return _Done(fn(*args, **kw))
+    if not _BACKGROUND:
+        _BACKGROUND.append(ThreadPoolExecutor(1, thread_name_prefix="flakedb-solve"))
+    return _BACKGROUND[0].submit(fn, *args, **kw)
+
+
 def _solve_stack(top, slabs, bottom, s):
     if s.n % 2 or s.n < 2:
         raise ValueError(f"the node count n must be even and ≥ 2 (n/2 per hemisphere), got {s.n}")
@@ -545,6 +569,13 @@ def _solve_stack(top, slabs, bottom, s):
         raise TypeError(f"unknown top interface {top!r}")
     chain = _binder_chain(top, eta, slabs, q_out, s)
     q_in = chain.rules[0]
+
+    # a rough top does not depend on the slabs: with threads > 1 it is built in the background while
+    # the kernels are projected (both are mostly numpy calls that release the GIL)
+    top_job = None
+    if isinstance(top, Rough):
+        top_job = _submit(s.threads, itf.rough_dielectric, q_out, q_in, top.eta, top.alpha, tol=s.tol,
+                          max_orders=s.order_cap, energy_compensation=top.energy_compensation)
 
     # kernels of the slabs projected once (each with its own order count), each on the rule of its
     # binder: inner interfaces (InnerSmooth) separate binders (docs/model.md §4 "Inner interface")
@@ -584,13 +615,6 @@ def _solve_stack(top, slabs, bottom, s):
 
     top_layer = None
     delta_F = None
-    L_top = 0
-    if isinstance(top, Rough):
-        top_layer, rinfo = itf.rough_dielectric(q_out, q_in, top.eta, top.alpha, tol=s.tol,
-                                                max_orders=s.order_cap,
-                                                energy_compensation=top.energy_compensation)
-        L_top = top_layer.n_orders
-        info["top"] = {"orders": L_top}
     L_bottom = 0
     Rc = None
     if isinstance(bottom, RoughConductor):
@@ -599,8 +623,20 @@ def _solve_stack(top, slabs, bottom, s):
                                         energy_compensation=bottom.energy_compensation)
         L_bottom = Rc.shape[0]
         info["bottom"] = {k: v for k, v in cinfo.items() if k != "albedo"}
-    L = min(max([L_top, L_bottom, 1] + [p[0].n_orders for p in projected if not isinstance(p[0], str)]
-                + [p[1].n_orders for p in projected if p[0] == "rough"]), s.order_cap)
+    L_rest = ([L_bottom, 1] + [p[0].n_orders for p in projected if not isinstance(p[0], str)]
+              + [p[1].n_orders for p in projected if p[0] == "rough"])
+
+    def total_orders():
+        """The stack's order count; waits for the rough top (its own order count is part of it)."""
+        nonlocal top_layer
+        L_top = 0
+        if top_job is not None:
+            if top_layer is None:
+                top_layer, _ = top_job.result()
+                info["top"] = {"orders": top_layer.n_orders}
+            L_top = top_layer.n_orders
+        return min(max([L_top] + L_rest), s.order_cap)
+
     if isinstance(top, Smooth):
         smooth1, delta_F = itf.smooth_dielectric(q_out, q_in, top.eta, 1)
 
@@ -633,13 +669,14 @@ def _solve_stack(top, slabs, bottom, s):
 
     opaque = bottom is not None
     if opaque and s.order_tol is not None:
-        Rt, oinfo = _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom, L, s, item_block,
+        Rt, oinfo = _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom, total_orders, s, item_block,
                                                   top_block, smooth1 if isinstance(top, Smooth) else None, Rc)
         info.update(oinfo)
         return StackBSDF(x=q_out.x, w=q_out.w, Rt=Rt, eta=eta, delta_F=delta_F, x_in=q_in.x, w_in=q_in.w,
                          info=info)
 
     # all orders at once (transmissive stacks, or order_tol None)
+    L = total_orders()
     body = None
     for k, item in enumerate(projected):
         layer = item_block(item, 0, L)
@@ -672,7 +709,9 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom,
     """R^t of an opaque stack, orders solved in blocks (16, then doubling) bottom-up with
     reflection-only adding, until :func:`flakedb.rt.orders.order_tail` says the BSDF's dropped tail is
     within ``s.order_tol`` (docs/orders.md).  ``Rc``: the rough conductor bottom's R^t (all its
-    orders), None for a Lambertian primer.  Returns (Rt (L', C, h, h), info)."""
+    orders), None for a Lambertian primer.  ``L_max``: the stack's order count, or a function that
+    returns it (waiting for a top built in the background: the body's first block is solved before
+    it is called).  Returns (Rt (L', C, h, h), info)."""
     if smooth1 is not None:
         h_tir = q_in.h - q_out.h
         t = smooth1.Ttb[0, 0][h_tir + np.arange(q_out.h), np.arange(q_out.h)]
@@ -684,7 +723,7 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom,
             Rb = pad_orders(Rc, max(l1, Rc.shape[0]))[l0:l1]
             for k, item in enumerate(reversed(projected)):
                 Rb = reflection_over(item_block(item, l0, l1), Rb)
-                s.report("solve", layer=len(projected) - k, layers=len(projected), orders=(l0, l1), of=L_max)
+                s.report("solve", layer=len(projected) - k, layers=len(projected), orders=(l0, l1), of=L_report)
             return Rb
         if l0 == 0:  # the Lambertian primer has order 0 only: its adding runs for that order alone
             prim = itf.lambertian(q_bottom, bottom.albedo, 1).Rt
@@ -697,7 +736,7 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom,
             Rr = None
             for k, item in enumerate(reversed(projected)):
                 Rr = reflection_over(item_block(item, l0, l1), Rr)
-                s.report("solve", layer=len(projected) - k, layers=len(projected), orders=(l0, l1), of=L_max)
+                s.report("solve", layer=len(projected) - k, layers=len(projected), orders=(l0, l1), of=L_report)
             if Rr is None:
                 Rr = np.zeros((l1 - l0, 1, q_in.h, q_in.h))
             if R is None:
@@ -714,30 +753,47 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom,
             return reflection_under_smooth(t, F_in, h_tir, R)
         return reflection_over(top_block(l0, l1), R)
 
-    blocks, a = [], []
+    first = None
+    if callable(L_max):  # the body's first block does not need the top: solve it while the top is built
+        L_report = L_first = min(s.order_cap, FIRST_ORDER_BLOCK)
+        first = reflection(0, L_first)
+        L_max = L_max()
+    L_report = L_max
+    out, a = None, []  # out: R^t of the orders solved so far, (L_max, C, h, h) filled block by block
+    # the cosine-weighted BSDF f μ_i μ_o = S_l μ_o / (c_l w_i) (conventions; reciprocal: the flux a
+    # coefficient carries between the two directions per unit projected solid angle) measures the
+    # decay: grazing pairs, where f itself grows as 1/(μ_i μ_o) for a rough coat, do not dictate the
+    # order count (docs/orders.md)
+    flux = q_out.x[:, None] / q_out.w[None, :]
     l0, f0max, done = 0, None, False
     L_keep, tail = 1, 0.0
     while l0 < L_max:
         l1 = min(L_max, max(FIRST_ORDER_BLOCK, 2 * l0))
-        Rt = through_top(reflection(l0, l1), l0, l1)
-        blocks.append(Rt)
-        # the cosine-weighted BSDF f μ_i μ_o (reciprocal; the flux a coefficient carries between the
-        # two directions per unit projected solid angle): grazing pairs, where f itself grows as
-        # 1/(μ_i μ_o) for a rough coat, do not dictate the order count (docs/orders.md)
-        f = np.abs(bsdf_orders(Rt, q_out.x, q_out.w, l0) * q_out.x[:, None] * q_out.x[None, :])
+        if first is not None:  # orders are independent: the first l1 (≤ L_first) orders of that block
+            R, first = first[:l1], None
+        else:
+            R = reflection(l0, l1)
+        Rt = through_top(R, l0, l1)
+        if out is None or np.broadcast_shapes(out.shape[1:], Rt.shape[1:]) != out.shape[1:]:
+            grown = np.empty((L_max,) + (Rt.shape[1:] if out is None else np.broadcast_shapes(out.shape[1:], Rt.shape[1:])))
+            if out is not None:
+                grown[:l0] = out[:l0]
+            out = grown
+        out[l0:l1] = Rt
+        g = np.abs(Rt)
+        g *= flux
+        amax = g.reshape(g.shape[0], -1).max(axis=1) / fourier_weight(np.arange(l0, l1))
         if f0max is None:
-            f0max = float(f[0].max())
-        a.extend((f.reshape(f.shape[0], -1).max(axis=1) / (f0max if f0max > 0 else 1.0)).tolist())
+            f0max = float(amax[0])
+        a.extend((amax / (f0max if f0max > 0 else 1.0)).tolist())
         l0 = l1
         L_keep, tail, done = order_tail(a, L_max, s.order_tol)
         if done:
             break
-    shape = np.broadcast_shapes(*(b.shape[1:] for b in blocks))
-    Rt = np.concatenate([np.broadcast_to(b, b.shape[:1] + shape) for b in blocks])[:L_keep]
     info = {"orders": int(L_keep), "orders_solved": int(l0), "orders_available": int(L_max),
             "order_tol": float(s.order_tol), "order_tail": float(tail), "order_converged": bool(done),
             "order_decay": [float(v) for v in a]}
-    return np.ascontiguousarray(Rt), info
+    return out[:L_keep], info
 
 
 def _reflection_over(layer, bottom_Rt):

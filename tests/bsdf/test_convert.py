@@ -7,7 +7,7 @@ import tempfile
 
 import numpy as np
 
-from flakedb.bsdf import table_evaluator
+from flakedb.bsdf import BSDFTable, table_evaluator, write_bsdf
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.compose.orchestrate import compose
 from flakedb.paint.mapping import build_paint, solve_paint
@@ -70,3 +70,25 @@ layers:
     got = compose(recipe, tempfile.mkdtemp()).table
     np.testing.assert_array_equal(got.coeffs, want.coeffs)
     np.testing.assert_array_equal(got.mu, want.mu)
+
+
+def test_an_opaque_paints_table_is_its_reflection_quadrant(tmp_path):
+    """An opaque stack's table holds only reflection from above (reflection_only): its dense
+    coefficients are that quadrant and zeros, and the .bsdf file and the albedo made from the quadrant
+    alone are those of the dense table (byte for byte, to the last bit)."""
+    s = solve_stack(Smooth(1.5), [Slab(1.0, PhaseMedium([1.0, 1.0, 1.0], [0.9, 0.5, 0.2], ("hg", 0.5)))],
+                    Lambertian([0.5, 0.3, 0.1]), SolverSettings(n=12))
+    t = stack_to_table(s)
+    assert t.reflection_only
+    a_quadrant = t.albedo()
+    write_bsdf(tmp_path / "q.bsdf", t)
+    assert t.reflection_only                                 # neither call built the dense array
+    dense = BSDFTable(mu=t.mu, coeffs=t.coeffs.copy(), delta=t.delta, eta=t.eta)
+    assert not t.reflection_only                             # reading .coeffs built it
+    h = t.n // 2
+    c = dense.coeffs
+    assert np.any(c[:, h:, :h] != 0)
+    assert not np.any(c[:, :h]) and not np.any(c[:, h:, h:])
+    np.testing.assert_array_equal(a_quadrant, dense.albedo())
+    write_bsdf(tmp_path / "d.bsdf", dense)
+    assert (tmp_path / "q.bsdf").read_bytes() == (tmp_path / "d.bsdf").read_bytes()
