@@ -5,6 +5,7 @@ rough conductor base.  Accuracy is in tests/test_rough_energy.py; here only the 
 import os
 import subprocess
 import sys
+import tempfile
 import time
 
 from flakedb.rt import interface as itf
@@ -36,25 +37,42 @@ def _conductor(n, alpha):
             {"n": n, "alpha": alpha, "channels": 3})
 
 
-def _whole_stack(n=200):
-    """The rough / HG / Lambertian stack at n RGB as a whole process (import + interface + solve),
-    single-threaded BLAS so that the number is not the machine's thread contention."""
+def _whole_stack(n=200, write=True):
+    """The rough / HG / Lambertian stack at n RGB as a whole process, as issue #11 measured it:
+    import + interface + solve + the Fourier ``.bsdf`` written (``bench/stack_rough_hg_lambertian.py``,
+    threads = the core count, as compose runs; BLAS one thread per call inside the solve).
+    ``write=False``: the earlier row (``python -c`` import + solve, no file, one thread), kept to
+    compare with the previous results.  Reports the child's CPU seconds and peak RSS too."""
+    here = os.path.dirname(os.path.abspath(__file__))
 
     def setup():
         return None
 
     def run(_):
-        code = ("import numpy as np; from flakedb.rt.stack import Rough, Slab, Lambertian, SolverSettings, solve_stack; "
+        if write:
+            cmd = [sys.executable, os.path.join(here, "stack_rough_hg_lambertian.py"), str(n),
+                   os.path.join(tempfile.gettempdir(), "flakedb-bench-whole.bsdf")]
+        else:
+            cmd = [sys.executable, "-c", (
+                "import numpy as np; from flakedb.rt.stack import Rough, Slab, Lambertian, SolverSettings, solve_stack; "
                 "from flakedb.rt.media import PhaseMedium; "
                 "slab = Slab(2.0, PhaseMedium(np.ones(3), np.full(3, 0.95), ('hg', np.full(3, 0.7)))); "
-                f"solve_stack(Rough(1.5, 0.1), [slab], Lambertian(np.full(3, 0.5)), SolverSettings.product({n}))")
-        env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+                f"solve_stack(Rough(1.5, 0.1), [slab], Lambertian(np.full(3, 0.5)), SolverSettings.product({n}))")]
+        env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+                   PYTHONPATH=os.pathsep.join([os.path.dirname(here), os.environ.get("PYTHONPATH", "")]))
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", code], check=True, env=env)
-        return {"process_s": time.perf_counter() - t0}
+        p = subprocess.Popen(cmd, env=env)
+        _, status, usage = os.wait4(p.pid, 0)
+        wall = time.perf_counter() - t0
+        if status != 0:
+            raise RuntimeError(f"{cmd} exited with status {status}")
+        return {"process_s": wall, "process_cpu_s": usage.ru_utime + usage.ru_stime,
+                "process_peak_mib": usage.ru_maxrss / 1024.0}
 
-    return (f"whole process: rough 0.1 / HG / Lambertian, RGB, n={n}", setup, run,
-            {"n": n, "channels": 3, "what": "python -c import + interface + solve, order_tol 1e-4"})
+    what = ("process: import + interface + solve + .bsdf written, threads = cores, order_tol 1e-4" if write else
+            "python -c import + interface + solve (no file), one thread, order_tol 1e-4")
+    return (f"whole process{' (solve + .bsdf)' if write else ''}: rough 0.1 / HG / Lambertian, RGB, n={n}", setup, run,
+            {"n": n, "channels": 3, "what": what, "layerlab_s": 2.5, "target_s": 0.8})
 
 
 def _auto_stack(alpha, slab=True):
@@ -87,4 +105,4 @@ def _auto_stack(alpha, slab=True):
 
 BENCHMARKS = [_auto_stack(0.3), _auto_stack(0.1), _auto_stack(0.05), _auto_stack(0.02), _coat(200, 0.1, "cells"), _coat(200, 0.1, "points"), _coat(64, 0.1, "cells"),
               _coat(64, 0.1, "points"), _coat(64, 0.02, "cells"), _coat(64, 0.01, "cells"), _conductor(64, 0.1),
-              _whole_stack(200)]
+              _whole_stack(200, write=False), _whole_stack(200)]

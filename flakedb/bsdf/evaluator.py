@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flakedb.bsdf.kernels import sample_kernel, series_kernel
+from flakedb.bsdf.kernels import compiled as compiled_kernels
 from flakedb.bsdf.spline import catmull_rom_cdf, catmull_rom_weights, insert_zero_nodes
 from flakedb.bsdf.table import RGB_TO_Y, BSDFTable
 
@@ -168,7 +168,7 @@ class FourierBSDF:
         vals = np.zeros((mi.size, cd))
         a0 = np.zeros((mi.size, cd))
         if method == "numba":
-            series_kernel(self.nodes, flat, start, self.order, cd, mi, mo, ph, vals, a0)
+            compiled_kernels().series_kernel(self.nodes, flat, start, self.order, cd, mi, mo, ph, vals, a0)
             return vals, a0
         if method != "numpy":
             raise ValueError("method must be 'numba' or 'numpy'")
@@ -280,7 +280,7 @@ class FourierBSDF:
         phi = np.zeros(p)
         pdf = np.zeros(p)
         weight = np.zeros((p, self._mix.shape[1]))
-        sample_kernel(self.nodes, self.cdf, self._a0s, self._sflat, self._sstart, self._flat,
+        compiled_kernels().sample_kernel(self.nodes, self.cdf, self._a0s, self._sflat, self._sstart, self._flat,
                        self._start, self.order, self.n_channels, self._mix, mi, a1, a2,
                        mu_o, phi, weight, pdf)
         return (mu_o.reshape(shape), phi.reshape(shape), weight.reshape(shape + (weight.shape[1],)),

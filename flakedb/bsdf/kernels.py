@@ -1,11 +1,43 @@
 """Compiled kernels (numba) of :class:`flakedb.bsdf.evaluator.FourierBSDF` and the Mitsuba export:
 evaluation, and pbrt-v3's SampleCatmullRom2D + SampleFourier.  All take the sparse float64
-layout, so each compiles once (one signature)."""
+layout, so each compiles once (one signature).
+
+The functions below are plain Python; :func:`compiled` imports numba and compiles them on first use
+(cached on disk), so that a process that writes files but evaluates nothing (solve → ``.bsdf``) does
+not pay numba's import (~0.2 s of a 1–2 s run).  Call them as ``compiled().series_kernel(…)``."""
 
 from __future__ import annotations
 
-import numba
+import functools
+import types
+
 import numpy as np
+
+#: name -> extra numba options of the kernels :func:`compiled` compiles (filled by :func:`_kernel`).
+_KERNELS: dict = {}
+
+
+def _kernel(**options):
+    """Register a function for :func:`compiled` (numba's ``njit(cache=True, nogil=True,
+    error_model="numpy", **options)``); the function itself is returned unchanged."""
+    def register(fn):
+        _KERNELS[fn.__name__] = options
+        return fn
+    return register
+
+
+@functools.cache
+def compiled() -> types.SimpleNamespace:
+    """The kernels compiled by numba, as attributes (``compiled().series_kernel``).  The first call
+    imports numba and replaces this module's functions by their compiled dispatchers, so that the
+    kernels calling each other call compiled code (numba resolves those names when it compiles)."""
+    import numba  # lazy: numba takes ~0.2 s to import; solving and writing a file need no compiled kernel
+
+    g = globals()
+    for name, options in _KERNELS.items():
+        g[name] = numba.njit(cache=True, nogil=True, error_model="numpy", **options)(g[name])
+    return types.SimpleNamespace(**{name: g[name] for name in _KERNELS})
+
 
 # Reassociation lets LLVM vectorise the coefficient dot products; NaN/inf semantics are kept
 # (the range checks rely on NaN comparing false).
@@ -16,7 +48,7 @@ _FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
 # Compiled kernels (numba): evaluation, and pbrt-v3's SampleCatmullRom2D + SampleFourier.
 # All take the sparse float64 layout, so each compiles once (one signature).
 # --------------------------------------------------------------------------------------------
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@_kernel()
 def cr_weights_1(nodes, x, w):
     """Scalar Catmull-Rom weights (as :func:`catmull_rom_weights`); returns the offset, or -N if
     x is out of range / NaN."""
@@ -61,7 +93,7 @@ def cr_weights_1(nodes, x, w):
     return idx - 1
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@_kernel()
 def _interp_row(arr, off, w, col):
     """Σ_a w[a] · arr[off + a, col] over the non-zero weights."""
     s = 0.0
@@ -71,7 +103,7 @@ def _interp_row(arr, off, w, col):
     return s
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@_kernel()
 def _normal_quantile(p):
     """Inverse standard normal CDF (Acklam's rational approximation, relative error < 1.2e-9)."""
     a0, a1, a2, a3, a4, a5 = (-3.969683028665376e+01, 2.209460984245205e+02, -2.759285104469687e+02,
@@ -98,7 +130,7 @@ def _normal_quantile(p):
             / (((((b0 * r + b1) * r + b2) * r + b3) * r + b4) * r + 1))
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@_kernel()
 def _blend_order(order, oi, oo, wi, wo):
     """Largest coefficient count among the 4 × 4 entries blended at (oi, oo) with non-zero weight."""
     kmax = 0
@@ -109,7 +141,7 @@ def _blend_order(order, oi, oo, wi, wo):
     return kmax
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FASTMATH)
+@_kernel(fastmath=_FASTMATH)
 def series_kernel(nodes, flat, start, order, cd, mu_i, mu_o, phi, out_val, out_a0):
     """Per point: Σ over the 4x4 neighbouring entries of w · Σ_{k<K_e} a_k cos(k phi) per channel
     (= the blended series summed, the spec's evaluation), and the blended a_0 per channel."""
@@ -153,7 +185,7 @@ def series_kernel(nodes, flat, start, order, cd, mu_i, mu_o, phi, out_val, out_a
                     out_a0[p, c] += ww * flat[off]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", fastmath=_FASTMATH)
+@_kernel(fastmath=_FASTMATH)
 def sample_kernel(nodes, cdf, a0s, sflat, sstart, flat, start, order, cs, mix, mu_i, u1, u2,
                    out_mu, out_phi, out_w, out_pdf):
     n = nodes.size

@@ -85,11 +85,16 @@ import numpy as np
 from flakedb import __version__
 from flakedb.atomic import atomic_path
 from flakedb.bsdf import catmull_rom_cdf, catmull_rom_weights, open_bsdf
-from flakedb.bsdf.kernels import cr_weights_1, sample_kernel, series_kernel
+from flakedb.bsdf.kernels import compiled as compiled_kernels
 from flakedb.bsdf.table import G_FROM_YRB
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.colour.gamut import desaturate_points
 from flakedb.optics.fresnel import fresnel_dielectric
+
+# the reader's compiled kernels, by name: this module's own compiled kernels call them
+cr_weights_1 = compiled_kernels().cr_weights_1
+sample_kernel = compiled_kernels().sample_kernel
+series_kernel = compiled_kernels().series_kernel
 
 __all__ = [
     "MeasuredExportError",

@@ -199,6 +199,14 @@ def test_workers_that_keep_dying_stop_the_build_clearly_and_it_resumes(tmp_path)
     assert build(_request(), url, scheduler="processes", workers=1)["status"] == "built"
 
 
+def _cmdline(proc):
+    """A child's command line, or [] when it ended (or is a zombie) between listing and reading."""
+    try:
+        return proc.cmdline()
+    except (psutil.NoSuchProcess, psutil.ZombieProcess, psutil.AccessDenied):
+        return []
+
+
 @pytest.mark.slow
 def test_killing_the_parent_ends_its_workers(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
@@ -209,7 +217,7 @@ def test_killing_the_parent_ends_its_workers(tmp_path):
     deadline = time.time() + 120
     workers = []
     while time.time() < deadline and not workers:
-        workers = [c for c in parent.children(recursive=True) if "spawn_main" in " ".join(c.cmdline())]
+        workers = [c for c in parent.children(recursive=True) if "spawn_main" in " ".join(_cmdline(c))]
         time.sleep(0.1)
     assert workers, "no worker processes started"
     everyone = parent.children(recursive=True)
@@ -218,4 +226,4 @@ def test_killing_the_parent_ends_its_workers(tmp_path):
     gone, alive = psutil.wait_procs(everyone, timeout=10)
     for a in alive:
         a.kill()
-    assert not alive, f"still running after the parent was killed: {[a.cmdline() for a in alive]}"
+    assert not alive, f"still running after the parent was killed: {[_cmdline(a) for a in alive]}"
