@@ -105,13 +105,43 @@ def add_reflection_only(top, bottom_Rt):
     return top.Rt + top.Tbt @ (bottom_Rt @ X)
 
 
+#: Bytes of one matrix stack that :func:`_double_symmetric_serial` doubles at a time: the chunk's
+#: five (k, h, h) working arrays then stay in a core's L2 cache across all doublings.
+DOUBLING_CHUNK_BYTES = 2**19
+
+
 def _double_symmetric_serial(R, T, times):
-    h = R.shape[-1]
-    eye = np.eye(h)
-    for _ in range(int(times)):
-        X = np.linalg.solve(eye - R @ R, T)
-        R, T = R + T @ (R @ X), T @ X
-    return R, T
+    """:func:`double_symmetric` on one thread.  The (L, C) batch is doubled in chunks of
+    ``DOUBLING_CHUNK_BYTES // (8 h²)`` matrices, all ``times`` doublings per chunk, in place in
+    preallocated buffers (``np.matmul(..., out=)``): the same LAPACK/BLAS calls on the same matrices as
+    the whole-batch form, so the result is bit-identical to it, without streaming the batch through
+    memory in every step (measured in bench/bench_rt_core.py, ``_doubling_rate``)."""
+    times = int(times)
+    if times <= 0:
+        return R, T
+    shape = np.broadcast_shapes(R.shape, T.shape)
+    h = shape[-1]
+    Rout = np.array(np.broadcast_to(R, shape), dtype=float, order="C")
+    Tout = np.array(np.broadcast_to(T, shape), dtype=float, order="C")
+    Rf, Tf = Rout.reshape((-1, h, h)), Tout.reshape((-1, h, h))
+    N = Rf.shape[0]
+    k = max(1, min(N, DOUBLING_CHUNK_BYTES // (8 * h * h)))
+    A, Y, Z = (np.empty((k, h, h)) for _ in range(3))
+    idx = np.arange(h)
+    for s in range(0, N, k):
+        e = min(N, s + k)
+        r, t, a, y, z = Rf[s:e], Tf[s:e], A[:e - s], Y[:e - s], Z[:e - s]
+        for _ in range(times):
+            np.matmul(r, r, out=a)  # A = I − R R
+            np.negative(a, out=a)
+            a[:, idx, idx] += 1.0
+            x = np.linalg.solve(a, t)  # X = (I − R R)⁻¹ T
+            np.matmul(r, x, out=y)
+            np.matmul(t, y, out=z)
+            r += z  # R' = R + T R X
+            np.matmul(t, x, out=y)
+            t[...] = y  # T' = T X
+    return Rout, Tout
 
 
 #: Threads of :func:`double_symmetric`'s batch split, created on first use.
