@@ -61,3 +61,28 @@ def test_doubling_broadcasts_T_and_threads_agree():
     np.testing.assert_array_equal(T2, Td)
     R0, T0 = double_symmetric(R, T, 0)
     assert R0 is R and T0 is T
+
+
+@pytest.mark.parametrize("factor,doubled", [(0.5, False), (2.0, True)])
+def test_symmetry_tolerance_decides_the_slab_method(factor, doubled):
+    """A kernel asymmetric by ``factor`` × EIGEN_SYMMETRY_TOL × max |K| (here a negative entry) is solved
+    by the eigen-solution below the tolerance and doubled above it; a zero kernel is the exact
+    attenuation."""
+    from flakedb.rt.media import PhaseMedium
+    from flakedb.rt.quadrature import radau_hemisphere
+    from flakedb.rt.stack import medium_kernel_blocks
+
+    q = radau_hemisphere(6)
+    med = PhaseMedium(np.ones(2), np.array([0.6, 0.9]), ("hg", 0.5))
+    K_T, K_R, _ = medium_kernel_blocks(med, q.x, q.w, 1e-6, 8)
+    sig = med.sigma_t(q.x)
+    K_T, K_R = K_T.copy(), K_R.copy()
+    K_T[0, :, 3, 3] = -10.0 * np.abs(K_T).max()  # the largest |K| is negative (still a solvable slab)
+    K_R[0, 1, 0, 2] += factor * ly.EIGEN_SYMMETRY_TOL * max(np.abs(K_T).max(), np.abs(K_R).max())
+    got = ly.homogeneous_slab(q.x, q.w, sig, K_T, K_R, 2.0)
+    dbl = ly.homogeneous_slab(q.x, q.w, sig, K_T, K_R, 2.0, method="doubling")
+    assert np.array_equal(got.Rt, dbl.Rt) == doubled
+    zero = ly.homogeneous_slab(q.x, q.w, sig, 0 * K_T, 0 * K_R, 2.0)
+    np.testing.assert_array_equal(zero.Rt, 0.0)
+    np.testing.assert_allclose(np.diagonal(zero.Ttb, axis1=-2, axis2=-1), np.broadcast_to(np.exp(-2.0 * sig / q.x), zero.Ttb.shape[:-1]),
+                               rtol=1e-15)
