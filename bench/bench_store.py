@@ -31,7 +31,7 @@ CHANNELS = 16
 #: function name → profile bucket (cumulative time of the outermost call of each)
 BUCKETS = {
     "projection": ("project_kernel_basis",),
-    "contraction": ("raw_blocks", "LegendreKernel.blocks"),
+    "contraction": ("_contract_factors", "LegendreKernel.blocks"),
     "doubling": ("double_symmetric", "thin_slab_diamond", "eigen_slab"),  # homogeneous slabs (eigen or doubling)
     "adding": ("reflection_over", "reflection_under_smooth", "add_reflection_only"),
     "io": ("read",),

@@ -26,6 +26,9 @@ from flakedb.conventions import fourier_weight
 
 @dataclass
 class Layer:
+    """The four blocks of a layer (above).  A symmetric layer's bottom blocks may be its top ones
+    (the same arrays): blocks are never written in place."""
+
     Rt: np.ndarray
     Ttb: np.ndarray
     Rb: np.ndarray
@@ -105,13 +108,43 @@ def add_reflection_only(top, bottom_Rt):
     return top.Rt + top.Tbt @ (bottom_Rt @ X)
 
 
+#: Bytes of one matrix stack that :func:`_double_symmetric_serial` doubles at a time: the chunk's
+#: five (k, h, h) working arrays then stay in a core's L2 cache across all doublings.
+DOUBLING_CHUNK_BYTES = 2**19
+
+
 def _double_symmetric_serial(R, T, times):
-    h = R.shape[-1]
-    eye = np.eye(h)
-    for _ in range(int(times)):
-        X = np.linalg.solve(eye - R @ R, T)
-        R, T = R + T @ (R @ X), T @ X
-    return R, T
+    """:func:`double_symmetric` on one thread.  The (L, C) batch is doubled in chunks of
+    ``DOUBLING_CHUNK_BYTES // (8 h²)`` matrices, all ``times`` doublings per chunk, in place in
+    preallocated buffers (``np.matmul(..., out=)``): the same LAPACK/BLAS calls on the same matrices as
+    the whole-batch form, so the result is bit-identical to it, without streaming the batch through
+    memory in every step (measured in bench/bench_rt_core.py, ``_doubling_rate``)."""
+    times = int(times)
+    if times <= 0:
+        return R, T
+    shape = np.broadcast_shapes(R.shape, T.shape)
+    h = shape[-1]
+    Rout = np.array(np.broadcast_to(R, shape), dtype=float, order="C")
+    Tout = np.array(np.broadcast_to(T, shape), dtype=float, order="C")
+    Rf, Tf = Rout.reshape((-1, h, h)), Tout.reshape((-1, h, h))
+    N = Rf.shape[0]
+    k = max(1, min(N, DOUBLING_CHUNK_BYTES // (8 * h * h)))
+    A, Y, Z = (np.empty((k, h, h)) for _ in range(3))
+    idx = np.arange(h)
+    for s in range(0, N, k):
+        e = min(N, s + k)
+        r, t, a, y, z = Rf[s:e], Tf[s:e], A[:e - s], Y[:e - s], Z[:e - s]
+        for _ in range(times):
+            np.matmul(r, r, out=a)  # A = I − R R
+            np.negative(a, out=a)
+            a[:, idx, idx] += 1.0
+            x = np.linalg.solve(a, t)  # X = (I − R R)⁻¹ T
+            np.matmul(r, x, out=y)
+            np.matmul(t, y, out=z)
+            r += z  # R' = R + T R X
+            np.matmul(t, x, out=y)
+            t[...] = y  # T' = T X
+    return Rout, Tout
 
 
 #: Threads of :func:`double_symmetric`'s batch split, created on first use.
@@ -264,11 +297,23 @@ def eigen_slab(x, w, sigma_t, K_T, K_R, thickness_um, l0=0):
 EIGEN_SYMMETRY_TOL = 1e-6
 
 
-def _symmetric_kernels(K_T, K_R):
-    scale = max(float(np.abs(K_T).max()), float(np.abs(K_R).max()), 1e-300)
-    asym = max(float(np.abs(K_T - np.swapaxes(K_T, -1, -2)).max()),
-               float(np.abs(K_R - np.swapaxes(K_R, -1, -2)).max()))
-    return asym <= EIGEN_SYMMETRY_TOL * scale
+def _kernel_range(K_T, K_R):
+    """[max K_T, min K_T, max K_R, min K_R] (a NaN propagates)."""
+    return np.array([K_T.max(), K_T.min(), K_R.max(), K_R.min()])
+
+
+def _symmetric_kernels(K_T, K_R, extent=None):
+    """max |K − Kᵀ| ≤ EIGEN_SYMMETRY_TOL · max |K| over both blocks (``extent``: their
+    :func:`_kernel_range` if known).  K − Kᵀ is antisymmetric, so its largest entry is its largest
+    magnitude (no abs pass); one buffer serves both differences."""
+    extent = _kernel_range(K_T, K_R) if extent is None else extent
+    scale = np.max(np.append(np.abs(extent), 1e-300))  # np.max: a NaN propagates
+    buf = np.empty(np.broadcast_shapes(K_T.shape, K_R.shape))
+    asym = []
+    for K in (K_T, K_R):
+        np.subtract(K, np.swapaxes(K, -1, -2), out=buf)
+        asym.append(buf.max())
+    return bool(np.max(asym) <= EIGEN_SYMMETRY_TOL * scale)
 
 
 def _eigen_slab_threads(x, w, sigma_t, K_T, K_R, thickness_um, l0, threads):
@@ -309,24 +354,27 @@ def homogeneous_slab(x, w, sigma_t, K_T, K_R, thickness_um, slice_tau=2.0**-7, l
     parallel threads over orders (eigen) or over the (orders, channels) batch (doubling).
     """
     sigma_t = np.atleast_2d(sigma_t)
-    if not np.any(K_T) and not np.any(K_R):  # a pure absorber: the exact diagonal attenuation
+    extent = _kernel_range(K_T, K_R) if K_T.size and K_R.size else np.zeros(4)
+    if np.all(extent == 0.0):  # a pure absorber: the exact diagonal attenuation
         C = max(sigma_t.shape[0], K_T.shape[1])
         return direct_only_orders(x, sigma_t, thickness_um, K_T.shape[0], C)
     if method not in ("eigen", "doubling"):
         raise ValueError(f"method = {method!r}: 'eigen' or 'doubling'")
-    if method == "eigen" and _symmetric_kernels(K_T, K_R):
+    if method == "eigen" and _symmetric_kernels(K_T, K_R, extent):
         try:
             with np.errstate(over="ignore", under="ignore"):
                 R, T = _eigen_slab_threads(x, w, sigma_t, K_T, K_R, thickness_um, l0, threads)
-            if np.all(np.isfinite(R)) and np.all(np.isfinite(T)):
-                return Layer(R, T, R.copy(), T.copy())
+            # a sum is finite only if every entry is (NaN and ±inf propagate; R, T are bounded, so a
+            # finite sum does not overflow): one reduction instead of an isfinite pass per block
+            if np.isfinite(R.sum() + T.sum()):
+                return Layer(R, T, R, T)  # symmetric: bottom blocks are the top ones (never written in place)
         except np.linalg.LinAlgError:
             pass
     n = slice_doublings(thickness_um, sigma_t.max(), slice_tau)
     dz = thickness_um / 2.0**n
     R, T = thin_slab_diamond(x, w, sigma_t, K_T, K_R, dz, l0)
     R, T = double_symmetric(R, T, n, threads)
-    return Layer(R, T, R.copy(), T.copy())
+    return Layer(R, T, R, T)
 
 
 def direct_only_orders(x, sigma_t, thickness_um, L, C):

@@ -76,29 +76,49 @@ class FactorKernel:
     def channels(self):
         return self.weights.shape[0]
 
-    def raw_blocks(self, l0, l1):
-        """(l1 − l0, C, 2, h, h) without the renormalisation; zero beyond the stored orders."""
-        h, C = self.h, self.channels
-        out = np.zeros((max(0, l1 - l0), C, 2, h, h))
-        k1 = min(l1, self._L)
-        if k1 > l0:
-            V = np.asarray(self.read(l0, k1), dtype=float)  # (r, l, 2, h, h)
-            r = V.shape[0]
-            # the contraction: (C, r) @ (r, l·2·h·h)
-            out[: k1 - l0] = np.moveaxis((self.weights @ V.reshape(r, -1)).reshape((C, k1 - l0, 2, h, h)), 0, 1)
-        return out
-
     def blocks(self, l0=0, l1=None):
         l1 = self._L if l1 is None else int(l1)
-        out = self.raw_blocks(l0, l1)
-        return _scaled(out[:, :, 0], out[:, :, 1], self.scale)
+        out = _contract_factors([self], l0, l1)
+        return _scaled(out[0], out[1], self.scale, in_place=True)
 
 
-def _scaled(K_T, K_R, scale):
+def _contract_factors(kernels, l0, l1):
+    """Σ over ``kernels`` (:class:`FactorKernel`, same h) of their unscaled blocks for orders l0 … l1 − 1
+    as one (2, l1 − l0, C, h, h) array (K_T, K_R each contiguous): the parts' weights side by side,
+    (C, Σr), times their factors stacked, (Σr, h·h), one batched GEMM per (block, order) written straight
+    into the result; orders beyond a kernel's count are zero rows of its factors, orders beyond every
+    kernel's count zero."""
+    h = kernels[0].h
+    C = max(k.channels for k in kernels)
+    L = max(0, l1 - l0)
+    live = [(k, min(l1, k.n_orders)) for k in kernels if min(l1, k.n_orders) > l0]
+    kmax = max([k1 for _, k1 in live], default=l0)
+    out = np.empty((2, L, C, h * h))
+    out[:, kmax - l0:] = 0.0
+    if live:
+        W = np.concatenate([np.broadcast_to(k.weights, (C, k.weights.shape[1])) for k, _ in live], axis=1)
+        V = np.empty((W.shape[1], kmax - l0, 2, h * h))
+        r0 = 0
+        for k, k1 in live:
+            r = k.weights.shape[1]
+            V[r0:r0 + r, : k1 - l0] = np.reshape(k.read(l0, k1), (r, k1 - l0, 2, h * h))
+            V[r0:r0 + r, k1 - l0:] = 0.0
+            r0 += r
+        np.matmul(W, V.transpose(2, 1, 0, 3), out=out[:, : kmax - l0])  # (C, Σr) @ (2, l, Σr, h·h)
+    return out.reshape(2, L, C, h, h)
+
+
+def _scaled(K_T, K_R, scale, in_place=False):
+    """s_o K[o, i] s_i for both blocks (``scale`` (C, h), None: unchanged); ``in_place`` for arrays the
+    caller owns."""
     if scale is not None:
         f = scale[None, :, :, None] * scale[None, :, None, :]
-        K_T = K_T * f
-        K_R = K_R * f
+        if in_place:
+            K_T *= f
+            K_R *= f
+        else:
+            K_T = K_T * f
+            K_R = K_R * f
     return K_T, K_R
 
 
@@ -120,11 +140,22 @@ class SumKernel:
 
     def blocks(self, l0=0, l1=None):
         l1 = self.n_orders if l1 is None else int(l1)
-        K_T = K_R = 0.0
-        for p in self.parts:
+        factors = [p for p in self.parts if isinstance(p, FactorKernel) and p.scale is None]
+        K_T = K_R = None
+        if factors:  # the stored flake species: one contraction of all their factors
+            K_T, K_R = _contract_factors(factors, l0, l1)
+        for p in self.parts:  # the others summed into the same buffers
+            if any(p is f for f in factors):
+                continue
             a, b = p.blocks(l0, l1)
-            K_T, K_R = K_T + a, K_R + b
-        return _scaled(K_T, K_R, self.scale)
+            if K_T is None:
+                K_T, K_R = np.array(a, dtype=float), np.array(b, dtype=float)
+            elif a.shape[1] > K_T.shape[1]:  # a one-channel sum so far and a C-channel part
+                K_T, K_R = K_T + a, K_R + b
+            else:
+                K_T += a
+                K_R += b
+        return _scaled(K_T, K_R, self.scale, in_place=True)
 
 
 @dataclass(eq=False)
