@@ -378,14 +378,19 @@ def homogeneous_slab(x, w, sigma_t, K_T, K_R, thickness_um, slice_tau=2.0**-7, l
 
 
 def direct_only_orders(x, sigma_t, thickness_um, L, C):
-    """Blocks of orders with no scattering: R = 0, T = diag(exp(−σ_t d / μ)).  Shape (L, C, h, h)."""
+    """Blocks of orders with no scattering: R = 0, T = diag(exp(−σ_t d / μ)).  Shape (L, C, h, h).
+
+    The direct beam is the same in every order and up and down: the blocks are read-only broadcast
+    views of one (1, C, h, h) transmission and one zero block (no memory per order)."""
     sigma_t = np.broadcast_to(np.atleast_2d(sigma_t), (C, len(x)))
     h = len(x)
     t = np.exp(-sigma_t * thickness_um / x)  # (C, h)
-    T = np.zeros((L, C, h, h))
+    T = np.zeros((1, C, h, h))
     idx = np.arange(h)
     T[..., idx, idx] = t[None]
-    return Layer(np.zeros_like(T), T, np.zeros_like(T), T.copy())
+    T = np.broadcast_to(T, (L, C, h, h))
+    R = np.broadcast_to(np.zeros((1, 1, h, h)), (L, C, h, h))
+    return Layer(R, T, R, T)
 
 
 def extend_orders(layer, L, x=None, sigma_t=None, thickness_um=None):

@@ -192,6 +192,27 @@ class PhaseMedium:
         ss = (_channels(self.sigma_t_per_um) * _channels(self.albedo)).reshape((-1,) + (1,) * cos_t.ndim)
         return ss * self._p(cos_t)
 
+    def legendre_moments(self, tol=LEGENDRE_TOL):
+        """``(χ, info)``: the Legendre moments (C, K + 1) of an HG or vMF phase function, truncated at
+        the relative tail ``tol`` (:func:`flakedb.rt.legendre.truncate_legendre`); χ_k = g^k for HG
+        (its generating function, Henyey & Greenstein 1941), :func:`vmf_legendre_moments` for vMF.
+        None for other phase functions, or when the series needs more than ``LEGENDRE_K_MAX`` degrees
+        (HG with |g| → 1).  The kernel then follows from the addition theorem with no azimuthal
+        sampling (:class:`flakedb.rt.legendre.LegendreKernel`; docs/model.md §3)."""
+        if self.phase == "isotropic" or self.phase[0] not in ("hg", "vmf"):
+            return None
+        par = _channels(self.phase[1])
+        C = max(par.size, _channels(self.sigma_t_per_um).size, _channels(self.albedo).size)
+        if self.phase[0] == "hg":
+            if np.max(np.abs(par)) >= 1.0:
+                return None
+            chi = par[:, None] ** np.arange(LEGENDRE_K_MAX + 1)[None, :]
+        else:
+            chi = vmf_legendre_moments(par, vmf_legendre_degree(np.max(par), tol))
+        chi, info = truncate_legendre(np.broadcast_to(chi, (C, chi.shape[1])), tol)
+        # cut before the last computed degree: the dropped tail is then the measured one
+        return (chi, info) if info["converged"] and info["degree"] < LEGENDRE_K_MAX else None
+
     def kernel_basis(self):
         """The kernel as Σ_b M[c, b] k_b (:class:`KernelBasis`): σ_s(c) times a phase function that
         is one of a few basis functions of cos Θ — one per distinct HG g, or the rows of a truncated

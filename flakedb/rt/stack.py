@@ -27,6 +27,7 @@ from flakedb.rt.layer import (
     identity_layer,
     pad_orders,
 )
+from flakedb.rt.legendre import LegendreKernel
 from flakedb.rt.media import channel_subset, kernel_basis
 from flakedb.rt.microfacet import jackson_factors
 from flakedb.rt.orders import order_tail, reflection_over, reflection_under_smooth
@@ -225,6 +226,13 @@ class StackBSDF:
         return np.einsum("lcoi,lp->coip", f, cos)
 
 
+def legendre_moments(medium, tol):
+    """The medium's Legendre moments when its kernel is σ_s times an HG or vMF phase function
+    (:meth:`flakedb.rt.media.PhaseMedium.legendre_moments`), else None."""
+    fn = getattr(medium, "legendre_moments", None)
+    return None if fn is None else fn(tol)
+
+
 def _component_orders_hint(medium):
     return int(getattr(medium, "phi_bandwidth", 16))
 
@@ -268,6 +276,12 @@ def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True, 
         pk, info = medium.projected_kernel(
             x, max_orders, lambda m: project_medium(m, x, w, tol, max_orders, renormalize=False, basis=basis,
                                                     filter_capped=False))
+    elif basis and (lm := legendre_moments(medium, tol)) is not None:
+        # an HG or vMF phase function: its Legendre moments and the addition theorem, no φ sampling
+        chi, linfo = lm
+        pk = LegendreKernel(x, chi, np.atleast_2d(medium.sigma_s(x))[:, 0], max_orders=max_orders)
+        info = {"kernel": "Legendre moments and the addition theorem", "legendre_degree": linfo["degree"],
+                "tail": linfo["tail"], "converged": True}
     else:
         kb = kernel_basis(medium) if basis else None
         fn, M = (medium.kernel, None) if kb is None else (kb.fn, kb.M)
@@ -735,7 +749,10 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom,
         if l1 > l0:
             Rr = None
             for k, item in enumerate(reversed(projected)):
-                Rr = reflection_over(item_block(item, l0, l1), Rr)
+                # a slab without kernel orders here (only its direct beam) over a black bottom reflects
+                # nothing: the bottom stays black, no blocks are built
+                if not (Rr is None and not isinstance(item[0], str) and item[0].n_orders <= l0):
+                    Rr = reflection_over(item_block(item, l0, l1), Rr)
                 s.report("solve", layer=len(projected) - k, layers=len(projected), orders=(l0, l1), of=L_report)
             if Rr is None:
                 Rr = np.zeros((l1 - l0, 1, q_in.h, q_in.h))

@@ -133,3 +133,38 @@ def test_subset_and_kernel_basis_keep_per_channel_kappa():
     full = med.kernel(mi, mo, ph)
     np.testing.assert_allclose(kb.M @ kb.fn(mi, mo, ph).reshape(2, -1), full.reshape(3, -1), rtol=1e-14)
     np.testing.assert_allclose(med.subset([2]).kernel(mi, mo, ph), full[[2]], rtol=1e-14)
+
+
+@pytest.mark.parametrize("g", [-0.4, 0.0, 0.7, 0.9])
+def test_hg_legendre_moments_are_its_generating_function(g):
+    """χ_k = g^k (Henyey & Greenstein 1941): the truncated series reproduces the closed-form phase
+    function to the truncation's bound (tol × Σ (2k+1)/(4π) |χ_k| ≥ max p)."""
+    tol = 1e-6
+    chi, info = rm.PhaseMedium(1.0, 0.9, ("hg", g)).legendre_moments(tol)
+    t = np.linspace(-1.0, 1.0, 2001)
+    series = np.sum((2 * np.arange(chi.shape[1]) + 1)[:, None] / (4 * np.pi) * chi[0][:, None]
+                    * eval_legendre(np.arange(chi.shape[1])[:, None], t[None, :]), axis=0)
+    exact = (1 - g * g) / (4 * np.pi * (1 + g * g - 2 * g * t) ** 1.5)
+    bound = tol * np.sum((2 * np.arange(chi.shape[1]) + 1) / (4 * np.pi) * np.abs(chi[0]))
+    assert np.abs(series - exact).max() <= 2 * bound
+    assert info["converged"]
+    assert rm.PhaseMedium(1.0, 0.9, ("hg", 0.999)).legendre_moments(tol) is None  # beyond LEGENDRE_K_MAX
+
+
+@pytest.mark.parametrize("phase", [("hg", [0.3, 0.7, 0.85]), ("vmf", [5.0, 20.0, 60.0])])
+def test_phase_kernels_by_the_addition_theorem_equal_the_azimuthal_projection(phase):
+    """project_medium takes HG and vMF media through their Legendre moments (no φ sampling); the blocks
+    equal the φ-sampled projection (basis=False) to its tolerance, and keep the renormalised energy."""
+    q = radau_hemisphere(16)
+    med = rm.PhaseMedium([1.0, 0.8, 1.2], [0.9, 0.5, 0.99], phase)
+    pk, info = project_medium(med, q.x, q.w, 1e-6, 64)
+    pk0, info0 = project_medium(med, q.x, q.w, 1e-6, 64, basis=False)
+    assert info["kernel"].startswith("Legendre") and "n_phi" in info0
+    L = min(pk.n_orders, pk0.n_orders)
+    (KT, KR), (KT0, KR0) = pk.blocks(0, L), pk0.blocks(0, L)
+    scale = np.abs(KT0).max()
+    np.testing.assert_allclose(KT, KT0, atol=2e-5 * scale)
+    np.testing.assert_allclose(KR, KR0, atol=2e-5 * scale)
+    # energy: Σ_o 2π w_o (K_T + K_R)_0[o, i] = σ_s (renormalised, as the φ-sampled kernel)
+    col = 2 * np.pi * np.einsum("coi,o->ci", KT[0] + KR[0], q.w)
+    np.testing.assert_allclose(col, np.broadcast_to(med.sigma_s(q.x), col.shape), rtol=1e-12)
