@@ -122,6 +122,14 @@ class LegendreKernel:
     def channels(self):
         return self.chi.shape[0]
 
+    def channel_subset(self, idx):
+        """The kernel of channels ``idx`` (their moments, σ_s and scale; the Legendre functions shared)."""
+        rows = lambda a: a if a.shape[0] == 1 else a[idx]
+        k = LegendreKernel(self.x, rows(self.chi), rows(self.sigma_s), max_orders=self._L,
+                           scale=None if self.scale is None else rows(self.scale))
+        k._S = self._S
+        return k
+
     def _legendre(self):
         if self._S is None:
             self._S = normalized_legendre(self.x, self.K, self._L - 1)  # (L, K + 1, h)

@@ -459,10 +459,13 @@ class _GroupView:
 
 
 def _kernel_channel_subset(pk, idx):
-    """Channels ``idx`` of a projected kernel (ProjectedKernel, DampedKernel), or None for other kinds."""
+    """Channels ``idx`` of a projected kernel (ProjectedKernel, DampedKernel, or one with a
+    ``channel_subset`` method), or None for other kinds."""
     if isinstance(pk, DampedKernel):
         inner = _kernel_channel_subset(pk.inner, idx)
         return None if inner is None else DampedKernel(inner, pk.g)
+    if hasattr(pk, "channel_subset"):  # stored factors, sums, Legendre kernels
+        return pk if pk.channels == 1 else pk.channel_subset(idx)
     if not isinstance(pk, ProjectedKernel) or pk.channels == 1:
         return pk if isinstance(pk, ProjectedKernel) else None
     scale = pk.scale

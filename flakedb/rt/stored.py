@@ -81,6 +81,17 @@ class FactorKernel:
         out = _contract_factors([self], l0, l1)
         return _scaled(out[0], out[1], self.scale, in_place=True)
 
+    def channel_subset(self, idx):
+        """The kernel of channels ``idx`` (the same factors, those channels' weights and scale)."""
+        k = FactorKernel(self.read, _rows(self.weights, idx), self._L, self.h)
+        k.scale = None if self.scale is None else _rows(self.scale, idx)
+        return k
+
+
+def _rows(a, idx):
+    """Rows ``idx`` of a per-channel array; a one-row (channel-independent) array unchanged."""
+    return a if a.shape[0] == 1 else a[idx]
+
 
 def _contract_factors(kernels, l0, l1):
     """Σ over ``kernels`` (:class:`FactorKernel`, same h) of their unscaled blocks for orders l0 … l1 − 1
@@ -156,6 +167,15 @@ class SumKernel:
                 K_T += a
                 K_R += b
         return _scaled(K_T, K_R, self.scale, in_place=True)
+
+    def channel_subset(self, idx):
+        """The kernel of channels ``idx``, or None when a part has no channel subset."""
+        parts = [p if p.channels == 1 else getattr(p, "channel_subset", lambda i: None)(idx) for p in self.parts]
+        if any(p is None for p in parts):
+            return None
+        k = SumKernel(parts)
+        k.scale = None if self.scale is None else _rows(self.scale, idx)
+        return k
 
 
 @dataclass(eq=False)

@@ -58,3 +58,24 @@ def test_sum_of_factor_kernels_is_the_sum_of_their_contractions():
         np.testing.assert_allclose(a, w_T * f, rtol=0, atol=1e-13 * max(np.abs(w_T).max(), 1e-300))
         np.testing.assert_allclose(b, w_R * f, rtol=0, atol=1e-13 * max(np.abs(w_R).max(), 1e-300))
         k1.scale = None
+
+
+def test_a_channel_subset_of_a_stored_kernel_is_those_channels_of_its_blocks():
+    """A channel group solves with channel_subset(idx) of the whole projected kernel (not a second
+    contraction): its blocks must be exactly those channels of the whole kernel's blocks, for factor,
+    Legendre and summed kernels, with and without the renormalisation scale."""
+    rng = np.random.default_rng(2)
+    h, C = 5, 4
+    x = radau_hemisphere(h).x
+    (k1, _, _), (k2, _, _) = _factor_kernel(rng, 2, 7, C, h), _factor_kernel(rng, 3, 4, C, h)
+    k3, _, _ = _factor_kernel(rng, 1, 6, 1, h)
+    leg = LegendreKernel(x, np.linspace(0.3, 0.8, C)[:, None] ** np.arange(6)[None], np.linspace(1.0, 2.0, C))
+    idx = np.array([1, 3])
+    for kern in (k1, leg, SumKernel([k1, leg, k2, k3])):
+        for scale in (None, 1.0 + 0.1 * rng.random((C, h))):
+            kern.scale = scale
+            whole = kern.blocks(0, 8)
+            sub = kern.channel_subset(idx)
+            assert sub.channels == idx.size
+            for got, want in zip(sub.blocks(0, 8), whole):
+                np.testing.assert_array_equal(got, want[:, idx])
