@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ive
 
-from flakedb.rt.legendre import LEGENDRE_K_MAX, LEGENDRE_TOL, truncate_legendre
+from flakedb.rt.legendre import LEGENDRE_K_MAX, LEGENDRE_TOL, legendre_moments, truncate_legendre
 from flakedb.rt.microflake import (
     FlakeOptics,
     extinction_Ergun,
@@ -193,25 +193,32 @@ class PhaseMedium:
         return ss * self._p(cos_t)
 
     def legendre_moments(self, tol=LEGENDRE_TOL):
-        """``(χ, info)``: the Legendre moments (C, K + 1) of an HG or vMF phase function, truncated at
-        the relative tail ``tol`` (:func:`flakedb.rt.legendre.truncate_legendre`); χ_k = g^k for HG
-        (its generating function, Henyey & Greenstein 1941), :func:`vmf_legendre_moments` for vMF.
-        None for other phase functions, or when the series needs more than ``LEGENDRE_K_MAX`` degrees
-        (HG with |g| → 1).  The kernel then follows from the addition theorem with no azimuthal
-        sampling (:class:`flakedb.rt.legendre.LegendreKernel`; docs/model.md §3)."""
-        if self.phase == "isotropic" or self.phase[0] not in ("hg", "vmf"):
+        """``(χ, info)``: the Legendre moments (C, K + 1) of the phase function, truncated at the
+        relative tail ``tol`` (:func:`flakedb.rt.legendre.truncate_legendre`): χ_k = g^k for HG (its
+        generating function, Henyey & Greenstein 1941), :func:`vmf_legendre_moments` for vMF, the exact
+        moments of the linear interpolant for a table (:func:`flakedb.rt.legendre.legendre_moments`).
+        None for the isotropic phase function, or when the series needs more than ``LEGENDRE_K_MAX``
+        degrees (HG with |g| → 1, a very sharp forward peak).  The kernel then follows from the
+        addition theorem with no azimuthal sampling (:class:`flakedb.rt.legendre.LegendreKernel`;
+        docs/model.md §3)."""
+        if self.phase == "isotropic" or self.phase[0] not in ("hg", "vmf", "table"):
             return None
-        par = _channels(self.phase[1])
-        C = max(par.size, _channels(self.sigma_t_per_um).size, _channels(self.albedo).size)
-        if self.phase[0] == "hg":
-            if np.max(np.abs(par)) >= 1.0:
-                return None
-            chi = par[:, None] ** np.arange(LEGENDRE_K_MAX + 1)[None, :]
+        C = max(_channels(self.sigma_t_per_um).size, _channels(self.albedo).size)
+        if self.phase[0] == "table":
+            chi, info = legendre_moments(self.phase[1], np.atleast_2d(np.asarray(self.phase[2], dtype=float)), tol)
         else:
-            chi = vmf_legendre_moments(par, vmf_legendre_degree(np.max(par), tol))
-        chi, info = truncate_legendre(np.broadcast_to(chi, (C, chi.shape[1])), tol)
+            par = _channels(self.phase[1])
+            if self.phase[0] == "hg":
+                if np.max(np.abs(par)) >= 1.0:
+                    return None
+                chi = par[:, None] ** np.arange(LEGENDRE_K_MAX + 1)[None, :]
+            else:
+                chi = vmf_legendre_moments(par, vmf_legendre_degree(np.max(par), tol))
+            chi, info = truncate_legendre(chi, tol)
         # cut before the last computed degree: the dropped tail is then the measured one
-        return (chi, info) if info["converged"] and info["degree"] < LEGENDRE_K_MAX else None
+        if not (info["converged"] and info["degree"] < LEGENDRE_K_MAX):
+            return None
+        return np.broadcast_to(chi, (max(C, chi.shape[0]), chi.shape[1])), info
 
     def kernel_basis(self):
         """The kernel as Σ_b M[c, b] k_b (:class:`KernelBasis`): σ_s(c) times a phase function that

@@ -151,6 +151,10 @@ def test_hg_legendre_moments_are_its_generating_function(g):
     assert rm.PhaseMedium(1.0, 0.9, ("hg", 0.999)).legendre_moments(tol) is None  # beyond LEGENDRE_K_MAX
 
 
+_CT = np.cos(np.linspace(np.pi, 0.0, 361))  # 0.5° steps in Θ, as the Mie tables
+_TABLE = np.stack([(1 - g * g) / (4 * np.pi * (1 + g * g - 2 * g * _CT) ** 1.5) for g in (0.2, 0.5, 0.6)])
+
+
 @pytest.mark.parametrize("phase", [("hg", [0.3, 0.7, 0.85]), ("vmf", [5.0, 20.0, 60.0])])
 def test_phase_kernels_by_the_addition_theorem_equal_the_azimuthal_projection(phase):
     """project_medium takes HG and vMF media through their Legendre moments (no φ sampling); the blocks
@@ -168,3 +172,24 @@ def test_phase_kernels_by_the_addition_theorem_equal_the_azimuthal_projection(ph
     # energy: Σ_o 2π w_o (K_T + K_R)_0[o, i] = σ_s (renormalised, as the φ-sampled kernel)
     col = 2 * np.pi * np.einsum("coi,o->ci", KT[0] + KR[0], q.w)
     np.testing.assert_allclose(col, np.broadcast_to(med.sigma_s(q.x), col.shape), rtol=1e-12)
+
+
+def test_a_tabulated_phase_function_by_its_moments_is_as_close_to_the_smooth_kernel_as_by_phi_sampling():
+    """A table (HG g 0.2, 0.5, 0.6 sampled every 0.5° in Θ, as the Mie tables) goes through the exact
+    moments of its linear interpolant and the addition theorem.  Both routes carry the table's own
+    interpolation error (kinks at the grid points); measured against the exact HG kernel, the moments'
+    route must be no worse than the φ-sampled projection of the same table (4.3e-5 vs 6.1e-5 of max)."""
+    q = radau_hemisphere(16)
+    sig, alb, G = [1.0, 0.8, 1.2], [0.9, 0.5, 0.99], [0.2, 0.5, 0.6]
+    med = rm.PhaseMedium(sig, alb, ("table", _CT, _TABLE))
+    pk, info = project_medium(med, q.x, q.w, 1e-6, 64, renormalize=False)
+    pk0, info0 = project_medium(med, q.x, q.w, 1e-6, 64, renormalize=False, basis=False)
+    pkh, _ = project_medium(rm.PhaseMedium(sig, alb, ("hg", G)), q.x, q.w, 1e-9, 64, renormalize=False)
+    assert info["kernel"].startswith("Legendre") and "n_phi" in info0
+    L = min(pk.n_orders, pk0.n_orders)
+    (KT, KR), (KT0, KR0) = pk.blocks(0, L), pk0.blocks(0, L)
+    HT, HR = pkh.blocks(0, L)
+    scale = np.abs(HT).max()
+    err = max(np.abs(KT - HT).max(), np.abs(KR - HR).max()) / scale
+    err0 = max(np.abs(KT0 - HT).max(), np.abs(KR0 - HR).max()) / scale
+    assert err <= err0 and err < 1e-4
