@@ -10,7 +10,9 @@ reflection seen from above is ``mu_i > 0, mu_o < 0``, ``phi_d = 0`` is mirror re
 What this module provides
 -------------------------
 * :class:`BSDFTable` -- what the solver hands over: nodes ``mu`` (n,), coefficients
-  ``coeffs[c, i, o, l]`` (C, n, n, L) of f·|mu_o|, ``eta``, ``alpha``, ``delta``, ``metadata``.
+  ``coeffs[c, i, o, l]`` (C, n, n, L) of f·|mu_o|, ``eta``, ``alpha``, ``delta``, ``metadata``;
+  an opaque paint's table is given as its reflection quadrant alone (``reflection=``, (C, h, h, L);
+  ``coeffs`` is built from it only when read, and the ``.bsdf`` writer never builds it).
 * :func:`write_bsdf` / :func:`read_bsdf` -- the 64-byte-header Fourier file (float32, channels
   stored as Y, R, B), byte layout exactly per the spec.
 * :func:`write_h5` / :func:`read_h5` -- the full-precision result (float64, every order, any number

@@ -145,8 +145,9 @@ class SolverSettings:
     #: Jackson-filter a medium kernel cut by the order cap (:func:`_damp_if_capped`): its truncated
     #: series rings negative otherwise.  False: plain truncation (order-convergence studies).
     filter_capped_kernels: bool = True
-    #: Threads over the (orders, channels) batch of the doubling (:func:`flakedb.rt.layer.double_symmetric`);
-    #: compose sets the machine's core count.  BLAS itself runs one thread per call during a solve.
+    #: Threads over the (orders, channels) batch of the slab solvers (:func:`flakedb.rt.layer.double_symmetric`,
+    #: the eigen-solution); > 1 also builds a rough top in a background thread while the slabs are
+    #: projected.  Compose sets the machine's core count.  BLAS itself runs one thread per call during a solve.
     threads: int = 1
     #: Progress callback ``progress(stage, detail)`` (stage "projection" or "solve", detail a dict),
     #: called after each slab's kernel projection and each layer of each order block; None: silent.
@@ -227,8 +228,8 @@ class StackBSDF:
 
 
 def legendre_moments(medium, tol):
-    """The medium's Legendre moments when its kernel is σ_s times an HG or vMF phase function
-    (:meth:`flakedb.rt.media.PhaseMedium.legendre_moments`), else None."""
+    """The medium's Legendre moments when its kernel is σ_s times an HG, vMF or tabulated phase
+    function (:meth:`flakedb.rt.media.PhaseMedium.legendre_moments`), else None."""
     fn = getattr(medium, "legendre_moments", None)
     return None if fn is None else fn(tol)
 
@@ -277,7 +278,7 @@ def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True, 
             x, max_orders, lambda m: project_medium(m, x, w, tol, max_orders, renormalize=False, basis=basis,
                                                     filter_capped=False))
     elif basis and (lm := legendre_moments(medium, tol)) is not None:
-        # an HG or vMF phase function: its Legendre moments and the addition theorem, no φ sampling
+        # an HG, vMF or tabulated phase function: its Legendre moments and the addition theorem, no φ sampling
         chi, linfo = lm
         pk = LegendreKernel(x, chi, np.atleast_2d(medium.sigma_s(x))[:, 0], max_orders=max_orders)
         info = {"kernel": "Legendre moments and the addition theorem", "legendre_degree": linfo["degree"],
