@@ -83,7 +83,7 @@ def legendre_moments(cos_grid, table, tol=LEGENDRE_TOL, k_max=LEGENDRE_K_MAX):
         ok = np.nonzero(worst <= tol)[0]
         if (len(ok) and ok[0] < K // 2) or K >= k_max:
             deg = int(ok[0]) if len(ok) else K
-            return chi[:, : deg + 1], {"degree": deg, "tail": float(worst[deg]), "converged": bool(len(ok))}
+            return chi[:, : deg + 1], {"degree": deg, "tail": float(worst[deg]), "converged": bool(len(ok)) and deg < K}
         K = min(2 * K, int(k_max))
 
 
@@ -181,7 +181,8 @@ def legendre_moments_gauss(nodes, weights, values, tol=LEGENDRE_TOL, k_max=LEGEN
 
 def truncate_legendre(chi, tol=LEGENDRE_TOL):
     """Moments ``chi`` (C, K + 1) truncated at the first degree whose dropped tail is ≤ ``tol`` (module
-    docstring); returns ``(chi, info)`` as :func:`legendre_moments`."""
+    docstring); returns ``(chi, info)`` as :func:`legendre_moments` (``converged`` False when the cut is
+    at the last given degree K: the tail beyond K is not known)."""
     chi = np.atleast_2d(np.asarray(chi, dtype=float))
     K = chi.shape[1] - 1
     term = np.abs(chi) * (2 * np.arange(K + 1) + 1) / (4.0 * np.pi)
@@ -191,7 +192,7 @@ def truncate_legendre(chi, tol=LEGENDRE_TOL):
     worst = np.concatenate([tails.max(axis=0)[1:], [0.0]])  # worst[k]: relative tail beyond degree k
     ok = np.nonzero(worst <= tol)[0]
     deg = int(ok[0]) if len(ok) else K
-    return chi[:, : deg + 1], {"degree": deg, "tail": float(worst[deg]), "converged": bool(len(ok))}
+    return chi[:, : deg + 1], {"degree": deg, "tail": float(worst[deg]), "converged": bool(len(ok)) and deg < K}
 
 
 def legendre_series(chi, t):

@@ -14,7 +14,7 @@ from numpy.polynomial.legendre import leggauss
 from scipy.special import eval_legendre, spherical_in
 
 from flakedb.rt import media as rm
-from flakedb.rt.legendre import LegendreKernel
+from flakedb.rt.legendre import LegendreKernel, truncate_legendre
 from flakedb.rt.quadrature import radau_hemisphere
 from flakedb.rt.stack import (
     Lambertian,
@@ -193,3 +193,13 @@ def test_a_tabulated_phase_function_by_its_moments_is_as_close_to_the_smooth_ker
     err = max(np.abs(KT - HT).max(), np.abs(KR - HR).max()) / scale
     err0 = max(np.abs(KT0 - HT).max(), np.abs(KR0 - HR).max()) / scale
     assert err <= err0 and err < 1e-4
+
+
+def test_a_series_cut_at_its_last_degree_is_not_converged():
+    """truncate_legendre may only call a cut converged when the dropped tail was measured: a cut at the
+    last given degree leaves an unknown tail (HG g 0.99 over 65 degrees), a cut before it does not."""
+    k = np.arange(65)
+    _, info = truncate_legendre(0.99 ** k[None, :], 1e-6)
+    assert info["degree"] == 64 and not info["converged"]
+    _, info = truncate_legendre(0.3 ** k[None, :], 1e-6)
+    assert info["degree"] < 64 and info["converged"]
