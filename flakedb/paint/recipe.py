@@ -537,6 +537,10 @@ def _clearcoat_checks(base, L, mode, grid):
             problems += _spectrum_problems(f"{base}.absorption_per_um", ab, grid, 0.0, None, "absorption_per_um")
         ab = Spectrum(np.asarray(ab["wavelength_nm"], float), np.asarray(ab["value"], float))
     rough = float(L.get("roughness", 0.0))
+    if 0.0 < rough < 0.01:
+        problems.append(f"{base}.roughness: value {rough:g} is outside the allowed range 0 (smooth) or 0.01-1 "
+                        f"(Beckmann α; below 0.01 the flux-cell integration needs minutes and gigabytes; hint: "
+                        f"write 0 for a smooth coat)")
     if float(L["ior"]) == 1.0 and rough > 0:
         problems.append(f"{base}.roughness: value {rough:g} with ior 1: an index-matched coat has no interface "
                         f"to be rough (hint: set roughness to 0, or ior > 1)")

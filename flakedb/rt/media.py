@@ -29,6 +29,7 @@ from flakedb.rt.microflake import (
     scattering_Ergun,
     table_basis,
 )
+from flakedb.rt.params import check_range
 
 
 def cos_scattering_angle(mu_i, mu_o, phi_d):
@@ -146,6 +147,27 @@ class PhaseMedium:
     sigma_t_per_um: object
     albedo: object
     phase: object = "isotropic"
+
+    def __post_init__(self):
+        check_range("PhaseMedium", "sigma_t_per_um", self.sigma_t_per_um, 0.0, None)
+        check_range("PhaseMedium", "albedo", self.albedo, 0.0, 1.0)
+        ph = self.phase
+        if isinstance(ph, str):
+            if ph != "isotropic":
+                raise ValueError(f"PhaseMedium.phase = {ph!r}: use 'isotropic', ('hg', g), ('vmf', kappa) or "
+                                 f"('table', cos_theta, values)")
+        elif ph[0] == "hg":
+            check_range("PhaseMedium", "phase g", ph[1], -1.0, None, lo_open=True)
+            if np.any(np.asarray(ph[1], dtype=float) >= 1.0):
+                raise ValueError(f"PhaseMedium.phase g = {ph[1]!r} is outside the allowed range -1 < g < 1")
+        elif ph[0] == "vmf":
+            check_range("PhaseMedium", "phase kappa", ph[1], 0.0, None)
+        elif ph[0] == "table":
+            ct = np.asarray(ph[1], dtype=float)
+            check_range("PhaseMedium", "phase cos_theta", ct, -1.0, 1.0)
+            if ct.ndim != 1 or ct.size < 2 or np.any(np.diff(ct) <= 0):
+                raise ValueError("PhaseMedium.phase cos_theta must be a strictly ascending list of ≥ 2 cosines")
+            check_range("PhaseMedium", "phase values", ph[2], 0.0, None)
 
     def sigma_t(self, mu):
         s = _channels(self.sigma_t_per_um)
@@ -323,6 +345,10 @@ class FlakeMedium:
     alpha: float
     optics: object
     a_rho_per_um: float
+
+    def __post_init__(self):
+        check_range("FlakeMedium", "alpha", self.alpha, 0.0, None, lo_open=True)
+        check_range("FlakeMedium", "a_rho_per_um", self.a_rho_per_um, 0.0, None)
 
     def sigma_t(self, mu):
         return extinction_Ergun(np.abs(mu), self.alpha, self.optics, self.a_rho_per_um)

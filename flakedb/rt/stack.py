@@ -31,6 +31,7 @@ from flakedb.rt.legendre import LegendreKernel
 from flakedb.rt.media import channel_subset, kernel_basis
 from flakedb.rt.microfacet import jackson_factors
 from flakedb.rt.orders import order_tail, reflection_over, reflection_under_smooth
+from flakedb.rt.params import check_alpha, check_complex_index, check_range
 from flakedb.rt.projection import ProjectedKernel, project_kernel_basis
 from flakedb.rt.quadrature import binder_chain_quadratures, default_tir_nodes, radau_hemisphere
 
@@ -40,6 +41,9 @@ class Smooth:
     """Smooth dielectric top interface of relative index eta (binder / air), handled exactly."""
 
     eta: float
+
+    def __post_init__(self):
+        check_range("Smooth", "eta", self.eta, 0.0, None, lo_open=True)
 
 
 @dataclass
@@ -52,6 +56,10 @@ class Rough:
     alpha: float
     energy_compensation: bool = True
 
+    def __post_init__(self):
+        check_range("Rough", "eta", self.eta, 0.0, None, lo_open=True)
+        check_alpha("Rough", self.alpha)
+
 
 @dataclass
 class Slab:
@@ -59,6 +67,9 @@ class Slab:
 
     thickness_um: float
     medium: object
+
+    def __post_init__(self):
+        check_range("Slab", "thickness_um", self.thickness_um, 0.0, None)
 
 
 @dataclass
@@ -70,6 +81,9 @@ class InnerSmooth:
     Snell invariant: the interface maps shared nodes one to one, lossless and reciprocal)."""
 
     eta: float
+
+    def __post_init__(self):
+        check_range("InnerSmooth", "eta", self.eta, 0.0, None, lo_open=True)
 
 
 @dataclass
@@ -84,12 +98,19 @@ class InnerRough:
     alpha: float
     energy_compensation: bool = True
 
+    def __post_init__(self):
+        check_range("InnerRough", "eta", self.eta, 0.0, None, lo_open=True)
+        check_alpha("InnerRough", self.alpha)
+
 
 @dataclass
 class Lambertian:
     """Diffuse primer of albedo (scalar or per channel) at the bottom of the stack."""
 
     albedo: object
+
+    def __post_init__(self):
+        check_range("Lambertian", "albedo", self.albedo, 0.0, 1.0)
 
 
 #: Default budget of the order choice: the dropped Fourier tail of the final BSDF is at most this
@@ -107,6 +128,10 @@ class RoughConductor:
     N: object
     alpha: float
     energy_compensation: bool = True
+
+    def __post_init__(self):
+        check_complex_index("RoughConductor", "N", self.N)
+        check_alpha("RoughConductor", self.alpha)
 
 
 @dataclass

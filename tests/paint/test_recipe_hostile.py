@@ -175,3 +175,11 @@ def test_value_problems_walk():
 def test_exponent_without_a_dot_explained():
     p = problems(BASE.replace("albedo: 0.9", "albedo: 9e-1"))
     assert "has the wrong type" in p[0] and "write 1.0e-3" in p[0]
+
+
+@pytest.mark.parametrize("rough", ["0.000001", "0.005"])
+def test_a_coat_rougher_than_smooth_but_below_the_solvers_range_is_refused(rough):
+    """A clear coat roughness in (0, 0.01) is refused with its field and range, as the basecoat's
+    interface_roughness is (it reached the solver and ran out of memory: 1e-6 at n = 16)."""
+    p = problems(BASE.replace("roughness: 0,", f"roughness: {rough},"))
+    assert any("layers[0].clearcoat.roughness" in m and "0.01-1" in m for m in p), p

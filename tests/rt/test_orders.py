@@ -16,7 +16,7 @@ def _mixture(C=5):
     c = np.linspace(0, 1, 9)
     R = np.stack([0.2 + 0.1 * k * c for k in range(C)])  # rank 2 over channels
     ct = np.linspace(-1, 1, 41)
-    table = np.stack([(1 + 0.3 * k * ct) / (4 * np.pi) for k in range(C)])  # rank 2, normalised
+    table = np.stack([(1 + 0.2 * k * ct) / (4 * np.pi) for k in range(C)])  # rank 2, normalised, ≥ 0
     return Mixture([FlakeMedium(0.25, FlakeOptics(c, R, 0.3 * np.ones_like(R)), 1.0),
                     FlakeMedium(0.4, FlakeOptics.constant(0.7, 0.0, channels=C), 0.5),
                     PhaseMedium(np.linspace(0.5, 1.5, C), np.linspace(0.5, 0.9, C), ("hg", [0.1, 0.6, 0.6, 0.3, 0.1])),

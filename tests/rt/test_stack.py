@@ -509,7 +509,7 @@ def test_rough_inner_interface_white_furnace_and_reciprocity(top, eta_below):
 
 
 def test_rough_inner_interface_refuses_zero_roughness():
-    with pytest.raises(ValueError, match="alpha must be > 0"):
+    with pytest.raises(ValueError, match="InnerRough.alpha = 0.0 is outside the allowed range"):
         solve_stack(Smooth(1.5), [Slab(1.0, _hg(0.5)), InnerRough(0.9, 0.0), Slab(1.0, _hg(0.5))], Lambertian(0.5),
                     SolverSettings(n=16))
 
