@@ -8,7 +8,7 @@ not pay numba's import (~0.2 s of a 1–2 s run).  Call them as ``compiled().ser
 
 from __future__ import annotations
 
-import functools
+import threading
 import types
 
 import numpy as np
@@ -26,17 +26,27 @@ def _kernel(**options):
     return register
 
 
-@functools.cache
+#: The compiled kernels once :func:`compiled` has run, and the lock that makes it run once (the
+#: preview's tile threads may all evaluate first at the same moment).
+_COMPILED: list = []
+_COMPILE_LOCK = threading.Lock()
+
+
 def compiled() -> types.SimpleNamespace:
     """The kernels compiled by numba, as attributes (``compiled().series_kernel``).  The first call
     imports numba and replaces this module's functions by their compiled dispatchers, so that the
     kernels calling each other call compiled code (numba resolves those names when it compiles)."""
-    import numba  # lazy: numba takes ~0.2 s to import; solving and writing a file need no compiled kernel
+    if _COMPILED:
+        return _COMPILED[0]
+    with _COMPILE_LOCK:
+        if not _COMPILED:
+            import numba  # lazy: numba takes ~0.2 s to import; solving and writing a file need no compiled kernel
 
-    g = globals()
-    for name, options in _KERNELS.items():
-        g[name] = numba.njit(cache=True, nogil=True, error_model="numpy", **options)(g[name])
-    return types.SimpleNamespace(**{name: g[name] for name in _KERNELS})
+            g = globals()
+            for name, options in _KERNELS.items():
+                g[name] = numba.njit(cache=True, nogil=True, error_model="numpy", **options)(g[name])
+            _COMPILED.append(types.SimpleNamespace(**{name: g[name] for name in _KERNELS}))
+    return _COMPILED[0]
 
 
 # Reassociation lets LLVM vectorise the coefficient dot products; NaN/inf semantics are kept
