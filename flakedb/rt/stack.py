@@ -9,6 +9,7 @@ BSDF of the stack seen from above (and the transmission blocks when the stack is
 analytic delta term of a smooth top, and evaluates them.
 """
 
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -583,16 +584,18 @@ class _Done:
         return self.value
 
 
-#: The background thread of :func:`_submit` (created on first use).
+#: The background thread of :func:`_submit` (created on first use, under the lock).
 _BACKGROUND: list = []
+_BACKGROUND_LOCK = threading.Lock()
 
 
 def _submit(threads, fn, *args, **kw):
     """``fn(*args, **kw)`` in the background thread when ``threads`` > 1 (a future), else now."""
     if int(threads) <= 1:
         return _Done(fn(*args, **kw))
-    if not _BACKGROUND:
-        _BACKGROUND.append(ThreadPoolExecutor(1, thread_name_prefix="flakedb-solve"))
+    with _BACKGROUND_LOCK:
+        if not _BACKGROUND:
+            _BACKGROUND.append(ThreadPoolExecutor(1, thread_name_prefix="flakedb-solve"))
     return _BACKGROUND[0].submit(fn, *args, **kw)
 
 
