@@ -31,6 +31,7 @@ from flakedb.rt.stack import (
     InnerSmooth,
     Lambertian,
     Rough,
+    RoughConductor,
     Slab,
     Smooth,
     SolverSettings,
@@ -538,3 +539,22 @@ def test_channel_groups_reuse_one_projection(monkeypatch):
     assert len(calls) == n_one  # projected once, not 6 times
     L = min(one.Rt.shape[0], grouped.Rt.shape[0])
     assert np.abs(grouped.Rt[:L] - one.Rt[:L]).max() <= 1e-12 * np.abs(one.Rt).max()
+
+
+@pytest.mark.parametrize("bottom", [Lambertian([0.5, 0.2, 0.8]), RoughConductor([0.2 + 3.0j, 1.0 + 6.0j, 0.5 + 2.0j], 0.2)])
+def test_threads_build_the_rough_top_in_the_background_with_the_same_result(bottom, monkeypatch):
+    """With threads > 1 the rough top is built in a background thread while the slabs are projected and
+    the body's first order block is solved (the opaque path's order loop then waits for it): the BSDF,
+    the order choice and the info must be those of the serial solve, bit for bit."""
+    slab = Slab(2.0, PhaseMedium([1.0, 0.8, 1.2], [0.95, 0.7, 0.9], ("hg", 0.6)))
+    one = solve_stack(Rough(1.5, 0.15), [slab], bottom, SolverSettings.product(24, threads=1))
+    two = solve_stack(Rough(1.5, 0.15), [slab], bottom, SolverSettings.product(24, threads=2))
+    np.testing.assert_array_equal(one.Rt, two.Rt)
+    assert one.info["orders"] == two.info["orders"] and one.info["top"] == two.info["top"]
+    # and an error in the background build reaches the caller as itself
+    def boom(*args, **kw):
+        raise RuntimeError("interface failed in the background")
+
+    monkeypatch.setattr(stk.itf, "rough_dielectric", boom)
+    with pytest.raises(RuntimeError, match="interface failed in the background"):
+        solve_stack(Rough(1.5, 0.15), [slab], bottom, SolverSettings.product(24, threads=2))
