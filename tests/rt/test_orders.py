@@ -8,6 +8,7 @@ from flakedb.rt.layer import Layer
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, kernel_basis
 from flakedb.rt.microflake import FlakeOptics, table_basis
 from flakedb.rt.orders import order_tail, reflection_over, reflection_under_smooth
+from flakedb.rt.projection import project_kernel_basis
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
 from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, medium_kernel_blocks, solve_stack
 
@@ -143,3 +144,20 @@ def test_reflection_over_skips_only_orders_where_the_bottom_is_black():
     got = reflection_over(top, bottom)
     assert got.shape == (L, C, h, h)
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("basis", [True, False])
+def test_projection_in_row_chunks_is_the_in_memory_projection(basis):
+    """Over its memory budget the projection gathers its criteria over chunks of incident nodes and
+    evaluates each chunk's samples afresh: the same azimuths, so the same coefficients, order count
+    and info, bit for bit (direct tri-coat at n = 128 held 9.8 GB in memory before)."""
+    med = _mixture()
+    q = radau_hemisphere(12)
+    mu_o = np.concatenate([-q.x, q.x])
+    W = q.w[:, None] * np.concatenate([q.w, q.w])[None, :]
+    kb = kernel_basis(med)
+    fn, M = (kb.fn, kb.M) if basis else (med.kernel, None)
+    a, ia = project_kernel_basis(fn, M, q.x, mu_o, tol=1e-5, n_start=8, weights=W)
+    b, ib = project_kernel_basis(fn, M, q.x, mu_o, tol=1e-5, n_start=8, weights=W, budget_bytes=1)
+    np.testing.assert_array_equal(a, b)
+    assert ib.pop("row_chunks") and ia == ib
