@@ -235,7 +235,10 @@ class PhaseMedium:
                     return None
                 chi = par[:, None] ** np.arange(LEGENDRE_K_MAX + 1)[None, :]
             else:
-                chi = vmf_legendre_moments(par, vmf_legendre_degree(np.max(par), tol))
+                # twice the degree the tail asks for: the cut then lies before the last computed
+                # degree, where the dropped tail is measured (truncate_legendre's "converged")
+                K = vmf_legendre_degree(np.max(par), tol)
+                chi = vmf_legendre_moments(par, min(LEGENDRE_K_MAX, 2 * K + 2))
             chi, info = truncate_legendre(chi, tol)
         # cut before the last computed degree: the dropped tail is then the measured one
         if not (info["converged"] and info["degree"] < LEGENDRE_K_MAX):

@@ -203,3 +203,13 @@ def test_a_series_cut_at_its_last_degree_is_not_converged():
     assert info["degree"] == 64 and not info["converged"]
     _, info = truncate_legendre(0.3 ** k[None, :], 1e-6)
     assert info["degree"] < 64 and info["converged"]
+
+
+@pytest.mark.parametrize("tol", [1e-5, 1e-6])
+def test_every_vmf_lobe_goes_the_legendre_route(tol):
+    """vMF moments are computed past the degree the tail asks for, so the truncation is measured and
+    the kernel takes the addition theorem for every κ of the recipe range (it fell back to φ sampling
+    for κ 0.5–30 when the moments stopped exactly at that degree)."""
+    for kappa in (0.0, 0.5, 1.0, 3.0, 8.0, 30.0, 200.0, 2000.0):
+        lm = rm.PhaseMedium(1.0, 0.5, ("vmf", kappa)).legendre_moments(tol)
+        assert lm is not None and lm[1]["converged"], kappa
