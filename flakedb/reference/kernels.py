@@ -626,14 +626,8 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
                     if _uniform(s) < F:
                         mu = cos_in
                     else:
-                        sin_in = math.sqrt(max(0.0, 1.0 - cos_in * cos_in))
-                        sin_out = eta * sin_in
-                        mu_out = -math.sqrt(max(0.0, 1.0 - sin_out * sin_out))
-                        if sin_in > 0.0:
-                            scale = sin_out / sin_in
-                            dx *= scale
-                            dy *= scale
-                        return _EXIT_TOP, w, dx, dy, mu_out, loss, events
+                        dx, dy, cos_out = _snell_refract(dx, dy, cos_in, 1.0 / eta)
+                        return _EXIT_TOP, w, dx, dy, -cos_out, loss, events
                 else:
                     if ms_par[0] > 0.0:
                         dx, dy, mu, f = _rough_interface_ms(dx, dy, mu, False, eta, top_alpha, ms_grid, ms_E,

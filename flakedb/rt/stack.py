@@ -10,7 +10,7 @@ analytic delta term of a smooth top, and evaluates them.
 """
 
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -574,25 +574,17 @@ def _binder_chain(top, eta, slabs, q_out, s):
     return binder_chain_quadratures(radau_hemisphere(s.n // 2), n_min, indices)
 
 
-class _Done:
-    """The result of a call made in the caller's thread, with a future's ``result()``."""
-
-    def __init__(self, value):
-        self.value = value
-
-    def result(self):
-        return self.value
-
-
 #: The background thread of :func:`_submit` (created on first use, under the lock).
 _BACKGROUND: list = []
 _BACKGROUND_LOCK = threading.Lock()
 
 
 def _submit(threads, fn, *args, **kw):
-    """``fn(*args, **kw)`` in the background thread when ``threads`` > 1 (a future), else now."""
+    """``fn(*args, **kw)`` in the background thread when ``threads`` > 1, else now; a future either way."""
     if int(threads) <= 1:
-        return _Done(fn(*args, **kw))
+        done = Future()
+        done.set_result(fn(*args, **kw))
+        return done
     with _BACKGROUND_LOCK:
         if not _BACKGROUND:
             _BACKGROUND.append(ThreadPoolExecutor(1, thread_name_prefix="flakedb-solve"))
