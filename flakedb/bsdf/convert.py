@@ -48,9 +48,12 @@ def stack_to_table(stack, channels=None, eta=None, alpha=0.0, delta="auto", meta
         xo = x[::-1] if up_going else x
         if up_going:
             f = f[:, :, ::-1]
-        v = np.zeros((C, h, h, L))
+        grey = f.shape[1] == 1 or f.strides[1] == 0       # one channel for all (a grey stack solved once)
+        if grey:
+            f = f[:, :1]
+        v = np.zeros((1 if grey else C, h, h, L))
         np.multiply(f, xo[None, None, :, None], out=np.transpose(v[..., : f.shape[0]], (3, 0, 2, 1)))
-        return v
+        return np.broadcast_to(v, (C, h, h, L)) if grey else v
 
     mu = np.concatenate([-x[::-1], x])
     if eta is None:

@@ -6,7 +6,6 @@ import json
 import os
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from flakedb import __version__
@@ -47,6 +46,8 @@ def write_h5(path, table: BSDFTable, extra_metadata: dict | None = None) -> dict
     md_json = json.dumps(md, sort_keys=True, allow_nan=False, default=_json_default)
     C, n, _, L = table.coeffs.shape
     with atomic_path(path) as tmp:
+        import h5py  # lazy: h5py takes 50 ms to import; only the .h5 file needs it
+
         with h5py.File(tmp, "w") as f:
             f.attrs["format"] = H5_FORMAT
             f.attrs["format_version"] = H5_FORMAT_VERSION
@@ -99,6 +100,8 @@ def read_h5(path) -> FourierBSDF:
     if not path.exists():
         raise BSDFFileError(f"{path}: no such file")
     try:
+        import h5py  # lazy: h5py takes 50 ms to import; only the .h5 file needs it
+
         with h5py.File(path, "r") as f:
             fmt = f.attrs.get("format")
             if fmt != H5_FORMAT:

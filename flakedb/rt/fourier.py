@@ -10,7 +10,6 @@ fixed constant (docs/model.md §3).
 """
 
 import numpy as np
-from scipy.fft import dct
 
 
 def cosine_coefficients(samples):
@@ -19,6 +18,8 @@ def cosine_coefficients(samples):
     DCT-I: y_l = g_0 + (−1)^l g_N + 2 Σ_{k=1}^{N−1} g_k cos(π k l / N); a_l = y_l / N for
     0 < l < N and a_0 = y_0 / (2N), a_N = y_N / (2N).
     """
+    from scipy.fft import dct  # lazy: scipy.fft adds 25 ms to every import of the solver; only sampled projections need it
+
     samples = np.asarray(samples, dtype=float)
     n = samples.shape[-1] - 1
     if n < 1:

@@ -10,7 +10,7 @@ and the addition theorem of spherical harmonics (e.g. Chandrasekhar 1960, §48; 
     P_k(cos Θ) = 4π/(2k + 1) [S_k^0(μ_i) S_k^0(μ_o) + 2 Σ_{m≥1} S_k^m(μ_i) S_k^m(μ_o) cos(m φ_d)],
 
 S_k^m(μ) = √((2k+1)/(4π) (k−m)!/(k+m)!) P_k^m(μ) the orthonormal associated Legendre functions
-(:func:`scipy.special.sph_legendre_p_all`, θ = arccos μ).  So the cosine-series coefficients of the
+(:func:`flakedb.rt.special.sph_legendre_all`, θ = arccos μ).  So the cosine-series coefficients of the
 kernel σ_s p(cos Θ) on the quadrature nodes are, for order m,
 
     a_m(μ_i, μ_o) = c_m σ_s Σ_{k≥m} χ_k S_k^m(μ_i) S_k^m(μ_o),   c_0 = 1, c_m = 2,
@@ -30,7 +30,8 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.polynomial.legendre import leggauss
-from scipy.special import sph_legendre_p_all
+
+from flakedb.rt.special import sph_legendre_all
 
 #: Truncation of the Legendre series (relative dropped tail, see the module docstring).
 LEGENDRE_TOL = 1e-6
@@ -91,8 +92,7 @@ def normalized_legendre(x, K, M):
     """S_k^m(x_j) for k ≤ K, 0 ≤ m ≤ M: array (M + 1, K + 1, len(x)), zero for k < m (module docstring)."""
     theta = np.arccos(np.clip(np.asarray(x, dtype=float), -1.0, 1.0))
     M = min(int(M), int(K))
-    s = sph_legendre_p_all(int(K), M, theta)[0]  # (K + 1, 2M + 1, X); m ≥ 0 first
-    return np.ascontiguousarray(np.transpose(s[:, : M + 1], (1, 0, 2)))
+    return sph_legendre_all(int(K), M, theta)
 
 
 class LegendreKernel:

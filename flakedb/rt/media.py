@@ -16,7 +16,6 @@ and is symmetric under z → −z (the solver relies on it, see :func:`flakedb.r
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import ive
 
 from flakedb.rt.legendre import LEGENDRE_K_MAX, LEGENDRE_TOL, legendre_moments, truncate_legendre
 from flakedb.rt.microflake import (
@@ -110,6 +109,7 @@ def vmf_legendre_moments(kappa, K):
     cancel in the ratio), so it neither overflows for large κ (tested to κ = 2000) nor needs
     ``spherical_in`` (which overflows beyond κ ≈ 700); κ = 0 gives (1, 0, 0, …).  The moments
     decay like exp(−k(k + 1)/(2κ)) for large κ.  docs/model.md §3."""
+    from scipy.special import ive  # lazy: scipy.special takes 0.15 s to import (flakedb.rt.special); only von Mises–Fisher needs it
     k = np.atleast_1d(np.asarray(kappa, dtype=float))
     if np.any(~(k >= 0.0)) or np.any(~np.isfinite(k)):
         raise ValueError(f"vMF moments need a finite kappa >= 0, got {kappa!r}")
@@ -208,6 +208,19 @@ class PhaseMedium:
                 vals = np.asarray(ph[2], dtype=float)
                 ph = ("table", ph[1], vals[idx] if vals.ndim == 2 and vals.shape[0] > 1 else vals)
         return PhaseMedium(take(self.sigma_t_per_um), take(self.albedo), ph)
+
+    def channel_key(self, C):
+        """(C, k): every per-channel parameter of the medium as one row per channel; two channels with
+        equal rows scatter identically (the solver then solves one of them, docs/model.md §4)."""
+        cols = [_channels(self.sigma_t_per_um), _channels(self.albedo)]
+        ph = self.phase
+        if ph != "isotropic":
+            if ph[0] in ("hg", "vmf"):
+                cols.append(_channels(ph[1]))
+            else:
+                return _key_rows([_channels(self.sigma_t_per_um)[:, None], _channels(self.albedo)[:, None],
+                                  np.atleast_2d(np.asarray(ph[2], dtype=float))], C)
+        return _key_rows([c[:, None] for c in cols], C)
 
     def kernel(self, mu_i, mu_o, phi_d):
         cos_t = cos_scattering_angle(mu_i, mu_o, phi_d)
@@ -308,6 +321,11 @@ class Mixture:
 
         return Mixture([channel_subset(c, idx) for c in self.components])
 
+    def channel_key(self, C):
+        """(C, k): the components' keys side by side (None when one has none)."""
+        keys = [channel_key(c, C) for c in self.components]
+        return None if any(k is None for k in keys) else _key_rows(keys, C)
+
     def kernel(self, mu_i, mu_o, phi_d):
         return sum(c.kernel(mu_i, mu_o, phi_d) for c in self.components)
 
@@ -362,6 +380,10 @@ class FlakeMedium:
             return self
         return FlakeMedium(self.alpha, FlakeOptics(o.c, o.R[idx], o.T[idx]), self.a_rho_per_um)
 
+    def channel_key(self, C):
+        """(C, 2 nc): the flake's R(c) and T(c) rows (α, c and the loading are shared by every channel)."""
+        return _key_rows([np.atleast_2d(self.optics.R), np.atleast_2d(self.optics.T)], C)
+
     def sigma_s(self, mu):
         return scattering_Ergun(np.abs(mu), self.alpha, self.optics, self.a_rho_per_um)
 
@@ -406,6 +428,18 @@ class ChannelSubset:
     @property
     def phi_bandwidth(self):
         return getattr(self.medium, "phi_bandwidth", 16)
+
+
+def _key_rows(parts, C):
+    """Per-channel parameter blocks (C or 1, k_j) broadcast to C rows and joined, (C, Σ k_j)."""
+    return np.concatenate([np.broadcast_to(np.asarray(p, dtype=float), (C, np.shape(p)[1])) for p in parts], axis=1)
+
+
+def channel_key(medium, C):
+    """(C, k) parameters that fix each channel's scattering (:meth:`PhaseMedium.channel_key`), or None
+    for a medium that does not state them (its channels are then all solved)."""
+    fn = getattr(medium, "channel_key", None)
+    return None if fn is None else fn(C)
 
 
 def channel_subset(medium, idx):

@@ -31,7 +31,6 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import ive
 
 __all__ = [
     "FlakeOptics",
@@ -441,6 +440,7 @@ def kernel_phi_bandwidth(alpha, mu_i, mu_o, eps=1e-6):
     this estimate does not cover: check convergence in the projector.  Returns int array of the
     broadcast shape of (mu_i, mu_o, alpha).
     """
+    from scipy.special import ive  # lazy: scipy.special takes 0.15 s to import (flakedb.rt.special); only this bandwidth estimate needs it
     alpha = _check_alpha(alpha)
     mu_i, mu_o, alpha = np.broadcast_arrays(np.asarray(mu_i, float), np.asarray(mu_o, float), alpha)
     s_i, s_o = _sines(mu_i), _sines(mu_o)

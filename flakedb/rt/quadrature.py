@@ -15,7 +15,8 @@ of the outside one through Snell's law, plus extra nodes in the totally internal
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import roots_jacobi, roots_legendre
+
+from flakedb.rt.special import gauss_jacobi, gauss_legendre
 
 
 def gauss_radau_unit(h):
@@ -30,7 +31,7 @@ def gauss_radau_unit(h):
         raise ValueError(f"need at least one node per hemisphere, got h={h}")
     if h == 1:
         return np.array([1.0]), np.array([1.0])
-    t, wj = roots_jacobi(h - 1, 1.0, 0.0)  # weight (1 - t)
+    t, wj = gauss_jacobi(h - 1, 1.0, 0.0)  # weight (1 - t)
     w = wj / (1.0 - t)
     t = np.append(t, 1.0)
     w = np.append(w, 2.0 / h**2)
@@ -43,7 +44,7 @@ def gauss_radau_unit(h):
 
 def gauss_legendre_interval(h, a, b):
     """Gauss–Legendre rule with h nodes on (a, b): ``(x, w)`` ascending."""
-    t, w = roots_legendre(int(h))
+    t, w = gauss_legendre(int(h))
     return 0.5 * (b - a) * t + 0.5 * (b + a), 0.5 * (b - a) * w
 
 

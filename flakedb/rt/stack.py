@@ -29,7 +29,7 @@ from flakedb.rt.layer import (
     pad_orders,
 )
 from flakedb.rt.legendre import LegendreKernel
-from flakedb.rt.media import channel_subset, kernel_basis
+from flakedb.rt.media import channel_key, channel_subset, kernel_basis
 from flakedb.rt.microfacet import jackson_factors
 from flakedb.rt.orders import order_tail, reflection_over, reflection_under_smooth
 from flakedb.rt.params import check_alpha, check_complex_index, check_range
@@ -228,6 +228,8 @@ class StackBSDF:
         S = getattr(self, block)
         x_i, w_i = (self.x, self.w) if block in ("Rt", "Ttb") else (self.x_in, self.w_in)
         cl = fourier_weight(np.arange(S.shape[0]))[:, None, None, None]
+        if S.shape[1] > 1 and S.strides[1] == 0:  # channels solved once (grey): stays a broadcast view
+            return np.broadcast_to(S[:, :1] / (cl * (w_i * x_i)[None, None, None, :]), S.shape)
         return S / (cl * (w_i * x_i)[None, None, None, :])
 
     def albedo(self, include_delta=True):
@@ -433,6 +435,13 @@ def solve_stack(top, slabs, bottom, settings=None, channels=None):
 def _solve_stack_grouped(top, slabs, bottom, s, channels):
     if s.n % 2 == 0 and s.n >= 2:
         C = int(channels) if channels else _n_channels(slabs, bottom)
+        distinct = _distinct_channels(slabs, bottom, C)
+        if distinct is not None:  # channels that scatter identically are solved once
+            first, inverse = distinct
+            sub_slabs = [sl if isinstance(sl, (InnerSmooth, InnerRough)) else
+                         Slab(sl.thickness_um, channel_subset(sl.medium, first)) for sl in slabs]
+            res = _solve_stack_grouped(top, sub_slabs, _bottom_subset(bottom, first), s, len(first))
+            return _expand_channels(res, inverse)
         h_out = s.n // 2
         h_in = h_out + (0 if not isinstance(top, Smooth) or top.eta == 1.0 else
                         (s.h_tir if s.h_tir is not None else default_tir_nodes(h_out, top.eta)))
@@ -503,6 +512,68 @@ def _kernel_channel_subset(pk, idx):
     return ProjectedKernel(pk.coeffs[:, idx], None, scale)
 
 
+def _bottom_subset(bottom, idx):
+    """The bottom restricted to the channels ``idx`` (a per-channel value sliced; None stays None)."""
+    if bottom is None:
+        return None
+    if isinstance(bottom, RoughConductor):
+        N = np.atleast_1d(bottom.N)
+        return RoughConductor(N if N.size == 1 else N[idx], bottom.alpha, bottom.energy_compensation)
+    a = np.atleast_1d(np.asarray(bottom.albedo, dtype=float))
+    return Lambertian(a if a.size == 1 else a[idx])
+
+
+def _distinct_channels(slabs, bottom, C):
+    """``(first, inverse)`` when some of the stack's C channels scatter identically: ``first`` (U,) the
+    first channel of each distinct kind, ``inverse`` (C,) the kind of every channel (channels in the
+    order of first appearance).  None when every channel differs, or when a medium does not state its
+    per-channel parameters (:func:`flakedb.rt.media.channel_key`).  Channels are compared through every
+    per-channel input (media, primer albedo, conductor index): equal inputs give equal outputs, so a
+    grey stack in RGB is solved once (docs/model.md §4, "Channels")."""
+    if C <= 1:
+        return None
+    keys = []
+    for item in slabs:
+        if isinstance(item, (InnerSmooth, InnerRough)):
+            continue
+        k = channel_key(item.medium, C)
+        if k is None:
+            return None
+        keys.append(k)
+    if isinstance(bottom, RoughConductor):
+        N = np.atleast_1d(np.asarray(bottom.N, dtype=complex))
+        keys.append(np.stack([N.real, N.imag], axis=1))
+    elif bottom is not None:
+        keys.append(np.atleast_1d(np.asarray(bottom.albedo, dtype=float))[:, None])
+    if not keys:
+        return np.zeros(1, dtype=int), np.zeros(C, dtype=int)
+    rows = np.concatenate([np.broadcast_to(k, (C, k.shape[1])) for k in keys], axis=1)
+    _, first, inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+    if len(first) == C:
+        return None
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return first[order], rank[np.ravel(inverse)]
+
+
+def _expand_channels(res, inverse):
+    """The solved distinct channels spread back to every channel: a broadcast view (no copy) when they
+    are all one kind, else a gather along the channel axis."""
+    C = len(inverse)
+
+    def spread(b):
+        if b is None:
+            return None
+        if b.shape[1] == 1:
+            return np.broadcast_to(b, b.shape[:1] + (C,) + b.shape[2:])
+        return np.take(b, inverse, axis=1)
+
+    info = dict(res.info, distinct_channels=int(inverse.max()) + 1, channels=C)
+    return StackBSDF(x=res.x, w=res.w, Rt=spread(res.Rt), eta=res.eta, delta_F=res.delta_F, Ttb=spread(res.Ttb),
+                     Rb=spread(res.Rb), Tbt=spread(res.Tbt), x_in=res.x_in, w_in=res.w_in, info=info)
+
+
 def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
     parts, sizes = [], []
     shared = [None if isinstance(sl, (InnerSmooth, InnerRough)) else _SharedProjection(sl.medium) for sl in slabs]
@@ -510,14 +581,7 @@ def _solve_in_channel_groups(top, slabs, bottom, s, C, group):
         idx = np.arange(c0, min(C, c0 + group))
         sub_slabs = [sl if isinstance(sl, (InnerSmooth, InnerRough)) else
                      Slab(sl.thickness_um, _GroupView(shared[j], idx)) for j, sl in enumerate(slabs)]
-        sub_bottom = None
-        if bottom is not None:
-            if isinstance(bottom, RoughConductor):
-                N = np.atleast_1d(bottom.N)
-                sub_bottom = RoughConductor(N if N.size == 1 else N[idx], bottom.alpha, bottom.energy_compensation)
-            else:
-                a = np.atleast_1d(np.asarray(bottom.albedo, dtype=float))
-                sub_bottom = Lambertian(a if a.size == 1 else a[idx])
+        sub_bottom = _bottom_subset(bottom, idx)
         s.report("channels", channels=(int(c0), int(idx[-1]) + 1), of=int(C))
         parts.append(_solve_stack(top, sub_slabs, sub_bottom, s))
         sizes.append(len(idx))
