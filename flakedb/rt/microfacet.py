@@ -321,11 +321,13 @@ def cell_rule(x, w, width, points=None):
 
 
 def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, tol, max_orders,
-                symmetric=False, chunk_elems=2_000_000):
+                symmetric=False, chunk_elems=2_000_000, keep_orders=None):
     """Σ over sub-point pairs in each (o, i) cell pair of ω_a ω_b f_l(t_a, t_b): (L, C, h_o, h_i).
 
     With ``symmetric`` (reflection on one side; rule_i is rule_o) only pairs a ≤ b are evaluated
-    and the block is completed by reciprocity.  Returns the block and the largest order used.
+    and the block is completed by reciprocity.  ``keep_orders``: return only the orders below it (exactly the
+    same values; the φ rules still resolve each pair's whole lobe).  Returns the block and the largest
+    order used.
     """
     t_i, om_i, cell_i = rule_i
     t_o, om_o, cell_o = rule_o
@@ -362,6 +364,8 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
         weight = np.where(ia == ob, 0.5 * weight, weight)  # a = b counted once after X + Xᵀ
     pair_cell = cell_o[ob] * h_i + cell_i[ia]
     L_used = int(L_pair.max()) if len(L_pair) else 1
+    if keep_orders is not None:
+        L_used = max(1, min(L_used, int(keep_orders)))
     out = np.zeros((h_o * h_i, C, L_used))  # [cell pair, channel, order]: a cell's orders are contiguous
     group = bucket * (j_phi.max(initial=0) + 1) + j_phi
     for g in np.unique(group):
@@ -380,7 +384,7 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
         step = max(1, chunk_elems // (P * C))
         for s0 in range(0, len(sel), step):
             k = sel[s0:s0 + step]
-            Lg = int(L_pair[k].max())
+            Lg = min(int(L_pair[k].max()), L_used)
             f = walter_bsdf(t_i[ia[k], None], t_o[ob[k], None], cphi, eta_rel, alpha, transmit,
                             G[k, None], fresnel)
             f = f * weight[k][:, None]                        # (K, P) or (C, K, P)
@@ -397,10 +401,12 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
             pc = pair_cell[k]
             starts = np.flatnonzero(np.concatenate([[True], pc[1:] != pc[:-1]]))
             out[pc[starts], :, :Lg] += np.add.reduceat(coef, starts, axis=0)
-    out = np.transpose(out.reshape(h_o, h_i, C, L_used), (3, 2, 0, 1))  # (L, C, h_o, h_i)
-    if symmetric:
-        return out + np.swapaxes(out, -1, -2), L_used
-    return np.ascontiguousarray(out), L_used
+    out = out.reshape(h_o, h_i, C, L_used)
+    if symmetric:  # X + Xᵀ written straight into the (L, C, h_o, h_i) layout: one pass, no transposed copy
+        res = np.empty((L_used, C, h_o, h_i))
+        np.add(np.transpose(out, (3, 2, 0, 1)), np.transpose(out, (3, 2, 1, 0)), out=res)
+        return res, L_used
+    return np.ascontiguousarray(np.transpose(out, (3, 2, 0, 1))), L_used
 
 
 @functools.lru_cache(maxsize=64)
@@ -486,7 +492,7 @@ def _to_S(fbar, x, w):
 
 
 def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width=None,
-                           energy_compensation=True, x_below=None, w_below=None):
+                           energy_compensation=True, x_below=None, w_below=None, inner_orders=None):
     """Rough dielectric interface (Beckmann α, relative index η = n_below / n_above) by flux-cell
     integration; returns the four blocks (L, 1, h_o, h_i) and an info dict.
 
@@ -504,6 +510,10 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
 
     Blocks as in :class:`flakedb.rt.layer.Layer` (basic radiance): Rt, Ttb from above, Rb, Tbt
     from below; Tbt is the reciprocal of Ttb (f_bt[i, o] = η² f_tb[o, i]).
+
+    ``inner_orders``: Ttb, Rb and Tbt are returned only for the orders below it (Rt has all its orders):
+    the top of a stack whose body reflects nothing beyond that order needs no more of them (their higher
+    orders multiply zero).  The blocks then have different order counts; their values are unchanged.
     """
     xa = np.asarray(x, dtype=float)
     wa = np.asarray(w, dtype=float)
@@ -515,10 +525,16 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     rule_b = rule_a if x_below is None else cell_rule(xb, wb, max(sub, 1e-6))
     ma, mb = wa * xa, wb * xb
     Rt, L1 = _cell_block(rule_a, rule_a, ha, ha, eta, alpha, False, None, 1, tol, max_orders, symmetric=True)
-    Rb, L2 = _cell_block(rule_b, rule_b, hb, hb, 1.0 / eta, alpha, False, None, 1, tol, max_orders, symmetric=True)
-    Ttb, L3 = _cell_block(rule_a, rule_b, ha, hb, eta, alpha, True, None, 1, tol, max_orders)
+    Rb, L2 = _cell_block(rule_b, rule_b, hb, hb, 1.0 / eta, alpha, False, None, 1, tol, max_orders, symmetric=True,
+                         keep_orders=inner_orders)
+    Ttb, L3 = _cell_block(rule_a, rule_b, ha, hb, eta, alpha, True, None, 1, tol, max_orders, keep_orders=inner_orders)
     L = max(L1, L2, L3)
-    Rt, Rb, Ttb = (_pad(b, L) for b in (Rt, Rb, Ttb))  # Σ ω ω f_l; f̃ = that / (m_o m_i)
+    if inner_orders is None:  # Σ ω ω f_l; f̃ = that / (m_o m_i)
+        Rt, Rb, Ttb = (_pad(b, L) for b in (Rt, Rb, Ttb))
+    else:  # Rt keeps all orders; the inner blocks stop at inner_orders (zero beyond for the stack)
+        Rt = _pad(Rt, L)
+        Li = max(Rb.shape[0], Ttb.shape[0])
+        Rb, Ttb = _pad(Rb, Li), _pad(Ttb, Li)
     # exact energy: columns of order 0 carry the continuous albedo at the node
     R_a, T_a = microfacet_albedo(xa, eta, alpha)
     R_b, T_b = microfacet_albedo(xb, 1.0 / eta, alpha)
@@ -536,13 +552,12 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
           else (0.0, 0.0, 0.0, 0.0))
     # S_l[o, i] = c_l w_i μ_i f̃_l[o, i] (conventions), f̃ scaled by s_o s_i, fused in place:
     # S_l = c_l · X_l · (s_o / m_o) · s_i, plus the compensation lobe in order 0
-    cl = fourier_weight(np.arange(L))[:, None, None, None]
     blocks = []
     for X, so, si, mo, mi, add in ((Rt, sa, sa, ma, ma, ms[0]), (Ttb, sb, sa, mb, ma, ms[1]),
                                    (Rb, sb, sb, mb, mb, ms[2])):
         X *= ((so / mo)[:, None] * si[None, :])[None, None]
         X[0, 0] += add * mi[None, :]
-        X *= cl
+        X *= fourier_weight(np.arange(X.shape[0]))[:, None, None, None]
         blocks.append(X)
     # T^bt = η² (T^tb)ᵀ in f̃ (reciprocity): S^bt_l[o, i] = η² S^tb_l[i, o] m_i / m_o
     Tbt = np.swapaxes(blocks[1], -1, -2) * (eta**2 * mb[None, :] / ma[:, None])[None, None]

@@ -672,13 +672,6 @@ def _solve_stack(top, slabs, bottom, s):
     chain = _binder_chain(top, eta, slabs, q_out, s)
     q_in = chain.rules[0]
 
-    # a rough top does not depend on the slabs: with threads > 1 it is built in the background while
-    # the kernels are projected (both are mostly numpy calls that release the GIL)
-    top_job = None
-    if isinstance(top, Rough):
-        top_job = _submit(s.threads, itf.rough_dielectric, q_out, q_in, top.eta, top.alpha, tol=s.tol,
-                          max_orders=s.order_cap, energy_compensation=top.energy_compensation)
-
     # kernels of the slabs projected once (each with its own order count), each on the rule of its
     # binder: inner interfaces (InnerSmooth) separate binders (docs/model.md §4 "Inner interface")
     projected = []
@@ -728,6 +721,17 @@ def _solve_stack(top, slabs, bottom, s):
     L_rest = ([L_bottom, 1] + [p[0].n_orders for p in projected if not isinstance(p[0], str)]
               + [p[1].n_orders for p in projected if p[0] == "rough"])
 
+    # a rough top: with threads > 1 built in the background while the body's first orders are solved
+    # (both mostly numpy calls that release the GIL).  Over an opaque body without a smooth inner
+    # interface, the body reflects nothing beyond its components' orders (a slab's direct beam over a
+    # black bottom reflects nothing), so the top's inner blocks are needed only below max(L_rest)
+    top_job = None
+    if isinstance(top, Rough):
+        smooth_inside = any(isinstance(p[0], str) and p[0] == "interface" for p in projected)
+        inner = max(L_rest) if bottom is not None and not smooth_inside else None
+        top_job = _submit(s.threads, itf.rough_dielectric, q_out, q_in, top.eta, top.alpha, tol=s.tol,
+                          max_orders=s.order_cap, energy_compensation=top.energy_compensation, inner_orders=inner)
+
     def total_orders():
         """The stack's order count; waits for the rough top (its own order count is part of it)."""
         nonlocal top_layer
@@ -766,13 +770,14 @@ def _solve_stack(top, slabs, bottom, s):
 
     def top_block(l0, l1):
         if isinstance(top, Rough):
-            return Layer(*(pad_orders(b[l0:l1], l1 - l0) for b in (top_layer.Rt, top_layer.Ttb, top_layer.Rb, top_layer.Tbt)))
+            return Layer(*(_order_range(b, l0, l1) for b in (top_layer.Rt, top_layer.Ttb, top_layer.Rb, top_layer.Tbt)))
         return Layer(*(np.broadcast_to(b, (l1 - l0,) + b.shape[1:]) for b in (smooth1.Rt, smooth1.Ttb, smooth1.Rb, smooth1.Tbt)))
 
     opaque = bottom is not None
     if opaque and s.order_tol is not None:
         Rt, oinfo = _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom, total_orders, s, item_block,
-                                                  top_block, smooth1 if isinstance(top, Smooth) else None, Rc)
+                                                  top_block, smooth1 if isinstance(top, Smooth) else None, Rc,
+                                                  top_rt=(lambda: top_layer.Rt) if isinstance(top, Rough) else None)
         info.update(oinfo)
         return StackBSDF(x=q_out.x, w=q_out.w, Rt=Rt, eta=eta, delta_F=delta_F, x_in=q_in.x, w_in=q_in.w,
                          info=info)
@@ -807,13 +812,16 @@ FIRST_ORDER_BLOCK = 16
 
 
 def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom, L_max, s, item_block, top_block, smooth1,
-                                  Rc=None):
+                                  Rc=None, top_rt=None):
     """R^t of an opaque stack, orders solved in blocks (16, then doubling) bottom-up with
     reflection-only adding, until :func:`flakedb.rt.orders.order_tail` says the BSDF's dropped tail is
     within ``s.order_tol`` (docs/orders.md).  ``Rc``: the rough conductor bottom's R^t (all its
     orders), None for a Lambertian primer.  ``L_max``: the stack's order count, or a function that
     returns it (waiting for a top built in the background: the body's first block is solved before
-    it is called).  Returns (Rt (L', C, h, h), info)."""
+    it is called).  ``top_rt``: for a rough top, a function returning its R^t (L_top, 1, h, h) once
+    built: where the body reflects nothing, the stack's R^t is that block, and the result is written
+    into it when the shapes allow (the solver's own array: no second copy of a many-order top).
+    Returns (Rt (L', C, h, h), info)."""
     if smooth1 is not None:
         h_tir = q_in.h - q_out.h
         t = smooth1.Ttb[0, 0][h_tir + np.arange(q_out.h), np.arange(q_out.h)]
@@ -842,7 +850,9 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom,
                 if not (Rr is None and not isinstance(item[0], str) and item[0].n_orders <= l0):
                     Rr = reflection_over(item_block(item, l0, l1), Rr)
                 s.report("solve", layer=len(projected) - k, layers=len(projected), orders=(l0, l1), of=L_report)
-            if Rr is None:
+            if Rr is None:  # the body reflects nothing in these orders
+                if R is None:
+                    return None
                 Rr = np.zeros((l1 - l0, 1, q_in.h, q_in.h))
             if R is None:
                 R = Rr
@@ -878,16 +888,33 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom,
             R, first = first[:l1], None
         else:
             R = reflection(l0, l1)
-        Rt = through_top(R, l0, l1)
+        own = None  # the rough top's R^t array, when it holds these orders of the result as they are
+        if R is None:  # a black body: the top's own reflection (no blocks built, no solve)
+            if top_rt is not None:
+                own = top_rt()
+                Rt = _order_range(own, l0, l1)
+            else:
+                Rt = np.broadcast_to(np.zeros((1, 1, q_out.h, q_out.h)), (l1 - l0, 1, q_out.h, q_out.h))
+        else:
+            Rt = through_top(R, l0, l1)
         if out is None or np.broadcast_shapes(out.shape[1:], Rt.shape[1:]) != out.shape[1:]:
-            grown = np.empty((L_max,) + (Rt.shape[1:] if out is None else np.broadcast_shapes(out.shape[1:], Rt.shape[1:])))
-            if out is not None:
-                grown[:l0] = out[:l0]
+            shape = Rt.shape[1:] if out is None else np.broadcast_shapes(out.shape[1:], Rt.shape[1:])
+            trt = top_rt() if top_rt is not None else None
+            if trt is not None and trt.shape[0] >= L_max and trt.shape[1:] == shape and l0 == 0:
+                grown = trt  # written in place: block l is read (through_top) before order l is written
+            else:
+                grown = np.empty((L_max,) + shape)
+                if out is not None:
+                    grown[:l0] = out[:l0]
             out = grown
-        out[l0:l1] = Rt
-        g = np.abs(Rt)
-        g *= flux
-        amax = g.reshape(g.shape[0], -1).max(axis=1) / fourier_weight(np.arange(l0, l1))
+        if own is None or out is not own:
+            out[l0:l1] = Rt
+        amax = np.empty(l1 - l0)
+        for c0 in range(0, l1 - l0, FIRST_ORDER_BLOCK):  # |Rt| flux-weighted, a few orders at a time
+            g = np.abs(Rt[c0:c0 + FIRST_ORDER_BLOCK])
+            g *= flux
+            amax[c0:c0 + FIRST_ORDER_BLOCK] = g.reshape(g.shape[0], -1).max(axis=1)
+        amax /= fourier_weight(np.arange(l0, l1))
         if f0max is None:
             f0max = float(amax[0])
         a.extend((amax / (f0max if f0max > 0 else 1.0)).tolist())
@@ -899,6 +926,14 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom,
             "order_tol": float(s.order_tol), "order_tail": float(tail), "order_converged": bool(done),
             "order_decay": [float(v) for v in a]}
     return out[:L_keep], info
+
+
+def _order_range(b, l0, l1):
+    """Orders l0 … l1 − 1 of a block that is zero beyond its own orders: a view where it has them, a
+    broadcast zero (no memory) where it has none, padded with zeros in between."""
+    if l0 >= b.shape[0]:
+        return np.broadcast_to(np.zeros((1,) + b.shape[1:]), (l1 - l0,) + b.shape[1:])
+    return b[l0:l1] if l1 <= b.shape[0] else pad_orders(b[l0:l1], l1 - l0)
 
 
 def _reflection_over(layer, bottom_Rt):

@@ -161,3 +161,34 @@ def test_projection_in_row_chunks_is_the_in_memory_projection(basis):
     b, ib = project_kernel_basis(fn, M, q.x, mu_o, tol=1e-5, n_start=8, weights=W, budget_bytes=1)
     np.testing.assert_array_equal(a, b)
     assert ib.pop("row_chunks") and ia == ib
+
+
+def test_inner_orders_of_a_rough_top_change_nothing(monkeypatch):
+    """Over an opaque body the rough top's T^tb, R^b, T^bt are built only to the body's orders
+    (rough_dielectric_cells(inner_orders=…)): the blocks agree with the full ones there, and the
+    stack's R^t is the one solved with the full top."""
+    from flakedb.rt import interface as itf
+    from flakedb.rt import microfacet as mf
+    from flakedb.rt.media import PhaseMedium
+    from flakedb.rt.quadrature import radau_hemisphere
+    from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+
+    q = radau_hemisphere(24)
+    full, _ = mf.rough_dielectric_cells(q.x, q.w, 1.5, 0.1, max_orders=96)
+    part, _ = mf.rough_dielectric_cells(q.x, q.w, 1.5, 0.1, max_orders=96, inner_orders=10)
+    # R^t keeps its own orders (its truncation then weighs R^t's tail alone: within an order of the full one)
+    assert abs(part[0].shape[0] - full[0].shape[0]) <= 2 and all(b.shape[0] == 10 for b in part[1:])
+    for a, b in zip(full, part):
+        L = min(a.shape[0], b.shape[0])
+        assert np.allclose(a[:L], b[:L], rtol=1e-12, atol=1e-15)
+
+    stack = (Rough(1.5, 0.1), [Slab(2.0, PhaseMedium(1.0, 0.9, ("hg", 0.6)))], Lambertian(0.5))
+    settings = (SolverSettings.product(48), SolverSettings(n=48))  # orders chosen; every order (order_tol None)
+    fast = [solve_stack(*stack, s) for s in settings]
+    orig = itf.rough_dielectric
+    monkeypatch.setattr(itf, "rough_dielectric", lambda *a, **k: orig(*a, **dict(k, inner_orders=None)))
+    for s, f in zip(settings, fast):
+        ref = solve_stack(*stack, s)
+        L = min(f.n_orders, ref.n_orders)
+        assert abs(f.n_orders - ref.n_orders) <= 2
+        assert np.allclose(f.Rt[:L], ref.Rt[:L], rtol=1e-11, atol=1e-14 * np.abs(ref.Rt).max())
