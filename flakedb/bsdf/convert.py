@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from flakedb.bsdf.table import BSDFTable
+from flakedb.conventions import fourier_weight
 
 
 def stack_to_table(stack, channels=None, eta=None, alpha=0.0, delta="auto", metadata=None) -> BSDFTable:
@@ -32,6 +33,9 @@ def stack_to_table(stack, channels=None, eta=None, alpha=0.0, delta="auto", meta
     x = np.asarray(stack.x, float)
     h = x.size
     n = 2 * h
+    if stack.Ttb is None:  # an opaque paint: the reflection quadrant alone, as a view of one array
+        C = stack.Rt.shape[1] if channels is None else len(channels)
+        return _reflection_table(stack, x, C, eta, alpha, delta, metadata, channels)
     blocks = {"Rt": stack.f_coefficients("Rt")}
     if stack.Ttb is not None:
         if stack.x_in is None or stack.x_in.shape != x.shape or not np.allclose(stack.x_in, x, rtol=0, atol=1e-14):
@@ -64,10 +68,37 @@ def stack_to_table(stack, channels=None, eta=None, alpha=0.0, delta="auto", meta
               channels=None if channels is None else tuple(channels))
     if "Ttb" not in blocks:  # an opaque paint: the reflection quadrant alone
         return BSDFTable(reflection=block("Rt", True), **kw)
-    coeffs = np.zeros((C, n, n, L))
+    coeffs = np.zeros((C, n, n, L))  # a transmissive stack: all four quadrants
     lo, hi = slice(0, h), slice(h, n)  # table indices of −x_{h−1} … −x_0 and of +x_0 … +x_{h−1}
     coeffs[:, hi, lo] = block("Rt", True)
     coeffs[:, hi, hi] = block("Ttb", False)
     coeffs[:, lo, hi] = block("Rb", False)[:, ::-1]   # incident −x_j: rows reversed too
     coeffs[:, lo, lo] = block("Tbt", True)[:, ::-1]
     return BSDFTable(coeffs=coeffs, **kw)
+
+
+def _reflection_table(stack, x, C, eta, alpha, delta, metadata, channels):
+    """The reflection-only table of an opaque stack: f·|μ_o| = S_l[o, i] |μ_o| / (c_l w_i μ_i) (conventions),
+    outgoing nodes reversed (the table's −x order), written straight into the table's (C, h_i, h_o, L)
+    layout a few incident nodes at a time (a cache-blocked transpose: one pass, one array).  A grey stack
+    solved once (a channel-broadcast R^t) stays one channel, broadcast to C."""
+    S = stack.Rt                                                   # (L, C|1, h_o, h_i)
+    grey = S.shape[1] > 1 and S.strides[1] == 0
+    if grey:
+        S = S[:, :1]
+    L, Cs, h, _ = S.shape
+    f2d = (x[::-1][:, None] / (stack.w * x)[None, :]) / fourier_weight(1)   # |μ_o| / (c_l w_i μ_i), l ≥ 1
+    v = np.empty((Cs, h, h, L))
+    Sr = S[:, :, ::-1]
+    for i0 in range(0, h, 8):                                      # 8 incident nodes: one cache line of S
+        i1 = min(h, i0 + 8)
+        blk = v[:, i0:i1]
+        np.multiply(np.transpose(Sr[..., i0:i1], (1, 3, 2, 0)), f2d[:, i0:i1].T[None, :, :, None], out=blk)
+        blk[..., 0] *= fourier_weight(1) / fourier_weight(0)      # c_0 = 2π
+    refl = np.broadcast_to(v, (C,) + v.shape[1:]) if grey else v
+    if eta is None:
+        eta = stack.eta
+    if isinstance(delta, str) and delta == "auto":
+        delta = {"kind": "fresnel", "eta": float(stack.eta)} if stack.delta_F is not None else None
+    return BSDFTable(reflection=refl, mu=np.concatenate([-x[::-1], x]), eta=float(eta), alpha=(float(alpha), 0.0),
+                     delta=delta, metadata=dict(metadata or {}), channels=None if channels is None else tuple(channels))

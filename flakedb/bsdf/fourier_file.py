@@ -46,11 +46,11 @@ def _truncation_orders(c: np.ndarray, truncation: float) -> np.ndarray:
     """
     a = np.abs(c)
     tail = np.cumsum(a[..., ::-1], axis=-1)[..., ::-1]                 # tail[..., j] = Σ_{k>=j}
-    tail_ext = np.concatenate([tail, np.zeros(tail.shape[:-1] + (1,))], axis=-1)
-    ok = tail_ext[..., 1:] <= truncation * a[..., :1]                  # ok[..., j-1] for j = 1 … L
-    k = np.argmax(ok, axis=-1) + 1                                     # the last one (j = L) is always ok
+    # tails never increase with j (sums of |a_k| ≥ 0, also in floating point), so the first j ≥ 1 with
+    # tail[j] ≤ truncation·|a_0| (tail[L] = 0 always is) comes after exactly the j whose tail is above it
+    k = 1 + np.count_nonzero(tail[..., 1:] > truncation * a[..., :1], axis=-1)
     k = k.max(axis=0)
-    k[~np.any(c != 0, axis=(0, -1))] = 0
+    k[a.max(axis=(0, -1)) == 0] = 0
     return k
 
 
@@ -128,9 +128,10 @@ def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -
     # Pass 1: orders K[i, o] and stored Y a_0 (float32) for the cdf, in table indices
     Kt = np.zeros((n, n), dtype=np.int64)
     a0t = np.zeros((n, n), dtype=np.float64)
+    grey = C > 1 and src.strides[0] == 0  # one channel spread to all (a grey stack): truncate it once
     for r in chunks:
         c = src[:, r, src_o]                                         # (C, rows, n_o, L)
-        k = _truncation_orders(c, truncation)
+        k = _truncation_orders(c[:1] if grey else c, truncation)
         t = slice(row0 + r.start, row0 + r.stop)
         Kt[t, o_sl] = k
         a0t[t, o_sl] = np.where(k > 0, _file_channels(c[..., 0])[0].astype(np.float32), 0.0)

@@ -37,6 +37,8 @@ several % at grazing for α = 0.3) and the discretisation carries exactly that, 
 """
 
 import functools
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -366,7 +368,7 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
     L_used = int(L_pair.max()) if len(L_pair) else 1
     if keep_orders is not None:
         L_used = max(1, min(L_used, int(keep_orders)))
-    out = np.zeros((h_o * h_i, C, L_used))  # [cell pair, channel, order]: a cell's orders are contiguous
+    out = np.zeros((L_used, C, h_o * h_i))  # [order, channel, cell pair]: the block's own layout
     group = bucket * (j_phi.max(initial=0) + 1) + j_phi
     for g in np.unique(group):
         sel = np.nonzero(group == g)[0]
@@ -400,13 +402,13 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
             # sum the sub-pairs of each cell pair (adjacent in k): one segmented sum
             pc = pair_cell[k]
             starts = np.flatnonzero(np.concatenate([[True], pc[1:] != pc[:-1]]))
-            out[pc[starts], :, :Lg] += np.add.reduceat(coef, starts, axis=0)
-    out = out.reshape(h_o, h_i, C, L_used)
-    if symmetric:  # X + Xᵀ written straight into the (L, C, h_o, h_i) layout: one pass, no transposed copy
-        res = np.empty((L_used, C, h_o, h_i))
-        np.add(np.transpose(out, (3, 2, 0, 1)), np.transpose(out, (3, 2, 1, 0)), out=res)
-        return res, L_used
-    return np.ascontiguousarray(np.transpose(out, (3, 2, 0, 1))), L_used
+            out[:Lg, :, pc[starts]] += np.transpose(np.add.reduceat(coef, starts, axis=0), (2, 1, 0))
+    out = out.reshape(L_used, C, h_o, h_i)
+    if symmetric:  # X + Xᵀ in place, a few orders at a time (the transposed copy stays small)
+        for l0 in range(0, L_used, 16):
+            blk = out[l0:l0 + 16]
+            blk += np.swapaxes(blk, -1, -2).copy()
+    return out, L_used
 
 
 @functools.lru_cache(maxsize=64)
@@ -491,8 +493,20 @@ def _to_S(fbar, x, w):
     return cl * fbar * (w * x)[None, None, None, :]
 
 
+#: The worker that builds a rough interface's R^t block beside the others (created on first use).
+_WORKER: list = []
+_WORKER_LOCK = threading.Lock()
+
+
+def _worker():
+    with _WORKER_LOCK:
+        if not _WORKER:
+            _WORKER.append(ThreadPoolExecutor(1, thread_name_prefix="flakedb-interface"))
+        return _WORKER[0]
+
+
 def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width=None,
-                           energy_compensation=True, x_below=None, w_below=None, inner_orders=None):
+                           energy_compensation=True, x_below=None, w_below=None, inner_orders=None, threads=1):
     """Rough dielectric interface (Beckmann α, relative index η = n_below / n_above) by flux-cell
     integration; returns the four blocks (L, 1, h_o, h_i) and an info dict.
 
@@ -514,6 +528,8 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     ``inner_orders``: Ttb, Rb and Tbt are returned only for the orders below it (Rt has all its orders):
     the top of a stack whose body reflects nothing beyond that order needs no more of them (their higher
     orders multiply zero).  The blocks then have different order counts; their values are unchanged.
+    ``threads`` > 1: the directional albedos are integrated in a second thread while this one builds the
+    cell blocks (numpy releases the GIL in its loops; the same values).
     """
     xa = np.asarray(x, dtype=float)
     wa = np.asarray(w, dtype=float)
@@ -524,10 +540,15 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     rule_a = cell_rule(xa, wa, max(sub, 1e-6))
     rule_b = rule_a if x_below is None else cell_rule(xb, wb, max(sub, 1e-6))
     ma, mb = wa * xa, wb * xb
+    # exact energy: columns of order 0 carry the continuous albedo at the node (large-array numpy: with
+    # threads > 1 it runs beside the cell blocks, whose many small calls hold the GIL more)
+    alb = lambda: (microfacet_albedo(xa, eta, alpha), microfacet_albedo(xb, 1.0 / eta, alpha))
+    alb_job = _worker().submit(alb) if int(threads) > 1 else None
     Rt, L1 = _cell_block(rule_a, rule_a, ha, ha, eta, alpha, False, None, 1, tol, max_orders, symmetric=True)
     Rb, L2 = _cell_block(rule_b, rule_b, hb, hb, 1.0 / eta, alpha, False, None, 1, tol, max_orders, symmetric=True,
                          keep_orders=inner_orders)
     Ttb, L3 = _cell_block(rule_a, rule_b, ha, hb, eta, alpha, True, None, 1, tol, max_orders, keep_orders=inner_orders)
+    (R_a, T_a), (R_b, T_b) = alb_job.result() if alb_job is not None else alb()
     L = max(L1, L2, L3)
     if inner_orders is None:  # Σ ω ω f_l; f̃ = that / (m_o m_i)
         Rt, Rb, Ttb = (_pad(b, L) for b in (Rt, Rb, Ttb))
@@ -535,9 +556,6 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
         Rt = _pad(Rt, L)
         Li = max(Rb.shape[0], Ttb.shape[0])
         Rb, Ttb = _pad(Rb, Li), _pad(Ttb, Li)
-    # exact energy: columns of order 0 carry the continuous albedo at the node
-    R_a, T_a = microfacet_albedo(xa, eta, alpha)
-    R_b, T_b = microfacet_albedo(xb, 1.0 / eta, alpha)
     E = np.zeros((1, ha + hb, ha + hb))  # rows: outgoing [above ↑, below ↓]; columns: incident [above ↓, below ↑]
     E[0, :ha, :ha] = Rt[0, 0] / (ma[:, None] * ma[None, :]) * (2.0 * np.pi * ma)[:, None]
     ftb = Ttb[0, 0] / (mb[:, None] * ma[None, :])

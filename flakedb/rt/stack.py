@@ -643,9 +643,9 @@ _BACKGROUND: list = []
 _BACKGROUND_LOCK = threading.Lock()
 
 
-def _submit(threads, fn, *args, **kw):
-    """``fn(*args, **kw)`` in the background thread when ``threads`` > 1, else now; a future either way."""
-    if int(threads) <= 1:
+def _submit(n_threads, fn, /, *args, **kw):
+    """``fn(*args, **kw)`` in the background thread when ``n_threads`` > 1, else now; a future either way."""
+    if int(n_threads) <= 1:
         done = Future()
         done.set_result(fn(*args, **kw))
         return done
@@ -730,7 +730,8 @@ def _solve_stack(top, slabs, bottom, s):
         smooth_inside = any(isinstance(p[0], str) and p[0] == "interface" for p in projected)
         inner = max(L_rest) if bottom is not None and not smooth_inside else None
         top_job = _submit(s.threads, itf.rough_dielectric, q_out, q_in, top.eta, top.alpha, tol=s.tol,
-                          max_orders=s.order_cap, energy_compensation=top.energy_compensation, inner_orders=inner)
+                          max_orders=s.order_cap, energy_compensation=top.energy_compensation, inner_orders=inner,
+                          threads=s.threads)
 
     def total_orders():
         """The stack's order count; waits for the rough top (its own order count is part of it)."""
@@ -777,7 +778,8 @@ def _solve_stack(top, slabs, bottom, s):
     if opaque and s.order_tol is not None:
         Rt, oinfo = _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom, total_orders, s, item_block,
                                                   top_block, smooth1 if isinstance(top, Smooth) else None, Rc,
-                                                  top_rt=(lambda: top_layer.Rt) if isinstance(top, Rough) else None)
+                                                  top_rt=(lambda: top_layer.Rt) if isinstance(top, Rough) else None,
+                                                  body_orders=inner if isinstance(top, Rough) else None)
         info.update(oinfo)
         return StackBSDF(x=q_out.x, w=q_out.w, Rt=Rt, eta=eta, delta_F=delta_F, x_in=q_in.x, w_in=q_in.w,
                          info=info)
@@ -812,7 +814,7 @@ FIRST_ORDER_BLOCK = 16
 
 
 def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom, L_max, s, item_block, top_block, smooth1,
-                                  Rc=None, top_rt=None):
+                                  Rc=None, top_rt=None, body_orders=None):
     """R^t of an opaque stack, orders solved in blocks (16, then doubling) bottom-up with
     reflection-only adding, until :func:`flakedb.rt.orders.order_tail` says the BSDF's dropped tail is
     within ``s.order_tol`` (docs/orders.md).  ``Rc``: the rough conductor bottom's R^t (all its
@@ -821,7 +823,9 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom,
     it is called).  ``top_rt``: for a rough top, a function returning its R^t (L_top, 1, h, h) once
     built: where the body reflects nothing, the stack's R^t is that block, and the result is written
     into it when the shapes allow (the solver's own array: no second copy of a many-order top).
-    Returns (Rt (L', C, h, h), info)."""
+    ``body_orders``: the order beyond which the body below the top reflects nothing (None: unknown); with a
+    top built in the background, the body's orders up to it (at most 64) are solved before waiting for
+    the top, instead of only the first block.  Returns (Rt (L', C, h, h), info)."""
     if smooth1 is not None:
         h_tir = q_in.h - q_out.h
         t = smooth1.Ttb[0, 0][h_tir + np.arange(q_out.h), np.arange(q_out.h)]
@@ -870,7 +874,7 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom,
 
     first = None
     if callable(L_max):  # the body's first block does not need the top: solve it while the top is built
-        L_report = L_first = min(s.order_cap, FIRST_ORDER_BLOCK)
+        L_report = L_first = min(s.order_cap, max(FIRST_ORDER_BLOCK, min(body_orders or 0, 4 * FIRST_ORDER_BLOCK)))
         first = reflection(0, L_first)
         L_max = L_max()
     L_report = L_max
@@ -884,8 +888,9 @@ def _solve_opaque_in_order_blocks(top, q_out, q_in, q_bottom, projected, bottom,
     L_keep, tail = 1, 0.0
     while l0 < L_max:
         l1 = min(L_max, max(FIRST_ORDER_BLOCK, 2 * l0))
-        if first is not None:  # orders are independent: the first l1 (≤ L_first) orders of that block
-            R, first = first[:l1], None
+        if first is not None and l0 < first.shape[0]:  # orders are independent: blocks inside the solved ones
+            l1 = min(l1, first.shape[0])
+            R = first[l0:l1]
         else:
             R = reflection(l0, l1)
         own = None  # the rough top's R^t array, when it holds these orders of the result as they are

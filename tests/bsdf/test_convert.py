@@ -92,3 +92,22 @@ def test_an_opaque_paints_table_is_its_reflection_quadrant(tmp_path):
     np.testing.assert_array_equal(a_quadrant, dense.albedo())
     write_bsdf(tmp_path / "d.bsdf", dense)
     assert (tmp_path / "q.bsdf").read_bytes() == (tmp_path / "d.bsdf").read_bytes()
+
+
+def test_a_grey_rgb_paint_is_written_as_its_dense_copy(tmp_path):
+    """A grey stack in RGB is solved once and its table is one channel broadcast to three
+    (flakedb.rt.stack._distinct_channels): the values are the solver's f·μ_o at the nodes, and the
+    .bsdf written from the broadcast (truncated once) is byte for byte the one of a dense copy."""
+    s = solve_stack(Smooth(1.5), [Slab(1.0, PhaseMedium([1.0] * 3, [0.9] * 3, ("hg", 0.5)))], Lambertian([0.5] * 3),
+                    SolverSettings(n=12))
+    t = stack_to_table(s)
+    r = t.live_quadrant()
+    assert r.shape[0] == 3 and r.strides[0] == 0                      # not copied per channel
+    f = s.f_coefficients("Rt")[:, 0]                                   # (L, o, i)
+    x = s.x
+    want = np.transpose(f * x[:, None], (2, 1, 0))[:, ::-1]            # [i, o reversed (table's −x order), l]
+    np.testing.assert_allclose(r[1], want, rtol=1e-13, atol=0)
+    dense = BSDFTable(mu=t.mu, reflection=np.array(r), delta=t.delta, eta=t.eta)
+    write_bsdf(tmp_path / "g.bsdf", t)
+    write_bsdf(tmp_path / "d.bsdf", dense)
+    assert (tmp_path / "g.bsdf").read_bytes() == (tmp_path / "d.bsdf").read_bytes()
