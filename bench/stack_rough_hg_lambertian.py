@@ -12,12 +12,14 @@ import sys
 import tempfile
 
 from flakedb.bsdf import write_bsdf
+from flakedb.process import tune_allocator
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.rt.media import PhaseMedium
 from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
 
 
 def main(n=200, out=None, colour=False):
+    tune_allocator()  # as the command line does (flakedb/process.py); FLAKEDB_MALLOC_TUNING=0 to compare
     albedo, primer = ([0.95, 0.9, 0.8], [0.5, 0.4, 0.3]) if colour else ([0.95] * 3, [0.5] * 3)
     slab = Slab(2.0, PhaseMedium(sigma_t_per_um=[1.0] * 3, albedo=albedo, phase=("hg", 0.7)))
     s = solve_stack(Rough(1.5, 0.1), [slab], Lambertian(primer),

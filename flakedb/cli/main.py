@@ -18,6 +18,7 @@ from flakedb.cli.info import info
 from flakedb.cli.match import match
 from flakedb.cli.render import render
 from flakedb.cli.species import species
+from flakedb.process import tune_allocator
 
 
 class FlakedbGroup(click.Group):
@@ -56,6 +57,7 @@ cli.add_command(species)
 
 
 def main():
+    tune_allocator()  # freed memory kept for reuse: page faults are most of a short solve's overhead
     cli(prog_name="flakedb")
 
 

@@ -252,6 +252,14 @@ def fresnel_dielectric_real(cos_i, eta_rel):
     (total internal reflection).  The same values as :func:`fresnel_dielectric` (tested to 1e-14),
     without its complex amplitudes: the hot path of the rough interfaces."""
     c = np.clip(cos_i, 0.0, 1.0)
+    if np.ndim(eta_rel) == 0 and eta_rel > 1.0:
+        # into the denser side: g > c ≥ 0, so no total internal reflection and every denominator is
+        # positive; the same expressions without the guards (the rough interfaces' hot path)
+        g = np.sqrt(eta_rel * eta_rel - 1.0 + c * c)
+        gp, gm = g + c, g - c
+        a = gm / gp
+        b = (c * gp - 1.0) / (c * gm + 1.0)
+        return 0.5 * a * a * (1.0 + b * b)
     g2 = eta_rel * eta_rel - 1.0 + c * c
     g = np.sqrt(np.maximum(g2, 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -730,8 +730,7 @@ def _solve_stack(top, slabs, bottom, s):
         smooth_inside = any(isinstance(p[0], str) and p[0] == "interface" for p in projected)
         inner = max(L_rest) if bottom is not None and not smooth_inside else None
         top_job = _submit(s.threads, itf.rough_dielectric, q_out, q_in, top.eta, top.alpha, tol=s.tol,
-                          max_orders=s.order_cap, energy_compensation=top.energy_compensation, inner_orders=inner,
-                          threads=s.threads)
+                          max_orders=s.order_cap, energy_compensation=top.energy_compensation, inner_orders=inner)
 
     def total_orders():
         """The stack's order count; waits for the rough top (its own order count is part of it)."""
@@ -754,7 +753,10 @@ def _solve_stack(top, slabs, bottom, s):
         if k1 <= l0:
             return direct_only_orders(q.x, sig, d, l1 - l0, max(pk.channels, sig.shape[0]))
         K_T, K_R = pk.blocks(l0, k1)
-        layer = homogeneous_slab(q.x, q.w, sig, K_T, K_R, d, s.slice_tau, l0=l0, threads=s.threads,
+        # while the rough top is built in the background, one thread fewer here (no oversubscription)
+        busy = top_job is not None and not top_job.done()
+        layer = homogeneous_slab(q.x, q.w, sig, K_T, K_R, d, s.slice_tau, l0=l0,
+                                 threads=max(1, s.threads - 1) if busy else s.threads,
                                  method=s.slab_method)
         return extend_orders(layer, l1 - l0, q.x, sig, d)
 

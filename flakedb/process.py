@@ -1,0 +1,40 @@
+"""Process-wide settings for flakedb's command line and for batch scripts: an edge module, called by
+``flakedb.cli.main`` and by scripts that want the same behaviour, never by the numerics.
+
+:func:`tune_allocator` keeps freed memory in the process for reuse.  glibc's malloc hands every block
+above its mmap threshold (128 KiB at start, raised only as blocks are freed) to the kernel and takes
+fresh pages for the next one; each fresh page is a page fault, and on the 2-core VM these cost
+0.4–3 ms per MB (measured: an 85 MB array filled in 0.04–0.24 s the first time, 0.02 s the second).
+A solve makes many short-lived arrays of 0.1–30 MB (the rough interface's temporaries, the order
+blocks), so with the threshold at 32 MiB and trimming at 1 GiB the rough coat α 0.1 interface at
+n = 200 took 0.28–0.31 s instead of 0.39–0.42 s in a fresh process (the same call a second time:
+0.24–0.27 s either way; docs/rough-interfaces.md, "Whole process").  The cost: memory freed after a
+peak stays mapped to the process until it exits (it is reused by later arrays).
+"""
+
+import ctypes
+import ctypes.util
+import os
+
+#: glibc's mallopt parameters (malloc.h).
+_M_TRIM_THRESHOLD = -1
+_M_MMAP_THRESHOLD = -3
+#: Blocks up to this size come from the heap and are reused (glibc's largest allowed value, 32 MiB).
+MMAP_THRESHOLD_BYTES = 32 * 1024 * 1024
+#: The heap is given back to the kernel only above this much free memory at its top.
+TRIM_THRESHOLD_BYTES = 1024 * 1024 * 1024
+
+
+def tune_allocator():
+    """Set glibc's mmap and trim thresholds (module docstring); True when applied.  A no-op (False)
+    without glibc's ``mallopt`` (macOS, musl) or with ``FLAKEDB_MALLOC_TUNING=0`` in the environment."""
+    if os.environ.get("FLAKEDB_MALLOC_TUNING", "1").strip() == "0":
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    mallopt.restype = ctypes.c_int
+    return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
