@@ -111,8 +111,6 @@ import copy
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.special import roots_legendre
 
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.optics.fresnel import fresnel_conductor
@@ -129,6 +127,7 @@ from flakedb.paint.species import flake_reflectance_transmittance, pigment_optic
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, vmf_mean_cosine
 from flakedb.rt.microflake import FlakeOptics, extinction_Ergun
+from flakedb.rt.special import gauss_legendre
 from flakedb.rt.stack import InnerRough, InnerSmooth, Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings, solve_stack
 from flakedb.rt.stored import StoredMixture, StoredPigmentMedium
 
@@ -275,8 +274,10 @@ def metal_index_rgb(N_spectral, eta, wl):
     Σ_j w_j μ_j (F(μ_j; (n + ik)/η) − F_rgb(μ_j))² (scipy least squares in log n, log k, started from
     the band-averaged N).  Returns (N_rgb (3,) complex relative to vacuum, the largest |F − F_rgb| over μ
     and channels, the largest clip of F_rgb)."""
+    from scipy.optimize import least_squares  # lazy: scipy.optimize takes 0.3 s to import; only a metal base needs it
+
     N_spectral = np.asarray(N_spectral, dtype=complex)
-    g, wg = roots_legendre(METAL_FIT_NODES)
+    g, wg = gauss_legendre(METAL_FIT_NODES)
     mu, wmu = 0.5 * (g + 1.0), 0.5 * wg
     F = fresnel_conductor(mu[:, None], N_spectral[None, :] / float(eta)).R  # (M, W)
     F_rgb = spectra_to_rgb_mode(F, wl)  # (M, 3)
