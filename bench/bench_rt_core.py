@@ -93,9 +93,11 @@ def _rough_hg_rgb(n=200):
 def _doubling_rate(batch=256, h=69, times=8):
     """GFLOP/s of :func:`double_symmetric` against a batched matmul of the same (batch, h, h) stacks.
 
-    Flops counted per matrix and doubling, all of which the implementation performs: R R (2h³), the LU
-    of I − R R (2h³/3), its two triangular solves with h right-hand sides (2h³), R X, T (R X) and T X
-    (3 × 2h³): 32h³/3.  The O(h²) updates (I − R R, R + …) are not counted.  Two comparisons, each
+    Flops counted per matrix and doubling as the LU-based doubling's: R R (2h³), the LU of I − R R
+    (2h³/3), its two triangular solves with h right-hand sides (2h³), R X, T (R X) and T X (3 × 2h³):
+    32h³/3, whatever the solve does (the block inverse with its probe performs about 12h³,
+    docs/model.md §4 "Doubling"), so the rate is a time per doubling in matmul-equivalent units.  The
+    O(h²) updates (I − R R, R + …) are not counted.  Two comparisons, each
     in the same run: one core (BLAS at one thread for both, as :func:`flakedb.rt.stack.solve_stack`
     runs the doubling; best of three for each) and the whole machine (matmul with BLAS's own threads against
     ``double_symmetric(threads=2)`` with BLAS at one thread per call, again as ``solve_stack`` runs it).

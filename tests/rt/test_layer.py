@@ -13,10 +13,11 @@ from flakedb.rt.layer import Layer, add, double_symmetric
 
 
 def _whole_batch(R, T, times):
-    """The whole-batch doubling written out (add(S, S) for a symmetric S, docs/model.md §4)."""
+    """The whole-batch doubling written out (add(S, S) for a symmetric S, docs/model.md §4), with the
+    doubling's own solve (:func:`flakedb.rt.layer._solve_near_identity`, per matrix)."""
     eye = np.eye(R.shape[-1])
     for _ in range(times):
-        X = np.linalg.solve(eye - R @ R, T)
+        X = ly._solve_near_identity(eye - R @ R, T)
         R, T = R + T @ (R @ X), T @ X
     return R, T
 
@@ -28,12 +29,13 @@ def _layers(L=3, C=5, h=11, seed=0):
     return R, T
 
 
-@pytest.mark.parametrize("chunk_bytes", [1, 8 * 11 * 11 * 4, ly.DOUBLING_CHUNK_BYTES])
-def test_chunked_doubling_is_the_whole_batch_doubling(monkeypatch, chunk_bytes):
+@pytest.mark.parametrize("h", [11, 40])
+@pytest.mark.parametrize("chunk", [1, 4, None])
+def test_chunked_doubling_is_the_whole_batch_doubling(monkeypatch, chunk, h):
     """Chunks of 1, 4 (15 = 3·4 + 3: a ragged last chunk) and all matrices give the whole-batch result
-    bit for bit, and equal the adding equations applied to S over S."""
-    monkeypatch.setattr(ly, "DOUBLING_CHUNK_BYTES", chunk_bytes)
-    R, T = _layers()
+    bit for bit, and equal the adding equations applied to S over S (h = 40: the block inverse recurses)."""
+    monkeypatch.setattr(ly, "DOUBLING_CHUNK_BYTES", ly.DOUBLING_CHUNK_BYTES if chunk is None else 8 * h * h * chunk)
+    R, T = _layers(h=h)
     R0, T0 = R.copy(), T.copy()
     Rd, Td = double_symmetric(R, T, 4)
     Rw, Tw = _whole_batch(R, T, 4)
@@ -86,3 +88,23 @@ def test_symmetry_tolerance_decides_the_slab_method(factor, doubled):
     np.testing.assert_array_equal(zero.Rt, 0.0)
     np.testing.assert_allclose(np.diagonal(zero.Ttb, axis1=-2, axis2=-1), np.broadcast_to(np.exp(-2.0 * sig / q.x), zero.Ttb.shape[:-1]),
                                rtol=1e-15)
+
+
+def test_block_inverse_solve_matches_pivoted_lapack_and_falls_back():
+    """The doubling's solve (block inverse, no pivoting) against LAPACK's pivoted solve on passive
+    layers' I − R R (h = 69: three levels of recursion), and a matrix that needs pivoting (a zero
+    leading block) is caught by the probe and solved by LAPACK."""
+    rng = np.random.default_rng(3)
+    h = 69
+    R = 0.3 * rng.random((6, h, h)) / h
+    T = 0.5 * rng.random((6, h, h)) / h + 0.5 * np.eye(h)
+    A = np.eye(h) - R @ R
+    X = ly._solve_near_identity(A, T)
+    ref = np.linalg.solve(A, T)
+    assert np.abs(X - ref).max() <= 1e-14 * np.abs(ref).max()
+    P = np.eye(h)[::-1] + 0.01 * rng.random((h, h))  # anti-diagonal: A11 singular-ish, pivoting needed
+    A2 = np.concatenate([A, P[None]])
+    T2 = np.concatenate([T, T[:1]])
+    X2 = ly._solve_near_identity(A2, T2)
+    np.testing.assert_allclose(A2[-1] @ X2[-1], T2[-1], rtol=0, atol=1e-10)
+    np.testing.assert_array_equal(X2[-1], np.linalg.solve(A2[-1:], T2[-1:])[0])
