@@ -19,7 +19,7 @@ from pathlib import Path
 import click
 
 from flakedb.bsdf.table import BSDFFileError
-from flakedb.store.versions import StoreError
+from flakedb.store.errors import StoreError
 
 #: Longest message kept on the one line (a longer one is cut, its start kept).
 MAX_MESSAGE_CHARS = 500

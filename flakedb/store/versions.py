@@ -77,6 +77,7 @@ from flakedb.store.compress import (
     pigment_task,
     store_nodes,
 )
+from flakedb.store.errors import StoreError, StoreIntegrityError  # noqa: F401  (re-exported)
 
 FORMAT = "flakedb-store"
 FORMAT_VERSION = 2
@@ -104,14 +105,6 @@ __all__ = [
     "open_version",
     "StoreVersion",
 ]
-
-
-class StoreError(RuntimeError):
-    """The store cannot give what was asked (no version, incomplete version, unknown species)."""
-
-
-class StoreIntegrityError(StoreError):
-    """The stored bytes do not match their recorded checksums, or the metadata breaks the schema."""
 
 
 def default_store() -> str:
