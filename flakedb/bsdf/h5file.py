@@ -44,7 +44,7 @@ def write_h5(path, table: BSDFTable, extra_metadata: dict | None = None) -> dict
     md = dict(table.metadata)
     md.update(extra_metadata or {})
     md_json = json.dumps(md, sort_keys=True, allow_nan=False, default=_json_default)
-    C, n, _, L = table.coeffs.shape
+    C, n, L = table.n_channels, table.n, table.n_orders
     with atomic_path(path) as tmp:
         import h5py  # lazy: h5py takes 50 ms to import; only the .h5 file needs it
 
@@ -58,8 +58,13 @@ def write_h5(path, table: BSDFTable, extra_metadata: dict | None = None) -> dict
             f.attrs["delta"] = json.dumps(table.delta)
             f.attrs["metadata"] = md_json
             f.create_dataset("mu", data=table.mu)
-            f.create_dataset("coeffs", data=table.coeffs, chunks=(1, 1, n, L), shuffle=True,
-                             compression="gzip", compression_opts=1)
+            if table.reflection_only:  # the reflection quadrant written alone; the rest is the fill value 0
+                d = f.create_dataset("coeffs", shape=(C, n, n, L), dtype="f8", chunks=(1, 1, n, L), shuffle=True,
+                                     compression="gzip", compression_opts=1, fillvalue=0.0)
+                d[:, n // 2:, : n // 2, :] = table.live_quadrant()
+            else:
+                f.create_dataset("coeffs", data=table.coeffs, chunks=(1, 1, n, L), shuffle=True,
+                                 compression="gzip", compression_opts=1)
             f.create_dataset("albedo", data=table.albedo())
         size = os.path.getsize(tmp)
     return {"size": size, "n_channels": C, "max_order": L}

@@ -169,6 +169,9 @@ def desaturate_to_gamut(coeffs, w, n_phi: int = N_PHI_DEFAULT):
     """Apply (G1): returns (mapped coeffs (3, n, n, L), s (n, n)).  The luminance Σ w_k c_k of every
     coefficient is unchanged; pairs already in gamut (s = 1) are returned unchanged."""
     c = np.asarray(coeffs, dtype=float)
+    if np.array_equal(c[0], c[1]) and np.array_equal(c[0], c[2]):
+        # a grey table: every channel equals Y / Σw with Σw = 1 > 0, so none is negative where Y > 0
+        return c, np.ones(c.shape[1:3])
     s = desaturation_factors(c, w, n_phi)
     Y = np.einsum("k,k...->...", np.asarray(w, float), c)            # (n, n, L)
     out = Y[None] + s[None, :, :, None] * (c - Y[None])

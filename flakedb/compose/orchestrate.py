@@ -101,8 +101,10 @@ def check_output_dir(out_dir) -> Path:
 def table_to_file_channels(table, mode, wavelength_nm=None):
     """The ``.bsdf`` version of a full table: linear sRGB (3 channels) or mono when every channel is
     equal (to 1e-12 relative).  Spectral → RGB by :func:`flakedb.colour.colorimetry.spectra_to_rgb_mode`
-    applied coefficient by coefficient (it is linear)."""
-    c = table.coeffs
+    applied coefficient by coefficient (it is linear).  A reflection-only table stays one (its
+    quadrant alone is mapped)."""
+    quadrant = table.reflection_only
+    c = table.live_quadrant() if quadrant else table.coeffs
     if mode == "spectral":
         M = spectra_to_rgb_matrix(wavelength_nm)                         # (B, 3)
         c = np.einsum("bk,b...->k...", M, c)
@@ -116,7 +118,7 @@ def table_to_file_channels(table, mode, wavelength_nm=None):
         if all(np.abs(c[k] - c[0]).max() <= 1e-12 * scale for k in range(1, c.shape[0])):
             c = c[:1]
             channels = ("mono",)
-    return table.replace(coeffs=np.ascontiguousarray(c), channels=channels)
+    return table.replace(**{"reflection" if quadrant else "coeffs": np.ascontiguousarray(c)}, channels=channels)
 
 
 def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
@@ -137,7 +139,11 @@ def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
     gamut.check_space(space)
     if mode == "mono":
         return table_to_file_channels(table, mode, wavelength_nm), None
-    c = table.coeffs
+    # a reflection-only table (an opaque paint) is mapped on its reflection quadrant alone: the other
+    # quadrants are zero and in gamut, and the reciprocal partner of a reflection pair is a reflection
+    # pair (desaturation_factors' symmetrisation stays inside the quadrant)
+    quadrant = table.reflection_only
+    c = table.live_quadrant() if quadrant else table.coeffs
     wl = np.asarray(wavelength_nm, float)
     if mode == "spectral":
         c = np.einsum("bk,b...->k...", gamut.spectra_to_space_matrix(wl, space), c)
@@ -145,16 +151,17 @@ def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
         c = np.einsum("jk,j...->k...", gamut.rgb_mode_to_space_matrix(wl, space), c)
     w = gamut.luminance_weights(wl, space)
     mapped, s = gamut.desaturate_to_gamut(c, w)
-    before = table.replace(coeffs=c, channels=("R", "G", "B"))
-    after = table.replace(coeffs=np.ascontiguousarray(mapped), channels=("R", "G", "B"))
-    n, h = table.n, table.n // 2
-    refl = np.zeros((n, n), bool)
-    refl[h:, :h] = True                                       # light from above, reflected
-    changed = refl & (s < 1.0)
-    mu_o = np.abs(table.mu)[None, :]
+    key = "reflection" if quadrant else "coeffs"
+    before = table.replace(**{key: c}, channels=("R", "G", "B"))
+    after = table.replace(**{key: np.ascontiguousarray(mapped)}, channels=("R", "G", "B"))
+    h = table.n // 2
+    if not quadrant:  # light from above, reflected: the same quadrant of the full table
+        c, mapped, s = c[:, h:, :h], mapped[:, h:, :h], s[h:, :h]
+    changed = s < 1.0
+    mu_o = np.abs(table.mu[:h])[None, :]
     de_pairs = 0.0
     if changed.any():
-        rf = np.pi * c[..., 0] / mu_o                          # (3, n, n) reflectance factor
+        rf = np.pi * c[..., 0] / mu_o                          # (3, h, h) reflectance factor
         rf2 = np.pi * mapped[..., 0] / mu_o
         de_pairs = float(np.max(gamut.mapping_delta_e(rf[:, changed].T, rf2[:, changed].T, wl, space)))
     a_before, a_after = before.albedo()[:, h:], after.albedo()[:, h:]
@@ -167,13 +174,13 @@ def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
     info = {
         "rgb_space": gamut.RGB_SPACES[space][1], "rgb_space_key": space,
         "method": gamut.GAMUT_METHOD,
-        "pairs_mapped": int(changed.sum()), "pairs_reflection": int(refl.sum()),
-        "min_desaturation_factor": float(s[refl].min()),
+        "pairs_mapped": int(changed.sum()), "pairs_reflection": int(h * h),
+        "min_desaturation_factor": float(s.min()),
         "max_dE00": max(de_pairs, de_albedo, float(de_geo.max())),
         "max_dE00_node_pairs": de_pairs, "max_dE00_albedo": de_albedo,
         "dE00_geometries": {f"{g:g}": float(d) for g, d in zip(ASPECULAR_DEG, de_geo)},
-        "min_channel_before": float(c[:, refl, 0].min()),
-        "min_channel_after": float(mapped[:, refl, 0].min()),
+        "min_channel_before": float(c[..., 0].min()),
+        "min_channel_after": float(mapped[..., 0].min()),
         "max_channel_albedo_before": float(a_before.max()), "max_channel_albedo_after": float(a_after.max()),
         "min_channel_albedo_before": float(a_before.min()), "min_channel_albedo_after": float(a_after.min()),
     }

@@ -85,7 +85,9 @@ def eval_table(table, mu_i, mu_o, phi_d) -> np.ndarray:
     mu_i, mu_o, phi_d = np.broadcast_arrays(*(np.asarray(a, float) for a in (mu_i, mu_o, phi_d)))
     nodes = insert_zero_nodes(table.mu)
     n, h = table.n, table.n // 2
-    C, _, _, L = table.coeffs.shape
+    quadrant = table.reflection_only  # then only rows h… and columns …h−1 hold coefficients
+    src = table.live_quadrant() if quadrant else table.coeffs
+    C, L = src.shape[0], src.shape[3]
     N = n + 2
     # file index -> table index (the two zero nodes hold no coefficients)
     tidx = np.r_[0:h, -1, -1, h:n]
@@ -96,8 +98,14 @@ def eval_table(table, mu_i, mu_o, phi_d) -> np.ndarray:
         for b in range(4):
             ti = tidx[np.clip(oi + a, 0, N - 1)]
             to = tidx[np.clip(oo + b, 0, N - 1)]
-            w = wi[..., a] * wo[..., b] * ((ti >= 0) & (to >= 0))
-            block = np.moveaxis(table.coeffs[:, np.maximum(ti, 0), np.maximum(to, 0), :], 0, -2)
+            if quadrant:
+                live = (ti >= h) & (to >= 0) & (to < h)
+                ri, ro = np.clip(ti - h, 0, h - 1), np.clip(to, 0, h - 1)
+            else:
+                live = (ti >= 0) & (to >= 0)
+                ri, ro = np.maximum(ti, 0), np.maximum(to, 0)
+            w = wi[..., a] * wo[..., b] * live
+            block = np.moveaxis(src[:, ri, ro, :], 0, -2)
             out += w[..., None, None] * block
     cos = np.cos(np.arange(L) * phi_d[..., None])  # (..., L)
     return np.einsum("...cl,...l->...c", out, cos)

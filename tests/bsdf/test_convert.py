@@ -111,3 +111,17 @@ def test_a_grey_rgb_paint_is_written_as_its_dense_copy(tmp_path):
     write_bsdf(tmp_path / "g.bsdf", t)
     write_bsdf(tmp_path / "d.bsdf", dense)
     assert (tmp_path / "g.bsdf").read_bytes() == (tmp_path / "d.bsdf").read_bytes()
+
+
+def test_an_opaque_paints_h5_is_its_dense_table(tmp_path):
+    """write_h5 writes a reflection-only table's quadrant alone (the rest is the dataset's fill value):
+    read back, it is the dense table, bit for bit."""
+    from flakedb.bsdf import read_h5, write_h5
+
+    s = solve_stack(Smooth(1.5), [Slab(1.0, PhaseMedium([1.0, 1.0, 1.0], [0.9, 0.5, 0.2], ("hg", 0.5)))],
+                    Lambertian([0.5, 0.3, 0.1]), SolverSettings(n=12))
+    t = stack_to_table(s)
+    assert t.reflection_only
+    write_h5(tmp_path / "q.h5", t)
+    back = read_h5(tmp_path / "q.h5").to_table()
+    np.testing.assert_array_equal(back.coeffs, t.coeffs)

@@ -125,3 +125,26 @@ def test_solver_warnings_in_words():
     assert len(w) == 3 and "2.4%" in w[1] and "stopped at 128 azimuth samples" in w[0] and "3.0e-04" in w[2]
     assert solver_warnings({"orders": 3, "order_converged": True, "slab0": {"converged": True,
                                                                            "renorm_max_dev": 1e-3}}, 64) == []
+
+
+def test_gamut_mapping_of_a_reflection_only_table_is_that_of_its_dense_copy(catalog, tmp_path):
+    """An opaque paint's table is mapped on its reflection quadrant alone (no dense 4× array): the file
+    table, the recorded costs and eval_table are those of the same table given densely, bit for bit."""
+    from flakedb.bsdf import BSDFTable
+    from flakedb.compose.report import eval_table, multiangle_geometry
+
+    r = _recipe(RECIPES[[p.stem for p in RECIPES].index("particle-cadmium-yellow")], catalog)
+    res = compose(r, tmp_path / "q", n=16, catalog=catalog)
+    quad = res.table
+    assert quad.reflection_only
+    dense = BSDFTable(mu=quad.mu, coeffs=quad.coeffs.copy(), eta=quad.eta, alpha=quad.alpha, delta=quad.delta,
+                      metadata=quad.metadata, channels=quad.channels)
+    quad = dense.replace(reflection=dense.live_quadrant().copy())
+    fq, iq = gamut_safe_file_channels(quad, "spectral", res.paint.wavelength_nm)
+    fd, idd = gamut_safe_file_channels(dense, "spectral", res.paint.wavelength_nm)
+    assert iq["pairs_mapped"] > 0 and iq == idd
+    assert fq.reflection_only
+    np.testing.assert_array_equal(fq.coeffs, fd.coeffs)
+    mi, mo, ph, _ = multiangle_geometry(45.0)
+    pts = (np.array([mi, 0.3, 0.9]), np.array([mo, -0.2, -0.95]), np.array([ph, 1.0, 2.5]))
+    np.testing.assert_array_equal(eval_table(quad, *pts), eval_table(dense, *pts))
