@@ -41,7 +41,7 @@ import functools
 import numpy as np
 
 from flakedb.conventions import fourier_weight
-from flakedb.optics.fresnel import fresnel_conductor, fresnel_dielectric_real
+from flakedb.optics.fresnel import fresnel_conductor_real, fresnel_dielectric_real
 from flakedb.rt.special import gauss_legendre, smith_masking_denominator
 
 #: Pairs whose Beckmann factor exp(−tan²θ_h/α²) stays below exp(−PRUNE_T2) for every φ are skipped.
@@ -83,7 +83,7 @@ def conductor_fresnel(eta_complex):
 
     def F(c):
         c = np.clip(np.asarray(c, dtype=float), 0.0, 1.0)
-        return fresnel_conductor(c[None], N.reshape((-1,) + (1,) * c.ndim)).R
+        return fresnel_conductor_real(c[None], N.reshape((-1,) + (1,) * c.ndim))
 
     return F
 

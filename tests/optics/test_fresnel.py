@@ -278,3 +278,25 @@ class TestFresnelAmplitudes:
             fresnel_amplitudes(-0.5, 1.0, 1.5)
         with pytest.raises(ValueError, match="k >= 0"):
             fresnel_amplitudes(0.5, 1.0, 1.5 - 0.1j)
+
+
+def test_conductor_reflectance_in_real_arithmetic_is_the_complex_one():
+    """fresnel_conductor_real (the rough conductor's hot path) against fresnel_conductor (complex
+    amplitudes, checked against tmm above) over metals, dielectrics (k = 0, also n < 1 with its
+    critical angle) and η = 1, at every angle including normal and grazing incidence; and the closed
+    form at normal incidence ((n − 1)² + k²) / ((n + 1)² + k²)."""
+    from flakedb.optics.fresnel import fresnel_conductor_real
+
+    rng = np.random.default_rng(7)
+    n = np.concatenate([rng.uniform(0.02, 6.0, 3000), [1.0, 1.5, 0.5, 0.999, 0.18, 1.0]])
+    k = np.concatenate([rng.uniform(0.0, 12.0, 3000), [0.0, 0.0, 0.0, 0.0, 2.3, 1e-9]])
+    k[:300] = 0.0
+    eta = (n + 1j * k)[None, :]
+    c = np.concatenate([[0.0, 1e-12, 1e-6, 1.0], np.linspace(0.0, 1.0, 97)])[:, None]
+    ref = fresnel_conductor(c, eta).R
+    got = fresnel_conductor_real(c, eta)
+    assert np.all(np.isfinite(got))
+    assert np.abs(got - ref).max() < 1e-12
+    assert np.all(got[:, n == 1.0][:, k[n == 1.0] == 0.0] == 0.0)             # no interface, no reflection
+    normal = ((n - 1) ** 2 + k ** 2) / ((n + 1) ** 2 + k ** 2)
+    np.testing.assert_allclose(fresnel_conductor_real(1.0, n + 1j * k), normal, rtol=1e-13, atol=1e-16)
