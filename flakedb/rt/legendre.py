@@ -136,24 +136,40 @@ class LegendreKernel:
         return self._S
 
     def blocks(self, l0=0, l1=None):
-        """(K_T, K_R), each (l1 − l0, C, h, h) [order, channel, outgoing, incident] in 1/(µm·sr)."""
+        """(K_T, K_R), each (l1 − l0, C, h, h) [order, channel, outgoing, incident] in 1/(µm·sr).
+
+        a_m[o, i] = c_m Σ_{k ≥ m} w_k S_k^m(μ_o) S_k^m(μ_i), w = σ_s χ (S_k^m = 0 for k < m), and for
+        reflection S_k^m(−μ_o) = (−1)^{k+m} S_k^m(μ_o): with E and O the sums over k + m even and odd,
+        K_T = c_m (E + O) and K_R = c_m (E − O).  Orders of one parity share the parity split of k, and a
+        group of orders starts its sums at its smallest m: half the products of summing all k twice."""
         l1 = self._L if l1 is None else int(l1)
         h, C = self.x.size, self.channels
         K_T = np.zeros((max(0, l1 - l0), C, h, h))
         K_R = np.zeros_like(K_T)
         k1 = min(l1, self._L)
         if k1 > l0:
-            S = self._legendre()[l0:k1]  # (l, K + 1, h)
-            m = np.arange(l0, k1)
-            k = np.arange(self.K + 1)
-            cm = np.where(m == 0, 1.0, 2.0)
+            S = self._legendre()  # (L, K + 1, h)
             w = self.sigma_s[:, None] * self.chi  # (C, K + 1)
-            sign = (-1.0) ** (k[None, :] + m[:, None])  # (l, K + 1): S(−μ_o) = (−1)^{k+m} S(μ_o)
-            # a[l, c, o, i] = c_m Σ_k w[c, k] S[l, k, o] S[l, k, i]
-            A = S[:, None, :, :] * w[None, :, :, None]  # (l, C, K + 1, h)
-            St = np.swapaxes(S, 1, 2)[:, None]  # (l, 1, h, K + 1)
-            K_T[: k1 - l0] = cm[:, None, None, None] * (St @ A)
-            K_R[: k1 - l0] = cm[:, None, None, None] * ((St * sign[:, None, None, :]) @ A)
+            for parity in (0, 1):
+                ms = np.arange(l0 + (parity - l0) % 2, k1, 2)  # the orders m ≡ parity (mod 2)
+                # a group's temporaries (its orders × C × K/2 × h) bounded to ~32 MB
+                g = max(1, min(16, (4 << 20) // max(1, C * (self.K + 1) * h // 2)))
+                for c0 in range(0, ms.size, g):
+                    mm = ms[c0:c0 + g]
+                    k0 = int(mm[0])  # S_k^m = 0 for k < m ≤ every m of the group
+                    Sg = S[mm]  # (g, K + 1, h)
+                    sums = []
+                    for ks in (slice(k0, None, 2), slice(k0 + 1, None, 2)):  # k + m even (E), odd (O)
+                        Sk = Sg[:, ks]  # (g, n_k, h)
+                        if Sk.shape[1] == 0:
+                            sums.append(0.0)
+                            continue
+                        A = Sk[:, None] * w[None, :, ks, None]  # (g, C, n_k, h)
+                        sums.append(np.swapaxes(Sk, 1, 2)[:, None] @ A)  # (g, C, h, h)
+                    E, O = sums
+                    cm = np.where(mm == 0, 1.0, 2.0)[:, None, None, None]
+                    K_T[mm - l0] = cm * (E + O)
+                    K_R[mm - l0] = cm * (E - O)
         if self.scale is not None:
             s = self.scale  # (C', h): s_o K[o, i] s_i
             f = s[None, :, :, None] * s[None, :, None, :]
