@@ -118,8 +118,6 @@ BLOCK_INVERSE_LEAF = 16
 #: :func:`_solve_near_identity` solves a matrix again with LAPACK's pivoted solve when its probe residual
 #: max|A (X v) − B v| exceeds this times max|B| · Σ|v|.
 BLOCK_INVERSE_RESIDUAL = 1e-14
-#: The probe vector of :func:`_solve_near_identity` (fixed, every entry in [0.5, 2.5]).
-_PROBE = np.cos(np.arange(1, 4097) * 0.7548776662466927) + 1.5
 
 
 def _block_inverse(A):
@@ -156,7 +154,7 @@ def _solve_near_identity(A, B):
     (partial pivoting).  Each matrix's result depends on that matrix alone (chunking and threads do not
     change a bit)."""
     X = _block_inverse(A) @ B
-    v = _PROBE[: B.shape[-1], None]
+    v = (np.cos(np.arange(1, B.shape[-1] + 1) * 0.7548776662466927) + 1.5)[:, None]  # fixed, entries in [0.5, 2.5]
     res = np.abs(A @ (X @ v) - B @ v).max(axis=(-2, -1))
     bad = ~(res <= BLOCK_INVERSE_RESIDUAL * np.abs(B).max(axis=(-2, -1)) * np.abs(v).sum())
     if bad.any():
