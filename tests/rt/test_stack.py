@@ -541,6 +541,27 @@ def test_channel_groups_reuse_one_projection(monkeypatch):
     assert np.abs(grouped.Rt[:L] - one.Rt[:L]).max() <= 1e-12 * np.abs(one.Rt).max()
 
 
+def test_channel_groups_share_one_rough_top(monkeypatch):
+    """Channel groups under a rough top build the interface once and read it only: one channel per
+    group (where a lone group could otherwise write its result into the top's R^t) gives the one-group
+    solve, and the interface is built once."""
+    calls = []
+    real = stk.itf.rough_dielectric
+
+    def counting(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(stk.itf, "rough_dielectric", counting)
+    args = (Rough(1.5, 0.1), [Slab(2.0, PhaseMedium(1.0, [0.9, 0.6, 0.3], ("hg", 0.6)))], Lambertian([0.5, 0.4, 0.3]))
+    one = solve_stack(*args, SolverSettings.product(32))
+    calls.clear()
+    grouped = solve_stack(*args, SolverSettings.product(32, memory_budget_bytes=1.0))
+    assert len(grouped.info["channel_groups"]) == 3 and len(calls) == 1
+    L = min(one.n_orders, grouped.n_orders)
+    assert np.abs(grouped.Rt[:L] - one.Rt[:L]).max() <= 1e-12 * np.abs(one.Rt).max()
+
+
 @pytest.mark.parametrize("bottom", [Lambertian([0.5, 0.2, 0.8]), RoughConductor([0.2 + 3.0j, 1.0 + 6.0j, 0.5 + 2.0j], 0.2)])
 def test_threads_build_the_rough_top_in_the_background_with_the_same_result(bottom, monkeypatch):
     """With threads > 1 the rough top is built in a background thread while the slabs are projected and
