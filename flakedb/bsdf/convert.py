@@ -33,15 +33,19 @@ def stack_to_table(stack, channels=None, eta=None, alpha=0.0, delta="auto", meta
     x = np.asarray(stack.x, float)
     h = x.size
     n = 2 * h
-    if stack.Ttb is None:  # an opaque paint: the reflection quadrant alone, as a view of one array
+    if eta is None:
+        eta = stack.eta
+    if isinstance(delta, str) and delta == "auto":
+        delta = {"kind": "fresnel", "eta": float(stack.eta)} if stack.delta_F is not None else None
+    kw = dict(mu=np.concatenate([-x[::-1], x]), eta=float(eta), alpha=(float(alpha), 0.0), delta=delta,
+              metadata=dict(metadata or {}), channels=None if channels is None else tuple(channels))
+    if stack.Ttb is None:  # an opaque paint: the reflection quadrant alone
         C = stack.Rt.shape[1] if channels is None else len(channels)
-        return _reflection_table(stack, x, C, eta, alpha, delta, metadata, channels)
-    blocks = {"Rt": stack.f_coefficients("Rt")}
-    if stack.Ttb is not None:
-        if stack.x_in is None or stack.x_in.shape != x.shape or not np.allclose(stack.x_in, x, rtol=0, atol=1e-14):
-            raise ValueError("a transmissive table needs the same nodes above and below (index-matched stack)")
-        for b in ("Ttb", "Rb", "Tbt"):
-            blocks[b] = stack.f_coefficients(b)
+        return BSDFTable(reflection=_reflection_quadrant(stack.Rt, x, stack.w, C), **kw)
+    # a transmissive stack: all four quadrants
+    if stack.x_in is None or stack.x_in.shape != x.shape or not np.allclose(stack.x_in, x, rtol=0, atol=1e-14):
+        raise ValueError("a transmissive table needs the same nodes above and below (index-matched stack)")
+    blocks = {b: stack.f_coefficients(b) for b in ("Rt", "Ttb", "Rb", "Tbt")}
     C = max(b.shape[1] for b in blocks.values()) if channels is None else len(channels)
     L = max(b.shape[0] for b in blocks.values())
 
@@ -59,16 +63,7 @@ def stack_to_table(stack, channels=None, eta=None, alpha=0.0, delta="auto", meta
         np.multiply(f, xo[None, None, :, None], out=np.transpose(v[..., : f.shape[0]], (3, 0, 2, 1)))
         return np.broadcast_to(v, (C, h, h, L)) if grey else v
 
-    mu = np.concatenate([-x[::-1], x])
-    if eta is None:
-        eta = stack.eta
-    if isinstance(delta, str) and delta == "auto":
-        delta = {"kind": "fresnel", "eta": float(stack.eta)} if stack.delta_F is not None else None
-    kw = dict(mu=mu, eta=float(eta), alpha=(float(alpha), 0.0), delta=delta, metadata=dict(metadata or {}),
-              channels=None if channels is None else tuple(channels))
-    if "Ttb" not in blocks:  # an opaque paint: the reflection quadrant alone
-        return BSDFTable(reflection=block("Rt", True), **kw)
-    coeffs = np.zeros((C, n, n, L))  # a transmissive stack: all four quadrants
+    coeffs = np.zeros((C, n, n, L))
     lo, hi = slice(0, h), slice(h, n)  # table indices of −x_{h−1} … −x_0 and of +x_0 … +x_{h−1}
     coeffs[:, hi, lo] = block("Rt", True)
     coeffs[:, hi, hi] = block("Ttb", False)
@@ -77,17 +72,17 @@ def stack_to_table(stack, channels=None, eta=None, alpha=0.0, delta="auto", meta
     return BSDFTable(coeffs=coeffs, **kw)
 
 
-def _reflection_table(stack, x, C, eta, alpha, delta, metadata, channels):
-    """The reflection-only table of an opaque stack: f·|μ_o| = S_l[o, i] |μ_o| / (c_l w_i μ_i) (conventions),
-    outgoing nodes reversed (the table's −x order), written straight into the table's (C, h_i, h_o, L)
-    layout a few incident nodes at a time (a cache-blocked transpose: one pass, one array).  A grey stack
-    solved once (a channel-broadcast R^t) stays one channel, broadcast to C."""
-    S = stack.Rt                                                   # (L, C|1, h_o, h_i)
+def _reflection_quadrant(S, x, w, C):
+    """The reflection quadrant (C, h_i, h_o, L) of an opaque stack's R^t ``S`` (L, C|1, h_o, h_i):
+    f·|μ_o| = S_l[o, i] |μ_o| / (c_l w_i μ_i) (conventions), outgoing nodes reversed (the table's −x
+    order), written straight into the table's layout a few incident nodes at a time (a cache-blocked
+    transpose: one pass, one array).  A grey stack solved once (a channel-broadcast R^t) stays one
+    channel, broadcast to C."""
     grey = S.shape[1] > 1 and S.strides[1] == 0
     if grey:
         S = S[:, :1]
     L, Cs, h, _ = S.shape
-    f2d = (x[::-1][:, None] / (stack.w * x)[None, :]) / fourier_weight(1)   # |μ_o| / (c_l w_i μ_i), l ≥ 1
+    f2d = (x[::-1][:, None] / (w * x)[None, :]) / fourier_weight(1)   # |μ_o| / (c_l w_i μ_i), l ≥ 1
     v = np.empty((Cs, h, h, L))
     Sr = S[:, :, ::-1]
     for i0 in range(0, h, 8):                                      # 8 incident nodes: one cache line of S
@@ -95,10 +90,4 @@ def _reflection_table(stack, x, C, eta, alpha, delta, metadata, channels):
         blk = v[:, i0:i1]
         np.multiply(np.transpose(Sr[..., i0:i1], (1, 3, 2, 0)), f2d[:, i0:i1].T[None, :, :, None], out=blk)
         blk[..., 0] *= fourier_weight(1) / fourier_weight(0)      # c_0 = 2π
-    refl = np.broadcast_to(v, (C,) + v.shape[1:]) if grey else v
-    if eta is None:
-        eta = stack.eta
-    if isinstance(delta, str) and delta == "auto":
-        delta = {"kind": "fresnel", "eta": float(stack.eta)} if stack.delta_F is not None else None
-    return BSDFTable(reflection=refl, mu=np.concatenate([-x[::-1], x]), eta=float(eta), alpha=(float(alpha), 0.0),
-                     delta=delta, metadata=dict(metadata or {}), channels=None if channels is None else tuple(channels))
+    return np.broadcast_to(v, (C,) + v.shape[1:]) if grey else v

@@ -131,6 +131,13 @@ class BSDFTable:
         """True when the table was given as its reflection quadrant alone (and not densified since)."""
         return self._reflection is not None
 
+    @property
+    def stored(self) -> np.ndarray:
+        """The coefficients as the table holds them: :attr:`reflection` quadrant (C, h, h, L) of a
+        :attr:`reflection_only` table, else :attr:`coeffs` (C, n, n, L).  ``replace(stored=…)`` gives a
+        table holding the same kind."""
+        return self._reflection if self.reflection_only else self._coeffs
+
     def live_quadrant(self) -> np.ndarray:
         """(C, h, h, L): the reflection quadrant ``coeffs[:, h:, :h]`` (a view), without building
         :attr:`coeffs` for a reflection-only table."""
@@ -141,7 +148,10 @@ class BSDFTable:
 
     def replace(self, **changes) -> "BSDFTable":
         """A new table with the given constructor arguments changed (``coeffs=`` or ``reflection=``
-        replaces the coefficients; the other fields are kept)."""
+        replaces the coefficients, ``stored=`` those of the kind this table holds (:attr:`stored`);
+        the other fields are kept)."""
+        if "stored" in changes:
+            changes["reflection" if self.reflection_only else "coeffs"] = changes.pop("stored")
         kw = {"mu": self.mu, "eta": self.eta, "alpha": self.alpha, "delta": self.delta,
               "metadata": self.metadata, "channels": self.channels}
         if "coeffs" not in changes and "reflection" not in changes:

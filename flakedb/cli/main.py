@@ -65,8 +65,6 @@ def cli(debug):
     """flakedb: predict a car paint's BSDF from what is in it."""
 
 
-
-
 def main():
     tune_allocator()  # freed memory kept for reuse: page faults are most of a short solve's overhead
     cli(prog_name="flakedb")

@@ -103,8 +103,7 @@ def table_to_file_channels(table, mode, wavelength_nm=None):
     equal (to 1e-12 relative).  Spectral → RGB by :func:`flakedb.colour.colorimetry.spectra_to_rgb_mode`
     applied coefficient by coefficient (it is linear).  A reflection-only table stays one (its
     quadrant alone is mapped)."""
-    quadrant = table.reflection_only
-    c = table.live_quadrant() if quadrant else table.coeffs
+    c = table.stored
     if mode == "spectral":
         M = spectra_to_rgb_matrix(wavelength_nm)                         # (B, 3)
         c = np.einsum("bk,b...->k...", M, c)
@@ -118,7 +117,7 @@ def table_to_file_channels(table, mode, wavelength_nm=None):
         if all(np.abs(c[k] - c[0]).max() <= 1e-12 * scale for k in range(1, c.shape[0])):
             c = c[:1]
             channels = ("mono",)
-    return table.replace(**{"reflection" if quadrant else "coeffs": np.ascontiguousarray(c)}, channels=channels)
+    return table.replace(stored=np.ascontiguousarray(c), channels=channels)
 
 
 def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
@@ -142,8 +141,7 @@ def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
     # a reflection-only table (an opaque paint) is mapped on its reflection quadrant alone: the other
     # quadrants are zero and in gamut, and the reciprocal partner of a reflection pair is a reflection
     # pair (desaturation_factors' symmetrisation stays inside the quadrant)
-    quadrant = table.reflection_only
-    c = table.live_quadrant() if quadrant else table.coeffs
+    c = table.stored
     wl = np.asarray(wavelength_nm, float)
     if mode == "spectral":
         c = np.einsum("bk,b...->k...", gamut.spectra_to_space_matrix(wl, space), c)
@@ -151,11 +149,10 @@ def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
         c = np.einsum("jk,j...->k...", gamut.rgb_mode_to_space_matrix(wl, space), c)
     w = gamut.luminance_weights(wl, space)
     mapped, s = gamut.desaturate_to_gamut(c, w)
-    key = "reflection" if quadrant else "coeffs"
-    before = table.replace(**{key: c}, channels=("R", "G", "B"))
-    after = table.replace(**{key: np.ascontiguousarray(mapped)}, channels=("R", "G", "B"))
+    before = table.replace(stored=c, channels=("R", "G", "B"))
+    after = table.replace(stored=np.ascontiguousarray(mapped), channels=("R", "G", "B"))
     h = table.n // 2
-    if not quadrant:  # light from above, reflected: the same quadrant of the full table
+    if not table.reflection_only:  # light from above, reflected: the same quadrant of the full table
         c, mapped, s = c[:, h:, :h], mapped[:, h:, :h], s[h:, :h]
     changed = s < 1.0
     mu_o = np.abs(table.mu[:h])[None, :]

@@ -86,7 +86,7 @@ def eval_table(table, mu_i, mu_o, phi_d) -> np.ndarray:
     nodes = insert_zero_nodes(table.mu)
     n, h = table.n, table.n // 2
     quadrant = table.reflection_only  # then only rows h… and columns …h−1 hold coefficients
-    src = table.live_quadrant() if quadrant else table.coeffs
+    src = table.stored
     C, L = src.shape[0], src.shape[3]
     N = n + 2
     # file index -> table index (the two zero nodes hold no coefficients)

@@ -111,6 +111,7 @@ import copy
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.polynomial.legendre import leggauss
 
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.optics.fresnel import fresnel_conductor
@@ -127,7 +128,6 @@ from flakedb.paint.species import flake_reflectance_transmittance, pigment_optic
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, vmf_mean_cosine
 from flakedb.rt.microflake import FlakeOptics, extinction_Ergun
-from flakedb.rt.special import gauss_legendre
 from flakedb.rt.stack import InnerRough, InnerSmooth, Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings, solve_stack
 from flakedb.rt.stored import StoredMixture, StoredPigmentMedium
 
@@ -277,7 +277,7 @@ def metal_index_rgb(N_spectral, eta, wl):
     from scipy.optimize import least_squares  # lazy: scipy.optimize takes 0.3 s to import; only a metal base needs it
 
     N_spectral = np.asarray(N_spectral, dtype=complex)
-    g, wg = gauss_legendre(METAL_FIT_NODES)
+    g, wg = leggauss(METAL_FIT_NODES)
     mu, wmu = 0.5 * (g + 1.0), 0.5 * wg
     F = fresnel_conductor(mu[:, None], N_spectral[None, :] / float(eta)).R  # (M, W)
     F_rgb = spectra_to_rgb_mode(F, wl)  # (M, 3)

@@ -212,15 +212,12 @@ class PhaseMedium:
     def channel_key(self, C):
         """(C, k): every per-channel parameter of the medium as one row per channel; two channels with
         equal rows scatter identically (the solver then solves one of them, docs/model.md §4)."""
-        cols = [_channels(self.sigma_t_per_um), _channels(self.albedo)]
+        parts = [_channels(self.sigma_t_per_um)[:, None], _channels(self.albedo)[:, None]]
         ph = self.phase
-        if ph != "isotropic":
-            if ph[0] in ("hg", "vmf"):
-                cols.append(_channels(ph[1]))
-            else:
-                return _key_rows([_channels(self.sigma_t_per_um)[:, None], _channels(self.albedo)[:, None],
-                                  np.atleast_2d(np.asarray(ph[2], dtype=float))], C)
-        return _key_rows([c[:, None] for c in cols], C)
+        if ph != "isotropic":  # HG g or vMF κ per channel, or the table's rows of values
+            parts.append(_channels(ph[1])[:, None] if ph[0] in ("hg", "vmf")
+                         else np.atleast_2d(np.asarray(ph[2], dtype=float)))
+        return _key_rows(parts, C)
 
     def kernel(self, mu_i, mu_o, phi_d):
         cos_t = cos_scattering_angle(mu_i, mu_o, phi_d)

@@ -39,10 +39,11 @@ several % at grazing for α = 0.3) and the discretisation carries exactly that, 
 import functools
 
 import numpy as np
+from numpy.polynomial.legendre import leggauss
 
 from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_conductor_real, fresnel_dielectric_real
-from flakedb.rt.special import gauss_legendre, smith_masking_denominator
+from flakedb.rt.special import smith_masking_denominator
 
 #: Pairs whose Beckmann factor exp(−tan²θ_h/α²) stays below exp(−PRUNE_T2) for every φ are skipped.
 PRUNE_T2 = 40.0
@@ -162,7 +163,7 @@ def microfacet_albedo(mu, eta_rel, alpha, fresnel=None, n=48):
     mu = np.atleast_1d(np.asarray(mu, dtype=float))
 
     def integrate(n):
-        gu, wu = gauss_legendre(n)
+        gu, wu = _gauss_legendre(n)
         u, wu = 0.5 * (gu + 1.0), 0.5 * wu
         ph, wp = 0.5 * np.pi * (gu + 1.0), wu  # E over φ_m uniform on [0, π): Σ (π/2) w_k g / π
         t = -np.log1p(-u)
@@ -302,7 +303,7 @@ def cell_rule(x, w, width, points=None):
     th_b = th_a - dth
     s_a, s_b = np.cos(th_a) ** 2, np.cos(th_b) ** 2  # s = μ², s_a < s_b
     mid, half = 0.5 * (s_a + s_b), 0.5 * (s_b - s_a)
-    gx, gw = gauss_legendre(points)
+    gx, gw = _gauss_legendre(points)
     t_s = np.sqrt(np.concatenate([mid + half * g for g in gx]))
     om_s = np.concatenate([0.5 * half * g for g in gw])  # ∫ g μ dμ = ½ ∫ g ds
     c_s = np.concatenate([owner] * points)
@@ -413,8 +414,11 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
 
 @functools.lru_cache(maxsize=64)
 def _gauss_legendre(P):
-    """Gauss–Legendre nodes and weights on [−1, 1] (cached: the cell blocks reuse a few counts)."""
-    return gauss_legendre(P)
+    """Gauss–Legendre nodes and weights on [−1, 1] (cached, read-only: the cell blocks and the albedo
+    integrals reuse a few counts)."""
+    x, w = leggauss(int(P))
+    x.flags.writeable = w.flags.writeable = False
+    return x, w
 
 
 def jackson_factors(L):

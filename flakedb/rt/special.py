@@ -3,9 +3,9 @@
 ``scipy.special`` takes 0.15 s to import (measured, scipy 1.17 on the 2-core machine: its array-API
 layer imports ``numpy.testing``, ``numpy.f2py``, ``numpy.random`` and ``numpy.ma``), a fifth of the
 whole-process budget of a rough-coat solve (issue #11).  Every solve needs a Gauss–Radau rule, a rough
-interface needs erf (Smith masking) and Gauss–Legendre rules, a phase function needs the normalised
-associated Legendre functions; they are here, each tested against ``scipy.special`` to rounding
-(tests/test_special.py).  Rarer functions (``ive`` for a von Mises–Fisher phase function or flake) stay
+interface needs erf (Smith masking), a phase function needs the normalised associated Legendre
+functions; they are here, each tested against ``scipy.special`` to rounding (tests/rt/test_special.py).
+Gauss–Legendre rules are numpy's own (``numpy.polynomial.legendre.leggauss``).  Rarer functions (``ive`` for a von Mises–Fisher phase function or flake) stay
 with scipy, imported where they are used.
 
 * :func:`erf`, :func:`smith_masking_denominator`: the rational approximations of the Cephes Math
@@ -14,7 +14,6 @@ with scipy, imported where they are used.
 * :func:`gauss_jacobi`: Golub & Welsch (Math. Comp. 23, 221 (1969)): nodes as the eigenvalues of the
   Jacobi matrix of the recurrence, weights from the orthonormal polynomials at the nodes (Christoffel
   numbers, accurate where eigenvector components lose relative precision).
-* :func:`gauss_legendre`: ``numpy.polynomial.legendre.leggauss``.
 * :func:`sph_legendre_all`: the standard recurrence for orthonormal associated Legendre functions
   (e.g. Holmes & Featherstone, J. Geodesy 76, 279 (2002), eq. 11–13), Condon–Shortley phase as scipy.
 """
@@ -22,10 +21,10 @@ with scipy, imported where they are used.
 import math
 
 import numpy as np
-from numpy.polynomial.legendre import leggauss
 
-# Cephes ndtr.c: erf(x) = x T(x²)/U(x²) for |x| < 1; erfc(x) = e^{−x²} P(x)/Q(x) for 1 ≤ x < 8 and
-# e^{−x²} R(x)/S(x) for x ≥ 8 (coefficients highest degree first; Q, S, U have a leading 1 omitted)
+# Cephes ndtr.c: erf(x) = x T(x²)/U(x²) for |x| < 1 and erfc(x) = e^{−x²} P(x)/Q(x) for 1 ≤ x < 8
+# (coefficients highest degree first, U and Q with their leading 1).  Beyond x = 6 erf is 1 in double
+# precision, so Cephes' third range (x ≥ 8) is not needed.
 _T = (9.60497373987051638749E0, 9.00260197203842689217E1, 2.23200534594684319226E3,
       7.00332514112805075473E3, 5.55923013010394962768E4)
 _U = (1.0, 3.35617141647503099647E1, 5.21357949780152679795E2, 4.59432382970980127987E3,
@@ -36,10 +35,6 @@ _P = (2.46196981473530512524E-10, 5.64189564831068821977E-1, 7.46321056442269912
 _Q = (1.0, 1.32281951154744992508E1, 8.67072140885989742329E1, 3.54937778887819891062E2,
       9.75708501743205489753E2, 1.82390916687909736289E3, 2.24633760818710981792E3,
       1.65666309194161350182E3, 5.57535340817727675546E2)
-_R = (5.64189583547755073984E-1, 1.27536670759978104416E0, 5.01905042251180477414E0,
-      6.16021097993053585195E0, 7.40974269950448939160E0, 2.97886665372100240670E0)
-_S = (1.0, 2.26052863220117276590E0, 9.39603524938001434673E0, 1.20489539808096656605E1,
-      1.70814450747565897222E1, 9.60896809063285878198E0, 3.36907645100081516050E0)
 
 
 def _poly(x, coef):
@@ -84,11 +79,6 @@ def smith_masking_denominator(a):
         m = a[mid]
         out[mid] = 2.0 + np.exp(-m * m) * (1.0 / (m * math.sqrt(math.pi)) - _poly(m, _P) / _poly(m, _Q))
     return out
-
-
-def gauss_legendre(n):
-    """Gauss–Legendre nodes and weights on [−1, 1], ascending (``numpy.polynomial.legendre.leggauss``)."""
-    return leggauss(int(n))
 
 
 def gauss_jacobi(n, alpha, beta):

@@ -776,8 +776,7 @@ def _solve_stack(top, slabs, bottom, s, top_cache=None):
     def item_block(item, l0, l1):
         """Layer of orders l0 … l1 − 1 of a slab or an inner interface."""
         if isinstance(item[0], str) and item[0] == "rough":  # its own orders, zero beyond them
-            lay = item[1]
-            return Layer(*(pad_orders(blk[l0:l1], l1 - l0) for blk in (lay.Rt, lay.Ttb, lay.Rb, lay.Tbt)))
+            return _layer_orders(item[1], l0, l1)
         if isinstance(item[0], str):
             _, q_a, q_b, ia, ib, eta_rel = item
             return itf.smooth_inner(q_a, q_b, ia, ib, eta_rel, l1 - l0)
@@ -786,7 +785,7 @@ def _solve_stack(top, slabs, bottom, s, top_cache=None):
 
     def top_block(l0, l1):
         if isinstance(top, Rough):
-            return Layer(*(_order_range(b, l0, l1) for b in (top_layer.Rt, top_layer.Ttb, top_layer.Rb, top_layer.Tbt)))
+            return _layer_orders(top_layer, l0, l1)
         return Layer(*(np.broadcast_to(b, (l1 - l0,) + b.shape[1:]) for b in (smooth1.Rt, smooth1.Ttb, smooth1.Rb, smooth1.Tbt)))
 
     opaque = bottom is not None
@@ -956,6 +955,12 @@ def _order_range(b, l0, l1):
     if l0 >= b.shape[0]:
         return np.broadcast_to(np.zeros((1,) + b.shape[1:]), (l1 - l0,) + b.shape[1:])
     return b[l0:l1] if l1 <= b.shape[0] else pad_orders(b[l0:l1], l1 - l0)
+
+
+def _layer_orders(layer, l0, l1):
+    """Orders l0 … l1 − 1 of a layer whose blocks are zero beyond their own order counts (a rough
+    interface, whose inner blocks may stop earlier than R^t): :func:`_order_range` of each block."""
+    return Layer(*(_order_range(b, l0, l1) for b in (layer.Rt, layer.Ttb, layer.Rb, layer.Tbt)))
 
 
 def _reflection_over(layer, bottom_Rt):

@@ -73,3 +73,17 @@ def test_points_desaturation():
     assert out[0] @ w == pytest.approx(rgb[0] @ w)
     np.testing.assert_array_equal(out[1], rgb[1])
     np.testing.assert_array_equal(out[2], 0.0)
+
+
+def test_a_grey_table_is_in_gamut_as_it_is():
+    """Three equal channels are returned unchanged (desaturate_to_gamut's shortcut), and the general
+    factors agree: with Σw = 1 every channel equals Y, so none is negative where Y > 0, ringing below 0
+    included."""
+    rng = np.random.default_rng(5)
+    one = rng.normal(0.0, 1.0, (1, 6, 6, 5))
+    one[..., 0] = np.abs(one[..., 0])
+    c = np.repeat(one, 3, axis=0)
+    w = gamut.luminance_weights(np.arange(380.0, 781.0, 10.0))
+    assert np.all(gamut.desaturation_factors(c, w) == 1.0)
+    mapped, s = gamut.desaturate_to_gamut(c, w)
+    assert np.all(s == 1.0) and np.array_equal(mapped, c)
