@@ -6,7 +6,7 @@ import click
 from flakedb.cli.errors import FlakedbError
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint.catalog import CatalogError, load_catalog
-from flakedb.paint.checks import MAX_RESOLUTION
+from flakedb.paint.limits import node_count_problem
 from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.pipelines.build import DEFAULT_N, make_request, request_for_recipe
 from flakedb.pipelines.build import build as run_build
@@ -20,9 +20,9 @@ MAX_BUILD_BYTES = 64 * 1024 ** 3
 def check_build_sizes(n, m):
     """Refuse node counts compose cannot use and φ_d counts outside the allowed range, before planning."""
     for x in n:
-        if x < 8 or x % 2 or x > MAX_RESOLUTION:
-            raise FlakedbError(f"--n {x}: the node count must be even, 8 ≤ n ≤ {MAX_RESOLUTION} (the range compose "
-                               f"accepts; n/2 nodes per hemisphere), e.g. --n 32")
+        problem = node_count_problem(x)
+        if problem:
+            raise FlakedbError(f"--n {problem} (the range compose accepts)")
     if m is not None and not (2 <= m <= MAX_M):
         raise FlakedbError(f"--m {m}: the φ_d sample count must be in 2 ≤ m ≤ {MAX_M} (default: = n)")
 

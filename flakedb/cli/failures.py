@@ -13,16 +13,23 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import sys
 import tempfile
 from pathlib import Path
 
 import click
 
-from flakedb.bsdf.table import BSDFFileError
 from flakedb.store.errors import StoreError
 
 #: Longest message kept on the one line (a longer one is cut, its start kept).
 MAX_MESSAGE_CHARS = 500
+
+
+def _is_loaded_instance(exc, module, name) -> bool:
+    """``isinstance(exc, module.name)`` without importing ``module``: an exception of a class whose module
+    was never imported cannot exist (so ``flakedb --help`` does not import the BSDF package and numpy)."""
+    mod = sys.modules.get(module)
+    return mod is not None and isinstance(exc, getattr(mod, name))
 
 
 class FlakedbFailure(click.ClickException):
@@ -57,7 +64,7 @@ def as_failure(exc: BaseException) -> click.ClickException:
         return FlakedbFailure(_one_line(f"{where}{what}" + (f" (hint: {hint})" if hint else "")))
     if isinstance(exc, MemoryError):
         return FlakedbFailure("out of memory (hint: use a smaller resolution --n, --res or --size)")
-    if isinstance(exc, BSDFFileError):
+    if _is_loaded_instance(exc, "flakedb.bsdf.table", "BSDFFileError"):
         err = click.ClickException(_one_line(exc))
         err.exit_code = 2
         return err

@@ -7,10 +7,10 @@ below; the user-facing error type is :class:`flakedb.cli.errors.FlakedbError`.
 import importlib
 
 import click
-from click.utils import make_default_short_help
 
 from flakedb import __version__
 from flakedb.cli.errors import FlakedbError  # noqa: F401  (re-exported for scripts)
+from flakedb.cli.failures import as_failure
 from flakedb.process import tune_allocator
 
 #: Every command and the module that defines it, imported only when that command runs or its help is
@@ -48,6 +48,14 @@ SHORT_HELP = {
 }
 
 
+def _truncate(text, limit) -> str:
+    """``text`` cut at a word boundary to at most ``limit`` characters, with "..." (as click lists commands)."""
+    if len(text) <= limit:
+        return text
+    cut = text[:max(limit - 3, 0)].rsplit(" ", 1)[0]
+    return cut + "..."
+
+
 def short_help(ctx, name) -> str:
     """The listed help of command ``name``: :data:`SHORT_HELP`, else the imported command's own."""
     if name in SHORT_HELP:
@@ -68,7 +76,7 @@ class FlakedbGroup(click.Group):
         """The command list of ``--help`` from :data:`SHORT_HELP`, importing no command module."""
         names = self.list_commands(ctx)
         limit = formatter.width - 6 - max(map(len, names), default=0)  # click's own layout
-        rows = [(name, make_default_short_help(short_help(ctx, name), limit)) for name in names]
+        rows = [(name, _truncate(short_help(ctx, name), limit)) for name in names]
         if rows:
             with formatter.section("Commands"):
                 formatter.write_dl(rows)
@@ -89,8 +97,6 @@ class FlakedbGroup(click.Group):
         except Exception as exc:
             if ctx.params.get("debug"):
                 raise
-            from flakedb.cli.failures import as_failure  # lazy: it imports numpy (0.15 s), which --help need not
-
             raise as_failure(exc) from exc
 
 

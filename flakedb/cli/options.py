@@ -3,7 +3,7 @@
 import click
 
 from flakedb.cli.errors import FlakedbError
-from flakedb.paint.checks import MAX_RESOLUTION
+from flakedb.paint.limits import NODE_COUNT_MAX, NODE_COUNT_MIN, node_count_problem
 
 #: ``--raw`` of the commands that compose (compose, compare, match).
 RAW_HELP = ("With --store: the flakes' spectral factors at their full numerical rank (a version built with "
@@ -12,17 +12,17 @@ RAW_HELP = ("With --store: the flakes' spectral factors at their full numerical 
 
 
 def check_node_count(n):
-    """Refuse a ``--n`` the solver cannot use (even, 8 ≤ n ≤ MAX_RESOLUTION), before any work."""
-    if n is not None and (n < 8 or n % 2 or n > MAX_RESOLUTION):
-        raise FlakedbError(f"--n {n}: the node count must be even, 8 ≤ n ≤ {MAX_RESOLUTION} (n/2 nodes per "
-                           f"hemisphere), e.g. --n 64")
+    """Refuse a ``--n`` the solver cannot use (:func:`flakedb.paint.limits.node_count_problem`), before any work."""
+    problem = None if n is None else node_count_problem(n)
+    if problem:
+        raise FlakedbError(f"--n {problem}")
 
 
 def prediction_options(fn):
     """``--n``, ``--store``, ``--raw``, ``--catalog``: how ``compare`` and ``match`` compose (one
     definition; the decorated function takes ``n, store, raw, catalog_path`` last)."""
     for opt in reversed([
-        click.option("--n", "n", default=None, type=int, help="Node count (even, >= 8); overrides the recipe's."),
+        click.option("--n", "n", default=None, type=int, help=f"Node count (even, {NODE_COUNT_MIN}-{NODE_COUNT_MAX}); overrides the recipe's."),
         click.option("--store", "store", default=None, envvar="FLAKEDB_STORE",
                      help="Precomputed species store (path or URL; default $FLAKEDB_STORE)."),
         click.option("--raw", is_flag=True, help=RAW_HELP),

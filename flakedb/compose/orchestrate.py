@@ -55,7 +55,7 @@ from flakedb.compose.report import (
     multiangle_geometry,
 )
 from flakedb.compose.store_context import StoreContext
-from flakedb.paint.mapping import auto_resolution, build_paint, catalog_species, solve_paint
+from flakedb.paint.mapping import build_paint, catalog_species, resolve_node_count, solve_paint
 from flakedb.store import versions as st
 
 #: Order truncation of the ``.bsdf`` (flakedb.bsdf.write_bsdf): 0 keeps every order up to the last
@@ -287,14 +287,7 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     """
     log = log or (lambda s: None)
     check_output_dir(out_dir)
-    if n is not None:
-        n_used, reason = int(n), "--n"
-    elif recipe.n is not None:
-        n_used, reason = int(recipe.n), "recipe resolution"
-    else:
-        n_used, reason = auto_resolution(recipe)
-    if n_used % 2 or n_used < 8:
-        raise ValueError(f"n = {n_used}: the node count must be even and ≥ 8")
+    n_used, reason = resolve_node_count(recipe, n)
     warnings = list(recipe.warnings)
     t = {}
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
-from flakedb.paint.mapping import catalog_species, recipe_alpha
+from flakedb.paint.mapping import catalog_species, recipe_alpha, recipe_top_alpha
 from flakedb.rt.stored import StoredFlakeMedium
 from flakedb.store import versions as st
 from flakedb.store.versions import StoreError
@@ -56,8 +56,7 @@ def store_problems(version, recipe, n, raw=False) -> list[str]:
     store cannot honour."""
     probs = []
     eta = float(recipe.binder_ior)
-    cc = recipe.clearcoat
-    rough = eta != 1.0 and cc is not None and cc.roughness > 0
+    rough = recipe_top_alpha(recipe) > 0
     if any(b.ior != eta for b in recipe.basecoats):
         probs.append(f"the recipe has basecoats of another binder index than η = {eta:g} (an inner interface); store "
                      f"versions serve one binder index: compose without --store")

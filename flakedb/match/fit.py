@@ -55,7 +55,7 @@ from flakedb.colour.tolerance import (
 )
 from flakedb.compose.report import channels_to_XYZ, eval_table, multiangle_geometry, reference_white
 from flakedb.compose.store_context import StoreContext
-from flakedb.paint.mapping import auto_resolution, build_paint, solve_paint
+from flakedb.paint.mapping import build_paint, resolve_node_count, solve_paint
 from flakedb.paint.recipe import RecipeError, fmt_path, parse_recipe
 
 #: Forward-difference step: in ln p for log parameters, as a fraction of the range for linear ones.
@@ -222,12 +222,8 @@ class Prediction:
 
 
 def resolution(recipe, n=None) -> int:
-    """The node count used: ``n``, else the recipe's, else :func:`flakedb.paint.auto_resolution`."""
-    if n is not None:
-        return int(n)
-    if recipe.n is not None:
-        return int(recipe.n)
-    return auto_resolution(recipe)[0]
+    """The node count used (:func:`flakedb.paint.mapping.resolve_node_count`: ``n``, else the recipe's, else auto)."""
+    return resolve_node_count(recipe, n)[0]
 
 
 def predict(recipe, geometries, n=None, catalog=None, store=None, raw=False) -> Prediction:

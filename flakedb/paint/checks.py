@@ -24,14 +24,16 @@ import yaml
 from yaml.constructor import ConstructorError
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
+from flakedb.paint.limits import NODE_COUNT_MAX
+
 #: Largest recipe text [bytes]: a recipe with every table at its schema limit is far below it.
 MAX_RECIPE_BYTES = 1_000_000
 #: Largest number of nodes that aliases (``*name``) may expand to in one recipe.
 MAX_ALIAS_NODES = 10_000
 #: Largest magnitude of an integer in a recipe (it must be exact as a float64).
 MAX_INT = 2 ** 53
-#: Node count limit of ``resolution`` / ``--n`` (the schema's ``resolution`` maximum).
-MAX_RESOLUTION = 512
+#: Node count limit of ``resolution`` / ``--n`` (:data:`flakedb.paint.limits.NODE_COUNT_MAX`).
+MAX_RESOLUTION = NODE_COUNT_MAX
 #: Entries per tabulated spectrum / flake table / phase table (the schema's ``maxItems``).
 MAX_TABLE_POINTS = 10_000
 #: Characters of ``description`` (the schema's ``maxLength``).

@@ -115,6 +115,7 @@ from numpy.polynomial.legendre import leggauss
 
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.optics.fresnel import fresnel_conductor
+from flakedb.paint.limits import NODE_COUNT_MAX, check_node_count, is_rough_interface
 from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import (
     PRIMER_ALBEDO,  # noqa: E402,F401  (defined with the recipe's primer colours)
@@ -148,6 +149,15 @@ FLAKE_C_MAX = 2049
 #: Scattering-angle step of the tabulated Mie phase function (uniform in Θ, dense near forward in
 #: cos Θ).  Error of linear interpolation in cos Θ measured in tests/test_compose.py.
 PHASE_THETA_STEP_DEG = 0.5
+
+
+def recipe_top_alpha(recipe) -> float:
+    """The Beckmann roughness α of ``recipe``'s top interface: its clear coat's roughness where that coat is
+    a rough interface (:func:`flakedb.paint.limits.is_rough_interface`: α > 0 and binder index ≠ 1), else 0
+    (a smooth top, or none).  The one place the rough-top rule is applied to a recipe."""
+    cc = recipe.clearcoat
+    alpha = 0.0 if cc is None else float(cc.roughness)
+    return alpha if is_rough_interface(recipe.binder_ior, alpha) else 0.0
 
 
 def recipe_alpha(p) -> float:
@@ -331,8 +341,6 @@ class Paint:
     channels: tuple
     mode: str
     wavelength_nm: np.ndarray | None
-    eta: float
-    top_alpha: float
     components: list = field(default_factory=list)
     info: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
@@ -340,6 +348,16 @@ class Paint:
     @property
     def n_channels(self):
         return len(self.channels)
+
+    @property
+    def eta(self) -> float:
+        """The top binder's index relative to the air (1: no top interface), read from :attr:`top`."""
+        return 1.0 if self.top is None else float(self.top.eta)
+
+    @property
+    def top_alpha(self) -> float:
+        """The rough top's Beckmann roughness (0: smooth or none), read from :attr:`top`."""
+        return float(self.top.alpha) if isinstance(self.top, Rough) else 0.0
 
     @property
     def delta(self):
@@ -551,12 +569,11 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
         info["store"] = stored.record()
     components = []
     cc = recipe.clearcoat
-    top_alpha = 0.0
+    top_alpha = recipe_top_alpha(recipe)
     if eta == 1.0:
         top = None
-    elif cc is not None and cc.roughness > 0:
-        top = Rough(eta, float(cc.roughness))
-        top_alpha = float(cc.roughness)
+    elif top_alpha > 0:
+        top = Rough(eta, top_alpha)
     else:
         top = Smooth(eta)
 
@@ -619,7 +636,7 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
         components.append(rec)
 
     return Paint(top=top, slabs=slabs, bottom=bottom, channels=channels, mode=mode,
-                 wavelength_nm=None if wl is None else np.asarray(wl), eta=eta, top_alpha=top_alpha,
+                 wavelength_nm=None if wl is None else np.asarray(wl),
                  components=components, info=info, warnings=list(recipe.warnings))
 
 
@@ -631,8 +648,8 @@ def catalog_species(recipe) -> list:
 #: Default accuracy targets of ``resolution: auto`` (a recipe's ``resolution: {albedo_error: …,
 #: lobe_error: …}`` overrides them); docs/resolution.md.
 AUTO_TARGETS = {"albedo_error": 0.03, "lobe_error": 0.05}
-#: The largest node count auto may choose: the schema's maximum resolution.
-AUTO_MAX_N = 512
+#: The largest node count auto may choose: the largest allowed (:data:`flakedb.paint.limits.NODE_COUNT_MAX`).
+AUTO_MAX_N = NODE_COUNT_MAX
 #: Measured envelopes (docs/resolution.md), (h·α, worst error at that h·α or above), h = n/2:
 #: * rough coat lobe: reflection of the interface at normal incidence binned in 5° θ_o bins (Σ |Δ| per bin
 #:   over the reflected total, the Monte Carlo criterion of issue 12) against n = 384, α ∈ {0.02, 0.05,
@@ -780,6 +797,22 @@ def auto_resolution(recipe) -> tuple[int, str]:
     eta = float(recipe.binder_ior)
     note = "" if 1.3 <= eta <= 1.7 or eta == 1.0 else f"; binder index {eta:g} outside the measured 1.3–1.7"
     return n, "; ".join(binding) + note + f" → n = {n}"
+
+
+def resolve_node_count(recipe, n=None) -> tuple[int, str]:
+    """The node count a solve of ``recipe`` uses and why: ``n`` (the command line's ``--n``), else the recipe's
+    ``resolution``, else :func:`auto_resolution`; checked against :func:`flakedb.paint.limits.check_node_count`.
+    The one place this precedence is decided (compose, match and build call it)."""
+    if n is not None:
+        n_used, reason = n, "--n"
+    elif recipe.n is not None:
+        n_used, reason = recipe.n, "recipe resolution"
+    else:
+        n_used, reason = auto_resolution(recipe)
+    try:
+        return check_node_count(n_used), reason
+    except ValueError as e:
+        raise ValueError(f"{reason} {e}") from None
 
 
 def solve_paint(paint: Paint, n: int, **settings):

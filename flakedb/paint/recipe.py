@@ -58,6 +58,7 @@ import yaml
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint.catalog import expand_sweeps, load_catalog
 from flakedb.paint.checks import MAX_RECIPE_BYTES, RecipeInputError, load_yaml_strict, too_large_message, value_problems
+from flakedb.paint.limits import roughness_problem
 from flakedb.paint.materials import material_names, refractive_index
 from flakedb.resources import PACKAGE_DIR, SCHEMAS_DIR
 from flakedb.rt.media import vmf_kappa_from_mean_cosine
@@ -537,10 +538,9 @@ def _clearcoat_checks(base, L, mode, grid):
             problems += _spectrum_problems(f"{base}.absorption_per_um", ab, grid, 0.0, None, "absorption_per_um")
         ab = Spectrum(np.asarray(ab["wavelength_nm"], float), np.asarray(ab["value"], float))
     rough = float(L.get("roughness", 0.0))
-    if 0.0 < rough < 0.01:
-        problems.append(f"{base}.roughness: value {rough:g} is outside the allowed range 0 (smooth) or 0.01-1 "
-                        f"(Beckmann α; below 0.01 the flux-cell integration needs minutes and gigabytes; hint: "
-                        f"write 0 for a smooth coat)")
+    problem = roughness_problem(rough)
+    if problem:
+        problems.append(f"{base}.roughness: {problem}")
     if float(L["ior"]) == 1.0 and rough > 0:
         problems.append(f"{base}.roughness: value {rough:g} with ior 1: an index-matched coat has no interface "
                         f"to be rough (hint: set roughness to 0, or ior > 1)")
@@ -677,9 +677,9 @@ def _basecoat_checks(base, L, mode, grid, allsp):
     """(problems, warnings, Basecoat): every particle checked, then the packing of the layer."""
     problems, warnings = [], []
     bc = Basecoat(float(L["thickness_um"]), float(L["ior"]), [], base, float(L.get("interface_roughness", 0.0)))
-    if 0.0 < bc.interface_roughness < 0.01:
-        problems.append(f"{base}.interface_roughness: value {bc.interface_roughness:g} is outside the allowed range "
-                        f"0 (smooth) or 0.01-1 (Beckmann α; hint: write 0 for a smooth interface)")
+    problem = roughness_problem(bc.interface_roughness)
+    if problem:
+        problems.append(f"{base}.interface_roughness: {problem}")
     catalogued = []
     for j, P in enumerate(L["particles"]):
         pp = f"{base}.particles[{j}]"

@@ -18,7 +18,7 @@ from pathlib import Path
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint import catalog as cat
 from flakedb.paint import species as sp
-from flakedb.paint.mapping import auto_resolution, catalog_species, recipe_alpha
+from flakedb.paint.mapping import catalog_species, recipe_alpha, recipe_top_alpha, resolve_node_count
 from flakedb.paint.materials import materials_dir
 from flakedb.paint.recipe import load_recipe
 from flakedb.pipelines.progress import BuildProgress
@@ -89,8 +89,7 @@ def request_for_recipe(recipe, n=None, store_raw=False, catalog_path=None) -> st
     """Exactly what ``recipe`` needs (``flakedb build --recipe``): its catalogue species, its node
     count (``n`` or the recipe's own: resolution or auto), its α's, its wavelengths and its binder
     index as the top interface's (a rough coat: the nodes of a rough top)."""
-    if n is None:
-        n = int(recipe.n) if recipe.n is not None else auto_resolution(recipe)[0]
+    n = resolve_node_count(recipe, n)[0]
     names = sorted({p.species for p in catalog_species(recipe)})
     if not names:
         raise ValueError(f"recipe {recipe.name!r} has no catalogue species: it needs no store")
@@ -106,9 +105,7 @@ def request_for_recipe(recipe, n=None, store_raw=False, catalog_path=None) -> st
 
 def recipe_top(recipe) -> str:
     """"rough" when the recipe's top interface is a rough coat (binder index ≠ 1), else "smooth"."""
-    cc = recipe.clearcoat
-    rough = cc is not None and cc.roughness > 0 and float(recipe.binder_ior) != 1.0
-    return "rough" if rough else "smooth"
+    return "rough" if recipe_top_alpha(recipe) > 0 else "smooth"
 
 
 def _execute(url, plan, tasks, scheduler, workers, client, progress):
