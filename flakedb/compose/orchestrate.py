@@ -271,30 +271,40 @@ def check_physical(stack, n_phi=37):
     return problems
 
 
-def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=None, verify=True,
-            rgb_space="srgb", progress=None, allow_unphysical=False) -> ComposeResult:
-    """Compose ``recipe`` (a :class:`flakedb.paint.recipe.Recipe`) into ``out_dir``; see the module docstring.
+@dataclass
+class SolvedRecipe:
+    """A recipe solved through the one path (:func:`solve_recipe`): its solver inputs, the solved stack, the
+    full-precision table and what was decided on the way."""
 
-    ``n`` overrides the recipe's resolution; ``log`` (callable taking a line) reports progress.
-    ``store``: None (species optics computed directly from the catalogue), a store URL or an open
-    :class:`flakedb.store.versions.StoreVersion`: the catalogue species' reflectance functions come from its
-    latest complete version (checksums verified first with ``verify``; compressed factors, or the
-    raw samples with ``raw``).  A recipe without catalogue species does not open the store.  The solved
-    BSDF is checked (:func:`check_physical`): a problem raises :class:`UnphysicalResultError` before
-    anything is written, or with ``allow_unphysical`` becomes a loud warning.  Raises
-    :class:`flakedb.store.versions.StoreError` (:class:`~flakedb.store.versions.StoreIntegrityError` for a corrupted
-    store) before writing anything.
+    paint: object
+    stack: object
+    table: object
+    n: int
+    n_reason: str
+    warnings: list
+    timings_s: dict
+    version: object = None
+    store_label: str = STORE_NONE
+
+
+def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, verify=True, progress=None,
+                 allow_unphysical=False, generator="flakedb compose") -> SolvedRecipe:
+    """Recipe → checked solution → full-precision table: the one orchestration that compose and match share.
+
+    The node count from :func:`flakedb.paint.mapping.resolve_node_count` (``n`` > the recipe's > auto);
+    ``store``: None, a store URL or an open :class:`flakedb.store.versions.StoreVersion` (checked against the
+    recipe, its checksums verified with ``verify``); the solve with every core and the memory budget
+    (``FLAKEDB_MEMORY_BUDGET`` bytes, else the solver's default); the result checked by
+    :func:`check_physical` (a problem raises :class:`UnphysicalResultError`, or with ``allow_unphysical``
+    becomes a warning) and the solver's convergence notes (:func:`solver_warnings`) added to the warnings.
     """
     log = log or (lambda s: None)
-    check_output_dir(out_dir)
+    progress = progress or (lambda stage, detail: None)
     n_used, reason = resolve_node_count(recipe, n)
     warnings = list(recipe.warnings)
     t = {}
-
     version = stored = None
     store_label = STORE_NONE
-    gamut.check_space(rgb_space)
-    progress = progress or (lambda stage, detail: None)
     if store is not None and catalog_species(recipe):
         t0 = time.perf_counter()
         if isinstance(store, st.StoreVersion):
@@ -331,19 +341,45 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     for w in solver_notes:
         progress("warning", {"message": w})
     warnings += solver_notes
-    progress("write", {"start": True})
-    t0 = time.perf_counter()
     md = {"recipe": recipe.name, "flakedb_version": __version__, "mode": paint.mode, "n_nodes": n_used,
-          "store": store_label, "generator": "flakedb compose"}
+          "store": store_label, "generator": generator}
     if recipe.description:
         md["description"] = " ".join(str(recipe.description).split())
+    t0 = time.perf_counter()
     table = stack_to_table(stack, paint.channels, paint.eta, paint.top_alpha, paint.delta, md)
+    t["table"] = time.perf_counter() - t0
+    return SolvedRecipe(paint=paint, stack=stack, table=table, n=n_used, n_reason=reason, warnings=warnings,
+                        timings_s=t, version=version, store_label=store_label)
+
+
+def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=None, verify=True,
+            rgb_space="srgb", progress=None, allow_unphysical=False) -> ComposeResult:
+    """Compose ``recipe`` (a :class:`flakedb.paint.recipe.Recipe`) into ``out_dir``; see the module docstring.
+
+    ``n`` overrides the recipe's resolution; ``log`` (callable taking a line) reports progress.
+    ``store``: None (species optics computed directly from the catalogue), a store URL or an open
+    :class:`flakedb.store.versions.StoreVersion`: the catalogue species' reflectance functions come from its
+    latest complete version (checksums verified first with ``verify``; compressed factors, or the
+    raw samples with ``raw``).  A recipe without catalogue species does not open the store.  The solve, its
+    checks and the table are :func:`solve_recipe`'s (a problem raises :class:`UnphysicalResultError` before
+    anything is written, or with ``allow_unphysical`` becomes a loud warning).  Raises
+    :class:`flakedb.store.versions.StoreError` (:class:`~flakedb.store.versions.StoreIntegrityError` for a corrupted
+    store) before writing anything.
+    """
+    check_output_dir(out_dir)
+    gamut.check_space(rgb_space)
+    progress = progress or (lambda stage, detail: None)
+    solved = solve_recipe(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical)
+    paint, stack, table, version = solved.paint, solved.stack, solved.table, solved.version
+    warnings, t, n_used, reason = solved.warnings, solved.timings_s, solved.n, solved.n_reason
+    progress("write", {"start": True})
+    t0 = time.perf_counter()
     file_table, gamut_info = gamut_safe_file_channels(table, paint.mode, paint.wavelength_nm, rgb_space)
     if paint.mode == "spectral" and file_table.channels != ("mono",):
         file_table.metadata["channels_from"] = f"spectral bands -> CIE 1931 2deg / D65 -> {gamut_info['rgb_space']}"
     report = colour_report(table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
                            paint.eta if paint.delta else None, recipe.name)
-    t["table_report"] = time.perf_counter() - t0
+    t["table_report"] = time.perf_counter() - t0 + t.pop("table")
     h5_md = {
         "recipe_text": recipe.text, "recipe_source": recipe.source,
         "store_version": STORE_NONE if version is None else version.version,
@@ -362,7 +398,7 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
         "delta_F_nodes": None if stack.delta_F is None else np.asarray(stack.delta_F).tolist(),
         "timings_s": dict(t),
     }
-    report["store"] = store_label
+    report["store"] = solved.store_label
     report["rgb_file"] = gamut_info
     report["warnings"] = list(warnings)
     h5_md["rgb_file"] = gamut_info

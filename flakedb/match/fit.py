@@ -11,7 +11,8 @@ like any recipe (:func:`flakedb.recipe.parse_recipe`), so ``{fit: …}`` never r
 
 Prediction at the target's geometries
 -------------------------------------
-:func:`compose_table` is the one compose call: recipe → paint → adding-doubling → the full-precision
+:func:`compose_table` is the one compose call: compose's own path (:func:`flakedb.compose.orchestrate.solve_recipe`,
+with its physical check, threads and memory budget): recipe → paint → adding-doubling → the full-precision
 table (:func:`flakedb.export.stack_to_table`), from the store when one is given.  Everything else here
 calls it and nothing else, so a faster compose makes matching faster by itself.
 :func:`eval_geometries` evaluates the table at any in-plane geometry (illumination θ_i, aspecular γ):
@@ -44,7 +45,6 @@ import numpy as np
 import yaml
 from scipy.optimize import least_squares
 
-from flakedb.bsdf.convert import stack_to_table
 from flakedb.colour.colorimetry import XYZ_to_Lab
 from flakedb.colour.tolerance import (
     ciede2000_residuals,
@@ -54,8 +54,8 @@ from flakedb.colour.tolerance import (
     reflectance_to_Lab,
 )
 from flakedb.compose.report import channels_to_XYZ, eval_table, multiangle_geometry, reference_white
-from flakedb.compose.store_context import StoreContext
-from flakedb.paint.mapping import build_paint, resolve_node_count, solve_paint
+from flakedb.compose.orchestrate import solve_recipe
+from flakedb.paint.mapping import resolve_node_count
 from flakedb.paint.recipe import RecipeError, fmt_path, parse_recipe
 
 #: Forward-difference step: in ln p for log parameters, as a fraction of the range for linear ones.
@@ -167,12 +167,11 @@ def recipe_from_doc(doc, source="<recipe>", catalog=None):
 
 
 def compose_table(recipe, n, catalog=None, store=None, raw=False):
-    """The one compose call: ``(paint, table)`` of ``recipe`` at ``n`` nodes (``store``: an open
-    :class:`flakedb.store.versions.StoreVersion` or None)."""
-    stored = None if store is None else StoreContext.for_recipe(store, recipe, int(n), raw)
-    paint = build_paint(recipe, catalog, stored=stored)
-    stack = solve_paint(paint, n)
-    return paint, stack_to_table(stack, paint.channels, paint.eta, paint.top_alpha, paint.delta)
+    """``(paint, table)`` of ``recipe`` at ``n`` nodes through compose's own path
+    (:func:`flakedb.compose.orchestrate.solve_recipe`: its physical check, threads and memory budget);
+    ``store``: an open :class:`flakedb.store.versions.StoreVersion` (verified once by the caller) or None."""
+    solved = solve_recipe(recipe, n, raw=raw, catalog=catalog, store=store, verify=False, generator="flakedb match")
+    return solved.paint, solved.table
 
 
 def geometry_directions(geometries):

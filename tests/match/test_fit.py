@@ -152,3 +152,24 @@ def test_compare_fails_outside_limits(tmp_path):
     assert r.exit_code == 1 and "FAIL at 2 geometries" in r.output, r.output
     r = CliRunner().invoke(cli, ["compare", str(tmp_path / "r.yaml"), "--target", str(tgt), "--observer", "10"])
     assert r.exit_code == 2 and "needs spectral" in r.output, r.output
+
+
+def test_match_composes_through_composes_checks(catalog, monkeypatch):
+    """match predicts through compose's own path (issue #21): compose's physical check refuses for it too, and the
+    solve gets compose's threads (a second orchestration had skipped both)."""
+    from flakedb.compose import orchestrate
+
+    rec = recipe_from_doc(yaml.safe_load(_text(**TRUE)), catalog=catalog)
+    seen = {}
+    real_solve = orchestrate.solve_paint
+
+    def spy(paint, n, **settings):
+        seen.update(settings)
+        return real_solve(paint, n, **settings)
+
+    monkeypatch.setattr(orchestrate, "solve_paint", spy)
+    predict(rec, E2194_GEOMETRIES, catalog=catalog)
+    assert seen.get("threads", 1) >= 1 and "memory_budget_bytes" in seen
+    monkeypatch.setattr(orchestrate, "check_physical", lambda stack: ["negative BSDF (planted)"])
+    with pytest.raises(orchestrate.UnphysicalResultError, match="planted"):
+        predict(rec, E2194_GEOMETRIES, catalog=catalog)
