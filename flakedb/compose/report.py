@@ -44,9 +44,9 @@ total minus it).
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from flakedb.bsdf import catmull_rom_weights, insert_zero_nodes
+from flakedb.bsdf.spline import cubic_spline_not_a_knot
 from flakedb.colour.colorimetry import (
     XYZ_to_Lab,
     XYZ_to_linear_sRGB,
@@ -167,7 +167,7 @@ def directional_albedo(x_nodes, albedo_nodes, theta_deg, delta_eta=None):
         mirror_nodes = fresnel_dielectric(x, float(delta_eta)).R
     # the total (tabulated + mirror) is the smoother function of μ (constant for a white furnace):
     # interpolate it, and give the tabulated part as the total minus the exact mirror term
-    total = CubicSpline(x, a + mirror_nodes[None, :], axis=1)(np.clip(mu, x[0], x[-1])).T  # (A, C)
+    total = cubic_spline_not_a_knot(x, (a + mirror_nodes[None, :]).T, np.clip(mu, x[0], x[-1]))  # (A, C)
     return total, total - mirror[:, None], mirror
 
 
