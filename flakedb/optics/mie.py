@@ -73,7 +73,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 __all__ = [
     "MieEfficiencies",
@@ -127,8 +126,27 @@ class LognormalPigment(NamedTuple):
 # numba kernels (sequential recurrences over the order n; loops over inputs inside the kernel)
 # ----------------------------------------------------------------------------------------------
 
+#: The functions compiled by numba (:func:`_compile_kernels`), callers after callees.
+_KERNELS = ("_cf_ratio", "_ratio_down", "_coefficients", "_scatter_kernel", "_coefficient_table_kernel")
+_compiled = False
 
-@njit(cache=True, error_model="numpy")
+
+def _compile_kernels():
+    """Replace the plain functions named in :data:`_KERNELS` by their numba dispatchers, once, before the first
+    Mie evaluation: numba is imported here, not with the module, so a compose whose pigments come from the
+    store (no Mie series) does not pay its 0.3–0.5 s import.  Compiled code is cached on disk (``cache=True``)."""
+    global _compiled
+    if _compiled:
+        return
+    from numba import njit  # lazy: importing numba takes 0.3-0.5 s; only a Mie evaluation needs it
+
+    g = globals()
+    for name in _KERNELS:  # a kernel's callees are globals, so they are dispatchers before it compiles
+        g[name] = njit(cache=True, error_model="numpy")(g[name])
+    _compiled = True
+
+
+
 def _cf_ratio(z, n):  # pragma: no cover - compiled
     """r_n(z) = ψ_{n-1}(z)/ψ_n(z) from the continued fraction r_n = (2n+1)/z − 1/r_{n+1} (modified Lentz)."""
     tiny = 1e-300
@@ -156,7 +174,6 @@ def _cf_ratio(z, n):  # pragma: no cover - compiled
     return f
 
 
-@njit(cache=True, error_model="numpy")
 def _ratio_down(z, n_max, out):  # pragma: no cover - compiled
     """Fill out[1..n_max] with r_n(z) = ψ_{n-1}(z)/ψ_n(z) by downward recurrence (Du 2004), CF start."""
     az = abs(z)
@@ -170,7 +187,6 @@ def _ratio_down(z, n_max, out):  # pragma: no cover - compiled
             out[n - 1] = r
 
 
-@njit(cache=True, error_model="numpy")
 def _coefficients(m, x, n_max, a, b, absn, rz, rx):  # pragma: no cover - compiled
     """Mie coefficients a_n, b_n (n = 1..n_max, stored at index n) in ratio form (module docstring).
 
@@ -204,7 +220,6 @@ def _coefficients(m, x, n_max, a, b, absn, rz, rx):  # pragma: no cover - compil
         absn[n] = xi2_inv * (abs_a + abs_b)
 
 
-@njit(cache=True, error_model="numpy")
 def _scatter_kernel(m, x, n_terms, order, starts, mu):  # pragma: no cover - compiled
     """Efficiencies of every (m, x) pair p and amplitudes S1, S2 at the angles order[starts[p]:starts[p+1]]."""
     n_pairs = m.shape[0]
@@ -304,8 +319,7 @@ def _scatter_kernel(m, x, n_terms, order, starts, mu):  # pragma: no cover - com
     return eff, s1_out, s2_out
 
 
-@njit(cache=True, error_model="numpy")
-def _coefficient_table(m, x, n_max):  # pragma: no cover - compiled
+def _coefficient_table_kernel(m, x, n_max):  # pragma: no cover - compiled
     """a_n, b_n and the absorption per order for n = 1..n_max of one sphere (testing helper; index 0 is order 1)."""
     a = np.zeros(n_max + 2, dtype=np.complex128)
     b = np.zeros(n_max + 2, dtype=np.complex128)
@@ -314,6 +328,12 @@ def _coefficient_table(m, x, n_max):  # pragma: no cover - compiled
     absn = np.zeros(n_max + 2, dtype=np.float64)
     _coefficients(m, x, n_max, a, b, absn, rz, rx)
     return a[1 : n_max + 1].copy(), b[1 : n_max + 1].copy(), absn[1 : n_max + 1].copy()
+
+
+def _coefficient_table(m, x, n_max):
+    """a_n, b_n and the absorption per order for n = 1..n_max of one sphere (testing helper; compiled kernel)."""
+    _compile_kernels()
+    return _coefficient_table_kernel(m, x, n_max)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -393,6 +413,7 @@ def _run(m, x, mu, n_terms):
         order = np.argsort(idx, kind="stable").astype(np.int64)
         starts = np.zeros(n_pairs + 1, dtype=np.int64)
         np.cumsum(np.bincount(idx, minlength=n_pairs), out=starts[1:])
+    _compile_kernels()
     eff, s1, s2 = _scatter_kernel(mb, xb, nt, order, starts, mu_flat)
     return eff, s1, s2, shape_mx, shape, idx
 
