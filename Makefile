@@ -19,10 +19,10 @@ demo: $(STAMP)
 	$(BIN)/python -m flakedb demo --out $(OUT)
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -n 2 -q tests
+	$(BIN)/python -m pytest -n 2 -q tests flakedb
 
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -n 2 -q -m 'not slow' tests
+	$(BIN)/python -m pytest -n 2 -q -m 'not slow' tests flakedb
 
 figures: $(STAMP)
 	$(BIN)/python -m figures.figures

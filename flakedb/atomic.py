@@ -45,7 +45,25 @@ def atomic_path(path, suffix=None):
 
 def atomic_write(path, write_tmp):
     """Call ``write_tmp(tmp_path)`` on a temporary file beside ``path``, then rename it onto
-    ``path``; on any error the temporary file is removed and the target is untouched."""
+    ``path``; on any error the temporary file is removed and the target is untouched.
+
+    A round trip, and a failed write that leaves the old file and no temporary file behind:
+
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> atomic_write_text(d / "a.txt", "first").read_text()
+    'first'
+    >>> def fail(tmp):
+    ...     Path(tmp).write_text("half")
+    ...     raise OSError("disk full")
+    >>> atomic_write(d / "a.txt", fail)
+    Traceback (most recent call last):
+    ...
+    OSError: disk full
+    >>> (d / "a.txt").read_text(), sorted(p.name for p in d.iterdir())
+    ('first', ['a.txt'])
+    >>> import shutil; shutil.rmtree(d)
+    """
     with atomic_path(path) as tmp:
         write_tmp(tmp)
     return Path(path)

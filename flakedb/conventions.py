@@ -61,6 +61,12 @@ def fourier_weight(order):
     """Azimuthal factor c_l of the scattering-matrix normalisation: 2π for l = 0, π otherwise.
 
     ``order`` may be an int or an integer array; returns float(s).  See the module docstring.
+
+    c_l is ∫₀^{2π} cos²(l φ) dφ:
+
+    >>> phi = np.linspace(0.0, 2 * np.pi, 4097)[:-1]                    # exact for trigonometric polynomials
+    >>> [round(float(np.cos(l * phi) @ np.cos(l * phi) * (2 * np.pi / phi.size) / fourier_weight(l)), 12) for l in (0, 1, 5)]
+    [1.0, 1.0, 1.0]
     """
     order = np.asarray(order)
     return np.where(order == 0, 2.0 * np.pi, np.pi)

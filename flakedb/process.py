@@ -27,7 +27,15 @@ TRIM_THRESHOLD_BYTES = 1024 * 1024 * 1024
 
 def tune_allocator():
     """Set glibc's mmap and trim thresholds (module docstring); True when applied.  A no-op (False)
-    without glibc's ``mallopt`` (macOS, musl) or with ``FLAKEDB_MALLOC_TUNING=0`` in the environment."""
+    without glibc's ``mallopt`` (macOS, musl) or with ``FLAKEDB_MALLOC_TUNING=0`` in the environment.
+
+    The opt-out is honoured (without touching the allocator):
+
+    >>> from unittest import mock
+    >>> with mock.patch.dict(os.environ, {"FLAKEDB_MALLOC_TUNING": "0"}):
+    ...     tune_allocator()
+    False
+    """
     if os.environ.get("FLAKEDB_MALLOC_TUNING", "1").strip() == "0":
         return False
     try:

@@ -2,6 +2,11 @@
 constants, the example recipes and the JSON Schemas (package data, so a built wheel has them).
 
 The repository's top-level ``catalog`` and ``schemas`` are links to these folders.
+
+>>> (CATALOG_DIR / "particles.yaml").is_file(), (SCHEMAS_DIR / "recipe.schema.json").is_file()
+(True, True)
+>>> "tri-coat-pearl-white.yaml" in {p.name for p in RECIPES_DIR.glob("*.yaml")}
+True
 """
 
 from pathlib import Path

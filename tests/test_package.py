@@ -48,3 +48,56 @@ def test_built_wheel_carries_its_data_and_composes(tmp_path):
                        cwd=work, env=env, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert sorted(os.listdir(work / "out")) == ["research-hg-slab.bsdf", "research-hg-slab.h5", "research-hg-slab.json"]
+
+
+# --------------------------------------------------------------------------------------------
+# Every public module carries a doctested example (issue #21); pytest runs them (--doctest-modules,
+# pyproject.toml), this test fails when a module has none.
+# --------------------------------------------------------------------------------------------
+
+#: Modules without an example for now, each with its reason.  Remove an entry when its module has one.
+DOCTEST_EXEMPT = {
+    # being split by other engineers (issue #21, item 4): their examples go into the new modules
+    "flakedb.rt.stack": "being split (issue #21)",
+    "flakedb.render.mitsuba": "being split (issue #21)",
+    "flakedb.paint.recipe": "being split (issue #21)",
+    "flakedb.store.versions": "being split (issue #21)",
+}
+
+
+def public_modules():
+    """Every module of flakedb whose name has no part starting with ``_``, minus the ``__init__`` files
+    that only re-export (a package's ``__init__`` counts when it defines functions or classes)."""
+    import ast
+    import pkgutil
+
+    out = []
+    for info in pkgutil.walk_packages(flakedb.__path__, "flakedb."):
+        if any(part.startswith("_") for part in info.name.split(".")):
+            continue
+        if info.ispkg:
+            path = os.path.join(REPO, *info.name.split("."), "__init__.py")
+            tree = ast.parse(open(path, encoding="utf-8").read())
+            if not any(isinstance(n, (ast.FunctionDef, ast.ClassDef)) for n in tree.body):
+                continue                               # re-exports only (or empty)
+        out.append(info.name)
+    return sorted(out)
+
+
+def test_public_modules_are_found():
+    mods = public_modules()
+    assert "flakedb.optics.fresnel" in mods and "flakedb.cli.main" in mods
+    assert "flakedb.bsdf" not in mods and "flakedb.rt" not in mods       # re-exporting packages
+    assert set(DOCTEST_EXEMPT) <= set(mods), set(DOCTEST_EXEMPT) - set(mods)   # no stale exemption
+
+
+@pytest.mark.parametrize("name", public_modules())
+def test_public_module_has_a_doctest(name):
+    import importlib
+
+    if name in DOCTEST_EXEMPT:
+        pytest.skip(f"exempt: {DOCTEST_EXEMPT[name]}")
+    module = importlib.import_module(name)            # an import error is a failure, not a skip
+    tests = doctest.DocTestFinder(exclude_empty=True).find(module, name)
+    examples = sum(len(t.examples) for t in tests)
+    assert examples > 0, f"{name} has no doctested example (add one to a public function's docstring)"

@@ -45,6 +45,16 @@ Each array holds exactly what colour-science returns for ``table[fine]`` at the 
 illuminant's common domain with the observers' tables (the CMFs over the union of those domains).
 ``*_DOMAIN_NM`` are the domains of the source tables (what :mod:`flakedb.colour.colorimetry` states
 in its errors).  docs/colorimetry.md says how they are used.
+
+The photopic luminous efficiency ȳ(λ) of the 1931 observer peaks at 555 nm with the value 1, and the
+perfect white under D65 has the chromaticity D65_XY_2DEG:
+
+>>> ybar = CMFS_1NM["CIE 1931 2 Degree Standard Observer"][:, 1]
+>>> start = CMFS_START_NM["CIE 1931 2 Degree Standard Observer"]
+>>> int(start + np.argmax(ybar)), round(float(ybar.max()), 6)
+(555, 1.0)
+>>> D65_XY_2DEG
+(0.3127, 0.329)
 """
 
 import numpy as np

@@ -11,7 +11,18 @@ from flakedb.bsdf.table import BSDFFileError
 
 
 def open_bsdf(path) -> FourierBSDF:
-    """Open a ``.bsdf`` or flakedb HDF5 BSDF file, recognised by its magic bytes."""
+    """Open a ``.bsdf`` or flakedb HDF5 BSDF file, recognised by its magic bytes.
+
+    A file that is neither kind is refused in one line naming its first bytes:
+
+    >>> import tempfile
+    >>> path = Path(tempfile.mkdtemp()) / "notes.bsdf"
+    >>> _ = path.write_bytes(b"hello")
+    >>> open_bsdf(path)
+    Traceback (most recent call last):
+    ...
+    flakedb.bsdf.table.BSDFFileError: .../notes.bsdf: neither a Fourier .bsdf (SCATFUN) nor an HDF5 file (first bytes b'hello')
+    """
     path = Path(path)
     try:
         with open(path, "rb") as fh:

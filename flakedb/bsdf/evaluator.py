@@ -315,7 +315,21 @@ class FourierBSDF:
 
 def table_evaluator(table: BSDFTable, path=None, metadata=None) -> FourierBSDF:
     """A :class:`FourierBSDF` evaluating ``table`` at full precision (zero nodes inserted as in the
-    ``.bsdf``; K_e = index of the last non-zero coefficient + 1, so nothing is lost)."""
+    ``.bsdf``; K_e = index of the last non-zero coefficient + 1, so nothing is lost).
+
+    A Lambertian of albedo (0.8, 0.5, 0.2) evaluates to ρ |μ_o| / π and reflects ρ at every incidence:
+
+    >>> from flakedb.rt.quadrature import gauss_radau_unit
+    >>> x, _ = gauss_radau_unit(8)
+    >>> rho = np.array([0.8, 0.5, 0.2])
+    >>> refl = np.broadcast_to((rho[:, None] * x[None, ::-1] / np.pi)[:, None, :, None], (3, 8, 8, 1))
+    >>> ev = table_evaluator(BSDFTable(np.concatenate([-x[::-1], x]), reflection=refl))
+    >>> bool(np.allclose(ev.eval(0.5, -0.3, 1.0), rho * 0.3 / np.pi, rtol=1e-12, atol=0))
+    True
+    >>> np.round(ev.albedo(np.array([0.3, 0.9])), 9)
+    array([[0.8, 0.5, 0.2],
+           [0.8, 0.5, 0.2]])
+    """
     C, n, _, L = table.coeffs.shape
     h = n // 2
     N = n + 2

@@ -28,7 +28,14 @@ MAX_MAGNITUDE = 1e12
 
 
 def check_count(path, field, value, lo, hi, what=""):
-    """Refuse an integer header field outside ``lo ≤ value ≤ hi``."""
+    """Refuse an integer header field outside ``lo ≤ value ≤ hi``.
+
+    >>> check_count("paint.bsdf", "nChannels", 3, 1, 3)
+    >>> check_count("paint.bsdf", "nChannels", 4, 1, 3, "1 or 3")
+    Traceback (most recent call last):
+    ...
+    flakedb.bsdf.table.BSDFFileError: paint.bsdf: nChannels = 4 is outside the allowed range 1 ≤ nChannels ≤ 3 (1 or 3); the file is corrupt or not supported
+    """
     if not (lo <= value <= hi):
         raise BSDFFileError(f"{path}: {field} = {value} is outside the allowed range {lo} ≤ {field} ≤ {hi}"
                             + (f" ({what})" if what else "") + "; the file is corrupt or not supported")

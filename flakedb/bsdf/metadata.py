@@ -76,7 +76,18 @@ def format_metadata(metadata: dict, delta: dict | None = None) -> str:
 
 
 def parse_metadata(text: str) -> tuple[dict, dict | None]:
-    """Inverse of :func:`format_metadata`: ``(metadata, delta)``; free-text lines go to ``"text"``."""
+    """Inverse of :func:`format_metadata`: ``(metadata, delta)``; free-text lines go to ``"text"``.
+
+    >>> text = format_metadata({"recipe": "silver metallic", "n_nodes": 100, "tag": "1.5"}, {"kind": "fresnel", "eta": 1.5})
+    >>> print(text)
+    delta=fresnel
+    delta_eta=1.5
+    recipe=silver metallic
+    n_nodes=100
+    tag="1.5"
+    >>> parse_metadata(text)
+    ({'recipe': 'silver metallic', 'n_nodes': 100, 'tag': '1.5'}, {'kind': 'fresnel', 'eta': 1.5})
+    """
     md: dict[str, Any] = {}
     free = []
     if text:

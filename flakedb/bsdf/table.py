@@ -55,6 +55,20 @@ class BSDFTable:
     channels : tuple of str or None
         Channel names; default ``("R", "G", "B")`` for C = 3, ``("mono",)`` for C = 1,
         ``("c0", "c1", …)`` otherwise.
+
+    Examples
+    --------
+    A white Lambertian primer, f·|μ_o| = |μ_o|/π, given as its reflection quadrant: its albedo is 1 at
+    every incident node going down into it, 0 for light arriving from below:
+
+    >>> from flakedb.rt.quadrature import gauss_radau_unit
+    >>> x, _ = gauss_radau_unit(8)
+    >>> refl = np.broadcast_to((x[::-1] / np.pi)[None, None, :, None], (1, 8, 8, 1))        # (C, h, h, L)
+    >>> t = BSDFTable(np.concatenate([-x[::-1], x]), reflection=refl)
+    >>> t.reflection_only, t.coeffs.shape
+    (True, (1, 16, 16, 1))
+    >>> bool(np.allclose(t.albedo()[0, 8:], 1.0, rtol=1e-14, atol=0)), bool(np.all(t.albedo()[0, :8] == 0))
+    (True, True)
     """
 
     def __init__(self, mu, coeffs=None, eta=1.0, alpha=(0.0, 0.0), delta=None, metadata=None, channels=None,

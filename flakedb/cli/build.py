@@ -18,7 +18,14 @@ MAX_BUILD_BYTES = 64 * 1024 ** 3
 
 
 def check_build_sizes(n, m):
-    """Refuse node counts compose cannot use and φ_d counts outside the allowed range, before planning."""
+    """Refuse node counts compose cannot use and φ_d counts outside the allowed range, before planning.
+
+    >>> check_build_sizes((32, 64), None)
+    >>> check_build_sizes((32, 33), None)
+    Traceback (most recent call last):
+    ...
+    flakedb.cli.errors.FlakedbError: --n 33: the node count must be even, 8 ≤ n ≤ 512 (n/2 nodes per hemisphere), e.g. 64 (the range compose accepts)
+    """
     for x in n:
         problem = node_count_problem(x)
         if problem:

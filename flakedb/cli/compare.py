@@ -22,7 +22,11 @@ from flakedb.store.versions import StoreError
 
 
 def parse_limits(items):
-    """``ILLUM/ASPEC=VALUE`` or ``ASPEC=VALUE`` (illumination 45°) → {(illum, aspec): value}."""
+    """``ILLUM/ASPEC=VALUE`` or ``ASPEC=VALUE`` (illumination 45°) → {(illum, aspec): value}.
+
+    >>> parse_limits(["45/15=1.5", "110=2"])
+    {(45.0, 15.0): 1.5, (45.0, 110.0): 2.0}
+    """
     out = {}
     for it in items:
         try:

@@ -1,4 +1,16 @@
-"""`flakedb compose RECIPE --out DIR`: a paint recipe → DIR/NAME.bsdf, DIR/NAME.h5, DIR/NAME.json."""
+"""`flakedb compose RECIPE --out DIR`: a paint recipe → DIR/NAME.bsdf, DIR/NAME.h5, DIR/NAME.json.
+
+A node count the solver cannot use is refused before any work, in one line, exit status 2:
+
+>>> import tempfile
+>>> from click.testing import CliRunner
+>>> from flakedb.cli.main import cli
+>>> from flakedb.resources import RECIPES_DIR
+>>> out = tempfile.mkdtemp()
+>>> result = CliRunner().invoke(cli, ["compose", str(RECIPES_DIR / "research-hg-slab.yaml"), "--n", "33", "--out", out])
+>>> result.exit_code, result.output.splitlines()
+(2, ['Error: --n 33: the node count must be even, 8 ≤ n ≤ 512 (n/2 nodes per hemisphere), e.g. 64'])
+"""
 
 import click
 

@@ -1,4 +1,15 @@
-"""`flakedb demo`: run what exists end to end and say plainly what is not built yet."""
+"""`flakedb demo`: run what exists end to end and say plainly what is not built yet.
+
+>>> import tempfile
+>>> from pathlib import Path
+>>> from click.testing import CliRunner
+>>> from flakedb.cli.main import cli
+>>> blocked = Path(tempfile.mkdtemp()) / "out"
+>>> _ = blocked.write_text("a file, not a directory")
+>>> result = CliRunner().invoke(cli, ["demo", "--out", str(blocked)])
+>>> result.exit_code, result.output.splitlines()[-1]
+(2, "Error: Invalid value for '--out': Directory '.../out' is a file.")
+"""
 
 import click
 

@@ -20,7 +20,19 @@ from flakedb.store import versions as st
 
 
 def run_demo(out_dir):
-    """species optics → build the catalogue store → verify → compose from the store → preview."""
+    """species optics → build the catalogue store → verify → compose from the store → preview.
+
+    Nothing runs when the output directory cannot be made:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> blocked = Path(tempfile.mkdtemp()) / "out"
+    >>> _ = blocked.write_text("a file, not a directory")
+    >>> run_demo(blocked)
+    Traceback (most recent call last):
+    ...
+    FileExistsError: [Errno 17] File exists: '.../out'
+    """
     os.makedirs(out_dir, exist_ok=True)
 
     t_all = time.perf_counter()

@@ -1,6 +1,20 @@
 """`flakedb export-mitsuba FILE --out PATH`: a Fourier file as a Mitsuba 3 ``measured`` BSDF file.
 
 Thin: the work is in :func:`flakedb.render.mitsuba.export_measured`.
+
+A file that is not a Fourier BSDF is refused in one line, exit status 2, nothing written:
+
+>>> import os, tempfile
+>>> from pathlib import Path
+>>> from click.testing import CliRunner
+>>> from flakedb.cli.main import cli
+>>> where = Path(tempfile.mkdtemp())
+>>> _ = (where / "notes.bsdf").write_bytes(b"hello")
+>>> result = CliRunner().invoke(cli, ["export-mitsuba", str(where / "notes.bsdf"), "--out", str(where / "paint.bsdf")])
+>>> result.exit_code, result.output.splitlines()
+(2, ["Error: .../notes.bsdf: neither a Fourier .bsdf (SCATFUN) nor an HDF5 file (first bytes b'hello')"])
+>>> sorted(os.listdir(where))
+['notes.bsdf']
 """
 
 import json

@@ -56,7 +56,17 @@ _OS_HINTS = {
 
 
 def as_failure(exc: BaseException) -> click.ClickException:
-    """A one-line ClickException for ``exc`` (exit status 1; 2 for a BSDF file that cannot be read)."""
+    """A one-line ClickException for ``exc`` (exit status 1; 2 for a BSDF file that cannot be read).
+
+    An operating-system error becomes one line with a hint; anything unexpected says how to get the
+    traceback:
+
+    >>> err = as_failure(OSError(errno.ENOSPC, "No space left on device", "/data/out/paint.h5"))
+    >>> err.exit_code, err.message
+    (1, '/data/out/paint.h5: No space left on device (hint: free some space, then rerun the command (finished work is kept))')
+    >>> as_failure(KeyError("x")).message
+    "internal error: KeyError: 'x' (hint: rerun with `flakedb --debug ...` for the traceback and report it)"
+    """
     if isinstance(exc, OSError):
         where = f"{exc.filename}: " if exc.filename else ""
         what = exc.strerror or type(exc).__name__

@@ -32,7 +32,19 @@ ENERGY_SLACK = 1e-3
 
 
 def file_kind(path) -> str:
-    """'tensor' for a Mitsuba tensor file, else 'fourier' (open_bsdf tells .bsdf from .h5 or refuses)."""
+    """'tensor' for a Mitsuba tensor file, else 'fourier' (open_bsdf tells .bsdf from .h5 or refuses).
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> path = Path(tempfile.mkdtemp()) / "paint.bsdf"
+    >>> _ = path.write_bytes(b"SCATFUN" + bytes(57))
+    >>> file_kind(path)
+    'fourier'
+    >>> file_kind(path.with_name("missing.bsdf"))
+    Traceback (most recent call last):
+    ...
+    flakedb.bsdf.table.BSDFFileError: .../missing.bsdf: no such file
+    """
     try:
         with open(path, "rb") as fh:
             head = fh.read(len(MAGIC_TENSOR))

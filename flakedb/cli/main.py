@@ -67,7 +67,16 @@ def short_help(ctx, name) -> str:
 class FlakedbGroup(click.Group):
     """The group: commands loaded on first use (:data:`COMMANDS`); an unexpected exception in a command
     becomes one line and exit status 1 (:func:`flakedb.cli.failures.as_failure`) unless ``--debug``
-    asks for the traceback."""
+    asks for the traceback.
+
+    >>> from click.testing import CliRunner
+    >>> listing = CliRunner().invoke(cli, ["--help"]).output
+    >>> [name for name in COMMANDS if f"  {name} " not in listing]                    # every command is listed
+    []
+    >>> result = CliRunner().invoke(cli, ["compse"])
+    >>> result.exit_code, result.output.splitlines()[-1]
+    (2, "Error: No such command 'compse'.")
+    """
 
     def list_commands(self, ctx):
         return sorted(COMMANDS)

@@ -4,6 +4,22 @@ Thin: the fit is :func:`flakedb.colour.match.match` (docs/colour-matching.md).  
 (the fitted recipe), composes it into DIR/NAME.{bsdf,h5,json} like `flakedb compose`, and writes
 DIR/NAME-prediction.csv (target layout) and DIR/NAME-match.json (the fit record).  Progress lines go
 to stderr, one per iteration.
+
+A target row at the specular geometry is refused before any fit, naming the file and the row:
+
+>>> import tempfile
+>>> from pathlib import Path
+>>> from click.testing import CliRunner
+>>> from flakedb.cli.main import cli
+>>> from flakedb.resources import RECIPES_DIR
+>>> where = Path(tempfile.mkdtemp())
+>>> _ = (where / "t.csv").write_text('''illumination_deg,aspecular_deg,L*,a*,b*
+... 45,0,50,0,0
+... ''')
+>>> result = CliRunner().invoke(cli, ["match", str(RECIPES_DIR / "research-hg-slab.yaml"), "--target", str(where / "t.csv"),
+...                                   "--out", str(where / "fit")])
+>>> result.exit_code, result.output.splitlines()
+(2, ["Error: .../t.csv row 1: aspecular 0° is the specular direction (the smooth coat's mirror delta): not a colour geometry"])
 """
 
 import json

@@ -12,7 +12,15 @@ RAW_HELP = ("With --store: the flakes' spectral factors at their full numerical 
 
 
 def check_node_count(n):
-    """Refuse a ``--n`` the solver cannot use (:func:`flakedb.paint.limits.node_count_problem`), before any work."""
+    """Refuse a ``--n`` the solver cannot use (:func:`flakedb.paint.limits.node_count_problem`), before any work.
+
+    >>> check_node_count(None), check_node_count(64)
+    (None, None)
+    >>> check_node_count(7)
+    Traceback (most recent call last):
+    ...
+    flakedb.cli.errors.FlakedbError: --n 7: the node count must be even, 8 ≤ n ≤ 512 (n/2 nodes per hemisphere), e.g. 64
+    """
     problem = None if n is None else node_count_problem(n)
     if problem:
         raise FlakedbError(f"--n {problem}")

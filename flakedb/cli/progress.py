@@ -10,7 +10,20 @@ import click
 class StageProgress:
     """``progress(stage, detail)`` callback of :func:`flakedb.compose.orchestrate.compose` (and the
     solver's :class:`flakedb.rt.stack.SolverSettings` ``progress``): stages optics, projection, solve,
-    channels, write and warning.  ``stream`` defaults to stderr; ``tty`` to whether it is a terminal."""
+    channels, write and warning.  ``stream`` defaults to stderr; ``tty`` to whether it is a terminal.
+
+    Into a log, one time-stamped line per event:
+
+    >>> import io
+    >>> log = io.StringIO()
+    >>> progress = StageProgress(log, tty=False)
+    >>> progress("optics", {"start": True})
+    >>> progress("optics", {"channels": 3, "seconds": 1.5})
+    >>> print(log.getvalue())
+    [... s] optics: particle optics…
+    [... s] optics: done (3 channel(s), 1.5 s)
+    <BLANKLINE>
+    """
 
     def __init__(self, stream=None, tty=None):
         self.stream = stream or sys.stderr

@@ -22,7 +22,19 @@ ENVS = ("softbox", "studio", "constant")
 def renderable(path):
     """The FourierBSDF to render for ``path``: the file itself, or for a spectral flakedb ``.h5`` its
     gamut-safe white-normalised linear sRGB (CIE 1931 2° / D65, :func:`flakedb.compose.orchestrate.
-    gamut_safe_file_channels`, what compose writes into the ``.bsdf``), evaluated in memory."""
+    gamut_safe_file_channels`, what compose writes into the ``.bsdf``), evaluated in memory.
+
+    What is not a BSDF file is refused before any rendering:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> path = Path(tempfile.mkdtemp()) / "notes.bsdf"
+    >>> _ = path.write_bytes(b"hello")
+    >>> renderable(path)
+    Traceback (most recent call last):
+    ...
+    flakedb.bsdf.table.BSDFFileError: .../notes.bsdf: neither a Fourier .bsdf (SCATFUN) nor an HDF5 file (first bytes b'hello')
+    """
     b = open_bsdf(path)
     wl = channel_wavelengths(b) if b.kind == "h5" and b.n_channels not in (1, 3) else None
     if wl is None:

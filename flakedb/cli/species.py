@@ -1,4 +1,14 @@
-"""`flakedb species list | show NAME`: the particle catalogue and one species' optics."""
+"""`flakedb species list | show NAME`: the particle catalogue and one species' optics.
+
+>>> from click.testing import CliRunner
+>>> from flakedb.cli.main import cli
+>>> listing = CliRunner().invoke(cli, ["species", "list"]).output
+>>> [line.split()[:2] for line in listing.splitlines() if line.startswith("gray-mirror")]
+[['gray-mirror', 'mirror_flake']]
+>>> result = CliRunner().invoke(cli, ["species", "show", "grey-mirror"])
+>>> result.exit_code, result.output.splitlines()[-1]
+(2, "Error: unknown species 'grey-mirror'; known species: metallic, pearlescent, gray-mirror, ...")
+"""
 
 import click
 

@@ -269,6 +269,12 @@ def XYZ_to_Lab(XYZ, white="D65") -> np.ndarray:
     :func:`_lab_f`.  ``white``: "D65" (CIE 15's D65 chromaticity for the 2° observer as colour-science
     tabulates it, (0.3127, 0.3290), Y_n = 1) or an XYZ triple, e.g. :func:`white_XYZ` on the grid the
     spectra were integrated on (then the perfect white is exactly (100, 0, 0)).
+
+    The perfect white diffuser is L* = 100, a* = b* = 0 relative to the white of its own grid:
+
+    >>> wl = spectral_grid()
+    >>> np.round(XYZ_to_Lab(white_XYZ(wl), white=white_XYZ(wl)), 10) + 0.0
+    array([100.,   0.,   0.])
     """
     XYZ = np.asarray(XYZ, dtype=float)
     if isinstance(white, str):
@@ -333,7 +339,15 @@ def ciede2000_terms(lab_ref, lab_sample):
 
 def delta_E_2000(lab1, lab2) -> np.ndarray:
     """CIEDE2000 colour difference (Sharma, Wu & Dalal 2005, Color Res. Appl. 30, 21, eq. 22;
-    CIE 142-2001), k_L = k_C = k_H = 1, arrays (..., 3) broadcast (terms: :func:`ciede2000_terms`)."""
+    CIE 142-2001), k_L = k_C = k_H = 1, arrays (..., 3) broadcast (terms: :func:`ciede2000_terms`).
+
+    Sharma, Wu & Dalal's (2005) first test pair has ΔE00 = 2.0425; a colour has no difference from itself:
+
+    >>> round(float(delta_E_2000([50.0, 2.6772, -79.7751], [50.0, 0.0, -82.7485])), 4)
+    2.0425
+    >>> float(delta_E_2000([50.0, 2.6772, -79.7751], [50.0, 2.6772, -79.7751]))
+    0.0
+    """
     tL, tC, tH, RT = ciede2000_terms(lab1, lab2)
     return np.asarray(np.sqrt(tL * tL + tC * tC + tH * tH + RT * tC * tH))
 

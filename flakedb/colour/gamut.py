@@ -193,7 +193,17 @@ def mapping_delta_e(rgb_before, rgb_after, wavelength_nm, space: str = "srgb") -
 
 def desaturate_points(rgb, w) -> np.ndarray:
     """(G1) applied to independent colours (..., 3) (e.g. a measured-BSDF grid, one s per value):
-    the largest s in [0, 1] making every channel ≥ 0 where Y > 0; a value with Y ≤ 0 becomes 0."""
+    the largest s in [0, 1] making every channel ≥ 0 where Y > 0; a value with Y ≤ 0 becomes 0.
+
+    An out-of-gamut colour (a negative channel) is moved towards the grey of its own luminance Y until
+    it is in gamut; Y is kept:
+
+    >>> w = luminance_weights(np.arange(380.0, 781.0, 10.0))
+    >>> rgb = np.array([0.6, 0.3, -0.1])
+    >>> out = desaturate_points(rgb, w)
+    >>> bool(np.all(out >= 0)), bool(np.isclose(out @ w, rgb @ w, rtol=1e-9, atol=0))
+    (True, True)
+    """
     v = np.asarray(rgb, dtype=float)
     Y = v @ np.asarray(w, float)
     with np.errstate(divide="ignore", invalid="ignore"):

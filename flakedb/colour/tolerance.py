@@ -143,6 +143,15 @@ def metamerism_index(reflectance_ref, reflectance_sample, wavelength_nm, observe
     The sample's XYZ under the test illuminant are corrected multiplicatively by the pair's ratio under
     the reference illuminant (X'₂ = X₂ X₁ʳ / X₂ʳ, likewise Y, Z), then ΔE00 under the test illuminant
     (both relative to its white).  Spectra (..., W) on ``wavelength_nm``.
+
+    A flat (grey) reflectance has CIELAB L* = 100 at factor 1 under any observer and illuminant, and a
+    pair of identical spectra is no metameric pair:
+
+    >>> wl = np.arange(380.0, 781.0, 10.0)
+    >>> np.round(reflectance_to_Lab(np.ones(wl.size), wl, observer="10", illuminant="A"), 10) + 0.0
+    array([100.,   0.,   0.])
+    >>> float(metamerism_index(np.full(wl.size, 0.5), np.full(wl.size, 0.5), wl))
+    0.0
     """
     R1 = np.asarray(reflectance_ref, float)
     R2 = np.asarray(reflectance_sample, float)

@@ -78,6 +78,18 @@ def check_output_dir(out_dir) -> Path:
 
     Creates nothing: checks that ``out_dir`` is a writable directory, or that its nearest existing
     ancestor is a writable directory (it will be created when the files are written).
+
+    A file where the directory should be is refused before any work:
+
+    >>> import tempfile
+    >>> where = Path(tempfile.mkdtemp())
+    >>> _ = (where / "paint").write_text("not a directory")
+    >>> check_output_dir(where / "paint")
+    Traceback (most recent call last):
+    ...
+    flakedb.compose.orchestrate.OutputError: --out .../paint: exists and is not a directory (hint: choose a directory path)
+    >>> check_output_dir(where / "new") == where / "new"                     # created only when written
+    True
     """
     p = Path(out_dir)
     if p.exists():

@@ -136,7 +136,16 @@ def reference_white(mode, wavelength_nm=None) -> np.ndarray:
 
 def flop_index(L15, L45, L110):
     """Signed X-Rite flop index sign(d) 2.69 |d|^1.11 / L*45^0.86, d = L*15 − L*110 (None when
-    L*45 = 0); the standard value is :func:`flop_index_standard` (module docstring)."""
+    L*45 = 0); the standard value is :func:`flop_index_standard` (module docstring).
+
+    A flat grey (the same L* at every angle) has no flop; a metallic that darkens from the near-specular
+    15° to the far 110° has a positive one, and the instruments' value clips a reverse flop to 0:
+
+    >>> flop_index(50.0, 50.0, 50.0), round(flop_index(100.0, 60.0, 20.0), 4)
+    (0.0, 10.3032)
+    >>> round(flop_index(20.0, 40.0, 30.0), 4), flop_index_standard(20.0, 40.0, 30.0)
+    (-1.452, 0.0)
+    """
     if not L45 > 0:
         return None
     d = float(L15) - float(L110)

@@ -26,7 +26,18 @@ def wavelength_map(store_nm, recipe_nm, tol_nm=1e-9):
     selects it (exact: the direct path samples its optics at the band's wavelength too); a band
     between two store wavelengths is their linear interpolation (the kernel is linear in U).  Returns
     ``(map, info)`` with ``selected`` / ``interpolated`` counts and the largest gap bridged (nm); raises
-    ValueError for a band outside the store's range."""
+    ValueError for a band outside the store's range.
+
+    A band on the store's grid selects it, a band between two store wavelengths is interpolated:
+
+    >>> M, info = wavelength_map([400.0, 500.0, 600.0, 700.0], [500.0, 550.0])
+    >>> M.tolist(), info
+    ([[0.0, 1.0, 0.0, 0.0], [0.0, 0.5, 0.5, 0.0]], {'selected': 1, 'interpolated': 1, 'largest_gap_nm': 100.0})
+    >>> wavelength_map([400.0, 500.0], [800.0])
+    Traceback (most recent call last):
+    ...
+    ValueError: 800 nm is outside the store's 400-500 nm
+    """
     swl = np.asarray(store_nm, float)
     wl = np.asarray(recipe_nm, float)
     Mp = np.zeros((wl.size, swl.size))

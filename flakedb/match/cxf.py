@@ -117,6 +117,17 @@ def read_cxf_target(path_or_bytes, object_name=None, observer=None, illuminant=N
     ``path_or_bytes``: a path, or the file's bytes.  ``object_name``: the object's Name or Id (needed
     when several objects have multi-angle values).  ``observer`` / ``illuminant``: the conditions a
     spectral target is compared under (as :func:`flakedb.match.targets.read_target`).
+
+    What is not CxF3 is refused in one line:
+
+    >>> read_cxf_target(b"<root/>")
+    Traceback (most recent call last):
+    ...
+    flakedb.match.targets.TargetError: <cxf>: the root element is 'root', not CxF in the CxF3 namespace http://colorexchangeformat.com/CxF3-core (CxF/X-4 and CxF3 files only)
+    >>> read_cxf_target(b"<x")
+    Traceback (most recent call last):
+    ...
+    flakedb.match.targets.TargetError: <cxf>: not a readable CxF3 (XML) file: ...
     """
     if isinstance(path_or_bytes, (bytes, bytearray)):
         data, where = bytes(path_or_bytes), source or "<cxf>"

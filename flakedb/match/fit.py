@@ -146,7 +146,19 @@ def find_fit_parameters(doc, source="<base recipe>") -> list:
 
 
 def substitute(doc, params, values) -> dict:
-    """A deep copy of ``doc`` with each parameter's field set to the matching value."""
+    """A deep copy of ``doc`` with each parameter's field set to the matching value.
+
+    The ``{fit: …}`` fields of a base recipe, found with their bounds and start (the geometric mean on a
+    log scale unless given), and a concrete document made from values for them:
+
+    >>> doc = {"layers": [{"basecoat": {"thickness_um": {"fit": [5, 20]},
+    ...                                 "particles": [{"species": "metallic", "volume_fraction": {"fit": [0.01, 0.1], "start": 0.03}}]}}]}
+    >>> params = find_fit_parameters(doc)
+    >>> [(p.name, p.lo, p.hi, p.start, p.log) for p in params]
+    [('layers[0].basecoat.thickness_um', 5.0, 20.0, 10.0, True), ('layers[0].basecoat.particles[0].volume_fraction', 0.01, 0.1, 0.03, True)]
+    >>> substitute(doc, params, [12.0, 0.05])["layers"][0]["basecoat"]
+    {'thickness_um': 12.0, 'particles': [{'species': 'metallic', 'volume_fraction': 0.05}]}
+    """
     out = copy.deepcopy(doc)
     for p, v in zip(params, values):
         node = out

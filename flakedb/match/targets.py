@@ -143,6 +143,20 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     :meth:`Target.lab_under`); the call fills in only conditions the file does not state, and if
     neither says, 2° / D65 is assumed and recorded in ``notes['assumed']``.  L*a*b* columns beside R_ columns are always
     checked under the file's own conditions.
+
+    A round trip of a spectral grey target: reflectance 0.5 everywhere is L* = 116 · 0.5^{1/3} − 16 = 76.0693
+    under any observer and illuminant, a* = b* = 0:
+
+    >>> import tempfile
+    >>> wl = np.arange(400.0, 701.0, 20.0)
+    >>> path = Path(tempfile.mkdtemp()) / "grey.csv"
+    >>> _ = write_target(path, E2194_GEOMETRIES[:2], reflectance=np.full((2, wl.size), 0.5), wavelength_nm=wl, name="grey")
+    >>> t = read_target(path)
+    >>> t.name, t.spectral, t.geometries.tolist()
+    ('grey', True, [[45.0, -15.0], [45.0, 15.0]])
+    >>> np.round(t.lab_under(observer="10", illuminant="A"), 4) + 0.0
+    array([[76.0693,  0.    ,  0.    ],
+           [76.0693,  0.    ,  0.    ]])
     """
     if isinstance(path_or_text, str) and "\n" in path_or_text:
         text, where = path_or_text, source or "<target>"

@@ -181,6 +181,17 @@ def fresnel_dielectric(cos_theta_i, eta):
         (``|cos_theta_t| = sqrt(1 - (1 - cos²θ_i) / η_rel²)``, Snell's law).  Under TIR ``R = 1`` and
         ``cos_theta_t = 0``.  At grazing incidence ``R = 1`` unless ``eta == 1`` (no interface:
         ``R = 0``, ``cos_theta_t = cos_theta_i``).
+
+    Examples
+    --------
+    At normal incidence R = ((η − 1)/(η + 1))², 0.04 for glass (η = 1.5); from the glass side beyond the
+    critical angle (41.8°) the light is totally reflected:
+
+    >>> f = fresnel_dielectric(1.0, 1.5)
+    >>> round(float(f.R), 12), round(((1.5 - 1) / (1.5 + 1)) ** 2, 12)
+    (0.04, 0.04)
+    >>> float(fresnel_dielectric(-0.5, 1.5).R), float(fresnel_dielectric(-0.5, 1.5).cos_theta_t)
+    (1.0, 0.0)
     """
     c_in = np.asarray(cos_theta_i, dtype=float)
     eta = np.asarray(eta, dtype=float)

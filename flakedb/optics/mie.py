@@ -442,6 +442,18 @@ def mie_Du2004(m, x, n_terms=None):
         ``qext, qsca, qback, g`` (dimensionless) of the broadcast shape of ``m`` and ``x``.
         ``Q_back = |Σ(2n+1)(−1)^n (a_n − b_n)|² / x²`` (Bohren & Huffman's Q_b).  A sphere that does
         not scatter (``x = 0`` or ``m = 1``) gets ``g = 0``.
+
+    Examples
+    --------
+    A small sphere scatters as a Rayleigh dipole, Q_sca → (8/3) x⁴ |(m² − 1)/(m² + 2)|²; a large one removes
+    twice its geometric cross-section (the extinction paradox, Q_ext → 2):
+
+    >>> m, x = 1.5, 0.01
+    >>> rayleigh = 8 / 3 * x**4 * abs((m * m - 1) / (m * m + 2)) ** 2
+    >>> round(float(mie_Du2004(m, x).qsca / rayleigh), 4)
+    1.0
+    >>> round(float(mie_Du2004(1.5, 1000.0).qext), 1)
+    2.0
     """
     eff, _, _, shape_mx, _, _ = _run(m, x, None, n_terms)
     return MieEfficiencies(*(eff[i].reshape(shape_mx)[()] for i in range(4)))

@@ -230,6 +230,19 @@ def thin_film_transfer_matrix(n_films, d_films_nm, wavelength_nm, cos_theta, n_a
         ``R + T + A = 1``; ``A`` is 0 to rounding for lossless stacks.  Finite for every input,
         including grazing incidence (``R = 1`` unless the stack is invisible there) and TIR into
         the exit medium (``T = 0``).
+
+    Examples
+    --------
+    A film of zero thickness is the bare interface (R = 0.04 from air to glass at normal incidence); a
+    quarter-wave film of index √1.5 cancels that reflection at its design wavelength:
+
+    >>> rt = thin_film_transfer_matrix([2.0], [0.0], [550.0], [1.0], 1.0, 1.5)
+    >>> round(float(rt.R[0, 0]), 12), round(float(rt.T[0, 0]), 12)
+    (0.04, 0.96)
+    >>> n = 1.5 ** 0.5
+    >>> rt = thin_film_transfer_matrix([n], [550.0 / (4 * n)], [550.0], [1.0], 1.0, 1.5)
+    >>> round(float(rt.R[0, 0]), 12), round(float(rt.T[0, 0]), 12)
+    (0.0, 1.0)
     """
     n, d, wl, cos, n_a, n_e = _prepare(n_films, d_films_nm, wavelength_nm, cos_theta, n_ambient, n_exit)
     B, C, p_a, p_e, phase = _stack(n, d, wl, cos, n_a, n_e)

@@ -176,7 +176,16 @@ def species_names(catalog: dict | None = None) -> list[str]:
 
 
 def get_species(name: str, catalog: dict | None = None) -> dict:
-    """The entry of one species; ValueError listing the known names when there is none."""
+    """The entry of one species; ValueError listing the known names when there is none.
+
+    >>> entry = get_species("gray-mirror")
+    >>> entry["kind"], entry["albedo"]["value"]
+    ('mirror_flake', 0.5)
+    >>> get_species("grey-mirror")
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown species 'grey-mirror'; known species: metallic, pearlescent, gray-mirror, ...
+    """
     allsp = expand_sweeps(catalog if catalog is not None else load_catalog())
     if name not in allsp:
         raise ValueError(f"unknown species {name!r}; known species: {', '.join(allsp)}")

@@ -111,7 +111,24 @@ def _alias_problem(root):
 def load_yaml_strict(text):
     """Parse recipe ``text``: raises :class:`RecipeInputError` for a text above the size limit, an
     alias bomb or a recursive alias (checked on the composed node graph, before anything is
-    expanded), ``yaml.YAMLError`` (with a mark) for syntax errors and duplicate keys."""
+    expanded), ``yaml.YAMLError`` (with a mark) for syntax errors and duplicate keys.
+
+    A duplicate key, which plain YAML would silently overwrite, and a recursive alias are refused:
+
+    >>> load_yaml_strict("name: a")
+    {'name': 'a'}
+    >>> load_yaml_strict('''
+    ... name: a
+    ... name: b
+    ... ''')
+    Traceback (most recent call last):
+    ...
+    yaml.constructor.ConstructorError: duplicate key 'name' (first at line 2, column 1); each key may appear once ...
+    >>> load_yaml_strict("a: &x [1, *x]")
+    Traceback (most recent call last):
+    ...
+    flakedb.paint.checks.RecipeInputError: an alias (*name) refers to the collection that contains it (recursive structures are refused)
+    """
     size = len(text.encode("utf-8", errors="surrogatepass")) if isinstance(text, str) else len(text)
     if size > MAX_RECIPE_BYTES:
         raise RecipeInputError(too_large_message(size))

@@ -210,6 +210,15 @@ def normalise_phase_table(cos_theta, values) -> tuple[np.ndarray, np.ndarray]:
     over the sphere (2π ∫ p dcosΘ by the trapezoidal rule, exact for the interpolant).
 
     Returns ``(normalised values, the integrals before scaling)``.
+
+    A Henyey–Greenstein phase function tabulated on :func:`phase_cos_grid` (0.5° steps) integrates to 1
+    within 1e-5 before the scaling, exactly after it:
+
+    >>> from flakedb.rt.microflake import phase_HG
+    >>> c = phase_cos_grid()
+    >>> p, before = normalise_phase_table(c, phase_HG(c, 0.3)[None])
+    >>> bool(abs(before[0] - 1.0) < 1e-5), round(float(2 * np.pi * np.trapezoid(p[0], c)), 12)
+    (True, 1.0)
     """
     v = np.asarray(values, float)
     integral = 2.0 * np.pi * np.trapezoid(v, np.asarray(cos_theta, float), axis=-1)

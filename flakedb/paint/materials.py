@@ -135,6 +135,12 @@ def dispersion_formula_n(formula_type: int, coefficients, wavelength_nm) -> np.n
     * type 2 (Sellmeier-2): n² − 1 = C1 + Σ_i C_{2i} L² / (L² − C_{2i+1})
     * type 4:               n² = C1 + C2 L^C3 / (L² − C4^C5) + C6 L^C7 / (L² − C8^C9)
                                  + Σ_{j>=10, step 2} C_j L^C_{j+1}
+
+    Schott N-BK7 (Sellmeier, refractiveindex.info type 2) has n_d = 1.5168 at the helium d line, 587.56 nm:
+
+    >>> bk7 = [0, 1.03961212, 0.00600069867, 0.231792344, 0.0200179144, 1.01046945, 103.560653]
+    >>> round(float(dispersion_formula_n(2, bk7, 587.56)), 4)
+    1.5168
     """
     c = [float(v) for v in coefficients]
     L = np.asarray(wavelength_nm, dtype=float) / 1000.0

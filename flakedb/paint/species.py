@@ -64,6 +64,19 @@ def flake_reflectance_transmittance(entry: dict, wavelength_nm, cos_theta, n_bin
     ``wavelength_nm`` (W,) vacuum wavelengths in nm; ``cos_theta`` (A,) the cosine between the light
     and the flake normal in the binder; ``n_binder`` scalar or (W,), real.  Interference flakes:
     transfer-matrix method on :func:`film_stack`; mirror flakes: R = albedo, T = 0.
+
+    A lossless pearlescent flake (TiO2 on mica) reflects or transmits all light; the aluminium core of
+    the metallic flake transmits none:
+
+    >>> from flakedb.paint.catalog import get_species, load_catalog
+    >>> catalog = load_catalog()
+    >>> wl, c = np.array([450.0, 550.0, 650.0]), np.array([0.2, 0.6, 1.0])
+    >>> R, T = flake_reflectance_transmittance(get_species("pearlescent", catalog), wl, c, binder_index(catalog, wl))
+    >>> R.shape, bool(np.allclose(R + T, 1.0, rtol=0, atol=1e-12))
+    ((3, 3), True)
+    >>> R, T = flake_reflectance_transmittance(get_species("metallic", catalog), wl, c, binder_index(catalog, wl))
+    >>> bool(np.all(T < 1e-12)), bool(np.all((0.7 < R) & (R < 0.95)))
+    (True, True)
     """
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     cos = np.atleast_1d(np.asarray(cos_theta, dtype=float))

@@ -61,7 +61,16 @@ def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, cha
     included).  ``n``: node counts; ``wavelength_nm``: default 380–780 nm every 5 nm; ``alphas``:
     flake species → α's (default: the catalogue's α and those the shipped recipes use);
     ``eta_top``: the paints' smooth top index (None: plain Radau grid and the catalogue binder's
-    index; see :mod:`flakedb.store.versions`); ``rank_tol``: the flakes' spectral SVD truncation."""
+    index; see :mod:`flakedb.store.versions`); ``rank_tol``: the flakes' spectral SVD truncation.
+
+    >>> r = make_request(species=["gray-mirror"], n=16, alphas={"gray-mirror": [0.25]})
+    >>> r.resolutions, r.alphas, len(r.wavelength_nm), r.wavelength_nm[0], r.wavelength_nm[-1]
+    ((16,), {'gray-mirror': [0.25]}, 81, 380.0, 780.0)
+    >>> make_request(species=["grey-mirror"])
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown species grey-mirror; known: metallic, pearlescent, gray-mirror, ...
+    """
     catalog = cat.load_catalog(catalog_path)
     allsp = cat.expand_sweeps(catalog)
     names = list(allsp) if not species else list(species)

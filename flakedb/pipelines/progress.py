@@ -12,7 +12,24 @@ import time
 
 
 class BuildProgress:
-    """Count finished tasks and report them; ``update(k)`` after ``k`` more tasks, ``close()`` at the end."""
+    """Count finished tasks and report them; ``update(k)`` after ``k`` more tasks, ``close()`` at the end.
+
+    Into a log (not a terminal) a build of 8 tasks writes its start, each quarter and its end:
+
+    >>> import io
+    >>> log = io.StringIO()
+    >>> p = BuildProgress(8, stream=log, tty=False)
+    >>> for _ in range(8):
+    ...     p.update()
+    >>> p.close()
+    >>> print(log.getvalue())
+    build: 8 task(s) to run
+    build: 2/8 tasks done (25%), ... s
+    build: 4/8 tasks done (50%), ... s
+    build: 6/8 tasks done (75%), ... s
+    build: 8/8 tasks done in ... s
+    <BLANKLINE>
+    """
 
     def __init__(self, total: int, label: str = "build", stream=None, tty: bool | None = None, width: int = 30):
         self.total, self.label, self.width = int(total), label, width

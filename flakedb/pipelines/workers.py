@@ -42,6 +42,11 @@ def die_with_parent(ppid: int):
 
 
 def process_pool(workers: int | None = None) -> ProcessPoolExecutor:
-    """A spawn-context process pool whose workers end with this process."""
+    """A spawn-context process pool whose workers end with this process.
+
+    >>> with process_pool(1) as pool:
+    ...     pool.submit(os.getppid).result() == os.getpid()                 # the worker is this process's child
+    True
+    """
     return ProcessPoolExecutor(max_workers=workers or os.cpu_count(), mp_context=multiprocessing.get_context("spawn"),
                                initializer=die_with_parent, initargs=(os.getpid(),))

@@ -788,6 +788,16 @@ def bin_average(f_cos, mu_edges, phi_edges, n_quad=16):
 
     ``f_cos(mu_abs, phi_d)`` is the BSDF times |μ_o| (vectorised, arrays of equal shape in, out).
     For a φ_d-even BSDF this is exactly what :func:`binned_reflectance` estimates.  Returns (n_mu, n_phi).
+
+    A white Lambertian BSDF (f·|μ| = |μ|/π) over the half range φ_d ∈ [0, π] carries half its albedo 1;
+    the rule is exact for it, bin by bin:
+
+    >>> mu_edges, phi_edges = np.linspace(0.0, 1.0, 5), np.linspace(0.0, np.pi, 3)
+    >>> avg = bin_average(lambda mu, phi: mu / np.pi, mu_edges, phi_edges)
+    >>> avg.shape, round(float(np.sum(avg * np.outer(np.diff(mu_edges), np.diff(phi_edges)))), 12)
+    ((4, 2), 0.5)
+    >>> bool(np.allclose(avg[:, 0], 0.5 * (mu_edges[1:] + mu_edges[:-1]) / np.pi, rtol=1e-13, atol=0))
+    True
     """
     me = _edges(mu_edges, 1.0, "mu_edges")
     pe = _edges(phi_edges, np.pi, "phi_edges")

@@ -52,7 +52,18 @@ def write_exr(path, rgb) -> Path:
 
 
 def read_exr(path) -> np.ndarray:
-    """Read an RGB OpenEXR file into a float32 (H, W, 3) array."""
+    """Read an RGB OpenEXR file into a float32 (H, W, 3) array.
+
+    A float32 image survives the round trip bit for bit (EXR is the renderer's linear format):
+
+    >>> import tempfile
+    >>> image = np.linspace(0.0, 2.0, 24, dtype=np.float32).reshape(2, 4, 3)
+    >>> path = Path(tempfile.mkdtemp()) / "tiny.exr"
+    >>> _ = write_exr(path, image)
+    >>> back = read_exr(path)
+    >>> back.dtype, back.shape, bool(np.array_equal(back, image))
+    (dtype('float32'), (2, 4, 3), True)
+    """
     import OpenEXR  # lazy: image codec only where images are written
 
     with OpenEXR.File(str(path)) as f:

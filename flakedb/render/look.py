@@ -91,7 +91,16 @@ def luminance(rgb) -> np.ndarray:
 
 def auto_exposure(image, mask=None, key: float = KEY, delta: float = 1e-4) -> float:
     """Scale that maps the log-average luminance of ``image``'s pixels (where ``mask``) to ``key``
-    (Reinhard et al. 2002, eq. 1-2).  Returns the multiplier (1 for an all-black image)."""
+    (Reinhard et al. 2002, eq. 1-2).  Returns the multiplier (1 for an all-black image).
+
+    A uniform image of luminance 0.5 is scaled to the key 0.18 (to the ``delta`` of the log average):
+
+    >>> scale = auto_exposure(np.full((4, 4, 3), 0.5))
+    >>> round(float(scale * 0.5), 3), KEY
+    (0.18, 0.18)
+    >>> aces_filmic(np.array([-1.0, 0.0, 1e9])).tolist()                  # negative is 0, bright saturates at 1
+    [0.0, 0.0, 1.0]
+    """
     Y = luminance(image)
     if mask is not None:
         Y = Y[np.asarray(mask, bool)]

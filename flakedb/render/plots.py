@@ -18,6 +18,11 @@ def plot_optics(name: str, out_dir, catalog: dict | None = None) -> Path:
     Flakes: R and T spectra at the show angles, and the flake's reflected and transmitted colour
     (RGB mode of :mod:`flakedb.colour.colorimetry`, sRGB-encoded, clipped for display only) versus angle.
     Pigments: C_ext, C_sca, single-scattering albedo and g versus wavelength.
+
+    >>> import tempfile
+    >>> path = plot_optics("gray-mirror", tempfile.mkdtemp())
+    >>> path.name, path.read_bytes()[:4] == bytes([0x89]) + b"PNG"
+    ('gray-mirror-optics.png', True)
     """
     from matplotlib.backends.backend_agg import (
         FigureCanvasAgg,  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it

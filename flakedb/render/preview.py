@@ -110,7 +110,13 @@ def orthonormal_basis(n):
     """Tangents ``(s, t)`` with ``(s, t, n)`` right-handed and orthonormal, for unit ``n`` (..., 3).
 
     Branchless construction of Duff et al. 2017 ("Building an orthonormal basis, revisited"),
-    continuous except across ``n_z = 0``."""
+    continuous except across ``n_z = 0``.
+
+    >>> n = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, -1.0, 0.0]])
+    >>> s, t = orthonormal_basis(n)
+    >>> bool(np.allclose(np.cross(s, t), n, rtol=0, atol=1e-15)), bool(np.allclose((s * n).sum(-1), 0.0, rtol=0, atol=1e-15))
+    (True, True)
+    """
     n = np.asarray(n, dtype=np.float64)
     x, y, z = n[..., 0], n[..., 1], n[..., 2]
     sign = np.where(z >= 0, 1.0, -1.0)

@@ -83,6 +83,15 @@ def add(top, bottom):
     Both layers must have the same number of orders (the caller pads with :func:`pad_orders`
     only for blocks that are genuinely zero beyond their order count, i.e. interfaces and media
     carry their own diagonal direct terms in every order).
+
+    Adding an empty layer (:func:`identity_layer`) above or below a layer leaves it unchanged:
+
+    >>> rng = np.random.default_rng(0)
+    >>> X = Layer(*(rng.uniform(0.0, 0.2, (2, 1, 3, 3)) for _ in range(4)))     # (L, C, h, h) blocks
+    >>> for Y in (add(identity_layer(2, 3), X), add(X, identity_layer(2, 3))):
+    ...     print(all(np.allclose(getattr(Y, b), getattr(X, b), rtol=0, atol=1e-15) for b in ("Rt", "Ttb", "Rb", "Tbt")))
+    True
+    True
     """
     h = top.Rb.shape[-1]
     eye = np.eye(h)

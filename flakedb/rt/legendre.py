@@ -181,7 +181,19 @@ class LegendreKernel:
 def legendre_moments_gauss(nodes, weights, values, tol=LEGENDRE_TOL, k_max=LEGENDRE_K_MAX):
     """χ_k (C, K + 1) of phase functions given at Gauss–Legendre ``nodes`` (G,) with ``weights`` (G,)
     on [−1, 1] (``values`` (C, G) in 1/sr): χ_k = 2π Σ_g w_g p(t_g) P_k(t_g), exact for the smooth p
-    up to the rule's degree (use G > k_max).  Truncated as :func:`legendre_moments`."""
+    up to the rule's degree (use G > k_max).  Truncated as :func:`legendre_moments`.
+
+    The Henyey–Greenstein phase function has the moments χ_k = g^k, and its series gives it back:
+
+    >>> from flakedb.rt.microflake import phase_HG
+    >>> t, w = np.polynomial.legendre.leggauss(64)
+    >>> chi, info = legendre_moments_gauss(t, w, phase_HG(t, 0.5))
+    >>> bool(np.allclose(chi[0, :6], 0.5 ** np.arange(6), rtol=0, atol=1e-12)), info["converged"]
+    (True, True)
+    >>> t2 = np.array([0.3, -0.7])
+    >>> bool(np.allclose(legendre_series(chi, t2)[0], phase_HG(t2, 0.5), rtol=1e-5, atol=0))
+    True
+    """
     values = np.atleast_2d(np.asarray(values, dtype=float))
     t = np.asarray(nodes, dtype=float)
     K = min(int(k_max), len(t) - 1)

@@ -481,7 +481,15 @@ def kernel_phi_bandwidth(alpha, mu_i, mu_o, eps=1e-6):
 def phase_HG(cos_theta, g):
     """Henyey-Greenstein phase function p(cos Θ) = (1 − g²)/(4π (1 + g² − 2 g cos Θ)^{3/2}) in 1/sr,
     normalised to 1 over the sphere, mean cosine g; cos Θ = ω_i·ω_o of propagation directions
-    (conventions: cos Θ = 1 is forward).  ``cos_theta`` and ``g`` (|g| < 1) broadcast."""
+    (conventions: cos Θ = 1 is forward).  ``cos_theta`` and ``g`` (|g| < 1) broadcast.
+
+    It integrates to 1 over the sphere and its mean cosine is g:
+
+    >>> t, w = np.polynomial.legendre.leggauss(64)
+    >>> p = phase_HG(t, 0.5)
+    >>> round(float(2 * np.pi * np.sum(w * p)), 12), round(float(2 * np.pi * np.sum(w * p * t)), 12)
+    (1.0, 0.5)
+    """
     g = np.asarray(g, dtype=float)
     if np.any(np.abs(g) >= 1.0):
         raise ValueError(f"phase_HG needs |g| < 1 (mean cosine), got {g!r}")

@@ -18,7 +18,18 @@ from flakedb.rt.layer import solve_regular
 
 def reflection_over(top, bottom_Rt):
     """R^t of ``top`` (a :class:`flakedb.rt.layer.Layer`) over an opaque bottom of reflection
-    ``bottom_Rt`` (None: a black bottom, R^t = top.R^t): paper eq. 4's first line, one LU solve."""
+    ``bottom_Rt`` (None: a black bottom, R^t = top.R^t): paper eq. 4's first line, one LU solve.
+
+    An empty layer over a body returns the body's reflection; with a black bottom, the top's own:
+
+    >>> from flakedb.rt.layer import Layer, identity_layer
+    >>> Rt = np.random.default_rng(0).uniform(0.0, 0.2, (2, 1, 3, 3))        # (L, C, h, h)
+    >>> bool(np.allclose(reflection_over(identity_layer(2, 3), Rt), Rt, rtol=0, atol=1e-15))
+    True
+    >>> top = Layer(Rt, Rt, Rt, Rt)
+    >>> reflection_over(top, None) is Rt
+    True
+    """
     if bottom_Rt is None:
         return top.Rt
     # orders where the bottom reflects nothing (beyond a slab's kernel orders only the direct beam

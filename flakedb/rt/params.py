@@ -15,7 +15,15 @@ ALPHA_MAX = 1.0
 
 def check_range(owner, field, value, lo=None, hi=None, lo_open=False, hint=""):
     """Refuse ``value`` (a number or an array of them) unless every entry is finite and in the range:
-    ``lo`` ≤ v (``lo_open``: lo < v) and v ≤ ``hi`` (None: unbounded).  Returns ``value`` unchanged."""
+    ``lo`` ≤ v (``lo_open``: lo < v) and v ≤ ``hi`` (None: unbounded).  Returns ``value`` unchanged.
+
+    >>> check_range("Slab", "thickness_um", 2.0, 0.0)
+    2.0
+    >>> check_range("Slab", "thickness_um", -1.0, 0.0)
+    Traceback (most recent call last):
+    ...
+    ValueError: Slab.thickness_um = -1.0 is outside the allowed range 0 ≤ thickness_um, finite
+    """
     try:
         a = np.asarray(value, dtype=float)
     except (TypeError, ValueError):

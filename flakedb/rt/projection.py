@@ -58,6 +58,15 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
     coefficients are those of its even samples), and the kept orders are computed in a last pass.
     Same azimuths, same values, same result (tested); about 3× the kernel evaluations, memory
     bounded by the budget.
+
+    A kernel μ_i μ_o (1 + ½ cos φ) has two orders, a_0 = μ_i μ_o and a_1 = ½ μ_i μ_o:
+
+    >>> mu = np.array([0.3, 1.0])
+    >>> c, info = project_kernel_basis(lambda mi, mo, phi: (mi * mo * (1 + 0.5 * np.cos(phi)))[None], None, mu, mu)
+    >>> c.shape, info["converged"]                              # (L, B, Ho, Hi)
+    ((2, 1, 2, 2), True)
+    >>> bool(np.allclose(c[:, 0], [np.outer(mu, mu), 0.5 * np.outer(mu, mu)], rtol=0, atol=1e-14))
+    True
     """
     budget = float(PROJECTION_BUDGET_BYTES if budget_bytes is None else budget_bytes)
     mu_i = np.asarray(mu_i, dtype=float)

@@ -302,7 +302,15 @@ def spectral_factors(table, rank_tol=RANK_TOL):
     table ≈ U @ basis, r the smallest rank whose largest entry error max |table − U basis| is
     ≤ rank_tol · max |table| (rank_tol ≤ 0 or None: the numerical rank, 1e-13 of s_1).  ``info``:
     ``rank``, ``numerical_rank``, ``singular_values`` (relative to s_1), ``max_error`` (the largest
-    entry error relative to max |table|), ``error_vs_rank`` (that error for r = 1 … the numerical rank)."""
+    entry error relative to max |table|), ``error_vs_rank`` (that error for r = 1 … the numerical rank).
+
+    A table that is one spectrum times one angular profile has rank 1:
+
+    >>> table = np.outer([1.0, 2.0, 3.0], [0.1, 0.2, 0.5, 0.3])            # (W, nc)
+    >>> U, basis, info = spectral_factors(table)
+    >>> info["rank"], U.shape, basis.shape, bool(np.allclose(U @ basis, table, rtol=0, atol=1e-13))
+    (1, (3, 1), (1, 4), True)
+    """
     table = np.atleast_2d(np.asarray(table, dtype=float))
     top = float(np.abs(table).max())
     if top == 0.0:

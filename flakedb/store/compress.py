@@ -228,6 +228,21 @@ def sqrt_svd_compress(R, rank):
 
     ``R``: (n, n, m) or (n², m), non-negative (tiny negatives from round-off are clipped to 0).
     Returns :class:`SqrtSVDFactors`; see the module docstring for the pair expansion.
+
+    A sharp lobe (a Gaussian band) at rank 3: the square-root factorisation stays non-negative, a plain
+    truncated SVD rings below zero; the storage is the paper's 1:5.53 at n = m = 200, r = 8:
+
+    >>> t = np.linspace(0.0, 1.0, 40)
+    >>> R = np.exp(-(((t[:, None] - t[None, :]) / 0.1) ** 2))
+    >>> f = sqrt_svd_compress(R, 3)
+    >>> f.U_pairs.shape, bool(reconstruct(f.U_pairs, f.V_pairs).min() >= 0.0)
+    ((40, 6), True)
+    >>> A, B = svd_compress(R, 3)
+    >>> bool((A @ B).min() < -0.1)
+    True
+    >>> s = storage_bytes(200, 200, 8)
+    >>> round(s["raw_MiB"], 2), round(s["compressed_MiB"], 2), round(s["ratio"], 2)
+    (61.04, 11.04, 5.53)
     """
     A = np.sqrt(np.clip(_as_matrix(R), 0.0, None))
     U, s, Vt = _svd_fixed_sign(A, rank)

@@ -3,7 +3,13 @@ without importing Zarr (``flakedb.store.versions`` re-exports both)."""
 
 
 class StoreError(RuntimeError):
-    """The store cannot give what was asked (no version, incomplete version, unknown species)."""
+    """The store cannot give what was asked (no version, incomplete version, unknown species).
+
+    A checksum failure is a store error, so ``except StoreError`` catches both:
+
+    >>> issubclass(StoreIntegrityError, StoreError), issubclass(StoreError, RuntimeError)
+    (True, True)
+    """
 
 
 class StoreIntegrityError(StoreError):
