@@ -10,11 +10,19 @@ import numpy as np
 
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.options import check_node_count, prediction_options
+from flakedb.colour.settings import (
+    DEFAULT_GEOMETRY_SET,
+    DEFAULT_ILLUMINANT,
+    DEFAULT_MAX_DE00,
+    DEFAULT_OBSERVER,
+    GEOMETRY_SETS,
+    resolve,
+)
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
 from flakedb.compose.store_context import StoreContext
 from flakedb.match.cxf import load_target
 from flakedb.match.fit import predict, resolution
-from flakedb.match.targets import GEOMETRY_SETS, TargetError, write_target
+from flakedb.match.targets import TargetError, write_target
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
@@ -56,17 +64,17 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
                    "or a CxF3 file (*.cxf) with multi-angle values.")
 @click.option("--cxf-object", "cxf_object", default=None,
               help="With a .cxf target: the object (Name or Id) to compare with, when the file has several.")
-@click.option("--observer", default=None, help="2 or 10 (default: the target's, else 2).")
-@click.option("--illuminant", default=None, help="D65, A, F11, ... (default: the target's, else D65).")
+@click.option("--observer", default=None, help=f"2 or 10 (default: the target's, else {DEFAULT_OBSERVER}).")
+@click.option("--illuminant", default=None, help=f"D65, A, F11, ... (default: the target's, else {DEFAULT_ILLUMINANT}).")
 @click.option("--metamerism", "mi_illuminant", default=None,
               help="Also report the metamerism index (CIEDE2000) for a change from --illuminant to this one "
                    "(needs a spectral target and a spectral recipe).")
-@click.option("--max-de", "max_de", default=1.0, show_default=True, type=float,
+@click.option("--max-de", "max_de", default=DEFAULT_MAX_DE00, show_default=True, type=float,
               help="dE00 limit at every geometry (a policy you choose; not a standard's number).")
 @click.option("--limit", "limits", multiple=True,
               help="Per-geometry dE00 limit, ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
-@click.option("--geometries", "geometry_set", default="e2539", show_default=True,
-              type=click.Choice(["e2194", "e2539"]),
+@click.option("--geometries", "geometry_set", default=DEFAULT_GEOMETRY_SET, show_default=True,
+              type=click.Choice(list(GEOMETRY_SETS)),
               help="Without --target: the geometries to predict (E2194: 45° illumination; E2539 adds 15°).")
 @click.option("--write-csv", "csv_out", default=None, type=click.Path(dir_okay=False),
               help="Write the prediction in the target CSV layout (so it can serve as a target).")
@@ -85,14 +93,20 @@ def compare(recipe, target_path, cxf_object, observer, illuminant, mi_illuminant
         version = open_store(store, rec, n, raw)
     except (RecipeError, CatalogError, TargetError, StoreError) as exc:
         raise FlakedbError(str(exc)) from exc
-    obs = observer or (target.observer if target else "2")
-    ill = illuminant or (target.illuminant if target else "D65")
     geoms = target.geometries if target is not None else np.asarray(GEOMETRY_SETS[geometry_set])
     try:
         pred = predict(rec, geoms, n, catalog, version, raw)
+        # the caller's conditions, else the target's, else the defaults (flakedb.colour.settings); a
+        # spectral target can be integrated under an RGB paint's D65/2° when none was asked for
+        free = target is None or (target.spectral and pred.mode == "rgb")
+        cs = resolve(observer or (None if free else target.observer),
+                     illuminant or (None if free else target.illuminant), geometry_set, pred.mode)
+        obs, ill = cs.observer, cs.illuminant
         lab = pred.lab(obs, ill)
     except (StoreError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
+    if cs.note:
+        click.echo(f"note: {cs.note}", err=True)
     click.echo(f"compare {rec.name} ({pred.mode}, n = {pred.n}; {obs}° observer, {ill})"
                + (f" with {target.source}" if target else ""))
     if csv_out:

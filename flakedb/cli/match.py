@@ -3,7 +3,8 @@
 Thin: the fit is :func:`flakedb.colour.match.match` (docs/colour-matching.md).  Writes DIR/NAME.yaml
 (the fitted recipe), composes it into DIR/NAME.{bsdf,h5,json} like `flakedb compose`, and writes
 DIR/NAME-prediction.csv (target layout) and DIR/NAME-match.json (the fit record).  Progress lines go
-to stderr, one per iteration.
+to stderr, one per iteration.  The last line says whether the target's tolerance was reached; exit
+status 1 when it was not.
 """
 
 import json
@@ -17,6 +18,8 @@ from flakedb.atomic import atomic_write_text
 from flakedb.cli.compare import open_store, parse_limits
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.options import check_node_count, prediction_options
+from flakedb.colour.settings import DEFAULT_MAX_DE00
+from flakedb.colour.tolerance import PerAngleLimits
 from flakedb.compose.orchestrate import OutputError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.match import fit as cm
@@ -39,12 +42,25 @@ from flakedb.store.versions import StoreError
 @click.option("--illuminant", default=None, help="D65, A, F11, ... (default: the target's).")
 @click.option("--weight", "weights", multiple=True,
               help="Weight of a geometry in the fit, ASPECULAR=W or ILLUM/ASPECULAR=W (default 1); repeatable.")
+@click.option("--max-de", "max_de", default=DEFAULT_MAX_DE00, show_default=True, type=float,
+              help="The target's tolerance: dE00 limit at every geometry (a policy; exit status 1 when the fit "
+                   "does not get within it).")
+@click.option("--limit", "limits", multiple=True,
+              help="Per-geometry dE00 limit, ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
 @click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=int,
               help="Most residual evaluations of the least-squares solver.")
 @prediction_options
-def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights, max_nfev, n, store, raw, catalog_path):
-    """Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target."""
+def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights, max_de, limits, max_nfev, n, store,
+          raw, catalog_path):
+    """Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target.
+
+    Exit status 0 when every geometry ends within the tolerance (--max-de / --limit), 1 when not (the
+    best fit is still written, and the reason is printed: the failing geometries and any parameter at a
+    bound), 2 for an error."""
     check_node_count(n)
+    if not (np.isfinite(max_de) and max_de > 0):
+        raise FlakedbError(f"--max-de {max_de:g}: must be a positive dE00")
+    scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))
 
     try:
         catalog = load_catalog(catalog_path)
@@ -74,7 +90,7 @@ def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights,
     try:
         res = cm.match(doc, target, observer=observer, illuminant=illuminant, weights=w, n=n, catalog=catalog,
                        store=version, raw=raw, log=lambda s: click.echo(f"  {s}", err=True), max_nfev=max_nfev,
-                       source=base)
+                       source=base, tolerance=scheme)
     except (RecipeError, StoreError, TargetError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
     click.echo(cm.format_match(res))
@@ -99,3 +115,6 @@ def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights,
     atomic_write_text(out / f"{name}-match.json", json.dumps(cm.match_report(res), indent=1) + "\n")
     click.echo(f"wrote {out / (name + '.yaml')} (fitted recipe), {comp.paths['bsdf']}, {comp.paths['h5']}, "
                f"{comp.paths['json']}, {out / (name + '-prediction.csv')} and {out / (name + '-match.json')}")
+    click.echo(res.outcome)
+    if not res.reached:
+        raise SystemExit(1)
