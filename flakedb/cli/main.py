@@ -19,6 +19,7 @@ from flakedb.process import tune_allocator
 #: before, docs/store.md "Timings").
 COMMANDS = {
     "build": "flakedb.cli.build:build",
+    "calibrate": "flakedb.cli.calibrate:calibrate",
     "compare": "flakedb.cli.compare:compare",
     "compose": "flakedb.cli.compose:compose",
     "demo": "flakedb.cli.demo:demo",
