@@ -3,11 +3,13 @@
 Defaults (docs/colorimetry.md, "Conditions"; every command's ``--observer``, ``--illuminant`` and
 ``--geometries`` fall back to these, and nothing else in the package names a default)
 --------------------------------------------------------------------------------------------------
-* **Observer: CIE 1964 10°** (:data:`DEFAULT_OBSERVER`).  Automotive colour control is done with
-  the 10° observer under D65: the multi-angle instruments' automotive set-ups and the OEM standards
-  built on ASTM E2194 / E2539 report D65/10° CIELAB, because a panel subtends more than 4° at
-  viewing distance (CIE 15:2004 §3: the 10° observer for fields larger than about 4°).  The 2°
-  observer stays available (``observer="2"``).
+* **Observer: CIE 1964 10°** (:data:`DEFAULT_OBSERVER`).  Colour control of painted panels is
+  reported under D65 with the 10° observer: a panel fills far more than the 4° field the 2°
+  observer is defined for (CIE 15:2004 recommends the 10° observer for fields larger than about
+  4°), and test laboratories state D65/10° as their default for coatings ("by standard, samples
+  are illuminated with D65 … 10° normal observers", ifo GmbH, colour measurement to DIN EN ISO/CIE
+  11664-4, https://www.ifo-gmbh.de/en/services/colour-measurement/).  No OEM specification's text
+  was available to cite; the 2° observer stays one option away (``observer="2"``).
 * **Illuminant: D65** (:data:`DEFAULT_ILLUMINANT`), CIE daylight.
 * **Tolerance: ΔE00 ≤ 1 at every geometry** (:data:`DEFAULT_MAX_DE00`), a policy, not a standard.
 * **Geometry set: "e2194"** (:data:`DEFAULT_GEOMETRY_SET`), the six 45° geometries every
