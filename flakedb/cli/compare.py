@@ -34,6 +34,7 @@ from flakedb.match.targets import TargetError, write_target
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
+from flakedb.render.plots import plot_multiangle
 from flakedb.store.versions import StoreError
 
 
@@ -202,8 +203,6 @@ def _outputs(comparisons, table_out, plot_dir, plot_format):
         batch.write_table(table_out, comparisons)
         click.echo(f"wrote {table_out} ({sum(len(c.geometries) for c in comparisons)} rows)")
     if plot_dir:
-        from flakedb.render.plots import plot_multiangle  # lazy: matplotlib only when plotting
-
         for c in comparisons:
             name = _safe(c.recipe) + ("" if c.target is None else f"--{_safe(Path(str(c.target)).stem)}")
             p = c.prediction
