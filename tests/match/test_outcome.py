@@ -48,3 +48,23 @@ def test_reachable_target_is_reached(target_text):
     assert res.reached and not res.at_bound and res.outcome.startswith("target reached"), res.outcome
     assert res.values[0] == pytest.approx(TRUE["VF_YELLOW"], rel=0.02)
     assert np.all(res.de_fit <= 0.2)
+
+
+def test_match_over_several_targets(tmp_path, target_text):
+    """Two targets in one command: one reachable within the bounds (yellow 0.003), one not (0.02); one fit
+    each into OUT/<target>/, a summary table, exit 1 because one is not reached."""
+    d = tmp_path / "targets"
+    d.mkdir()
+    (d / "far.csv").write_text(target_text)
+    near = recipe_from_doc(yaml.safe_load(_text(VF_METALLIC=TRUE["VF_METALLIC"], VF_YELLOW=0.003)))
+    pred = predict(near, E2194_GEOMETRIES)
+    (d / "near.csv").write_text(format_target(pred.geometries, reflectance=pred.rf, wavelength_nm=pred.wavelength_nm))
+    (tmp_path / "base.yaml").write_text(_text(VF_METALLIC=TRUE["VF_METALLIC"], VF_YELLOW="{fit: [0.001, 0.004]}"))
+    out = tmp_path / "out"
+    r = CliRunner().invoke(cli, ["match", str(tmp_path / "base.yaml"), "--target", str(d), "--out", str(out),
+                                 "--max-evaluations", "8"])
+    assert r.exit_code == 1 and "1 of 2 target(s) reached" in r.output, r.output
+    near_rep = json.loads((out / "near" / "two-species-match.json").read_text())
+    far_rep = json.loads((out / "far" / "two-species-match.json").read_text())
+    assert near_rep["reached"] and not far_rep["reached"]
+    assert near_rep["parameters"][0]["fitted"] == pytest.approx(0.003, rel=0.02)
