@@ -58,7 +58,8 @@ def calibrate(ladder, out_catalog, catalog_path, degree, n, max_nfev, report_pat
     click.echo(f"rms residual {res.rms_residual:.4g} ({res.n_compose} compose calls; {res.message.strip()})")
     if report_path:
         rec = {"species": species, "name": name, "parameters": [
-            {"name": p.name, "fitted": float(z), "stderr": float(se), "bounds": [p.lo, p.hi], "meaning": p.description}
+            {"name": p.name, "fitted": float(z), "stderr": float(se) if np.isfinite(se) else None,
+             "bounds": [p.lo, p.hi], "meaning": p.description}
             for p, z, se in zip(res.params, res.z, res.stderr)],
             "panels": [{"name": p.name, "dE00_catalogue": d0.tolist(), "dE00_calibrated": d1.tolist()}
                        for p, d0, d1 in zip(res.panels, res.de_start, res.de_fit)],

@@ -69,9 +69,13 @@ def test_dataframe_equals_the_table(ladder):
 
     recs = [load_recipe(ladder / "recipes" / f"r{k:02d}.yaml", cat) for k in (0, 5)]
     tgts = [read_target(ladder / "targets" / f"t{k:02d}.csv") for k in (0, 5, 9)]
+    t9 = tgts[2]                                   # a target with fewer geometries, in another order
+    keep = [4, 0, 2]
+    tgts[2] = type(t9)(geometries=t9.geometries[keep], reflectance=t9.reflectance[keep],
+                       wavelength_nm=t9.wavelength_nm, observer=t9.observer, illuminant=t9.illuminant, name="t09")
     comps = batch.compare_batch(recs, tgts, catalog=cat)
     df = batch.to_dataframe(comps)
-    assert isinstance(df, pd.DataFrame) and df.shape == (2 * 3 * 6, len(batch.LONG_COLUMNS))
+    assert isinstance(df, pd.DataFrame) and df.shape == (2 * (6 + 6 + 3), len(batch.LONG_COLUMNS))
     rows = batch.long_rows(comps)
     np.testing.assert_array_equal(df["dE00"].to_numpy(), [r["dE00"] for r in rows])
     s = batch.to_dataframe(comps, summary=True).set_index(["recipe", "target"])
