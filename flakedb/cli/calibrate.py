@@ -42,6 +42,11 @@ def calibrate(ladder, out_catalog, catalog_path, degree, n, max_nfev, report_pat
         species, name, free, panels = cal.read_ladder(ladder)
         if not Path(out_catalog).parent.is_dir():
             raise ValueError(f"--out-catalog {out_catalog}: the folder {Path(out_catalog).parent} does not exist")
+        if name in catalog["particles"]:
+            raise ValueError(f"{ladder}: name {name!r} is already a species of the base catalogue; choose another name")
+        if species not in catalog["particles"]:
+            raise ValueError(f"{ladder}: species {species!r} is not in the base catalogue "
+                             f"({', '.join(catalog['particles'])})")
         click.echo(f"calibrate {species} -> {name}: {len(panels)} panel(s) from {ladder}")
         res = cal.calibrate(species, panels, catalog, free=free, degree=degree, n=n, max_nfev=max_nfev,
                             log=lambda s: click.echo(f"  {s}", err=True))
