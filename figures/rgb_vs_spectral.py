@@ -17,6 +17,7 @@ import yaml
 
 from flakedb.atomic import atomic_write_text
 from flakedb.colour.colorimetry import delta_E_2000
+from flakedb.colour.settings import resolve
 from flakedb.compose.orchestrate import compose
 from flakedb.paint.catalog import load_catalog
 from flakedb.paint.recipe import parse_recipe
@@ -38,7 +39,8 @@ def compare(name, n, step_nm, catalog):
         recipe = parse_recipe(yaml.safe_dump(d, sort_keys=False), source=path, catalog=catalog)
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()
-            res = compose(recipe, tmp, n=n, catalog=catalog)
+            # both modes under D65/2°: the RGB mode's only conditions (flakedb.colour.settings)
+            res = compose(recipe, tmp, n=n, catalog=catalog, colour_settings=resolve("2", "D65", mode=mode))
             times[mode] = time.perf_counter() - t0
         labs[mode] = {g["aspecular_deg"]: (g["L"], g["a"], g["b"]) for g in res.report["geometries"]}
     angles = sorted(labs["spectral"])

@@ -1,23 +1,40 @@
 """`flakedb compare RECIPE --target T.csv`: a recipe's predicted multi-angle colour against a target.
 
+Several recipes and/or targets (files or folders, or ``--pairs LIST.csv``) make a batch: each recipe
+composed once, compared with every target (:mod:`flakedb.match.batch`), one summary table;
+``--table`` writes the per-geometry table, ``--plot DIR`` a figure per comparison
+(:func:`flakedb.render.plots.plot_multiangle`).
+
 Thin: prediction in :mod:`flakedb.match.fit`, differences and tolerances in
 :mod:`flakedb.colour.tolerance`, the CSV layout in :mod:`flakedb.match.targets`
 (docs/colour-matching.md).  Exit status 1 when a geometry fails its limit.
 """
+
+from pathlib import Path
 
 import click
 import numpy as np
 
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.options import check_node_count, prediction_options
+from flakedb.colour.settings import (
+    DEFAULT_GEOMETRY_SET,
+    DEFAULT_ILLUMINANT,
+    DEFAULT_MAX_DE00,
+    DEFAULT_OBSERVER,
+    GEOMETRY_SETS,
+    resolve,
+)
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
 from flakedb.compose.store_context import StoreContext
+from flakedb.match import batch
 from flakedb.match.cxf import load_target
 from flakedb.match.fit import predict, resolution
-from flakedb.match.targets import GEOMETRY_SETS, TargetError, write_target
+from flakedb.match.targets import TargetError, write_target
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
+from flakedb.render.plots import plot_multiangle
 from flakedb.store.versions import StoreError
 
 
@@ -54,33 +71,60 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
 
 
 @click.command()
-@click.argument("recipe", type=click.Path(dir_okay=False))
-@click.option("--target", "target_path", default=None, type=click.Path(dir_okay=False),
+@click.argument("recipes", nargs=-1, type=click.Path())
+@click.option("--target", "target_paths", multiple=True, type=click.Path(),
               help="Target CSV (docs/colour-matching.md): illumination_deg,aspecular_deg, then L*,a*,b* or R_<nm>; "
-                   "or a CxF3 file (*.cxf) with multi-angle values.")
+                   "or a CxF3 file (*.cxf) with multi-angle values; or a folder of them.  Repeatable: several "
+                   "recipes and/or targets make a batch (every recipe against every target, one table).")
+@click.option("--pairs", "pairs_path", default=None, type=click.Path(dir_okay=False),
+              help="Batch from a CSV list with header recipe,target[,cxf_object]: only the listed pairs.")
 @click.option("--cxf-object", "cxf_object", default=None,
               help="With a .cxf target: the object (Name or Id) to compare with, when the file has several.")
-@click.option("--observer", default=None, help="2 or 10 (default: the target's, else 2).")
-@click.option("--illuminant", default=None, help="D65, A, F11, ... (default: the target's, else D65).")
+@click.option("--observer", default=None, help=f"2 or 10 (default: the target's, else {DEFAULT_OBSERVER}).")
+@click.option("--illuminant", default=None, help=f"D65, A, F11, ... (default: the target's, else {DEFAULT_ILLUMINANT}).")
 @click.option("--metamerism", "mi_illuminant", default=None,
               help="Also report the metamerism index (CIEDE2000) for a change from --illuminant to this one "
                    "(needs a spectral target and a spectral recipe).")
-@click.option("--max-de", "max_de", default=1.0, show_default=True, type=float,
+@click.option("--max-de", "max_de", default=DEFAULT_MAX_DE00, show_default=True, type=float,
               help="dE00 limit at every geometry (a policy you choose; not a standard's number).")
 @click.option("--limit", "limits", multiple=True,
               help="Per-geometry dE00 limit, ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
-@click.option("--geometries", "geometry_set", default="e2539", show_default=True,
-              type=click.Choice(["e2194", "e2539"]),
+@click.option("--geometries", "geometry_set", default=DEFAULT_GEOMETRY_SET, show_default=True,
+              type=click.Choice(list(GEOMETRY_SETS)),
               help="Without --target: the geometries to predict (E2194: 45° illumination; E2539 adds 15°).")
 @click.option("--write-csv", "csv_out", default=None, type=click.Path(dir_okay=False),
-              help="Write the prediction in the target CSV layout (so it can serve as a target).")
+              help="Write the prediction in the target CSV layout (so it can serve as a target); one recipe.")
+@click.option("--table", "table_out", default=None, type=click.Path(dir_okay=False),
+              help="Write the per-geometry table (recipe, target, geometry, L*a*b*, dL*, dC*, dH*, dE00, pass) as CSV.")
+@click.option("--plot", "plot_dir", default=None, type=click.Path(file_okay=False),
+              help="Write a figure per comparison into this folder: L*, a*, b* vs aspecular angle with the target, "
+                   "a*b* travel, reflectance curves.")
+@click.option("--plot-format", "plot_format", default="png", show_default=True, type=click.Choice(["png", "pdf", "svg"]))
 @prediction_options
-def compare(recipe, target_path, cxf_object, observer, illuminant, mi_illuminant, max_de, limits, geometry_set, csv_out, n,
-            store, raw, catalog_path):
-    """Predict RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, dE00, pass/fail."""
+def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant, mi_illuminant, max_de, limits,
+            geometry_set, csv_out, table_out, plot_dir, plot_format, n, store, raw, catalog_path):
+    """Predict each RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, dE00, pass/fail.
+
+    RECIPES: recipe YAML files or folders of them.  Exit status 1 when a geometry fails its limit."""
     check_node_count(n)
-    if target_path is None and csv_out is None:
-        raise FlakedbError("give --target T.csv (compare) and/or --write-csv P.csv (write the prediction)")
+    if not recipes and pairs_path is None:
+        raise FlakedbError("give a RECIPE (or a folder of recipes, or --pairs LIST.csv)")
+    if not target_paths and csv_out is None and pairs_path is None and table_out is None:
+        raise FlakedbError("give --target T.csv (compare) and/or --write-csv P.csv / --table T.csv (write the prediction)")
+    if not (np.isfinite(max_de) and max_de > 0):
+        raise FlakedbError(f"--max-de {max_de:g}: must be a positive dE00")
+    try:
+        recipe_files = batch.expand_paths(recipes, (".yaml", ".yml"))
+        target_files = batch.expand_paths(target_paths, (".csv", ".cxf"))
+    except ValueError as exc:
+        raise FlakedbError(str(exc)) from exc
+    if pairs_path is not None or len(recipe_files) > 1 or len(target_files) > 1:
+        if csv_out or mi_illuminant:
+            raise FlakedbError("--write-csv and --metamerism take one recipe and one target; a batch writes --table")
+        return _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer, illuminant, max_de, limits,
+                              geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path)
+    recipe = str(recipe_files[0])
+    target_path = str(target_files[0]) if target_files else None
 
     try:
         catalog = load_catalog(catalog_path)
@@ -89,14 +133,20 @@ def compare(recipe, target_path, cxf_object, observer, illuminant, mi_illuminant
         version = open_store(store, rec, n, raw)
     except (RecipeError, CatalogError, TargetError, StoreError) as exc:
         raise FlakedbError(str(exc)) from exc
-    obs = observer or (target.observer if target else "2")
-    ill = illuminant or (target.illuminant if target else "D65")
     geoms = target.geometries if target is not None else np.asarray(GEOMETRY_SETS[geometry_set])
     try:
         pred = predict(rec, geoms, n, catalog, version, raw)
+        # the caller's conditions, else the target's, else the defaults (flakedb.colour.settings); a
+        # spectral target can be integrated under an RGB paint's D65/2° when none was asked for
+        free = target is None or (target.spectral and pred.mode == "rgb")
+        cs = resolve(observer or (None if free else target.observer),
+                     illuminant or (None if free else target.illuminant), geometry_set, pred.mode)
+        obs, ill = cs.observer, cs.illuminant
         lab = pred.lab(obs, ill)
     except (StoreError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
+    if cs.note:
+        click.echo(f"note: {cs.note}", err=True)
     click.echo(f"compare {rec.name} ({pred.mode}, n = {pred.n}; {obs}° observer, {ill})"
                + (f" with {target.source}" if target else ""))
     if csv_out:
@@ -109,6 +159,8 @@ def compare(recipe, target_path, cxf_object, observer, illuminant, mi_illuminant
         click.echo(f"{'illum':>6} {'aspec':>6} {'L*':>8} {'a*':>8} {'b*':>8}")
         for g, v in zip(geoms, lab):
             click.echo(f"{g[0]:5g}° {g[1]:5g}° {v[0]:8.2f} {v[1]:8.2f} {v[2]:8.2f}")
+        comp = batch.Comparison(rec.name, None, np.asarray(geoms, float), lab, None, obs, ill, None, None, pred)
+        _outputs([comp], table_out, plot_dir, plot_format)
         return
     try:
         lab_t = target.lab_under(obs, ill)
@@ -137,6 +189,80 @@ def compare(recipe, target_path, cxf_object, observer, illuminant, mi_illuminant
                    f"{ev['limit'][i]:6.2f}  {'yes' if ev['passed'][i] else 'NO'}"
                    + (f"  {mi[i]:.3f}" if mi is not None else ""))
     n_fail = int(np.sum(~ev["passed"]))
+    comp = batch.Comparison(rec.name, target.name or target.source, np.asarray(geoms, float), lab, lab_t, obs, ill, ev,
+                            d, pred, target.reflectance, target.wavelength_nm)
+    _outputs([comp], table_out, plot_dir, plot_format)
     click.echo(f"{ev['scheme']}: {'pass' if ev['passed_all'] else f'FAIL at {n_fail} geometr' + ('y' if n_fail == 1 else 'ies')}")
     if not ev["passed_all"]:
+        raise SystemExit(1)
+
+
+def _safe(name) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in str(name))[:80] or "x"
+
+
+def _outputs(comparisons, table_out, plot_dir, plot_format):
+    """The --table CSV and the --plot figures of some comparisons."""
+    if table_out:
+        batch.write_table(table_out, comparisons)
+        click.echo(f"wrote {table_out} ({sum(len(c.geometries) for c in comparisons)} rows)")
+    if plot_dir:
+        for c in comparisons:
+            name = _safe(c.recipe) + ("" if c.target is None else f"--{_safe(Path(str(c.target)).stem)}")
+            p = c.prediction
+            spectral = p.mode == "spectral"
+            tr = c.target_reflectance if spectral else None
+            path = plot_multiangle(Path(plot_dir) / f"{name}.{plot_format}", c.geometries, c.lab_pred, c.lab_target,
+                                   p.wavelength_nm if spectral else None, p.rf if spectral else None, tr,
+                                   c.target_wavelength_nm if tr is not None else None,
+                                   title=c.recipe + ("" if c.target is None else f" vs {c.target}"),
+                                   conditions=f"{c.illuminant}/{c.observer}°")
+            click.echo(f"wrote {path}")
+
+
+def _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer, illuminant, max_de, limits,
+                   geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path):
+    """Every recipe against every target (or the --pairs list): one summary table; exit 1 when any fails."""
+    scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))
+    try:
+        catalog = load_catalog(catalog_path)
+        if pairs_path is not None:
+            listed = batch.read_pair_list(pairs_path)
+            r_paths = list(dict.fromkeys([str(r) for r, _, _ in listed] + [str(r) for r in recipe_files]))
+            t_keys = list(dict.fromkeys([(str(t), o) for _, t, o in listed]))
+            pairs = [(r_paths.index(str(r)), t_keys.index((str(t), o))) for r, t, o in listed]
+        else:
+            r_paths = [str(r) for r in recipe_files]
+            t_keys = [(str(t), cxf_object if str(t).lower().endswith(".cxf") else None) for t in target_files]
+            pairs = None
+        recs = [load_recipe(r, catalog) for r in r_paths]
+        targets = [load_target(t, observer, illuminant, o) for t, o in t_keys]
+        names = [r.name for r in recs]
+        if len(set(names)) != len(names):
+            dup = sorted({x for x in names if names.count(x) > 1})
+            raise FlakedbError(f"recipes share a name ({', '.join(dup)}): give each recipe its own name: field")
+        click.echo(f"compare: {len(recs)} recipe(s), {len(targets)} target(s)"
+                   + (f", {len(pairs)} listed pair(s)" if pairs is not None else ""))
+        comps = batch.compare_batch(recs, targets, pairs, observer, illuminant, scheme, geometry_set, n, catalog,
+                                    store_for=(lambda r: open_store(store, r, n, raw)) if store else None, raw=raw,
+                                    log=lambda s: click.echo(f"  {s}", err=True))
+    except (RecipeError, CatalogError, TargetError, StoreError, ValueError) as exc:
+        raise FlakedbError(str(exc)) from exc
+    if not targets:
+        rows = batch.long_rows(comps)
+        click.echo(f"{'recipe':<28} {'illum':>6} {'aspec':>6} {'L*':>8} {'a*':>8} {'b*':>8}")
+        for r in rows:
+            click.echo(f"{r['recipe'][:28]:<28} {r['illumination_deg']:5g}° {r['aspecular_deg']:5g}° {r['L']:8.2f} "
+                       f"{r['a']:8.2f} {r['b']:8.2f}")
+        _outputs(comps, table_out, plot_dir, plot_format)
+        return
+    summary = batch.summary_rows(comps)
+    click.echo(f"{'recipe':<28} {'target':<28} {'max dE00':>9} {'worst':>10} {'failed':>7}  ok")
+    for r in summary:
+        click.echo(f"{r['recipe'][:28]:<28} {str(r['target'])[:28]:<28} {r['max_dE00']:9.2f} {r['worst_geometry']:>10} "
+                   f"{r['failed']:>4}/{r['geometries']:<2}  {'yes' if r['passed'] else 'NO'}")
+    _outputs(comps, table_out, plot_dir, plot_format)
+    n_fail = sum(1 for r in summary if not r["passed"])
+    click.echo(f"{scheme.name}: {len(summary) - n_fail} of {len(summary)} pair(s) pass")
+    if n_fail:
         raise SystemExit(1)

@@ -19,6 +19,8 @@ from flakedb.cli.failures import probe_writable, remove_created_dirs
 from flakedb.cli.options import RAW_HELP, check_node_count
 from flakedb.cli.progress import StageProgress
 from flakedb.colour.gamut import RGB_SPACES
+from flakedb.colour.settings import DEFAULT_GEOMETRY_SET, DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, GEOMETRY_SETS, resolve
+from flakedb.colour.tolerance import illuminant_name
 from flakedb.compose.orchestrate import OutputError, UnphysicalResultError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
@@ -46,6 +48,13 @@ from flakedb.store.versions import StoreError, StoreIntegrityError
 @click.option("--rgb-space", "rgb_space", default="srgb", show_default=True, type=click.Choice(list(RGB_SPACES)),
               help="Working space of the RGB .bsdf: linear sRGB (what .bsdf readers assume), or the wide-gamut "
                    "linear Rec.2020 / ACEScg (tell the renderer; docs/renderers.md).  Recorded in the metadata.")
+@click.option("--observer", default=None,
+              help=f"Colour report observer, 2 or 10 (default {DEFAULT_OBSERVER}; an RGB-mode recipe has 2 only).")
+@click.option("--illuminant", default=None,
+              help=f"Colour report illuminant, D65, A, F11, ... (default {DEFAULT_ILLUMINANT}).")
+@click.option("--geometries", "geometry_set", default=DEFAULT_GEOMETRY_SET, show_default=True,
+              type=click.Choice(list(GEOMETRY_SETS)),
+              help="Colour report geometries: e2194 (45° illumination) or e2539 (adds 15° illumination).")
 @click.option("--quiet", is_flag=True, help="No progress lines on stderr (warnings are still printed).")
 @click.option("--build-missing", is_flag=True,
               help="When the store cannot serve the recipe (a species, α, n or band range it lacks), build "
@@ -54,17 +63,23 @@ from flakedb.store.versions import StoreError, StoreIntegrityError
 @click.option("--allow-unphysical", is_flag=True,
               help="Write the result even when the self-check finds an albedo above 1 + 1e-3, a negative BSDF "
                    "value or unconverged Fourier orders (printed as loud warnings); without it that is an error.")
-def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, build_missing, allow_unphysical):
+def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, observer, illuminant, geometry_set, quiet,
+            build_missing, allow_unphysical):
     """Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report."""
     check_node_count(n)
 
     try:
         catalog = load_catalog(catalog_path)
         rec = load_recipe(recipe, catalog)
+        colour = resolve(observer, illuminant, geometry_set, rec.mode)
+        if illuminant is not None:
+            illuminant_name(illuminant)
         check_output_dir(out_dir)
         probe_writable(out_dir)
-    except (RecipeError, CatalogError, OutputError) as exc:
+    except (RecipeError, CatalogError, OutputError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
+    if colour.note:
+        click.echo(f"note: {colour.note}", err=True)
     for w in rec.warnings:
         click.echo(f"warning: {w}", err=True)
 
@@ -81,7 +96,8 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, buil
             with remove_created_dirs(out_dir):
                 return compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog,
                                       log=lambda s: click.echo(f"  {s}"), store=store, rgb_space=rgb_space,
-                                      progress=progress, allow_unphysical=allow_unphysical)
+                                      progress=progress, allow_unphysical=allow_unphysical,
+                                      colour_settings=colour)
         finally:
             bar.close()
 

@@ -19,6 +19,7 @@ from flakedb.process import tune_allocator
 #: before, docs/store.md "Timings").
 COMMANDS = {
     "build": "flakedb.cli.build:build",
+    "calibrate": "flakedb.cli.calibrate:calibrate",
     "compare": "flakedb.cli.compare:compare",
     "compose": "flakedb.cli.compose:compose",
     "demo": "flakedb.cli.demo:demo",
@@ -36,7 +37,8 @@ COMMANDS = {
 #: missing here is imported to get it.
 SHORT_HELP = {
     'build': 'Build (or reuse) the projected-kernel store and point `latest` at it.',
-    'compare': "Predict RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, dE00, pass/fail.",
+    'calibrate': 'Calibrate a catalogue species from a masstone / let-down ladder (LADDER: a manifest YAML).',
+    'compare': "Predict each RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, dE00, pass/fail.",
     'compose': 'Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report.',
     'demo': 'Run the end-to-end demo with what flakedb can do today.',
     'export-mitsuba': "Export a Fourier .bsdf / flakedb .h5 FILE to Mitsuba 3's `measured` format (front-side reflection only).",

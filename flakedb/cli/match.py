@@ -3,7 +3,9 @@
 Thin: the fit is :func:`flakedb.colour.match.match` (docs/colour-matching.md).  Writes DIR/NAME.yaml
 (the fitted recipe), composes it into DIR/NAME.{bsdf,h5,json} like `flakedb compose`, and writes
 DIR/NAME-prediction.csv (target layout) and DIR/NAME-match.json (the fit record).  Progress lines go
-to stderr, one per iteration.
+to stderr, one per iteration.  The last line says whether the target's tolerance was reached; exit
+status 1 when it was not.  Several targets (repeated --target, or a folder): one fit per target into
+DIR/<target file name>/, then a summary table; exit status 1 when any target is not reached.
 
 A target row at the specular geometry is refused before any fit, naming the file and the row:
 
@@ -33,8 +35,11 @@ from flakedb.atomic import atomic_write_text
 from flakedb.cli.compare import open_store, parse_limits
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.options import check_node_count, prediction_options
+from flakedb.colour.settings import DEFAULT_MAX_DE00, resolve
+from flakedb.colour.tolerance import PerAngleLimits
 from flakedb.compose.orchestrate import OutputError, check_output_dir
 from flakedb.compose.orchestrate import compose as compose_recipe
+from flakedb.match import batch
 from flakedb.match import fit as cm
 from flakedb.match.cxf import load_target
 from flakedb.match.targets import TargetError, write_target
@@ -45,8 +50,9 @@ from flakedb.store.versions import StoreError
 
 @click.command()
 @click.argument("base", type=click.Path(dir_okay=False))
-@click.option("--target", "target_path", required=True, type=click.Path(dir_okay=False),
-              help="Target CSV, or a CxF3 file (*.cxf) with multi-angle values (docs/colour-matching.md).")
+@click.option("--target", "target_paths", required=True, multiple=True, type=click.Path(),
+              help="Target CSV, or a CxF3 file (*.cxf) with multi-angle values (docs/colour-matching.md), or a "
+                   "folder of them; repeatable: one fit per target, each into OUT/<target name>/, one summary table.")
 @click.option("--cxf-object", "cxf_object", default=None,
               help="With a .cxf target: the object (Name or Id) to match, when the file has several.")
 @click.option("--out", "out_dir", default="out", show_default=True, type=click.Path(),
@@ -55,12 +61,25 @@ from flakedb.store.versions import StoreError
 @click.option("--illuminant", default=None, help="D65, A, F11, ... (default: the target's).")
 @click.option("--weight", "weights", multiple=True,
               help="Weight of a geometry in the fit, ASPECULAR=W or ILLUM/ASPECULAR=W (default 1); repeatable.")
+@click.option("--max-de", "max_de", default=DEFAULT_MAX_DE00, show_default=True, type=float,
+              help="The target's tolerance: dE00 limit at every geometry (a policy; exit status 1 when the fit "
+                   "does not get within it).")
+@click.option("--limit", "limits", multiple=True,
+              help="Per-geometry dE00 limit, ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
 @click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=int,
               help="Most residual evaluations of the least-squares solver.")
 @prediction_options
-def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights, max_nfev, n, store, raw, catalog_path):
-    """Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target."""
+def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights, max_de, limits, max_nfev, n, store,
+          raw, catalog_path):
+    """Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target.
+
+    Exit status 0 when every geometry ends within the tolerance (--max-de / --limit), 1 when not (the
+    best fit is still written, and the reason is printed: the failing geometries and any parameter at a
+    bound), 2 for an error."""
     check_node_count(n)
+    if not (np.isfinite(max_de) and max_de > 0):
+        raise FlakedbError(f"--max-de {max_de:g}: must be a positive dE00")
+    scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))
 
     try:
         catalog = load_catalog(catalog_path)
@@ -72,13 +91,42 @@ def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights,
             raise RecipeError(base, [f"YAML syntax error: {exc}"]) from None
         if not isinstance(doc, dict):
             raise RecipeError(base, ["a recipe is a YAML mapping"])
-        target = load_target(target_path, observer, illuminant, cxf_object)
+        files = batch.expand_paths(target_paths, (".csv", ".cxf"))
+        targets = [load_target(t, observer, illuminant, cxf_object if str(t).lower().endswith(".cxf") else None)
+                   for t in files]
         check_output_dir(out_dir)
         params = cm.find_fit_parameters(doc, base)
         rec0 = cm.recipe_from_doc(cm.substitute(doc, params, [p.start for p in params]), base, catalog)
         version = open_store(store, rec0, n, raw)
-    except (RecipeError, CatalogError, TargetError, OutputError, StoreError) as exc:
+    except (RecipeError, CatalogError, TargetError, OutputError, StoreError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
+    if len(targets) == 1:
+        res = _fit_one(doc, base, params, targets[0], Path(out_dir), observer, illuminant, weights, scheme, max_nfev, n,
+                       catalog, version, raw, store)
+        if not res.reached:
+            raise SystemExit(1)
+        return
+    stems = [Path(str(f)).stem for f in files]
+    if len(set(stems)) != len(stems):
+        raise FlakedbError("two targets have the same file name: each fit goes to OUT/<target file name>/")
+    results = []
+    for k, (t, stem) in enumerate(zip(targets, stems), 1):
+        click.echo(f"--- target {k}/{len(targets)}: {t.source}")
+        results.append(_fit_one(doc, base, params, t, Path(out_dir) / stem, observer, illuminant, weights, scheme,
+                                max_nfev, n, catalog, version, raw, store))
+    click.echo(f"{'target':<32} {'max dE00 start':>14} {'max dE00 fit':>13}  reached  at a bound")
+    for t, r in zip(targets, results):
+        click.echo(f"{str(t.source)[-32:]:<32} {r.de_start.max():>14.3f} {r.de_fit.max():>13.3f}  "
+                   f"{'yes' if r.reached else 'NO ':<7}  {', '.join(n_ for n_, _, _ in r.at_bound) or '-'}")
+    n_bad = sum(not r.reached for r in results)
+    click.echo(f"{len(results) - n_bad} of {len(results)} target(s) reached")
+    if n_bad:
+        raise SystemExit(1)
+
+
+def _fit_one(doc, base, params, target, out, observer, illuminant, weights, scheme, max_nfev, n, catalog, version, raw,
+             store):
+    """One fit and its files (module docstring); returns the MatchResult."""
     w = np.ones(len(target.geometries))
     for (il, asp), v in parse_limits(weights).items():
         hit = [i for i, g in enumerate(target.geometries) if g[0] == il and g[1] == asp]
@@ -90,11 +138,10 @@ def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights,
     try:
         res = cm.match(doc, target, observer=observer, illuminant=illuminant, weights=w, n=n, catalog=catalog,
                        store=version, raw=raw, log=lambda s: click.echo(f"  {s}", err=True), max_nfev=max_nfev,
-                       source=base)
+                       source=base, tolerance=scheme)
     except (RecipeError, StoreError, TargetError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
     click.echo(cm.format_match(res))
-    out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     name = res.fitted_doc["name"]
 
@@ -103,7 +150,8 @@ def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights,
     atomic_write_text(out / f"{name}.yaml", text)
     rec = cm.recipe_from_doc(res.fitted_doc, str(out / f"{name}.yaml"), catalog)
     try:
-        comp = compose_recipe(rec, out, n=res.n, raw=raw, catalog=catalog, store=version)
+        comp = compose_recipe(rec, out, n=res.n, raw=raw, catalog=catalog, store=version,
+                              colour_settings=resolve(res.observer, res.illuminant, mode=rec.mode))
     except StoreError as exc:
         raise FlakedbError(str(exc)) from exc
     p = res.prediction
@@ -115,3 +163,5 @@ def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights,
     atomic_write_text(out / f"{name}-match.json", json.dumps(cm.match_report(res), indent=1) + "\n")
     click.echo(f"wrote {out / (name + '.yaml')} (fitted recipe), {comp.paths['bsdf']}, {comp.paths['h5']}, "
                f"{comp.paths['json']}, {out / (name + '-prediction.csv')} and {out / (name + '-match.json')}")
+    click.echo(res.outcome)
+    return res

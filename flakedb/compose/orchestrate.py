@@ -365,10 +365,12 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
 
 
 def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=None, verify=True,
-            rgb_space="srgb", progress=None, allow_unphysical=False) -> ComposeResult:
+            rgb_space="srgb", progress=None, allow_unphysical=False, colour_settings=None) -> ComposeResult:
     """Compose ``recipe`` (a :class:`flakedb.paint.recipe.Recipe`) into ``out_dir``; see the module docstring.
 
     ``n`` overrides the recipe's resolution; ``log`` (callable taking a line) reports progress.
+    ``colour_settings``: the colour report's observer, illuminant and geometry set
+    (:class:`flakedb.colour.settings.ColourSettings`; None: the defaults for the paint's mode).
     ``store``: None (species optics computed directly from the catalogue), a store URL or an open
     :class:`flakedb.store.versions.StoreVersion`: the catalogue species' reflectance functions come from its
     latest complete version (checksums verified first with ``verify``; compressed factors, or the
@@ -390,7 +392,7 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     if paint.mode == "spectral" and file_table.channels != ("mono",):
         file_table.metadata["channels_from"] = f"spectral bands -> CIE 1931 2deg / D65 -> {gamut_info['rgb_space']}"
     report = colour_report(table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
-                           paint.eta if paint.delta else None, recipe.name)
+                           paint.eta if paint.delta else None, recipe.name, settings=colour_settings)
     t["table_report"] = time.perf_counter() - t0 + t.pop("table")
     h5_md = {
         "recipe_text": recipe.text, "recipe_source": recipe.source,

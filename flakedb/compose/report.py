@@ -1,11 +1,13 @@
 """The colour report of a composed paint: pure functions, arrays and dicts in, dicts and text out.
 
-What a paint lab reads (docs/model.md §6): CIELAB (D65, CIE 1931 2°) at the multi-angle
-spectrophotometer geometries, the flop index, and the directional albedo per incident angle.
+What a paint lab reads (docs/model.md §6): CIELAB at the multi-angle spectrophotometer geometries,
+the flop index, and the directional albedo per incident angle.  The observer, illuminant and
+geometry set are a :class:`flakedb.colour.settings.ColourSettings` (default D65 / CIE 1964 10°, the
+E2194 45° set; an RGB-mode paint has D65 / 2° only: :func:`flakedb.colour.settings.resolve`).
 
 Geometry (ASTM E2194 / X-Rite MA-T instruments)
 -----------------------------------------------
-Illumination at 45° from the normal.  The aspecular angle γ is measured from the specular direction
+Illumination at 45° from the normal (the E2539 set adds 15°: any θ_i below works alike).  The aspecular angle γ is measured from the specular direction
 towards the illuminator, so the detector looks from θ_v = 45° − γ off the normal: on the specular
 side for θ_v > 0, on the illuminator's side for θ_v < 0.  In flakedb's conventions
 (:mod:`flakedb.conventions`: propagation directions, μ > 0 travels down, φ_d = 0 mirror/forward):
@@ -19,8 +21,8 @@ in μ_i and μ_o over the file nodes, docs/bsdf-format.md "Evaluation"), here in
 full-precision table (:func:`eval_table`); it agrees with :meth:`flakedb.bsdf.FourierBSDF.eval` of
 the written ``.h5`` (tested).
 
-Colour: spectral channels → XYZ by :func:`flakedb.colour.colorimetry.reflectance_to_XYZ` (Y = 1 for the
-perfect white); RGB-mode channels (white-normalised linear sRGB) → XYZ by the exact inverse of
+Colour: spectral channels → XYZ by :func:`flakedb.colour.tolerance.reflectance_to_XYZ` under the
+settings' observer and illuminant (Y = 1 for the perfect white); RGB-mode channels (white-normalised linear sRGB) → XYZ by the exact inverse of
 :func:`flakedb.colour.colorimetry.XYZ_to_linear_sRGB` after undoing the white normalisation; a mono channel
 is a grey (XYZ = v · white).  CIELAB relative to the white integrated on the same grid, so the
 perfect white is exactly L* = 100, a* = b* = 0.
@@ -55,6 +57,10 @@ from flakedb.colour.colorimetry import (
     spectral_grid,
     white_XYZ,
 )
+from flakedb.colour.settings import FLOP_GEOMETRIES, ColourSettings, resolve
+from flakedb.colour.tolerance import observer_name
+from flakedb.colour.tolerance import reflectance_to_XYZ as reflectance_to_XYZ_under
+from flakedb.colour.tolerance import white_XYZ as white_XYZ_under
 from flakedb.optics.fresnel import fresnel_dielectric
 
 #: Illumination zenith angle (degrees) of the multi-angle geometries.
@@ -111,13 +117,18 @@ def eval_table(table, mu_i, mu_o, phi_d) -> np.ndarray:
     return np.einsum("...cl,...l->...c", out, cos)
 
 
-def channels_to_XYZ(values, mode, wavelength_nm=None) -> np.ndarray:
-    """XYZ (Y = 1 for white) of reflectance-type values (..., C) in a paint's channels."""
+def channels_to_XYZ(values, mode, wavelength_nm=None, settings: ColourSettings | None = None) -> np.ndarray:
+    """XYZ (Y = 1 for white) of reflectance-type values (..., C) in a paint's channels.
+
+    ``settings``: the observer and illuminant of a spectral paint (None: D65 / 2°, the package's
+    RGB-mode conditions, which is what the RGB and mono channels are defined under anyway)."""
     v = np.asarray(values, float)
     if v.shape[-1] == 1 and mode in ("spectral", "rgb") and wavelength_nm is not None:
         # a wavelength-independent table (e.g. an index-matched coat alone): the same value everywhere
         v = np.broadcast_to(v, v.shape[:-1] + ((len(wavelength_nm),) if mode == "spectral" else (3,)))
     if mode == "spectral":
+        if settings is not None:
+            return reflectance_to_XYZ_under(v, wavelength_nm, settings.observer, settings.illuminant)
         return reflectance_to_XYZ(v, wavelength_nm)
     if mode == "rgb":
         return rgb_mode_to_XYZ(v, wavelength_nm)
@@ -127,10 +138,12 @@ def channels_to_XYZ(values, mode, wavelength_nm=None) -> np.ndarray:
     raise ValueError(f"unknown mode {mode!r}")
 
 
-def reference_white(mode, wavelength_nm=None) -> np.ndarray:
+def reference_white(mode, wavelength_nm=None, settings: ColourSettings | None = None) -> np.ndarray:
     """XYZ of the perfect white in the same integration as :func:`channels_to_XYZ`."""
     if mode == "mono":
         return white_XYZ(spectral_grid(*MONO_WHITE_GRID))
+    if mode == "spectral" and settings is not None:
+        return white_XYZ_under(wavelength_nm, settings.observer, settings.illuminant)
     return white_XYZ(wavelength_nm)
 
 
@@ -180,50 +193,60 @@ def directional_albedo(x_nodes, albedo_nodes, theta_deg, delta_eta=None):
     return total, total - mirror[:, None], mirror
 
 
-def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=None, name=""):
+def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=None, name="",
+                  settings: ColourSettings | None = None):
     """The colour report (a JSON-able dict) of a paint's full-precision ``table`` (channels of ``mode``).
 
     ``x_nodes``/``albedo_nodes``: the solver's positive nodes (h,) and tabulated albedo (C, h) at them.
+    ``settings``: observer, illuminant and geometry set (None: :func:`flakedb.colour.settings.resolve`'s
+    defaults for ``mode``); a spectral paint is reported under them, an RGB one under D65 / 2°.
     """
-    white = reference_white(mode, wavelength_nm)
-    geoms = []
+    if settings is None:
+        settings = resolve(mode=mode)
+    elif mode == "rgb":  # an RGB paint has one set of conditions: refuse others, keep the geometry set
+        settings = resolve(settings.observer, settings.illuminant, settings.geometry_set, mode)
+    white = reference_white(mode, wavelength_nm, settings)
     rows = []
-    for g in ASPECULAR_DEG:
-        mu_i, mu_o, phi_d, tv = multiangle_geometry(g)
+    for th_i, g in settings.geometries:
+        mu_i, mu_o, phi_d, tv = multiangle_geometry(g, th_i)
         f_cos = eval_table(table, mu_i, mu_o, phi_d)  # (C,)
         rf = np.pi * f_cos / abs(mu_o)
-        XYZ = channels_to_XYZ(rf, mode, wavelength_nm)
+        XYZ = channels_to_XYZ(rf, mode, wavelength_nm, settings)
         lab = XYZ_to_Lab(XYZ, white=white)
         rgb = XYZ_to_linear_sRGB(XYZ)
-        geoms.append((g, tv, mu_i, mu_o, phi_d, rf, XYZ, lab, rgb))
         rows.append({
-            "aspecular_deg": g, "theta_view_deg": abs(tv),
+            "illumination_deg": float(th_i), "aspecular_deg": g, "theta_view_deg": abs(tv),
             "side": "specular" if tv > 0 else ("normal" if tv == 0 else "illuminator"),
             "mu_i": float(mu_i), "mu_o": float(mu_o), "phi_d": float(phi_d),
             "L": float(lab[0]), "a": float(lab[1]), "b": float(lab[2]),
             "XYZ": [float(v) for v in XYZ], "linear_sRGB": [float(v) for v in rgb],
             "reflectance_factor": [float(v) for v in rf],
         })
-    Ls = {r["aspecular_deg"]: r["L"] for r in rows}
-    fi = flop_index(Ls[15.0], Ls[45.0], Ls[110.0])
-    fi_std = flop_index_standard(Ls[15.0], Ls[45.0], Ls[110.0])
+    Ls = {(r["illumination_deg"], r["aspecular_deg"]): r["L"] for r in rows}
+    L15, L45, L110 = (Ls[g] for g in FLOP_GEOMETRIES)
+    fi = flop_index(L15, L45, L110)
+    fi_std = flop_index_standard(L15, L45, L110)
     if fi is None:
         note = "undefined: L*45 = 0"
     elif fi < 0:
-        note = (f"reverse flop: L*15 ({Ls[15.0]:.2f}) < L*110 ({Ls[110.0]:.2f}); the X-Rite formula is defined for "
+        note = (f"reverse flop: L*15 ({L15:.2f}) < L*110 ({L110:.2f}); the X-Rite formula is defined for "
                 f"L*15 >= L*110, so the standard value is 0 (signed extension {fi:.2f})")
     else:
         note = "L*15 >= L*110: the standard X-Rite value (>= 0; larger = stronger lightness flop)"
     tot, tab, mirror = directional_albedo(x_nodes, albedo_nodes, ALBEDO_THETA_DEG, delta_eta)
-    Y_tot = channels_to_XYZ(tot, mode, wavelength_nm)[:, 1] / white[1]
-    Y_tab = channels_to_XYZ(tab, mode, wavelength_nm)[:, 1] / white[1]
+    Y_tot = channels_to_XYZ(tot, mode, wavelength_nm, settings)[:, 1] / white[1]
+    Y_tab = channels_to_XYZ(tab, mode, wavelength_nm, settings)[:, 1] / white[1]
     albedo = [{"theta_i_deg": t, "albedo_Y": float(yt), "tabulated_Y": float(yb), "mirror": float(m),
                "albedo_channels": [float(v) for v in tt]}
               for t, yt, yb, m, tt in zip(ALBEDO_THETA_DEG, Y_tot, Y_tab, mirror, tot)]
-    return {
+    rep = {
         "name": name,
         "mode": mode,
-        "colour": "CIELAB (CIE 1976), illuminant D65, CIE 1931 2° observer; white = perfect diffuser",
+        "colour": (f"CIELAB (CIE 1976), illuminant {settings.illuminant}, {observer_name(settings.observer)}; "
+                   f"white = perfect diffuser"),
+        "observer": settings.observer,
+        "illuminant": settings.illuminant,
+        "geometry_set": settings.geometry_set,
         "illumination_deg": ILLUMINATION_DEG,
         "reflectance_factor": "pi * f(omega_i, omega_o), tabulated part (no aspecular angle hits the mirror delta)",
         "geometries": rows,
@@ -231,21 +254,30 @@ def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=N
         "flop_index_signed": fi,
         "flop_note": note,
         "flop_index_formula": ("X-Rite: 2.69 (L*15 - L*110)^1.11 / L*45^0.86, >= 0; defined for L*15 >= L*110 "
-                               "(0 for a reverse flop; flop_index_signed keeps the sign of L*15 - L*110)"),
+                               "(0 for a reverse flop; flop_index_signed keeps the sign of L*15 - L*110); "
+                               "45 deg illumination"),
         "albedo": albedo,
-        "albedo_note": ("directional albedo (reflected flux / incident flux) from above; albedo_Y is its luminance "
-                        "(Y, D65) including the mirror term 'mirror' = F(theta_i) of a smooth coat"),
+        "albedo_note": (f"directional albedo (reflected flux / incident flux) from above; albedo_Y is its luminance "
+                        f"(Y, {settings.label}) including the mirror term 'mirror' = F(theta_i) of a smooth coat"),
         "wavelength_nm": None if wavelength_nm is None else [float(w) for w in wavelength_nm],
     }
+    if settings.note:
+        rep["colour_note"] = settings.note
+    return rep
 
 
 def format_report(rep) -> str:
     """The colour report as the text table ``flakedb compose`` prints."""
-    lines = [f"colour report: {rep['name']} ({rep['mode']} mode; CIELAB D65/2°, illumination {rep['illumination_deg']:g}°)",
-             f"{'aspecular':>10} {'view':>12} {'L*':>8} {'a*':>8} {'b*':>8}"]
+    cond = f"{rep.get('illuminant', 'D65')}/{rep.get('observer', '2')}°"
+    lines = [f"colour report: {rep['name']} ({rep['mode']} mode; CIELAB {cond}, geometries "
+             f"{rep.get('geometry_set', 'e2194').upper()})",
+             f"{'illum':>6} {'aspecular':>10} {'view':>12} {'L*':>8} {'a*':>8} {'b*':>8}"]
+    if rep.get("colour_note"):
+        lines.insert(1, f"note: {rep['colour_note']}")
     for r in rep["geometries"]:
         view = f"{r['theta_view_deg']:g}° {r['side'][:5]}"
-        lines.append(f"{r['aspecular_deg']:>9g}° {view:>12} {r['L']:8.2f} {r['a']:8.2f} {r['b']:8.2f}")
+        lines.append(f"{r.get('illumination_deg', ILLUMINATION_DEG):>5g}° {r['aspecular_deg']:>9g}° {view:>12} "
+                     f"{r['L']:8.2f} {r['a']:8.2f} {r['b']:8.2f}")
     fi = rep["flop_index"]
     if fi is None:
         lines.append("flop index (X-Rite): undefined (L*45 = 0)")

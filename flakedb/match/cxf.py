@@ -25,6 +25,9 @@ What is read (docs/colour-matching.md, section "CxF3"; the element names are the
 One object is one target: the object named by ``object_name`` (its ``@Name`` or ``@Id``), or the
 only object that has multi-angle values.  Spectra, when every geometry has one, are what is
 compared (any observer and illuminant); CIELab values are used only when there are no spectra.
+**Observer and illuminant**: the conditions a spectral target is compared under are the caller's
+when given, else those its specifications' ``TristimulusSpec`` state (a 10° file is compared at
+10°), else the defaults of :mod:`flakedb.colour.settings` (recorded in ``notes['assumed']``).
 The result is the same :class:`flakedb.match.targets.Target` the CSV reader returns.
 
 Parsing uses the standard library's expat parser (no DTD loading, no external entities; expat
@@ -38,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flakedb.colour.settings import DEFAULT_ILLUMINANT, DEFAULT_OBSERVER
 from flakedb.colour.tolerance import illuminant_name, observer_name, reflectance_to_Lab
 from flakedb.match.targets import Target, TargetError, read_target, validate_geometries
 
@@ -214,9 +218,20 @@ def read_cxf_target(path_or_bytes, object_name=None, observer=None, illuminant=N
         start, inc, nw = grids.pop()
         wl = start + inc * np.arange(nw)
         R = np.stack([spectra[g] for g in geoms])
-        obs = str(observer) if observer is not None else "2"
-        ill = str(illuminant) if illuminant is not None else "D65"
+        # the file's TristimulusSpec (of the spectra's specifications) is honoured unless the caller chooses
+        spec_cond = {(specs[v.get("ColorSpecification")]["observer"], specs[v.get("ColorSpecification")]["illuminant"])
+                     for v in values if v.tag == _q("ReflectanceSpectrum")}
+        f_obs = {o for o, _ in spec_cond if o is not None}
+        f_ill = {i for _, i in spec_cond if i is not None}
+        if observer is None and len(f_obs) > 1 or illuminant is None and len(f_ill) > 1:
+            raise TargetError(f"{w}: the spectra's ColorSpecifications state different observers / illuminants "
+                              f"({sorted(f_obs)} / {sorted(f_ill)}); choose one with --observer / --illuminant")
+        obs = str(observer) if observer is not None else (f_obs.pop() if f_obs else DEFAULT_OBSERVER)
+        ill = str(illuminant) if illuminant is not None else (f_ill.pop() if f_ill else DEFAULT_ILLUMINANT)
         notes = {"cxf_object": oname}
+        if observer is None and not spec_cond - {(None, None)}:
+            notes["assumed"] = (f"observer {obs} deg / illuminant {ill} (no TristimulusSpec in the file: the "
+                                f"defaults, flakedb.colour.settings)")
         if labs:
             notes["cxf_lab"] = "CIELab values in the file not used (the spectra are)"
     else:

@@ -32,6 +32,18 @@ difference, one compose call per parameter (step 10⁻³ in ln p, or 10⁻³ of 
 parameters), so an iteration costs P + 1 compose calls; results are cached by parameter values.
 The sensitivities reported at the solution are ∂(L*, a*, b*)/∂p per geometry, forward differences
 with the same steps (cache hits when the last Jacobian was taken there).
+
+The outcome (docs/colour-matching.md, "Outcome")
+-------------------------------------------------
+A fit ends with the best values the bounded solver found; whether that is a match is a separate
+question, answered against a tolerance (a :class:`flakedb.colour.tolerance.PerAngleLimits` or
+:class:`~flakedb.colour.tolerance.WeightedLCH`; default: ΔE00 ≤
+:data:`flakedb.colour.settings.DEFAULT_MAX_DE00` at every geometry).  :attr:`MatchResult.reached`
+says whether every geometry passes; :attr:`MatchResult.at_bound` names the parameters whose fitted
+value lies within :data:`BOUND_FRACTION` of its range (in the fitted variable, ln p or p) from a
+bound: the solver wanted to go further, so widening that bound (or another species) is the next
+step; :attr:`MatchResult.outcome` says it in a sentence.  ``flakedb match`` exits non-zero when the
+target is not reached.
 """
 
 from __future__ import annotations
@@ -46,11 +58,11 @@ import yaml
 from scipy.optimize import least_squares
 
 from flakedb.colour.colorimetry import XYZ_to_Lab
+from flakedb.colour.settings import DEFAULT_MAX_DE00, resolve
 from flakedb.colour.tolerance import (
+    PerAngleLimits,
     ciede2000_residuals,
     delta_E_2000,
-    illuminant_name,
-    observer_name,
     reflectance_to_Lab,
 )
 from flakedb.compose.report import channels_to_XYZ, eval_table, multiangle_geometry, reference_white
@@ -62,6 +74,8 @@ from flakedb.paint.recipe import RecipeError, fmt_path, parse_recipe
 FD_STEP = 1e-3
 #: Default early stop: every geometry's ΔE00 at or below this (far below a visible difference).
 DE_TOL = 0.01
+#: A fitted value this close to a bound (fraction of the fitted variable's range) is "at the bound".
+BOUND_FRACTION = 1e-3
 
 
 class _Converged(Exception):
@@ -203,18 +217,17 @@ def eval_geometries(table, geometries) -> np.ndarray:
     return np.pi * eval_table(table, mu_i, mu_o, phi_d) / np.abs(mu_o)[:, None]
 
 
-def channels_to_Lab(rf, mode, wavelength_nm, observer="2", illuminant="D65") -> np.ndarray:
-    """CIELAB (G, 3) of reflectance factors in a paint's channels under ``observer`` / ``illuminant``.
+def channels_to_Lab(rf, mode, wavelength_nm, observer=None, illuminant=None) -> np.ndarray:
+    """CIELAB (G, 3) of reflectance factors in a paint's channels under ``observer`` / ``illuminant``
+    (None: the defaults for ``mode``, :func:`flakedb.colour.settings.resolve`).
 
     Spectral: any observer / illuminant the grid allows.  RGB mode is defined under D65 / 2° only
-    (its channels are white-normalised linear sRGB); mono is a grey, the same under any conditions.
+    (its channels are white-normalised linear sRGB; anything else raises ValueError); mono is a
+    grey, the same under any conditions.
     """
+    cs = resolve(observer, illuminant, mode=mode)
     if mode == "spectral":
-        return reflectance_to_Lab(rf, wavelength_nm, observer, illuminant)
-    if mode == "rgb" and (observer_name(observer) != observer_name("2") or illuminant_name(illuminant) != "D65"):
-        raise ValueError(f"an RGB-mode paint has colours under D65 / 2° only, not {illuminant} / {observer}°: "
-                         f"compose it in spectral mode")
-
+        return reflectance_to_Lab(rf, wavelength_nm, cs.observer, cs.illuminant)
     return XYZ_to_Lab(channels_to_XYZ(rf, mode, wavelength_nm), white=reference_white(mode, wavelength_nm))
 
 
@@ -228,7 +241,7 @@ class Prediction:
     wavelength_nm: np.ndarray | None
     n: int
 
-    def lab(self, observer="2", illuminant="D65"):
+    def lab(self, observer=None, illuminant=None):
         return channels_to_Lab(self.rf, self.mode, self.wavelength_nm, observer, illuminant)
 
 
@@ -275,10 +288,34 @@ class MatchResult:
     status: int
     message: str
     history: list = field(default_factory=list)
+    tolerance: dict | None = None       # the scheme's evaluation at the fit (PerAngleLimits.evaluate)
+    at_bound: list = field(default_factory=list)   # [(parameter name, "lower" | "upper", bound value)]
 
     @property
     def compose_s_per_call(self) -> float:
         return self.compose_s / max(self.n_compose, 1)
+
+    @property
+    def reached(self) -> bool:
+        """Every geometry within the tolerance (module docstring, "The outcome")."""
+        return bool(self.tolerance is not None and self.tolerance["passed_all"])
+
+    @property
+    def outcome(self) -> str:
+        """One sentence: reached or not, where it fails, and which parameters sit at a bound."""
+        tol = self.tolerance
+        bound = "; ".join(f"{name} at its {side} bound {v:g}" for name, side, v in self.at_bound)
+        if self.reached:
+            return (f"target reached: every geometry within {tol['scheme']}"
+                    + (f" (note: {bound})" if bound else ""))
+        fail = [i for i, ok in enumerate(tol["passed"]) if not ok]
+        worst = max(fail, key=lambda i: tol["value"][i])
+        g = self.geometries[worst]
+        why = (f"parameters at a bound: {bound}; widen the bound or use another species" if bound else
+               "no parameter is at a bound: the species in the base recipe cannot reach this colour together "
+               "(or the fit stopped in a local minimum / at the evaluation limit: " + self.message.strip() + ")")
+        return (f"target NOT reached: {len(fail)} of {len(tol['passed'])} geometries outside {tol['scheme']} "
+                f"(worst {g[0]:g}as{g[1]:g}: {tol['value'][worst]:.2f} > {tol['limit'][worst]:.2f}); {why}")
 
 
 class _Evaluator:
@@ -314,15 +351,17 @@ def _fd_steps(params, z, lb, ub):
 
 
 def match(doc, target, observer=None, illuminant=None, weights=None, n=None, catalog=None, store=None, raw=False,
-          log=None, max_nfev=50, de_tol=DE_TOL, source="<base recipe>") -> MatchResult:
+          log=None, max_nfev=50, de_tol=DE_TOL, source="<base recipe>", tolerance=None) -> MatchResult:
     """Fit the ``{fit: …}`` fields of recipe document ``doc`` to ``target`` (a
     :class:`flakedb.colour.targets.Target`); see the module docstring.
 
     ``observer`` / ``illuminant``: the colour conditions of the fit (default: the target's);
     ``weights`` (G,): w_g per geometry (default 1); ``store``: an open store version; ``log``: a
     callable taking one progress line per iteration; ``de_tol``: stop as soon as every geometry's
-    ΔE00 ≤ de_tol (0 or None: run scipy's own tests to the end).  Raises RecipeError before any computation
-    when the recipe is invalid at the start values or at the bounds.
+    ΔE00 ≤ de_tol (0 or None: run scipy's own tests to the end); ``tolerance``: the scheme the outcome
+    is judged by (an object with ``evaluate(geometries, lab_ref, lab_sample)``; default ΔE00 ≤
+    :data:`flakedb.colour.settings.DEFAULT_MAX_DE00` everywhere).  Raises RecipeError before any
+    computation when the recipe is invalid at the start values or at the bounds.
     """
     log = log or (lambda s: None)
     params = find_fit_parameters(doc, source)
@@ -397,12 +436,20 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
     log(f"done: {message.strip()} after {len(history)} iteration(s); max dE00 {de_fit.max():.3f}; "
         f"{ev.calls} compose calls, {ev.seconds / max(ev.calls, 1):.2f} s per call")
     values_out = np.array([float(f"{v:.6g}") for v in p_fit])
-    return MatchResult(
+    scheme = tolerance if tolerance is not None else PerAngleLimits(default=DEFAULT_MAX_DE00)
+    tol = scheme.evaluate(geoms, lab_t, lab_fit)
+    span = ub - lb
+    at_bound = [(p.name, "lower", p.lo) if z - a <= BOUND_FRACTION * d else (p.name, "upper", p.hi)
+                for p, z, a, b, d in zip(params, z_fit, lb, ub, span)
+                if z - a <= BOUND_FRACTION * d or b - z <= BOUND_FRACTION * d]
+    res = MatchResult(
         params=params, start=to_p(z0), values=p_fit, geometries=geoms, weights=w, lab_target=lab_t,
         lab_start=lab_start, lab_fit=lab_fit, de_start=delta_E_2000(lab_t, lab_start), de_fit=de_fit,
         sensitivities=sens, fitted_doc=substitute(doc, params, values_out), prediction=pred, n=n,
         observer=obs, illuminant=ill, n_compose=ev.calls, compose_s=ev.seconds, iterations=len(history),
-        nfev=nfev, status=status, message=message, history=history)
+        nfev=nfev, status=status, message=message, history=history, tolerance=tol, at_bound=at_bound)
+    log(res.outcome)
+    return res
 
 
 def format_match(res: MatchResult) -> str:
@@ -424,6 +471,8 @@ def format_match(res: MatchResult) -> str:
             lines.append(f"    {g[0]:5g}° {g[1]:5g}°  dL* {d[0]:+8.4f}  da* {d[1]:+8.4f}  db* {d[2]:+8.4f}")
     lines.append(f"compose calls: {res.n_compose} ({res.compose_s_per_call:.2f} s per call, "
                  f"{res.compose_s:.1f} s in total), {res.iterations} iteration(s)")
+    if res.tolerance is not None:
+        lines.append(res.outcome)
     return "\n".join(lines)
 
 
@@ -442,4 +491,8 @@ def match_report(res: MatchResult) -> dict:
                                                                              res.de_fit))],
         "compose_calls": res.n_compose, "compose_seconds": res.compose_s, "iterations": res.iterations,
         "nfev": res.nfev, "status": res.status, "message": res.message, "history": res.history,
+        "reached": res.reached, "outcome": res.outcome if res.tolerance is not None else None,
+        "tolerance": None if res.tolerance is None else res.tolerance["scheme"],
+        "passed": None if res.tolerance is None else [bool(v) for v in res.tolerance["passed"]],
+        "at_bound": [{"path": n, "side": side, "bound": v} for n, side, v in res.at_bound],
     }

@@ -20,7 +20,8 @@ E2194's sign, so the detector looks from θ_v = illumination − aspecular off t
 illuminator's side when negative; :func:`flakedb.report.multiangle_geometry`), then either
 
 * ``L*``, ``a*``, ``b*`` (``L``, ``a``, ``b`` also accepted): CIELAB under the observer and
-  illuminant of the options (default 2° / D65, said so in the target), or
+  illuminant of the options (default D65 / 10°, :mod:`flakedb.colour.settings`;
+  said so in the target), or
 * ``R_380``, ``R_390``, …: spectral reflectance factors (fraction, 1 = perfect white diffuser, or
   percent with ``# reflectance: percent``) on any uniform nm grid of step 1–20 nm; then the target's
   L*a*b* can be computed for any observer and illuminant the grid allows.
@@ -31,6 +32,8 @@ illuminant (to 0.01 ΔE00) so a file whose two halves disagree is refused.
 
 Geometries (in-plane)
 ---------------------
+The sets are defined in :mod:`flakedb.colour.settings` (with the other defaults) and re-exported here.
+
 * :data:`E2194_GEOMETRIES`: the 45° set of multi-angle instruments (X-Rite MA-T / MA98 class):
   illumination 45°, aspecular −15°, 15°, 25°, 45°, 75°, 110° (the set the colour report has always
   used).  ASTM E2194 itself (metal flake) asks for three aspecular angles (its public scope page:
@@ -59,16 +62,18 @@ from pathlib import Path
 import numpy as np
 
 from flakedb.atomic import atomic_write_text
+from flakedb.colour.settings import (  # the geometry sets live with the other defaults
+    DEFAULT_ILLUMINANT,
+    DEFAULT_OBSERVER,
+    E2194_GEOMETRIES,
+    E2539_EXTRA,
+    E2539_GEOMETRIES,
+    GEOMETRY_SETS,
+)
 from flakedb.colour.tolerance import delta_E_2000, illuminant_name, observer_name, reflectance_to_Lab
 
-#: The 45° set, (illumination_deg, aspecular_deg): E2194's angles and E2539's −15° (module docstring).
-E2194_GEOMETRIES = tuple((45.0, g) for g in (-15.0, 15.0, 25.0, 45.0, 75.0, 110.0))
-#: Extra in-plane geometries at 15° illumination of ASTM E2539-class instruments (module docstring: what is verified).
-E2539_EXTRA = tuple((15.0, g) for g in (-45.0, -15.0, 15.0, 45.0, 80.0))
-#: Both sets.
-E2539_GEOMETRIES = E2194_GEOMETRIES + E2539_EXTRA
-#: Named sets (the CLI's --geometries).
-GEOMETRY_SETS = {"e2194": E2194_GEOMETRIES, "e2539": E2539_GEOMETRIES}
+__all__ = ["E2194_GEOMETRIES", "E2539_EXTRA", "E2539_GEOMETRIES", "GEOMETRY_SETS", "Target", "TargetError",
+           "format_target", "read_target", "validate_geometries", "write_target"]
 
 _LAB_COLUMNS = (("L*", "a*", "b*"), ("L", "a", "b"))
 _R_COLUMN = re.compile(r"^R_(\d+(?:\.\d+)?)$")
@@ -91,8 +96,8 @@ class Target:
     lab: np.ndarray | None = None
     reflectance: np.ndarray | None = None
     wavelength_nm: np.ndarray | None = None
-    observer: str = "2"
-    illuminant: str = "D65"
+    observer: str = DEFAULT_OBSERVER
+    illuminant: str = DEFAULT_ILLUMINANT
     name: str = ""
     notes: dict = field(default_factory=dict)
     source: str = ""
@@ -218,17 +223,18 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     if len(set(keys)) != len(keys):
         raise TargetError(f"{where}: a geometry is listed twice")
     if not r_cols:  # L*a*b* only: the file's stated conditions are facts; a call fills in only what it omits
-        obs = str(opts.get("observer", observer if observer is not None else "2"))
-        ill = str(opts.get("illuminant", illuminant if illuminant is not None else "D65"))
+        obs = str(opts.get("observer", observer if observer is not None else DEFAULT_OBSERVER))
+        ill = str(opts.get("illuminant", illuminant if illuminant is not None else DEFAULT_ILLUMINANT))
     else:
-        obs = str(observer if observer is not None else opts.get("observer", "2"))
-        ill = str(illuminant if illuminant is not None else opts.get("illuminant", "D65"))
+        obs = str(observer if observer is not None else opts.get("observer", DEFAULT_OBSERVER))
+        ill = str(illuminant if illuminant is not None else opts.get("illuminant", DEFAULT_ILLUMINANT))
     try:
         observer_name(obs), illuminant_name(ill)
     except ValueError as exc:
         raise TargetError(f"{where}: {exc}") from None
     if lab_idx is not None and not r_cols and "observer" not in opts and observer is None:
-        notes["assumed"] = "observer 2 deg / illuminant D65 (not stated in the file)"
+        notes["assumed"] = (f"observer {obs} deg / illuminant {ill} (not stated in the file: the defaults, "
+                            f"flakedb.colour.settings)")
     t = Target(geometries=geoms, observer=obs, illuminant=ill, name=opts.get("name", ""), notes=notes, source=where)
     if lab_idx is not None:
         t.lab = a[:, lab_idx]
@@ -246,7 +252,8 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
             raise TargetError(f"{where}: reflectance grid: {exc}") from None
         t.reflectance, t.wavelength_nm = R, wl
         if t.lab is not None:  # the L*a*b* columns are under the file's own conditions
-            f_obs, f_ill = opts.get("observer", "2"), opts.get("illuminant", "D65")
+            f_obs = opts.get("observer", DEFAULT_OBSERVER)
+            f_ill = opts.get("illuminant", DEFAULT_ILLUMINANT)
             de = delta_E_2000(t.lab, reflectance_to_Lab(R, wl, f_obs, f_ill))
             if np.max(de) > 0.01:
                 raise TargetError(f"{where}: the L*a*b* columns disagree with the R_ columns under {f_obs}° / {f_ill} "
@@ -254,7 +261,8 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     return t
 
 
-def format_target(geometries, lab=None, reflectance=None, wavelength_nm=None, observer="2", illuminant="D65",
+def format_target(geometries, lab=None, reflectance=None, wavelength_nm=None, observer=DEFAULT_OBSERVER,
+                  illuminant=DEFAULT_ILLUMINANT,
                   name="", notes=None) -> str:
     """The CSV text of a target (module docstring); ``lab`` computed from ``reflectance`` when omitted."""
     g = np.asarray(geometries, float)
@@ -288,7 +296,8 @@ def format_target(geometries, lab=None, reflectance=None, wavelength_nm=None, ob
     return out.getvalue()
 
 
-def write_target(path, geometries, lab=None, reflectance=None, wavelength_nm=None, observer="2", illuminant="D65",
+def write_target(path, geometries, lab=None, reflectance=None, wavelength_nm=None, observer=DEFAULT_OBSERVER,
+                 illuminant=DEFAULT_ILLUMINANT,
                  name="", notes=None) -> str:
     """Write :func:`format_target`'s text to ``path`` atomically; returns the path."""
     atomic_write_text(Path(path), format_target(geometries, lab, reflectance, wavelength_nm, observer, illuminant,

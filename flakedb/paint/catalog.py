@@ -91,6 +91,12 @@ def _semantic_problems(doc) -> list[str]:
                 )
         elif e["kind"] == "pigment":
             check_material(f"{base}.material", e["material"])
+            af = e.get("absorption_factor")
+            if af is not None and len(af["wavelength_nm"]) != len(af["value"]):
+                out.append(f"{base}.absorption_factor: wavelength_nm has {len(af['wavelength_nm'])} entries, "
+                           f"value {len(af['value'])}")
+            elif af is not None and np.any(np.diff(af["wavelength_nm"]) <= 0):
+                out.append(f"{base}.absorption_factor.wavelength_nm: must be strictly increasing")
         elif e["kind"] == "mirror_flake" and "wavelength_nm" in e["albedo"]:
             wl, val = e["albedo"]["wavelength_nm"], e["albedo"]["value"]
             if len(wl) != len(val):

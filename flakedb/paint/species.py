@@ -100,9 +100,20 @@ def pigment_n_quad(entry: dict, wavelength_nm, n_binder) -> int:
                           float(entry["gsd"]["value"]))
 
 
+def absorption_factor(spec: dict, wavelength_nm) -> np.ndarray:
+    """A pigment's calibrated factor on k (W,): ``spec['value']`` linear in wavelength between its
+    ``wavelength_nm`` samples, held at the end values beyond them (schemas/catalog.schema.json)."""
+    wl_s = np.asarray(spec["wavelength_nm"], float)
+    v = np.asarray(spec["value"], float)
+    if wl_s.shape != v.shape or np.any(np.diff(wl_s) <= 0) or np.any(v <= 0):
+        raise ValueError("absorption_factor: wavelength_nm must increase and match value in length; values > 0")
+    return np.interp(np.asarray(wavelength_nm, float), wl_s, v)
+
+
 def pigment_optics(entry: dict, wavelength_nm, n_binder, mu=None, n_quad=None):
     """Per-particle Mie optics of a pigment species per wavelength (number-weighted log-normal).
 
+    A calibrated entry's ``absorption_factor`` multiplies the material's k (:func:`absorption_factor`).
     Returns :class:`flakedb.optics.mie.LognormalPigment`: ``c_ext_um2``, ``c_sca_um2`` (µm² per
     particle), ``g``, ``mean_volume_um3`` and, with ``mu`` (cos Θ, (M,)), the phase function (W, M).
     ``n_quad``: the size quadrature's node count (default: from the shortest wavelength given,
@@ -114,7 +125,10 @@ def pigment_optics(entry: dict, wavelength_nm, n_binder, mu=None, n_quad=None):
 
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     nb = np.broadcast_to(np.asarray(n_binder, dtype=float), wl.shape)
-    m = refractive_index(entry["material"], wl) / nb
+    N = refractive_index(entry["material"], wl)
+    if "absorption_factor" in entry:  # a calibration's spectral factor on k (flakedb.match.calibrate)
+        N = N.real + 1j * N.imag * absorption_factor(entry["absorption_factor"], wl)
+    m = N / nb
     return lognormal_pigment(
         m, wl, nb, float(entry["median_diameter_um"]["value"]), float(entry["gsd"]["value"]), mu=mu, n_quad=n_quad
     )

@@ -72,3 +72,87 @@ def plot_optics(name: str, out_dir, catalog: dict | None = None) -> Path:
         with open(tmp, "wb") as f:
             fig.savefig(f, format="png", dpi=110)
     return final
+
+
+#: Formats :func:`plot_multiangle` writes, by the path's suffix.
+PLOT_FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg"}
+
+
+def plot_multiangle(path, geometries, lab, lab_target=None, wavelength_nm=None, reflectance=None,
+                    target_reflectance=None, target_wavelength_nm=None, title="", conditions="") -> Path:
+    """A colour engineer's figure of one paint (and its target) at multi-angle geometries, written
+    atomically to ``path`` (PNG, PDF or SVG by its suffix); returns the path.
+
+    Panels: L*, a*, b* against the aspecular angle, one line per illumination angle, the target as
+    open markers; the a*b* colour travel (the points joined in aspecular order, the first marked);
+    and, when ``reflectance`` (G, W) on ``wavelength_nm`` is given, the reflectance factor curves per
+    geometry (target dashed).  ``geometries`` (G, 2): (illumination_deg, aspecular_deg); ``lab`` /
+    ``lab_target`` (G, 3).
+    """
+    from matplotlib.backends.backend_agg import (
+        FigureCanvasAgg,  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
+    )
+    from matplotlib.figure import Figure  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
+
+    path = Path(path)
+    fmt = PLOT_FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise ValueError(f"{path}: a plot is written as {', '.join(PLOT_FORMATS)} (by the file's suffix)")
+    g = np.asarray(geometries, float).reshape(-1, 2)
+    lab = np.asarray(lab, float)
+    lt = None if lab_target is None else np.asarray(lab_target, float)
+    if not (np.all(np.isfinite(lab)) and (lt is None or np.all(np.isfinite(lt)))):
+        raise ValueError("plot_multiangle: L*a*b* values must be finite")
+    spectra = reflectance is not None
+    fig = Figure(figsize=(15, 8.2) if spectra else (15, 4.6), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2 if spectra else 1, 4, squeeze=False)
+    illums = sorted(set(g[:, 0].tolist()), reverse=True)
+    colours = {il: f"C{k}" for k, il in enumerate(illums)}
+    for c, (name, ax) in enumerate(zip(("L*", "a*", "b*"), axes[0, :3])):
+        for il in illums:
+            sel = np.flatnonzero(g[:, 0] == il)
+            sel = sel[np.argsort(g[sel, 1])]
+            ax.plot(g[sel, 1], lab[sel, c], "-o", ms=4, color=colours[il], label=f"predicted, {il:g}° illum.")
+            if lt is not None:
+                ax.plot(g[sel, 1], lt[sel, c], "s", ms=7, mfc="none", color=colours[il],
+                        label=f"target, {il:g}° illum.")
+        ax.set(xlabel="aspecular angle (°)", ylabel=name, title=f"{name} vs aspecular angle")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    ax = axes[0, 3]
+    for il in illums:
+        sel = np.flatnonzero(g[:, 0] == il)
+        sel = sel[np.argsort(g[sel, 1])]
+        ax.plot(lab[sel, 1], lab[sel, 2], "-o", ms=4, color=colours[il], label=f"predicted, {il:g}°")
+        ax.plot(lab[sel[0], 1], lab[sel[0], 2], "*", ms=12, color=colours[il])
+        if lt is not None:
+            ax.plot(lt[sel, 1], lt[sel, 2], "s", ms=7, mfc="none", color=colours[il], label=f"target, {il:g}°")
+        for k in sel:
+            ax.annotate(f"{g[k, 1]:g}", (lab[k, 1], lab[k, 2]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+    ax.axhline(0, color="0.7", lw=0.8)
+    ax.axvline(0, color="0.7", lw=0.8)
+    ax.set(xlabel="a*", ylabel="b*", title="colour travel (★ = smallest aspecular)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(fontsize=7)
+    if spectra:
+        wl = np.asarray(wavelength_nm, float)
+        R = np.asarray(reflectance, float)
+        gs = axes[1, 0].get_gridspec()
+        for a in axes[1, :]:
+            a.remove()
+        ax = fig.add_subplot(gs[1, :])
+        for k in range(g.shape[0]):
+            line = ax.plot(wl, R[k], label=f"{g[k, 0]:g}as{g[k, 1]:g}")[0]
+            if target_reflectance is not None:
+                twl = wl if target_wavelength_nm is None else np.asarray(target_wavelength_nm, float)
+                ax.plot(twl, np.asarray(target_reflectance, float)[k], "--", color=line.get_color())
+        ax.set(xlabel="wavelength (nm)", ylabel="reflectance factor",
+               title="reflectance factor per geometry" + (" (target dashed)" if target_reflectance is not None else ""))
+        ax.grid(alpha=0.3)
+        ax.legend(ncol=6, fontsize=7)
+    fig.suptitle(title + (f"  ({conditions})" if conditions else ""))
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            fig.savefig(f, format=fmt, dpi=110)
+    return path

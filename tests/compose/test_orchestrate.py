@@ -237,14 +237,16 @@ def test_white_primer_colour_report_exact(tmp_path):
 
 
 def test_spectral_primer_lab_matches_colorimetry(tmp_path):
-    from flakedb.colour.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
+    from flakedb.colour.settings import DEFAULT_ILLUMINANT, DEFAULT_OBSERVER
+    from flakedb.colour.tolerance import reflectance_to_Lab
 
     wl = np.arange(400.0, 701.0, 20.0)
     spec = 0.1 + 0.7 * (wl - 400) / 300
     r = recipe([{"primer": {"spectrum": {"wavelength_nm": wl.tolist(), "value": spec.tolist()}}}],
                mode="spectral", n=16)
     rep = compose(r, tmp_path).report
-    lab = XYZ_to_Lab(reflectance_to_XYZ(spec, wl), white=white_XYZ(wl))
+    lab = reflectance_to_Lab(spec, wl, DEFAULT_OBSERVER, DEFAULT_ILLUMINANT)   # the report's default conditions
+    assert (rep["observer"], rep["illuminant"]) == (DEFAULT_OBSERVER, DEFAULT_ILLUMINANT)
     for g in rep["geometries"]:
         np.testing.assert_allclose([g["L"], g["a"], g["b"]], lab, atol=1e-9)
     assert lab[1] > 5    # a reddish ramp: the test would notice channels mixed up

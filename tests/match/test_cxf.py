@@ -193,3 +193,31 @@ def test_compare_reads_a_cxf_target(tmp_path):
     r = CliRunner().invoke(cli, ["compare", str(tmp_path / "r.yaml"), "--target", str(tmp_path / "t.csv"),
                                  "--cxf-object", "panel"])
     assert r.exit_code == 2 and "only a .cxf target" in r.output, r.output
+
+
+def test_a_10_degree_file_is_read_at_10_degrees(tmp_path):
+    """The issue's done-when: a spectral CxF3 file whose TristimulusSpec states the 10° observer (and
+    illuminant A) is compared under 10° / A, not at 2° / D65; the caller's choice still overrides, and a
+    file that states nothing gets the defaults, recorded as assumed."""
+    from flakedb.colour.settings import DEFAULT_ILLUMINANT, DEFAULT_OBSERVER
+    from flakedb.colour.tolerance import delta_E_2000, reflectance_to_Lab
+
+    specs = "".join(spec(f"CS{i}", [g], tristimulus=("10_Degree", "A")) for i, g in enumerate(GEOMS))
+    data = cxf(obj("panel", refl("CS0", R1) + refl("CS1", R2) + refl("CS2", R3)), specs)
+    t = read_cxf_target(data)
+    assert (t.observer, t.illuminant) == ("10", "A") and "assumed" not in t.notes
+    by_geom = {tuple(g): lab for g, lab in zip(t.geometries.tolist(), t.lab_under())}
+    np.testing.assert_allclose(by_geom[(45.0, 15.0)], reflectance_to_Lab(R1, WL, "10", "A"), atol=1e-9)
+    # the 2° / D65 colour of this spectrum is visibly different: reading the file at 2° would be noticed
+    assert delta_E_2000(reflectance_to_Lab(R1, WL, "10", "A"), reflectance_to_Lab(R1, WL, "2", "D65")) > 1.0
+    assert read_cxf_target(data, observer="2").observer == "2"
+    # and a 2° file is read at 2° (whatever the default is, each file's own observer is the one used)
+    specs2 = "".join(spec(f"CS{i}", [g], tristimulus=("2_Degree", "D65")) for i, g in enumerate(GEOMS))
+    t2 = read_cxf_target(cxf(obj("panel", refl("CS0", R1) + refl("CS1", R2) + refl("CS2", R3)), specs2))
+    assert (t2.observer, t2.illuminant) == ("2", "D65")
+    plain = read_cxf_target(one_angle_per_spec())
+    assert (plain.observer, plain.illuminant) == (DEFAULT_OBSERVER, DEFAULT_ILLUMINANT) and "assumed" in plain.notes
+    mixed = "".join(spec(f"CS{i}", [g], tristimulus=(("10_Degree", "2_Degree")[i % 2], "D65"))
+                    for i, g in enumerate(GEOMS))
+    with pytest.raises(TargetError, match="different observers"):
+        read_cxf_target(cxf(obj("panel", refl("CS0", R1) + refl("CS1", R2) + refl("CS2", R3)), mixed))

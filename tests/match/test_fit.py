@@ -118,7 +118,8 @@ def test_round_trip_recovers_loadings(tmp_path):
     """The issue's done-when: a target made from known loadings; match from loadings off by 3×."""
     (tmp_path / "true.yaml").write_text(_text(**TRUE))
     target = tmp_path / "target.csv"
-    r = CliRunner().invoke(cli, ["compare", str(tmp_path / "true.yaml"), "--write-csv", str(target)])
+    r = CliRunner().invoke(cli, ["compare", str(tmp_path / "true.yaml"), "--write-csv", str(target),
+                                 "--geometries", "e2539"])
     assert r.exit_code == 0, r.output
     assert read_target(target).spectral
     base = _text(VF_METALLIC="{fit: [0.005, 0.2], start: 0.12}", VF_YELLOW="{fit: [0.002, 0.1], start: 0.006667}")

@@ -1,0 +1,216 @@
+"""Many recipes against many targets in one table (docs/batches-and-plots.md).
+
+:func:`compare_batch` composes each recipe **once** (:func:`flakedb.match.fit.predict` at the union
+of the geometries of the targets it is paired with) and compares it with every paired target, so
+10 recipes against 10 targets cost 10 composes, not 100.  Pairing: every recipe with every target
+(``pairs=None``), or an explicit list of (recipe index, target index).  Without targets it is a
+table of predicted colours at a geometry set (the batch form of ``compare --write-csv``).
+
+The results are :class:`Comparison` records; :func:`long_rows` flattens them to one row per
+(recipe, target, geometry) and :func:`summary_rows` to one row per pair; :func:`to_dataframe`
+returns the long table as a pandas DataFrame (pandas is an optional dependency: ``pip install
+flakedb[dataframe]``).  Colour conditions: the caller's, else each target's, else the defaults
+(:func:`flakedb.colour.settings.resolve`), per pair.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from flakedb.atomic import atomic_write_text
+from flakedb.colour.settings import DEFAULT_MAX_DE00, GEOMETRY_SETS, resolve
+from flakedb.colour.tolerance import PerAngleLimits, lab_differences
+from flakedb.match.fit import Prediction, predict
+
+
+@dataclass
+class Comparison:
+    """One recipe against one target (or, with ``target`` None, the recipe's predicted colours)."""
+
+    recipe: str
+    target: str | None
+    geometries: np.ndarray          # (G, 2)
+    lab_pred: np.ndarray            # (G, 3)
+    lab_target: np.ndarray | None   # (G, 3)
+    observer: str
+    illuminant: str
+    evaluation: dict | None         # the tolerance scheme's evaluate()
+    differences: dict | None        # flakedb.colour.tolerance.lab_differences
+    prediction: Prediction          # reflectance factors at these geometries
+    target_reflectance: np.ndarray | None = None
+    target_wavelength_nm: np.ndarray | None = None
+
+    @property
+    def passed(self) -> bool | None:
+        return None if self.evaluation is None else bool(self.evaluation["passed_all"])
+
+    @property
+    def max_de(self) -> float | None:
+        return None if self.differences is None else float(np.max(self.differences["dE00"]))
+
+
+def _key(g) -> tuple:
+    return (float(g[0]), float(g[1]))
+
+
+def compare_batch(recipes, targets=(), pairs=None, observer=None, illuminant=None, tolerance=None,
+                  geometry_set=None, n=None, catalog=None, store_for=None, raw=False, log=None) -> list:
+    """Compare every paired (recipe, target) (module docstring); returns a list of :class:`Comparison`.
+
+    ``recipes``: :class:`flakedb.paint.recipe.Recipe` objects; ``targets``: :class:`flakedb.match.targets.Target`
+    objects; ``tolerance``: a scheme with ``evaluate`` (default ΔE00 ≤ :data:`DEFAULT_MAX_DE00`);
+    ``store_for``: None or a callable recipe → open store version (or None); ``log``: one line per compose.
+    """
+    log = log or (lambda s: None)
+    targets = list(targets)
+    scheme = tolerance if tolerance is not None else PerAngleLimits(default=DEFAULT_MAX_DE00)
+    if targets:
+        pairs = [(i, j) for i in range(len(recipes)) for j in range(len(targets))] if pairs is None else list(pairs)
+    else:
+        pairs = [(i, None) for i in range(len(recipes))]
+    out = []
+    for i, rec in enumerate(recipes):
+        mine = [j for ii, j in pairs if ii == i]
+        if not mine:
+            continue
+        if targets:
+            geoms = []
+            for j in mine:
+                for g in targets[j].geometries:
+                    if _key(g) not in {_key(x) for x in geoms}:
+                        geoms.append(_key(g))
+            geoms = np.asarray(geoms, float)
+        else:
+            geoms = np.asarray(GEOMETRY_SETS[resolve(geometry_set=geometry_set).geometry_set], float)
+        version = store_for(rec) if store_for is not None else None
+        pred = predict(rec, geoms, n, catalog, version, raw)
+        log(f"composed {rec.name} ({pred.mode}, n = {pred.n}) [{i + 1}/{len(recipes)}]")
+        index = {_key(g): k for k, g in enumerate(geoms)}
+        for j in mine:
+            t = None if j is None else targets[j]
+            if t is None:
+                cs = resolve(observer, illuminant, geometry_set, pred.mode)
+                lab = pred.lab(cs.observer, cs.illuminant)
+                out.append(Comparison(rec.name, None, geoms, lab, None, cs.observer, cs.illuminant, None, None, pred))
+                continue
+            free = t.spectral and pred.mode == "rgb"
+            cs = resolve(observer or (None if free else t.observer), illuminant or (None if free else t.illuminant),
+                         None, pred.mode)
+            rows = [index[_key(g)] for g in t.geometries]
+            sub = Prediction(t.geometries, pred.rf[rows], pred.mode, pred.wavelength_nm, pred.n)
+            lab = sub.lab(cs.observer, cs.illuminant)
+            lab_t = t.lab_under(cs.observer, cs.illuminant)
+            out.append(Comparison(rec.name, t.name or t.source, np.asarray(t.geometries, float), lab, lab_t,
+                                  cs.observer, cs.illuminant, scheme.evaluate(t.geometries, lab_t, lab),
+                                  lab_differences(lab_t, lab), sub, t.reflectance, t.wavelength_nm))
+    return out
+
+
+LONG_COLUMNS = ("recipe", "target", "illumination_deg", "aspecular_deg", "observer", "illuminant",
+                "L_target", "a_target", "b_target", "L", "a", "b", "dL", "dC", "dH", "dE00", "limit", "passed")
+SUMMARY_COLUMNS = ("recipe", "target", "geometries", "max_dE00", "worst_geometry", "failed", "passed")
+
+
+def long_rows(comparisons) -> list:
+    """One dict per (recipe, target, geometry), keys :data:`LONG_COLUMNS` (None where not applicable)."""
+    rows = []
+    for c in comparisons:
+        for k, g in enumerate(c.geometries):
+            r = {"recipe": c.recipe, "target": c.target, "illumination_deg": float(g[0]), "aspecular_deg": float(g[1]),
+                 "observer": c.observer, "illuminant": c.illuminant,
+                 "L": float(c.lab_pred[k, 0]), "a": float(c.lab_pred[k, 1]), "b": float(c.lab_pred[k, 2])}
+            if c.lab_target is not None:
+                d, ev = c.differences, c.evaluation
+                r.update({"L_target": float(c.lab_target[k, 0]), "a_target": float(c.lab_target[k, 1]),
+                          "b_target": float(c.lab_target[k, 2]), "dL": float(d["dL"][k]), "dC": float(d["dC"][k]),
+                          "dH": float(d["dH"][k]), "dE00": float(d["dE00"][k]), "limit": float(ev["limit"][k]),
+                          "passed": bool(ev["passed"][k])})
+            rows.append({col: r.get(col) for col in LONG_COLUMNS})
+    return rows
+
+
+def summary_rows(comparisons) -> list:
+    """One dict per compared pair, keys :data:`SUMMARY_COLUMNS`."""
+    rows = []
+    for c in comparisons:
+        if c.differences is None:
+            continue
+        de = c.differences["dE00"]
+        w = int(np.argmax(de))
+        rows.append({"recipe": c.recipe, "target": c.target, "geometries": int(len(de)), "max_dE00": float(de[w]),
+                     "worst_geometry": f"{c.geometries[w][0]:g}as{c.geometries[w][1]:g}",
+                     "failed": int(np.sum(~c.evaluation["passed"])), "passed": c.passed})
+    return rows
+
+
+def to_dataframe(comparisons, summary=False):
+    """The long (or, with ``summary``, the per-pair) table as a pandas DataFrame."""
+    import pandas as pd  # lazy: optional dependency (flakedb[dataframe]), only the DataFrame API needs it
+
+    if summary:
+        return pd.DataFrame(summary_rows(comparisons), columns=list(SUMMARY_COLUMNS))
+    return pd.DataFrame(long_rows(comparisons), columns=list(LONG_COLUMNS))
+
+
+def format_rows(rows, columns) -> str:
+    """CSV text of rows (floats to 4 decimals).
+
+    >>> print(format_rows([{"recipe": "a", "dE00": 0.123456, "note": None}], ["recipe", "dE00", "note"]), end="")
+    recipe,dE00,note
+    a,0.1235,
+    """
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(columns)
+    for r in rows:
+        w.writerow(["" if r[c] is None else (f"{r[c]:.4f}" if isinstance(r[c], float) else r[c]) for c in columns])
+    return out.getvalue()
+
+
+def write_table(path, comparisons, summary=False) -> str:
+    """Write the long (or summary) table as CSV, atomically; returns the path."""
+    rows, cols = (summary_rows(comparisons), SUMMARY_COLUMNS) if summary else (long_rows(comparisons), LONG_COLUMNS)
+    atomic_write_text(Path(path), format_rows(rows, cols))
+    return str(path)
+
+
+def expand_paths(items, suffixes) -> list:
+    """Files named by ``items``: a file itself, or a folder's files with one of ``suffixes`` (sorted)."""
+    out = []
+    for it in items:
+        p = Path(it)
+        if p.is_dir():
+            found = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in suffixes)
+            if not found:
+                raise ValueError(f"{p}: no {' / '.join(suffixes)} file in this folder")
+            out += found
+        else:
+            out.append(p)
+    return out
+
+
+def read_pair_list(path) -> list:
+    """(recipe path, target path, cxf object or None) from a CSV with header ``recipe,target[,cxf_object]``;
+    relative paths are relative to the list's folder."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise ValueError(f"{p}: no such file") from None
+    rows = [r for r in csv.reader(io.StringIO(text)) if r and not r[0].lstrip().startswith("#")]
+    if not rows or [h.strip() for h in rows[0][:2]] != ["recipe", "target"]:
+        raise ValueError(f"{p}: the first line must be the header recipe,target[,cxf_object]")
+    out = []
+    for ln, r in enumerate(rows[1:], 2):
+        if len(r) < 2 or not r[0].strip() or not r[1].strip():
+            raise ValueError(f"{p} row {ln}: give a recipe and a target")
+        obj = r[2].strip() if len(r) > 2 and r[2].strip() else None
+        out.append((p.parent / r[0].strip(), p.parent / r[1].strip(), obj))
+    if not out:
+        raise ValueError(f"{p}: no rows after the header")
+    return out

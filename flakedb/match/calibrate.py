@@ -1,0 +1,349 @@
+"""Calibrating a catalogue species from measured panels of known recipes (docs/calibration.md).
+
+A formulation system is set up per colourant from a *ladder*: drawdowns of known recipes, the
+colourant alone (masstone) and let down with white in steps, each measured at the multi-angle
+geometries.  :func:`calibrate` fits the species' free optical parameters so that flakedb's
+predictions of every panel match the measurements, and :func:`calibrated_entry` writes the result
+as a catalogue entry that recipes use like any other species (``--catalog`` with the user catalogue
+:func:`write_user_catalog` writes).
+
+Free parameters (fitted variables z, all 0 at the catalogue's values)
+---------------------------------------------------------------------
+* **pigment**: a smooth spectral factor on the material's extinction coefficient,
+  k(λ) → k(λ) · exp(Σ_{j=0}^{D} a_j P_j(x)), x = 2 (λ − 380 nm) / 400 nm − 1, P_j the Legendre
+  polynomials (D = :data:`ABSORPTION_DEGREE` by default; bounds |a_j| ≤ 3, a factor e³ ≈ 20), and
+  its size, d → d · e^s (|s| ≤ ln 3).  Size is the scattering parameter: at a fixed volume fraction
+  the Mie scattering per volume follows the particle size, while the absorption factor moves K.
+  A masstone alone fixes only K/S (Kubelka–Munk's R∞); the let-downs with white, whose scattering
+  is the white's, separate K from S (docs/calibration.md, "Experimental design").
+  Written as ``absorption_factor`` (sampled every 10 nm, 380–780 nm; times any factor the base
+  entry already had) and ``median_diameter_um``.
+* **interference_flake**: the outer coating film's thickness t → t · e^s (|s| ≤ ln 1.5) and the
+  orientation α → α · e^u (|u| ≤ ln 4).
+* **mirror_flake**: a constant albedo a → a · e^s (kept ≤ 1) and the orientation α → α · e^u.
+
+The fit
+-------
+Residuals over every panel and geometry: spectral reflectance factors when the target has them
+(100 (R_pred − R_target) per band, the prediction linearly interpolated onto the target's grid,
+which it must cover), else the three CIEDE2000 components (:func:`flakedb.colour.tolerance.ciede2000_residuals`).
+Bounded trust-region least squares (scipy ``least_squares(method="trf")``), forward-difference
+Jacobian (step :data:`FD_STEP` in z), one compose per panel per evaluation (:func:`flakedb.match.fit.predict`).
+Standard errors: the Gauss–Newton covariance s² (JᵀJ)⁻¹ at the solution with the residual variance
+s² = Σ r² / (m − p) (m residuals, p parameters), the usual estimate when the measurement noise is
+not known beforehand; it assumes independent residuals of equal variance.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+from numpy.polynomial import legendre
+from scipy.optimize import least_squares
+
+from flakedb.atomic import atomic_write_text
+from flakedb.colour.tolerance import ciede2000_residuals, delta_E_2000
+from flakedb.match.cxf import load_target
+from flakedb.match.fit import predict, recipe_from_doc
+from flakedb.match.targets import Target, TargetError
+from flakedb.paint.catalog import CatalogError, get_species, validate_catalog
+from flakedb.paint.recipe import RecipeError
+from flakedb.paint.species import absorption_factor
+
+#: Degree D of the Legendre series of ln(absorption factor) (D + 1 coefficients).
+ABSORPTION_DEGREE = 2
+#: The wavelength span the Legendre variable x ∈ [−1, 1] covers, and the written factor's samples (nm).
+FACTOR_RANGE_NM = (380.0, 780.0)
+FACTOR_STEP_NM = 10.0
+#: Forward-difference step in the fitted variables.
+FD_STEP = 1e-3
+#: Solver stops: relative change of Σ r² and of z below these (an instrument's noise sets the floor
+#: of Σ r² long before; smaller values only add iterations that move z by less than its standard error).
+FTOL, XTOL = 1e-8, 1e-6
+
+
+@dataclass
+class Panel:
+    """One measured panel: a recipe document (naming the species) and its target."""
+
+    name: str
+    recipe_doc: dict
+    target: Target
+
+
+@dataclass
+class CalParam:
+    name: str
+    lo: float
+    hi: float
+    description: str
+
+
+def free_parameters(entry, free=None, degree=ABSORPTION_DEGREE) -> list:
+    """The fitted variables of a species of this kind (module docstring); ``free``: a subset of the
+    groups ("absorption", "size" for a pigment; "thickness", "alpha" for an interference flake;
+    "albedo", "alpha" for a mirror flake), default all."""
+    kind = entry["kind"]
+    groups = {"pigment": ("absorption", "size"), "interference_flake": ("thickness", "alpha"),
+              "mirror_flake": ("albedo", "alpha")}[kind]
+    chosen = groups if free is None else tuple(free)
+    bad = [g for g in chosen if g not in groups]
+    if bad:
+        raise ValueError(f"free parameter group(s) {bad} do not apply to a {kind}; use {', '.join(groups)}")
+    out = []
+    for g in chosen:
+        if g == "absorption":
+            out += [CalParam(f"absorption_a{j}", -3.0, 3.0, f"Legendre coefficient {j} of ln k-factor")
+                    for j in range(degree + 1)]
+        elif g == "size":
+            out.append(CalParam("size_ln", -math.log(3.0), math.log(3.0), "ln(d / d_catalogue)"))
+        elif g == "thickness":
+            out.append(CalParam("thickness_ln", -math.log(1.5), math.log(1.5), "ln(t / t_catalogue), outer coating"))
+        elif g == "alpha":
+            out.append(CalParam("alpha_ln", -math.log(4.0), math.log(4.0), "ln(α / α_catalogue)"))
+        elif g == "albedo":
+            a0 = float(entry["albedo"]["value"]) if "value" in entry["albedo"] and not isinstance(
+                entry["albedo"]["value"], list) else None
+            if a0 is None:
+                raise ValueError("albedo calibration needs a constant catalogue albedo")
+            out.append(CalParam("albedo_ln", math.log(0.02 / a0), math.log(1.0 / a0), "ln(a / a_catalogue)"))
+    return out
+
+
+def factor_grid() -> np.ndarray:
+    lo, hi = FACTOR_RANGE_NM
+    return np.arange(lo, hi + 0.5 * FACTOR_STEP_NM, FACTOR_STEP_NM)
+
+
+def ln_absorption_factor(coeffs, wavelength_nm) -> np.ndarray:
+    """ln of the calibrated k-factor, Σ a_j P_j(x) (module docstring), at ``wavelength_nm``.
+
+    No coefficients leave the absorption as it is (factor 1); a_0 alone scales it evenly:
+
+    >>> ln_absorption_factor([0.0], [400.0, 550.0]).tolist(), ln_absorption_factor([0.5], [400.0, 700.0]).tolist()
+    ([0.0, 0.0], [0.5, 0.5])
+    """
+    lo, hi = FACTOR_RANGE_NM
+    x = 2.0 * (np.asarray(wavelength_nm, float) - lo) / (hi - lo) - 1.0
+    return legendre.legval(x, np.asarray(coeffs, float))
+
+
+def calibrated_entry(entry, params, z, source="flakedb calibrate") -> dict:
+    """A new catalogue entry: ``entry`` with the fitted variables ``z`` applied (module docstring)."""
+    e = copy.deepcopy(entry)
+    val = {p.name: float(v) for p, v in zip(params, z)}
+    coeffs = [val[k] for k in sorted(val) if k.startswith("absorption_a")]
+    if coeffs:
+        wl = factor_grid()
+        f = np.exp(ln_absorption_factor(coeffs, wl))
+        if "absorption_factor" in entry:
+            f = f * absorption_factor(entry["absorption_factor"], wl)
+        e["absorption_factor"] = {"wavelength_nm": wl.tolist(), "value": [float(f"{v:.6g}") for v in f],
+                                  "source": f"{source}: exp(Legendre series {', '.join(f'{c:.5g}' for c in coeffs)})"}
+    if "size_ln" in val:
+        d = float(entry["median_diameter_um"]["value"]) * math.exp(val["size_ln"])
+        e["median_diameter_um"] = {"value": float(f"{d:.6g}"), "source": f"{source}: fitted (catalogue "
+                                   f"{entry['median_diameter_um']['value']:g} µm)"}
+    if "thickness_ln" in val:
+        film = e["coating"][0]
+        t = float(film["thickness_nm"]["value"]) * math.exp(val["thickness_ln"])
+        film["thickness_nm"] = {"value": float(f"{t:.6g}"), "source": f"{source}: fitted"}
+        total_nm = 2 * sum(f["thickness_nm"]["value"] for f in e["coating"]) + e["substrate"]["thickness_nm"]["value"]
+        e["thickness_um"] = {"value": total_nm / 1000.0, "source": "total of the film stack"}
+    if "alpha_ln" in val:
+        a = float(entry["orientation_alpha"]["value"]) * math.exp(val["alpha_ln"])
+        e["orientation_alpha"] = {"value": float(f"{a:.6g}"), "source": f"{source}: fitted"}
+    if "albedo_ln" in val:
+        a = min(1.0, float(entry["albedo"]["value"]) * math.exp(val["albedo_ln"]))
+        e["albedo"] = {"value": float(f"{a:.6g}"), "source": f"{source}: fitted"}
+    e["description"] = f"{entry['description']} (calibrated)"
+    return e
+
+
+@dataclass
+class CalibrationResult:
+    species: str
+    params: list
+    z: np.ndarray
+    stderr: np.ndarray
+    entry: dict
+    panels: list
+    de_start: list           # per panel (G,) ΔE00 at the catalogue's values
+    de_fit: list             # per panel (G,) at the fit
+    rms_residual: float
+    n_compose: int
+    nfev: int
+    message: str
+    history: list = field(default_factory=list)
+
+
+def _catalog_with(catalog, species, entry) -> dict:
+    cat = copy.deepcopy(catalog)
+    cat["particles"][species] = entry
+    return cat
+
+
+def _residuals(pred, target, lab_pred):
+    if target.spectral:
+        wl_t = target.wavelength_nm
+        wl_p = pred.wavelength_nm
+        if pred.mode != "spectral" or wl_t[0] < wl_p[0] - 1e-9 or wl_t[-1] > wl_p[-1] + 1e-9:
+            raise ValueError(f"{target.source}: spectral target on {wl_t[0]:g}-{wl_t[-1]:g} nm needs a spectral-mode "
+                             f"recipe covering it")
+        R = np.stack([np.interp(wl_t, wl_p, r) for r in pred.rf])
+        return 100.0 * (R - target.reflectance)
+    return ciede2000_residuals(target.lab_under(), lab_pred)
+
+
+def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=None, log=None,
+              max_nfev=40) -> CalibrationResult:
+    """Fit ``species``'s free parameters (module docstring) to ``panels`` (a list of :class:`Panel`)."""
+    log = log or (lambda s: None)
+    if not panels:
+        raise ValueError("calibrate: no panels")
+    base = copy.deepcopy(get_species(species, catalog))
+    params = free_parameters(base, free, degree)
+    for p in panels:
+        uses = [pt for layer in p.recipe_doc.get("layers", []) for pt in (layer.get("basecoat") or {}).get("particles", [])
+                if pt.get("species") == species]
+        if not uses:
+            raise ValueError(f"panel {p.name}: its recipe does not use species {species!r}")
+        recipe_from_doc(p.recipe_doc, p.name, catalog)  # valid before any computation
+    calls = [0]
+    cache = {}
+
+    def evaluate(z):
+        key = tuple(float(v) for v in z)
+        if key not in cache:
+            cat = _catalog_with(catalog, species, calibrated_entry(base, params, z))
+            out = []
+            for p in panels:  # a recipe holds its species' entries: parse it against the modified catalogue
+                pred = predict(recipe_from_doc(p.recipe_doc, p.name, cat), p.target.geometries, n, cat)
+                calls[0] += 1
+                lab = pred.lab(p.target.observer, p.target.illuminant)
+                out.append((pred, lab))
+            cache[key] = out
+        return cache[key]
+
+    def resid(z):
+        return np.concatenate([_residuals(pr, p.target, lab).ravel() for p, (pr, lab) in zip(panels, evaluate(z))])
+
+    def de(z):
+        return [delta_E_2000(p.target.lab_under(), lab) for p, (_, lab) in zip(panels, evaluate(z))]
+
+    history = []
+
+    def jac(z):
+        r0 = resid(z)
+        J = np.empty((r0.size, len(params)))
+        for j, prm in enumerate(params):
+            h = FD_STEP if z[j] + FD_STEP <= prm.hi else -FD_STEP
+            zj = z.copy()
+            zj[j] += h
+            J[:, j] = (resid(zj) - r0) / h
+        d = np.concatenate(de(z))
+        history.append({"z": z.tolist(), "cost": float(r0 @ r0), "max_dE00": float(d.max())})
+        log(f"iteration {len(history) - 1}: sum r^2 = {float(r0 @ r0):.4g}, max dE00 = {d.max():.3f}; "
+            + ", ".join(f"{p.name} = {v:+.4f}" for p, v in zip(params, z)) + f"  [{calls[0]} compose calls]")
+        return J
+
+    z0 = np.zeros(len(params))
+    lb = np.array([p.lo for p in params])
+    ub = np.array([p.hi for p in params])
+    de0 = de(z0)
+    sol = least_squares(resid, z0, jac=jac, bounds=(lb, ub), method="trf", x_scale="jac", ftol=FTOL, xtol=XTOL,
+                        gtol=1e-10, max_nfev=max_nfev)
+    z = sol.x
+    r = resid(z)
+    J = jac(z)
+    dof = max(r.size - len(params), 1)
+    s2 = float(r @ r) / dof
+    try:
+        cov = s2 * np.linalg.inv(J.T @ J)
+        stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    except np.linalg.LinAlgError:
+        stderr = np.full(len(params), np.inf)
+    entry = calibrated_entry(base, params, z, source=f"flakedb calibrate from {len(panels)} panel(s)")
+    d1 = de(z)
+    log(f"done: {str(sol.message).strip()}; max dE00 {np.concatenate(d1).max():.3f} (start "
+        f"{np.concatenate(de0).max():.3f}); {calls[0]} compose calls")
+    return CalibrationResult(species=species, params=params, z=z, stderr=stderr, entry=entry, panels=panels,
+                             de_start=de0, de_fit=d1, rms_residual=math.sqrt(float(r @ r) / r.size),
+                             n_compose=calls[0], nfev=int(sol.nfev), message=str(sol.message), history=history)
+
+
+# ----------------------------------------------------------------------------------------------
+# Files: the ladder manifest and the user catalogue
+# ----------------------------------------------------------------------------------------------
+
+
+def read_ladder(path):
+    """``(species, name, free, panels)`` from a ladder manifest YAML (docs/calibration.md)::
+
+        species: cadmium-yellow          # the catalogue species the panels use
+        name: cadmium-yellow-lab         # the calibrated species' name in the user catalogue
+        free: [absorption, size]         # optional (default: all of the kind's groups)
+        panels:
+          - {recipe: masstone.yaml, target: masstone.csv}
+          - {recipe: letdown-1-4.yaml, target: ladder.cxf, cxf_object: LD-1:4}
+
+    Paths are relative to the manifest.  Raises ValueError naming the field.
+    """
+    p = Path(path)
+    try:
+        doc = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ValueError(f"{p}: no such file") from None
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{p}: YAML syntax error: {exc}") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{p}: a ladder manifest is a YAML mapping (species, name, panels)")
+    extra = set(doc) - {"species", "name", "free", "panels", "description"}
+    if extra:
+        raise ValueError(f"{p}: unknown key(s) {sorted(extra)} (allowed: species, name, free, panels, description)")
+    for k in ("species", "name", "panels"):
+        if k not in doc:
+            raise ValueError(f"{p}: '{k}' is missing")
+    if not isinstance(doc["panels"], list) or not doc["panels"]:
+        raise ValueError(f"{p}: panels must be a non-empty list of {{recipe: R.yaml, target: T.csv}}")
+    panels = []
+    for i, e in enumerate(doc["panels"]):
+        where = f"{p}: panels[{i}]"
+        if not isinstance(e, dict) or "recipe" not in e or "target" not in e:
+            raise ValueError(f"{where}: give recipe: R.yaml and target: T.csv (or .cxf)")
+        rp = p.parent / str(e["recipe"])
+        try:
+            rdoc = yaml.safe_load(rp.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise ValueError(f"{where}.recipe: {rp}: no such file") from None
+        try:
+            tgt = load_target(p.parent / str(e["target"]), object_name=e.get("cxf_object"))
+        except TargetError as exc:
+            raise ValueError(f"{where}.target: {exc}") from None
+        panels.append(Panel(name=str(e.get("name") or rp.stem), recipe_doc=rdoc, target=tgt))
+    free = doc.get("free")
+    return str(doc["species"]), str(doc["name"]), (None if free is None else list(free)), panels
+
+
+def write_user_catalog(path, base_catalog, name, entry, note="") -> str:
+    """Write ``base_catalog`` plus ``name: entry`` to ``path`` (atomically), validated first."""
+    cat = copy.deepcopy(base_catalog)
+    if name in cat["particles"]:
+        raise ValueError(f"a species named {name!r} is already in the base catalogue; choose another name")
+    cat["particles"][name] = entry
+    problems = validate_catalog(cat)
+    if problems:
+        raise CatalogError(f"{path}: the calibrated catalogue is invalid:\n  " + "\n  ".join(problems))
+    text = ("# flakedb user catalogue: the base catalogue plus species calibrated by `flakedb calibrate`"
+            + (f"\n# {note}" if note else "") + "\n" + yaml.safe_dump(cat, sort_keys=False, allow_unicode=True))
+    atomic_write_text(Path(path), text)
+    return str(path)
+
+
+__all__ = ["ABSORPTION_DEGREE", "CalParam", "CalibrationResult", "Panel", "RecipeError", "calibrate",
+           "calibrated_entry", "free_parameters", "ln_absorption_factor", "read_ladder", "write_user_catalog"]
