@@ -326,9 +326,8 @@ def table_evaluator(table: BSDFTable, path=None, metadata=None) -> FourierBSDF:
     >>> ev = table_evaluator(BSDFTable(np.concatenate([-x[::-1], x]), reflection=refl))
     >>> bool(np.allclose(ev.eval(0.5, -0.3, 1.0), rho * 0.3 / np.pi, rtol=1e-12, atol=0))
     True
-    >>> np.round(ev.albedo(np.array([0.3, 0.9])), 9)
-    array([[0.8, 0.5, 0.2],
-           [0.8, 0.5, 0.2]])
+    >>> np.round(ev.albedo(np.array([0.3, 0.9])), 9).tolist()
+    [[0.8, 0.5, 0.2], [0.8, 0.5, 0.2]]
     """
     C, n, _, L = table.coeffs.shape
     h = n // 2

@@ -273,8 +273,8 @@ def XYZ_to_Lab(XYZ, white="D65") -> np.ndarray:
     The perfect white diffuser is L* = 100, a* = b* = 0 relative to the white of its own grid:
 
     >>> wl = spectral_grid()
-    >>> np.round(XYZ_to_Lab(white_XYZ(wl), white=white_XYZ(wl)), 10) + 0.0
-    array([100.,   0.,   0.])
+    >>> (np.round(XYZ_to_Lab(white_XYZ(wl), white=white_XYZ(wl)), 10) + 0.0).tolist()
+    [100.0, 0.0, 0.0]
     """
     XYZ = np.asarray(XYZ, dtype=float)
     if isinstance(white, str):

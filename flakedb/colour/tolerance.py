@@ -148,8 +148,8 @@ def metamerism_index(reflectance_ref, reflectance_sample, wavelength_nm, observe
     pair of identical spectra is no metameric pair:
 
     >>> wl = np.arange(380.0, 781.0, 10.0)
-    >>> np.round(reflectance_to_Lab(np.ones(wl.size), wl, observer="10", illuminant="A"), 10) + 0.0
-    array([100.,   0.,   0.])
+    >>> (np.round(reflectance_to_Lab(np.ones(wl.size), wl, observer="10", illuminant="A"), 10) + 0.0).tolist()
+    [100.0, 0.0, 0.0]
     >>> float(metamerism_index(np.full(wl.size, 0.5), np.full(wl.size, 0.5), wl))
     0.0
     """

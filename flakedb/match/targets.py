@@ -159,9 +159,8 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     >>> t = read_target(path)
     >>> t.name, t.spectral, t.geometries.tolist()
     ('grey', True, [[45.0, -15.0], [45.0, 15.0]])
-    >>> np.round(t.lab_under(observer="10", illuminant="A"), 4) + 0.0
-    array([[76.0693,  0.    ,  0.    ],
-           [76.0693,  0.    ,  0.    ]])
+    >>> (np.round(t.lab_under(observer="10", illuminant="A"), 4) + 0.0).tolist()
+    [[76.0693, 0.0, 0.0], [76.0693, 0.0, 0.0]]
     """
     if isinstance(path_or_text, str) and "\n" in path_or_text:
         text, where = path_or_text, source or "<target>"
