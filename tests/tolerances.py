@@ -145,3 +145,28 @@ def assert_within(actual, desired, bound, what: str = "the bound"):
         i = np.unravel_index(np.argmax(np.where(bad, err / np.maximum(bound, 1e-300), 0)), err.shape)
         raise AssertionError(f"{int(bad.sum())} of {err.size} elements outside {what}; worst at {i}: "
                              f"|Δ| = {err[i]:.3e} > {bound[i]:.3e}")
+
+
+#: Σ_k Σ_j |w_kj| / 24 of colour-science's Sprague polynomial coefficients (colour.algebra.SpragueInterpolator:
+#: a = w_s r_s / 24, rows (2, −16, 0, 16, −2, 0) … (−5, 25, −50, 50, −25, 5)): 884 / 24.
+SPRAGUE_ABS_WEIGHTS = 884 / 24
+#: Σ_j |c_j| / 209 of its boundary rows (884, −1960, 3033, −2648, 1080, −180) … that pad two points at each end.
+SPRAGUE_ABS_PAD = 9785 / 209
+
+
+def sprague_node_tol(values, evaluations: int = 2) -> np.ndarray:
+    """Bound on colour-science's Sprague interpolation of ``values`` (tabulated along axis 0) at its own
+    nodes: a node is the right end of its interval (X = 1), returned as r_i + Σ_{k=1}^{5} a_k with
+    a = w_s r_s / 24 (6 products, ÷ 24, 5 powers and 6 additions: γ_18), so it differs from the
+    tabulated value by ≤ γ_18 (|r_i| + 884/24 · max|r| over the 6-point stencil), the two padded end
+    points counting 9785/209 × the largest of the first (last) six.  The result depends on the BLAS
+    kernel that evaluates w_s r_s."""
+    y = np.abs(np.asarray(values, float))
+    pad_lo = SPRAGUE_ABS_PAD * y[:6].max(axis=0, keepdims=True)
+    pad_hi = SPRAGUE_ABS_PAD * y[-6:].max(axis=0, keepdims=True)
+    r = np.concatenate([pad_lo, pad_lo, y, pad_hi, pad_hi])   # padded as colour-science pads, in magnitude
+    win = np.lib.stride_tricks.sliding_window_view(r, 6, axis=0).max(axis=-1)  # win[s] = max r[s … s+5]
+    # node m (padded index m + 2) is found in interval i = m + 1, stencil r[m − 1 … m + 4]; for m = 0 the
+    # index −1 wraps to the last padded point
+    stencil = np.concatenate([np.maximum(win[:1], pad_hi), win])
+    return evaluations * gamma(18) * (y + SPRAGUE_ABS_WEIGHTS * stencil)
