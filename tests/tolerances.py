@@ -22,12 +22,13 @@ import scipy.linalg
 U = np.finfo(np.float64).eps / 2
 
 
-def gamma(n: int) -> float:
-    """γ_n = n u / (1 − n u) (Higham eq. 3.5): the relative bound of a sum of n rounded products."""
-    nu = n * U
-    if nu >= 1:
+def gamma(n):
+    """γ_n = n u / (1 − n u) (Higham eq. 3.5): the relative bound of a sum of n rounded products
+    (elementwise for an array of counts)."""
+    nu = np.asarray(n, dtype=float) * U
+    if np.any(nu >= 1):
         raise ValueError(f"gamma({n}): n u >= 1, no bound")
-    return nu / (1 - nu)
+    return nu / (1 - nu) if nu.ndim else float(nu / (1 - nu))
 
 
 def ulps(k: float, scale) -> np.ndarray:
