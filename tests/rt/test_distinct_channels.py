@@ -21,7 +21,7 @@ def test_grey_rgb_is_the_mono_solve_spread():
                        SolverSettings.product(n))
     assert rgb.info["distinct_channels"] == 1 and rgb.Rt.shape[1] == 3
     L = min(rgb.n_orders, mono.n_orders)
-    assert np.array_equal(rgb.Rt[:L], np.broadcast_to(mono.Rt[:L], rgb.Rt[:L].shape))
+    assert np.array_equal(rgb.Rt[:L], np.broadcast_to(mono.Rt[:L], rgb.Rt[:L].shape))  # exact by construction: solved once, broadcast
     assert np.array_equal(rgb.albedo(), np.broadcast_to(mono.albedo(), (3, n // 2)))
 
 

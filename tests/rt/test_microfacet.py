@@ -22,6 +22,7 @@ from flakedb.conventions import fourier_weight
 from flakedb.rt import microfacet as mf
 from flakedb.rt.quadrature import binder_chain_quadratures, radau_hemisphere
 from flakedb.rt.stack import Lambertian, Rough, RoughConductor, Smooth, SolverSettings, solve_stack
+from tests import tolerances as tol
 
 ETA = 1.5
 N_PATHS = 400_000
@@ -44,7 +45,9 @@ def test_flux_cells_partition_and_hold_their_nodes():
         C = mf.flux_cell_edges(q.x, q.w)
         assert C[0] == 0.0 and abs(C[-1] - 1.0) < 1e-14 and np.all(np.diff(C) > 0)
         assert np.all((q.x >= C[:-1]) & (q.x <= C[1:] + 1e-15))
-        assert np.allclose(0.5 * np.diff(C**2), q.w * q.x, rtol=1e-12, atol=0)
+        # C_j² = S_j / S_h (sequential cumsum γ_j, pairwise sum γ_h, ÷, √, ²) differenced; the rule's own |Σ 2wx − 1|
+        tol.assert_within(0.5 * np.diff(C**2), q.w * q.x, 0.5 * tol.gamma(np.arange(1, h + 1) + h + 5) * (C[1:]**2 + C[:-1]**2)
+                          + q.w * q.x * (abs(2 * np.sum(q.w * q.x) - 1) + tol.gamma(h + 2)))
         t, om, cell = mf.cell_rule(q.x, q.w, 0.01)
         assert np.allclose(np.bincount(cell, om), q.w * q.x, rtol=1e-13, atol=0)
         assert np.all((t >= C[cell] - 1e-15) & (t <= C[cell + 1] + 1e-15))

@@ -14,6 +14,7 @@ from flakedb.paint import catalog as cat
 from flakedb.paint import species as sp
 from flakedb.rt.fourier import cosine_coefficients
 from flakedb.store import compress as C
+from tests import tolerances as tol
 
 N, M = 8, 17
 
@@ -91,9 +92,13 @@ def test_full_rank_is_exact(grids, name):
     R = grids[name]
     f = C.sqrt_svd_compress(R, M)  # min(n², m) = m
     assert f.U_pairs.shape == (N * N, M * (M + 1) // 2) and f.V_pairs.shape == (M * (M + 1) // 2, M)
-    np.testing.assert_allclose(C.reconstruct(f.U_pairs, f.V_pairs, N), R, rtol=0, atol=1e-12 * R.max())
+    # full-rank SVD of √R: backward error γ_{n²+m}‖√R‖₂ (Golub & Van Loan §8.6), squared (2√R δ), √ and the pairs' products
+    S2 = np.linalg.norm(np.sqrt(R).reshape(N * N, M), 2)
+    tol.assert_within(C.reconstruct(f.U_pairs, f.V_pairs, N), R, 2 * np.sqrt(R) * tol.gamma(N * N + M) * S2
+                      + tol.product_tol(f.U_pairs, f.V_pairs, evaluations=1, extra_ops=3).reshape(R.shape))
     A, B = C.svd_compress(R, M)
-    np.testing.assert_allclose((A @ B).reshape(R.shape), R, rtol=0, atol=1e-12 * R.max())
+    tol.assert_within((A @ B).reshape(R.shape), R, tol.gamma(N * N + M) * np.linalg.norm(R.reshape(N * N, M), 2)
+                      + tol.product_tol(A, B, evaluations=1).reshape(R.shape))  # SVD backward error and the product
 
 
 @pytest.mark.parametrize("rank", [1, 3, 8])
