@@ -22,7 +22,6 @@ from flakedb.rt.microflake import (
     flake_distribution,
     flake_ndf,
     flake_ndf_at_halfvector,
-    flake_ndf_Beckmann,
     flake_ndf_GGX,
     kernel_Ergun,
     kernel_Ergun_basis,
