@@ -474,7 +474,8 @@ def extinction_Ergun(mu, alpha, optics: FlakeOptics, a_rho_per_um, n_quad=24, di
     ``a_rho_per_um`` flake area × number density (µm²/µm³ = 1/µm).  Returns (C, *mu.shape).
     The integral is exact in the piecewise-linear T (moments of |ω·m| on each c-segment) and the
     quadrature over the flake normal reaches ~1e-13 relative at the default ``n_quad`` = 24
-    (tests/rt/test_microflake.py, both distributions).
+    (tests/rt/test_microflake.py; GGX: tests/rt/test_flake_distributions.py, 4e-14 against an independent
+    quadrature).
     """
     alpha = float(_check_alpha(alpha))
     edges, _, T_e = optics._segments()
