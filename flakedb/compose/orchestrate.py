@@ -357,6 +357,9 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
           "store": store_label, "generator": generator}
     if recipe.description:
         md["description"] = " ".join(str(recipe.description).split())
+    flakes = {c["path"]: c["orientation_distribution"] for c in paint.components if "orientation_distribution" in c}
+    if flakes:  # the flakes' normal distribution (flakedb.rt.microflake.FLAKE_DISTRIBUTIONS), by recipe path
+        md["flake_distributions"] = flakes
     t0 = time.perf_counter()
     table = stack_to_table(stack, paint.channels, paint.eta, paint.top_alpha, paint.delta, md)
     t["table"] = time.perf_counter() - t0

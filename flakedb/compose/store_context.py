@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
-from flakedb.paint.mapping import catalog_species, recipe_alpha, recipe_top_alpha
+from flakedb.paint.mapping import catalog_species, recipe_alpha, recipe_distribution, recipe_top_alpha
 from flakedb.rt.stored import StoredFlakeMedium
 from flakedb.store import versions as st
 from flakedb.store.versions import StoreError
@@ -62,8 +62,8 @@ def wavelength_map(store_nm, recipe_nm, tol_nm=1e-9):
 def store_problems(version, recipe, n, raw=False) -> list[str]:
     """What the open store ``version`` lacks to serve ``recipe``'s catalogue species at node count ``n``
     (empty: it can).  Checks the top interface (a smooth coat of the recipe's index η, or η = 1),
-    the node count n, every species (present, built from the same catalogue entry, flakes at the
-    recipe's α), the wavelength range, ``--raw`` (a version built with --raw), and recipe overrides the
+    the node count n, every species (present, built from the same catalogue entry, flakes in the
+    recipe's orientation distribution and at its α), the wavelength range, ``--raw`` (a version built with --raw), and recipe overrides the
     store cannot honour."""
     probs = []
     eta = float(recipe.binder_ior)
@@ -90,10 +90,17 @@ def store_problems(version, recipe, n, raw=False) -> list[str]:
             probs.append(f"species {p.species!r}: the store was built from a different catalogue entry "
                          f"(the catalogue changed since): rebuild")
         if p.is_flake:
-            a = recipe_alpha(p)
-            if not any(abs(a - x) <= 1e-12 for x in version.alphas(p.species)):
+            a, d = recipe_alpha(p), recipe_distribution(p)
+            have_d = version.distributions(p.species)
+            if d not in have_d:
+                probs.append(f"{p.path}: orientation_distribution {d!r} is not in the store: it holds {p.species!r} "
+                             f"for the {' and '.join(have_d) or 'no'} distribution(s) only (a version written "
+                             f"without distributions holds Beckmann flakes); the kernel depends on the distribution "
+                             f"through D(h): add it as a new version with the command below")
+            elif not any(abs(a - x) <= 1e-12 for x in version.alphas(p.species, d)):
                 probs.append(f"{p.path}: orientation α = {a:g} is not in the store (it has α "
-                             f"{version.alphas(p.species)} for {p.species!r}); the kernel depends on α through D(h): "
+                             f"{version.alphas(p.species, d)} for {p.species!r}"
+                             f"{'' if d == 'beckmann' else f' ({d})'}); the kernel depends on α through D(h): "
                              f"add it as a new version with the command below (projected once, not per compose)")
         if p.kind == "pigment" and (p.median_diameter_um is not None or p.gsd is not None):
             probs.append(f"{p.path}: the recipe overrides the pigment's size distribution; the store holds the "
@@ -174,14 +181,15 @@ class StoreContext:
         """The store paths this recipe reads (what compose verifies)."""
         out = [f"grid/n{self.n}/"]
         for p in catalog_species(recipe):
-            out.append(self.version.flake_prefix(p.species, self.n, recipe_alpha(p)) + "/" if p.is_flake
-                       else f"species/{p.species}/")
+            out.append(self.version.flake_prefix(p.species, self.n, recipe_alpha(p), recipe_distribution(p)) + "/"
+                       if p.is_flake else f"species/{p.species}/")
         return out
 
-    def flake_medium(self, species, alpha, a_rho, opaque=False):
-        """A :class:`flakedb.rt.stored.StoredFlakeMedium` of the species at the recipe's α and loading."""
-        return StoredFlakeMedium(self.version.flake_factors(species, self.n, alpha), float(a_rho), self.channel_map,
-                                 bool(opaque))
+    def flake_medium(self, species, alpha, a_rho, opaque=False, distribution="beckmann"):
+        """A :class:`flakedb.rt.stored.StoredFlakeMedium` of the species at the recipe's α, orientation
+        distribution and loading."""
+        return StoredFlakeMedium(self.version.flake_factors(species, self.n, alpha, distribution), float(a_rho),
+                                 self.channel_map, bool(opaque))
 
     def pigment(self, species) -> dict:
         """The pigment's stored Mie optics at the recipe's bands (selected / interpolated, not RGB-mapped)."""

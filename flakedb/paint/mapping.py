@@ -128,7 +128,7 @@ from flakedb.paint.recipe import (
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, vmf_mean_cosine
-from flakedb.rt.microflake import FlakeOptics, extinction_Ergun
+from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun
 from flakedb.rt.stack import InnerRough, InnerSmooth, Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings, solve_stack
 from flakedb.rt.stored import StoredMixture, StoredPigmentMedium
 
@@ -161,9 +161,20 @@ def recipe_top_alpha(recipe) -> float:
 
 
 def recipe_alpha(p) -> float:
-    """The Beckmann orientation spread α of a catalogue flake in a recipe: its ``orientation_alpha``
-    override, else the catalogue's."""
+    """The orientation spread α of a catalogue flake in a recipe: its ``orientation_alpha`` override, else
+    the catalogue's (the spread of :func:`recipe_distribution`)."""
     return float(p.orientation_alpha if p.orientation_alpha is not None else p.entry["orientation_alpha"]["value"])
+
+
+def recipe_distribution(p) -> str:
+    """The flake-normal distribution (a key of :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`) of a
+    catalogue or custom flake in a recipe: its ``orientation_distribution``, else the catalogue entry's,
+    else Beckmann (the paper's eq. 5; every catalogue entry and store written before the field)."""
+    own = getattr(p, "orientation_distribution", None)
+    if own is not None:
+        return str(own)
+    entry = getattr(p, "entry", None) or {}
+    return str(entry.get("orientation_distribution", DEFAULT_DISTRIBUTION))
 
 
 def flake_cos_grid(n=FLAKE_C_START) -> np.ndarray:
@@ -235,9 +246,10 @@ def flake_a_rho_from_volume_fraction(volume_fraction, flake_thickness_um) -> flo
     return float(volume_fraction) / float(flake_thickness_um)
 
 
-def flake_a_rho_from_optical_depth(optical_depth, layer_um, alpha, optics) -> float:
-    """aρ (1/µm) such that σ_t(μ = 1) · d = τ for flakes of ``optics`` (channel 0) and spread α."""
-    s1 = float(np.atleast_1d(extinction_Ergun(np.array([1.0]), alpha, optics, 1.0))[0].ravel()[0])
+def flake_a_rho_from_optical_depth(optical_depth, layer_um, alpha, optics, distribution=DEFAULT_DISTRIBUTION) -> float:
+    """aρ (1/µm) such that σ_t(μ = 1) · d = τ for flakes of ``optics`` (channel 0) and spread α of ``distribution``."""
+    s1 = float(np.atleast_1d(extinction_Ergun(np.array([1.0]), alpha, optics, 1.0,
+                                              distribution=distribution))[0].ravel()[0])
     return float(optical_depth) / (float(layer_um) * s1)
 
 
@@ -384,12 +396,14 @@ def _spectrum_or_const(value, wl, C):
 
 def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
     """FlakeMedium (or StoredFlakeMedium with ``stored``) and its record for a catalogue or custom flake."""
+    dist = recipe_distribution(p)
     if isinstance(p, CatalogParticle) and stored is not None:
         alpha = recipe_alpha(p)
         t = float(p.entry["thickness_um"]["value"])
         a_rho = flake_a_rho_from_volume_fraction(p.volume_fraction, t)
         rec = {"path": p.path, "species": p.species, "kind": p.kind, "volume_fraction": p.volume_fraction,
-               "flake_thickness_um": t, "orientation_alpha": alpha, "a_rho_per_um": a_rho, "opaque": p.opaque,
+               "flake_thickness_um": t, "orientation_alpha": alpha, "orientation_distribution": dist,
+               "a_rho_per_um": a_rho, "opaque": p.opaque,
                "diameter_um": float(p.diameter_um if p.diameter_um is not None else p.entry["diameter_um"]["value"]),
                "loading": "volume_fraction / flake thickness (model.md §3)"}
     elif isinstance(p, CatalogParticle):
@@ -406,7 +420,8 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
         a_rho = flake_a_rho_from_volume_fraction(p.volume_fraction, t)
         optics = FlakeOptics(c, R, T)
         rec = {"path": p.path, "species": p.species, "kind": p.kind, "volume_fraction": p.volume_fraction,
-               "flake_thickness_um": t, "orientation_alpha": alpha, "a_rho_per_um": a_rho, "opaque": p.opaque,
+               "flake_thickness_um": t, "orientation_alpha": alpha, "orientation_distribution": dist,
+               "a_rho_per_um": a_rho, "opaque": p.opaque,
                "diameter_um": float(p.diameter_um if p.diameter_um is not None else p.entry["diameter_um"]["value"]),
                "loading": "volume_fraction / flake thickness (docs/model.md §3)"}
     else:
@@ -415,15 +430,15 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
         T = np.interp(c, p.T.c, p.T.value)
         optics = FlakeOptics(c, np.broadcast_to(R, (C, c.size)), np.broadcast_to(T, (C, c.size)))
         alpha = float(p.orientation_alpha)
-        a_rho = flake_a_rho_from_optical_depth(p.optical_depth, layer_um, alpha, optics)
+        a_rho = flake_a_rho_from_optical_depth(p.optical_depth, layer_um, alpha, optics, dist)
         rec = {"path": p.path, "species": p.name, "kind": "custom flake", "optical_depth": p.optical_depth,
-               "orientation_alpha": alpha, "a_rho_per_um": a_rho,
+               "orientation_alpha": alpha, "orientation_distribution": dist, "a_rho_per_um": a_rho,
                "loading": "optical depth: sigma_t(mu=1) x layer thickness"}
     if stored is not None and isinstance(p, CatalogParticle):
-        med = stored.flake_medium(p.species, alpha, a_rho, opaque=p.opaque)
+        med = stored.flake_medium(p.species, alpha, a_rho, opaque=p.opaque, distribution=dist)
         rec["kernel"] = med.factors.source
     else:
-        med = FlakeMedium(alpha, optics, a_rho)
+        med = FlakeMedium(alpha, optics, a_rho, dist)
     st = np.atleast_2d(med.sigma_t(np.array([1.0])))[:, 0]
     rec["sigma_t_normal_per_um"] = [float(st.min()), float(st.max())]
     rec["optical_depth_normal"] = [float(st.min() * layer_um), float(st.max() * layer_um)]

@@ -127,6 +127,8 @@ class CatalogParticle:
     median_diameter_um: float | None = None
     gsd: float | None = None
     path: str = ""
+    #: the recipe's ``orientation_distribution`` override (None: the catalogue's, else Beckmann)
+    orientation_distribution: str | None = None
 
     @property
     def kind(self):
@@ -153,6 +155,8 @@ class CustomFlake:
     optical_depth: float
     name: str = "custom-flake"
     path: str = ""
+    #: the flake normals' distribution (flakedb.rt.microflake.FLAKE_DISTRIBUTIONS)
+    orientation_distribution: str = "beckmann"
 
 
 @dataclass
@@ -564,7 +568,8 @@ def _custom_flake_checks(pp, C, tau):
         if np.all(np.interp(cc, T.c, T.value) >= 1.0 - 1e-12):
             problems.append(f"{pp}.optical_depth: value {tau:g} cannot be met: a flake with T = 1 "
                             f"at every c has no extinction (hint: T < 1 somewhere)")
-    return problems, CustomFlake(R, T, float(C["orientation_alpha"]), tau, C.get("name", "custom-flake"), pp)
+    return problems, CustomFlake(R, T, float(C["orientation_alpha"]), tau, C.get("name", "custom-flake"), pp,
+                                 C.get("orientation_distribution", "beckmann"))
 
 
 def _custom_medium_albedo(pp, C, mode, grid):
@@ -626,7 +631,7 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
         return problems, warnings, None
     entry = allsp[name]
     is_flake = entry["kind"] != "pigment"
-    flake_only = ("orientation_alpha", "diameter_um", "opaque")
+    flake_only = ("orientation_alpha", "orientation_distribution", "diameter_um", "opaque")
     pig_only = ("median_diameter_um", "gsd")
     for key in (pig_only if is_flake else flake_only):
         if key in P:
@@ -651,7 +656,7 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
                             f"(hint: a layer must be thicker than its pigment particles)")
     particle = CatalogParticle(
         name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
-        P.get("median_diameter_um"), P.get("gsd"), pp)
+        P.get("median_diameter_um"), P.get("gsd"), pp, P.get("orientation_distribution"))
     return problems, warnings, particle
 
 

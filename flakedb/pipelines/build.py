@@ -18,7 +18,13 @@ from pathlib import Path
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint import catalog as cat
 from flakedb.paint import species as sp
-from flakedb.paint.mapping import catalog_species, recipe_alpha, recipe_top_alpha, resolve_node_count
+from flakedb.paint.mapping import (
+    catalog_species,
+    recipe_alpha,
+    recipe_distribution,
+    recipe_top_alpha,
+    resolve_node_count,
+)
 from flakedb.paint.materials import materials_dir
 from flakedb.paint.recipe import load_recipe
 from flakedb.pipelines.progress import BuildProgress
@@ -42,24 +48,42 @@ def material_checksums() -> dict:
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.iterdir()) if p.is_file()}
 
 
-def shipped_alphas(catalog=None) -> dict:
-    """Flake species → the orientation spreads α the shipped recipes (catalog/recipes/) use for them
-    (the catalogue's own α or a recipe's ``orientation_alpha``): the default store projects these."""
-    catalog = catalog or sp.load_catalog()
+def recipe_orientations(recipes) -> dict:
+    """Flake species → {orientation distribution: sorted α's} the catalogue flakes of ``recipes`` use
+    (:func:`flakedb.paint.mapping.recipe_distribution`, :func:`flakedb.paint.mapping.recipe_alpha`)."""
     out = {}
-    for path in sorted(Path(RECIPES_DIR).glob("*.yaml")):
-        rec = load_recipe(path, catalog)
+    for rec in recipes:
         for p in catalog_species(rec):
             if p.is_flake:
-                out.setdefault(p.species, set()).add(recipe_alpha(p))
-    return {k: sorted(v) for k, v in out.items()}
+                out.setdefault(p.species, {}).setdefault(recipe_distribution(p), set()).add(recipe_alpha(p))
+    return {k: {d: sorted(a) for d, a in sorted(v.items())} for k, v in out.items()}
+
+
+def _shipped_orientations(catalog=None) -> dict:
+    catalog = catalog or sp.load_catalog()
+    return recipe_orientations(load_recipe(path, catalog) for path in sorted(Path(RECIPES_DIR).glob("*.yaml")))
+
+
+def shipped_alphas(catalog=None) -> dict:
+    """Flake species → the Beckmann orientation spreads α the shipped recipes (catalog/recipes/) use for
+    them (the catalogue's own α or a recipe's ``orientation_alpha``): the default store projects these
+    (and :func:`shipped_distribution_alphas`)."""
+    return {k: v["beckmann"] for k, v in _shipped_orientations(catalog).items() if "beckmann" in v}
+
+
+def shipped_distribution_alphas(catalog=None) -> dict:
+    """Flake species → {distribution other than Beckmann: α's} the shipped recipes use."""
+    out = {k: {d: a for d, a in v.items() if d != "beckmann"} for k, v in _shipped_orientations(catalog).items()}
+    return {k: v for k, v in out.items() if v}
 
 
 def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, channel_block=8, store_raw=False,
-                 catalog_path=None, eta_top=None, rank_tol=None, recipe=None, top="smooth") -> st.BuildRequest:
+                 catalog_path=None, eta_top=None, rank_tol=None, recipe=None, top="smooth",
+                 distribution_alphas=None) -> st.BuildRequest:
     """A :class:`flakedb.store.versions.BuildRequest` from the catalogue (default: every species, sweeps
     included).  ``n``: node counts; ``wavelength_nm``: default 380–780 nm every 5 nm; ``alphas``:
-    flake species → α's (default: the catalogue's α and those the shipped recipes use);
+    flake species → Beckmann α's and ``distribution_alphas`` flake species → {distribution: α's}
+    (both None: the catalogue's α in the catalogue's distribution and those the shipped recipes use);
     ``eta_top``: the paints' smooth top index (None: plain Radau grid and the catalogue binder's
     index; see :mod:`flakedb.store.versions`); ``rank_tol``: the flakes' spectral SVD truncation.
 
@@ -79,35 +103,45 @@ def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, cha
         raise ValueError(f"unknown species {', '.join(unknown)}; known: {', '.join(allsp)}")
     ns = (int(n),) if isinstance(n, int) else tuple(int(x) for x in n)
     wl = spectral_grid(DEFAULT_RANGE_NM, DEFAULT_STEP_NM) if wavelength_nm is None else wavelength_nm
-    if alphas is None:
-        ship = shipped_alphas(catalog) if catalog_path is None else {}
-        alphas = {}
+    if alphas is None and distribution_alphas is None:
+        ship = _shipped_orientations(catalog) if catalog_path is None else {}
+        alphas, distribution_alphas = {}, {}
         for s in names:
             if allsp[s]["kind"] != "pigment":
-                alphas[s] = sorted({float(allsp[s]["orientation_alpha"]["value"]), *ship.get(s, [])})
+                orient = {d: set(a) for d, a in ship.get(s, {}).items()}
+                orient.setdefault(allsp[s].get("orientation_distribution", "beckmann"), set()).add(
+                    float(allsp[s]["orientation_alpha"]["value"]))
+                for d, a in orient.items():
+                    if d == "beckmann":
+                        alphas[s] = sorted(a)
+                    else:
+                        distribution_alphas.setdefault(s, {})[d] = sorted(a)
+    alphas, distribution_alphas = alphas or {}, distribution_alphas or {}
     return st.BuildRequest(
         species={s: allsp[s] for s in names}, binder=catalog["binder"], material_checksums=material_checksums(),
         resolutions=tuple(ns), wavelength_nm=tuple(float(w) for w in wl),
         alphas={k: [float(a) for a in v] for k, v in alphas.items() if k in names},
         channel_block=int(channel_block), store_raw=bool(store_raw),
         rank_tol=float(rank_tol) if rank_tol is not None else RANK_TOL,
-        eta_top=None if eta_top is None else float(eta_top), recipe=recipe, top=str(top))
+        eta_top=None if eta_top is None else float(eta_top), recipe=recipe, top=str(top),
+        distribution_alphas={k: {d: [float(a) for a in v] for d, v in dv.items()}
+                             for k, dv in distribution_alphas.items() if k in names})
 
 
 def request_for_recipe(recipe, n=None, store_raw=False, catalog_path=None) -> st.BuildRequest:
     """Exactly what ``recipe`` needs (``flakedb build --recipe``): its catalogue species, its node
-    count (``n`` or the recipe's own: resolution or auto), its α's, its wavelengths and its binder
-    index as the top interface's (a rough coat: the nodes of a rough top)."""
+    count (``n`` or the recipe's own: resolution or auto), its flakes' (distribution, α)'s, its
+    wavelengths and its binder index as the top interface's (a rough coat: the nodes of a rough top)."""
     n = resolve_node_count(recipe, n)[0]
     names = sorted({p.species for p in catalog_species(recipe)})
     if not names:
         raise ValueError(f"recipe {recipe.name!r} has no catalogue species: it needs no store")
-    alphas = {}
-    for p in catalog_species(recipe):
-        if p.is_flake:
-            alphas.setdefault(p.species, set()).add(recipe_alpha(p))
+    orient = recipe_orientations([recipe])
+    alphas = {k: v["beckmann"] for k, v in orient.items() if "beckmann" in v}
+    other = {k: {d: a for d, a in v.items() if d != "beckmann"} for k, v in orient.items()}
     wl = recipe.wavelength_nm if recipe.wavelength_nm is not None else spectral_grid(DEFAULT_RANGE_NM, DEFAULT_STEP_NM)
-    return make_request(species=names, n=int(n), wavelength_nm=wl, alphas={k: sorted(v) for k, v in alphas.items()},
+    return make_request(species=names, n=int(n), wavelength_nm=wl, alphas=alphas,
+                        distribution_alphas={k: v for k, v in other.items() if v},
                         store_raw=store_raw, catalog_path=catalog_path, eta_top=float(recipe.binder_ior),
                         recipe=recipe.name, top=recipe_top(recipe))
 

@@ -27,6 +27,7 @@ COMP_HG = 1
 COMP_TABLE = 2
 COMP_FLAKE = 3
 COMP_VMF = 4
+COMP_FLAKE_GGX = 5  # flakes whose normals follow the GGX (Trowbridge–Reitz) density
 
 TOP_NONE = 0
 TOP_SMOOTH = 1
@@ -136,6 +137,24 @@ def _sample_beckmann_normal(alpha, s):
     tan2 = -alpha * alpha * math.log(1.0 - u1)
     cos_t = 1.0 / math.sqrt(1.0 + tan2)
     sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+    phi = _TWO_PI * u2
+    return sin_t * math.cos(phi), sin_t * math.sin(phi), cos_t
+
+
+@njit(cache=True)
+def _sample_ggx_flake_normal(alpha, s):
+    """Flake normal with the GGX (Trowbridge–Reitz) density folded onto the upper hemisphere,
+    2 D(m) = α² / (π cos³θ (α² + tan²θ)²) (flake convention: D on the sphere integrates to 1).
+
+    In X = tan²θ this is the density α² / (α² + X)² dX × dφ/(2π) (sin θ dθ = t dt/(1 + t²)^{3/2}
+    cancels the cos³θ), whose CDF is X/(α² + X): X = α² u₁/(1 − u₁), cos θ = 1/√(1 + X), φ = 2π u₂.
+    Returns (mx, my, mz), mz = cos θ > 0.
+    """
+    u1 = _uniform(s)
+    u2 = _uniform(s)
+    x = alpha * alpha * u1 / (1.0 - u1)
+    cos_t = 1.0 / math.sqrt(1.0 + x)
+    sin_t = math.sqrt(x) * cos_t
     phi = _TWO_PI * u2
     return sin_t * math.cos(phi), sin_t * math.sin(phi), cos_t
 
@@ -664,8 +683,11 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
             j += 1
             acc += comp_sigma[j]
         ctype = comp_type[j]
-        if ctype == COMP_FLAKE:
-            mx, my, mz = _sample_beckmann_normal(comp_alpha[j], s)
+        if ctype == COMP_FLAKE or ctype == COMP_FLAKE_GGX:
+            if ctype == COMP_FLAKE:
+                mx, my, mz = _sample_beckmann_normal(comp_alpha[j], s)
+            else:
+                mx, my, mz = _sample_ggx_flake_normal(comp_alpha[j], s)
             cdot = dx * mx + dy * my + mu * mz
             c = abs(cdot)
             if _uniform(s) >= c:

@@ -22,13 +22,15 @@ whose extinctions and kernels add:
   :class:`HenyeyGreenstein`, :class:`VonMisesFisher`, :class:`TabulatedPhase`); per-channel σ_t,
   albedo and phase parameters.
 * :class:`FlakeMedium` — translucent micro-flakes (paper eq. 2, docs/model.md §3): normals with the
-  Beckmann density D(m) = exp(−tan²θ/α²)/(2π α² |cos θ|³) on the sphere (paper eq. 5), reflectance
+  Beckmann density D(m) = exp(−tan²θ/α²)/(2π α² |cos θ|³) on the sphere (paper eq. 5), or
+  (``distribution="ggx"``) the GGX density D(m) = α²/(2π |cos θ|³ (α² + tan²θ)²), reflectance
   R(c) and transmittance T(c) of c = |ω·m|.
 
 How flakes are simulated (without σ_t(μ) quadrature, so independently of the solver)
 --------------------------------------------------------------------------------------
 Delta tracking with the majorant aρ (valid since |ω·m| ≤ 1), added to the other components' σ_t:
-at a tentative collision a flake normal m ~ D is drawn in closed form (tan²θ = −α² ln(1−u)); the
+at a tentative collision a flake normal m ~ D is drawn in closed form (Beckmann tan²θ = −α² ln(1−u),
+GGX tan²θ = α² u/(1−u)); the
 collision is a real encounter with probability |ω·m| (else a null collision); the light then
 passes undeviated with probability T(c), otherwise it is reflected specularly, ω' = ω − 2(ω·m)m,
 **with its weight multiplied by R(c)/(1 − T(c))** (absorption carried by weights, no termination).
@@ -110,6 +112,7 @@ __all__ = [
     "binned_reflectance",
     "bin_average",
     "flake_ndf_Beckmann",
+    "flake_ndf_GGX",
     "compensation_table",
     "sample_vmf_cosines",
 ]
@@ -184,8 +187,9 @@ class PhaseMedium:
 class FlakeMedium:
     """Translucent micro-flakes (paper eq. 2, docs/model.md §3).
 
-    ``a_rho_per_um``: flake area × number density aρ (1/µm; scalar or (C,)); ``alpha``: Beckmann
-    roughness of the flake normals (paper eq. 5); ``R_table``, ``T_table``: flake reflectance and
+    ``a_rho_per_um``: flake area × number density aρ (1/µm; scalar or (C,)); ``alpha``: roughness of
+    the flake normals' density ``distribution`` ("beckmann": paper eq. 5; "ggx": :func:`flake_ndf_GGX`);
+    ``R_table``, ``T_table``: flake reflectance and
     transmittance as functions of c = |ω·m| — without ``c_grid``: constants (scalar or (C,)); with
     ``c_grid`` (n,): tables (n,) or (C, n), or scalars (constant), linearly interpolated in c.  ``c_grid`` must run from 0 to 1; R, T ≥ 0, R + T ≤ 1.
     """
@@ -195,6 +199,7 @@ class FlakeMedium:
     R_table: Any
     T_table: Any = 0.0
     c_grid: Any = None
+    distribution: str = "beckmann"
 
 
 @dataclass(frozen=True)
@@ -539,7 +544,10 @@ def _pack(problem, c):
                     tab.extend(cdf)
                 a = 0.0
             else:
-                t = _k.COMP_FLAKE
+                kinds = {"beckmann": _k.COMP_FLAKE, "ggx": _k.COMP_FLAKE_GGX}
+                if m.distribution not in kinds:
+                    raise ValueError(f"{p}.distribution: {m.distribution!r} is not one of {', '.join(kinds)}")
+                t = kinds[m.distribution]
                 sig = float(_pick(m.a_rho_per_um, c, f"{p}.a_rho_per_um"))
                 alb, g, a = 0.0, 0.0, float(m.alpha)
                 grid, R, T = _flake_table(m, c, p)
@@ -656,6 +664,16 @@ def flake_ndf_Beckmann(cos_theta, alpha):
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         tan2 = (1.0 - c * c) / (c * c)
         d = np.exp(-tan2 / alpha**2) / (2 * np.pi * alpha**2 * c**3)
+    return np.where(c > 0, d, 0.0)
+
+
+def flake_ndf_GGX(cos_theta, alpha):
+    """The GGX (Trowbridge–Reitz) flake normal density on the sphere, in 1/sr:
+    D(m) = α² / (2π |cos θ|³ (α² + tan²θ)²); symmetric under m → −m, ∫_sphere D dm = 1."""
+    c = np.abs(np.asarray(cos_theta, dtype=float))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        tan2 = (1.0 - c * c) / (c * c)
+        d = alpha**2 / (2 * np.pi * c**3 * (alpha**2 + tan2) ** 2)
     return np.where(c > 0, d, 0.0)
 
 

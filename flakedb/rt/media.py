@@ -21,6 +21,7 @@ from flakedb.rt.legendre import LEGENDRE_K_MAX, LEGENDRE_TOL, legendre_moments, 
 from flakedb.rt.microflake import (
     FlakeOptics,
     extinction_Ergun,
+    flake_distribution,
     interp_rows,
     kernel_Ergun,
     kernel_Ergun_basis,
@@ -363,53 +364,59 @@ def _bc(a):
 
 @dataclass
 class FlakeMedium:
-    """Translucent micro-flakes (paper eq. 2, docs/model.md §3): Beckmann orientation spread ``alpha``,
-    flake optics :class:`flakedb.rt.microflake.FlakeOptics` (R(c), T(c) per channel) and loading
-    ``a_rho_per_um`` (flake area per volume, 1/µm).  σ_t(μ) is the accurate 1-D integral of
-    :func:`flakedb.rt.microflake.extinction_Ergun`; the kernel is
+    """Translucent micro-flakes (paper eq. 2, docs/model.md §3): orientation spread ``alpha`` of the
+    flake-normal density ``distribution`` (a key of :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`:
+    "beckmann", paper eq. 5, or "ggx"), flake optics :class:`flakedb.rt.microflake.FlakeOptics`
+    (R(c), T(c) per channel) and loading ``a_rho_per_um`` (flake area per volume, 1/µm).  σ_t(μ) is
+    the accurate 1-D integral of :func:`flakedb.rt.microflake.extinction_Ergun`; the kernel is
     :func:`flakedb.rt.microflake.kernel_Ergun`.
     """
 
     alpha: float
     optics: object
     a_rho_per_um: float
+    distribution: str = "beckmann"
 
     def __post_init__(self):
         check_range("FlakeMedium", "alpha", self.alpha, 0.0, None, lo_open=True)
         check_range("FlakeMedium", "a_rho_per_um", self.a_rho_per_um, 0.0, None)
+        try:
+            self.distribution = flake_distribution(self.distribution).name
+        except ValueError as exc:
+            raise ValueError(f"FlakeMedium.distribution: {exc}") from None
 
     def sigma_t(self, mu):
-        return extinction_Ergun(np.abs(mu), self.alpha, self.optics, self.a_rho_per_um)
+        return extinction_Ergun(np.abs(mu), self.alpha, self.optics, self.a_rho_per_um, distribution=self.distribution)
 
     def subset(self, idx):
         o = self.optics
         if o.R.shape[0] == 1:
             return self
-        return FlakeMedium(self.alpha, FlakeOptics(o.c, o.R[idx], o.T[idx]), self.a_rho_per_um)
+        return FlakeMedium(self.alpha, FlakeOptics(o.c, o.R[idx], o.T[idx]), self.a_rho_per_um, self.distribution)
 
     def channel_key(self, C):
         """(C, 2 nc): the flake's R(c) and T(c) rows (α, c and the loading are shared by every channel)."""
         return _key_rows([np.atleast_2d(self.optics.R), np.atleast_2d(self.optics.T)], C)
 
     def sigma_s(self, mu):
-        return scattering_Ergun(np.abs(mu), self.alpha, self.optics, self.a_rho_per_um)
+        return scattering_Ergun(np.abs(mu), self.alpha, self.optics, self.a_rho_per_um, distribution=self.distribution)
 
     def kernel(self, mu_i, mu_o, phi_d):
-        return kernel_Ergun(mu_i, mu_o, phi_d, self.alpha, self.optics, self.a_rho_per_um)
+        return kernel_Ergun(mu_i, mu_o, phi_d, self.alpha, self.optics, self.a_rho_per_um, self.distribution)
 
     def kernel_basis(self):
         """The kernel (aρ/2) R(c) D(h) is linear in R(c) (paper eq. 2): R's table (C, nc) factored as
         M @ V (truncated SVD, :func:`flakedb.rt.microflake.table_basis`), basis kernels
         (aρ/2) V_b(c) D(h) with the geometry c, D(h) computed once for all rows."""
         M, V = table_basis(self.optics.R)
-        c, alpha, a_rho = self.optics.c, self.alpha, self.a_rho_per_um
-        return KernelBasis(lambda mi, mo, ph: kernel_Ergun_basis(mi, mo, ph, alpha, c, V, a_rho), M)
+        c, alpha, a_rho, dist = self.optics.c, self.alpha, self.a_rho_per_um, self.distribution
+        return KernelBasis(lambda mi, mo, ph: kernel_Ergun_basis(mi, mo, ph, alpha, c, V, a_rho, dist), M)
 
     @property
     def phi_bandwidth(self):
-        # the mirror lobe's width in φ at 45° is ≈ √2 α (microflake.kernel_phi_bandwidth); start
-        # from a few samples per lobe width, the projection refines adaptively
-        return int(2 ** np.ceil(np.log2(min(max(8.0, 8.0 * np.pi / (np.sqrt(2.0) * self.alpha)), 2.0**20))))
+        # the distribution's first guess from the mirror lobe's width in φ (microflake: FlakeDistribution.
+        # phi_samples); the projection refines adaptively
+        return flake_distribution(self.distribution).phi_samples(self.alpha)
 
 
 class ChannelSubset:

@@ -21,20 +21,37 @@ reflection* ω_o = ω_i − 2 (ω_i·m) m is ±normalize(ω_o − ω_i) (the pap
 faces of the (two-sided) flake; with D(h) = D(−h) the kernel is (aρ/2) R D(h).  Useful identity:
 the flake cosine is c = |ω_i·h| = |ω_o − ω_i| / 2 = sin(Θ/2), Θ the scattering angle.
 
-Flake normals follow the paper's Beckmann density on the sphere (eq. 5),
-D(m) = exp(−tan²θ_m/α²) / (2π α² |cos θ_m|³); see :func:`flake_ndf_Beckmann` for its normalisation.
+Flake normals follow a density D from the registry :data:`FLAKE_DISTRIBUTIONS` (colour-science's
+``method=`` style: every function that takes the orientation spread ``alpha`` takes
+``distribution="beckmann"`` too, docs/model.md §3 "Flake orientation distributions"):
+
+* ``"beckmann"``, the paper's density on the sphere (eq. 5), D(m) = exp(−tan²θ_m/α²) / (2π α² |cos θ_m|³)
+  (:func:`flake_ndf_Beckmann`);
+* ``"ggx"``, Trowbridge–Reitz (Trowbridge & Reitz 1975; Walter et al. 2007 eq. 33 as a microfacet
+  density), in the flake convention D(m) = α² / (2π |cos θ_m|³ (α² + tan²θ_m)²) (:func:`flake_ndf_GGX`).
+
+Both are even, D(m) = D(−m), and integrate to 1 over the whole sphere (each hemisphere 1/2): the
+microfacet density of that name times |cos θ_m|/2.
 """
 
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 __all__ = [
     "FlakeOptics",
+    "FlakeDistribution",
+    "FLAKE_DISTRIBUTIONS",
+    "DEFAULT_DISTRIBUTION",
+    "flake_distribution",
+    "flake_ndf",
     "flake_ndf_Beckmann",
+    "flake_ndf_GGX",
+    "projected_area",
     "ndf_halfvector_Ergun",
     "projected_area_Beckmann",
     "extinction_Ergun",
@@ -46,7 +63,9 @@ __all__ = [
     "pigment_extinction_Ergun",
     "pigment_scattering_Ergun",
     "UNIFORM_NDF_PER_SR",
+    "sample_flake_normal",
     "sample_flake_normal_Beckmann",
+    "sample_flake_normal_GGX",
 ]
 
 #: The uniform flake-normal density on the sphere used for pigments (paper eq. 8), 1/(4π) per sr.
@@ -164,7 +183,7 @@ class FlakeOptics:
 def _check_alpha(alpha):
     a = np.asarray(alpha, dtype=float)
     if not np.all(np.isfinite(a)) or np.any(a <= 0.0):
-        raise ValueError(f"alpha (Beckmann roughness of the flake orientations) must be finite and > 0, got {alpha!r}")
+        raise ValueError(f"alpha (the spread of the flake orientations) must be finite and > 0, got {alpha!r}")
     return a
 
 
@@ -186,6 +205,24 @@ def flake_ndf_Beckmann(cos_theta_m, alpha):
     with np.errstate(over="ignore", under="ignore"):
         log_d = -((1.0 - c_safe) * (1.0 + c_safe)) / (alpha * c_safe) ** 2 - 3.0 * np.log(c_safe)
         return np.where(pos, np.exp(log_d), 0.0) / (_TWO_PI * alpha**2)
+
+
+def flake_ndf_GGX(cos_theta_m, alpha):
+    """GGX (Trowbridge–Reitz) flake-normal density on the sphere, in 1/sr, in the flake convention of
+    :func:`flake_ndf_Beckmann` (even, ∫_{S²} D dm = 1):
+
+        D(m) = α² / (2π |cos θ_m|³ (α² + tan²θ_m)²) = α² c / (2π (α² c² + 1 − c²)²),   c = |cos θ_m|,
+
+    the microfacet GGX density of Walter et al. 2007 (eq. 33), α²/(π cos⁴θ (α² + tan²θ)²), times
+    |cos θ_m|/2.  Normalisation: in u = cos²θ_m the upper hemisphere carries
+    ∫_0^1 α² du / (2 (α² u + 1 − u)²) = 1/2.  The slope tan θ_m of the upper-hemisphere normal has the
+    heavy tail P(tan θ_m > t) = α²/(α² + t²).  Evaluated in the second form (no tan, no overflow at
+    c = 0, where D = 0).  ``cos_theta_m`` and ``alpha`` broadcast.
+    """
+    alpha = _check_alpha(alpha)
+    c = np.minimum(np.abs(np.asarray(cos_theta_m, dtype=float)), 1.0)
+    a2 = alpha * alpha
+    return a2 * c / (_TWO_PI * (a2 * c * c + (1.0 - c) * (1.0 + c)) ** 2)
 
 
 def _sines(mu):
@@ -295,11 +332,7 @@ def _abs_cosine_moments_Beckmann(mu_abs, alpha, levels, n_quad):
         th = np.arccos(np.clip(mu, -1.0, 1.0))
         s = np.sqrt(np.maximum(0.0, 1.0 - mu * mu))
         lev = levels[None, :]  # (1, K)
-        cands = []
-        for x in (-lev, np.zeros_like(lev), lev):
-            g = np.arccos(np.clip(-x, -1.0, 1.0))
-            cands += [g - th, th - g, th + g]
-        bp = np.stack([np.broadcast_to(cc, (m, K)) for cc in cands], axis=-1)
+        bp = _breakpoint_angles(th, lev, m, K)
         bp = np.where((bp > 0.0) & (bp < theta_max), np.tan(np.clip(bp, 0.0, theta_max)), t_max)
         bp = np.concatenate(
             [np.zeros((m, K, 1)), bp, np.broadcast_to(np.minimum(fixed, t_max), (m, K, fixed.size)),
@@ -313,37 +346,102 @@ def _abs_cosine_moments_Beckmann(mu_abs, alpha, levels, n_quad):
         t = ta + (tb - ta) * v
         wt = (tb - ta) * wv * t * np.exp(-((t / alpha) ** 2)) / (_TWO_PI * alpha**2)
         inv = 1.0 / np.sqrt(1.0 + t * t)
-        # the top level c = 1 must include |ω·m| = 1 exactly (μ = ±1 and t → 0 give a = −1 in floats)
-        mu4, s4, c4 = mu[..., None, None], s[..., None, None], np.where(lev >= 1.0, 1.0 + 1e-9, lev)[..., None, None]
-        a = -mu4 * inv
-        b = s4 * t * inv
-        p0, p1, p2 = _azimuth_moments(a, b, 0.0, c4)
-        n0, n1, n2 = _azimuth_moments(a, b, -c4, 0.0)
-        # ×2 for φ_m ∈ [π, 2π], ×2 for the lower hemisphere
-        out[0, m0 : m0 + m] = 4.0 * np.sum(wt * (p0 + n0), axis=(-1, -2))
-        out[1, m0 : m0 + m] = 4.0 * np.sum(wt * (p1 - n1), axis=(-1, -2))
-        out[2, m0 : m0 + m] = 4.0 * np.sum(wt * (p2 + n2), axis=(-1, -2))
+        mu4, s4 = mu[..., None, None], s[..., None, None]
+        _accumulate_azimuth(out, slice(m0, m0 + m), wt, -mu4 * inv, s4 * t * inv, lev)
+    return out
+
+
+def _breakpoint_angles(th, lev, m, K):
+    """The polar angles θ_m (m, K, 9) where an azimuthal breakpoint of the flake cosine
+    ω·m = −|μ| cos θ_m + s sin θ_m cos φ_m ∈ {−c, 0, c} enters or leaves [0, π] (at φ_m = 0 or π):
+    θ_m ∈ {γ − θ, θ − γ, θ + γ}, γ = arccos(−x), for ``th`` (m, 1) = arccos |μ| and ``lev`` (1, K)
+    the levels c.  Candidates outside (0, π/2) are the caller's to discard."""
+    cands = []
+    for x in (-lev, np.zeros_like(lev), lev):
+        g = np.arccos(np.clip(-x, -1.0, 1.0))
+        cands += [g - th, th - g, th + g]
+    return np.stack([np.broadcast_to(cc, (m, K)) for cc in cands], axis=-1)
+
+
+def _accumulate_azimuth(out, rows, wt, a, b, lev):
+    """out[j, rows] = Σ over the polar nodes of ``wt`` × ∫ 1[|ω·m| < c] |ω·m|^j dφ_m over the whole
+    azimuth and both hemispheres, with ω·m = a + b cos φ_m (a = −|μ| cos θ_m, b = s sin θ_m; arrays
+    (m, K, P, n_quad)) and ``wt`` the polar weights of the density on the upper hemisphere (D even)."""
+    # the top level c = 1 must include |ω·m| = 1 exactly (μ = ±1 and θ_m → 0 give a = −1 in floats)
+    c4 = np.where(lev >= 1.0, 1.0 + 1e-9, lev)[..., None, None]
+    p0, p1, p2 = _azimuth_moments(a, b, 0.0, c4)
+    n0, n1, n2 = _azimuth_moments(a, b, -c4, 0.0)
+    # ×2 for φ_m ∈ [π, 2π], ×2 for the lower hemisphere
+    out[0, rows] = 4.0 * np.sum(wt * (p0 + n0), axis=(-1, -2))
+    out[1, rows] = 4.0 * np.sum(wt * (p1 - n1), axis=(-1, -2))
+    out[2, rows] = 4.0 * np.sum(wt * (p2 + n2), axis=(-1, -2))
+
+
+#: Fixed panel splits of the GGX polar quadrature, in units of α (θ_m = arctan(k α)): the core of
+#: width ≈ α and the algebraic tail ∝ α²/θ³, each panel spanning at most a factor 2 in tan θ_m.
+_GGX_SPLITS = np.array([0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0])
+
+
+def _abs_cosine_moments_GGX(mu_abs, alpha, levels, n_quad):
+    """Φ_j(μ, c) = ∫_{S²} 1[|ω·m| < c] |ω·m|^j D(m) dm, j = 0, 1, 2, for the GGX density
+    (:func:`flake_ndf_GGX`).  Same output as :func:`_abs_cosine_moments_Beckmann`; the polar
+    integral is done in θ_m ∈ [0, π/2] (the slope tail of GGX is heavy, ∝ 1/t³, so no finite cut in
+    t = tan θ_m is exact), with the bounded, smooth weight D sin θ_m =
+    α² sin θ_m cos θ_m / (2π (α² cos²θ_m + sin²θ_m)²), panels at the same azimuthal breakpoints
+    (:func:`_breakpoint_angles`) and at θ_m = arctan(k α), k in :data:`_GGX_SPLITS`."""
+    mu_abs = np.asarray(mu_abs, dtype=float)
+    levels = np.asarray(levels, dtype=float)
+    M, K = mu_abs.size, levels.size
+    half_pi = 0.5 * np.pi
+    v, wv = _smoothstep_gauss_legendre(n_quad)
+    fixed = np.arctan(alpha * _GGX_SPLITS)
+    a2 = alpha * alpha
+    out = np.empty((3, M, K))
+    chunk = max(1, int(2_000_000 // max(1, K * 26 * n_quad)))
+    for m0 in range(0, M, chunk):
+        mu = mu_abs[m0 : m0 + chunk][:, None]  # (m, 1)
+        m = mu.shape[0]
+        th = np.arccos(np.clip(mu, -1.0, 1.0))
+        s = np.sqrt(np.maximum(0.0, 1.0 - mu * mu))
+        lev = levels[None, :]  # (1, K)
+        bp = _breakpoint_angles(th, lev, m, K)
+        bp = np.where((bp > 0.0) & (bp < half_pi), bp, half_pi)
+        bp = np.concatenate(
+            [np.zeros((m, K, 1)), bp, np.broadcast_to(fixed, (m, K, fixed.size)), np.full((m, K, 1), half_pi)],
+            axis=-1,
+        )
+        bp.sort(axis=-1)
+        n_used = int(np.max(np.sum(bp < half_pi, axis=-1))) + 1
+        bp = bp[..., : n_used + 1]
+        ta, tb = bp[..., :-1, None], bp[..., 1:, None]  # (m, K, P, 1)
+        tq = ta + (tb - ta) * v
+        ct, st = np.cos(tq), np.sin(tq)
+        wt = (tb - ta) * wv * a2 * st * ct / (_TWO_PI * (a2 * ct * ct + st * st) ** 2)
+        mu4, s4 = mu[..., None, None], s[..., None, None]
+        _accumulate_azimuth(out, slice(m0, m0 + m), wt, -mu4 * ct, s4 * st, lev)
     return out
 
 
 @functools.lru_cache(maxsize=16)
-def _abs_cosine_moments_cached(mu_bytes, alpha, levels_bytes, n_quad):
-    """:func:`_abs_cosine_moments_Beckmann` of float64 arrays given as bytes, cached (read-only result):
+def _abs_cosine_moments_cached(mu_bytes, alpha, levels_bytes, n_quad, distribution="beckmann"):
+    """The distribution's moments Φ_j (:attr:`FlakeDistribution.abs_cosine_moments`, e.g.
+    :func:`_abs_cosine_moments_Beckmann`) of float64 arrays given as bytes, cached (read-only result):
     a flake slab's σ_t and σ_s (and their repeats per solve) integrate the same moments at the same
     nodes and c-levels (measured: 3 of the 9 s of a direct tri-coat compose at n = 64 were repeats)."""
-    out = _abs_cosine_moments_Beckmann(np.frombuffer(mu_bytes), alpha, np.frombuffer(levels_bytes), n_quad)
+    moments = FLAKE_DISTRIBUTIONS[distribution].abs_cosine_moments
+    out = moments(np.frombuffer(mu_bytes), alpha, np.frombuffer(levels_bytes), n_quad)
     out.flags.writeable = False
     return out
 
 
-def _piecewise_linear_cosine_integral(mu, alpha, table_edges, edges, n_quad):
+def _piecewise_linear_cosine_integral(mu, alpha, table_edges, edges, n_quad, distribution="beckmann"):
     """∫ F(|ω·m|) |ω·m| D(m) dm for F linear on each [e_k, e_{k+1}] with values ``table_edges``
     (C, K+1) at ``edges`` (K+1,) → (C, *mu.shape).  Exact in F: uses the moments Φ_1, Φ_2."""
     mu = np.asarray(mu, dtype=float)
     flat = np.abs(mu).ravel()
     uniq, inverse = np.unique(flat, return_inverse=True)
     phi = _abs_cosine_moments_cached(uniq.tobytes(), float(alpha), np.asarray(edges[1:], float).tobytes(),
-                                     int(n_quad))  # (3, M, K)
+                                     int(n_quad), flake_distribution(distribution).name)  # (3, M, K)
     zeros = np.zeros((uniq.size, 1))
     m1 = np.diff(np.concatenate([zeros, phi[1]], axis=1), axis=1)  # (M, K) segment moments
     m2 = np.diff(np.concatenate([zeros, phi[2]], axis=1), axis=1)
@@ -353,29 +451,38 @@ def _piecewise_linear_cosine_integral(mu, alpha, table_edges, edges, n_quad):
     return val[:, inverse].reshape((table_edges.shape[0],) + mu.shape)
 
 
-def projected_area_Beckmann(mu, alpha, n_quad=24):
+def projected_area(mu, alpha, n_quad=24, distribution="beckmann"):
     """Mean projected area of a unit two-sided flake, ∫_{S²} |ω·m| D(m) dm (dimensionless), for D of
-    eq. 5; even in μ, → |μ| as α → 0 (flakes parallel to the surface).  Shape of ``mu``."""
+    ``distribution`` (:data:`FLAKE_DISTRIBUTIONS`); even in μ, → |μ| as α → 0 (flakes parallel to the
+    surface).  Shape of ``mu``."""
     alpha = float(_check_alpha(alpha))
     edges = np.array([0.0, 1.0])
-    return _piecewise_linear_cosine_integral(mu, alpha, np.ones((1, 2)), edges, n_quad)[0]
+    return _piecewise_linear_cosine_integral(mu, alpha, np.ones((1, 2)), edges, n_quad, distribution)[0]
 
 
-def extinction_Ergun(mu, alpha, optics: FlakeOptics, a_rho_per_um, n_quad=24):
+def projected_area_Beckmann(mu, alpha, n_quad=24):
+    """:func:`projected_area` of the Beckmann density (eq. 5)."""
+    return projected_area(mu, alpha, n_quad, "beckmann")
+
+
+def extinction_Ergun(mu, alpha, optics: FlakeOptics, a_rho_per_um, n_quad=24, distribution="beckmann"):
     """Extinction coefficient σ_t(μ) = aρ ∫ (1 − T(|ω·m|)) |ω·m| D(m) dm (paper eq. 2), in 1/µm.
 
     ``mu`` (any shape, conventions; the result is even in μ and independent of φ since D is
-    azimuthally symmetric), ``alpha`` Beckmann roughness (eq. 5), ``optics`` a :class:`FlakeOptics`,
+    azimuthally symmetric), ``alpha`` the orientation spread of D (``distribution``, a key of
+    :data:`FLAKE_DISTRIBUTIONS`; Beckmann: eq. 5), ``optics`` a :class:`FlakeOptics`,
     ``a_rho_per_um`` flake area × number density (µm²/µm³ = 1/µm).  Returns (C, *mu.shape).
     The integral is exact in the piecewise-linear T (moments of |ω·m| on each c-segment) and the
-    quadrature over the flake normal reaches ~1e-13 relative at the default ``n_quad`` = 24.
+    quadrature over the flake normal reaches ~1e-13 relative at the default ``n_quad`` = 24
+    (tests/rt/test_microflake.py; GGX: tests/rt/test_flake_distributions.py, 4e-14 against an independent
+    quadrature).
     """
     alpha = float(_check_alpha(alpha))
     edges, _, T_e = optics._segments()
-    return a_rho_per_um * _piecewise_linear_cosine_integral(mu, alpha, 1.0 - T_e, edges, n_quad)
+    return a_rho_per_um * _piecewise_linear_cosine_integral(mu, alpha, 1.0 - T_e, edges, n_quad, distribution)
 
 
-def scattering_Ergun(mu, alpha, optics: FlakeOptics, a_rho_per_um, n_quad=24):
+def scattering_Ergun(mu, alpha, optics: FlakeOptics, a_rho_per_um, n_quad=24, distribution="beckmann"):
     """Scattering coefficient σ_s(μ) = aρ ∫ R(|ω·m|) |ω·m| D(m) dm (paper eq. 2), in 1/µm.
 
     Same arguments and accuracy as :func:`extinction_Ergun`; returns (C, *mu.shape).  Equals
@@ -383,7 +490,7 @@ def scattering_Ergun(mu, alpha, optics: FlakeOptics, a_rho_per_um, n_quad=24):
     """
     alpha = float(_check_alpha(alpha))
     edges, R_e, _ = optics._segments()
-    return a_rho_per_um * _piecewise_linear_cosine_integral(mu, alpha, R_e, edges, n_quad)
+    return a_rho_per_um * _piecewise_linear_cosine_integral(mu, alpha, R_e, edges, n_quad, distribution)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -391,7 +498,7 @@ def scattering_Ergun(mu, alpha, optics: FlakeOptics, a_rho_per_um, n_quad=24):
 # ---------------------------------------------------------------------------------------------
 
 
-def kernel_Ergun(mu_i, mu_o, phi_d, alpha, optics: FlakeOptics, a_rho_per_um):
+def kernel_Ergun(mu_i, mu_o, phi_d, alpha, optics: FlakeOptics, a_rho_per_um, distribution="beckmann"):
     """Flake scattering kernel σ_s f_p(ω_i → ω_o) = (aρ/4) R(|ω_i·h|) (D(h) + D(−h)), paper eq. 2, in
     1/(µm·sr), with h = normalize(ω_o − ω_i) of the propagation directions (conventions).
 
@@ -400,15 +507,17 @@ def kernel_Ergun(mu_i, mu_o, phi_d, alpha, optics: FlakeOptics, a_rho_per_um):
     the surface orientation) and transmission-like scattering (μ_i μ_o > 0: steep flakes) occur.
     The flake cosine is c = |ω_i·h| = |ω_o − ω_i|/2.  ω_o = ω_i (h undefined, c = 0) gives 0, the
     limit along μ_o = μ_i, where h is horizontal and D(h) = 0.  Reciprocal:
-    kernel(μ_i, μ_o, φ_d) = kernel(−μ_o, −μ_i, φ_d).
+    kernel(μ_i, μ_o, φ_d) = kernel(−μ_o, −μ_i, φ_d).  ``distribution``: D, a key of
+    :data:`FLAKE_DISTRIBUTIONS` (Beckmann: eq. 5).
     """
+    ndf = flake_distribution(distribution).ndf
     alpha = _check_alpha(alpha)
     dmu, _, two_f = _halfvector_terms(mu_i, mu_o, phi_d)
     ok = two_f > 0.0
     length = np.sqrt(np.where(ok, two_f, 1.0))
     cos_h = np.where(ok, dmu / length, 0.0)  # h_z of h = (ω_o − ω_i)/|ω_o − ω_i|
     c = np.where(ok, 0.5 * length, 0.0)
-    d = flake_ndf_Beckmann(cos_h, alpha)  # D(h) = D(−h)
+    d = ndf(cos_h, alpha)  # D(h) = D(−h)
     return (0.25 * a_rho_per_um) * optics.reflectance(c) * (2.0 * d)
 
 
@@ -418,8 +527,24 @@ def _beckmann_peak(alpha):
     return (1.0 + x) ** 1.5 * np.exp(-x / alpha**2) / (_TWO_PI * alpha**2)
 
 
-def kernel_phi_bandwidth(alpha, mu_i, mu_o, eps=1e-6):
-    """First guess of the number L of cosine orders in φ_d needed for the kernel at (μ_i, μ_o).
+def _ggx_peak(alpha):
+    """max_m D(m) of :func:`flake_ndf_GGX`: D = α² (1+x)^{3/2} / (2π (α² + x)²) in x = tan²θ peaks at
+    x = max(0, 3α² − 4) (d log D/dx = 3/(2(1+x)) − 2/(α²+x))."""
+    alpha = np.asarray(alpha, dtype=float)
+    x = np.maximum(0.0, 3.0 * alpha**2 - 4.0)
+    return alpha**2 * (1.0 + x) ** 1.5 / (_TWO_PI * (alpha**2 + x) ** 2)
+
+
+def kernel_phi_bandwidth(alpha, mu_i, mu_o, eps=1e-6, distribution="beckmann"):
+    """First guess of the number L of cosine orders in φ_d needed for the kernel at (μ_i, μ_o), for
+    the flake distribution ``distribution`` (:data:`FLAKE_DISTRIBUTIONS`; Beckmann:
+    :func:`_kernel_phi_bandwidth_Beckmann`, GGX: :func:`_kernel_phi_bandwidth_GGX`).  Returns an int
+    array of the broadcast shape of (mu_i, mu_o, alpha)."""
+    return flake_distribution(distribution).kernel_bandwidth(alpha, mu_i, mu_o, eps)
+
+
+def _kernel_phi_bandwidth_Beckmann(alpha, mu_i, mu_o, eps=1e-6):
+    """First guess of the number L of cosine orders in φ_d needed for the Beckmann kernel at (μ_i, μ_o).
 
     Criterion: the neglected coefficients of D(h(μ_i, μ_o, ·)) beyond order L are below
     ``eps`` × max_m D(m) (the kernel's global peak scale; for constant R this is the relative error
@@ -470,6 +595,71 @@ def kernel_phi_bandwidth(alpha, mu_i, mu_o, eps=1e-6):
         L_f = np.where(need & (log_r < 0.0), np.ceil(np.log(eps / np.maximum(ratio, 1e-300)) / log_r), 0.0)
     L = np.where(need, L_B + np.maximum(L_f, 0.0), 0.0)
     L = np.where(s_i * s_o > 0.0, L, 0.0)  # μ = ±1: D(h) does not depend on φ_d
+    return L.astype(np.int64)
+
+
+def _kernel_phi_bandwidth_GGX(alpha, mu_i, mu_o, eps=1e-6):
+    """First guess of the number L of cosine orders in φ_d needed for the GGX kernel at (μ_i, μ_o), by
+    the criterion of :func:`_kernel_phi_bandwidth_Beckmann` (neglected coefficients of D(h(μ_i, μ_o, ·))
+    below ``eps`` × max_m D).  With x = tan²θ_h = x_0 + κ sin²(φ/2) (same x_0, κ),
+
+        D(φ) = α² (1 + x)^{3/2} / (2π (α² + x)²) = α² (1 + x)^{3/2} / (2π (a − b cos φ)²),
+        a = α² + x_0 + κ/2,  b = κ/2,
+
+    and the rational factor has exact cosine coefficients: from 1/(a − b cos φ) = (1 + 2 Σ r^l cos lφ)/√Δ,
+    Δ = a² − b² = (α² + x_0)(α² + x_0 + κ), r = b/(a + √Δ), differentiating in a gives
+    c_l = 2 r^l (l/Δ + a/Δ^{3/2}) (l ≥ 1).  Geometric, not Gaussian: GGX needs more orders than Beckmann
+    at the same α.  L_G is the first L whose tail Σ_{l>L} c_l (closed form, decreasing in L), relative
+    to the factor's peak 1/(a − b)² and times (P/D_max), is ≤ ``eps`` (P the pair's peak of D over φ);
+    L_f of the (1 + x)^{3/2} factor as for Beckmann; L = L_G + L_f.  A tabulated R(c) with kinks adds
+    a tail this does not cover: the projector checks convergence.
+    """
+    alpha = _check_alpha(alpha)
+    mu_i, mu_o, alpha = np.broadcast_arrays(np.asarray(mu_i, float), np.asarray(mu_o, float), alpha)
+    s_i, s_o = _sines(mu_i), _sines(mu_o)
+    dmu = mu_i - mu_o
+    adm2 = np.maximum(dmu * dmu, 1e-300)
+    x0 = (s_i - s_o) ** 2 / adm2
+    kappa = 4.0 * s_i * s_o / adm2
+    a2 = alpha**2
+    x_star = np.clip(np.maximum(0.0, 3.0 * a2 - 4.0), x0, x0 + kappa)
+    peak = a2 * (1.0 + x_star) ** 1.5 / (_TWO_PI * (a2 + x_star) ** 2)
+    ratio = np.where(dmu != 0.0, peak / _ggx_peak(alpha), 0.0)
+    need = (ratio > eps) & (s_i * s_o > 0.0)
+    amb = a2 + x0  # a − b
+    a = amb + 0.5 * kappa
+    sq = np.sqrt(amb * (amb + kappa))  # √Δ
+    r = np.where(kappa > 0.0, 0.5 * kappa / (a + sq), 0.0)
+    one_r = (amb + sq) / (a + sq)  # 1 − r without cancellation (r → 1 for narrow lobes)
+    norm = amb * amb  # 1/(a − b)², the factor's value at φ = 0, inverted
+
+    def tail(L):  # Σ_{l>L} c_l (a − b)², c_l = 2 r^l (l/Δ + a/Δ^{3/2})
+        with np.errstate(under="ignore", over="ignore", invalid="ignore"):
+            rl = r ** (L + 1.0)
+            s0 = rl / one_r
+            s1 = rl * ((L + 1.0) - L * r) / one_r**2
+            return np.where(r > 0.0, 2.0 * norm * (s1 / sq**2 + a * s0 / sq**3), 0.0)
+
+    hi = np.ones(mu_i.shape)
+    for _ in range(80):  # doubling until the tail bound holds, then bisection
+        bad = need & (ratio * tail(hi) > eps)
+        if not np.any(bad):
+            break
+        hi = np.where(bad, 2.0 * hi, hi)
+    lo = np.where(need, np.floor(0.5 * hi), 0.0)
+    for _ in range(64):
+        mid = np.floor(0.5 * (lo + hi))
+        bad = need & (ratio * tail(mid) > eps)
+        lo = np.where(bad, mid + 1.0, lo)
+        hi = np.where(bad, hi, np.maximum(mid, lo))
+        if np.all(lo >= hi):
+            break
+    L_G = np.where(need, hi, 0.0)
+    q = np.where(s_i * s_o > 0.0, (1.0 - mu_i * mu_o) / np.maximum(s_i * s_o, 1e-300), np.inf)
+    log_r = -np.arccosh(np.maximum(q, 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        L_f = np.where(need & (log_r < 0.0), np.ceil(np.log(eps / np.maximum(ratio, 1e-300)) / log_r), 0.0)
+    L = np.where(need, L_G + np.maximum(L_f, 0.0), 0.0)
     return L.astype(np.int64)
 
 
@@ -576,16 +766,38 @@ def sample_flake_normal_Beckmann(u1, u2, alpha):
     return np.stack(np.broadcast_arrays(sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t), axis=-1)
 
 
-def flake_ndf_at_halfvector(mu_i, mu_o, phi_d, alpha):
-    """D(h) of eq. 5 at h = normalize(ω_o − ω_i) (conventions), in 1/sr, evaluated as
-    :func:`kernel_Ergun` does (stable half-vector terms, then :func:`flake_ndf_Beckmann`); the same
-    value as the closed form :func:`ndf_halfvector_Ergun` (eq. 6-7).  Used by media whose R comes
-    from elsewhere (the store)."""
+def sample_flake_normal_GGX(u1, u2, alpha):
+    """Flake normals m distributed as :func:`flake_ndf_GGX` restricted to the upper hemisphere
+    (density 2 D(m)).  Closed-form inversion: P(tan²θ_m ≤ X) = X/(α² + X), so
+    tan²θ_m = α² u1/(1 − u1), i.e. cos θ_m = √((1 − u1)/(1 − u1 + α² u1)),
+    sin θ_m = α √(u1/(1 − u1 + α² u1)), and φ_m = 2π u2.  Arguments and result as
+    :func:`sample_flake_normal_Beckmann`."""
+    alpha = _check_alpha(alpha)
+    u1, u2 = np.broadcast_arrays(np.asarray(u1, float), np.asarray(u2, float))
+    den = 1.0 - u1 + alpha**2 * u1
+    cos_t = np.sqrt((1.0 - u1) / den)
+    sin_t = alpha * np.sqrt(u1 / den)
+    phi = _TWO_PI * u2
+    return np.stack(np.broadcast_arrays(sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t), axis=-1)
+
+
+def sample_flake_normal(u1, u2, alpha, distribution="beckmann"):
+    """Upper-hemisphere flake normals (density 2 D(m)) of ``distribution`` (:data:`FLAKE_DISTRIBUTIONS`)
+    from uniforms ``u1``, ``u2`` ∈ [0, 1); see :func:`sample_flake_normal_Beckmann`."""
+    return flake_distribution(distribution).sample(u1, u2, alpha)
+
+
+def flake_ndf_at_halfvector(mu_i, mu_o, phi_d, alpha, distribution="beckmann"):
+    """D(h) of ``distribution`` (:data:`FLAKE_DISTRIBUTIONS`; Beckmann: eq. 5) at h = normalize(ω_o − ω_i)
+    (conventions), in 1/sr, evaluated as :func:`kernel_Ergun` does (stable half-vector terms, then
+    the density); for Beckmann the same value as the closed form :func:`ndf_halfvector_Ergun`
+    (eq. 6-7).  Used by media whose R comes from elsewhere (the store)."""
+    ndf = flake_distribution(distribution).ndf
     alpha = _check_alpha(alpha)
     dmu, _, two_f = _halfvector_terms(mu_i, mu_o, phi_d)
     ok = two_f > 0.0
     cos_h = np.where(ok, dmu / np.sqrt(np.where(ok, two_f, 1.0)), 0.0)
-    return flake_ndf_Beckmann(cos_h, alpha)
+    return ndf(cos_h, alpha)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -627,16 +839,98 @@ def interp_rows(table, xp, x):
     return out
 
 
-def kernel_Ergun_basis(mu_i, mu_o, phi_d, alpha, c_grid, R_basis, a_rho_per_um):
+def kernel_Ergun_basis(mu_i, mu_o, phi_d, alpha, c_grid, R_basis, a_rho_per_um, distribution="beckmann"):
     """:func:`kernel_Ergun` for B basis rows ``R_basis`` (B, nc) of R(c) on ``c_grid`` (any sign; not a
     :class:`FlakeOptics`): (aρ/2) R_b(c) D(h), c = |ω_o − ω_i|/2, with the geometry (c, D(h))
     computed once for all rows.  Returns (B, *broadcast shape).  Linear in R, so a channel's kernel
-    with R = Σ_b M[c, b] R_b is Σ_b M[c, b] × this (paper eq. 2)."""
+    with R = Σ_b M[c, b] R_b is Σ_b M[c, b] × this (paper eq. 2).  ``distribution``: D, a key of
+    :data:`FLAKE_DISTRIBUTIONS`."""
+    ndf = flake_distribution(distribution).ndf
     alpha = _check_alpha(alpha)
     dmu, _, two_f = _halfvector_terms(mu_i, mu_o, phi_d)
     ok = two_f > 0.0
     length = np.sqrt(np.where(ok, two_f, 1.0))
     cos_h = np.where(ok, dmu / length, 0.0)
     c = np.where(ok, 0.5 * length, 0.0)
-    d = flake_ndf_Beckmann(cos_h, alpha)
+    d = ndf(cos_h, alpha)
     return (0.5 * a_rho_per_um) * interp_rows(R_basis, np.asarray(c_grid, dtype=float), c) * d[None]
+
+
+# ---------------------------------------------------------------------------------------------
+# The registry of flake orientation distributions (docs/model.md §3)
+# ---------------------------------------------------------------------------------------------
+
+
+def _phi_samples_Beckmann(alpha):
+    """First number of φ intervals for projecting a Beckmann flake kernel: the mirror lobe's width in φ
+    at 45° is ≈ √2 α (:func:`_kernel_phi_bandwidth_Beckmann`); a few samples per lobe width, a power of
+    2 in [8, 2^20] (the projection refines adaptively)."""
+    return int(2 ** np.ceil(np.log2(min(max(8.0, 8.0 * np.pi / (np.sqrt(2.0) * alpha)), 2.0**20))))
+
+
+#: GGX's first guess of φ intervals over Beckmann's at the same α.  Measured with
+#: :func:`kernel_phi_bandwidth` (eps 1e-6) at the 45° mirror pair μ_i = −μ_o = cos 45°: GGX needs
+#: 1.3× (α = 1) to 2.5× (α = 0.02) the orders of Beckmann (its coefficients decay geometrically, the
+#: Gaussian's faster), so twice the samples keep the first guess above the Nyquist count 2 L of that
+#: lobe for α ∈ [0.02, 2] (tests/rt/test_microflake.py), as Beckmann's own guess is.
+GGX_PHI_FACTOR = 2
+
+
+def _phi_samples_GGX(alpha):
+    """First number of φ intervals for projecting a GGX flake kernel: :data:`GGX_PHI_FACTOR` × the
+    Beckmann guess at the same α (capped at 2^20).  Only a first guess: the projection doubles the
+    samples until its coefficients converge (:func:`flakedb.rt.fourier.project_azimuthal`)."""
+    return int(min(GGX_PHI_FACTOR * _phi_samples_Beckmann(alpha), 2**20))
+
+
+@dataclass(frozen=True)
+class FlakeDistribution:
+    """One flake orientation distribution of :data:`FLAKE_DISTRIBUTIONS` (all on the unit sphere, even,
+    ∫_{S²} D dm = 1, azimuthally symmetric about the surface normal, spread ``alpha`` > 0):
+
+    ``ndf(cos_theta_m, alpha)`` the density D in 1/sr; ``peak(alpha)`` max_m D; ``abs_cosine_moments``
+    ``(mu_abs (M,), alpha, levels (K,), n_quad)`` → Φ_j(μ, c) = ∫ 1[|ω·m| < c] |ω·m|^j D dm (3, M, K)
+    (σ_t and σ_s, paper eq. 2); ``kernel_bandwidth(alpha, mu_i, mu_o, eps)`` the cosine orders in φ_d
+    of the kernel (:func:`kernel_phi_bandwidth`); ``phi_samples(alpha)`` the first number of φ
+    intervals of the projection; ``sample(u1, u2, alpha)`` upper-hemisphere normals of density 2 D;
+    ``source`` the citation of the density."""
+
+    name: str
+    ndf: Callable
+    peak: Callable
+    abs_cosine_moments: Callable
+    kernel_bandwidth: Callable
+    phi_samples: Callable
+    sample: Callable
+    source: str
+
+
+#: The flake orientation distributions by name (the recipe's ``orientation_distribution``).
+FLAKE_DISTRIBUTIONS = {
+    "beckmann": FlakeDistribution(
+        "beckmann", flake_ndf_Beckmann, _beckmann_peak, _abs_cosine_moments_Beckmann,
+        _kernel_phi_bandwidth_Beckmann, _phi_samples_Beckmann, sample_flake_normal_Beckmann,
+        "Ergun et al. 2016 eq. 5 (Beckmann, on the sphere)"),
+    "ggx": FlakeDistribution(
+        "ggx", flake_ndf_GGX, _ggx_peak, _abs_cosine_moments_GGX, _kernel_phi_bandwidth_GGX,
+        _phi_samples_GGX, sample_flake_normal_GGX,
+        "Trowbridge & Reitz 1975; Walter et al. 2007 eq. 33, times |cos θ_m|/2 (flake convention)"),
+}
+#: The distribution of a flake that states none (every store and file written before the registry).
+DEFAULT_DISTRIBUTION = "beckmann"
+
+
+def flake_distribution(distribution) -> FlakeDistribution:
+    """The :class:`FlakeDistribution` named ``distribution`` (case-insensitive; None: the default,
+    Beckmann).  Raises ValueError naming the known ones."""
+    key = DEFAULT_DISTRIBUTION if distribution is None else str(distribution).lower()
+    try:
+        return FLAKE_DISTRIBUTIONS[key]
+    except KeyError:
+        raise ValueError(f"unknown flake orientation distribution {distribution!r}; known: "
+                         f"{', '.join(FLAKE_DISTRIBUTIONS)}") from None
+
+
+def flake_ndf(cos_theta_m, alpha, distribution="beckmann"):
+    """The flake-normal density D of ``distribution`` (:data:`FLAKE_DISTRIBUTIONS`) in 1/sr."""
+    return flake_distribution(distribution).ndf(cos_theta_m, alpha)

@@ -31,7 +31,7 @@ from flakedb.rt.microflake import (
     FlakeOptics,
     extinction_Ergun,
     kernel_Ergun_basis,
-    projected_area_Beckmann,
+    projected_area,
     scattering_Ergun,
 )
 from flakedb.rt.projection import project_kernel_basis
@@ -193,6 +193,8 @@ class FlakeFactors:
     sigma_s: np.ndarray
     projected_area: np.ndarray
     source: str = "store"
+    #: the flake-normal density the factors were projected for (flakedb.rt.microflake.FLAKE_DISTRIBUTIONS)
+    distribution: str = "beckmann"
 
 
 @dataclass(eq=False)
@@ -336,8 +338,9 @@ def spectral_factors(table, rank_tol=RANK_TOL):
     return U[:, :r] * sign, (S[:r, None] * Vt[:r]) * sign[:, None], info
 
 
-def flake_factors(c, R, T, alpha, x, w, tol=1e-5, max_orders=None, rank_tol=RANK_TOL):
-    """The stored quantities of one flake species at one (nodes, α), per unit loading aρ = 1/µm.
+def flake_factors(c, R, T, alpha, x, w, tol=1e-5, max_orders=None, rank_tol=RANK_TOL, distribution="beckmann"):
+    """The stored quantities of one flake species at one (nodes, α, ``distribution``), per unit loading
+    aρ = 1/µm (``distribution``: the flake-normal density, :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`).
 
     ``c`` (nc,), ``R``, ``T`` (W, nc): the flake's tables (:class:`flakedb.rt.microflake.FlakeOptics`);
     ``x``, ``w`` (h,) the solver's inside hemisphere rule; ``tol``, ``max_orders`` as the solver's
@@ -355,14 +358,15 @@ def flake_factors(c, R, T, alpha, x, w, tol=1e-5, max_orders=None, rank_tol=RANK
     max_orders = int(max_orders) if max_orders else 4 * h
     U, basis, sinfo = spectral_factors(R, rank_tol)
     optics = FlakeOptics(c, R, T)
-    sigma_t = extinction_Ergun(x, alpha, optics, 1.0)
-    sigma_s = scattering_Ergun(x, alpha, optics, 1.0)
-    area = projected_area_Beckmann(x, alpha)
+    sigma_t = extinction_Ergun(x, alpha, optics, 1.0, distribution=distribution)
+    sigma_s = scattering_Ergun(x, alpha, optics, 1.0, distribution=distribution)
+    area = projected_area(x, alpha, distribution=distribution)
     mu_o = np.concatenate([-x, x])
     Wt = w[:, None] * np.concatenate([w, w])[None, :]
     n_max = max(2 * max_orders, 128)
-    n_start = min(max(4, FlakeMedium(alpha, optics, 1.0).phi_bandwidth), n_max)
-    coeffs, pinfo = project_kernel_basis(lambda mi, mo, ph: kernel_Ergun_basis(mi, mo, ph, alpha, c, basis, 1.0),
+    n_start = min(max(4, FlakeMedium(alpha, optics, 1.0, distribution).phi_bandwidth), n_max)
+    coeffs, pinfo = project_kernel_basis(lambda mi, mo, ph: kernel_Ergun_basis(mi, mo, ph, alpha, c, basis, 1.0,
+                                                                               distribution),
                                          U, x, mu_o, tol=tol, n_start=n_start, n_max=n_max, weights=Wt)
     coeffs = coeffs[:max_orders]  # (L, r, 2h, h), outgoing [−x, +x]
     L = coeffs.shape[0]

@@ -393,8 +393,10 @@ def store_nodes(n, eta_top=None, top="smooth"):
     return q.x, q.w
 
 
-def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, projection_tol, top="smooth"):
-    """A flake species' stored factors at (n, η, α) over ``wavelength_nm`` (the whole spectrum): R(c),
+def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, projection_tol, top="smooth",
+               distribution="beckmann"):
+    """A flake species' stored factors at (n, η, α, orientation ``distribution``) over ``wavelength_nm``
+    (the whole spectrum): R(c),
     T(c) tabulated on the adaptive c grid of the direct path (:func:`flakedb.paint.mapping.adaptive_flake_optics`),
     then :func:`flakedb.rt.stored.flake_factors` (spectral SVD, projection of the basis kernels, σ's).
     Returns ``U`` float64, ``V`` float32 (r, L, 2, h, h), ``sigma_t``, ``sigma_s``, ``projected_area`` and ``info``."""
@@ -403,7 +405,7 @@ def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, proj
     c, R, T, c_err = adaptive_flake_optics(lambda cc: sp.flake_reflectance_transmittance(entry, wl, cc, nb))
     x, w = store_nodes(n, eta_top, top)
     f = flake_factors(c, R, T, float(alpha), x, w, tol=projection_tol, max_orders=2 * int(n),
-                      rank_tol=rank_tol if rank_tol is not None else 0.0)
+                      rank_tol=rank_tol if rank_tol is not None else 0.0, distribution=distribution)
     V = f["V"].astype(np.float32)
     info = {**f["info"], "c_nodes": int(c.size), "c_grid_max_midpoint_error": c_err,
             "V_float32_max_error": float(np.abs(V - f["V"]).max() / max(np.abs(f["V"]).max(), 1e-300))}

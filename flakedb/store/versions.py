@@ -9,7 +9,9 @@ Layout (``STORE`` a local directory or any fsspec URL)::
         wavelength_nm                         (W,) vacuum wavelength, nm
         grid/n<N>/x, grid/n<N>/w              (h,) the solver's positive inside nodes and weights for n
                                               nodes in air below the top interface ``eta_top``
-        species/<flake>/n<N>/a<α>/U           (W, r) spectral factor (SVD of R(c) across wavelength)
+        species/<flake>/n<N>/a<α>/U           (W, r) spectral factor (SVD of R(c) across wavelength);
+                                              Beckmann flakes (paper eq. 5) at a<α>, flakes of another
+                                              orientation distribution D at <D>/a<α> (e.g. ggx/a0.2)
         species/<flake>/n<N>/a<α>/V           (r, L, 2, h, h) float32 projected basis kernels per unit
                                               loading: [rank, order, (K_T, K_R), outgoing, incident],
                                               chunked by ORDER_CHUNK orders
@@ -144,6 +146,32 @@ def _alpha_key(alpha) -> str:
     return f"a{float(alpha):.6g}"
 
 
+#: The flake orientation distribution of factors keyed by α alone: every version written before the
+#: distribution became part of the key reads as Beckmann (flakedb.rt.microflake.DEFAULT_DISTRIBUTION).
+BECKMANN = "beckmann"
+
+
+def _flake_key(alpha, distribution=BECKMANN) -> str:
+    """The store key of a flake's factors at (α, distribution): ``a<α>`` for Beckmann (the layout of every
+    older version), ``<distribution>/a<α>`` otherwise."""
+    return _alpha_key(alpha) if distribution == BECKMANN else f"{distribution}/{_alpha_key(alpha)}"
+
+
+def _orientations(request, k) -> dict:
+    """Flake species ``k``'s orientations to project, distribution → sorted α's: the request's Beckmann
+    ``alphas`` and ``distribution_alphas``, else the catalogue's α in the catalogue's distribution."""
+    out = {}
+    for a in request.alphas.get(k) or []:
+        out.setdefault(BECKMANN, set()).add(float(a))
+    for d, v in (request.distribution_alphas.get(k) or {}).items():
+        for a in v:
+            out.setdefault(str(d), set()).add(float(a))
+    if not out:
+        entry = request.species[k]
+        out[entry.get("orientation_distribution", BECKMANN)] = {float(entry["orientation_alpha"]["value"])}
+    return {d: sorted(v) for d, v in sorted(out.items())}
+
+
 @dataclass(frozen=True)
 class BuildRequest:
     """Everything a build depends on (all of it enters the content hash).
@@ -151,7 +179,10 @@ class BuildRequest:
     ``species``: name → catalogue entry (as :func:`flakedb.paint.catalog.expand_sweeps` gives it);
     ``binder``: the catalogue's binder entry; ``material_checksums``: optical-data file name → sha256;
     ``resolutions``: node counts n in air; ``wavelength_nm``: the store's wavelengths (nm);
-    ``alphas``: flake species → the Beckmann spreads α to project for (default: the catalogue's);
+    ``alphas``: flake species → the Beckmann spreads α to project for; ``distribution_alphas``: flake
+    species → {distribution: α's} for other flake orientation distributions (e.g. ``{"ggx": [0.2]}``,
+    :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`); a species in neither: the catalogue's α in the
+    catalogue's distribution (``orientation_distribution``, default Beckmann);
     ``channel_block``: pigment wavelengths per task (and per chunk); ``store_raw``: keep the spectral
     SVD at its numerical rank (no truncation: ``compose --raw``); ``rank_tol``: otherwise its
     truncation (:data:`flakedb.rt.stored.RANK_TOL`); ``projection_tol``: the solver's φ-projection
@@ -178,13 +209,17 @@ class BuildRequest:
     #: "rough": the nodes of a rough top (plain Gauss–Radau inside as in air) with the optics at
     #: ``eta_top``; "smooth" (default): the Snell-mapped nodes below a smooth top of ``eta_top``
     top: str = "smooth"
+    distribution_alphas: dict = field(default_factory=dict)
 
     def inputs(self) -> dict:
         flakes = [k for k in sorted(self.species) if self.species[k]["kind"] != "pigment"]
-        alphas = {}
+        alphas, other = {}, {}
         for k in flakes:
-            a = self.alphas.get(k) or [float(self.species[k]["orientation_alpha"]["value"])]
-            alphas[k] = sorted({float(x) for x in a})
+            for d, v in _orientations(self, k).items():
+                if d == BECKMANN:
+                    alphas[k] = v
+                else:
+                    other.setdefault(k, {})[d] = v
         return {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
@@ -205,19 +240,22 @@ class BuildRequest:
             "recipe": self.recipe,
             # only a rough top is recorded, so the versions of smooth-top requests keep their hashes
             **({"top": "rough"} if self.top == "rough" else {}),
+            # only other distributions than Beckmann are recorded: Beckmann-only requests keep their hashes
+            **({"distribution_alphas": other} if other else {}),
         }
 
 
 @dataclass(frozen=True)
 class Task:
-    """One unit of work: a flake species at one (n, α) over every wavelength (the spectral SVD needs
-    them all), or a pigment's wavelength block [c0, c1) (n-independent)."""
+    """One unit of work: a flake species at one (n, α, orientation distribution) over every wavelength (the
+    spectral SVD needs them all), or a pigment's wavelength block [c0, c1) (n-independent)."""
 
     species: str
     n: int = 0
     alpha: float = 0.0
     c0: int = 0
     c1: int = 0
+    distribution: str = BECKMANN
 
     @property
     def is_flake(self) -> bool:
@@ -226,7 +264,7 @@ class Task:
     @property
     def id(self) -> str:
         if self.is_flake:
-            return f"{self.species}/n{self.n}/{_alpha_key(self.alpha)}"
+            return f"{self.species}/n{self.n}/{_flake_key(self.alpha, self.distribution)}"
         return f"{self.species}/ch{self.c0:04d}-{self.c1:04d}"
 
     @property
@@ -235,7 +273,9 @@ class Task:
 
     @property
     def prefix(self) -> str:
-        return f"species/{self.species}/n{self.n}/{_alpha_key(self.alpha)}" if self.is_flake else f"species/{self.species}"
+        if self.is_flake:
+            return f"species/{self.species}/n{self.n}/{_flake_key(self.alpha, self.distribution)}"
+        return f"species/{self.species}"
 
 
 @dataclass(frozen=True)
@@ -289,8 +329,10 @@ def plan_build(request: BuildRequest) -> BuildPlan:
         for name in names:
             if inputs["species"][name]["kind"] == "pigment":
                 continue
-            for a in inputs["alphas"][name]:
-                t = Task(name, int(n), float(a))
+            orient = [(BECKMANN, a) for a in inputs["alphas"].get(name, [])]
+            orient += [(d, a) for d, v in sorted(inputs.get("distribution_alphas", {}).get(name, {}).items()) for a in v]
+            for d, a in orient:
+                t = Task(name, int(n), float(a), distribution=d)
                 tasks.append(t)
                 arrays[f"{t.prefix}/sigma_t"] = {"shape": [W, h], "chunks": [W, h], "dtype": "float64", "units": "1/um per 1/um"}
                 arrays[f"{t.prefix}/sigma_s"] = {"shape": [W, h], "chunks": [W, h], "dtype": "float64", "units": "1/um per 1/um"}
@@ -479,7 +521,7 @@ def compute_task(request_inputs: dict, task: Task) -> dict:
         {"binder": request_inputs["binder"]}, wl)
     if task.is_flake:
         return flake_task(entry, wl, nb, task.n, task.alpha, eta_top, request_inputs["rank_tol"],
-                          request_inputs["projection_tol"], request_inputs.get("top", "smooth"))
+                          request_inputs["projection_tol"], request_inputs.get("top", "smooth"), task.distribution)
     nb_all = np.full(wl_all.shape, float(eta_top)) if eta_top is not None else sp.binder_index(
         {"binder": request_inputs["binder"]}, wl_all)
     # the size quadrature of the whole grid (the log-normal Mie nodes follow the shortest wavelength):
@@ -855,16 +897,28 @@ class StoreVersion:
         """Whether the flakes' spectral SVD was kept at its numerical rank (``flakedb build --raw``)."""
         return bool(self.metadata["inputs"]["store_raw"])
 
-    def alphas(self, species) -> list[float]:
-        return [float(a) for a in self.metadata["inputs"]["alphas"].get(species, [])]
+    def alphas(self, species, distribution=BECKMANN) -> list[float]:
+        """The α's the flake ``species`` was projected for in ``distribution`` (a version that records no
+        distribution holds Beckmann flakes only)."""
+        inp = self.metadata["inputs"]
+        if distribution == BECKMANN:
+            return [float(a) for a in inp["alphas"].get(species, [])]
+        return [float(a) for a in inp.get("distribution_alphas", {}).get(species, {}).get(distribution, [])]
 
-    def _check(self, species, n=None, alpha=None):
+    def distributions(self, species) -> list[str]:
+        """The flake orientation distributions ``species`` was projected for (each with some α)."""
+        inp = self.metadata["inputs"]
+        out = [BECKMANN] if inp["alphas"].get(species) else []
+        return out + sorted(inp.get("distribution_alphas", {}).get(species, {}))
+
+    def _check(self, species, n=None, alpha=None, distribution=BECKMANN):
         if species not in self.species:
             raise StoreError(f"version {self.version} has no species {species!r}; it has {', '.join(self.species)}")
         if n is not None and int(n) not in self.resolutions:
             raise StoreError(f"version {self.version} has no resolution n = {n}; it has {self.resolutions}")
-        if alpha is not None and not any(abs(a - float(alpha)) <= 1e-12 for a in self.alphas(species)):
-            raise StoreError(f"version {self.version} has {species!r} at α {self.alphas(species)}, not {alpha:g}")
+        if alpha is not None and not any(abs(a - float(alpha)) <= 1e-12 for a in self.alphas(species, distribution)):
+            raise StoreError(f"version {self.version} has {species!r} in the {distribution} distribution at α "
+                             f"{self.alphas(species, distribution)}, not {alpha:g}")
 
     def grid(self, n):
         """(x, w) (h,) the positive inside nodes and weights of resolution n."""
@@ -872,14 +926,15 @@ class StoreVersion:
         g = self.group[f"grid/{_res_key(n)}"]
         return g["x"][:], g["w"][:]
 
-    def flake_prefix(self, species, n, alpha) -> str:
-        return Task(species, int(n), float(alpha)).prefix
+    def flake_prefix(self, species, n, alpha, distribution=BECKMANN) -> str:
+        return Task(species, int(n), float(alpha), distribution=distribution).prefix
 
-    def flake_factors(self, species, n, alpha) -> FlakeFactors:
-        """The stored factors of a flake species at (n, α) (:class:`flakedb.rt.stored.FlakeFactors`);
-        V is read lazily, a chunk of :data:`ORDER_CHUNK` orders at a time, as the solver asks."""
-        self._check(species, n, alpha)
-        p = self.flake_prefix(species, n, alpha)
+    def flake_factors(self, species, n, alpha, distribution=BECKMANN) -> FlakeFactors:
+        """The stored factors of a flake species at (n, α, orientation ``distribution``)
+        (:class:`flakedb.rt.stored.FlakeFactors`); V is read lazily, a chunk of :data:`ORDER_CHUNK`
+        orders at a time, as the solver asks."""
+        self._check(species, n, alpha, distribution)
+        p = self.flake_prefix(species, n, alpha, distribution)
         g = self.group[p]
         V = g["V"]
         cache = {}
@@ -894,14 +949,16 @@ class StoreVersion:
             return cache[key][:, l0 - c0 * ORDER_CHUNK: l1 - c0 * ORDER_CHUNK]
 
         x, _ = self.grid(n)
+        dist = "" if distribution == BECKMANN else f" {distribution}"
         return FlakeFactors(x, g["U"][:], read, int(V.shape[1]), g["sigma_t"][:], g["sigma_s"][:],
                             g["projected_area"][:],
-                            f"store {self.url} version {self.version[:12]} {species} n = {n} α = {alpha:g}")
+                            f"store {self.url} version {self.version[:12]} {species} n = {n}{dist} α = {alpha:g}",
+                            distribution)
 
-    def flake_info(self, species, n, alpha) -> dict:
+    def flake_info(self, species, n, alpha, distribution=BECKMANN) -> dict:
         """The compression record of a flake task (rank, singular values, error bound, storage ratio)."""
-        self._check(species, n, alpha)
-        return dict(self.group[f"{self.flake_prefix(species, n, alpha)}/U"].attrs.get("info", {}))
+        self._check(species, n, alpha, distribution)
+        return dict(self.group[f"{self.flake_prefix(species, n, alpha, distribution)}/U"].attrs.get("info", {}))
 
     def pigment(self, species) -> dict:
         """``c_ext_um2``, ``c_sca_um2``, ``mean_volume_um3`` (W,) and ``legendre_moments`` (W, K + 1)."""
