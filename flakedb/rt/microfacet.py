@@ -44,6 +44,7 @@ from numpy.polynomial.legendre import leggauss
 from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_conductor_real, fresnel_dielectric_real
 from flakedb.rt.special import smith_masking_denominator
+from flakedb.rt.pole import zero_pole_orders
 
 #: Pairs whose Beckmann factor exp(−tan²θ_h/α²) stays below exp(−PRUNE_T2) for every φ are skipped.
 PRUNE_T2 = 40.0
@@ -568,6 +569,8 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     # T^bt = η² (T^tb)ᵀ in f̃ (reciprocity): S^bt_l[o, i] = η² S^tb_l[i, o] m_i / m_o
     Tbt = np.swapaxes(blocks[1], -1, -2) * (eta**2 * mb[None, :] / ma[:, None])[None, None]
     blocks = [blocks[0], blocks[1], blocks[2], Tbt]
+    for b, xo, xi in zip(blocks, (xa, xb, xb, xa), (xa, xa, xb, xb)):  # only order 0 at the pole
+        zero_pole_orders(b, xo, xi)
     Lt = _truncate_orders_from_top(blocks, ma if x_below is None else [ma, mb, mb, ma], tol)
     info = {"orders": Lt, "orders_computed": L, "sub_points": len(rule_a[0]) + (0 if x_below is None else len(rule_b[0])),
             "renorm_max_dev": float(np.abs(s**2 - 1.0).max()),
@@ -627,7 +630,7 @@ def rough_conductor_cells(x, w, eta_complex, alpha, tol=1e-5, max_orders=512, su
     if energy_compensation:
         Rt[0] += conductor_compensation(m, x, alpha, F)
         R = np.einsum("coi,o->ci", Rt[0], 2.0 * np.pi * m)
-    S = _to_S(Rt, x, w)
+    S = zero_pole_orders(_to_S(Rt, x, w), x, x)  # only order 0 at the pole
     Lt = _truncate_orders([S], [(m, np.ones(h))], tol)
     info = {"orders": Lt, "orders_computed": L, "sub_points": len(rule[0]),
             "renorm_max_dev": float(np.abs(s**2 - 1.0).max()),
