@@ -51,6 +51,7 @@ from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.compose.report import (
     ASPECULAR_DEG,
     colour_report,
+    discretisation_error,
     eval_table,
     multiangle_geometry,
 )
@@ -348,8 +349,20 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     file_table, gamut_info = gamut_safe_file_channels(table, paint.mode, paint.wavelength_nm, rgb_space)
     if paint.mode == "spectral" and file_table.channels != ("mono",):
         file_table.metadata["channels_from"] = f"spectral bands -> CIE 1931 2deg / D65 -> {gamut_info['rgb_space']}"
-    report = colour_report(table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
+    # aspecular geometries never hit an inner mirror: its smoothed series kept out of the report (docs/model.md §4)
+    report = colour_report(table if stack.specular is None else stack_to_table(
+        stack.scattered(), paint.channels, paint.eta, paint.top_alpha, paint.delta, dict(md)),
+        paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
                            paint.eta if paint.delta else None, recipe.name)
+    if n_used >= 16:  # the estimated ΔE00 of this discretisation: a second solve at n/2 (docs/resolution.md)
+        half = solve_paint(paint, n_used // 2, memory_budget_bytes=float(budget) if budget else None,
+                           threads=os.cpu_count() or 1)
+        report["discretisation"] = discretisation_error(report, colour_report(
+            stack_to_table(half.scattered(), paint.channels, paint.eta, paint.top_alpha, paint.delta, dict(md)), paint.mode,
+            paint.wavelength_nm, half.x, half.albedo(include_delta=False), paint.eta if paint.delta else None,
+            recipe.name), n_used)
+        log(f"discretisation: estimated dE00 {report['discretisation']['estimate_dE00']:.3f} at n = {n_used} "
+            f"(second solve at n = {n_used // 2})")
     t["table_report"] = time.perf_counter() - t0
     h5_md = {
         "recipe_text": recipe.text, "recipe_source": recipe.source,

@@ -148,8 +148,12 @@ def expand_channels(res, inverse):
         return np.take(b, inverse, axis=1)
 
     info = dict(res.info, distinct_channels=int(inverse.max()) + 1, channels=C)
+    spec = {} if res.specular is None else {
+        "specular": np.take(np.broadcast_to(res.specular, (int(inverse.max()) + 1,) + res.specular.shape[1:]),
+                            inverse, axis=0),
+        "specular_orders": np.take(np.broadcast_to(res.specular_orders, (int(inverse.max()) + 1,)), inverse)}
     return StackBSDF(x=res.x, w=res.w, Rt=spread(res.Rt), eta=res.eta, delta_F=res.delta_F, Ttb=spread(res.Ttb),
-                     Rb=spread(res.Rb), Tbt=spread(res.Tbt), x_in=res.x_in, w_in=res.w_in, info=info)
+                     Rb=spread(res.Rb), Tbt=spread(res.Tbt), x_in=res.x_in, w_in=res.w_in, info=info, **spec)
 
 
 def solve_in_channel_groups(solve, top, slabs, bottom, s, C, group):
@@ -183,8 +187,14 @@ def solve_in_channel_groups(solve, top, slabs, bottom, s, C, group):
                     grown[:have.shape[0]] = have
                 out[name] = have = grown
             have[:b.shape[0], c0:c0 + len(idx)] = b
+        if p.specular is not None:  # each group's inner mirrors, smoothed over that group's orders
+            spec = out.setdefault("specular", np.zeros((C,) + p.specular.shape[1:]))
+            orders = out.setdefault("specular_orders", np.ones(C, dtype=int))
+            spec[c0:c0 + len(idx)] = p.specular
+            orders[c0:c0 + len(idx)] = p.specular_orders
         del p
     info = {"orders": L, "channel_groups": [[int(c0), int(min(C, c0 + group))] for c0 in range(0, C, group)],
             "groups": infos}
-    return StackBSDF(Rt=out["Rt"], Ttb=out.get("Ttb"), Rb=out.get("Rb"), Tbt=out.get("Tbt"), info=info, **meta)
+    return StackBSDF(Rt=out["Rt"], Ttb=out.get("Ttb"), Rb=out.get("Rb"), Tbt=out.get("Tbt"), info=info,
+                     specular=out.get("specular"), specular_orders=out.get("specular_orders"), **meta)
 

@@ -238,7 +238,7 @@ def _solve_stack(top, slabs, bottom, s, top_cache=None):
         info.update(oinfo)
         Rt = _with_specular(Rt, Rs, info, q_out)
         return StackBSDF(x=q_out.x, w=q_out.w, Rt=Rt, eta=eta, delta_F=tp.delta_F, x_in=q_in.x, w_in=q_in.w,
-                         info=info)
+                         info=info, **_specular_fields(Rs, Rt))
     return _solve_all_orders(parts, bottom, Rc, tp, total_orders(), Rs, q_out, q_in, q_bottom, eta, s, info)
 
 
@@ -281,7 +281,18 @@ def _solve_all_orders(parts, bottom, Rc, tp, L, Rs, q_out, q_in, q_bottom, eta, 
         x=q_out.x, w=q_out.w, Rt=_with_specular(Rt, Rs, info, q_out), eta=eta, delta_F=tp.delta_F,
         Ttb=None if opaque else whole.Ttb, Rb=None if opaque else whole.Rb,
         Tbt=None if opaque else whole.Tbt, x_in=q_bottom.x, w_in=q_bottom.w, info=info,
+        **_specular_fields(Rs, whole.Rt),
     )
+
+
+def _specular_fields(Rs, Rt):
+    """``specular`` (C, h, h) and ``specular_orders`` (C,) of a :class:`StackBSDF` whose R^t holds R_s smoothed
+    over all its orders."""
+    if Rs is None:
+        return {}
+    C = max(Rs.shape[0], Rt.shape[1])
+    return {"specular": np.array(np.broadcast_to(Rs, (C,) + Rs.shape[1:])),
+            "specular_orders": np.full(C, Rt.shape[0])}
 
 
 def _reflection_over(layer, bottom_Rt):

@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flakedb.conventions import fourier_weight
+from flakedb.rt.pole import zero_pole_orders
+from flakedb.rt.specular import smoothed_specular
 
 @dataclass
 class StackBSDF:
@@ -28,10 +30,29 @@ class StackBSDF:
     x_in: np.ndarray | None = None
     w_in: np.ndarray | None = None
     info: dict = field(default_factory=dict)
+    #: R_s (C, h, h): the never-scattered paths of a smooth inner interface (docs/model.md §4, "Specular paths
+    #: and the pole"), held in ``Rt`` as a Jackson-smoothed series of ``specular_orders`` (C,) orders; None: none
+    specular: np.ndarray | None = None
+    specular_orders: np.ndarray | None = None
 
     @property
     def n_orders(self):
         return self.Rt.shape[0]
+
+    def scattered(self):
+        """The stack without the smoothed specular series of inner mirrors in ``Rt`` (itself when it has none):
+        what an aspecular geometry sees (the delta hits no aspecular angle, but its smoothed series would reach
+        neighbouring nodes through the readers' interpolation in μ)."""
+        if self.specular is None:
+            return self
+        L = self.n_orders
+        Rt = np.array(np.broadcast_to(self.Rt, self.Rt.shape[:1] + (self.specular.shape[0],) + self.Rt.shape[2:]))
+        for Lc in np.unique(self.specular_orders):
+            c = np.nonzero(self.specular_orders == Lc)[0]
+            series = zero_pole_orders(smoothed_specular(self.specular[c], int(Lc)), self.x, self.x)
+            Rt[:int(Lc), c] -= series[:L]
+        return StackBSDF(x=self.x, w=self.w, Rt=Rt, eta=self.eta, delta_F=self.delta_F, Ttb=self.Ttb, Rb=self.Rb,
+                         Tbt=self.Tbt, x_in=self.x_in, w_in=self.w_in, info=self.info)
 
     def f_coefficients(self, block="Rt"):
         """Cosine coefficients f_l(μ_i → μ_o) (1/sr) of a block, (L, C, h_out, h_in).

@@ -122,3 +122,22 @@ def test_zero_pole_orders_leaves_order_zero_and_other_nodes():
     assert not np.any(Z[1:, :, 3, :]) and not np.any(Z[1:, :, :, 2])
     # a rule without the pole node is left alone
     assert np.array_equal(zero_pole_orders(S.copy(), x_o * 0.9, x_i * 0.9), S)
+
+
+def test_scattered_removes_exactly_the_smoothed_mirror_and_channel_groups_agree():
+    """``StackBSDF.scattered()`` (what compose's report reads: no aspecular geometry hits an inner mirror)
+    is R^t without g_l R_s: over an absorbing coat and a black bottom nothing is left; and a solve in
+    channel groups (the memory budget) carries each group's R_s and order count, giving the same result."""
+    s = solve_stack(Smooth(1.5), [Slab(20.0, _absorber(0.01)), InnerSmooth(1.6 / 1.5), Slab(5.0, _absorber(1.0))],
+                    Lambertian(0.0), SolverSettings.product(32))
+    assert s.specular is not None and np.abs(s.scattered().Rt).max() <= 1e-14 * np.abs(s.Rt).max()
+    med = PhaseMedium(np.array([0.1, 0.12, 0.08]), np.array([0.9, 0.7, 0.5]), ("hg", 0.6))
+    args = (Smooth(1.5), [InnerSmooth(1.6 / 1.5), Slab(10.0, med)], Lambertian([0.5, 0.4, 0.3]))
+    one = solve_stack(*args, SolverSettings.product(32))
+    grouped = solve_stack(*args, SolverSettings.product(32, memory_budget_bytes=1.0))
+    assert len(grouped.info["channel_groups"]) == 3
+    a, b = one.scattered(), grouped.scattered()
+    L = min(a.n_orders, b.n_orders)
+    assert np.abs(a.Rt[:L] - b.Rt[:L]).max() <= 1e-12 * np.abs(a.Rt).max()
+    np.testing.assert_allclose(a.albedo(), one.albedo() - np.einsum("coi,o->ci", one.specular, one.w * one.x)
+                               / (one.w * one.x)[None, :], rtol=1e-12, atol=1e-15)
