@@ -354,7 +354,9 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
         stack.scattered(), paint.channels, paint.eta, paint.top_alpha, paint.delta, dict(md)),
         paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
                            paint.eta if paint.delta else None, recipe.name)
-    if n_used >= 16:  # the estimated ΔE00 of this discretisation: a second solve at n/2 (docs/resolution.md)
+    if stored is not None:  # the store holds the species' factors at this n only
+        report["discretisation"] = {"method": "not estimated: species factors from the store exist at n only"}
+    elif n_used >= 16:  # the estimated ΔE00 of this discretisation: a second solve at n/2 (docs/resolution.md)
         half = solve_paint(paint, n_used // 2, memory_budget_bytes=float(budget) if budget else None,
                            threads=os.cpu_count() or 1)
         report["discretisation"] = discretisation_error(report, colour_report(

@@ -252,7 +252,7 @@ def format_report(rep) -> str:
                      f"pairs desaturated into gamut (luminance kept), largest ΔE00 {g['max_dE00']:.2f}; "
                      f"the .h5 keeps the exact colour")
     d = rep.get("discretisation")
-    if d:
+    if d and "estimate_dE00" in d:
         lines.append(f"discretisation: estimated ΔE00 {d['estimate_dE00']:.3f} at n = {d['n']} (second solve at "
                      f"n = {d['n'] // 2}: largest ΔE00 {max(d['dE00_half_vs_n']):.3f}, halved)")
     lines.append(f"{'theta_i':>8} {'albedo Y':>9} {'tabulated':>10} {'mirror':>8}")
