@@ -660,7 +660,7 @@ METAL_ALPHA_MEASURED = 0.05
 #: ``colour_error`` (docs/resolution.md "colour_error"): measured CIEDE2000 between n and 2n, worst over the
 #: report geometries (2026-12-02).  Metal base, by n: coated-aluminium (Al α 0.1 under a smooth 1.5 coat,
 #: spectral; the 25° and 45° aspecular geometries, the far tail of the metal lobe, are the worst).
-METAL_COLOUR_ERROR = ((48, 0.657), (64, 0.378), (96, 0.183), (128, 0.114))
+METAL_COLOUR_ERROR = ((48, 0.657), (64, 0.378), (96, 0.183), (128, 0.114), (144, 0.095))
 #: Roughness of that measurement: below it n is scaled by METAL_COLOUR_ALPHA / α (the lobe is α wide).
 METAL_COLOUR_ALPHA = 0.1
 #: Flakes, by h·α_f: metallic-silver (α_f 0.2, spectral) h·α_f 3.2 → 0.101, 4.8 → 0.045 (the other flake recipes
