@@ -239,7 +239,7 @@ ALBEDO_SLACK = 1e-3
 #: order kept; rough coats α 0.02–0.3 over white or an HG slab, n 32–128, ≥ −9e-6 (Jackson-filtered
 #: where the 2n cap binds, docs/rough-interfaces.md "Positivity"); a medium kernel cut by the cap
 #: (perfect mirror flakes α 0.15 in air at n 32 rang to −3.5 %) is Jackson-filtered the same way
-#: (flakedb.rt.stack._damp_if_capped): −2.4e-5.  So the threshold is 1e-3, 30× the worst measured value.
+#: (flakedb.rt.medium_projection.damp_if_capped): −2.4e-5.  So the threshold is 1e-3, 30× the worst measured value.
 NEGATIVE_SLACK = 1e-3
 
 

@@ -142,7 +142,7 @@ class SolverSettings:
     #: eigen-solution of the discrete-ordinate equations (default), or "doubling" from a thin slice
     #: of optical thickness ``slice_tau`` (the fallback for non-reciprocal kernels).
     slab_method: str = "eigen"
-    #: Jackson-filter a medium kernel cut by the order cap (:func:`_damp_if_capped`): its truncated
+    #: Jackson-filter a medium kernel cut by the order cap (:func:`flakedb.rt.medium_projection.damp_if_capped`): its truncated
     #: series rings negative otherwise.  False: plain truncation (order-convergence studies).
     filter_capped_kernels: bool = True
     #: Threads over the (orders, channels) batch of the slab solvers (:func:`flakedb.rt.layer.double_symmetric`,
