@@ -239,7 +239,9 @@ def _solve_stack(top, slabs, bottom, s, top_cache=None):
         Rt = _with_specular(Rt, Rs, info, q_out)
         return StackBSDF(x=q_out.x, w=q_out.w, Rt=Rt, eta=eta, delta_F=tp.delta_F, x_in=q_in.x, w_in=q_in.w,
                          info=info, **_specular_fields(Rs, Rt))
-    return _solve_all_orders(parts, bottom, Rc, tp, total_orders(), Rs, q_out, q_in, q_bottom, eta, s, info)
+    res = _solve_all_orders(parts, bottom, Rc, tp, total_orders(), Rs, q_out, q_in, q_bottom, eta, s, info)
+    res.eta_bottom = float(eta_binder)
+    return res
 
 
 def _with_specular(Rt, Rs, info, q_out):

@@ -34,6 +34,9 @@ class StackBSDF:
     #: and the pole"), held in ``Rt`` as a Jackson-smoothed series of ``specular_orders`` (C,) orders; None: none
     specular: np.ndarray | None = None
     specular_orders: np.ndarray | None = None
+    #: index of the binder below the stack relative to the air (where ``Ttb`` leads): basic radiance there
+    #: carries η² times its flux per unit of the solver's measure
+    eta_bottom: float = 1.0
 
     @property
     def n_orders(self):
@@ -52,7 +55,7 @@ class StackBSDF:
             series = zero_pole_orders(smoothed_specular(self.specular[c], int(Lc)), self.x, self.x)
             Rt[:int(Lc), c] -= series[:L]
         return StackBSDF(x=self.x, w=self.w, Rt=Rt, eta=self.eta, delta_F=self.delta_F, Ttb=self.Ttb, Rb=self.Rb,
-                         Tbt=self.Tbt, x_in=self.x_in, w_in=self.w_in, info=self.info)
+                         Tbt=self.Tbt, x_in=self.x_in, w_in=self.w_in, info=self.info, eta_bottom=self.eta_bottom)
 
     def f_coefficients(self, block="Rt"):
         """Cosine coefficients f_l(μ_i → μ_o) (1/sr) of a block, (L, C, h_out, h_in).
@@ -80,7 +83,7 @@ class StackBSDF:
         if self.Ttb is None:
             return None
         S0 = self.Ttb[0]
-        return np.einsum("coi,o->ci", S0, self.w_in * self.x_in) / (self.w * self.x)[None, :]
+        return self.eta_bottom**2 * np.einsum("coi,o->ci", S0, self.w_in * self.x_in) / (self.w * self.x)[None, :]
 
     def eval_nodes(self, phi_d):
         """f (1/sr) of reflection at all node pairs and azimuths: (C, h_o, h_i, len(phi_d))."""

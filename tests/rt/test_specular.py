@@ -141,3 +141,14 @@ def test_scattered_removes_exactly_the_smoothed_mirror_and_channel_groups_agree(
     assert np.abs(a.Rt[:L] - b.Rt[:L]).max() <= 1e-12 * np.abs(a.Rt).max()
     np.testing.assert_allclose(a.albedo(), one.albedo() - np.einsum("coi,o->ci", one.specular, one.w * one.x)
                                / (one.w * one.x)[None, :], rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("top,slabs", [(Rough(1.5, 0.1), []), (Smooth(1.5), []),
+                                       (Smooth(1.5), [InnerSmooth(1.6 / 1.5), Slab(2.0, _hg(1.0, 0.5))]),
+                                       (Rough(1.5, 0.3), [Slab(2.0, _hg(1.0, 0.5)), InnerSmooth(1.45 / 1.5)])])
+def test_transmittance_is_a_flux_fraction_into_the_binder_below(top, slabs):
+    """A lossless stack over the half-space of its last binder: reflection (with the delta) plus
+    transmittance is 1 at every node.  The transmission block is in basic radiance, so its flux carries
+    η_bottom² (before: R + T = 0.467 for a rough 1.5 interface at normal incidence)."""
+    s = solve_stack(top, slabs, None, SolverSettings(n=32))
+    np.testing.assert_allclose(s.albedo() + s.transmittance(), 1.0, atol=1e-9)
