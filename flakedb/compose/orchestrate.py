@@ -51,6 +51,7 @@ from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.compose.report import (
     ASPECULAR_DEG,
     colour_report,
+    discretisation_error,
     eval_table,
     multiangle_geometry,
 )
@@ -250,7 +251,7 @@ ALBEDO_SLACK = 1e-3
 #: order kept; rough coats α 0.02–0.3 over white or an HG slab, n 32–128, ≥ −9e-6 (Jackson-filtered
 #: where the 2n cap binds, docs/rough-interfaces.md "Positivity"); a medium kernel cut by the cap
 #: (perfect mirror flakes α 0.15 in air at n 32 rang to −3.5 %) is Jackson-filtered the same way
-#: (flakedb.rt.stack._damp_if_capped): −2.4e-5.  So the threshold is 1e-3, 30× the worst measured value.
+#: (flakedb.rt.medium_projection.damp_if_capped): −2.4e-5.  So the threshold is 1e-3, 30× the worst measured value.
 NEGATIVE_SLACK = 1e-3
 
 
@@ -367,6 +368,26 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
                         timings_s=t, version=version, store_label=store_label)
 
 
+def discretisation_estimate(solved, report, colour_settings=None, log=None) -> dict:
+    """The estimated ΔE00 of the solve's own discretisation: the report against a second solve at n/2
+    (:func:`flakedb.compose.report.discretisation_error`, docs/resolution.md), for n ≥ 16 without a store
+    (a store holds the species' factors at its own n only)."""
+    n, paint = solved.n, solved.paint
+    if solved.version is not None:
+        return {"method": "not estimated: species factors from the store exist at n only"}
+    if n < 16:
+        return {"method": f"not estimated: n = {n} < 16"}
+    budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
+    half = solve_paint(paint, n // 2, memory_budget_bytes=float(budget) if budget else None, threads=os.cpu_count() or 1)
+    est = discretisation_error(report, colour_report(
+        stack_to_table(half.scattered(), paint.channels, paint.eta, paint.top_alpha, paint.delta,
+                       dict(solved.table.metadata)), paint.mode, paint.wavelength_nm, half.x,
+        half.albedo(include_delta=False), paint.eta if paint.delta else None, "", settings=colour_settings), n)
+    if log:
+        log(f"discretisation: estimated dE00 {est['estimate_dE00']:.3f} at n = {n} (second solve at n = {n // 2})")
+    return est
+
+
 def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=None, verify=True,
             rgb_space="srgb", progress=None, allow_unphysical=False, colour_settings=None) -> ComposeResult:
     """Compose ``recipe`` (a :class:`flakedb.paint.recipe.Recipe`) into ``out_dir``; see the module docstring.
@@ -394,8 +415,12 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     file_table, gamut_info = gamut_safe_file_channels(table, paint.mode, paint.wavelength_nm, rgb_space)
     if paint.mode == "spectral" and file_table.channels != ("mono",):
         file_table.metadata["channels_from"] = f"spectral bands -> CIE 1931 2deg / D65 -> {gamut_info['rgb_space']}"
-    report = colour_report(table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
+    # aspecular geometries never hit an inner mirror: its smoothed series kept out of the report (docs/model.md §4)
+    report_table = table if stack.specular is None else stack_to_table(
+        stack.scattered(), paint.channels, paint.eta, paint.top_alpha, paint.delta, dict(table.metadata))
+    report = colour_report(report_table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
                            paint.eta if paint.delta else None, recipe.name, settings=colour_settings)
+    report["discretisation"] = discretisation_estimate(solved, report, colour_settings, log)
     t["table_report"] = time.perf_counter() - t0 + t.pop("table")
     h5_md = {
         "recipe_text": recipe.text, "recipe_source": recipe.source,

@@ -670,7 +670,8 @@ def catalog_species(recipe) -> list:
 
 
 #: Default accuracy targets of ``resolution: auto`` (a recipe's ``resolution: {albedo_error: …,
-#: lobe_error: …}`` overrides them); docs/resolution.md.
+#: lobe_error: …, colour_error: …}`` overrides them; ``colour_error`` (ΔE00 between n and 2n at the report
+#: geometries) applies only when a recipe gives it); docs/resolution.md.
 AUTO_TARGETS = {"albedo_error": 0.03, "lobe_error": 0.05}
 #: The largest node count auto may choose: the largest allowed (:data:`flakedb.paint.limits.NODE_COUNT_MAX`).
 AUTO_MAX_N = NODE_COUNT_MAX
@@ -697,6 +698,19 @@ METAL_LOBE_ERROR = ((48, 0.048), (96, 0.021), (128, 0.013), (192, 0.0095))
 #: Smallest metal roughness of those measurements; below it n is scaled by METAL_ALPHA_MEASURED / α
 #: (the lobe's width is proportional to α), a stated extrapolation named in the reason.
 METAL_ALPHA_MEASURED = 0.05
+#: ``colour_error`` (docs/resolution.md "colour_error"): measured CIEDE2000 between n and 2n, worst over the
+#: report geometries (2026-12-02).  Metal base, by n: coated-aluminium (Al α 0.1 under a smooth 1.5 coat,
+#: spectral; the 25° and 45° aspecular geometries, the far tail of the metal lobe, are the worst).
+METAL_COLOUR_ERROR = ((48, 0.657), (64, 0.378), (96, 0.183), (128, 0.114), (144, 0.095))
+#: Roughness of that measurement: below it n is scaled by METAL_COLOUR_ALPHA / α (the lobe is α wide).
+METAL_COLOUR_ALPHA = 0.1
+#: Flakes, by h·α_f: metallic-silver (α_f 0.2, spectral) h·α_f 3.2 → 0.101, 4.8 → 0.045 (the other flake recipes
+#: at their default auto n: particle-metallic 0.063, particle-pearlescent 0.055, tri-coat-pearl-white 0.061,
+#: fig7 100 nm 0.062, research-custom-flake 0.017).
+FLAKE_COLOUR_ERROR = ((3.2, 0.101), (4.8, 0.045))
+#: Stacks without flakes or a metal base (the fig5 series, pigments, HG and isotropic media, catalogue), by n:
+#: worst 0.053 at n 32 (fig5-translucent-black, the −15° geometry).
+PLAIN_COLOUR_ERROR = ((32, 0.053),)
 
 
 def _needed(table, target):
@@ -718,7 +732,10 @@ def auto_resolution(recipe) -> tuple[int, str]:
 
     Targets (``recipe.targets`` over :data:`AUTO_TARGETS`): ``albedo_error``, the relative error of the
     directional albedo for θ_i ≤ 80°, and ``lobe_error``, the rough coat's reflection lobe binned in 5°
-    bins (per bin, over the reflected total).  Each rule is a measured envelope, not a guess:
+    bins (per bin, over the reflected total); with ``colour_error`` (given), the CIEDE2000 between n and 2n at
+    the report geometries (:func:`_colour_needs`: metal bases by n, flakes by h·α_f, other stacks by n; compose
+    states the estimate of its own result from a second solve at n/2).  Each rule is a measured envelope, not
+    a guess:
 
     * rough coat of roughness α: h α ≥ the smallest h α of :data:`COAT_LOBE_ERROR` meeting lobe_error
       (the flux-cell interface is lossless at every n, so its albedo is not what limits n);
@@ -771,6 +788,7 @@ def auto_resolution(recipe) -> tuple[int, str]:
             add(COAT_LOBE_ERROR, t_lobe, float(b.interface_roughness),
                 f"rough inner interface α = {b.interface_roughness:g} (the rough coat's envelope)", "lobe_error")
     flakes = False
+    flake_alphas = []
     for _, p in recipe.particles():
         a = None
         if isinstance(p, CatalogParticle) and p.is_flake:
@@ -786,6 +804,7 @@ def auto_resolution(recipe) -> tuple[int, str]:
                              f"(measured albedo error ≤ 2.3e-4)"))
         if a is not None:
             flakes = True
+            flake_alphas.append(a)
             add(FLAKE_ALBEDO_ERROR, t_alb, a, f"flakes α = {a:g} ({p.path})", "albedo_error")
             need.append((int(np.ceil(min(3.0 / a, AUTO_MAX_N))), f"flakes α = {a:g} ({p.path}): h ≥ 3/α (ΔE00 ≲ 0.1)"))
     metal = getattr(recipe, "metal", None)
@@ -806,6 +825,9 @@ def auto_resolution(recipe) -> tuple[int, str]:
                 f"({why}; docs/resolution.md), above the largest allowed n = {AUTO_MAX_N} (hint: set resolution: "
                 f"{AUTO_MAX_N}, raise lobe_error, or raise {metal.path}.roughness)"])
         need.append((n_m // 2 + n_m % 2, why))
+    t_col = targets.get("colour_error")
+    if t_col is not None:
+        need += _colour_needs(recipe, float(t_col), flake_alphas, metal)
     if not flakes:
         n_alb, err = _needed(PLAIN_ALBEDO_ERROR, t_alb)
         if n_alb is None:
@@ -837,6 +859,40 @@ def resolve_node_count(recipe, n=None) -> tuple[int, str]:
         return check_node_count(n_used), reason
     except ValueError as e:
         raise ValueError(f"{reason} {e}") from None
+
+
+def _colour_needs(recipe, target, flake_alphas, metal):
+    """(h, reason) of the ``colour_error`` target (ΔE00 between n and 2n at the report geometries) from the
+    measured envelopes :data:`METAL_COLOUR_ERROR`, :data:`FLAKE_COLOUR_ERROR`, :data:`PLAIN_COLOUR_ERROR`
+    (docs/resolution.md "colour_error"); raises :class:`RecipeError` when no measured n meets it."""
+    def refuse(what, table, unit):
+        raise RecipeError(getattr(recipe, "source", "<recipe>"), [
+            f"resolution: colour_error {target:g} for {what} is not reachable: the smallest measured ΔE00(n, 2n) is "
+            f"{table[-1][1]:g} (at {unit} {table[-1][0]:g}; docs/resolution.md) (hint: raise colour_error to ≥ "
+            f"{table[-1][1]:g}, or set resolution: n)"])
+
+    out = []
+    if metal is not None:
+        n_m, err = _needed(METAL_COLOUR_ERROR, target)
+        if n_m is None:
+            refuse("a metal base", METAL_COLOUR_ERROR, "n =")
+        why = f"metal base α = {metal.roughness:g}: n ≥ {n_m} for colour_error ≤ {target:g} (measured ΔE00 {err:g})"
+        if metal.roughness < METAL_COLOUR_ALPHA:
+            n_m = int(np.ceil(n_m * METAL_COLOUR_ALPHA / metal.roughness))
+            why += f", scaled by {METAL_COLOUR_ALPHA:g}/α → n ≥ {n_m}"
+        out.append(((min(n_m, AUTO_MAX_N) + 1) // 2, why))
+    for a in flake_alphas:
+        x, err = _needed(FLAKE_COLOUR_ERROR, target)
+        if x is None:
+            refuse(f"flakes α = {a:g}", FLAKE_COLOUR_ERROR, "h·α =")
+        out.append((min(int(np.ceil(x / a - 1e-9)), AUTO_MAX_N // 2),
+                    f"flakes α = {a:g}: h·α ≥ {x:g} for colour_error ≤ {target:g} (measured ΔE00 {err:g})"))
+    if metal is None and not flake_alphas:
+        n_p, err = _needed(PLAIN_COLOUR_ERROR, target)
+        if n_p is None:
+            refuse("this stack", PLAIN_COLOUR_ERROR, "n =")
+        out.append((n_p // 2, f"colour_error ≤ {target:g}: n ≥ {n_p} (measured ΔE00 {err:g})"))
+    return out
 
 
 def solve_paint(paint: Paint, n: int, **settings):

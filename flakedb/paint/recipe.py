@@ -5,7 +5,7 @@ A recipe describes a paint as layers, top to bottom (docs/model.md §1)::
     flakedb: 1                       # format version
     name: pearl-white                # names the outputs DIR/NAME.bsdf, .h5, .json
     spectral: {mode: spectral, range_nm: [380, 780], step_nm: 10}     # or rgb / mono
-    resolution: auto                 # or the node count n (even), or targets {albedo_error: 0.01, lobe_error: 0.05}
+    resolution: auto                 # or the node count n (even), or targets {albedo_error: 0.01, lobe_error: 0.05, colour_error: 0.1}
     layers:
       - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
       - basecoat:

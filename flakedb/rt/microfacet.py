@@ -44,6 +44,7 @@ from numpy.polynomial.legendre import leggauss
 from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_conductor_real, fresnel_dielectric_real
 from flakedb.rt.special import smith_masking_denominator
+from flakedb.rt.pole import zero_pole_orders
 
 #: Pairs whose Beckmann factor exp(−tan²θ_h/α²) stays below exp(−PRUNE_T2) for every φ are skipped.
 PRUNE_T2 = 40.0
@@ -332,23 +333,10 @@ def cell_rule(x, w, width, points=None):
 # ------------------------------------------------------------------------------------------------
 
 
-def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, tol, max_orders,
-                symmetric=False, chunk_elems=2_000_000, keep_orders=None):
-    """Σ over sub-point pairs in each (o, i) cell pair of ω_a ω_b f_l(t_a, t_b): (L, C, h_o, h_i).
-
-    With ``symmetric`` (reflection on one side; rule_i is rule_o) only pairs a ≤ b are evaluated
-    and the block is completed by reciprocity.  ``keep_orders``: return only the orders below it (exactly the
-    same values; the φ rules still resolve each pair's whole lobe).  Returns the block and the largest
-    order used.
-    """
-    t_i, om_i, cell_i = rule_i
-    t_o, om_o, cell_o = rule_o
-    A, B = _tan2_half_coeffs(t_i[:, None], t_o[None, :], eta_rel, transmit)
-    keep = (A - B) / alpha**2 < PRUNE_T2
-    if symmetric:
-        keep &= np.arange(len(t_i))[:, None] <= np.arange(len(t_o))[None, :]
-    ia, ob = np.nonzero(keep)
-    A, B = A[ia, ob], B[ia, ob]
+def _pair_azimuths(A, B, alpha, tol, max_orders):
+    """Per sub-point pair (coefficients A, B of tan²θ_h = (A − B cos φ)): the φ support φ_max widened to a
+    shared width π·2^(−j/PHI_GRID_STEPS) and its index j, the orders the lobe keeps (L_pair, at most the cap),
+    whether the cap truncates it, and the φ node-count bucket (powers of √2)."""
     kappa = B / alpha**2
     # φ support: (A − B cos φ)/α² < PRUNE_T2
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -366,10 +354,31 @@ def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, 
     # lobes of several % of the maximum, docs/rough-interfaces.md); they get the Jackson kernel's
     # damping factors instead (a positive φ smoothing that keeps order 0, so energy and reciprocity)
     truncated = L_need > max_orders
-    jack = jackson_factors(max_orders) if truncated.any() else None
     P_pair = np.maximum(MIN_PHI_NODES, np.ceil(1.5 * L_pair * phi_max / np.pi).astype(int) + 8)
     # buckets of φ node counts (powers of √2) so that each group is one vectorised evaluation
     bucket = np.ceil(2.0 * np.log2(P_pair / MIN_PHI_NODES) - 1e-9).astype(int)
+    return phi_max, j_phi, L_pair, truncated, bucket
+
+
+def _cell_block(rule_i, rule_o, h_i, h_o, eta_rel, alpha, transmit, fresnel, C, tol, max_orders,
+                symmetric=False, chunk_elems=2_000_000, keep_orders=None):
+    """Σ over sub-point pairs in each (o, i) cell pair of ω_a ω_b f_l(t_a, t_b): (L, C, h_o, h_i).
+
+    With ``symmetric`` (reflection on one side; rule_i is rule_o) only pairs a ≤ b are evaluated
+    and the block is completed by reciprocity.  ``keep_orders``: return only the orders below it (exactly the
+    same values; the φ rules still resolve each pair's whole lobe).  Returns the block and the largest
+    order used.
+    """
+    t_i, om_i, cell_i = rule_i
+    t_o, om_o, cell_o = rule_o
+    A, B = _tan2_half_coeffs(t_i[:, None], t_o[None, :], eta_rel, transmit)
+    keep = (A - B) / alpha**2 < PRUNE_T2
+    if symmetric:
+        keep &= np.arange(len(t_i))[:, None] <= np.arange(len(t_o))[None, :]
+    ia, ob = np.nonzero(keep)
+    A, B = A[ia, ob], B[ia, ob]
+    phi_max, j_phi, L_pair, truncated, bucket = _pair_azimuths(A, B, alpha, tol, max_orders)
+    jack = jackson_factors(max_orders) if truncated.any() else None
     G = smith_G1(t_i, alpha)[ia] * smith_G1(t_o, alpha)[ob]
     weight = om_i[ia] * om_o[ob]
     if symmetric:
@@ -577,6 +586,8 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     # T^bt = η² (T^tb)ᵀ in f̃ (reciprocity): S^bt_l[o, i] = η² S^tb_l[i, o] m_i / m_o
     Tbt = np.swapaxes(blocks[1], -1, -2) * (eta**2 * mb[None, :] / ma[:, None])[None, None]
     blocks = [blocks[0], blocks[1], blocks[2], Tbt]
+    for b, xo, xi in zip(blocks, (xa, xb, xb, xa), (xa, xa, xb, xb)):  # only order 0 at the pole
+        zero_pole_orders(b, xo, xi)
     Lt = _truncate_orders_from_top(blocks, ma if x_below is None else [ma, mb, mb, ma], tol)
     info = {"orders": Lt, "orders_computed": L, "sub_points": len(rule_a[0]) + (0 if x_below is None else len(rule_b[0])),
             "renorm_max_dev": float(np.abs(s**2 - 1.0).max()),
@@ -636,7 +647,7 @@ def rough_conductor_cells(x, w, eta_complex, alpha, tol=1e-5, max_orders=512, su
     if energy_compensation:
         Rt[0] += conductor_compensation(m, x, alpha, F)
         R = np.einsum("coi,o->ci", Rt[0], 2.0 * np.pi * m)
-    S = _to_S(Rt, x, w)
+    S = zero_pole_orders(_to_S(Rt, x, w), x, x)  # only order 0 at the pole
     Lt = _truncate_orders([S], [(m, np.ones(h))], tol)
     info = {"orders": Lt, "orders_computed": L, "sub_points": len(rule[0]),
             "renorm_max_dev": float(np.abs(s**2 - 1.0).max()),

@@ -29,11 +29,11 @@ def _chunks(hi, per):
 
 #: Memory [bytes] a projection's φ samples and coefficients may take before it handles its incident
 #: nodes in chunks (:func:`project_kernel_basis`).  Measured: direct tri-coat pearl white held 1.3 GB
-#: at n = 64 but 9.8 GB at n = 128 (B × h × 2h × (n_φ + 1) float64, 4–5 of them), so n ≈ 200 ran out
-#: of memory on the 23 GB machine; 3 GiB also sent the 3-species basecoat at n = 200 (3.5 GB in
-#: memory) into chunks, 23 s → 38 s.  6 GiB keeps that one in memory (a kernel reads no machine
-#: state; a caller may pass ``budget_bytes``).
-PROJECTION_BUDGET_BYTES = 6 * 2**30
+#: at n = 64 but 9.8 GB at n = 128 (B × h × 2h × (n_φ + 1) float64, 4–5 of them); 3 GiB sent the
+#: 3-species basecoat at n = 200 (3.5 GB in memory) into chunks, 23 s → 38 s.  Issue 26 (every catalogue
+#: recipe at n = 128 within 3 GB, a 4 GB machine): 1 GiB.  Particle pearlescent at n = 128 (B = 41):
+#: 4.27 → 2.67 GB peak, CPU 18 → 24.5 s, colours identical (ΔE00 0).  A caller may pass ``budget_bytes``.
+PROJECTION_BUDGET_BYTES = 1 * 2**30
 
 
 def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, weights=None,
@@ -53,11 +53,11 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
 
     Memory: a round keeps every pair's samples and coefficients (about 5 × B·Hi·Ho·(n_φ + 1) float64).
     When the next round would exceed ``budget_bytes`` (default :data:`PROJECTION_BUDGET_BYTES`), the
-    rounds continue on chunks of incident nodes: the criteria are maxima over node pairs, so they are
-    gathered chunk by chunk, each chunk's samples evaluated afresh each round (the coarser round's
-    coefficients are those of its even samples), and the kept orders are computed in a last pass.
-    Same azimuths, same values, same result (tested); about 3× the kernel evaluations, memory
-    bounded by the budget.
+    rounds continue on chunks of incident nodes (:meth:`_BasisProjection.row_chunks`): the criteria are
+    maxima over node pairs, so they are gathered chunk by chunk, each chunk's samples evaluated afresh
+    each round (the coarser round's coefficients are those of its even samples), and the kept orders are
+    computed in a last pass.  Same azimuths, same values, same result (tested); about 3× the kernel
+    evaluations, memory bounded by the budget.
 
     A kernel μ_i μ_o (1 + ½ cos φ) has two orders, a_0 = μ_i μ_o and a_1 = ½ μ_i μ_o:
 
@@ -68,21 +68,58 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
     >>> bool(np.allclose(c[:, 0], [np.outer(mu, mu), 0.5 * np.outer(mu, mu)], rtol=0, atol=1e-14))
     True
     """
-    budget = float(PROJECTION_BUDGET_BYTES if budget_bytes is None else budget_bytes)
-    mu_i = np.asarray(mu_i, dtype=float)
-    mu_o = np.asarray(mu_o, dtype=float)
-    hi, ho = len(mu_i), len(mu_o)
-    M = None if M is None else np.atleast_2d(np.asarray(M, dtype=float))
-    W = np.ones((hi, ho)) if weights is None else np.broadcast_to(np.asarray(weights, dtype=float), (hi, ho))
+    pr = _BasisProjection(fn, M, mu_i, mu_o, tol, n_max, weights, chunk_elems, budget_bytes)
+    n = max(2, int(n_start))
+    a = pr.coefficients(n)
+    while True:
+        if 5 * 8 * a.shape[0] * pr.hi * pr.ho * (2 * n + 1) > pr.budget:
+            pr.samples.clear()
+            return pr.row_chunks(n, a.shape[0])
+        a_prev, a = a, pr.coefficients(2 * n)
+        scale, change, upper = pr.stats(a, a_prev, n)
+        if scale == 0.0:
+            return np.zeros((1, a.shape[0], pr.ho, pr.hi)), {"n_phi": 2 * n, "tail": 0.0, "converged": True}
+        change /= scale
+        upper /= scale
+        if max(change, upper) <= tol or 2 * n >= n_max:
+            break
+        n *= 2
+    pr.samples.clear()
+    return pr.truncate(a, scale, {"n_phi": 2 * n, "converged": bool(max(change, upper) <= tol)})
 
-    samples = {}
 
-    def evaluate(phi, rows=slice(None)):
-        idx = np.arange(hi)[rows]
+class _BasisProjection:
+    """The state of one :func:`project_kernel_basis` call: the kernel, its basis and the samples kept
+    between rounds.
+
+    The criteria act on the C channel combinations.  M None: exact, on the channels themselves.  With a
+    basis (B < C typically), the combinations are never formed on all samples: with
+    μ_b = max_c |M[c, b]|, |Σ_b M[c, b] x_b| ≤ Σ_b μ_b |x_b| bounds every numerator (exact for
+    B = 1), and the scale s is bounded from below by the combinations' values at φ_d = 0 and π and
+    their order-0 coefficients (|g(φ)| ≤ Σ_k |a_k|; kernels peak at φ_d = 0: mirror reflection,
+    forward scattering).  So the sampling and the order count are at least those the exact
+    criteria would choose, at B/C of the cost (docs/projection.md)."""
+
+    def __init__(self, fn, M, mu_i, mu_o, tol, n_max, weights, chunk_elems, budget_bytes):
+        self.fn, self.tol, self.n_max, self.chunk_elems = fn, tol, n_max, chunk_elems
+        self.budget = float(PROJECTION_BUDGET_BYTES if budget_bytes is None else budget_bytes)
+        self.mu_i = np.asarray(mu_i, dtype=float)
+        self.mu_o = np.asarray(mu_o, dtype=float)
+        self.hi, self.ho = len(self.mu_i), len(self.mu_o)
+        self.M = None if M is None else np.atleast_2d(np.asarray(M, dtype=float))
+        self.W = (np.ones((self.hi, self.ho)) if weights is None else
+                  np.broadcast_to(np.asarray(weights, dtype=float), (self.hi, self.ho)))
+        self.mu_b = None if self.M is None else np.abs(self.M).max(axis=0)
+        self.samples = {}
+
+    def evaluate(self, phi, rows=slice(None)):
+        """Kernel samples (B, rows, Ho, len(phi)), in chunks of ``chunk_elems``."""
+        idx = np.arange(self.hi)[rows]
+        ho = self.ho
         out = None
-        for sl in _chunks(idx.size, max(1, 4 * chunk_elems // max(1, ho * len(phi)))):
+        for sl in _chunks(idx.size, max(1, 4 * self.chunk_elems // max(1, ho * len(phi)))):
             r = idx[sl]
-            v = np.asarray(fn(mu_i[r, None, None], mu_o[None, :, None], phi[None, None, :]), dtype=float)
+            v = np.asarray(self.fn(self.mu_i[r, None, None], self.mu_o[None, :, None], phi[None, None, :]), dtype=float)
             if v.ndim == 3:
                 v = v[None]
             if out is None:
@@ -90,123 +127,106 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
             out[:, sl] = v
         return out
 
-    def coefficients(n):
+    def coefficients(self, n):
         """Basis coefficients (B, Hi, Ho, n + 1); the samples of n/2 intervals are the even ones of n,
         so each round evaluates only the new (odd) azimuths."""
-        prev = samples.pop(n // 2, None) if n % 2 == 0 else None
+        prev = self.samples.pop(n // 2, None) if n % 2 == 0 else None
         if prev is None:
-            v = evaluate(phi_samples(n))
+            v = self.evaluate(phi_samples(n))
         else:
-            odd = evaluate(np.pi * (2 * np.arange(n // 2) + 1) / n)
+            odd = self.evaluate(np.pi * (2 * np.arange(n // 2) + 1) / n)
             v = np.empty(prev.shape[:3] + (n + 1,))
             v[..., 0::2] = prev
             v[..., 1::2] = odd
-        samples[n] = v
+        self.samples[n] = v
         return cosine_coefficients(v)
 
-    # The criteria on the C channel combinations.  M None: exact, on the channels themselves.  With a
-    # basis (B < C typically), the combinations are never formed on all samples: with
-    # μ_b = max_c |M[c, b]|, |Σ_b M[c, b] x_b| ≤ Σ_b μ_b |x_b| bounds every numerator (exact for
-    # B = 1), and the scale s is bounded from below by the combinations' values at φ_d = 0 and π and
-    # their order-0 coefficients (|g(φ)| ≤ Σ_k |a_k|; kernels peak at φ_d = 0: mirror reflection,
-    # forward scattering).  So the sampling and the order count are at least those the exact
-    # criteria would choose, at B/C of the cost (docs/projection.md).
-    mu_b = None if M is None else np.abs(M).max(axis=0)
-
-    def envelope(x):  # (B, …) → (…): max over channels of |x_c| (exact) or its bound Σ_b μ_b |x_b|
-        if M is None:
+    def envelope(self, x):
+        """(B, …) → (…): max over channels of |x_c| (exact) or its bound Σ_b μ_b |x_b|."""
+        if self.M is None:
             return np.abs(x).max(axis=0)
-        return np.tensordot(mu_b, np.abs(x), axes=(0, 0))
+        return np.tensordot(self.mu_b, np.abs(x), axes=(0, 0))
 
-    def scale_of(a, n):
-        v = samples[2 * n]
+    def scale_of(self, v, a, W):
+        """The scale's lower bound from the combinations at φ_d = 0, π and order 0 (None without a basis)."""
+        if self.M is None:
+            return None
         ends = np.stack([v[..., 0], v[..., -1], a[..., 0]], axis=-1)  # (B, Hi, Ho, 3)
-        return float(np.abs(_combine(M, ends) * W[None, :, :, None]).max()) if M is not None else None
+        return float(np.abs(_combine(self.M, ends) * W[None, :, :, None]).max())
 
-    def stats(a, a_prev, n):
+    def stats(self, a, a_prev, n):
         """Channel criteria (scale, change, upper) of the round comparing n and 2n intervals."""
-        scale = scale_of(a, n)
+        scale = self.scale_of(self.samples[2 * n], a, self.W)
         s_exact = change = upper = 0.0
-        for sl in _chunks(hi, max(1, chunk_elems // max(1, a.shape[0] * ho * (2 * n + 1)))):
-            Wc = W[sl, :, None]
-            d = envelope(a[:, sl, :, :n] - a_prev[:, sl, :, :n]) * Wc
+        for sl in _chunks(self.hi, max(1, self.chunk_elems // max(1, a.shape[0] * self.ho * (2 * n + 1)))):
+            Wc = self.W[sl, :, None]
+            d = self.envelope(a[:, sl, :, :n] - a_prev[:, sl, :, :n]) * Wc
             change = max(change, float(d.max()))
-            e = envelope(a[:, sl]) * Wc
-            if M is None:
+            e = self.envelope(a[:, sl]) * Wc
+            if self.M is None:
                 s_exact = max(s_exact, float(e.sum(axis=-1).max()))
             upper = max(upper, float(e[..., n:].sum(axis=-1).max()))
-        return (s_exact if M is None else scale), change, upper
+        return (s_exact if self.M is None else scale), change, upper
 
-    def row_chunks(n):
-        """The rounds from n on, incident nodes in chunks within the budget (see the docstring)."""
-        B = a.shape[0]
+    def truncate(self, a, scale, info):
+        """The kept orders of the coefficients ``a`` (B, Hi, Ho, K): smallest L with tail Σ_{k≥L} |a_k|
+        ≤ tol · scale for every channel and pair; returns ``(coeffs (L, B, Ho, Hi), info)``."""
+        K = a.shape[-1]
+        worst = np.zeros(K)
+        for sl in _chunks(self.hi, max(1, self.chunk_elems // max(1, a.shape[0] * self.ho * K))):
+            e = self.envelope(a[:, sl]) * self.W[sl, :, None]
+            tails = np.flip(np.cumsum(np.flip(e, axis=-1), axis=-1), axis=-1)
+            worst = np.maximum(worst, tails.reshape(-1, K).max(axis=0))
+        worst /= scale
+        below = np.nonzero(worst <= self.tol)[0]
+        L = max(int(below[0]) if len(below) else K, 1)
+        coeffs = np.ascontiguousarray(np.transpose(a[..., :L], (3, 0, 2, 1)))  # (L, B, Ho, Hi)
+        return coeffs, {"n_phi": info["n_phi"], "tail": float(worst[L]) if L < K else 0.0,
+                        "converged": info["converged"]}
+
+    def _chunk_round(self, m, n, per):
+        """One round at m = 2n intervals over chunks of ``per`` incident nodes: (scale, change, upper,
+        worst tails (m + 1,))."""
+        scale = s_exact = change = upper = 0.0
+        worst = np.zeros(m + 1)
+        for sl in _chunks(self.hi, per):
+            v = self.evaluate(phi_samples(m), sl)
+            ac, ap = cosine_coefficients(v), cosine_coefficients(v[..., 0::2])
+            Wc = self.W[sl, :, None]
+            if self.M is not None:
+                scale = max(scale, self.scale_of(v, ac, self.W[sl]))
+            change = max(change, float((self.envelope(ac[..., :n] - ap[..., :n]) * Wc).max()))
+            e = self.envelope(ac) * Wc
+            if self.M is None:
+                s_exact = max(s_exact, float(e.sum(axis=-1).max()))
+            upper = max(upper, float(e[..., n:].sum(axis=-1).max()))
+            tails = np.flip(np.cumsum(np.flip(e, axis=-1), axis=-1), axis=-1)
+            worst = np.maximum(worst, tails.reshape(-1, m + 1).max(axis=0))
+        return (s_exact if self.M is None else scale), change, upper, worst
+
+    def row_chunks(self, n, B):
+        """The rounds from n on, incident nodes in chunks within the budget (see
+        :func:`project_kernel_basis`); ``B`` basis functions."""
+        ho, hi = self.ho, self.hi
         while True:
             m = 2 * n
-            per = max(1, int(budget // (5 * 8 * B * ho * (m + 1))))
-            scale = s_exact = change = upper = 0.0
-            worst = np.zeros(m + 1)
-            for sl in _chunks(hi, per):
-                v = evaluate(phi_samples(m), sl)
-                ac, ap = cosine_coefficients(v), cosine_coefficients(v[..., 0::2])
-                Wc = W[sl, :, None]
-                if M is not None:
-                    ends = np.stack([v[..., 0], v[..., -1], ac[..., 0]], axis=-1)
-                    scale = max(scale, float(np.abs(_combine(M, ends) * W[None, sl, :, None]).max()))
-                change = max(change, float((envelope(ac[..., :n] - ap[..., :n]) * Wc).max()))
-                e = envelope(ac) * Wc
-                if M is None:
-                    s_exact = max(s_exact, float(e.sum(axis=-1).max()))
-                upper = max(upper, float(e[..., n:].sum(axis=-1).max()))
-                tails = np.flip(np.cumsum(np.flip(e, axis=-1), axis=-1), axis=-1)
-                worst = np.maximum(worst, tails.reshape(-1, m + 1).max(axis=0))
-            scale = s_exact if M is None else scale
+            per = max(1, int(self.budget // (5 * 8 * B * ho * (m + 1))))
+            scale, change, upper, worst = self._chunk_round(m, n, per)
             if scale == 0.0:
                 return np.zeros((1, B, ho, hi)), {"n_phi": m, "tail": 0.0, "converged": True}
-            converged = max(change, upper) / scale <= tol
-            if converged or m >= n_max:
+            converged = max(change, upper) / scale <= self.tol
+            if converged or m >= self.n_max:
                 break
             n *= 2
         worst /= scale
-        below = np.nonzero(worst <= tol)[0]
+        below = np.nonzero(worst <= self.tol)[0]
         L = max(int(below[0]) if len(below) else m + 1, 1)
         coeffs = np.empty((L, B, ho, hi))
         for sl in _chunks(hi, per):
-            ac = cosine_coefficients(evaluate(phi_samples(m), sl))
+            ac = cosine_coefficients(self.evaluate(phi_samples(m), sl))
             coeffs[..., sl] = np.transpose(ac[..., :L], (3, 0, 2, 1))
         return coeffs, {"n_phi": m, "tail": float(worst[L]) if L < m + 1 else 0.0,
                         "converged": bool(converged), "row_chunks": True}
-
-    n = max(2, int(n_start))
-    a = coefficients(n)
-    while True:
-        if 5 * 8 * a.shape[0] * hi * ho * (2 * n + 1) > budget:
-            samples.clear()
-            return row_chunks(n)
-        a_prev, a = a, coefficients(2 * n)
-        scale, change, upper = stats(a, a_prev, n)
-        if scale == 0.0:
-            B = a.shape[0]
-            return np.zeros((1, B, ho, hi)), {"n_phi": 2 * n, "tail": 0.0, "converged": True}
-        change /= scale
-        upper /= scale
-        if max(change, upper) <= tol or 2 * n >= n_max:
-            break
-        n *= 2
-    samples.clear()
-    # truncation: smallest L with tail Σ_{k≥L} |a_k| ≤ tol · scale for every channel and pair
-    K = a.shape[-1]
-    worst = np.zeros(K)
-    for sl in _chunks(hi, max(1, chunk_elems // max(1, a.shape[0] * ho * K))):
-        e = envelope(a[:, sl]) * W[sl, :, None]
-        tails = np.flip(np.cumsum(np.flip(e, axis=-1), axis=-1), axis=-1)
-        worst = np.maximum(worst, tails.reshape(-1, K).max(axis=0))
-    worst /= scale
-    below = np.nonzero(worst <= tol)[0]
-    L = max(int(below[0]) if len(below) else K, 1)
-    coeffs = np.ascontiguousarray(np.transpose(a[..., :L], (3, 0, 2, 1)))  # (L, B, Ho, Hi)
-    info = {"n_phi": 2 * n, "tail": float(worst[L]) if L < K else 0.0,
-            "converged": bool(max(change, upper) <= tol)}
-    return coeffs, info
 
 
 class ProjectedKernel:

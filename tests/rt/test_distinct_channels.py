@@ -1,4 +1,4 @@
-"""Channels that scatter identically are solved once (flakedb.rt.stack._distinct_channels): the result
+"""Channels that scatter identically are solved once (flakedb.rt.channels.distinct_channels): the result
 must be the channel-by-channel solve, whatever the grouping of equal channels."""
 
 import numpy as np
