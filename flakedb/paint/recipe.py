@@ -126,6 +126,8 @@ class CatalogParticle:
     median_diameter_um: float | None = None
     gsd: float | None = None
     path: str = ""
+    #: flakes: geometric standard deviation of the log-normal diameter distribution (texture only)
+    diameter_gsd: float | None = None
 
     @property
     def kind(self):
@@ -626,7 +628,7 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
         return problems, warnings, None
     entry = allsp[name]
     is_flake = entry["kind"] != "pigment"
-    flake_only = ("orientation_alpha", "diameter_um", "opaque")
+    flake_only = ("orientation_alpha", "diameter_um", "opaque", "diameter_gsd")
     pig_only = ("median_diameter_um", "gsd")
     for key in (pig_only if is_flake else flake_only):
         if key in P:
@@ -651,7 +653,7 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
                             f"(hint: a layer must be thicker than its pigment particles)")
     particle = CatalogParticle(
         name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
-        P.get("median_diameter_um"), P.get("gsd"), pp)
+        P.get("median_diameter_um"), P.get("gsd"), pp, P.get("diameter_gsd"))
     return problems, warnings, particle
 
 
