@@ -27,6 +27,7 @@ COMMANDS = {
     "match": "flakedb.cli.match:match",
     "render": "flakedb.cli.render:render",
     "species": "flakedb.cli.species:species",
+    "texture": "flakedb.cli.texture:texture",
     "verify": "flakedb.cli.build:verify",
 }
 

@@ -215,6 +215,39 @@ def _path(stack, z, mu):
     return tau, lam, T
 
 
+def _shared(stack, z, slope_gap, n=16):
+    """Expected number of flakes crossed by *both* paths of a flake at depth z (nz,) whose two paths
+    drift apart by ``slope_gap`` (nz,) µm per µm of height (|l'_xy/l'_z − v'_xy/v'_z|): flakes (as
+    horizontal discs) above it at height Δ are crossed by both when their centre lies in the lens of
+    two discs of the flake's radius whose centres are Δ·gap apart (docs/texture.md eq. S4)."""
+    z = np.asarray(z, float)
+    gap = np.broadcast_to(np.asarray(slope_gap, float), z.shape)
+    x, wx = leggauss(n)
+    out = np.zeros(z.size)
+    for f in stack.flakes:
+        lo = f.z_top_um
+        hi = np.minimum(z, f.z_top_um + f.thickness_um)
+        span = np.maximum(hi - lo, 0.0)
+        if not np.any(span > 0):
+            continue
+        zp = lo + 0.5 * span[:, None] * (x[None, :] + 1.0)  # (nz, n) depths of the flakes above
+        sep = (z[:, None] - zp) * gap[:, None]
+        Dn, Dw = f.diameters()
+        acc = np.zeros(z.size)
+        for D, wd in zip(Dn, Dw):
+            r = 0.5 * D
+            acc += wd * np.sum(lens_area(sep.ravel(), r, r).reshape(sep.shape) * wx[None, :], axis=1) * 0.5 * span
+        out += f.number_density_per_um3 * acc
+    return out
+
+
+def _gap(u, v):
+    """|u_xy/u_z − v_xy/v_z| of upward directions u (…, 3) and v (3,)."""
+    u = np.asarray(u, float)
+    d = u[..., :2] / u[..., 2:3] - np.asarray(v, float)[:2] / float(v[2])
+    return np.sqrt(np.sum(d * d, axis=-1))
+
+
 # ----------------------------------------------------------------------------------------------
 # Glints under a directional source (docs/texture.md §3)
 # ----------------------------------------------------------------------------------------------
@@ -257,15 +290,31 @@ def directional_geometry(eta, light_deg, view_deg, source_half_angle_deg, apertu
                     om_s, om_a, float(np.sqrt(om_sb / np.pi)), float(np.sqrt(om_ab / np.pi)))
 
 
-def _offset_tables(r_b, r_a, n=N_OFFSET):
-    """On offsets d ∈ [0, r_b + r_a] (ω_o space): φ(d) = lens(d)/lens(0) (decreasing from 1 to 0),
-    S(d) = π d² and I(d) = ∫_0^d φ 2πx dx (trapezoid on the fine grid)."""
-    d = np.linspace(0.0, r_b + r_a, n)
-    lens = lens_area(d, r_b, r_a)
-    phi = lens / lens[0]
+def _offset_tables(r_s, r_d, r_a, n=N_OFFSET, n_r=24, n_t=48):
+    """The fraction of a flake's beam that the aperture collects, against the offset d of the beam's
+    centre from the aperture's centre (ω_o space, docs/texture.md eq. S1b): the beam is the source
+    disc (radius r_s) convolved with the diffraction disc (r_d), density lens(|y|; r_s, r_d)/(π r_s² π r_d²),
+    integrated over the aperture disc (r_a) by Gauss–Legendre in radius × midpoint in angle.
+    Returns d on [0, r_s + r_d + r_a], f(d), and I(d) = ∫_0^d f 2πx dx / f(0) (φ = f/f(0))."""
+    d = np.linspace(0.0, r_s + r_d + r_a, n)
+    x, wx = leggauss(n_r)
+    rr = 0.5 * r_a * (x + 1.0)
+    wr = 0.5 * r_a * wx * rr
+    th = (np.arange(n_t) + 0.5) * 2.0 * np.pi / n_t
+    ax = (rr[:, None] * np.cos(th)[None, :]).ravel()
+    ay = (rr[:, None] * np.sin(th)[None, :]).ravel()
+    wa = np.repeat(wr, n_t) * (2.0 * np.pi / n_t)
+    dist = np.hypot(ax[None, :] - d[:, None], ay[None, :])
+    if r_d > 0:
+        dens = lens_area(dist.ravel(), r_s, r_d).reshape(dist.shape) / (np.pi * r_s * r_s * np.pi * r_d * r_d)
+    else:
+        dens = (dist <= r_s) / (np.pi * r_s * r_s)
+    f = dens @ wa
+    f = np.minimum.accumulate(f)  # non-increasing in d (removes quadrature ripples)
+    phi = f / f[0]
     g = phi * 2.0 * np.pi * d
     I = np.concatenate([[0.0], np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(d))])
-    return d, phi, I
+    return d, phi, I, float(f[0])
 
 
 def _above_threshold(q, d, phi, I):
@@ -276,6 +325,26 @@ def _above_threshold(q, d, phi, I):
     dq = np.where(q > 1.0, 0.0, dq)
     Iq = np.interp(dq, d, I)
     return np.pi * dq * dq, Iq
+
+
+def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v):
+    """Luminance-weighted transmissions w and their probabilities over the crossing counts: k_l, k_v
+    flakes crossed by one path only (Poisson λ_l, λ_v), k_b by both (λ_b, transmitting T_l T_v).
+    ``yR`` (C,) luminance weights × R; ``att`` (C, nz) absorber transmission; λ (nz,); T (C, nz).
+    Returns (w, P), each (nz, K) over the flattened (k_l, k_v, k_b) combinations."""
+    T_max = max(float(np.max(T_l, initial=0.0)), float(np.max(T_v, initial=0.0)))
+    lam_max = max(float(lam_l.max()), float(lam_v.max()), float(lam_b.max()))
+    K = _k_max(lam_max, T_max)
+    k = np.arange(K + 1)
+    Pl, Pv, Pb = _poisson(k, lam_l), _poisson(k, lam_v), _poisson(k, lam_b)  # (nz, K+1)
+    ws, ps = [], []
+    for i in range(K + 1):
+        for j in range(K + 1 - i):
+            for b in range(K + 1 - i - j):
+                tr = T_l**i * T_v**j * (T_l * T_v) ** b * att
+                ws.append(yR @ tr / R_Y)
+                ps.append(Pl[:, i] * Pv[:, j] * Pb[:, b])
+    return np.stack(ws, axis=1), np.stack(ps, axis=1)
 
 
 def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_factor=None) -> dict:
@@ -311,36 +380,25 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
         R_Y = float(y @ R_h)
         if R_Y <= 0.0:
             continue
-        K = _k_max(max(lam_l.max(), lam_v.max()), max(T_l.max(), T_v.max()))
-        k = np.arange(K + 1)
-        P_l, P_v = _poisson(k, lam_l), _poisson(k, lam_v)  # (nz, K+1)
-        # luminance-weighted path transmission w(z, k_l, k_v)
-        w = np.empty((z.size, K + 1, K + 1))
-        for i in range(K + 1):
-            Tl = T_l**i
-            for j in range(K + 1):
-                w[:, i, j] = (y * R_h) @ (Tl * T_v**j * att) / R_Y
-        P = P_l[:, :, None] * P_v[:, None, :]
+        lb = np.array([np.sqrt(1 - g.mu_l_b**2), 0.0, g.mu_l_b])
+        vb = np.array([-np.sqrt(1 - g.mu_v_b**2), 0.0, g.mu_v_b])
+        lam_b = np.minimum(_shared(stack, z, np.full(z.size, _gap(lb, vb))), np.minimum(lam_l, lam_v))
+        w, P = _path_weights(y * R_h, R_Y, att, lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v)
         p_h = 2.0 * float(flake_ndf_Beckmann(g.cos_h, f.alpha))  # upper-hemisphere density, 1/sr
         Nz = f.number_density_per_um3 * f.thickness_um  # flakes per µm² in the layer
         for D, wd in zip(Dn, Dw):
-            r_b = float(np.hypot(g.r_s, diffraction_radius(D, stack.eta)))
-            d, phi, I = _offset_tables(r_b, g.r_a)
-            lens0 = np.pi * min(r_b, g.r_a) ** 2
-            f_max = lens0 / (np.pi * r_b * r_b)
+            d, phi, I, f_max = _offset_tables(g.r_s, float(diffraction_radius(D, stack.eta)), g.r_a)
             b_peak = np.pi * g.t_in * g.t_out * R_Y * f_max * g.c / (g.mu_l_b * g.mu_v * g.omega_a)
             A = 0.25 * np.pi * D * D
             q = GLINT_FRACTION / np.maximum(w, 1e-300)
             S_q, I_q = _above_threshold(q, d, phi, I)
             dens = Nz * wd * p_h / (4.0 * g.c)  # glints per µm² per unit ω_o-space area
-            cnt = dens * np.einsum("z,zij,zij->", wz, P, S_q)
+            cnt = dens * np.einsum("z,zk,zk->", wz, P, S_q)
             n_g += cnt
-            flux += dens * b_peak * min(A, a_spot) / a_spot * np.einsum("z,zij,zij,zij->", wz, P, w, I_q)
-            mean_all += dens * b_peak * A * np.einsum("z,zij,zij->", wz, P, w) * (np.pi * r_b * r_b) * (np.pi * g.r_a**2) / lens0
+            flux += dens * b_peak * min(A, a_spot) / a_spot * np.einsum("z,zk,zk,zk->", wz, P, w, I_q)
+            mean_all += dens * b_peak * A * np.einsum("z,zk,zk->", wz, P, w) * np.pi * g.r_a**2 / f_max
             mink += cnt * (a_spot + 2.0 * p * D + 0.25 * np.pi * D * D)
-        Dm = float(f.diameter_median_um)
-        r_bm = float(np.hypot(g.r_s, diffraction_radius(Dm, stack.eta)))
-        fm = np.pi * min(r_bm, g.r_a) ** 2 / (np.pi * r_bm * r_bm)
+        fm = _offset_tables(g.r_s, float(diffraction_radius(f.diameter_median_um, stack.eta)), g.r_a, n=2)[3]
         peak = max(peak, np.pi * g.t_in * g.t_out * R_Y * fm * g.c / (g.mu_l_b * g.mu_v * g.omega_a))
     sparkle = bool(stack.flakes) and bool(peak >= SPARKLE_MIN_PEAK) and bool(n_g > 0)
     intensity = flux / n_g if n_g > 0 else 0.0
@@ -364,6 +422,22 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
 # ----------------------------------------------------------------------------------------------
 
 
+def overlap_integral(diameter_um, spot_um, n=48):
+    """∫ (area of a disc of diameter D inside a p × p square, as a fraction of p²)² over the disc's
+    centre position x (µm²; docs/texture.md eq. G2): = p⁻⁴ ∫ g(δ) K(δ) dδ with g the disc's set
+    covariogram (lens area of two discs d apart) and K(δ) = (p − |δ_x|)(p − |δ_y|) the square's,
+    by n × n Gauss–Legendre on [0, min(p, D)]² (× 4 by symmetry).  Limits: A²/p² (D ≪ p), A (D ≫ p)."""
+    D, p = float(diameter_um), float(spot_um)
+    h = min(p, D)
+    x, w = leggauss(n)
+    u = 0.5 * h * (x + 1.0)
+    wu = 0.5 * h * w
+    dx, dy = np.meshgrid(u, u, indexing="ij")
+    g = lens_area(np.hypot(dx, dy).ravel(), 0.5 * D, 0.5 * D).reshape(dx.shape)
+    K = (p - dx) * (p - dy)
+    return 4.0 * float(wu @ (g * K) @ wu) / p**4
+
+
 def _sky_normals(alpha, n_t=N_TILT, n_p=N_AZIMUTH):
     """Upper-hemisphere flake normals m (M, 3) and weights (Σ = 1) for density 2D(m) of eq. 5:
     tan²θ = α² u with u ~ e^{−u} (Gauss–Laguerre), azimuth uniform (midpoint rule)."""
@@ -375,6 +449,54 @@ def _sky_normals(alpha, n_t=N_TILT, n_p=N_AZIMUTH):
     m = np.stack([np.outer(st, np.cos(ph)), np.outer(st, np.sin(ph)), np.outer(ct, np.ones(n_p))], axis=-1)
     w = np.outer(wu / wu.sum(), np.full(n_p, 1.0 / n_p))
     return m.reshape(-1, 3), w.ravel()
+
+
+def pair_overlap(diameter_um, spot_um, s_um, n=24, n_dir=3):
+    """O(s) = ∫ o_i(x) o_j(x) dx (µm²) for two discs of diameter D whose centres are s apart, o the
+    fraction of p² a disc covers in a p × p square at position x: p⁻⁴ ∫ g(|δ − s e|) K(δ) dδ
+    (g the disc covariogram, K(δ) = (p − |δ_x|)(p − |δ_y|)), averaged over directions e in [0, π/4]
+    (the square's symmetry); n × n Gauss–Legendre over δ ∈ [−h, h]², h = min(p, s + D).
+    O(0) = :func:`overlap_integral`."""
+    D, p = float(diameter_um), float(spot_um)
+    s_um = np.atleast_1d(np.asarray(s_um, float))
+    x, w = leggauss(n)
+    out = np.zeros(s_um.size)
+    angles = (np.arange(n_dir) + 0.5) * (0.25 * np.pi / n_dir)
+    for k, sv in enumerate(s_um):
+        h = min(p, sv + D)
+        u = h * x
+        wu = h * w
+        dx, dy = np.meshgrid(u, u, indexing="ij")
+        K = (p - np.abs(dx)) * (p - np.abs(dy))
+        acc = 0.0
+        for t in angles:
+            g = lens_area(np.hypot(dx - sv * np.cos(t), dy - sv * np.sin(t)).ravel(), 0.5 * D, 0.5 * D).reshape(dx.shape)
+            acc += float(wu @ (g * K) @ wu)
+        out[k] = acc / n_dir / p**4
+    return out
+
+
+def _pair_term(f, z, wz, b0, lam, tau, r, spot_um, n=16):
+    """Second-order (pair) term of the spot variance from hiding within one flake layer (docs/texture.md
+    eq. G4): 2ρ² ∫∫_{z_j < z_i} b0_i b0_j e^{−(λ_i + λ_j)(1 − τ)} S(z_j) dz_i dz_j with
+    S(z_j) = ∫ 2πs ds O(s) ([τ if s < r else 1] · e^{λ_ij(s)(1 − τ)²} − 1), λ_ij = ρ lens(s; r, r)(z_j − z_top),
+    O(s) = ∫ o_i o_j dx of two discs s apart (:func:`pair_overlap`):
+    the upper flake j hides the lower i when its disc covers i's centre, and flakes above both that
+    cover both centres hide them together (paths taken vertical, a layer of discs of radius r)."""
+    rho = float(f.number_density_per_um3)
+    x, wx = leggauss(n)
+    s_in, w_in = 0.5 * r * (x + 1.0), 0.5 * r * wx
+    s_out, w_out = r + s_in, w_in
+    ss = np.concatenate([s_in, s_out])
+    ws = np.concatenate([w_in, w_out]) * 2.0 * np.pi * ss
+    cover = np.concatenate([np.full(n, tau), np.ones(n)])
+    lens = lens_area(ss, r, r)
+    ws = ws * pair_overlap(2.0 * r, spot_um, ss)
+    h = z - f.z_top_um
+    S = np.array([np.sum(ws * (cover * np.exp(rho * lens * hj * (1.0 - tau) ** 2) - 1.0)) for hj in h])
+    g = b0 * np.exp(-lam * (1.0 - tau)) * wz * f.thickness_um
+    upper = np.tril(np.ones((z.size, z.size)), -1)  # [i, j]: z_j < z_i (nodes ascending in depth)
+    return 2.0 * rho * rho * float(g @ upper @ (g * S))
 
 
 def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=None) -> dict:
@@ -394,7 +516,7 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
     mu_vb = float(binder_cosine(observer.view_deg, eta))
     vb = np.array([-np.sqrt(1 - mu_vb**2), 0.0, mu_vb])
     t_out = float(coat_transmittance(mu_v, eta))
-    a = float(observer.spot_um) ** 2
+    a_spot = float(observer.spot_um) ** 2
     mean, var = 0.0, 0.0
     for f in stack.flakes:
         m, wm = _sky_normals(f.alpha)
@@ -416,26 +538,35 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
         tau_l, lam_l, T_l = _path(stack, zz, mm)
         C = y.size
         tau_l, lam_l, T_l = tau_l.reshape(C, M, nz), lam_l.reshape(M, nz), T_l.reshape(C, M, nz)
-        K = _k_max(max(lam_l.max(), lam_v.max()), max(T_l.max(), T_v.max()))
-        k = np.arange(K + 1)
-        P_l, P_v = _poisson(k, lam_l), _poisson(k, lam_v)  # (M, nz, K+1), (nz, K+1)
-        base = (t_in * t_out * wm)[None, :, None] * R[:, :, None] * np.exp(-(tau_l + tau_v[:, None, :]))  # (C, M, nz)
-        b1 = np.zeros((M, nz))
+        gap = np.repeat(_gap(np.where(ok[:, None], lm, vb[None, :]), vb)[:, None], nz, axis=1).ravel()
+        lam_b = np.minimum(_shared(stack, zz, gap), np.minimum(lam_l.ravel(), np.repeat(lam_v[None, :], M, 0).ravel()))
+        lam_b = lam_b.reshape(M, nz)
+        lo_l, lo_v = lam_l - lam_b, lam_v[None, :] - lam_b  # one path only
+        # per channel: amp = T_in T_out R e^{−τ}; Poisson crossings average exactly (docs/texture.md eq. G3):
+        # E[b_c] = a_c exp(−λ_l'(1−T_l) − λ_v'(1−T_v) − λ_b(1−T_l T_v)),
+        # E[b_c b_c'] = a_c a_c' exp(−λ_l'(1−T_l T_l') − λ_v'(1−T_v T_v') − λ_b(1−T_l T_v T_l' T_v'))
+        amp = (t_in * t_out)[None, :, None] * R[:, :, None] * np.exp(-(tau_l + tau_v[:, None, :]))  # (C, M, nz)
+        Tv = np.broadcast_to(T_v[:, None, :], T_l.shape)
+        Eb_c = amp * np.exp(-lo_l * (1 - T_l) - lo_v * (1 - Tv) - lam_b * (1 - T_l * Tv))
+        b1 = np.einsum("c,cmz->mz", y, Eb_c)
+        ya = y[:, None, None] * amp
         b2 = np.zeros((M, nz))
+        for c1 in range(C):
+            ex = (-lo_l * (1 - T_l[c1] * T_l) - lo_v * (1 - Tv[c1] * Tv)
+                  - lam_b * (1 - T_l[c1] * Tv[c1] * T_l * Tv))
+            b2 += ya[c1] * np.sum(ya * np.exp(ex), axis=0)
         wgt = wm[:, None] * wz[None, :]
-        for i in range(K + 1):
-            bl = base * T_l**i
-            for j in range(K + 1):
-                bY = np.einsum("c,cmz->mz", y, bl * (T_v**j)[:, None, :]) / np.where(wm > 0, wm, 1.0)[:, None]
-                pij = P_l[:, :, i] * P_v[None, :, j]
-                b1 += pij * bY
-                b2 += pij * bY * bY
         Eb, Eb2 = float(np.sum(wgt * b1)), float(np.sum(wgt * b2))
         Dn, Dw = f.diameters()
         A = 0.25 * np.pi * Dn * Dn
         NA = f.areal_density_per_um2
         mean += NA * float(Dw @ A) * Eb
-        var += NA * float(Dw @ (A * A / (A + a))) * Eb2
+        ov = np.array([overlap_integral(D, observer.spot_um) for D in Dn])
+        var += NA * float(Dw @ ov) * Eb2
+        # pairs of flakes of this layer, one above the other (docs/texture.md eq. G4)
+        b0 = np.einsum("c,cmz,m->z", y, amp, wm)  # unhidden mean luminance factor per depth
+        tau_y = float(y @ (T_v[:, -1] ** 2))  # a flake crossed by both (vertical) paths transmits T²
+        var += float(Dw @ np.array([_pair_term(f, z, wz, b0, lam_v, tau_y, 0.5 * D, observer.spot_um) for D in Dn]))
     ground = float(ground_luminance_factor) if ground_luminance_factor is not None else mean
     sd = float(np.sqrt(var))
     return {
