@@ -95,7 +95,7 @@ def texture_stack(recipe) -> tuple[TextureStack, list]:
         z += b.thickness_um
     if getattr(recipe, "metal", None) is not None:
         notes.append("metal base: its mirror is not a flake; no glints from it")
-    return TextureStack(eta, y, tuple(flakes), tuple(absorbers)), notes
+    return TextureStack(eta, y, tuple(flakes), tuple(absorbers), wl), notes
 
 
 def texture_report(recipe, observers, ground=None) -> dict:
@@ -111,7 +111,10 @@ def texture_report(recipe, observers, ground=None) -> dict:
                        "depth_um": [f.z_top_um, f.z_top_um + f.thickness_um]} for f in stack.flakes]}
     if not stack.flakes:
         out["sparkle"] = False
-        out["summary"] = "no flakes: no sparkle and no graininess (a pigment-only paint)"
+        has_flakes = any(isinstance(p, CustomFlake) or (isinstance(p, CatalogParticle) and p.is_flake)
+                         for _, p in recipe.particles())
+        out["summary"] = ("no flakes the texture model can use (see the notes): no sparkle predicted" if has_flakes
+                          else "no flakes: no sparkle and no graininess (a pigment-only paint)")
         out["observers"] = []
         return out
     out["sparkle"] = True

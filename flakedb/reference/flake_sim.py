@@ -68,7 +68,7 @@ def _fresnel_unpolarised(cos_i, n1, n2):
 
 @numba.njit(cache=True)
 def _path_transmission(x0, y0, z0, ux, uy, uz, self_idx, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
-                       cell_start, cell_items, ncell, cell, L, absz, absd, abss):
+                       cell_start, cell_items, ncell, cell, rmax, absz, absd, abss):
     """Per-channel transmission of the straight path from (x0, y0, depth z0) going up along u (uz > 0 up)
     to the surface: flakes crossed (T of each) and absorbers (e^{−σ s})."""
     C = Ttab.shape[1]
@@ -83,7 +83,6 @@ def _path_transmission(x0, y0, z0, ux, uy, uz, self_idx, X, Y, Z, NX, NY, NZ, RA
                 out[ch] *= np.exp(-abss[a, ch] * seg / uz)
     # cells covering the ray's xy extent (+ the largest radius)
     xe, ye = x0 + ux * smax, y0 + uy * smax
-    rmax = RAD.max()
     ix0 = int(np.floor((min(x0, xe) - rmax) / cell))
     ix1 = int(np.floor((max(x0, xe) + rmax) / cell))
     iy0 = int(np.floor((min(y0, ye) - rmax) / cell))
@@ -179,7 +178,7 @@ def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, la
 
 
 @numba.njit(cache=True)
-def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, ncell, cell, L,
+def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, ncell, cell, rmax,
                  absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud, rots,
                  cos_cut, t_in, t_out, mu_lb, mu_v, om_a):
     """Per flake: β (luminance factor), β_peak of its diameter, and whether it was examined."""
@@ -213,9 +212,9 @@ def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_i
         c = abs(blx * NX[i] + bly * NY[i] + blz * NZ[i])
         R = _lookup(Rtab[SP[i]], c)
         tl = _path_transmission(X[i], Y[i], Z[i], blx, bly, blz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
-                                cell_start, cell_items, ncell, cell, L, absz, absd, abss)
+                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
         tv = _path_transmission(X[i], Y[i], Z[i], bvx, bvy, bvz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
-                                cell_start, cell_items, ncell, cell, L, absz, absd, abss)
+                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
         num = 0.0
         for ch in range(y.shape[0]):
             num += y[ch] * R[ch] * tl[ch] * tv[ch]
@@ -224,7 +223,7 @@ def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_i
 
 
 @numba.njit(cache=True)
-def _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, ncell, cell, L,
+def _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, ncell, cell, rmax,
          absz, absd, abss, eta, vx, vy, vz, t_out):
     """Per flake: its luminance factor b under a uniform sky (module docstring)."""
     N = X.shape[0]
@@ -245,9 +244,9 @@ def _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, nc
         t_in = 1.0 - _fresnel_unpolarised(np.sqrt(1.0 - s2), 1.0, eta)
         R = _lookup(Rtab[SP[i]], cv)
         tl = _path_transmission(X[i], Y[i], Z[i], lx, ly, lz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
-                                cell_start, cell_items, ncell, cell, L, absz, absd, abss)
+                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
         tv = _path_transmission(X[i], Y[i], Z[i], bvx, bvy, bvz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
-                                cell_start, cell_items, ncell, cell, L, absz, absd, abss)
+                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
         s = 0.0
         for ch in range(y.shape[0]):
             s += y[ch] * R[ch] * tl[ch] * tv[ch]
@@ -350,8 +349,9 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
     absz = np.array([a["z_top_um"] for a in absorbers], float)
     absd = np.array([a["thickness_um"] for a in absorbers], float)
     abss = np.array([np.broadcast_to(np.asarray(a["sigma_per_um"], float), y.shape) for a in absorbers]).reshape(len(absorbers), y.size)
-    cell_target = max(4.0 * float(RAD.max()) if RAD.size else 10.0, 10.0)
+    cell_target = max(4.0 * float(np.median(RAD)) if RAD.size else 10.0, 10.0)
     start, items, ncell, cell = _cells(X, Y, L_um, cell_target)
+    rmax = float(RAD.max()) if RAD.size else 0.0
     p = float(spot_um)
     npx = max(1, int(round(L_um / p)))
     p = L_um / npx
@@ -375,7 +375,7 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
         reach = 3.0 * (r_sb + 2.0 * lam_b / (np.pi * 2.0 * RAD) + aperture_half_angle_rad / eta) + 1e-3
         cos_cut = np.cos(np.minimum(reach, np.pi / 2))
         rots = rng.random((X.size, 2))
-        beta, peak = _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, L_um,
+        beta, peak = _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
                                   absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, aperture_half_angle_rad,
                                   lam_b, us, ud, rots, cos_cut, t_in, t_out, mu_lb, mu_v, om_a)
         glint = (peak > 0) & (beta >= 0.5 * peak)
@@ -394,7 +394,7 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
             "peak_luminance_factor_max": float(peak.max()) if peak.size else 0.0,
         })
     if diffuse:
-        b = _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, L_um,
+        b = _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
                  absz, absd, abss, eta, vx, vy, vz, t_out)
         img = _deposit(X, Y, RAD, b, p, npx, L_um, _disc_points(64))
         v = img.ravel()

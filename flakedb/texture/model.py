@@ -110,6 +110,8 @@ class TextureStack:
     y_weights: np.ndarray
     flakes: tuple = ()
     absorbers: tuple = ()
+    #: the channels' wavelengths (nm), for colour (None: grey channels)
+    wavelength_nm: np.ndarray | None = None
 
 
 def _interp_rows(xp, table, x):
@@ -451,47 +453,51 @@ def _sky_normals(alpha, n_t=N_TILT, n_p=N_AZIMUTH):
     return m.reshape(-1, 3), w.ravel()
 
 
-def pair_overlap(diameter_um, spot_um, s_um, n=24, n_dir=3):
+def pair_overlap(diameter_um, spot_um, s_um, n=16, n_dir=3, diameter2_um=None):
     """O(s) = ∫ o_i(x) o_j(x) dx (µm²) for two discs of diameter D whose centres are s apart, o the
     fraction of p² a disc covers in a p × p square at position x: p⁻⁴ ∫ g(|δ − s e|) K(δ) dδ
     (g the disc covariogram, K(δ) = (p − |δ_x|)(p − |δ_y|)), averaged over directions e in [0, π/4]
     (the square's symmetry); n × n Gauss–Legendre over δ ∈ [−h, h]², h = min(p, s + D).
-    O(0) = :func:`overlap_integral`."""
+    O(0) = :func:`overlap_integral`.  ``diameter2_um``: the second disc's diameter (default the same)."""
     D, p = float(diameter_um), float(spot_um)
+    D2 = D if diameter2_um is None else float(diameter2_um)
     s_um = np.atleast_1d(np.asarray(s_um, float))
     x, w = leggauss(n)
-    out = np.zeros(s_um.size)
     angles = (np.arange(n_dir) + 0.5) * (0.25 * np.pi / n_dir)
-    for k, sv in enumerate(s_um):
-        h = min(p, sv + D)
-        u = h * x
-        wu = h * w
-        dx, dy = np.meshgrid(u, u, indexing="ij")
-        K = (p - np.abs(dx)) * (p - np.abs(dy))
-        acc = 0.0
-        for t in angles:
-            g = lens_area(np.hypot(dx - sv * np.cos(t), dy - sv * np.sin(t)).ravel(), 0.5 * D, 0.5 * D).reshape(dx.shape)
-            acc += float(wu @ (g * K) @ wu)
-        out[k] = acc / n_dir / p**4
-    return out
+    h = np.minimum(p, s_um + 0.5 * (D + D2))  # (S,) half-width of each offset's integration square
+    u = h[:, None] * x[None, :]  # (S, n)
+    wu = h[:, None] * w[None, :]
+    dx, dy = u[:, :, None], u[:, None, :]  # (S, n, 1), (S, 1, n)
+    K = (p - np.abs(dx)) * (p - np.abs(dy))  # (S, n, n)
+    acc = np.zeros(s_um.size)
+    for t in angles:
+        dist = np.hypot(dx - s_um[:, None, None] * np.cos(t), dy - s_um[:, None, None] * np.sin(t))
+        g = lens_area(dist.ravel(), 0.5 * D, 0.5 * D2).reshape(dist.shape)
+        acc += np.einsum("si,sij,sj->s", wu, g * K, wu)
+    return acc / n_dir / p**4
 
 
 def _pair_term(f, z, wz, b0, lam, tau, r, spot_um, n=16):
     """Second-order (pair) term of the spot variance from hiding within one flake layer (docs/texture.md
-    eq. G4): 2ρ² ∫∫_{z_j < z_i} b0_i b0_j e^{−(λ_i + λ_j)(1 − τ)} S(z_j) dz_i dz_j with
-    S(z_j) = ∫ 2πs ds O(s) ([τ if s < r else 1] · e^{λ_ij(s)(1 − τ)²} − 1), λ_ij = ρ lens(s; r, r)(z_j − z_top),
-    O(s) = ∫ o_i o_j dx of two discs s apart (:func:`pair_overlap`):
-    the upper flake j hides the lower i when its disc covers i's centre, and flakes above both that
-    cover both centres hide them together (paths taken vertical, a layer of discs of radius r)."""
+    eq. G4), for an upper flake of radius r: 2ρ² ∫∫_{z_j < z_i} b0_i b0_j e^{−(λ_i + λ_j)(1 − τ)} S(z_j)
+    dz_i dz_j with S(z_j) = ∫ 2πs ds O(s) ([τ if s < r else 1] · e^{Λ(s)(1 − τ)²} − 1), where
+    Λ(s) = ρ ⟨lens(s; r', r')⟩_{r'} (z_j − z_top) counts the flakes above both that cover both centres
+    (r' over the size distribution) and O(s) = ∫ o_i o_j dx (:func:`pair_overlap`): the upper flake j
+    hides the lower i when its disc covers i's centre (paths taken vertical)."""
     rho = float(f.number_density_per_um3)
+    Dn, Dw = f.diameters()
+    r_far = max(float(r), 0.5 * float(Dn.max()))
     x, wx = leggauss(n)
     s_in, w_in = 0.5 * r * (x + 1.0), 0.5 * r * wx
-    s_out, w_out = r + s_in, w_in
+    s_out = r + 0.5 * (2.0 * r_far - r) * (x + 1.0)
+    w_out = 0.5 * (2.0 * r_far - r) * wx
     ss = np.concatenate([s_in, s_out])
-    ws = np.concatenate([w_in, w_out]) * 2.0 * np.pi * ss
+    # O(s) averaged over the lower flake's diameter (6-node rule: the size distribution's weights)
+    Di, wi = f.diameters(6)
+    O = sum(w * pair_overlap(2.0 * r, spot_um, ss, diameter2_um=d) for d, w in zip(Di, wi))
+    ws = np.concatenate([w_in, w_out]) * 2.0 * np.pi * ss * O
     cover = np.concatenate([np.full(n, tau), np.ones(n)])
-    lens = lens_area(ss, r, r)
-    ws = ws * pair_overlap(2.0 * r, spot_um, ss)
+    lens = sum(wd * lens_area(ss, 0.5 * D, 0.5 * D) for D, wd in zip(Dn, Dw))
     h = z - f.z_top_um
     S = np.array([np.sum(ws * (cover * np.exp(rho * lens * hj * (1.0 - tau) ** 2) - 1.0)) for hj in h])
     g = b0 * np.exp(-lam * (1.0 - tau)) * wz * f.thickness_um
@@ -566,7 +572,8 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
         # pairs of flakes of this layer, one above the other (docs/texture.md eq. G4)
         b0 = np.einsum("c,cmz,m->z", y, amp, wm)  # unhidden mean luminance factor per depth
         tau_y = float(y @ (T_v[:, -1] ** 2))  # a flake crossed by both (vertical) paths transmits T²
-        var += float(Dw @ np.array([_pair_term(f, z, wz, b0, lam_v, tau_y, 0.5 * D, observer.spot_um) for D in Dn]))
+        Dj, wj = f.diameters(6)
+        var += float(wj @ np.array([_pair_term(f, z, wz, b0, lam_v, tau_y, 0.5 * D, observer.spot_um) for D in Dj]))
     ground = float(ground_luminance_factor) if ground_luminance_factor is not None else mean
     sd = float(np.sqrt(var))
     return {
