@@ -1,13 +1,17 @@
 """`flakedb texture RECIPE`: predicted sparkle and graininess of a paint (docs/texture.md)."""
 
 import json
+from pathlib import Path
 
 import click
 
+from flakedb.atomic import atomic_write_text
 from flakedb.cli.errors import FlakedbError
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.recipe import RecipeError, load_recipe
-from flakedb.paint.texture_inputs import texture_report
+from flakedb.paint.texture_inputs import texture_report, texture_stack
+from flakedb.render.imageio import write_exr
+from flakedb.render.mitsuba_sparkle import flake_normal_map, shader_parameters
 from flakedb.texture.instruments import PRESETS, Observer
 
 
@@ -45,6 +49,18 @@ def format_texture(rep) -> str:
     return "\n".join(lines)
 
 
+def _write_mitsuba(rec, obs, out_dir):
+    """The Mitsuba 3 sparkle route's files, each written atomically."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    st, _ = texture_stack(rec)
+    params = shader_parameters(st, obs.spot_um, obs.aperture_half_angle_rad, obs.source_half_angle_deg)
+    p1 = atomic_write_text(out / f"{rec.name}.sparkle.json", json.dumps(params, indent=1))
+    m = flake_normal_map(st, 512, 5.0)
+    p2 = write_exr(out / f"{rec.name}.flakes.exr", (0.5 * (m[..., :3] + 1.0)) * m[..., 3:4])
+    click.echo(f"wrote {p1} and {p2} (normal map: rgb = (n + 1)/2 where a flake is seen, 0 elsewhere)", err=True)
+
+
 @click.command()
 @click.argument("recipe", type=click.Path(dir_okay=False))
 @click.option("--observer", "observers", multiple=True, type=click.Choice(sorted(PRESETS)),
@@ -63,7 +79,12 @@ def format_texture(rep) -> str:
 @click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON instead of the table.")
-def texture(recipe, observers, spot_um, aperture_deg, source_deg, light_deg, view_deg, catalog_path, as_json):
+@click.option("--mitsuba", "mitsuba_dir", default=None, type=click.Path(file_okay=False),
+              help="Also write DIR/NAME.sparkle.json (the shader parameter set for the first observer) and "
+                   "DIR/NAME.flakes.exr (a 512² flake normal map, 5 µm texels) for a Mitsuba 3 glint layer "
+                   "(docs/texture.md §7).")
+def texture(recipe, observers, spot_um, aperture_deg, source_deg, light_deg, view_deg, catalog_path, as_json,
+            mitsuba_dir=None):
     """Predicted sparkle (glints per mm², area fraction, intensity, contrast) and graininess of RECIPE."""
     import numpy as np  # lazy: CLI start-up
 
@@ -81,6 +102,8 @@ def texture(recipe, observers, spot_um, aperture_deg, source_deg, light_deg, vie
     else:
         obs = [PRESETS[o] for o in (observers or PRESETS)]
     rep = texture_report(rec, obs)
+    if mitsuba_dir is not None and rep["sparkle"]:
+        _write_mitsuba(rec, obs[0], mitsuba_dir)
     if as_json:
         click.echo(json.dumps(rep, indent=1))
     else:

@@ -111,7 +111,8 @@ def sparkle_layer(stack, sun, size, extent, *, sphere_diameter_mm=100.0, viewing
     lam = np.where(ok, _bilinear(n_g, TILT_GRID_DEG, HALF_GRID_DEG, th, td), 0.0) * (spot_um**2) / np.maximum(mu_v, 1e-6)
     beta = np.where(ok, _bilinear(b_ss, TILT_GRID_DEG, HALF_GRID_DEG, th, td), 0.0)
     E = np.asarray(sun.irradiance, float)[None, None, :] * np.clip(mu_l, 0.0, None)[..., None]
-    L_ss = beta[..., None] * E / np.pi * flake_rgb(stack, np.cos(np.radians(td)))
+    L_ss = beta[..., None] * E / np.pi * flake_rgb(stack, np.cos(np.radians(np.where(ok, td, 0.0))))
+    L_ss = np.where(ok[..., None], L_ss, 0.0)
     K = np.zeros((size, size))
     for row in range(size):  # one generator per row: independent of spp, tiles and threads
         rng = np.random.default_rng([int(seed), 0x5A, row])
@@ -119,5 +120,9 @@ def sparkle_layer(stack, sun, size, extent, *, sphere_diameter_mm=100.0, viewing
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.where(lam > 0, K / np.where(lam > 0, lam, 1.0), 1.0)
     layer = (ratio - 1.0)[..., None] * L_ss
+    live = lam > 0
+    Ls = L_ss.sum(axis=-1)
     return layer, {"sum_lambda": float(lam.sum()), "glints": int(K.sum()), "pixel_mm": pix_mm,
+                   "glint_radiance_sum": float(Ls.sum()),  # Σ over pixels and channels of β_ss E cos/π
+                   "sigma_layer_sum": float(np.sqrt(np.sum(Ls[live] ** 2 / lam[live]))),  # Poisson σ of Σ layer
                    "aperture_rad": aperture, "sphere_diameter_mm": sphere_diameter_mm}

@@ -39,9 +39,11 @@ GLINT_FRACTION = 0.5
 #: diffuser under the same light (luminance factor 1; docs/texture.md §3.5).
 SPARKLE_MIN_PEAK = 1.0
 #: Quadrature sizes: diameters (Gauss–Hermite in ln D), depths (Gauss–Legendre per layer), offsets.
-N_DIAMETER, N_DEPTH, N_OFFSET = 12, 24, 513
+N_DIAMETER, N_DEPTH, N_OFFSET = 12, 24, 129
 #: Flake normals under the sky: Gauss–Laguerre in tan²θ/α² × uniform azimuths.
-N_TILT, N_AZIMUTH = 12, 24
+N_TILT, N_AZIMUTH = 12, 12
+#: Depth nodes of the graininess integrals.
+N_DEPTH_SKY = 16
 
 
 @dataclass(frozen=True, eq=False)
@@ -292,7 +294,7 @@ def directional_geometry(eta, light_deg, view_deg, source_half_angle_deg, apertu
                     om_s, om_a, float(np.sqrt(om_sb / np.pi)), float(np.sqrt(om_ab / np.pi)))
 
 
-def _offset_tables(r_s, r_d, r_a, n=N_OFFSET, n_r=24, n_t=48):
+def _offset_tables(r_s, r_d, r_a, n=N_OFFSET, n_r=12, n_t=24):
     """The fraction of a flake's beam that the aperture collects, against the offset d of the beam's
     centre from the aperture's centre (ω_o space, docs/texture.md eq. S1b): the beam is the source
     disc (radius r_s) convolved with the diffraction disc (r_d), density lens(|y|; r_s, r_d)/(π r_s² π r_d²),
@@ -319,14 +321,32 @@ def _offset_tables(r_s, r_d, r_a, n=N_OFFSET, n_r=24, n_t=48):
     return d, phi, I, float(f[0])
 
 
-def _above_threshold(q, d, phi, I):
-    """For thresholds q (…) in (0, ∞): S_q = π d_q² and I_q = ∫_{φ≥q} φ dS (0 for q > 1)."""
+def _threshold_offset(q, d, phi):
+    """d_q with φ(d_q) = q for thresholds q (…) (0 for q > 1; φ is non-increasing from 1 to 0)."""
     q = np.asarray(q, float)
-    # φ is non-increasing in d: invert on the reversed arrays
     dq = np.interp(q, phi[::-1], d[::-1], left=d[-1], right=0.0)
-    dq = np.where(q > 1.0, 0.0, dq)
-    Iq = np.interp(dq, d, I)
-    return np.pi * dq * dq, Iq
+    return np.where(q > 1.0, 0.0, dq)
+
+
+def _cumtrapz(y, x):
+    return np.concatenate([[0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(x))])
+
+
+def _ring_density(g, alpha, d, n_angle=16):
+    """The upper-hemisphere flake-normal density p(m) = 2 D(m) (paper eq. 5) averaged over the circle
+    of normals whose beams land at offset d from the aperture's centre (docs/texture.md eq. S2b):
+    a beam offset (δ∥, δ⊥) in ω_o space is a normal offset (δ∥/2, δ⊥/(2c)) around h' (the half-vector
+    map, area Jacobian 1/(4c)).  Returns (len(d),), 1/sr; → p(h') as d → 0."""
+    th = np.arccos(np.clip(g.cos_h, -1.0, 1.0))
+    h = np.array([np.sin(th), 0.0, np.cos(th)])
+    e_par = np.array([np.cos(th), 0.0, -np.sin(th)])
+    e_perp = np.array([0.0, 1.0, 0.0])
+    ang = (np.arange(n_angle) + 0.5) * 2.0 * np.pi / n_angle
+    a = 0.5 * d[:, None] * np.cos(ang)[None, :]
+    b = 0.5 * d[:, None] * np.sin(ang)[None, :] / g.c
+    m = h[None, None, :] + a[..., None] * e_par + b[..., None] * e_perp
+    mz = m[..., 2] / np.linalg.norm(m, axis=-1)
+    return 2.0 * flake_ndf_Beckmann(mz, alpha).mean(axis=1)
 
 
 def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v):
@@ -386,19 +406,23 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
         vb = np.array([-np.sqrt(1 - g.mu_v_b**2), 0.0, g.mu_v_b])
         lam_b = np.minimum(_shared(stack, z, np.full(z.size, _gap(lb, vb))), np.minimum(lam_l, lam_v))
         w, P = _path_weights(y * R_h, R_Y, att, lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v)
-        p_h = 2.0 * float(flake_ndf_Beckmann(g.cos_h, f.alpha))  # upper-hemisphere density, 1/sr
         Nz = f.number_density_per_um3 * f.thickness_um  # flakes per µm² in the layer
         for D, wd in zip(Dn, Dw):
             d, phi, I, f_max = _offset_tables(g.r_s, float(diffraction_radius(D, stack.eta)), g.r_a)
+            ring = _ring_density(g, f.alpha, d)  # p(m) averaged on circles of offset d, 1/sr
+            x2 = 2.0 * np.pi * d
+            S_P = _cumtrapz(ring * x2, d)  # ∫_0^d p dS
+            I_P = _cumtrapz(ring * phi * x2, d)  # ∫_0^d p φ dS
             b_peak = np.pi * g.t_in * g.t_out * R_Y * f_max * g.c / (g.mu_l_b * g.mu_v * g.omega_a)
             A = 0.25 * np.pi * D * D
             q = GLINT_FRACTION / np.maximum(w, 1e-300)
-            S_q, I_q = _above_threshold(q, d, phi, I)
-            dens = Nz * wd * p_h / (4.0 * g.c)  # glints per µm² per unit ω_o-space area
+            dq = _threshold_offset(q, d, phi)
+            S_q, I_q = np.interp(dq, d, S_P), np.interp(dq, d, I_P)
+            dens = Nz * wd / (4.0 * g.c)  # flakes per µm² per unit ω_o-space area and unit density
             cnt = dens * np.einsum("z,zk,zk->", wz, P, S_q)
             n_g += cnt
             flux += dens * b_peak * min(A, a_spot) / a_spot * np.einsum("z,zk,zk,zk->", wz, P, w, I_q)
-            mean_all += dens * b_peak * A * np.einsum("z,zk,zk->", wz, P, w) * np.pi * g.r_a**2 / f_max
+            mean_all += dens * b_peak * A * np.einsum("z,zk,zk->", wz, P, w) * I_P[-1]
             mink += cnt * (a_spot + 2.0 * p * D + 0.25 * np.pi * D * D)
         fm = _offset_tables(g.r_s, float(diffraction_radius(f.diameter_median_um, stack.eta)), g.r_a, n=2)[3]
         peak = max(peak, np.pi * g.t_in * g.t_out * R_Y * fm * g.c / (g.mu_l_b * g.mu_v * g.omega_a))
@@ -442,12 +466,13 @@ def overlap_integral(diameter_um, spot_um, n=48):
 
 def _sky_normals(alpha, n_t=N_TILT, n_p=N_AZIMUTH):
     """Upper-hemisphere flake normals m (M, 3) and weights (Σ = 1) for density 2D(m) of eq. 5:
-    tan²θ = α² u with u ~ e^{−u} (Gauss–Laguerre), azimuth uniform (midpoint rule)."""
+    tan²θ = α² u with u ~ e^{−u} (Gauss–Laguerre), azimuth uniform on (0, π) (midpoint rule; the
+    mirror images φ → −φ give the same values for a view in the x–z plane)."""
     u, wu = laggauss(n_t)
     t = float(alpha) * np.sqrt(u)
     ct = 1.0 / np.sqrt(1.0 + t * t)
     st = t * ct
-    ph = (np.arange(n_p) + 0.5) * 2.0 * np.pi / n_p
+    ph = (np.arange(n_p) + 0.5) * np.pi / n_p  # (0, π): the view lies in the x–z plane, so φ and −φ are alike
     m = np.stack([np.outer(st, np.cos(ph)), np.outer(st, np.sin(ph)), np.outer(ct, np.ones(n_p))], axis=-1)
     w = np.outer(wu / wu.sum(), np.full(n_p, 1.0 / n_p))
     return m.reshape(-1, 3), w.ravel()
@@ -498,11 +523,16 @@ def _pair_term(f, z, wz, b0, lam, tau, r, spot_um, n=16):
     ws = np.concatenate([w_in, w_out]) * 2.0 * np.pi * ss * O
     cover = np.concatenate([np.full(n, tau), np.ones(n)])
     lens = sum(wd * lens_area(ss, 0.5 * D, 0.5 * D) for D, wd in zip(Dn, Dw))
-    h = z - f.z_top_um
+    # the triangle z_j < z_i on a uniform midpoint grid, diagonal cells halved (second order);
+    # b0 and λ interpolated from the depth nodes (smooth in z)
+    nu = 48
+    dz = f.thickness_um / nu
+    zu = f.z_top_um + (np.arange(nu) + 0.5) * dz
+    h = zu - f.z_top_um
     S = np.array([np.sum(ws * (cover * np.exp(rho * lens * hj * (1.0 - tau) ** 2) - 1.0)) for hj in h])
-    g = b0 * np.exp(-lam * (1.0 - tau)) * wz * f.thickness_um
-    upper = np.tril(np.ones((z.size, z.size)), -1)  # [i, j]: z_j < z_i (nodes ascending in depth)
-    return 2.0 * rho * rho * float(g @ upper @ (g * S))
+    g = np.interp(zu, z, b0) * np.exp(-np.interp(zu, z, lam) * (1.0 - tau)) * dz
+    tri = np.tril(np.ones((nu, nu)), -1) + 0.5 * np.eye(nu)  # [i, j]: z_j < z_i
+    return 2.0 * rho * rho * float(g @ tri @ (g * S))
 
 
 def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=None) -> dict:
@@ -534,7 +564,7 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
         mu_air = np.sqrt(np.clip(1.0 - s2, 0.0, 1.0))
         t_in = np.where(ok, coat_transmittance(mu_air, eta), 0.0)
         R = f.reflectance(np.abs(cv))  # (C, M)
-        z, wz = _depth_nodes(f)
+        z, wz = _depth_nodes(f, N_DEPTH_SKY)
         mu_lb_s = np.where(ok, mu_lb, 1.0)
         # paths: in along each m's mirrored direction, out along v'
         tau_v, lam_v, T_v = _path(stack, z, mu_vb)  # (C, nz), (nz,), (C, nz)

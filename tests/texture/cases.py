@@ -32,8 +32,8 @@ def recipe(name="case", species="metallic", vf=0.02, alpha=0.2, D=20.0, gsd=1.3,
 
 
 #: An observer with a wide source and aperture, so that a few mm² of simulated panel hold hundreds of glints.
-TEST_OBSERVER = Observer(name="test", spot_um=20.0, aperture_half_angle_rad=float(np.radians(1.0)),
-                         source_half_angle_deg=2.0, light_deg=(15.0, 30.0), view_deg=0.0)
+TEST_OBSERVER = Observer(name="test", spot_um=20.0, aperture_half_angle_rad=float(np.radians(2.0)),
+                         source_half_angle_deg=4.0, light_deg=(15.0, 30.0), view_deg=0.0)
 
 
 def sim_inputs(stack):

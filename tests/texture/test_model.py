@@ -41,6 +41,10 @@ def _f_ss(stack, light_deg, view_deg):
     return float(np.pi * np.asarray(stack.y_weights) @ fss)
 
 
+#: Small cones: the flake-normal density is constant over them, as the RT's point source and aperture assume.
+NARROW = Observer("narrow", 20.0, float(np.radians(0.1)), 0.2, (15.0, 30.0, 45.0), 0.0)
+
+
 @pytest.mark.parametrize("species,light", [("metallic", 15.0), ("metallic", 45.0), ("pearlescent", 30.0)])
 def test_glints_carry_the_single_flake_reflection_of_the_bsdf(species, light, monkeypatch):
     """Σ over all flakes of eq. S1 = π f_ss of the solver's kernel (eq. S3), with a pigment absorbing.
@@ -49,11 +53,11 @@ def test_glints_carry_the_single_flake_reflection_of_the_bsdf(species, light, mo
     flakes' tilts: ≤ 1.2e-3 measured); with it the glints are brighter by at most e^{λ}."""
     st = stack_of(species=species, vf=0.002, alpha=0.2, D=20.0, pigment="iron-black", pv=0.002)
     ref = _f_ss(st, light, 0.0)
-    with_shared = tm.sparkle_indices(st, TEST_OBSERVER, light)["flake_luminance_factor"]
+    with_shared = tm.sparkle_indices(st, NARROW, light)["flake_luminance_factor"]
     lam = 0.002 / st.flakes[0].flake_thickness_um * st.flakes[0].thickness_um
     assert 1.0 < with_shared / ref < np.exp(lam)
     monkeypatch.setattr(tm, "_shared", lambda stack, z, gap, n=16: np.zeros(np.size(z)))
-    got = tm.sparkle_indices(st, TEST_OBSERVER, light)["flake_luminance_factor"]
+    got = tm.sparkle_indices(st, NARROW, light)["flake_luminance_factor"]
     assert got == pytest.approx(ref, rel=2e-3)  # measured: 3e-4 (metallic), 1.2e-3 (pearlescent)
 
 
@@ -62,7 +66,7 @@ def test_energy_check_bites_on_the_orientation_density(monkeypatch):
     ref = _f_ss(st, 15.0, 0.0)
     monkeypatch.setattr(tm, "flake_ndf_Beckmann", lambda c, a: 1.05 * np.asarray(
         __import__("flakedb.rt.microflake", fromlist=["x"]).flake_ndf_Beckmann(c, a)))
-    got = tm.sparkle_indices(st, TEST_OBSERVER, 15.0)["flake_luminance_factor"]
+    got = tm.sparkle_indices(st, NARROW, 15.0)["flake_luminance_factor"]
     assert abs(got / ref - 1) > 0.04
 
 
@@ -117,7 +121,7 @@ def test_overlap_integral_limits():
     A = np.pi * D * D / 4
     assert tm.overlap_integral(D, 200.0) == pytest.approx(A * A / 200.0**2, rel=1e-2)
     assert tm.overlap_integral(400.0, 2.0) == pytest.approx(np.pi * 200.0**2, rel=1e-2)
-    assert tm.pair_overlap(20.0, 20.0, [0.0])[0] == pytest.approx(tm.overlap_integral(20.0, 20.0), rel=1e-2)
+    assert tm.pair_overlap(20.0, 20.0, [0.0])[0] == pytest.approx(tm.overlap_integral(20.0, 20.0), rel=2e-2)  # 16² vs 48² nodes
 
 
 def test_lens_area():

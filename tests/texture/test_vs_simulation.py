@@ -54,6 +54,11 @@ def test_glints_agree_with_the_simulation(runs, name):
     bad = []
     for m, r in _directional_rows(st, res):
         n = max(r["glints"], 1)
+        expected = m["glints_per_mm2"] * res["area_mm2"]
+        if expected < 5:  # too few glints in the patch for anything but the count
+            if abs(expected - r["glints"]) > 3.0 * np.sqrt(max(expected, 1.0)) + 0.1 * expected:
+                bad.append(f"{r['light_deg']:g}° glints: model {expected:.3g} sim {r['glints']} in the patch")
+            continue
         checks = [
             ("glints_per_mm2", m["glints_per_mm2"], r["glints_per_mm2"], r["sigma_glints_per_mm2"]),
             ("sparkle_area_fraction", m["sparkle_area_fraction"], r["sparkle_area_fraction"],
