@@ -28,6 +28,7 @@ COMMANDS = {
     "match": "flakedb.cli.match:match",
     "render": "flakedb.cli.render:render",
     "species": "flakedb.cli.species:species",
+    "texture": "flakedb.cli.texture:texture",
     "verify": "flakedb.cli.build:verify",
 }
 
@@ -46,6 +47,7 @@ SHORT_HELP = {
     'match': 'Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target.',
     'render': 'Render unit spheres of the BSDFs in FILES (.bsdf, or a flakedb .h5 — a spectral one is converted to linear sRGB by the colour module) under a studio.',
     'species': "The particle catalogue (catalog/particles.yaml) and each species' optics.",
+    'texture': 'Predicted sparkle (glints per mm², area fraction, intensity, contrast) and graininess of RECIPE.',
     'verify': "Check a store: completeness, schema, every chunk's sha256.",
 }
 

@@ -14,6 +14,9 @@ from flakedb.compose.orchestrate import OutputError, check_output_dir, gamut_saf
 from flakedb.render import look, preview
 from flakedb.render.imageio import write_exr, write_png
 from flakedb.render.mitsuba import channel_wavelengths
+from flakedb.render.sparkle import sparkle_layer
+from flakedb.paint.recipe import RecipeError, load_recipe
+from flakedb.paint.texture_inputs import texture_stack
 
 ENV_CONSTANT_RADIANCE = 0.5  # the furnace of renderers.md
 ENVS = ("softbox", "studio", "constant")
@@ -47,6 +50,39 @@ def renderable(path):
     rb = table_evaluator(ft, path=b.path)
     preview.check_renderable(rb)
     return rb
+
+
+def _sparkle_stacks(recipes, n_files, sun):
+    """One (recipe name, TextureStack) or None per file (``--sparkle``)."""
+    if not recipes:
+        return [None] * n_files
+    if sun is False:
+        raise FlakedbError("--sparkle draws the sun's glints: it cannot be combined with --no-sun")
+    if len(recipes) not in (1, n_files):
+        raise FlakedbError(f"--sparkle given {len(recipes)} times for {n_files} files: give it once (for all) or "
+                           f"once per file, in order")
+    out = []
+    for path in (recipes * n_files if len(recipes) == 1 else recipes):
+        try:
+            rec = load_recipe(path)
+        except RecipeError as exc:
+            raise FlakedbError(str(exc)) from None
+        st, _ = texture_stack(rec)
+        if not st.flakes:
+            raise FlakedbError(f"--sparkle {path}: the recipe has no flakes the texture model can use: no sparkle to draw")
+        out.append((rec.name, st))
+    return out
+
+
+def add_sparkle(result, stack, sun, seed, sphere_mm):
+    """The render with the sun's glints added (:func:`flakedb.render.sparkle.sparkle_layer`), clipped at 0."""
+    layer, info = sparkle_layer(stack, sun, result.image.shape[0], result.settings["extent"],
+                                sphere_diameter_mm=sphere_mm, seed=seed)
+    img = result.image.astype(np.float64) + layer
+    info["clipped"] = float(np.mean(img < 0))
+    result.image = np.maximum(img, 0.0).astype(np.float32)
+    result.settings["sparkle"] = info
+    return result, info
 
 
 def environment(kind):
@@ -84,7 +120,14 @@ def environment(kind):
                    "images).")
 @click.option("--threads", default=None, type=click.IntRange(1, 1024),
               help="Worker threads (default: the CPUs available).")
-def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, sheet_name, threads):
+@click.option("--sparkle", "sparkle_recipes", multiple=True, type=click.Path(dir_okay=False, exists=True),
+              help="Draw the sun's glints from this recipe's flake statistics (docs/texture.md §6); one for all "
+                   "FILES or one per file, in order (the same .bsdf twice with two recipes: two flake sizes side "
+                   "by side).  Turns the sun on.  Deterministic for --seed, independent of --spp.")
+@click.option("--sphere-mm", default=100.0, show_default=True, type=click.FloatRange(1.0, 1e5),
+              help="With --sparkle: the sphere's diameter in mm (sets each pixel's footprint on the paint).")
+def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, sheet_name, threads,
+           sparkle_recipes=(), sphere_mm=100.0):
     """Render unit spheres of the BSDFs in FILES (.bsdf, or a flakedb .h5 — a spectral one is converted
     to linear sRGB by the colour module) under a studio.
 
@@ -107,14 +150,21 @@ def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, shee
     except OutputError as e:
         raise FlakedbError(str(e)) from None
     spp = preview.DEFAULT_SPP if spp is None else spp
-    jobs = [(f, b, k) for f, b in bsdfs for k in env_kinds]
+    stacks = _sparkle_stacks(sparkle_recipes, len(bsdfs), sun)
+    jobs = [(f, b, k, st) for (f, b), st in zip(bsdfs, stacks) for k in env_kinds]
     results = []
-    for f, b, kind in jobs:
+    for f, b, kind, st in jobs:
         use_sun = (kind == "studio") if sun is None else sun
+        use_sun = use_sun or st is not None
         label = f"rendering {Path(f).name} ({kind}) {size}x{size} at {spp} spp"
         with click.progressbar(length=size, label=label, file=sys.stderr) as bar:
             r = preview.render_sphere(b, environment(kind), preview.studio_sun() if use_sun else None, size=size,
                                       spp=spp, seed=seed, threads=threads, progress=bar.update)
+        if st is not None:
+            r, info = add_sparkle(r, st[1], preview.studio_sun(), seed, sphere_mm)
+            click.echo(f"{Path(f).name}: sparkle of {st[0]}: {info['glints']} glints drawn (expected "
+                       f"{info['sum_lambda']:.0f}), pixel {info['pixel_mm']:.3g} mm on a {sphere_mm:g} mm sphere")
+            f = str(Path(f).with_name(Path(f).stem + f"-{st[0]}" + Path(f).suffix))
         results.append((f, kind, r))
     sphere = [r.coverage >= 1.0 for _, _, r in results]
     if tone == "filmic":

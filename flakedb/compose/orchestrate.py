@@ -54,10 +54,13 @@ from flakedb.compose.report import (
     discretisation_error,
     eval_table,
     multiangle_geometry,
+    texture_ground,
 )
 from flakedb.compose.store_context import StoreContext
 from flakedb.paint.mapping import build_paint, catalog_species, resolve_node_count, solve_paint
+from flakedb.paint.texture_inputs import texture_report
 from flakedb.store import versions as st
+from flakedb.texture.instruments import PRESETS as TEXTURE_OBSERVERS
 
 #: Order truncation of the ``.bsdf`` (flakedb.bsdf.write_bsdf): 0 keeps every order up to the last
 #: non-zero coefficient, so the file evaluates to the solver's values at the nodes to float32
@@ -443,6 +446,8 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     report["store"] = solved.store_label
     report["rgb_file"] = gamut_info
     report["warnings"] = list(warnings)
+    report["texture"] = texture_report(recipe, list(TEXTURE_OBSERVERS.values()), texture_ground(  # docs/texture.md
+        table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False), paint.eta if paint.delta else None))
     h5_md["rgb_file"] = gamut_info
     t0 = time.perf_counter()
     paths, summary = write_outputs(out_dir, recipe.name, table, file_table, report, h5_md)

@@ -194,6 +194,21 @@ def directional_albedo(x_nodes, albedo_nodes, theta_deg, delta_eta=None):
     return total, total - mirror[:, None], mirror
 
 
+def texture_ground(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=None):
+    """The smooth BSDF's luminance factors for the texture indices (docs/texture.md §3.4, §4): a callable
+    ``observer -> {"directional": {light_deg: Y of π f(l, v)}, "diffuse": Y of the directional albedo at
+    the view (mirror term included)}``, for :func:`flakedb.paint.texture_inputs.texture_report`."""
+    white = reference_white(mode, wavelength_nm)
+
+    def ground(obs):
+        mu_o = -np.cos(np.radians(obs.view_deg))
+        rf = {float(a): np.pi * eval_table(table, np.cos(np.radians(a)), mu_o, 0.0) / abs(mu_o) for a in obs.light_deg}
+        tot = directional_albedo(x_nodes, albedo_nodes, [obs.view_deg], delta_eta)[0]
+        return {"directional": {a: float(channels_to_XYZ(v, mode, wavelength_nm)[1] / white[1]) for a, v in rf.items()},
+                "diffuse": float(channels_to_XYZ(tot, mode, wavelength_nm)[0, 1] / white[1])}
+    return ground
+
+
 def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=None, name="",
                   settings: ColourSettings | None = None):
     """The colour report (a JSON-able dict) of a paint's full-precision ``table`` (channels of ``mode``).

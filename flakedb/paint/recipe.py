@@ -129,6 +129,8 @@ class CatalogParticle:
     path: str = ""
     #: the recipe's ``orientation_distribution`` override (None: the catalogue's, else Beckmann)
     orientation_distribution: str | None = None
+    #: flakes: geometric standard deviation of the log-normal diameter distribution (texture only)
+    diameter_gsd: float | None = None
 
     @property
     def kind(self):
@@ -631,7 +633,7 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
         return problems, warnings, None
     entry = allsp[name]
     is_flake = entry["kind"] != "pigment"
-    flake_only = ("orientation_alpha", "orientation_distribution", "diameter_um", "opaque")
+    flake_only = ("orientation_alpha", "orientation_distribution", "diameter_um", "opaque", "diameter_gsd")
     pig_only = ("median_diameter_um", "gsd")
     for key in (pig_only if is_flake else flake_only):
         if key in P:
@@ -656,7 +658,7 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
                             f"(hint: a layer must be thicker than its pigment particles)")
     particle = CatalogParticle(
         name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
-        P.get("median_diameter_um"), P.get("gsd"), pp, P.get("orientation_distribution"))
+        P.get("median_diameter_um"), P.get("gsd"), pp, P.get("orientation_distribution"), P.get("diameter_gsd"))
     return problems, warnings, particle
 
 

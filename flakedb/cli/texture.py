@@ -1,0 +1,110 @@
+"""`flakedb texture RECIPE`: predicted sparkle and graininess of a paint (docs/texture.md)."""
+
+import json
+from pathlib import Path
+
+import click
+
+from flakedb.atomic import atomic_write_text
+from flakedb.cli.errors import FlakedbError
+from flakedb.paint.catalog import CatalogError, load_catalog
+from flakedb.paint.recipe import RecipeError, load_recipe
+from flakedb.paint.texture_inputs import texture_report, texture_stack
+from flakedb.render.imageio import write_exr
+from flakedb.render.mitsuba_sparkle import flake_normal_map, shader_parameters
+from flakedb.texture.instruments import PRESETS, Observer
+
+
+def format_texture(rep) -> str:
+    """The table ``flakedb texture`` prints (numbers from :func:`flakedb.paint.texture_inputs.texture_report`)."""
+    lines = [f"texture {rep['recipe']} (model: docs/texture.md)"]
+    for n in rep["notes"]:
+        lines.append(f"  note: {n}")
+    if not rep["sparkle"]:
+        lines.append(f"  {rep['summary']}")
+        return "\n".join(lines)
+    for f in rep["flakes"]:
+        lines.append(f"  {f['species']}: median diameter {f['diameter_median_um']:g} µm, σg {f['diameter_gsd']:g}, "
+                     f"α {f['orientation_alpha']:g}, {f['flakes_per_mm2']:.0f} flakes/mm² at depth "
+                     f"{f['depth_um'][0]:g}–{f['depth_um'][1]:g} µm")
+    head = (f"  {'observer':<14} {'light':>6} {'glints/mm²':>11} {'per spot':>9} {'area frac':>10} "
+            f"{'intensity':>10} {'contrast':>9} {'peak β':>8}")
+    lines.append(head)
+    for o in rep["observers"]:
+        for r in o["directional"]:
+            if not r["sparkle"]:
+                lines.append(f"  {o['observer']:<14} {r['light_deg']:>5g}° no sparkle (peak luminance factor "
+                             f"{r['peak_luminance_factor']:.3g} < 1)")
+                continue
+            lines.append(f"  {o['observer']:<14} {r['light_deg']:>5g}° {r['glints_per_mm2']:>11.3g} "
+                         f"{r['glints_per_spot']:>9.3g} {r['sparkle_area_fraction']:>10.3g} "
+                         f"{r['sparkle_intensity']:>10.3g} {r['sparkle_contrast']:>9.3g} "
+                         f"{r['peak_luminance_factor']:>8.3g}")
+        d = o["diffuse"]
+        lines.append(f"  {o['observer']:<14} {'sky':>6} graininess {d['graininess']:.3g} "
+                     f"(spot {o['spot_um']:.3g} µm; relative to the {'BSDF' if d['ground'] == 'bsdf' else 'flakes'}' mean)")
+    lines.append("  glints/mm²: flakes at least half as bright as an aligned surface flake; per spot: in one resolved "
+                 "spot; area frac: spots holding a glint; intensity: a lit spot's excess luminance factor; contrast: "
+                 "intensity / the mean (the flakes' own without a BSDF: an upper bound); peak β: an aligned surface flake.")
+    return "\n".join(lines)
+
+
+def _write_mitsuba(rec, obs, out_dir):
+    """The Mitsuba 3 sparkle route's files, each written atomically."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    st, _ = texture_stack(rec)
+    params = shader_parameters(st, obs.spot_um, obs.aperture_half_angle_rad, obs.source_half_angle_deg)
+    p1 = atomic_write_text(out / f"{rec.name}.sparkle.json", json.dumps(params, indent=1))
+    m = flake_normal_map(st, 512, 5.0)
+    p2 = write_exr(out / f"{rec.name}.flakes.exr", (0.5 * (m[..., :3] + 1.0)) * m[..., 3:4])
+    click.echo(f"wrote {p1} and {p2} (normal map: rgb = (n + 1)/2 where a flake is seen, 0 elsewhere)", err=True)
+
+
+@click.command()
+@click.argument("recipe", type=click.Path(dir_okay=False))
+@click.option("--observer", "observers", multiple=True, type=click.Choice(sorted(PRESETS)),
+              help="Observation preset (repeatable; default: all): " + ", ".join(
+                  f"{k}: {v.description}" for k, v in PRESETS.items()))
+@click.option("--spot-um", type=float, default=None,
+              help="A custom observer instead: side of the resolved spot on the panel, µm.")
+@click.option("--aperture-deg", type=float, default=0.5, show_default=True,
+              help="Custom observer: angular radius of the collecting aperture seen from the panel, degrees.")
+@click.option("--source-deg", type=float, default=0.2665, show_default=True,
+              help="Custom observer: angular radius of the source, degrees (the sun: 0.2665).")
+@click.option("--light-deg", type=float, multiple=True, default=(15.0, 45.0, 75.0), show_default=True,
+              help="Custom observer: light polar angles, degrees (repeatable).")
+@click.option("--view-deg", type=float, default=0.0, show_default=True,
+              help="Custom observer: view polar angle, degrees (opposite side of the normal).")
+@click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
+              help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON instead of the table.")
+@click.option("--mitsuba", "mitsuba_dir", default=None, type=click.Path(file_okay=False),
+              help="Also write DIR/NAME.sparkle.json (the shader parameter set for the first observer) and "
+                   "DIR/NAME.flakes.exr (a 512² flake normal map, 5 µm texels) for a Mitsuba 3 glint layer "
+                   "(docs/texture.md §7).")
+def texture(recipe, observers, spot_um, aperture_deg, source_deg, light_deg, view_deg, catalog_path, as_json,
+            mitsuba_dir=None):
+    """Predicted sparkle (glints per mm², area fraction, intensity, contrast) and graininess of RECIPE."""
+    import numpy as np  # lazy: CLI start-up
+
+    try:
+        catalog = load_catalog(catalog_path)
+        rec = load_recipe(recipe, catalog)
+    except (RecipeError, CatalogError) as exc:
+        raise FlakedbError(str(exc)) from exc
+    if spot_um is not None:
+        try:
+            obs = [Observer("custom", float(spot_um), float(np.radians(aperture_deg)), float(source_deg),
+                            tuple(float(a) for a in light_deg), float(view_deg), "custom observer")]
+        except ValueError as exc:
+            raise FlakedbError(f"custom observer (--spot-um, --aperture-deg, --source-deg, --light-deg, --view-deg): {exc}") from exc
+    else:
+        obs = [PRESETS[o] for o in (observers or PRESETS)]
+    rep = texture_report(rec, obs)
+    if mitsuba_dir is not None and rep["sparkle"]:
+        _write_mitsuba(rec, obs[0], mitsuba_dir)
+    if as_json:
+        click.echo(json.dumps(rep, indent=1))
+    else:
+        click.echo(format_texture(rep))

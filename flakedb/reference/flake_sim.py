@@ -1,0 +1,408 @@
+"""Independent discrete-flake simulation of sparkle and graininess (docs/texture.md, "Independent check").
+
+Written separately from :mod:`flakedb.texture.model` and sharing no code with it (nor with the
+solver): it places individual flakes at random in a periodic patch of the paint, with the recipe's
+statistics, and traces them.
+
+* Flakes: per species a Poisson number ρ d L² of discs, centres uniform in the patch (periodic in x
+  and y) and in depth over the layer, diameters log-normal (median, σ_g), upper-hemisphere normals
+  with the Beckmann density (tan²θ = −α² ln U, azimuth uniform: inverted here).
+* Hiding: the straight paths from a flake's centre up to the coat's surface, toward the source and
+  toward the observer, are intersected with every other flake disc (a uniform cell grid finds the
+  candidates); each disc crossed multiplies the light by its T(|u·m|, λ); pigments and an
+  absorbing coat by e^{−σ s}.
+* Directional light: for flakes near the mirror orientation, the fraction f of the flake's
+  reflected beam that enters the aperture is integrated by stratified sampling of the source
+  disc (in air, refracted exactly by Snell's law in vector form), exact mirror reflection about the
+  flake's normal, a diffraction offset drawn uniformly in a disc of radius 2λ'/(πD) in the binder,
+  exact refraction back into air (total internal reflection loses the sample) and an exact test
+  against the aperture cone in air.  A flake's luminance factor is
+  β = π T_in T_out R_Y w f c/(μ_l' μ_v Ω_a); a glint is a flake with β ≥ β_peak/2, β_peak the
+  same quantity for a flake of that diameter at the exact mirror orientation, unattenuated
+  (computed by the same sampling).  Lit spots: pixels of the observer's spot size overlapped by a
+  glint's disc.
+* Uniform sky: every flake mirrors the sky direction 2(v'·m)m − v' (0 if it points down or is
+  totally internally reflected at the coat), b = T_in T_out R_Y(|v'·m|) w; its area is deposited
+  into the pixel grid by stratified points on its disc; graininess = std/mean of the pixel values.
+
+Every function takes plain arrays; :func:`simulate` returns a dict.  numba compiles the loops
+(cached).  Statistical errors: Poisson √N on counts; the standard error of the relative standard
+deviation from the pixels' kurtosis.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_FINE_C = 2001  # uniform c grid the per-band R, T tables are resampled to
+
+
+def _resample(c, table):
+    cf = np.linspace(0.0, 1.0, _FINE_C)
+    t = np.atleast_2d(np.asarray(table, float))
+    return np.stack([np.interp(cf, np.asarray(c, float), row) for row in t])
+
+
+@numba.njit(cache=True)
+def _lookup(table, c):
+    """Linear interpolation of a (C, _FINE_C) table at c ∈ [0, 1] → (C,)."""
+    n = table.shape[1] - 1
+    x = min(max(c, 0.0), 1.0) * n
+    i = min(int(x), n - 1)
+    t = x - i
+    return table[:, i] * (1.0 - t) + table[:, i + 1] * t
+
+
+@numba.njit(cache=True)
+def _fresnel_unpolarised(cos_i, n1, n2):
+    """Unpolarised Fresnel reflectance from medium n1 into n2 at |cos θ_i| = cos_i (1 under TIR)."""
+    s2 = (n1 / n2) ** 2 * (1.0 - cos_i * cos_i)
+    if s2 >= 1.0:
+        return 1.0
+    ct = np.sqrt(1.0 - s2)
+    rs = (n1 * cos_i - n2 * ct) / (n1 * cos_i + n2 * ct)
+    rp = (n2 * cos_i - n1 * ct) / (n2 * cos_i + n1 * ct)
+    return 0.5 * (rs * rs + rp * rp)
+
+
+@numba.njit(cache=True)
+def _path_transmission(x0, y0, z0, ux, uy, uz, self_idx, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
+                       cell_start, cell_items, ncell, cell, rmax, absz, absd, abss):
+    """Per-channel transmission of the straight path from (x0, y0, depth z0) going up along u (uz > 0 up)
+    to the surface: flakes crossed (T of each) and absorbers (e^{−σ s})."""
+    C = Ttab.shape[1]
+    out = np.ones(C)
+    smax = z0 / uz
+    # absorbers: depth segments
+    for a in range(absz.shape[0]):
+        top, bot = absz[a], absz[a] + absd[a]
+        seg = max(0.0, min(z0, bot) - max(0.0, top))
+        if seg > 0.0:
+            for ch in range(C):
+                out[ch] *= np.exp(-abss[a, ch] * seg / uz)
+    # cells covering the ray's xy extent (+ the largest radius)
+    xe, ye = x0 + ux * smax, y0 + uy * smax
+    ix0 = int(np.floor((min(x0, xe) - rmax) / cell))
+    ix1 = int(np.floor((max(x0, xe) + rmax) / cell))
+    iy0 = int(np.floor((min(y0, ye) - rmax) / cell))
+    iy1 = int(np.floor((max(y0, ye) + rmax) / cell))
+    for ix in range(ix0, ix1 + 1):
+        for iy in range(iy0, iy1 + 1):
+            cx, cy = ix % ncell, iy % ncell
+            shx = (ix - cx) * cell  # periodic image offset
+            shy = (iy - cy) * cell
+            k = cx * ncell + cy
+            for q in range(cell_start[k], cell_start[k + 1]):
+                j = cell_items[q]
+                if j == self_idx:
+                    continue
+                if Z[j] >= z0:  # only flakes above (smaller depth)
+                    continue
+                px, py = X[j] + shx, Y[j] + shy
+                # plane of flake j: n·(P − Cj) = 0, P = P0 + s u, depth coordinate z = z0 − s uz
+                dx, dy, dz = px - x0, py - y0, -(Z[j] - z0)  # height difference (up positive)
+                nu = NX[j] * ux + NY[j] * uy + NZ[j] * uz
+                if abs(nu) < 1e-12:
+                    continue
+                s = (NX[j] * dx + NY[j] * dy + NZ[j] * dz) / nu
+                if s <= 1e-9 or s > smax:
+                    continue
+                hx, hy, hz = x0 + s * ux - px, y0 + s * uy - py, s * uz - dz
+                if hx * hx + hy * hy + hz * hz <= RAD[j] * RAD[j]:
+                    tr = _lookup(Ttab[SP[j]], abs(nu))
+                    for ch in range(C):
+                        out[ch] *= tr[ch]
+    return out
+
+
+@numba.njit(cache=True)
+def _refract_up_to_air(ox, oy, oz, eta):
+    """Refract a binder direction going up (oz > 0) into air; returns (ax, ay, az, ok)."""
+    tx, ty = ox * eta, oy * eta
+    t2 = tx * tx + ty * ty
+    if t2 >= 1.0 or oz <= 0.0:
+        return 0.0, 0.0, 0.0, False
+    return tx, ty, np.sqrt(1.0 - t2), True
+
+
+@numba.njit(cache=True)
+def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud, rot1, rot2):
+    """Fraction of a flake's reflected beam (normal m) entering the aperture (module docstring)."""
+    # orthonormal frame around the light direction in air
+    ex, ey, ez = lz, 0.0, -lx  # light is in the x-z plane
+    nrm = np.sqrt(ex * ex + ey * ey + ez * ez)
+    ex, ey, ez = ex / nrm, ey / nrm, ez / nrm
+    fx, fy, fz = ly * ez - lz * ey, lz * ex - lx * ez, lx * ey - ly * ex
+    r_d = 2.0 * lam_b / (np.pi * D)
+    cos_a = np.cos(r_a)
+    K = us.shape[0]
+    hits = 0
+    for k in range(K):
+        # source point: uniform in the cone of half-angle r_s (small-angle disc on the unit sphere)
+        u1 = (us[k, 0] + rot1) % 1.0
+        u2 = (us[k, 1] + rot2) % 1.0
+        cth = 1.0 - u1 * (1.0 - np.cos(r_s))
+        sth = np.sqrt(max(0.0, 1.0 - cth * cth))
+        ph = 2.0 * np.pi * u2
+        sx = cth * lx + sth * (np.cos(ph) * ex + np.sin(ph) * fx)
+        sy = cth * ly + sth * (np.cos(ph) * ey + np.sin(ph) * fy)
+        sz = cth * lz + sth * (np.cos(ph) * ez + np.sin(ph) * fz)
+        # refract into the binder (toward the source, going up): tangential / eta
+        bx, by = sx / eta, sy / eta
+        bz = np.sqrt(1.0 - bx * bx - by * by)
+        # mirror about m
+        dm = bx * mx + by * my + bz * mz
+        ox, oy, oz = 2.0 * dm * mx - bx, 2.0 * dm * my - by, 2.0 * dm * mz - bz
+        # diffraction offset uniform in a disc of radius r_d (tangent plane of o)
+        w1 = (ud[k, 0] + rot2) % 1.0
+        w2 = (ud[k, 1] + rot1) % 1.0
+        rr = r_d * np.sqrt(w1)
+        ps = 2.0 * np.pi * w2
+        # frame around o
+        if abs(oz) < 0.9:
+            gx, gy, gz = -oy, ox, 0.0
+        else:
+            gx, gy, gz = 0.0, -oz, oy
+        gn = np.sqrt(gx * gx + gy * gy + gz * gz)
+        gx, gy, gz = gx / gn, gy / gn, gz / gn
+        kx, ky, kz = oy * gz - oz * gy, oz * gx - ox * gz, ox * gy - oy * gx
+        ox2 = ox + rr * (np.cos(ps) * gx + np.sin(ps) * kx)
+        oy2 = oy + rr * (np.cos(ps) * gy + np.sin(ps) * ky)
+        oz2 = oz + rr * (np.cos(ps) * gz + np.sin(ps) * kz)
+        on = np.sqrt(ox2 * ox2 + oy2 * oy2 + oz2 * oz2)
+        ax, ay, az, ok = _refract_up_to_air(ox2 / on, oy2 / on, oz2 / on, eta)
+        if ok and ax * vx + ay * vy + az * vz >= cos_a:
+            hits += 1
+    return hits / K
+
+
+@numba.njit(cache=True)
+def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, ncell, cell, rmax,
+                 absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud, rots,
+                 cos_cut, t_in, t_out, mu_lb, mu_v, om_a):
+    """Per flake: β (luminance factor), β_peak of its diameter, and whether it was examined."""
+    N = X.shape[0]
+    beta = np.zeros(N)
+    peak = np.zeros(N)
+    # binder directions of the source and view centres (toward them, going up)
+    blx, bly = lx / eta, ly / eta
+    blz = np.sqrt(1.0 - blx * blx - bly * bly)
+    bvx, bvy = vx / eta, vy / eta
+    bvz = np.sqrt(1.0 - bvx * bvx - bvy * bvy)
+    hx, hy, hz = blx + bvx, bly + bvy, blz + bvz
+    hn = np.sqrt(hx * hx + hy * hy + hz * hz)
+    hx, hy, hz = hx / hn, hy / hn, hz / hn
+    c_h = blx * hx + bly * hy + blz * hz
+    for i in range(N):
+        D = 2.0 * RAD[i]
+        if NX[i] * hx + NY[i] * hy + NZ[i] * hz < cos_cut[i]:
+            continue
+        f = _collected_fraction(NX[i], NY[i], NZ[i], D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud,
+                                rots[i, 0], rots[i, 1])
+        f0 = _collected_fraction(hx, hy, hz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud,
+                                 rots[i, 0], rots[i, 1])
+        Rh = _lookup(Rtab[SP[i]], c_h)
+        RYh = 0.0
+        for ch in range(y.shape[0]):
+            RYh += y[ch] * Rh[ch]
+        peak[i] = np.pi * t_in * t_out * RYh * f0 * c_h / (mu_lb * mu_v * om_a)
+        if f <= 0.0:
+            continue
+        c = abs(blx * NX[i] + bly * NY[i] + blz * NZ[i])
+        R = _lookup(Rtab[SP[i]], c)
+        tl = _path_transmission(X[i], Y[i], Z[i], blx, bly, blz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
+                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
+        tv = _path_transmission(X[i], Y[i], Z[i], bvx, bvy, bvz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
+                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
+        num = 0.0
+        for ch in range(y.shape[0]):
+            num += y[ch] * R[ch] * tl[ch] * tv[ch]
+        beta[i] = np.pi * t_in * t_out * num * f * c / (mu_lb * mu_v * om_a)
+    return beta, peak
+
+
+@numba.njit(cache=True)
+def _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, ncell, cell, rmax,
+         absz, absd, abss, eta, vx, vy, vz, t_out):
+    """Per flake: its luminance factor b under a uniform sky (module docstring)."""
+    N = X.shape[0]
+    b = np.zeros(N)
+    bvx, bvy = vx / eta, vy / eta
+    bvz = np.sqrt(1.0 - bvx * bvx - bvy * bvy)
+    for i in range(N):
+        mx, my, mz = NX[i], NY[i], NZ[i]
+        cv = bvx * mx + bvy * my + bvz * mz
+        if cv < 0.0:
+            mx, my, mz, cv = -mx, -my, -mz, -cv
+        lx, ly, lz = 2.0 * cv * mx - bvx, 2.0 * cv * my - bvy, 2.0 * cv * mz - bvz
+        if lz <= 1e-6:
+            continue
+        s2 = (1.0 - lz * lz) * eta * eta
+        if s2 >= 1.0:
+            continue
+        t_in = 1.0 - _fresnel_unpolarised(np.sqrt(1.0 - s2), 1.0, eta)
+        R = _lookup(Rtab[SP[i]], cv)
+        tl = _path_transmission(X[i], Y[i], Z[i], lx, ly, lz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
+                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
+        tv = _path_transmission(X[i], Y[i], Z[i], bvx, bvy, bvz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
+                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
+        s = 0.0
+        for ch in range(y.shape[0]):
+            s += y[ch] * R[ch] * tl[ch] * tv[ch]
+        b[i] = t_in * t_out * s
+    return b
+
+
+@numba.njit(cache=True)
+def _deposit(X, Y, RAD, val, p, npx, L, disc):
+    """Pixel map (npx, npx) of Σ val × (area of the flake's disc in the pixel)/p², periodic."""
+    img = np.zeros((npx, npx))
+    Q = disc.shape[0]
+    for i in range(X.shape[0]):
+        if val[i] == 0.0:
+            continue
+        w = val[i] * np.pi * RAD[i] * RAD[i] / (Q * p * p)
+        for q in range(Q):
+            x = (X[i] + RAD[i] * disc[q, 0]) % L
+            yy = (Y[i] + RAD[i] * disc[q, 1]) % L
+            img[min(int(x / p), npx - 1), min(int(yy / p), npx - 1)] += w
+    return img
+
+
+@numba.njit(cache=True)
+def _lit(X, Y, RAD, glint, p, npx, L):
+    """Pixels (npx, npx) overlapped by a glint's disc (closest-point test), periodic."""
+    img = np.zeros((npx, npx), dtype=np.bool_)
+    for i in range(X.shape[0]):
+        if not glint[i]:
+            continue
+        r = RAD[i]
+        i0, i1 = int(np.floor((X[i] - r) / p)), int(np.floor((X[i] + r) / p))
+        j0, j1 = int(np.floor((Y[i] - r) / p)), int(np.floor((Y[i] + r) / p))
+        for a in range(i0, i1 + 1):
+            for bb in range(j0, j1 + 1):
+                qx = min(max(X[i], a * p), (a + 1) * p)
+                qy = min(max(Y[i], bb * p), (bb + 1) * p)
+                if (qx - X[i]) ** 2 + (qy - Y[i]) ** 2 <= r * r:
+                    img[a % npx, bb % npx] = True
+    return img
+
+
+def _stratified(n, rng):
+    """n × 2 stratified points in the unit square (a jittered √n × √n grid, shuffled)."""
+    m = int(np.ceil(np.sqrt(n)))
+    g = (np.stack(np.meshgrid(np.arange(m), np.arange(m), indexing="ij"), -1).reshape(-1, 2) + rng.random((m * m, 2))) / m
+    return g[rng.permutation(m * m)[:n]]
+
+
+def _disc_points(n):
+    """n points evenly spread on the unit disc (Vogel's sunflower spiral)."""
+    k = np.arange(n) + 0.5
+    r = np.sqrt(k / n)
+    th = k * np.pi * (3.0 - np.sqrt(5.0))
+    return np.stack([r * np.cos(th), r * np.sin(th)], -1)
+
+
+def place_flakes(species, L_um, rng):
+    """Flake discs of every species in an L × L µm periodic patch: (X, Y, depth Z, normal NX NY NZ,
+    radius, species index).  ``species``: dicts with z_top_um, thickness_um, number_density_per_um3,
+    diameter_median_um, diameter_gsd, alpha."""
+    cols = [[] for _ in range(8)]
+    for s, sp in enumerate(species):
+        n = rng.poisson(sp["number_density_per_um3"] * sp["thickness_um"] * L_um * L_um)
+        u = rng.random((n, 5))
+        D = sp["diameter_median_um"] * np.exp(np.log(sp["diameter_gsd"]) * rng.standard_normal(n))
+        tan2 = -(sp["alpha"] ** 2) * np.log(1.0 - u[:, 3])
+        ct = 1.0 / np.sqrt(1.0 + tan2)
+        st = np.sqrt(tan2) * ct
+        ph = 2.0 * np.pi * u[:, 4]
+        for col, v in zip(cols, (u[:, 0] * L_um, u[:, 1] * L_um, sp["z_top_um"] + u[:, 2] * sp["thickness_um"],
+                                 st * np.cos(ph), st * np.sin(ph), ct, 0.5 * D, np.full(n, s))):
+            col.append(v)
+    out = [np.concatenate(c) if c else np.zeros(0) for c in cols]
+    out[7] = out[7].astype(np.int64)
+    return out
+
+
+def _cells(X, Y, L, cell_target):
+    ncell = max(1, int(L // cell_target))
+    cell = L / ncell
+    k = (np.minimum((X // cell).astype(np.int64), ncell - 1) * ncell + np.minimum((Y // cell).astype(np.int64), ncell - 1))
+    order = np.argsort(k, kind="stable")
+    start = np.searchsorted(k[order], np.arange(ncell * ncell + 1))
+    return start.astype(np.int64), order.astype(np.int64), ncell, cell
+
+
+def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_rad, source_half_angle_deg,
+             view_deg, light_deg=(), L_um=2000.0, seed=0, n_samples=256, diffuse=True,
+             wavelength_nm=555.0) -> dict:
+    """Simulate one patch (module docstring).  ``species``: dicts as :func:`place_flakes` plus c, R
+    (C, nc), T (C, nc); ``absorbers``: dicts z_top_um, thickness_um, sigma_per_um (C,).  Returns
+    {"flakes": N, "area_mm2", "directional": [{light_deg, glints, glints_per_mm2, sigma_glints_per_mm2,
+    sparkle_area_fraction, sparkle_intensity, ...}], "diffuse": {graininess, sigma, mean}}."""
+    rng = np.random.default_rng(seed)
+    y = np.asarray(y_weights, float)
+    X, Y, Z, NX, NY, NZ, RAD, SP = place_flakes(species, L_um, rng)
+    Rtab = np.stack([_resample(s["c"], s["R"]) for s in species]) if species else np.zeros((1, y.size, _FINE_C))
+    Ttab = np.stack([_resample(s["c"], s["T"]) for s in species]) if species else np.zeros((1, y.size, _FINE_C))
+    absz = np.array([a["z_top_um"] for a in absorbers], float)
+    absd = np.array([a["thickness_um"] for a in absorbers], float)
+    abss = np.array([np.broadcast_to(np.asarray(a["sigma_per_um"], float), y.shape) for a in absorbers]).reshape(len(absorbers), y.size)
+    cell_target = max(4.0 * float(np.median(RAD)) if RAD.size else 10.0, 10.0)
+    start, items, ncell, cell = _cells(X, Y, L_um, cell_target)
+    rmax = float(RAD.max()) if RAD.size else 0.0
+    p = float(spot_um)
+    npx = max(1, int(round(L_um / p)))
+    p = L_um / npx
+    th_v = np.radians(view_deg)
+    vx, vy, vz = -np.sin(th_v), 0.0, np.cos(th_v)
+    mu_v = np.cos(th_v)
+    t_out = 1.0 - float(_fresnel_unpolarised(mu_v, 1.0, eta))
+    om_a = 2.0 * np.pi * (1.0 - np.cos(aperture_half_angle_rad))
+    r_s = np.radians(source_half_angle_deg)
+    lam_b = wavelength_nm * 1e-3 / eta
+    area_mm2 = (L_um * 1e-3) ** 2
+    out = {"flakes": int(X.size), "area_mm2": area_mm2, "pixels": npx * npx, "directional": []}
+    us, ud = _stratified(n_samples, rng), _stratified(n_samples, rng)
+    for a in light_deg:
+        th = np.radians(a)
+        lx, ly, lz = np.sin(th), 0.0, np.cos(th)
+        mu_lb = np.sqrt(1.0 - (np.sin(th) / eta) ** 2)
+        t_in = 1.0 - float(_fresnel_unpolarised(np.cos(th), 1.0, eta))
+        # candidates: normals within a generous cone of h' (3× the reach of beam + aperture, in normal angle)
+        r_sb = r_s / eta
+        reach = 3.0 * (r_sb + 2.0 * lam_b / (np.pi * 2.0 * RAD) + aperture_half_angle_rad / eta) + 1e-3
+        cos_cut = np.cos(np.minimum(reach, np.pi / 2))
+        rots = rng.random((X.size, 2))
+        beta, peak = _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
+                                  absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, aperture_half_angle_rad,
+                                  lam_b, us, ud, rots, cos_cut, t_in, t_out, mu_lb, mu_v, om_a)
+        glint = (peak > 0) & (beta >= 0.5 * peak)
+        n = int(glint.sum())
+        A = np.pi * RAD**2
+        bpx = beta[glint] * np.minimum(A[glint], p * p) / (p * p)
+        lit = _lit(X, Y, RAD, glint, p, npx, L_um)
+        out["directional"].append({
+            "light_deg": float(a), "glints": n, "glints_per_mm2": n / area_mm2,
+            "sigma_glints_per_mm2": np.sqrt(max(n, 1)) / area_mm2,
+            "sparkle_area_fraction": float(lit.mean()),
+            "sparkle_intensity": float(bpx.mean()) if n else 0.0,
+            "sigma_sparkle_intensity": float(bpx.std(ddof=1) / np.sqrt(n)) if n > 1 else np.inf,
+            "flake_luminance_factor": float(np.sum(beta * A) / (L_um * L_um)),
+            "sigma_flake_luminance_factor": float(np.sqrt(np.sum((beta * A) ** 2)) / (L_um * L_um)),
+            "peak_luminance_factor_max": float(peak.max()) if peak.size else 0.0,
+        })
+    if diffuse:
+        b = _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
+                 absz, absd, abss, eta, vx, vy, vz, t_out)
+        img = _deposit(X, Y, RAD, b, p, npx, L_um, _disc_points(64))
+        v = img.ravel()
+        m, sd = v.mean(), v.std(ddof=1)
+        kurt = np.mean((v - m) ** 4) / max(sd**4, 1e-300)
+        G = sd / m if m > 0 else 0.0
+        # SE of a relative SD from n values: (G/2) √((κ − 1)/n), plus the mean's relative SE
+        se = G * np.sqrt(max(kurt - 1.0, 0.0) / (4.0 * v.size) + (sd / max(m, 1e-300)) ** 2 / v.size)
+        out["diffuse"] = {"graininess": float(G), "sigma_graininess": float(se), "mean": float(m),
+                          "sigma_mean": float(sd / np.sqrt(v.size))}
+    return out

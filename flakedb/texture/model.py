@@ -1,0 +1,628 @@
+"""Sparkle and graininess of a flake paint from its flake statistics: the analytic model of
+docs/texture.md (§3 glints under a directional source, §4 graininess under a uniform sky).
+
+Geometry (docs/texture.md §1).  Air above a smooth coat of the binder's real index η; every layer
+below shares that binder (inner index changes are not modelled).  Depth z (µm) is measured in the
+binder from the coat's surface down.  Light and view are given by polar angles in air, in the
+plane of incidence on opposite sides of the normal; inside the binder their directions (pointing
+*away* from the panel, toward the source and the observer) are l' and v' (Snell), and the mirror
+condition of a flake is m = h' = normalize(l' + v').
+
+The inputs are a :class:`TextureStack` (flake layers with their number density, log-normal
+diameter distribution, thickness, Beckmann α and R(c), T(c) tables per channel; the extinction of
+everything else per channel; per-channel luminance weights) and an observer
+(:class:`flakedb.texture.instruments.Observer`).  Everything here is a pure function of those.
+
+Optics reused from the solver's kernels: the flake-normal density (paper eq. 5,
+:func:`flakedb.rt.microflake.flake_ndf_Beckmann`), the flakes' mean projected area
+(:func:`flakedb.rt.microflake.projected_area_Beckmann`) and the coat's Fresnel transmission
+(:func:`flakedb.optics.fresnel.fresnel_dielectric`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.polynomial.hermite_e import hermegauss
+from numpy.polynomial.laguerre import laggauss
+from numpy.polynomial.legendre import leggauss
+
+from flakedb.optics.fresnel import fresnel_dielectric
+from flakedb.rt.microflake import flake_ndf_Beckmann, projected_area_Beckmann
+from flakedb.texture.instruments import DIFFRACTION_WAVELENGTH_NM
+
+#: A glint is a flake at least this fraction as bright as the brightest flake of its kind could be
+#: (aligned, unattenuated, at the surface): a full-width-at-half-maximum count (docs/texture.md §3.3).
+GLINT_FRACTION = 0.5
+#: Sparkle exists only where a perfectly aligned surface flake is brighter than a perfect white
+#: diffuser under the same light (luminance factor 1; docs/texture.md §3.5).
+SPARKLE_MIN_PEAK = 1.0
+#: Quadrature sizes: diameters (Gauss–Hermite in ln D), depths (Gauss–Legendre per layer), offsets.
+N_DIAMETER, N_DEPTH, N_OFFSET = 12, 24, 129
+#: Flake normals under the sky: Gauss–Laguerre in tan²θ/α² × uniform azimuths.
+N_TILT, N_AZIMUTH = 12, 12
+#: Depth nodes of the graininess integrals.
+N_DEPTH_SKY = 16
+
+
+@dataclass(frozen=True, eq=False)
+class FlakeLayer:
+    """One flake species in one layer.  ``z_top_um``: depth of the layer's top in the binder (µm);
+    ``thickness_um``: the layer's; ``number_density_per_um3``: flakes per µm³; diameters log-normal
+    in number with ``diameter_median_um`` and geometric standard deviation ``diameter_gsd`` (≥ 1;
+    1 = one size); ``flake_thickness_um``; ``alpha`` (Beckmann, paper eq. 5); ``c`` (nc,) ascending
+    flake cosines with ``R``, ``T`` (C, nc) per channel (linear interpolation in c)."""
+
+    name: str
+    z_top_um: float
+    thickness_um: float
+    number_density_per_um3: float
+    diameter_median_um: float
+    diameter_gsd: float
+    flake_thickness_um: float
+    alpha: float
+    c: np.ndarray
+    R: np.ndarray
+    T: np.ndarray
+
+    def reflectance(self, c):
+        """R per channel at flake cosines ``c`` (any shape) → (C, *c.shape)."""
+        return _interp_rows(self.c, self.R, c)
+
+    def transmittance(self, c):
+        return _interp_rows(self.c, self.T, c)
+
+    def diameters(self, n=N_DIAMETER):
+        """(D nodes µm, number fractions) of the log-normal: Gauss–Hermite in ln D (exact for the
+        moments ⟨D^k⟩ = D_m^k exp(k² s²/2) up to polynomial degree 2n − 1 in ln D)."""
+        s = np.log(float(self.diameter_gsd))
+        if s == 0.0:
+            return np.array([float(self.diameter_median_um)]), np.array([1.0])
+        x, w = hermegauss(n)
+        return float(self.diameter_median_um) * np.exp(s * x), w / w.sum()
+
+    def mean_area_um2(self):
+        """⟨π D²/4⟩ of the number distribution (closed form), µm²."""
+        s = np.log(float(self.diameter_gsd))
+        return 0.25 * np.pi * float(self.diameter_median_um) ** 2 * np.exp(2.0 * s * s)
+
+    @property
+    def areal_density_per_um2(self):
+        """Flakes per µm² of panel, N_A = ρ d."""
+        return float(self.number_density_per_um3) * float(self.thickness_um)
+
+
+@dataclass(frozen=True, eq=False)
+class Absorber:
+    """Direction-independent extinction (1/µm, per channel (C,)) of the direct beam in
+    [z_top_um, z_top_um + thickness_um]: pigments (ρ⟨C_ext⟩), an absorbing coat."""
+
+    z_top_um: float
+    thickness_um: float
+    sigma_per_um: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class TextureStack:
+    """``eta``: the binder's (and coat's) real index; ``y_weights`` (C,): luminance weights of the
+    channels (Σ = 1: a white reflectance has luminance factor 1)."""
+
+    eta: float
+    y_weights: np.ndarray
+    flakes: tuple = ()
+    absorbers: tuple = ()
+    #: the channels' wavelengths (nm), for colour (None: grey channels)
+    wavelength_nm: np.ndarray | None = None
+
+
+def _interp_rows(xp, table, x):
+    x = np.asarray(x, float)
+    out = np.stack([np.interp(x.ravel(), xp, row) for row in np.atleast_2d(table)])
+    return out.reshape((out.shape[0],) + x.shape)
+
+
+# ----------------------------------------------------------------------------------------------
+# Geometry helpers
+# ----------------------------------------------------------------------------------------------
+
+
+def binder_cosine(theta_air_deg, eta):
+    """cos θ' inside the binder of a direction at polar angle θ in air (Snell: sin θ = η sin θ')."""
+    s = np.sin(np.radians(np.asarray(theta_air_deg, float))) / float(eta)
+    return np.sqrt(1.0 - s * s)
+
+
+def coat_transmittance(mu_air, eta):
+    """1 − F(μ) of the smooth coat for light from the air at cosine μ (unpolarised Fresnel)."""
+    return 1.0 - fresnel_dielectric(np.asarray(mu_air, float), float(eta)).R
+
+
+def cone_solid_angle(half_angle_rad):
+    """Solid angle (sr) of a cone of angular radius r: 2π(1 − cos r)."""
+    return 2.0 * np.pi * (1.0 - np.cos(np.asarray(half_angle_rad, float)))
+
+
+def lens_area(d, r1, r2):
+    """Area of the intersection of two discs of radii r1, r2 whose centres are d apart (planar)."""
+    d = np.asarray(d, float)
+    r1, r2 = float(r1), float(r2)
+    small, big = min(r1, r2), max(r1, r2)
+    out = np.zeros_like(d)
+    inside = d <= big - small
+    out[inside] = np.pi * small * small
+    part = (~inside) & (d < r1 + r2)
+    dd = d[part]
+    a1 = r1 * r1 * np.arccos(np.clip((dd * dd + r1 * r1 - r2 * r2) / (2 * dd * r1), -1, 1))
+    a2 = r2 * r2 * np.arccos(np.clip((dd * dd + r2 * r2 - r1 * r1) / (2 * dd * r2), -1, 1))
+    k = 0.5 * np.sqrt(np.maximum((-dd + r1 + r2) * (dd + r1 - r2) * (dd - r1 + r2) * (dd + r1 + r2), 0.0))
+    out[part] = a1 + a2 - k
+    return out
+
+
+def diffraction_radius(diameter_um, eta, wavelength_nm=DIFFRACTION_WAVELENGTH_NM):
+    """Angular radius (rad, in the binder) of the uniform cone with the peak radiant intensity of a
+    disc's Airy pattern: Ω = λ²/A (A = πD²/4, λ in the binder), r = 2λ/(πD) (docs/texture.md §3.2)."""
+    lam_um = float(wavelength_nm) * 1e-3 / float(eta)
+    return 2.0 * lam_um / (np.pi * np.asarray(diameter_um, float))
+
+
+def _poisson(k, lam):
+    """Poisson probabilities P(k; λ) for k (K,) and λ (...) → (..., K)."""
+    lam = np.asarray(lam, float)[..., None]
+    k = np.asarray(k, float)
+    lg = np.array([np.sum(np.log(np.arange(1, int(j) + 1))) for j in k])
+    with np.errstate(divide="ignore"):
+        logp = k * np.log(np.where(lam > 0, lam, 1.0)) - lam - lg
+    return np.where(lam > 0, np.exp(logp), (k == 0).astype(float))
+
+
+def _k_max(lam_max, T_max):
+    """Largest crossing count kept: beyond it the Poisson tail (λ + 6√λ + 6: < 1e-7) or the
+    transmitted fraction (T_max^k < 1e-7) is negligible; 0 for opaque flakes."""
+    lam_max, T_max = float(lam_max), float(T_max)
+    k = int(np.ceil(lam_max + 6.0 * np.sqrt(lam_max) + 6.0))
+    if T_max <= 0.0:
+        return 0
+    if T_max < 1.0:
+        k = min(k, int(np.ceil(np.log(1e-7) / np.log(T_max))))
+    return k
+
+
+def _depth_nodes(layer, n=N_DEPTH):
+    x, w = leggauss(n)
+    z = layer.z_top_um + 0.5 * layer.thickness_um * (x + 1.0)
+    return z, 0.5 * w  # weights of the uniform depth distribution (Σ = 1)
+
+
+def _path(stack, z, mu):
+    """Along a path from depth z (nz,) to the surface at cosine μ (scalar or (nz,)): absorber optical
+    depth per channel (C, nz), the expected number of flakes crossed (nz,) and the crossing-rate-
+    weighted flake transmittance per channel (C, nz) at c = μ (flakes near the surface's normal)."""
+    z = np.asarray(z, float)
+    mu = np.broadcast_to(np.asarray(mu, float), z.shape)
+    C = np.asarray(stack.y_weights).size
+    tau = np.zeros((C, z.size))
+    for a in stack.absorbers:
+        seg = np.clip(z - a.z_top_um, 0.0, a.thickness_um)
+        tau += np.asarray(a.sigma_per_um, float).reshape(C, 1) * seg / mu
+    lam = np.zeros(z.size)
+    lamT = np.zeros((C, z.size))
+    for f in stack.flakes:
+        seg = np.clip(z - f.z_top_um, 0.0, f.thickness_um)
+        rate = f.number_density_per_um3 * f.mean_area_um2() * projected_area_Beckmann(mu, f.alpha) / mu
+        lam_f = rate * seg
+        lam += lam_f
+        lamT += lam_f * f.transmittance(mu)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        T = np.where(lam > 0, lamT / np.where(lam > 0, lam, 1.0), 0.0)
+    return tau, lam, T
+
+
+def _shared(stack, z, slope_gap, n=16):
+    """Expected number of flakes crossed by *both* paths of a flake at depth z (nz,) whose two paths
+    drift apart by ``slope_gap`` (nz,) µm per µm of height (|l'_xy/l'_z − v'_xy/v'_z|): flakes (as
+    horizontal discs) above it at height Δ are crossed by both when their centre lies in the lens of
+    two discs of the flake's radius whose centres are Δ·gap apart (docs/texture.md eq. S4)."""
+    z = np.asarray(z, float)
+    gap = np.broadcast_to(np.asarray(slope_gap, float), z.shape)
+    x, wx = leggauss(n)
+    out = np.zeros(z.size)
+    for f in stack.flakes:
+        lo = f.z_top_um
+        hi = np.minimum(z, f.z_top_um + f.thickness_um)
+        span = np.maximum(hi - lo, 0.0)
+        if not np.any(span > 0):
+            continue
+        zp = lo + 0.5 * span[:, None] * (x[None, :] + 1.0)  # (nz, n) depths of the flakes above
+        sep = (z[:, None] - zp) * gap[:, None]
+        Dn, Dw = f.diameters()
+        acc = np.zeros(z.size)
+        for D, wd in zip(Dn, Dw):
+            r = 0.5 * D
+            acc += wd * np.sum(lens_area(sep.ravel(), r, r).reshape(sep.shape) * wx[None, :], axis=1) * 0.5 * span
+        out += f.number_density_per_um3 * acc
+    return out
+
+
+def _gap(u, v):
+    """|u_xy/u_z − v_xy/v_z| of upward directions u (…, 3) and v (3,)."""
+    u = np.asarray(u, float)
+    d = u[..., :2] / u[..., 2:3] - np.asarray(v, float)[:2] / float(v[2])
+    return np.sqrt(np.sum(d * d, axis=-1))
+
+
+# ----------------------------------------------------------------------------------------------
+# Glints under a directional source (docs/texture.md §3)
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Derived quantities of one directional geometry (docs/texture.md §3.1)."""
+
+    mu_l: float
+    mu_v: float
+    mu_l_b: float
+    mu_v_b: float
+    cos_h: float
+    c: float
+    t_in: float
+    t_out: float
+    omega_s: float
+    omega_a: float
+    r_s: float
+    r_a: float
+
+
+def directional_geometry(eta, light_deg, view_deg, source_half_angle_deg, aperture_half_angle_rad) -> Geometry:
+    """Binder directions, half-vector, coat transmittances and the source / aperture cones mapped
+    into the binder (Ω' = Ω μ/(η² μ'), étendue; radii r = √(Ω'/π)) of docs/texture.md §3.1."""
+    eta = float(eta)
+    mu_l, mu_v = np.cos(np.radians(light_deg)), np.cos(np.radians(view_deg))
+    mu_lb, mu_vb = float(binder_cosine(light_deg, eta)), float(binder_cosine(view_deg, eta))
+    lb = np.array([np.sqrt(1 - mu_lb**2), 0.0, mu_lb])
+    vb = np.array([-np.sqrt(1 - mu_vb**2), 0.0, mu_vb])
+    h = lb + vb
+    h /= np.linalg.norm(h)
+    om_s = float(cone_solid_angle(np.radians(source_half_angle_deg)))
+    om_a = float(cone_solid_angle(aperture_half_angle_rad))
+    om_sb = om_s * mu_l / (eta * eta * mu_lb)
+    om_ab = om_a * mu_v / (eta * eta * mu_vb)
+    return Geometry(float(mu_l), float(mu_v), mu_lb, mu_vb, float(h[2]), float(lb @ h),
+                    float(coat_transmittance(mu_l, eta)), float(coat_transmittance(mu_v, eta)),
+                    om_s, om_a, float(np.sqrt(om_sb / np.pi)), float(np.sqrt(om_ab / np.pi)))
+
+
+def _offset_tables(r_s, r_d, r_a, n=N_OFFSET, n_r=12, n_t=24):
+    """The fraction of a flake's beam that the aperture collects, against the offset d of the beam's
+    centre from the aperture's centre (ω_o space, docs/texture.md eq. S1b): the beam is the source
+    disc (radius r_s) convolved with the diffraction disc (r_d), density lens(|y|; r_s, r_d)/(π r_s² π r_d²),
+    integrated over the aperture disc (r_a) by Gauss–Legendre in radius × midpoint in angle.
+    Returns d on [0, r_s + r_d + r_a], f(d), and I(d) = ∫_0^d f 2πx dx / f(0) (φ = f/f(0))."""
+    d = np.linspace(0.0, r_s + r_d + r_a, n)
+    x, wx = leggauss(n_r)
+    rr = 0.5 * r_a * (x + 1.0)
+    wr = 0.5 * r_a * wx * rr
+    th = (np.arange(n_t) + 0.5) * 2.0 * np.pi / n_t
+    ax = (rr[:, None] * np.cos(th)[None, :]).ravel()
+    ay = (rr[:, None] * np.sin(th)[None, :]).ravel()
+    wa = np.repeat(wr, n_t) * (2.0 * np.pi / n_t)
+    dist = np.hypot(ax[None, :] - d[:, None], ay[None, :])
+    if r_d > 0:
+        dens = lens_area(dist.ravel(), r_s, r_d).reshape(dist.shape) / (np.pi * r_s * r_s * np.pi * r_d * r_d)
+    else:
+        dens = (dist <= r_s) / (np.pi * r_s * r_s)
+    f = dens @ wa
+    f = np.minimum.accumulate(f)  # non-increasing in d (removes quadrature ripples)
+    phi = f / f[0]
+    g = phi * 2.0 * np.pi * d
+    I = np.concatenate([[0.0], np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(d))])
+    return d, phi, I, float(f[0])
+
+
+def _threshold_offset(q, d, phi):
+    """d_q with φ(d_q) = q for thresholds q (…) (0 for q > 1; φ is non-increasing from 1 to 0)."""
+    q = np.asarray(q, float)
+    dq = np.interp(q, phi[::-1], d[::-1], left=d[-1], right=0.0)
+    return np.where(q > 1.0, 0.0, dq)
+
+
+def _cumtrapz(y, x):
+    return np.concatenate([[0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(x))])
+
+
+def _ring_density(g, alpha, d, n_angle=16):
+    """The upper-hemisphere flake-normal density p(m) = 2 D(m) (paper eq. 5) averaged over the circle
+    of normals whose beams land at offset d from the aperture's centre (docs/texture.md eq. S2b):
+    a beam offset (δ∥, δ⊥) in ω_o space is a normal offset (δ∥/2, δ⊥/(2c)) around h' (the half-vector
+    map, area Jacobian 1/(4c)).  Returns (len(d),), 1/sr; → p(h') as d → 0."""
+    th = np.arccos(np.clip(g.cos_h, -1.0, 1.0))
+    h = np.array([np.sin(th), 0.0, np.cos(th)])
+    e_par = np.array([np.cos(th), 0.0, -np.sin(th)])
+    e_perp = np.array([0.0, 1.0, 0.0])
+    ang = (np.arange(n_angle) + 0.5) * 2.0 * np.pi / n_angle
+    a = 0.5 * d[:, None] * np.cos(ang)[None, :]
+    b = 0.5 * d[:, None] * np.sin(ang)[None, :] / g.c
+    m = h[None, None, :] + a[..., None] * e_par + b[..., None] * e_perp
+    mz = m[..., 2] / np.linalg.norm(m, axis=-1)
+    return 2.0 * flake_ndf_Beckmann(mz, alpha).mean(axis=1)
+
+
+def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v):
+    """Luminance-weighted transmissions w and their probabilities over the crossing counts: k_l, k_v
+    flakes crossed by one path only (Poisson λ_l, λ_v), k_b by both (λ_b, transmitting T_l T_v).
+    ``yR`` (C,) luminance weights × R; ``att`` (C, nz) absorber transmission; λ (nz,); T (C, nz).
+    Returns (w, P), each (nz, K) over the flattened (k_l, k_v, k_b) combinations."""
+    T_max = max(float(np.max(T_l, initial=0.0)), float(np.max(T_v, initial=0.0)))
+    lam_max = max(float(lam_l.max()), float(lam_v.max()), float(lam_b.max()))
+    K = _k_max(lam_max, T_max)
+    k = np.arange(K + 1)
+    Pl, Pv, Pb = _poisson(k, lam_l), _poisson(k, lam_v), _poisson(k, lam_b)  # (nz, K+1)
+    ws, ps = [], []
+    for i in range(K + 1):
+        for j in range(K + 1 - i):
+            for b in range(K + 1 - i - j):
+                tr = T_l**i * T_v**j * (T_l * T_v) ** b * att
+                ws.append(yR @ tr / R_Y)
+                ps.append(Pl[:, i] * Pv[:, j] * Pb[:, b])
+    return np.stack(ws, axis=1), np.stack(ps, axis=1)
+
+
+def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_factor=None) -> dict:
+    """The glint statistics of docs/texture.md §3 for one directional geometry.
+
+    Returns a dict (units in the keys): ``glints_per_mm2`` (expected glints per mm² of panel: flakes
+    at least :data:`GLINT_FRACTION` as bright as an aligned, unattenuated surface flake of their
+    kind), ``glints_per_spot``, ``sparkle_area_fraction`` (probability that a resolved spot holds
+    a glint), ``sparkle_intensity`` (mean excess luminance factor of a spot holding one glint),
+    ``peak_luminance_factor`` (an aligned surface flake of the median diameter filling the spot),
+    ``flake_luminance_factor`` (the mean luminance factor that all flakes' single mirror reflections
+    give the panel: the part of the smooth BSDF the glints carry, π f_ss), ``sparkle_contrast``
+    (sparkle_intensity over the ground: ``ground_luminance_factor`` if given (the smooth BSDF's π f),
+    else the flake part), and ``sparkle`` (False when no flake can outshine a white diffuser).
+    """
+    g = directional_geometry(stack.eta, light_deg, observer.view_deg, observer.source_half_angle_deg,
+                             observer.aperture_half_angle_rad)
+    y = np.asarray(stack.y_weights, float)
+    a_spot = float(observer.spot_um) ** 2
+    p = float(observer.spot_um)
+    n_g = 0.0
+    flux = 0.0  # Σ over glints of β_px (per µm²)
+    mean_all = 0.0
+    mink = 0.0
+    peak = 0.0
+    for f in stack.flakes:
+        Dn, Dw = f.diameters()
+        z, wz = _depth_nodes(f)
+        tau_l, lam_l, T_l = _path(stack, z, g.mu_l_b)
+        tau_v, lam_v, T_v = _path(stack, z, g.mu_v_b)
+        att = np.exp(-(tau_l + tau_v))  # (C, nz)
+        R_h = f.reflectance(np.array([g.c]))[:, 0]  # (C,)
+        R_Y = float(y @ R_h)
+        if R_Y <= 0.0:
+            continue
+        lb = np.array([np.sqrt(1 - g.mu_l_b**2), 0.0, g.mu_l_b])
+        vb = np.array([-np.sqrt(1 - g.mu_v_b**2), 0.0, g.mu_v_b])
+        lam_b = np.minimum(_shared(stack, z, np.full(z.size, _gap(lb, vb))), np.minimum(lam_l, lam_v))
+        w, P = _path_weights(y * R_h, R_Y, att, lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v)
+        Nz = f.number_density_per_um3 * f.thickness_um  # flakes per µm² in the layer
+        for D, wd in zip(Dn, Dw):
+            d, phi, I, f_max = _offset_tables(g.r_s, float(diffraction_radius(D, stack.eta)), g.r_a)
+            ring = _ring_density(g, f.alpha, d)  # p(m) averaged on circles of offset d, 1/sr
+            x2 = 2.0 * np.pi * d
+            S_P = _cumtrapz(ring * x2, d)  # ∫_0^d p dS
+            I_P = _cumtrapz(ring * phi * x2, d)  # ∫_0^d p φ dS
+            b_peak = np.pi * g.t_in * g.t_out * R_Y * f_max * g.c / (g.mu_l_b * g.mu_v * g.omega_a)
+            A = 0.25 * np.pi * D * D
+            q = GLINT_FRACTION / np.maximum(w, 1e-300)
+            dq = _threshold_offset(q, d, phi)
+            S_q, I_q = np.interp(dq, d, S_P), np.interp(dq, d, I_P)
+            dens = Nz * wd / (4.0 * g.c)  # flakes per µm² per unit ω_o-space area and unit density
+            cnt = dens * np.einsum("z,zk,zk->", wz, P, S_q)
+            n_g += cnt
+            flux += dens * b_peak * min(A, a_spot) / a_spot * np.einsum("z,zk,zk,zk->", wz, P, w, I_q)
+            mean_all += dens * b_peak * A * np.einsum("z,zk,zk->", wz, P, w) * I_P[-1]
+            mink += cnt * (a_spot + 2.0 * p * D + 0.25 * np.pi * D * D)
+        fm = _offset_tables(g.r_s, float(diffraction_radius(f.diameter_median_um, stack.eta)), g.r_a, n=2)[3]
+        peak = max(peak, np.pi * g.t_in * g.t_out * R_Y * fm * g.c / (g.mu_l_b * g.mu_v * g.omega_a))
+    sparkle = bool(stack.flakes) and bool(peak >= SPARKLE_MIN_PEAK) and bool(n_g > 0)
+    intensity = flux / n_g if n_g > 0 else 0.0
+    ground = float(ground_luminance_factor) if ground_luminance_factor is not None else mean_all
+    return {
+        "light_deg": float(light_deg), "view_deg": float(observer.view_deg),
+        "sparkle": sparkle,
+        "glints_per_mm2": float(n_g * 1e6) if sparkle else 0.0,
+        "glints_per_spot": float(n_g * a_spot) if sparkle else 0.0,
+        "sparkle_area_fraction": float(-np.expm1(-mink)) if sparkle else 0.0,
+        "sparkle_intensity": float(intensity) if sparkle else 0.0,
+        "sparkle_contrast": float(intensity / ground if ground > 0 else 0.0) if sparkle else 0.0,
+        "peak_luminance_factor": float(peak),
+        "flake_luminance_factor": float(mean_all),
+        "ground": "bsdf" if ground_luminance_factor is not None else "flakes",
+    }
+
+
+# ----------------------------------------------------------------------------------------------
+# Graininess under a uniform sky (docs/texture.md §4)
+# ----------------------------------------------------------------------------------------------
+
+
+def overlap_integral(diameter_um, spot_um, n=48):
+    """∫ (area of a disc of diameter D inside a p × p square, as a fraction of p²)² over the disc's
+    centre position x (µm²; docs/texture.md eq. G2): = p⁻⁴ ∫ g(δ) K(δ) dδ with g the disc's set
+    covariogram (lens area of two discs d apart) and K(δ) = (p − |δ_x|)(p − |δ_y|) the square's,
+    by n × n Gauss–Legendre on [0, min(p, D)]² (× 4 by symmetry).  Limits: A²/p² (D ≪ p), A (D ≫ p)."""
+    D, p = float(diameter_um), float(spot_um)
+    h = min(p, D)
+    x, w = leggauss(n)
+    u = 0.5 * h * (x + 1.0)
+    wu = 0.5 * h * w
+    dx, dy = np.meshgrid(u, u, indexing="ij")
+    g = lens_area(np.hypot(dx, dy).ravel(), 0.5 * D, 0.5 * D).reshape(dx.shape)
+    K = (p - dx) * (p - dy)
+    return 4.0 * float(wu @ (g * K) @ wu) / p**4
+
+
+def _sky_normals(alpha, n_t=N_TILT, n_p=N_AZIMUTH):
+    """Upper-hemisphere flake normals m (M, 3) and weights (Σ = 1) for density 2D(m) of eq. 5:
+    tan²θ = α² u with u ~ e^{−u} (Gauss–Laguerre), azimuth uniform on (0, π) (midpoint rule; the
+    mirror images φ → −φ give the same values for a view in the x–z plane)."""
+    u, wu = laggauss(n_t)
+    t = float(alpha) * np.sqrt(u)
+    ct = 1.0 / np.sqrt(1.0 + t * t)
+    st = t * ct
+    ph = (np.arange(n_p) + 0.5) * np.pi / n_p  # (0, π): the view lies in the x–z plane, so φ and −φ are alike
+    m = np.stack([np.outer(st, np.cos(ph)), np.outer(st, np.sin(ph)), np.outer(ct, np.ones(n_p))], axis=-1)
+    w = np.outer(wu / wu.sum(), np.full(n_p, 1.0 / n_p))
+    return m.reshape(-1, 3), w.ravel()
+
+
+def pair_overlap(diameter_um, spot_um, s_um, n=16, n_dir=3, diameter2_um=None):
+    """O(s) = ∫ o_i(x) o_j(x) dx (µm²) for two discs of diameter D whose centres are s apart, o the
+    fraction of p² a disc covers in a p × p square at position x: p⁻⁴ ∫ g(|δ − s e|) K(δ) dδ
+    (g the disc covariogram, K(δ) = (p − |δ_x|)(p − |δ_y|)), averaged over directions e in [0, π/4]
+    (the square's symmetry); n × n Gauss–Legendre over δ ∈ [−h, h]², h = min(p, s + D).
+    O(0) = :func:`overlap_integral`.  ``diameter2_um``: the second disc's diameter (default the same)."""
+    D, p = float(diameter_um), float(spot_um)
+    D2 = D if diameter2_um is None else float(diameter2_um)
+    s_um = np.atleast_1d(np.asarray(s_um, float))
+    x, w = leggauss(n)
+    angles = (np.arange(n_dir) + 0.5) * (0.25 * np.pi / n_dir)
+    h = np.minimum(p, s_um + 0.5 * (D + D2))  # (S,) half-width of each offset's integration square
+    u = h[:, None] * x[None, :]  # (S, n)
+    wu = h[:, None] * w[None, :]
+    dx, dy = u[:, :, None], u[:, None, :]  # (S, n, 1), (S, 1, n)
+    K = (p - np.abs(dx)) * (p - np.abs(dy))  # (S, n, n)
+    acc = np.zeros(s_um.size)
+    for t in angles:
+        dist = np.hypot(dx - s_um[:, None, None] * np.cos(t), dy - s_um[:, None, None] * np.sin(t))
+        g = lens_area(dist.ravel(), 0.5 * D, 0.5 * D2).reshape(dist.shape)
+        acc += np.einsum("si,sij,sj->s", wu, g * K, wu)
+    return acc / n_dir / p**4
+
+
+def _pair_term(f, z, wz, b0, lam, tau, r, spot_um, n=16):
+    """Second-order (pair) term of the spot variance from hiding within one flake layer (docs/texture.md
+    eq. G4), for an upper flake of radius r: 2ρ² ∫∫_{z_j < z_i} b0_i b0_j e^{−(λ_i + λ_j)(1 − τ)} S(z_j)
+    dz_i dz_j with S(z_j) = ∫ 2πs ds O(s) ([τ if s < r else 1] · e^{Λ(s)(1 − τ)²} − 1), where
+    Λ(s) = ρ ⟨lens(s; r', r')⟩_{r'} (z_j − z_top) counts the flakes above both that cover both centres
+    (r' over the size distribution) and O(s) = ∫ o_i o_j dx (:func:`pair_overlap`): the upper flake j
+    hides the lower i when its disc covers i's centre (paths taken vertical)."""
+    rho = float(f.number_density_per_um3)
+    Dn, Dw = f.diameters()
+    r_far = max(float(r), 0.5 * float(Dn.max()))
+    x, wx = leggauss(n)
+    s_in, w_in = 0.5 * r * (x + 1.0), 0.5 * r * wx
+    s_out = r + 0.5 * (2.0 * r_far - r) * (x + 1.0)
+    w_out = 0.5 * (2.0 * r_far - r) * wx
+    ss = np.concatenate([s_in, s_out])
+    # O(s) averaged over the lower flake's diameter (6-node rule: the size distribution's weights)
+    Di, wi = f.diameters(6)
+    O = sum(w * pair_overlap(2.0 * r, spot_um, ss, diameter2_um=d) for d, w in zip(Di, wi))
+    ws = np.concatenate([w_in, w_out]) * 2.0 * np.pi * ss * O
+    cover = np.concatenate([np.full(n, tau), np.ones(n)])
+    lens = sum(wd * lens_area(ss, 0.5 * D, 0.5 * D) for D, wd in zip(Dn, Dw))
+    # the triangle z_j < z_i on a uniform midpoint grid, diagonal cells halved (second order);
+    # b0 and λ interpolated from the depth nodes (smooth in z)
+    nu = 48
+    dz = f.thickness_um / nu
+    zu = f.z_top_um + (np.arange(nu) + 0.5) * dz
+    h = zu - f.z_top_um
+    S = np.array([np.sum(ws * (cover * np.exp(rho * lens * hj * (1.0 - tau) ** 2) - 1.0)) for hj in h])
+    g = np.interp(zu, z, b0) * np.exp(-np.interp(zu, z, lam) * (1.0 - tau)) * dz
+    tri = np.tril(np.ones((nu, nu)), -1) + 0.5 * np.eye(nu)  # [i, j]: z_j < z_i
+    return 2.0 * rho * rho * float(g @ tri @ (g * S))
+
+
+def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=None) -> dict:
+    """Graininess under a uniform sky (docs/texture.md §4): the spot-to-spot relative standard
+    deviation of luminance, G = σ(β_spot)/⟨β_spot⟩, for resolved spots of side ``observer.spot_um``
+    viewed at ``observer.view_deg``.
+
+    Each flake mirrors the sky: its luminance factor is b = T_in T_out R(|v'·m|) w (0 if the mirrored
+    direction is totally internally reflected at the coat or points down).  Spots collect a Poisson
+    number of flakes: ⟨β⟩ = Σ N_A ⟨A⟩ E[b], Var β = Σ N_A ⟨A²/(A + a)⟩ E[b²] / a … (docs/texture.md
+    eq. G2).  ``ground_luminance_factor``: the paint's total luminance factor under the sky (its
+    directional albedo at the view), which replaces the flakes' mean in the denominator; without
+    it G is the flake-only value (an upper bound).  Returns a dict."""
+    eta = float(stack.eta)
+    y = np.asarray(stack.y_weights, float)
+    mu_v = float(np.cos(np.radians(observer.view_deg)))
+    mu_vb = float(binder_cosine(observer.view_deg, eta))
+    vb = np.array([-np.sqrt(1 - mu_vb**2), 0.0, mu_vb])
+    t_out = float(coat_transmittance(mu_v, eta))
+    a_spot = float(observer.spot_um) ** 2
+    mean, var = 0.0, 0.0
+    for f in stack.flakes:
+        m, wm = _sky_normals(f.alpha)
+        cv = m @ vb
+        lm = 2.0 * cv[:, None] * m - vb  # mirrored direction (toward the sky)
+        mu_lb = lm[:, 2]
+        s2 = np.maximum(1.0 - mu_lb**2, 0.0) * eta * eta
+        ok = (mu_lb > 1e-6) & (s2 < 1.0)
+        mu_air = np.sqrt(np.clip(1.0 - s2, 0.0, 1.0))
+        t_in = np.where(ok, coat_transmittance(mu_air, eta), 0.0)
+        R = f.reflectance(np.abs(cv))  # (C, M)
+        z, wz = _depth_nodes(f, N_DEPTH_SKY)
+        mu_lb_s = np.where(ok, mu_lb, 1.0)
+        # paths: in along each m's mirrored direction, out along v'
+        tau_v, lam_v, T_v = _path(stack, z, mu_vb)  # (C, nz), (nz,), (C, nz)
+        M, nz = m.shape[0], z.size
+        zz = np.repeat(z[None, :], M, axis=0).ravel()
+        mm = np.repeat(mu_lb_s[:, None], nz, axis=1).ravel()
+        tau_l, lam_l, T_l = _path(stack, zz, mm)
+        C = y.size
+        tau_l, lam_l, T_l = tau_l.reshape(C, M, nz), lam_l.reshape(M, nz), T_l.reshape(C, M, nz)
+        gap = np.repeat(_gap(np.where(ok[:, None], lm, vb[None, :]), vb)[:, None], nz, axis=1).ravel()
+        lam_b = np.minimum(_shared(stack, zz, gap), np.minimum(lam_l.ravel(), np.repeat(lam_v[None, :], M, 0).ravel()))
+        lam_b = lam_b.reshape(M, nz)
+        lo_l, lo_v = lam_l - lam_b, lam_v[None, :] - lam_b  # one path only
+        # per channel: amp = T_in T_out R e^{−τ}; Poisson crossings average exactly (docs/texture.md eq. G3):
+        # E[b_c] = a_c exp(−λ_l'(1−T_l) − λ_v'(1−T_v) − λ_b(1−T_l T_v)),
+        # E[b_c b_c'] = a_c a_c' exp(−λ_l'(1−T_l T_l') − λ_v'(1−T_v T_v') − λ_b(1−T_l T_v T_l' T_v'))
+        amp = (t_in * t_out)[None, :, None] * R[:, :, None] * np.exp(-(tau_l + tau_v[:, None, :]))  # (C, M, nz)
+        Tv = np.broadcast_to(T_v[:, None, :], T_l.shape)
+        Eb_c = amp * np.exp(-lo_l * (1 - T_l) - lo_v * (1 - Tv) - lam_b * (1 - T_l * Tv))
+        b1 = np.einsum("c,cmz->mz", y, Eb_c)
+        ya = y[:, None, None] * amp
+        b2 = np.zeros((M, nz))
+        for c1 in range(C):
+            ex = (-lo_l * (1 - T_l[c1] * T_l) - lo_v * (1 - Tv[c1] * Tv)
+                  - lam_b * (1 - T_l[c1] * Tv[c1] * T_l * Tv))
+            b2 += ya[c1] * np.sum(ya * np.exp(ex), axis=0)
+        wgt = wm[:, None] * wz[None, :]
+        Eb, Eb2 = float(np.sum(wgt * b1)), float(np.sum(wgt * b2))
+        Dn, Dw = f.diameters()
+        A = 0.25 * np.pi * Dn * Dn
+        NA = f.areal_density_per_um2
+        mean += NA * float(Dw @ A) * Eb
+        ov = np.array([overlap_integral(D, observer.spot_um) for D in Dn])
+        var += NA * float(Dw @ ov) * Eb2
+        # pairs of flakes of this layer, one above the other (docs/texture.md eq. G4)
+        b0 = np.einsum("c,cmz,m->z", y, amp, wm)  # unhidden mean luminance factor per depth
+        tau_y = float(y @ (T_v[:, -1] ** 2))  # a flake crossed by both (vertical) paths transmits T²
+        Dj, wj = f.diameters(6)
+        var += float(wj @ np.array([_pair_term(f, z, wz, b0, lam_v, tau_y, 0.5 * D, observer.spot_um) for D in Dj]))
+    ground = float(ground_luminance_factor) if ground_luminance_factor is not None else mean
+    sd = float(np.sqrt(var))
+    return {
+        "view_deg": float(observer.view_deg),
+        "graininess": sd / ground if ground > 0 else 0.0,
+        "luminance_sd": sd,
+        "flake_luminance_factor": mean,
+        "ground": "bsdf" if ground_luminance_factor is not None else "flakes",
+    }
+
+
+def texture_indices(stack: TextureStack, observer, ground=None) -> dict:
+    """Every index of one observer: one :func:`sparkle_indices` row per light angle and the
+    :func:`graininess_indices`.  ``ground``: optional {"directional": {light_deg: β}, "diffuse": β}
+    from the smooth BSDF."""
+    ground = ground or {}
+    gd = ground.get("directional", {})
+    rows = [sparkle_indices(stack, observer, a, gd.get(float(a))) for a in observer.light_deg]
+    return {"observer": observer.name, "spot_um": float(observer.spot_um),
+            "aperture_half_angle_rad": float(observer.aperture_half_angle_rad),
+            "source_half_angle_deg": float(observer.source_half_angle_deg),
+            "directional": rows, "diffuse": graininess_indices(stack, observer, ground.get("diffuse"))}

@@ -1,0 +1,131 @@
+"""The texture model's physics (docs/texture.md): energy (the glints' mean equals the solver's
+single-flake-reflection term), scaling with loading and diameter, no sparkle without flakes,
+under diffuse light or for a random orientation.  Guards against a wrong orientation density,
+half-vector Jacobian, loading or size distribution."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pathlib import Path
+
+from flakedb.paint.recipe import load_recipe
+from flakedb.paint.texture_inputs import texture_report
+from flakedb.resources import PACKAGE_DIR
+from flakedb.rt.microflake import FlakeOptics, extinction_Ergun, kernel_Ergun
+from flakedb.texture import model as tm
+from flakedb.texture.instruments import PRESETS, Observer
+from tests.texture.cases import TEST_OBSERVER, recipe, stack_of
+
+
+def _f_ss(stack, light_deg, view_deg):
+    """π f_ss of docs/texture.md eq. S3 from the solver's own kernel (paper eq. 2) and extinction,
+    depth integral in closed form (one flake layer, uniform absorbers in it)."""
+    f = stack.flakes[0]
+    eta = stack.eta
+    g = tm.directional_geometry(eta, light_deg, view_deg, 1.0, 0.01)
+    optics = FlakeOptics(np.asarray(f.c), np.asarray(f.R), np.asarray(f.T))
+    a_rho = f.number_density_per_um3 * f.mean_area_um2()
+    # propagation directions (conventions): in travels down along −l', out travels up along v'
+    # light from +x travelling down (μ_i = μ_l', φ_i = π), view toward −x travelling up (μ_o = −μ_v',
+    # φ_o = π): φ_d = 0
+    k = kernel_Ergun(g.mu_l_b, -g.mu_v_b, 0.0, f.alpha, optics, a_rho)  # (C,)
+    sig = sum(np.asarray(a.sigma_per_um) for a in stack.absorbers) if stack.absorbers else 0.0
+    st_l = extinction_Ergun(np.array([g.mu_l_b]), f.alpha, optics, a_rho)[:, 0] + sig
+    st_v = extinction_Ergun(np.array([g.mu_v_b]), f.alpha, optics, a_rho)[:, 0] + sig
+    q = st_l / g.mu_l_b + st_v / g.mu_v_b
+    d = f.thickness_um
+    depth = -np.expm1(-q * d) / q  # ∫ over the layer of e^{-q (z - z0)} dz (the clear coat does not absorb)
+    fss = g.t_in * g.t_out * np.ravel(k) * depth / (eta**2 * g.mu_l_b * g.mu_v_b)
+    return float(np.pi * np.asarray(stack.y_weights) @ fss)
+
+
+#: Small cones: the flake-normal density is constant over them, as the RT's point source and aperture assume.
+NARROW = Observer("narrow", 20.0, float(np.radians(0.1)), 0.2, (15.0, 30.0, 45.0), 0.0)
+
+
+@pytest.mark.parametrize("species,light", [("metallic", 15.0), ("metallic", 45.0), ("pearlescent", 30.0)])
+def test_glints_carry_the_single_flake_reflection_of_the_bsdf(species, light, monkeypatch):
+    """Σ over all flakes of eq. S1 = π f_ss of the solver's kernel (eq. S3), with a pigment absorbing.
+    The RT treats the in and out paths as independent; with the model's shared-path hiding (eq. S4)
+    switched off the two agree to the quadratures (T at c = μ instead of the exact average over the
+    flakes' tilts: ≤ 1.2e-3 measured); with it the glints are brighter by at most e^{λ}."""
+    st = stack_of(species=species, vf=0.002, alpha=0.2, D=20.0, pigment="iron-black", pv=0.002)
+    ref = _f_ss(st, light, 0.0)
+    with_shared = tm.sparkle_indices(st, NARROW, light)["flake_luminance_factor"]
+    lam = 0.002 / st.flakes[0].flake_thickness_um * st.flakes[0].thickness_um
+    assert 1.0 < with_shared / ref < np.exp(lam)
+    monkeypatch.setattr(tm, "_shared", lambda stack, z, gap, n=16: np.zeros(np.size(z)))
+    got = tm.sparkle_indices(st, NARROW, light)["flake_luminance_factor"]
+    assert got == pytest.approx(ref, rel=2e-3)  # measured: 3e-4 (metallic), 1.2e-3 (pearlescent)
+
+
+def test_energy_check_bites_on_the_orientation_density(monkeypatch):
+    st = stack_of(species="metallic", vf=0.0005, alpha=0.2, D=20.0)
+    ref = _f_ss(st, 15.0, 0.0)
+    monkeypatch.setattr(tm, "flake_ndf_Beckmann", lambda c, a: 1.05 * np.asarray(
+        __import__("flakedb.rt.microflake", fromlist=["x"]).flake_ndf_Beckmann(c, a)))
+    got = tm.sparkle_indices(st, NARROW, 15.0)["flake_luminance_factor"]
+    assert abs(got / ref - 1) > 0.04
+
+
+def test_glints_scale_with_loading_at_low_coverage():
+    n1 = tm.sparkle_indices(stack_of(vf=0.002), TEST_OBSERVER, 15.0)["glints_per_mm2"]
+    n2 = tm.sparkle_indices(stack_of(vf=0.004), TEST_OBSERVER, 15.0)["glints_per_mm2"]
+    assert n2 / n1 == pytest.approx(2.0, rel=0.1)
+    assert n2 / n1 < 2.0  # hiding grows with loading: never more than proportional
+
+
+def test_doubling_the_diameter_at_equal_volume_fraction():
+    """Flakes per mm² ∝ 1/⟨A⟩: ×1/4 at a fixed thickness, ×1/8 at a fixed aspect ratio (thickness ∝ D);
+    each glint brighter (a larger share of the spot)."""
+    s1 = stack_of(vf=0.01, D=12.0)
+    s2 = stack_of(vf=0.01, D=24.0)
+    f1, f2 = s1.flakes[0], s2.flakes[0]
+    assert f2.areal_density_per_um2 / f1.areal_density_per_um2 == pytest.approx(0.25, rel=1e-12)
+    f3 = dataclasses.replace(f2, number_density_per_um3=f2.number_density_per_um3 / 2, flake_thickness_um=2 * f2.flake_thickness_um)
+    assert f3.areal_density_per_um2 / f1.areal_density_per_um2 == pytest.approx(0.125, rel=1e-12)
+    obs = PRESETS["person-1m"]
+    r1, r2 = tm.sparkle_indices(s1, obs, 45.0), tm.sparkle_indices(s2, obs, 45.0)
+    assert r2["sparkle_intensity"] > 2.0 * r1["sparkle_intensity"]
+    assert r2["glints_per_mm2"] < r1["glints_per_mm2"]
+
+
+def test_no_sparkle_under_diffuse_light_or_random_orientation():
+    st = stack_of(vf=0.02)
+    wide = Observer("sky-like", 20.0, 0.01, 80.0, (15.0,), 0.0)
+    r = tm.sparkle_indices(st, wide, 15.0)
+    assert not r["sparkle"] and r["glints_per_mm2"] == 0.0 and r["peak_luminance_factor"] < 1.0
+    n_aligned = tm.sparkle_indices(stack_of(vf=0.02, alpha=0.2), TEST_OBSERVER, 15.0)["glints_per_mm2"]
+    n_random = tm.sparkle_indices(stack_of(vf=0.02, alpha=2.0), TEST_OBSERVER, 15.0)["glints_per_mm2"]
+    assert n_random < 0.02 * n_aligned
+
+
+def test_pigment_only_paint_has_no_texture():
+    rep = texture_report(load_recipe(Path(PACKAGE_DIR) / "catalog/recipes/particle-titanium-white.yaml"),
+                         list(PRESETS.values()))
+    assert rep["sparkle"] is False and rep["observers"] == [] and "no sparkle" in rep["summary"]
+
+
+def test_graininess_falls_with_the_square_root_of_the_spot_area():
+    """G ∝ 1/√(N_A p²) for spots much larger than the flakes (eq. G2): 1 m → 3 m divides G by 3."""
+    st = stack_of(vf=0.02)
+    g1 = tm.graininess_indices(st, PRESETS["person-1m"])["graininess"]
+    g3 = tm.graininess_indices(st, PRESETS["person-3m"])["graininess"]
+    assert g1 / g3 == pytest.approx(3.0, rel=0.02)
+
+
+def test_overlap_integral_limits():
+    D = 2.0
+    A = np.pi * D * D / 4
+    assert tm.overlap_integral(D, 200.0) == pytest.approx(A * A / 200.0**2, rel=1e-2)
+    assert tm.overlap_integral(400.0, 2.0) == pytest.approx(np.pi * 200.0**2, rel=1e-2)
+    assert tm.pair_overlap(20.0, 20.0, [0.0])[0] == pytest.approx(tm.overlap_integral(20.0, 20.0), rel=2e-2)  # 16² vs 48² nodes
+
+
+def test_lens_area():
+    assert tm.lens_area(np.array([0.0]), 1.0, 2.0)[0] == pytest.approx(np.pi)
+    assert tm.lens_area(np.array([3.0]), 1.0, 2.0)[0] == 0.0
+    # two unit discs one radius apart: 2π/3 − √3/2
+    assert tm.lens_area(np.array([1.0]), 1.0, 1.0)[0] == pytest.approx(2 * np.pi / 3 - np.sqrt(3) / 2, rel=1e-12)
