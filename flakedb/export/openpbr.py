@@ -1,0 +1,283 @@
+"""A fitted analytic material: the OpenPBR Surface parameters closest to a paint's exact BSDF.
+
+What rendering teams load is an analytic layered material (OpenPBR Surface / Autodesk Standard
+Surface in MaterialX, Blender's Principled BSDF, glTF PBR + extensions, UsdPreviewSurface), not a
+Fourier table.  This module fits the parameters those materials share to the exact BSDF of a
+flakedb file and measures what the fit costs.
+
+The analytic model (what is fitted, evaluated here in numpy)
+-----------------------------------------------------------
+The subset of OpenPBR Surface 1.1 (docs/renderers.md, "The fitted material") that every target
+holds: a smooth or rough dielectric **coat** of index η_c (``coat_weight = 1``, untinted), over a
+**base** of colour c (linear sRGB), metalness m and GGX roughness r (α = r², the perceptual mapping
+of OpenPBR, Principled, glTF and UsdPreviewSurface); the base's own dielectric interface is off
+(``specular_ior = coat_ior``: relative index 1 under the coat).  For directions ω_i, ω_o above the
+surface (μ = cos θ, h the half vector, θ_d the angle between ω_i and h)::
+
+    f = F_c(μ_i) δ  +  f_coat,rough  +  (1 - F_c(μ_i)) (1 - F_c(μ_o)) · [ (1 - m) c / π
+        + m · F_s(c, cos θ_d) · D(h; α) G(ω_i, ω_o; α) / (4 μ_i μ_o) ]
+
+with F_c the unpolarised dielectric Fresnel reflectance of the coat (Born & Wolf §1.5.2), F_s the
+Schlick approximation with F0 = c (Schlick 1994, eq. 24: ``F0 + (1 - F0)(1 - cos θ_d)^5``),
+D the GGX / Trowbridge-Reitz distribution ``α² / (π (cos²θ_h (α² - 1) + 1)²)`` and G the separable
+Smith masking ``G1(ω_i) G1(ω_o)``, ``G1 = 2 / (1 + sqrt(1 + α² tan²θ))`` (Walter et al. 2007,
+eqs. 33-34).  The smooth coat's delta ``F_c(μ_i) δ`` is identical in the file (its ``delta``) and in
+the model, so it is carried exactly and left out of the fit; a rough coat (``alpha > 0`` in the file,
+no delta) is the same GGX lobe with α_c = the file's top roughness (Beckmann and GGX agree to a few %
+at the α of clear coats) and ``F_c`` in place of F_s, and it is in both sides of the fit.
+
+The fit (:func:`fit_openpbr`)
+-----------------------------
+For fixed (m, r) the model is affine in c per channel (``f = A c + B``), so c has a closed-form
+weighted least-squares solution (clipped to [0, 1]); (m, r) are found on a grid (21 x 40) and the
+best cell refined on a 5x finer grid around it.  The residual is the sum of two terms:
+
+* the cosine-weighted BSDF difference over the hemisphere: ``Σ_q w_q μ_i μ_o (f_fit - f)²`` on a
+  Gauss-Legendre grid in μ_i, μ_o and a uniform grid in φ (the cosine-weighted L2 norm of
+  ``f``; the same number is reported, relative to ``Σ w μ_i μ_o f²``: :func:`cosine_weighted_difference`);
+* the colour geometries (ASTM E2194 45° set and the E2539 15° set,
+  :data:`flakedb.match.targets.E2539_GEOMETRIES`), each a relative residual ``(f_fit - f) / f``
+  with weight ``geometry_weight`` (default 1: the geometries together count as much as the hemisphere).
+
+Reported (:class:`OpenPBRFit`): ΔE00 (CIEDE2000, D65 / 2°, the file's white-normalised linear sRGB)
+between fit and file at every E2194 and E2539 geometry, its worst value per set, and the
+cosine-weighted relative BSDF difference.
+
+What an analytic fit cannot carry
+---------------------------------
+One base colour and one lobe: a colour that changes with the geometry (the colour travel of
+interference / pearlescent flakes, e.g. blue at 15° and green at 45°) is averaged; the flakes'
+sparkle (a spatial effect) is not in any BSDF; a table's two-lobe shape (a narrow flake lobe over a
+broad diffuse one) is one GGX lobe.  OpenPBR's thin film (``thin_film_thickness``, glTF
+KHR_materials_iridescence, Principled's Thin Film) is not fitted: it tints a specular reflection
+that here is off under the coat, and the travel it makes is not the flake's.  The measured ΔE00 per
+geometry says which geometries suffer (for pearlescent paints: the near-specular −15° / 15°).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from flakedb.colour.tolerance import delta_E_2000
+from flakedb.match.fit import channels_to_Lab, geometry_directions
+from flakedb.match.targets import E2194_GEOMETRIES, E2539_EXTRA
+from flakedb.optics.fresnel import fresnel_dielectric
+from flakedb.render.mitsuba.directions import reflectance_albedo, rgb_matrix
+
+#: Grid of the hemisphere residual: Gauss-Legendre nodes in μ_i and μ_o, uniform φ samples.
+N_MU = 14
+N_PHI = 24
+#: Grid of the (metalness, roughness) search, then the refinement factor around the best cell.
+METALNESS_GRID = np.linspace(0.0, 1.0, 21)
+ROUGHNESS_GRID = np.linspace(0.05, 1.0, 40)
+REFINE = 5
+#: Smallest GGX α (a delta-like lobe is not a fit).
+ALPHA_MIN = 1e-3
+
+
+@dataclass
+class OpenPBRFit:
+    """The fitted parameters and what the fit costs.
+
+    base_color (3,) linear sRGB in [0, 1]; base_metalness, specular_roughness (r, α = r²);
+    coat_ior, coat_roughness (r_c); error: {"dE00_E2194": [...], "dE00_E2539": [...],
+    "worst_dE00_E2194", "worst_dE00_E2539", "cosine_weighted_difference"} plus the geometries.
+    """
+
+    base_color: tuple
+    base_metalness: float
+    specular_roughness: float
+    coat_ior: float
+    coat_roughness: float
+    source: str = ""
+    error: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["base_color"] = [float(x) for x in self.base_color]
+        d["model"] = "OpenPBR Surface subset (flakedb.export.openpbr): coat + base colour/metalness/GGX roughness"
+        return d
+
+    @classmethod
+    def from_dict(cls, d) -> "OpenPBRFit":
+        return cls(tuple(d["base_color"]), float(d["base_metalness"]), float(d["specular_roughness"]),
+                   float(d["coat_ior"]), float(d["coat_roughness"]), d.get("source", ""), dict(d.get("error", {})))
+
+
+# --------------------------------------------------------------------------------------------
+# The analytic model
+# --------------------------------------------------------------------------------------------
+def file_directions(mu_i, mu_o, phi_d):
+    """Local-frame unit vectors (..., 3) of the file's coordinates (conventions: ``mu_o < 0`` is
+    reflection, ``phi_d = 0`` the mirror side): ω_i = (sin θ_i, 0, μ_i), ω_o =
+    (-sin θ_o cos φ_d, sin θ_o sin φ_d, |μ_o|), both pointing away from the surface."""
+    mu_i, mu_o, phi_d = np.broadcast_arrays(*(np.asarray(a, float) for a in (mu_i, mu_o, phi_d)))
+    ao = np.abs(mu_o)
+    si, so = np.sqrt(np.clip(1 - mu_i**2, 0, 1)), np.sqrt(np.clip(1 - ao**2, 0, 1))
+    wi = np.stack([si, np.zeros_like(si), mu_i], axis=-1)
+    wo = np.stack([-so * np.cos(phi_d), so * np.sin(phi_d), ao], axis=-1)
+    return wi, wo
+
+
+def ggx_lobe(wi, wo, alpha):
+    """``D G / (4 μ_i μ_o)`` [1/sr] of GGX with separable Smith masking (module docstring), and cos θ_d."""
+    a2 = max(float(alpha), ALPHA_MIN) ** 2
+    h = wi + wo
+    h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+    ch = np.clip(h[..., 2], 1e-12, 1.0)
+    D = a2 / (np.pi * (ch * ch * (a2 - 1.0) + 1.0) ** 2)
+
+    def g1(mu):
+        mu = np.clip(mu, 1e-12, 1.0)
+        t2 = (1.0 - mu * mu) / (mu * mu)
+        return 2.0 / (1.0 + np.sqrt(1.0 + a2 * t2))
+
+    mi, mo = wi[..., 2], wo[..., 2]
+    lobe = D * g1(mi) * g1(mo) / (4.0 * np.clip(mi, 1e-12, 1) * np.clip(mo, 1e-12, 1))
+    cd = np.clip(np.sum(wi * h, axis=-1), 0.0, 1.0)
+    return lobe, cd
+
+
+def model_terms(mu_i, mu_o, phi_d, metalness, roughness, coat_ior, coat_roughness):
+    """``(A, B)`` (...,) with f_model = A c + B per channel (module docstring), without the coat's delta."""
+    wi, wo = file_directions(mu_i, mu_o, phi_d)
+    Ti = 1.0 - fresnel_dielectric(np.clip(wi[..., 2], 1e-9, 1), coat_ior).R
+    To = 1.0 - fresnel_dielectric(np.clip(wo[..., 2], 1e-9, 1), coat_ior).R
+    T = Ti * To
+    lobe, cd = ggx_lobe(wi, wo, roughness ** 2)
+    w5 = (1.0 - cd) ** 5
+    A = T * ((1.0 - metalness) / np.pi + metalness * (1.0 - w5) * lobe)
+    B = T * metalness * w5 * lobe
+    if coat_roughness > 0:
+        clobe, ccd = ggx_lobe(wi, wo, coat_roughness ** 2)
+        B = B + fresnel_dielectric(np.clip(ccd, 1e-9, 1), coat_ior).R * clobe
+    return A, B
+
+
+def evaluate(fit: OpenPBRFit, mu_i, mu_o, phi_d) -> np.ndarray:
+    """f (..., 3) [1/sr] of the fitted model at the file's coordinates (no delta), linear sRGB."""
+    A, B = model_terms(mu_i, mu_o, phi_d, fit.base_metalness, fit.specular_roughness, fit.coat_ior,
+                       fit.coat_roughness)
+    return A[..., None] * np.asarray(fit.base_color)[None] + B[..., None]
+
+
+# --------------------------------------------------------------------------------------------
+# The exact side
+# --------------------------------------------------------------------------------------------
+def exact_rgb(b, mu_i, mu_o, phi_d) -> np.ndarray:
+    """f (..., 3) [1/sr] of a :class:`flakedb.bsdf.FourierBSDF` in linear sRGB (the plugin's colour
+    map :func:`flakedb.render.mitsuba.directions.rgb_matrix`), each channel clamped at 0."""
+    mu_i, mu_o, phi_d = np.broadcast_arrays(*(np.asarray(a, float) for a in (mu_i, mu_o, phi_d)))
+    v = b.eval(mu_i.ravel(), mu_o.ravel(), phi_d.ravel(), clamp="none") @ rgb_matrix(b)
+    v = np.maximum(v, 0.0) / np.abs(mu_o.ravel())[:, None]
+    return v.reshape(mu_i.shape + (3,))
+
+
+def hemisphere_grid(n_mu: int = N_MU, n_phi: int = N_PHI):
+    """(mu_i, mu_o (< 0), phi_d, weight) flat arrays of the hemisphere quadrature: Gauss-Legendre in
+    μ on (0, 1) for both directions, midpoints in φ_d on (0, π) (f is even in φ_d), weights summing
+    to the measure ``∫∫ dμ_i dμ_o dφ`` over φ in (0, 2π) = 2π."""
+    x, w = np.polynomial.legendre.leggauss(n_mu)
+    x, w = 0.5 * (x + 1), 0.5 * w
+    phi = (np.arange(n_phi) + 0.5) * np.pi / n_phi
+    MI, MO, PH = np.meshgrid(x, x, phi, indexing="ij")
+    W = (w[:, None, None] * w[None, :, None]) * np.full(n_phi, 2 * np.pi / n_phi)[None, None, :]
+    return MI.ravel(), -MO.ravel(), PH.ravel(), W.ravel()
+
+
+def cosine_weighted_difference(f_fit, f_exact, mu_i, mu_o, weight) -> float:
+    """``sqrt(Σ w μ_i |μ_o| |f_fit - f|² / Σ w μ_i |μ_o| |f|²)`` over the grid and channels: the
+    relative cosine-weighted L2 difference of two BSDFs (0 = equal)."""
+    c = (weight * mu_i * np.abs(mu_o))[:, None]
+    num = float(np.sum(c * (f_fit - f_exact) ** 2))
+    den = float(np.sum(c * f_exact ** 2))
+    return float(np.sqrt(num / den)) if den > 0 else float("nan")
+
+
+# --------------------------------------------------------------------------------------------
+# The fit
+# --------------------------------------------------------------------------------------------
+def _solve_colour(A, B, y, W):
+    """Per channel c = argmin Σ W (A c + B - y)², clipped to [0, 1]; returns (c (3,), residual)."""
+    den = np.sum(W[:, None] * A[:, None] ** 2, axis=0)
+    c = np.sum(W[:, None] * A[:, None] * (y - B[:, None]), axis=0) / np.where(den > 0, den, 1.0)
+    c = np.clip(c, 0.0, 1.0)
+    r = np.sum(W[:, None] * (A[:, None] * c[None] + B[:, None] - y) ** 2)
+    return c, float(r)
+
+
+def fit_openpbr(b, geometry_weight: float = 1.0, source: str = "") -> OpenPBRFit:
+    """Fit :class:`OpenPBRFit` to the FourierBSDF ``b`` (module docstring) and measure its error."""
+    coat_ior = float(b.delta["eta"]) if b.delta is not None else max(1.0 / b.eta if b.eta < 1 else b.eta, 1.0)
+    coat_rough = 0.0 if b.delta is not None else float(np.sqrt(max(b.alpha[0], 0.0)))
+    if b.delta is None and b.alpha[0] <= 0:
+        coat_ior = 1.0                                   # no coat at all: F_c = 0
+    mi, mo, ph, wq = hemisphere_grid()
+    geoms = np.asarray(E2194_GEOMETRIES + E2539_EXTRA, float)
+    gi, go, gp = geometry_directions(geoms)
+    y_h = exact_rgb(b, mi, mo, ph)
+    y_g = exact_rgb(b, gi, go, gp)
+    W_h = wq * mi * np.abs(mo)
+    W_h = W_h / np.sum(W_h * np.mean(y_h ** 2, axis=1))          # the hemisphere term sums to ~1
+    rel = 1.0 / np.maximum(np.mean(y_g, axis=1), 1e-4) ** 2
+    W_g = geometry_weight * rel / geoms.shape[0]
+    MI, MO, PH = np.r_[mi, gi], np.r_[mo, go], np.r_[ph, gp]
+    W = np.r_[W_h, W_g]
+    Y = np.r_[y_h, y_g]
+
+    def score(m, r):
+        A, B = model_terms(MI, MO, PH, m, r, coat_ior, coat_rough)
+        return _solve_colour(A, B, Y, W)
+
+    best = min(((score(m, r)[1], m, r) for m in METALNESS_GRID for r in ROUGHNESS_GRID))
+    _, m0, r0 = best
+    dm, dr = METALNESS_GRID[1] - METALNESS_GRID[0], ROUGHNESS_GRID[1] - ROUGHNESS_GRID[0]
+    ms = np.clip(np.linspace(m0 - dm, m0 + dm, 2 * REFINE + 1), 0.0, 1.0)
+    rs = np.clip(np.linspace(r0 - dr, r0 + dr, 2 * REFINE + 1), np.sqrt(ALPHA_MIN), 1.0)
+    _, m1, r1 = min(((score(m, r)[1], m, r) for m in ms for r in rs))
+    c, _ = score(m1, r1)
+    fit = OpenPBRFit(tuple(float(x) for x in c), float(m1), float(r1), coat_ior, coat_rough, source)
+    fit.error = fit_error(b, fit, (mi, mo, ph, wq))
+    return fit
+
+
+def colour_grid(b) -> np.ndarray:
+    """The wavelength grid [nm] of the white-normalised RGB map: the file's ``wavelength_nm`` when it
+    records one, else 380-780 nm in 10 nm steps (what the catalogue recipes use)."""
+    wl = (b.metadata or {}).get("wavelength_nm") if isinstance(b.metadata, dict) else None
+    if wl is not None and np.size(wl) >= 2:
+        return np.asarray(wl, float)
+    return np.arange(380.0, 781.0, 10.0)
+
+
+def fit_error(b, fit: OpenPBRFit, grid=None) -> dict:
+    """ΔE00 at the E2194 and E2539 geometries and the cosine-weighted difference (module docstring)."""
+    mi, mo, ph, wq = hemisphere_grid() if grid is None else grid
+    cwd = cosine_weighted_difference(evaluate(fit, mi, mo, ph), exact_rgb(b, mi, mo, ph), mi, mo, wq)
+    wl = colour_grid(b)
+    out = {"cosine_weighted_difference": cwd, "colour": "CIEDE2000, D65 / 2 deg, white-normalised linear sRGB"}
+    for name, geoms in (("E2194", E2194_GEOMETRIES), ("E2539", E2194_GEOMETRIES + E2539_EXTRA)):
+        g = np.asarray(geoms, float)
+        gi, go, gp = geometry_directions(g)
+        lab_f = channels_to_Lab(np.pi * evaluate(fit, gi, go, gp), "rgb", wl)
+        lab_e = channels_to_Lab(np.pi * exact_rgb(b, gi, go, gp), "rgb", wl)
+        de = delta_E_2000(lab_f, lab_e)
+        out[f"dE00_{name}"] = [{"illumination_deg": float(i), "aspecular_deg": float(a), "dE00": float(d)}
+                               for (i, a), d in zip(g, de)]
+        out[f"worst_dE00_{name}"] = float(np.max(de))
+    out["albedo_0deg"] = {"file": [float(x) for x in (reflectance_albedo(b, np.array([1.0]))[0] @ rgb_matrix(b))],
+                          "fit": [float(x) for x in fit_albedo(fit, 1.0)]}
+    return out
+
+
+def fit_albedo(fit: OpenPBRFit, mu_i: float, n_mu: int = 48, n_phi: int = 96) -> np.ndarray:
+    """Directional albedo (3,) of the fitted model's tabulated part (no delta) at incident cosine
+    ``mu_i`` by Gauss-Legendre x midpoint quadrature: ``∫ f |μ_o| dω_o``."""
+    x, w = np.polynomial.legendre.leggauss(n_mu)
+    x, w = 0.5 * (x + 1), 0.5 * w
+    phi = (np.arange(n_phi) + 0.5) * np.pi / n_phi
+    MO, PH = np.meshgrid(x, phi, indexing="ij")
+    f = evaluate(fit, np.full(MO.shape, float(mu_i)), -MO, PH)
+    return 2.0 * (np.pi / n_phi) * np.einsum("ij,ijc->c", (w[:, None] * MO), f)
