@@ -23,6 +23,7 @@ COMMANDS = {
     "compose": "flakedb.cli.compose:compose",
     "demo": "flakedb.cli.demo:demo",
     "export-mitsuba": "flakedb.cli.export_mitsuba:export_mitsuba",
+    "export-openpbr": "flakedb.cli.export_openpbr:export_openpbr",
     "info": "flakedb.cli.info:info",
     "match": "flakedb.cli.match:match",
     "render": "flakedb.cli.render:render",

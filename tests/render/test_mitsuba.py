@@ -250,7 +250,7 @@ def test_cli(files, tmp_path):
     from flakedb.cli.main import cli
 
     out = tmp_path / "paint.measured"
-    r = CliRunner().invoke(cli, ["export-mitsuba", str(files["synthetic"]), "--out", str(out), "--res", "32"])
+    r = CliRunner().invoke(cli, ["export-mitsuba", str(files["synthetic"]), "--out", str(out), "--res", "32", "--no-coat"])
     assert r.exit_code == 0, r.output
     assert out.exists() and "DROPPED: the smooth coat's mirror reflection" in r.output
     assert fm.read_tensor_file(out)["rgb"].shape == (1, fm.N_THETA_DEFAULT, 3, 32, 32)
