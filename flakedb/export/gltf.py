@@ -2,9 +2,10 @@
 
 Material: ``pbrMetallicRoughness`` (baseColorFactor = the fitted base colour, metallicFactor,
 roughnessFactor = the perceptual roughness r, α = r²), ``KHR_materials_clearcoat`` (factor 1, the
-coat roughness; its index is fixed at 1.5 by the extension), ``KHR_materials_ior`` (the coat index:
-the base's index, which with ``KHR_materials_specular`` ``specularFactor = 0`` switches the base's
-dielectric reflection off, as in the fit) and ``KHR_materials_specular``.  Iridescence
+coat roughness; its index is fixed at 1.5 by the extension), ``KHR_materials_ior`` (the base's
+dielectric index: glTF has no index relative to the coat, so the fit's relative index is written)
+and ``KHR_materials_specular`` (specularColorFactor = the fit's specular colour, which glTF applies
+to F0 only; specularFactor 0 when the fit has no base lobe).  Iridescence
 (``KHR_materials_iridescence``) is not written: the fit has no thin film (flakedb.export.openpbr).
 The fit and its error are in the material's ``extras.flakedb_fit``.  Written with the standard
 library only; the tests read it back with ``pygltflib``.
@@ -56,8 +57,10 @@ def gltf_document(fit: OpenPBRFit, name: str):
         "extensions": {
             "KHR_materials_clearcoat": {"clearcoatFactor": 1.0 if fit.coat_ior > 1.0 else 0.0,
                                         "clearcoatRoughnessFactor": float(fit.coat_roughness)},
-            "KHR_materials_ior": {"ior": float(fit.coat_ior)},
-            "KHR_materials_specular": {"specularFactor": 0.0},
+            # glTF's base index is against air, not the coat: the fit's relative index
+            "KHR_materials_ior": {"ior": float(max(fit.specular_ior_relative, 1.0))},
+            "KHR_materials_specular": {"specularFactor": 1.0 if fit.specular_ior_relative > 1.0 else 0.0,
+                                       "specularColorFactor": [float(x) for x in fit.specular_color]},
         },
         "extras": {"flakedb_fit": fit.to_dict()},
     }

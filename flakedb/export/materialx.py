@@ -32,8 +32,9 @@ def openpbr_inputs(fit: OpenPBRFit) -> list:
         ("base_color", "color3", f"{c[0]:.6g}, {c[1]:.6g}, {c[2]:.6g}"),
         ("base_metalness", "float", fit.base_metalness),
         ("specular_weight", "float", 1.0),
+        ("specular_color", "color3", ", ".join(f"{x:.6g}" for x in fit.specular_color)),
         ("specular_roughness", "float", fit.specular_roughness),
-        ("specular_ior", "float", fit.coat_ior),           # relative index 1 under the coat: no base interface
+        ("specular_ior", "float", fit.specular_ior),       # relative to the coat: specular_ior_relative
         ("coat_weight", "float", 1.0 if fit.coat_ior > 1.0 else 0.0),
         ("coat_roughness", "float", fit.coat_roughness),
         ("coat_ior", "float", fit.coat_ior),

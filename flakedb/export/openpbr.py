@@ -10,12 +10,13 @@ The analytic model (what is fitted, evaluated here in numpy)
 The subset of OpenPBR Surface 1.1 (docs/renderers.md, "The fitted material") that every target
 holds: a smooth or rough dielectric **coat** of index η_c (``coat_weight = 1``, untinted), over a
 **base** of colour c (linear sRGB), metalness m and GGX roughness r (α = r², the perceptual mapping
-of OpenPBR, Principled, glTF and UsdPreviewSurface); the base's own dielectric interface is off
-(``specular_ior = coat_ior``: relative index 1 under the coat).  For directions ω_i, ω_o above the
-surface (μ = cos θ, h the half vector, θ_d the angle between ω_i and h)::
+of OpenPBR, Principled, glTF and UsdPreviewSurface), whose dielectric part has a specular lobe of
+tint s (OpenPBR ``specular_color``, ``specular_weight`` 1) and index n_s relative to the coat
+(``specular_ior = n_s η_c``; n_s = 1: no lobe).  For directions ω_i, ω_o above the surface
+(μ = cos θ, h the half vector, θ_d the angle between ω_i and h, L = D(h; α) G(ω_i, ω_o; α) / (4 μ_i μ_o))::
 
     f = F_c(μ_i) δ  +  f_coat,rough  +  (1 - F_c(μ_i)) (1 - F_c(μ_o)) · [ (1 - m) c / π
-        + m · F_s(c, cos θ_d) · D(h; α) G(ω_i, ω_o; α) / (4 μ_i μ_o) ]
+        + m · F_s(c, cos θ_d) · L  +  (1 - m) · s · F(cos θ_d; n_s) · L ]
 
 with F_c the unpolarised dielectric Fresnel reflectance of the coat (Born & Wolf §1.5.2), F_s the
 Schlick approximation with F0 = c (Schlick 1994, eq. 24: ``F0 + (1 - F0)(1 - cos θ_d)^5``),
@@ -28,16 +29,19 @@ at the α of clear coats) and ``F_c`` in place of F_s, and it is in both sides o
 
 The fit (:func:`fit_openpbr`)
 -----------------------------
-For fixed (m, r) the model is affine in c per channel (``f = A c + B``), so c has a closed-form
-weighted least-squares solution (clipped to [0, 1]); (m, r) are found on a grid (21 x 40) and the
-best cell refined on a 5x finer grid around it.  The residual is the sum of two terms:
+For fixed (m, r, n_s) the model is affine in (c, s) per channel (``f = A c + S s + B``), so (c, s)
+have a closed-form weighted least-squares solution (2 x 2 normal equations, clipped to [0, 1]);
+(m, r, n_s) are found on a grid (11 x 30 x 3) and the best (m, r) cell refined on a 5x finer grid
+around it.  The residual is the sum of two terms:
 
 * the cosine-weighted BSDF difference over the hemisphere: ``Σ_q w_q μ_i μ_o (f_fit - f)²`` on a
-  Gauss-Legendre grid in μ_i, μ_o and a uniform grid in φ (the cosine-weighted L2 norm of
-  ``f``; the same number is reported, relative to ``Σ w μ_i μ_o f²``: :func:`cosine_weighted_difference`);
+  Gauss-Legendre grid in μ_i, μ_o and a uniform grid in φ, relative to ``Σ w μ_i μ_o f²`` (the
+  number reported: :func:`cosine_weighted_difference`), times ``hemisphere_weight²`` (default 10²:
+  a relative difference of 0.1 costs as much as ΔL* = 1 at one geometry);
 * the colour geometries (ASTM E2194 45° set and the E2539 15° set,
-  :data:`flakedb.match.targets.E2539_GEOMETRIES`), each a relative residual ``(f_fit - f) / f``
-  with weight ``geometry_weight`` (default 1: the geometries together count as much as the hemisphere).
+  :data:`flakedb.match.targets.E2539_GEOMETRIES`), each residual in ΔL*-like units:
+  ``(116/3) R^(-2/3) π Δf`` (CIELAB's cube root linearised at the file's reflectance factor R),
+  so that the least squares approximates the ΔE00 it is judged by.
 
 Reported (:class:`OpenPBRFit`): ΔE00 (CIEDE2000, D65 / 2°, the file's white-normalised linear sRGB)
 between fit and file at every E2194 and E2539 geometry, its worst value per set, and the
@@ -48,9 +52,9 @@ What an analytic fit cannot carry
 One base colour and one lobe: a colour that changes with the geometry (the colour travel of
 interference / pearlescent flakes, e.g. blue at 15° and green at 45°) is averaged; the flakes'
 sparkle (a spatial effect) is not in any BSDF; a table's two-lobe shape (a narrow flake lobe over a
-broad diffuse one) is one GGX lobe.  OpenPBR's thin film (``thin_film_thickness``, glTF
-KHR_materials_iridescence, Principled's Thin Film) is not fitted: it tints a specular reflection
-that here is off under the coat, and the travel it makes is not the flake's.  The measured ΔE00 per
+broad diffuse one) is one GGX lobe.  The base's specular tint s is a colour that the near-specular
+geometries see more than the far ones (a first step towards colour travel); OpenPBR's thin film
+(``thin_film_thickness``, glTF KHR_materials_iridescence, Principled's Thin Film) is not fitted.  The measured ΔE00 per
 geometry says which geometries suffer (for pearlescent paints: the near-specular −15° / 15°).
 """
 
@@ -69,10 +73,15 @@ from flakedb.render.mitsuba.directions import reflectance_albedo, rgb_matrix
 #: Grid of the hemisphere residual: Gauss-Legendre nodes in μ_i and μ_o, uniform φ samples.
 N_MU = 14
 N_PHI = 24
-#: Grid of the (metalness, roughness) search, then the refinement factor around the best cell.
-METALNESS_GRID = np.linspace(0.0, 1.0, 21)
-ROUGHNESS_GRID = np.linspace(0.05, 1.0, 40)
+#: Grid of the (metalness, roughness, specular index) search, then the refinement factor around the
+#: best (metalness, roughness) cell.  Specular index relative to the coat: 1 = no base lobe.
+METALNESS_GRID = np.linspace(0.0, 1.0, 11)
+ROUGHNESS_GRID = np.linspace(0.05, 1.0, 30)
+SPECULAR_IOR_GRID = (1.0, 1.5, 3.0)
 REFINE = 5
+#: Weight of the hemisphere term: a cosine-weighted relative difference of 0.1 costs as much as
+#: ΔL* = 1 at one geometry (module docstring).
+HEMISPHERE_WEIGHT = 10.0
 #: Smallest GGX α (a delta-like lobe is not a fit).
 ALPHA_MIN = 1e-3
 
@@ -82,7 +91,8 @@ class OpenPBRFit:
     """The fitted parameters and what the fit costs.
 
     base_color (3,) linear sRGB in [0, 1]; base_metalness, specular_roughness (r, α = r²);
-    coat_ior, coat_roughness (r_c); error: {"dE00_E2194": [...], "dE00_E2539": [...],
+    coat_ior, coat_roughness (r_c); specular_color (3,) in [0, 1] (the tint x weight of the base's
+    dielectric lobe) and specular_ior_relative (its index relative to the coat, 1 = no lobe); error: {"dE00_E2194": [...], "dE00_E2539": [...],
     "worst_dE00_E2194", "worst_dE00_E2539", "cosine_weighted_difference"} plus the geometries.
     """
 
@@ -91,19 +101,30 @@ class OpenPBRFit:
     specular_roughness: float
     coat_ior: float
     coat_roughness: float
+    specular_color: tuple = (0.0, 0.0, 0.0)
+    specular_ior_relative: float = 1.0
     source: str = ""
     error: dict = field(default_factory=dict)
+
+    @property
+    def specular_ior(self) -> float:
+        """OpenPBR's ``specular_ior`` (relative to the coat's medium when coated: the base's
+        dielectric interface has the relative index :attr:`specular_ior_relative`)."""
+        return self.specular_ior_relative * (self.coat_ior if self.coat_ior > 1.0 else 1.0)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["base_color"] = [float(x) for x in self.base_color]
+        d["specular_color"] = [float(x) for x in self.specular_color]
+        d["specular_ior"] = self.specular_ior
         d["model"] = "OpenPBR Surface subset (flakedb.export.openpbr): coat + base colour/metalness/GGX roughness"
         return d
 
     @classmethod
     def from_dict(cls, d) -> "OpenPBRFit":
         return cls(tuple(d["base_color"]), float(d["base_metalness"]), float(d["specular_roughness"]),
-                   float(d["coat_ior"]), float(d["coat_roughness"]), d.get("source", ""), dict(d.get("error", {})))
+                   float(d["coat_ior"]), float(d["coat_roughness"]), tuple(d.get("specular_color", (0.0, 0.0, 0.0))),
+                   float(d.get("specular_ior_relative", 1.0)), d.get("source", ""), dict(d.get("error", {})))
 
 
 # --------------------------------------------------------------------------------------------
@@ -140,8 +161,9 @@ def ggx_lobe(wi, wo, alpha):
     return lobe, cd
 
 
-def model_terms(mu_i, mu_o, phi_d, metalness, roughness, coat_ior, coat_roughness):
-    """``(A, B)`` (...,) with f_model = A c + B per channel (module docstring), without the coat's delta."""
+def model_terms(mu_i, mu_o, phi_d, metalness, roughness, coat_ior, coat_roughness, specular_ior_relative=1.0):
+    """``(A, B, S)`` (...,) with f_model = A c + S s + B per channel (c the base colour, s the specular
+    colour; module docstring), without the coat's delta."""
     wi, wo = file_directions(mu_i, mu_o, phi_d)
     Ti = 1.0 - fresnel_dielectric(np.clip(wi[..., 2], 1e-9, 1), coat_ior).R
     To = 1.0 - fresnel_dielectric(np.clip(wo[..., 2], 1e-9, 1), coat_ior).R
@@ -150,17 +172,22 @@ def model_terms(mu_i, mu_o, phi_d, metalness, roughness, coat_ior, coat_roughnes
     w5 = (1.0 - cd) ** 5
     A = T * ((1.0 - metalness) / np.pi + metalness * (1.0 - w5) * lobe)
     B = T * metalness * w5 * lobe
+    if specular_ior_relative > 1.0:
+        S = T * (1.0 - metalness) * fresnel_dielectric(np.clip(cd, 1e-9, 1), specular_ior_relative).R * lobe
+    else:
+        S = np.zeros_like(A)
     if coat_roughness > 0:
         clobe, ccd = ggx_lobe(wi, wo, coat_roughness ** 2)
         B = B + fresnel_dielectric(np.clip(ccd, 1e-9, 1), coat_ior).R * clobe
-    return A, B
+    return A, B, S
 
 
 def evaluate(fit: OpenPBRFit, mu_i, mu_o, phi_d) -> np.ndarray:
     """f (..., 3) [1/sr] of the fitted model at the file's coordinates (no delta), linear sRGB."""
-    A, B = model_terms(mu_i, mu_o, phi_d, fit.base_metalness, fit.specular_roughness, fit.coat_ior,
-                       fit.coat_roughness)
-    return A[..., None] * np.asarray(fit.base_color)[None] + B[..., None]
+    A, B, S = model_terms(mu_i, mu_o, phi_d, fit.base_metalness, fit.specular_roughness, fit.coat_ior,
+                          fit.coat_roughness, fit.specular_ior_relative)
+    return (A[..., None] * np.asarray(fit.base_color) + S[..., None] * np.asarray(fit.specular_color)
+            + B[..., None])
 
 
 # --------------------------------------------------------------------------------------------
@@ -199,16 +226,26 @@ def cosine_weighted_difference(f_fit, f_exact, mu_i, mu_o, weight) -> float:
 # --------------------------------------------------------------------------------------------
 # The fit
 # --------------------------------------------------------------------------------------------
-def _solve_colour(A, B, y, W):
-    """Per channel c = argmin Σ W (A c + B - y)², clipped to [0, 1]; returns (c (3,), residual)."""
-    den = np.sum(W[:, None] * A[:, None] ** 2, axis=0)
-    c = np.sum(W[:, None] * A[:, None] * (y - B[:, None]), axis=0) / np.where(den > 0, den, 1.0)
-    c = np.clip(c, 0.0, 1.0)
-    r = np.sum(W[:, None] * (A[:, None] * c[None] + B[:, None] - y) ** 2)
-    return c, float(r)
+def _solve_colours(A, B, S, y, W):
+    """Per channel (c, s) = argmin Σ W (A c + S s + B - y)² over [0, 1]² (the unconstrained 2 x 2
+    normal equations, then each clipped and the other re-solved); returns (c (3,), s (3,), residual)."""
+    Y = y - B[:, None]
+    aa, ss, as_ = np.sum(W * A * A), np.sum(W * S * S), np.sum(W * A * S)
+    ay, sy = np.sum(W[:, None] * A[:, None] * Y, axis=0), np.sum(W[:, None] * S[:, None] * Y, axis=0)
+    if ss <= 1e-300 * max(aa, 1e-300):                              # no specular lobe
+        c = np.clip(ay / aa if aa > 0 else np.zeros(3), 0.0, 1.0)
+        sc = np.zeros(3)
+    else:
+        det = aa * ss - as_ * as_
+        c = (ay * ss - sy * as_) / det if det > 1e-12 * aa * ss else ay / aa
+        c = np.clip(c, 0.0, 1.0)
+        sc = np.clip((sy - as_ * c) / ss, 0.0, 1.0)
+        c = np.clip((ay - as_ * sc) / aa, 0.0, 1.0)
+    r = np.sum(W[:, None] * (A[:, None] * c + S[:, None] * sc - Y) ** 2)
+    return c, sc, float(r)
 
 
-def fit_openpbr(b, geometry_weight: float = 1.0, source: str = "") -> OpenPBRFit:
+def fit_openpbr(b, hemisphere_weight: float = HEMISPHERE_WEIGHT, source: str = "") -> OpenPBRFit:
     """Fit :class:`OpenPBRFit` to the FourierBSDF ``b`` (module docstring) and measure its error."""
     coat_ior = float(b.delta["eta"]) if b.delta is not None else max(1.0 / b.eta if b.eta < 1 else b.eta, 1.0)
     coat_rough = 0.0 if b.delta is not None else float(np.sqrt(max(b.alpha[0], 0.0)))
@@ -219,26 +256,48 @@ def fit_openpbr(b, geometry_weight: float = 1.0, source: str = "") -> OpenPBRFit
     gi, go, gp = geometry_directions(geoms)
     y_h = exact_rgb(b, mi, mo, ph)
     y_g = exact_rgb(b, gi, go, gp)
+    # hemisphere: the cosine-weighted squared difference relative to Σ w μμ |f|², x hemisphere_weight²
     W_h = wq * mi * np.abs(mo)
-    W_h = W_h / np.sum(W_h * np.mean(y_h ** 2, axis=1))          # the hemisphere term sums to ~1
-    rel = 1.0 / np.maximum(np.mean(y_g, axis=1), 1e-4) ** 2
-    W_g = geometry_weight * rel / geoms.shape[0]
+    W_h = hemisphere_weight ** 2 * W_h / np.sum(W_h * np.sum(y_h ** 2, axis=1))
+    # geometries: (ΔL*-like)² = ((116/3) R^(-2/3) π Δf)² per channel, R the reflectance factor (CIELAB's
+    # cube root linearised; R floored at 1e-3), a third per channel
+    R = np.maximum(np.pi * np.mean(y_g, axis=1), 1e-3)
+    W_g = (116.0 / 3.0 * np.pi) ** 2 * R ** (-4.0 / 3.0) / 3.0
     MI, MO, PH = np.r_[mi, gi], np.r_[mo, go], np.r_[ph, gp]
     W = np.r_[W_h, W_g]
     Y = np.r_[y_h, y_g]
 
-    def score(m, r):
-        A, B = model_terms(MI, MO, PH, m, r, coat_ior, coat_rough)
-        return _solve_colour(A, B, Y, W)
+    # the model is A c + S s + B with A, B, S affine in the metalness m for fixed (r, n_s):
+    # compute the (r, n_s) parts once and combine them for every m
+    wi, wo = file_directions(MI, MO, PH)
+    T = ((1.0 - fresnel_dielectric(np.clip(wi[..., 2], 1e-9, 1), coat_ior).R)
+         * (1.0 - fresnel_dielectric(np.clip(wo[..., 2], 1e-9, 1), coat_ior).R))
+    coat_lobe = 0.0
+    if coat_rough > 0:
+        clobe, ccd = ggx_lobe(wi, wo, coat_rough ** 2)
+        coat_lobe = fresnel_dielectric(np.clip(ccd, 1e-9, 1), coat_ior).R * clobe
+    parts = {}
 
-    best = min(((score(m, r)[1], m, r) for m in METALNESS_GRID for r in ROUGHNESS_GRID))
-    _, m0, r0 = best
+    def score(m, r, n_s):
+        if (r, n_s) not in parts:
+            lobe, cd = ggx_lobe(wi, wo, r ** 2)
+            w5 = (1.0 - cd) ** 5
+            spec = (T * fresnel_dielectric(np.clip(cd, 1e-9, 1), n_s).R * lobe if n_s > 1.0 else np.zeros_like(T))
+            parts[(r, n_s)] = (T / np.pi, T * (1.0 - w5) * lobe, T * w5 * lobe, spec)
+        p0, p1, p2, spec = parts[(r, n_s)]
+        return _solve_colours((1.0 - m) * p0 + m * p1, m * p2 + coat_lobe, (1.0 - m) * spec, Y, W)
+
+    best = min(((score(m, r, n)[2], m, r, n) for n in SPECULAR_IOR_GRID for r in ROUGHNESS_GRID
+                for m in METALNESS_GRID))
+    _, m0, r0, n0 = best
     dm, dr = METALNESS_GRID[1] - METALNESS_GRID[0], ROUGHNESS_GRID[1] - ROUGHNESS_GRID[0]
     ms = np.clip(np.linspace(m0 - dm, m0 + dm, 2 * REFINE + 1), 0.0, 1.0)
     rs = np.clip(np.linspace(r0 - dr, r0 + dr, 2 * REFINE + 1), np.sqrt(ALPHA_MIN), 1.0)
-    _, m1, r1 = min(((score(m, r)[1], m, r) for m in ms for r in rs))
-    c, _ = score(m1, r1)
-    fit = OpenPBRFit(tuple(float(x) for x in c), float(m1), float(r1), coat_ior, coat_rough, source)
+    parts.clear()
+    _, m1, r1, _ = min(((score(m, r, n0)[2], m, r, n0) for r in rs for m in ms))
+    c, sc, _ = score(m1, r1, n0)
+    fit = OpenPBRFit(tuple(float(x) for x in c), float(m1), float(r1), coat_ior, coat_rough,
+                     tuple(float(x) for x in sc), float(n0), source)
     fit.error = fit_error(b, fit, (mi, mo, ph, wq))
     return fit
 

@@ -4,6 +4,8 @@ write); the tests open it with ``usd-core`` (``pxr.Usd``).
 
 UsdPreviewSurface's clear coat has a fixed index of 1.5 and its ``ior`` input is the base's: with a
 coat index other than 1.5 the coat's Fresnel differs (at η = 1.5, the catalogue's, it is exact).
+UsdPreviewSurface's metallic workflow has no specular tint: the fit's ``specular_color`` is lost
+(``ior`` is the fit's relative index of the base's dielectric lobe, untinted).
 The fit and its error are stored in the layer's ``customLayerData`` (``flakedb_fit``, JSON)."""
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ def Xform "{n}"
                 float inputs:roughness = {fit.specular_roughness:.6g}
                 float inputs:clearcoat = {1.0 if fit.coat_ior > 1.0 else 0.0:g}
                 float inputs:clearcoatRoughness = {fit.coat_roughness:.6g}
-                float inputs:ior = {fit.coat_ior:.6g}
+                float inputs:ior = {max(fit.specular_ior_relative, 1.0):.6g}
                 int inputs:useSpecularWorkflow = 0
                 token outputs:surface
             }}

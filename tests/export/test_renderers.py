@@ -58,7 +58,8 @@ def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("export")
     out = {"synthetic": d / "synthetic.bsdf", "dir": d}
     write_bsdf(out["synthetic"], synthetic_table())
-    truth = op.OpenPBRFit((0.70, 0.45, 0.20), 0.6, 0.4, ETA, 0.0)
+    truth = op.OpenPBRFit((0.70, 0.45, 0.20), 0.3, 0.4, ETA, 0.0, specular_color=(0.3, 0.5, 0.8),
+                          specular_ior_relative=3.0)
     write_bsdf(d / "model.bsdf", model_table(truth), truncation=0.0)
     out["model"], out["truth"] = d / "model.bsdf", truth
     return out
@@ -128,14 +129,16 @@ def test_pbrt_coated_scene(files, tmp_path):
 # The fit
 # --------------------------------------------------------------------------------------------
 def test_fit_recovers_its_own_model(files):
-    """A table made by the model itself: the fit returns its parameters (to the refinement grid:
-    metalness step 0.01, roughness step 0.005) and ΔE00 ≈ 0 (the table's own Catmull-Rom / Fourier
-    resolution: measured 0.0x)."""
+    """A table made by the model itself (metalness 0.3, roughness 0.4, a tinted base lobe of relative
+    index 3): the fit returns its parameters (to the refinement grid: metalness step 0.02, roughness
+    step 0.0066) and ΔE00 ≈ 0 (the table's own Catmull-Rom / Fourier resolution)."""
     fit = op.fit_openpbr(open_bsdf(files["model"]))
     t = files["truth"]
     assert abs(fit.base_metalness - t.base_metalness) <= 0.02
     assert abs(fit.specular_roughness - t.specular_roughness) <= 0.01
-    np.testing.assert_allclose(fit.base_color, t.base_color, atol=0.02)
+    np.testing.assert_allclose(fit.base_color, t.base_color, atol=0.01)           # measured 0.0013
+    assert fit.specular_ior_relative == t.specular_ior_relative
+    np.testing.assert_allclose(fit.specular_color, t.specular_color, atol=0.01)   # measured 0.0011
     assert fit.error["worst_dE00_E2539"] < 0.5
     assert fit.error["cosine_weighted_difference"] < 0.05          # measured 0.031: the h = 20 table of an α = 0.16 lobe
     a = op.fit_albedo(fit, 1.0)
@@ -184,6 +187,8 @@ def test_materialx_validates(exported):
     assert sh.getInputValue("base_metalness") == pytest.approx(f["base_metalness"], abs=1e-5)
     assert list(sh.getInputValue("base_color").asTuple()) == pytest.approx(f["base_color"], abs=1e-5)
     assert sh.getInputValue("coat_ior") == pytest.approx(ETA)
+    assert sh.getInputValue("specular_ior") == pytest.approx(f["specular_ior"], rel=1e-5)
+    assert list(sh.getInputValue("specular_color").asTuple()) == pytest.approx(f["specular_color"], abs=1e-5)
     assert read_fit(exported["files"]["materialx"])["error"] == f["error"]
 
 
@@ -211,8 +216,10 @@ def test_gltf_reads_back(exported, kind):
     assert mat.pbrMetallicRoughness.baseColorFactor[:3] == pytest.approx(f["base_color"], abs=1e-6)
     assert mat.pbrMetallicRoughness.roughnessFactor == pytest.approx(f["specular_roughness"])
     assert mat.extensions["KHR_materials_clearcoat"]["clearcoatFactor"] == 1.0
-    assert mat.extensions["KHR_materials_ior"]["ior"] == pytest.approx(ETA)
-    assert mat.extensions["KHR_materials_specular"]["specularFactor"] == 0.0
+    assert mat.extensions["KHR_materials_ior"]["ior"] == pytest.approx(max(f["specular_ior_relative"], 1.0))
+    spec = mat.extensions["KHR_materials_specular"]
+    assert spec["specularFactor"] == (1.0 if f["specular_ior_relative"] > 1 else 0.0)
+    assert spec["specularColorFactor"] == pytest.approx(f["specular_color"])
     blob = g.binary_blob() if kind == "glb" else g.get_data_from_buffer_uri(g.buffers[0].uri)
     pos = np.frombuffer(blob, np.float32, g.accessors[0].count * 3).reshape(-1, 3)
     np.testing.assert_allclose(np.linalg.norm(pos, axis=1), 1.0, atol=1e-6)     # a unit sphere
@@ -237,9 +244,11 @@ def test_cycles_matches_preview(files):
     """The fitted Principled BSDF in Cycles (CPU, 32 px, 64 spp, a sun of irradiance 1 at 35° from
     the view axis, black world) against flakedb's preview of the **exact** BSDF under the same sun
     (:func:`flakedb.render.preview.render_sphere`): ΔE00 of 3 x 3 pixel means.  A diffuse white
-    Principled sphere checks the light convention (radiance E/π at normal incidence).  Measured:
-    the model file (fit exact) ≤ 2.2 ΔE00 at every pixel -- Cycles darkens the base under the coat
-    once (view side) where the model does at both ends."""
+    Principled sphere checks the light convention (radiance E/π at normal incidence).  Measured on
+    the model file (the fit is then exact): ≤ 3.6 ΔE00 at the 7 pixels (0.3-3.6).  What differs is
+    Cycles' Principled BSDF itself: it darkens the base under the coat once (view side) where the
+    model does at both ends, and its Specular Tint tints F0 only (the model tints the whole
+    Fresnel curve); without the tinted lobe the same comparison gives ≤ 3.4."""
     d = sun_direction(35.0)
     white = op.OpenPBRFit((1.0, 1.0, 1.0), 0.0, 1.0, 1.0, 0.0)
     img = render_cycles_sphere(white, size=16, samples=32, direction=(0, 0, 1))["image"]
@@ -250,7 +259,7 @@ def test_cycles_matches_preview(files):
     pv = render_sphere(b, Environment(kind="constant", radiance=(0, 0, 0)), Sun.from_irradiance(d, (1, 1, 1), 2.0),
                        size=32, spp=16, jitter=False).image.astype(float)
     de = delta_E_2000(_lab(cy), _lab(pv))
-    assert de.max() < 3.0, de
+    assert de.max() < 4.5, de
 
 
 # --------------------------------------------------------------------------------------------
