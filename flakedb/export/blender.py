@@ -9,7 +9,7 @@ render of a sphere under a sun that the tests compare with flakedb's own preview
   5-7 at 7 pixels, measured; so Cycles does not divide by the coat index here), ``Specular Tint`` = ``specular_color``
   (Blender tints F0 only, the fit tints the whole Fresnel curve), ``Specular IOR Level`` 0.5 (the
   index as is; 0 when the fit has no base lobe), ``Coat Weight`` 1,
-  ``Coat Roughness``, ``Coat IOR`` (untinted coat).  The fit is kept in the material's custom
+  ``Coat Roughness``, ``Coat IOR`` (untinted coat), ``Thin Film Thickness`` [nm] / ``Thin Film IOR``.  The fit is kept in the material's custom
   property ``flakedb_fit`` (JSON).
 * :func:`render_cycles_sphere` -- runs Blender's ``bpy`` (the optional extra ``flakedb[blender]``)
   in a **separate process** (``bpy`` is a 300 MB module that replaces the interpreter's state; it
@@ -53,6 +53,8 @@ def principled_inputs(fit: OpenPBRFit) -> dict:
         "Coat Roughness": float(fit.coat_roughness),
         "Coat IOR": float(fit.coat_ior) if fit.coat_ior > 1.0 else 1.5,
         "Coat Tint": (1.0, 1.0, 1.0, 1.0),
+        "Thin Film Thickness": float(fit.thin_film_thickness_nm),          # nm; 0 = none
+        "Thin Film IOR": float(fit.thin_film_ior),
     }
 
 

@@ -5,8 +5,8 @@ roughnessFactor = the perceptual roughness r, α = r²), ``KHR_materials_clearco
 coat roughness; its index is fixed at 1.5 by the extension), ``KHR_materials_ior`` (the base's
 dielectric index: glTF has no index relative to the coat, so the fit's relative index is written)
 and ``KHR_materials_specular`` (specularColorFactor = the fit's specular colour, which glTF applies
-to F0 only; specularFactor 0 when the fit has no base lobe).  Iridescence
-(``KHR_materials_iridescence``) is not written: the fit has no thin film (flakedb.export.openpbr).
+to F0 only; specularFactor 0 when the fit has no base lobe).  A fitted thin
+film is ``KHR_materials_iridescence`` (factor 1, its index, thickness minimum = maximum = the film's).
 The fit and its error are in the material's ``extras.flakedb_fit``.  Written with the standard
 library only; the tests read it back with ``pygltflib``.
 """
@@ -64,10 +64,17 @@ def gltf_document(fit: OpenPBRFit, name: str):
         },
         "extras": {"flakedb_fit": fit.to_dict()},
     }
+    used = list(EXTENSIONS)
+    if fit.thin_film_thickness_nm > 0:
+        t = float(fit.thin_film_thickness_nm)
+        mat["extensions"]["KHR_materials_iridescence"] = {
+            "iridescenceFactor": 1.0, "iridescenceIor": float(fit.thin_film_ior),
+            "iridescenceThicknessMinimum": t, "iridescenceThicknessMaximum": t}   # no texture: the maximum is used
+        used.append("KHR_materials_iridescence")
     n_pos = pos.nbytes
     doc = {
         "asset": {"version": "2.0", "generator": "flakedb export-openpbr"},
-        "extensionsUsed": EXTENSIONS,
+        "extensionsUsed": used,
         "scene": 0, "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": str(name)}],
         "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1}, "indices": 2, "material": 0}]}],

@@ -39,6 +39,9 @@ def openpbr_inputs(fit: OpenPBRFit) -> list:
         ("coat_roughness", "float", fit.coat_roughness),
         ("coat_ior", "float", fit.coat_ior),
         ("coat_color", "color3", "1, 1, 1"),
+        ("thin_film_weight", "float", 1.0 if fit.thin_film_thickness_nm > 0 else 0.0),
+        ("thin_film_thickness", "float", fit.thin_film_thickness_nm / 1000.0),   # micrometres
+        ("thin_film_ior", "float", fit.thin_film_ior),
     ]
 
 

@@ -53,8 +53,12 @@ One base colour and one lobe: a colour that changes with the geometry (the colou
 interference / pearlescent flakes, e.g. blue at 15° and green at 45°) is averaged; the flakes'
 sparkle (a spatial effect) is not in any BSDF; a table's two-lobe shape (a narrow flake lobe over a
 broad diffuse one) is one GGX lobe.  The base's specular tint s is a colour that the near-specular
-geometries see more than the far ones (a first step towards colour travel); OpenPBR's thin film
-(``thin_film_thickness``, glTF KHR_materials_iridescence, Principled's Thin Film) is not fitted.  The measured ΔE00 per
+geometries see more than the far ones, and a thin film on that lobe (OpenPBR ``thin_film_*``, glTF
+KHR_materials_iridescence, Principled's Thin Film; searched over 50-800 nm and indices 1.5 / 2.3
+when the fit has no metal, because OpenPBR's film also tints a metal lobe and the model's does not)
+makes its colour change with θ_d: the model's colour travel.  It follows the angle between light and
+half vector, not the flake's interference inside the binder, so pearlescent paints keep a large
+error (docs/renderers.md).  The measured ΔE00 per
 geometry says which geometries suffer (for pearlescent paints: the near-specular −15° / 15°).
 """
 
@@ -64,10 +68,12 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.colour.tolerance import delta_E_2000
 from flakedb.match.fit import channels_to_Lab, geometry_directions
 from flakedb.match.targets import E2194_GEOMETRIES, E2539_EXTRA
 from flakedb.optics.fresnel import fresnel_dielectric
+from flakedb.optics.thinfilm import thin_film_transfer_matrix
 from flakedb.render.mitsuba.directions import reflectance_albedo, rgb_matrix
 
 #: Grid of the hemisphere residual: Gauss-Legendre nodes in μ_i and μ_o, uniform φ samples.
@@ -79,6 +85,9 @@ METALNESS_GRID = np.linspace(0.0, 1.0, 11)
 ROUGHNESS_GRID = np.linspace(0.05, 1.0, 30)
 SPECULAR_IOR_GRID = (1.0, 1.5, 3.0)
 REFINE = 5
+#: Thin-film thicknesses [nm] and indices searched for a fit without metal (OpenPBR thin_film_*).
+THIN_FILM_NM_GRID = np.arange(50.0, 801.0, 25.0)
+THIN_FILM_IOR_GRID = (1.5, 2.3)
 #: Weight of the hemisphere term: a cosine-weighted relative difference of 0.1 costs as much as
 #: ΔL* = 1 at one geometry (module docstring).
 HEMISPHERE_WEIGHT = 10.0
@@ -92,7 +101,8 @@ class OpenPBRFit:
 
     base_color (3,) linear sRGB in [0, 1]; base_metalness, specular_roughness (r, α = r²);
     coat_ior, coat_roughness (r_c); specular_color (3,) in [0, 1] (the tint x weight of the base's
-    dielectric lobe) and specular_ior_relative (its index relative to the coat, 1 = no lobe); error: {"dE00_E2194": [...], "dE00_E2539": [...],
+    dielectric lobe) and specular_ior_relative (its index relative to the coat, 1 = no lobe);
+    thin_film_thickness_nm (0 = none) and thin_film_ior of a film on that lobe; error: {"dE00_E2194": [...], "dE00_E2539": [...],
     "worst_dE00_E2194", "worst_dE00_E2539", "cosine_weighted_difference"} plus the geometries.
     """
 
@@ -103,6 +113,8 @@ class OpenPBRFit:
     coat_roughness: float
     specular_color: tuple = (0.0, 0.0, 0.0)
     specular_ior_relative: float = 1.0
+    thin_film_thickness_nm: float = 0.0
+    thin_film_ior: float = 1.5
     source: str = ""
     error: dict = field(default_factory=dict)
 
@@ -124,7 +136,8 @@ class OpenPBRFit:
     def from_dict(cls, d) -> "OpenPBRFit":
         return cls(tuple(d["base_color"]), float(d["base_metalness"]), float(d["specular_roughness"]),
                    float(d["coat_ior"]), float(d["coat_roughness"]), tuple(d.get("specular_color", (0.0, 0.0, 0.0))),
-                   float(d.get("specular_ior_relative", 1.0)), d.get("source", ""), dict(d.get("error", {})))
+                   float(d.get("specular_ior_relative", 1.0)), float(d.get("thin_film_thickness_nm", 0.0)),
+                   float(d.get("thin_film_ior", 1.5)), d.get("source", ""), dict(d.get("error", {})))
 
 
 # --------------------------------------------------------------------------------------------
@@ -161,9 +174,31 @@ def ggx_lobe(wi, wo, alpha):
     return lobe, cd
 
 
-def model_terms(mu_i, mu_o, phi_d, metalness, roughness, coat_ior, coat_roughness, specular_ior_relative=1.0):
-    """``(A, B, S)`` (...,) with f_model = A c + S s + B per channel (c the base colour, s the specular
-    colour; module docstring), without the coat's delta."""
+def film_fresnel_rgb(cos_d, coat_ior, specular_ior_relative, thickness_nm, film_ior, n_tab: int = 65):
+    """(..., 3) white-normalised linear sRGB reflectance of the base's dielectric interface (relative
+    index ``specular_ior_relative`` under a coat of index ``coat_ior``) carrying a film of
+    ``thickness_nm`` and index ``film_ior``, at cosines ``cos_d`` in the coat medium: the coherent
+    transfer-matrix reflectance (:func:`flakedb.optics.thinfilm.thin_film_transfer_matrix`, Born &
+    Wolf §1.6) on 380-780 nm / 10 nm, unpolarised, to RGB by
+    :func:`flakedb.colour.colorimetry.spectra_to_rgb_mode`, tabulated at ``n_tab`` cosines and
+    interpolated linearly.  Without a film (``thickness_nm = 0``) it is the bare Fresnel reflectance."""
+    wl = np.arange(380.0, 781.0, 10.0)
+    c = np.linspace(1e-4, 1.0, n_tab)
+    n_a = max(float(coat_ior), 1.0)
+    films = [complex(film_ior)] if thickness_nm > 0 else []
+    d = [float(thickness_nm)] if thickness_nm > 0 else []
+    R = thin_film_transfer_matrix(np.array(films, complex), np.array(d), wl, c, n_a,
+                                  n_a * float(specular_ior_relative)).R            # (W, A)
+    rgb = spectra_to_rgb_mode(R.T, wl)                                               # (A, 3)
+    x = np.clip(np.asarray(cos_d, float), c[0], 1.0)
+    return np.stack([np.interp(x, c, rgb[:, k]) for k in range(3)], axis=-1)
+
+
+def model_terms(mu_i, mu_o, phi_d, metalness, roughness, coat_ior, coat_roughness, specular_ior_relative=1.0,
+                thin_film_thickness_nm=0.0, thin_film_ior=1.5):
+    """``(A, B, S)`` with f_model = A c + S s + B per channel (c the base colour, s the specular
+    colour; module docstring), without the coat's delta; A, B (...,), S (...,) or, with a thin
+    film, (..., 3)."""
     wi, wo = file_directions(mu_i, mu_o, phi_d)
     Ti = 1.0 - fresnel_dielectric(np.clip(wi[..., 2], 1e-9, 1), coat_ior).R
     To = 1.0 - fresnel_dielectric(np.clip(wo[..., 2], 1e-9, 1), coat_ior).R
@@ -172,7 +207,10 @@ def model_terms(mu_i, mu_o, phi_d, metalness, roughness, coat_ior, coat_roughnes
     w5 = (1.0 - cd) ** 5
     A = T * ((1.0 - metalness) / np.pi + metalness * (1.0 - w5) * lobe)
     B = T * metalness * w5 * lobe
-    if specular_ior_relative > 1.0:
+    if specular_ior_relative > 1.0 and thin_film_thickness_nm > 0:
+        F = film_fresnel_rgb(cd, coat_ior, specular_ior_relative, thin_film_thickness_nm, thin_film_ior)
+        S = (T * (1.0 - metalness) * lobe)[..., None] * F
+    elif specular_ior_relative > 1.0:
         S = T * (1.0 - metalness) * fresnel_dielectric(np.clip(cd, 1e-9, 1), specular_ior_relative).R * lobe
     else:
         S = np.zeros_like(A)
@@ -185,9 +223,10 @@ def model_terms(mu_i, mu_o, phi_d, metalness, roughness, coat_ior, coat_roughnes
 def evaluate(fit: OpenPBRFit, mu_i, mu_o, phi_d) -> np.ndarray:
     """f (..., 3) [1/sr] of the fitted model at the file's coordinates (no delta), linear sRGB."""
     A, B, S = model_terms(mu_i, mu_o, phi_d, fit.base_metalness, fit.specular_roughness, fit.coat_ior,
-                          fit.coat_roughness, fit.specular_ior_relative)
-    return (A[..., None] * np.asarray(fit.base_color) + S[..., None] * np.asarray(fit.specular_color)
-            + B[..., None])
+                          fit.coat_roughness, fit.specular_ior_relative, fit.thin_film_thickness_nm,
+                          fit.thin_film_ior)
+    S = S if S.ndim == A.ndim + 1 else S[..., None]
+    return A[..., None] * np.asarray(fit.base_color) + S * np.asarray(fit.specular_color) + B[..., None]
 
 
 # --------------------------------------------------------------------------------------------
@@ -228,20 +267,22 @@ def cosine_weighted_difference(f_fit, f_exact, mu_i, mu_o, weight) -> float:
 # --------------------------------------------------------------------------------------------
 def _solve_colours(A, B, S, y, W):
     """Per channel (c, s) = argmin Σ W (A c + S s + B - y)² over [0, 1]² (the unconstrained 2 x 2
-    normal equations, then each clipped and the other re-solved); returns (c (3,), s (3,), residual)."""
+    normal equations, then each clipped and the other re-solved); S (P,) or (P, 3).  Returns
+    (c (3,), s (3,), residual)."""
     Y = y - B[:, None]
-    aa, ss, as_ = np.sum(W * A * A), np.sum(W * S * S), np.sum(W * A * S)
-    ay, sy = np.sum(W[:, None] * A[:, None] * Y, axis=0), np.sum(W[:, None] * S[:, None] * Y, axis=0)
-    if ss <= 1e-300 * max(aa, 1e-300):                              # no specular lobe
-        c = np.clip(ay / aa if aa > 0 else np.zeros(3), 0.0, 1.0)
-        sc = np.zeros(3)
-    else:
-        det = aa * ss - as_ * as_
-        c = (ay * ss - sy * as_) / det if det > 1e-12 * aa * ss else ay / aa
-        c = np.clip(c, 0.0, 1.0)
-        sc = np.clip((sy - as_ * c) / ss, 0.0, 1.0)
-        c = np.clip((ay - as_ * sc) / aa, 0.0, 1.0)
-    r = np.sum(W[:, None] * (A[:, None] * c + S[:, None] * sc - Y) ** 2)
+    S3 = S if S.ndim == 2 else np.broadcast_to(S[:, None], Y.shape)
+    aa = np.sum(W * A * A)
+    ss = np.sum(W[:, None] * S3 * S3, axis=0)
+    as_ = np.sum(W[:, None] * A[:, None] * S3, axis=0)
+    ay, sy = np.sum(W[:, None] * A[:, None] * Y, axis=0), np.sum(W[:, None] * S3 * Y, axis=0)
+    live = ss > 1e-300 * max(aa, 1e-300)
+    det = aa * ss - as_ * as_
+    ok = live & (det > 1e-12 * aa * np.where(live, ss, 1.0))
+    c = np.where(ok, (ay * ss - sy * as_) / np.where(ok, det, 1.0), ay / aa if aa > 0 else 0.0)
+    c = np.clip(c, 0.0, 1.0)
+    sc = np.where(live, np.clip((sy - as_ * c) / np.where(live, ss, 1.0), 0.0, 1.0), 0.0)
+    c = np.clip((ay - as_ * sc) / aa if aa > 0 else c, 0.0, 1.0)
+    r = np.sum(W[:, None] * (A[:, None] * c + S3 * sc - Y) ** 2)
     return c, sc, float(r)
 
 
@@ -295,9 +336,20 @@ def fit_openpbr(b, hemisphere_weight: float = HEMISPHERE_WEIGHT, source: str = "
     rs = np.clip(np.linspace(r0 - dr, r0 + dr, 2 * REFINE + 1), np.sqrt(ALPHA_MIN), 1.0)
     parts.clear()
     _, m1, r1, _ = min(((score(m, r, n0)[2], m, r, n0) for r in rs for m in ms))
-    c, sc, _ = score(m1, r1, n0)
+    c, sc, res = score(m1, r1, n0)
+    film = (0.0, 1.5)
+    if m1 == 0.0:                 # a film on the dielectric lobe (OpenPBR's film also tints a metal's)
+        lobe, cd = ggx_lobe(wi, wo, r1 ** 2)
+        p0 = T / np.pi
+        for n_s in SPECULAR_IOR_GRID[1:]:
+            for n_f in THIN_FILM_IOR_GRID:
+                for t in THIN_FILM_NM_GRID:
+                    S = (T * lobe)[:, None] * film_fresnel_rgb(cd, coat_ior, n_s, t, n_f)
+                    c_, s_, r_ = _solve_colours(p0, np.zeros_like(p0) + coat_lobe, S, Y, W)
+                    if r_ < res:
+                        res, c, sc, n0, film = r_, c_, s_, n_s, (float(t), float(n_f))
     fit = OpenPBRFit(tuple(float(x) for x in c), float(m1), float(r1), coat_ior, coat_rough,
-                     tuple(float(x) for x in sc), float(n0), source)
+                     tuple(float(x) for x in sc), float(n0), film[0], film[1], source)
     fit.error = fit_error(b, fit, (mi, mo, ph, wq))
     return fit
 

@@ -5,7 +5,8 @@ write); the tests open it with ``usd-core`` (``pxr.Usd``).
 UsdPreviewSurface's clear coat has a fixed index of 1.5 and its ``ior`` input is the base's: with a
 coat index other than 1.5 the coat's Fresnel differs (at η = 1.5, the catalogue's, it is exact).
 UsdPreviewSurface's metallic workflow has no specular tint: the fit's ``specular_color`` is lost
-(``ior`` is the fit's relative index of the base's dielectric lobe, untinted).
+(``ior`` is the fit's relative index of the base's dielectric lobe, untinted), and so is a fitted
+thin film (UsdPreviewSurface has none).
 The fit and its error are stored in the layer's ``customLayerData`` (``flakedb_fit``, JSON)."""
 
 from __future__ import annotations
