@@ -11,6 +11,7 @@ accepts unknown names.
 
 import json
 import math
+import struct
 
 import numpy as np
 import pytest
@@ -245,6 +246,13 @@ def test_gltf_reads_back(exported, kind):
     spec = mat.extensions["KHR_materials_specular"]
     assert spec["specularFactor"] == (1.0 if f["specular_ior_relative"] > 1 else 0.0)
     assert spec["specularColorFactor"] == pytest.approx(f["specular_color"])
+    if kind == "glb":                     # glTF 2.0 §4.4: 12-byte header, 4-byte aligned chunks, length = file size
+        raw = open(exported["files"][kind], "rb").read()
+        magic, version, total = struct.unpack_from("<III", raw, 0)
+        jlen, jtype = struct.unpack_from("<II", raw, 12)
+        blen, btype = struct.unpack_from("<II", raw, 20 + jlen)
+        assert (magic, version, total, jtype, btype) == (0x46546C67, 2, len(raw), 0x4E4F534A, 0x004E4942)
+        assert jlen % 4 == 0 and blen % 4 == 0 and 28 + jlen + blen == len(raw)
     blob = g.binary_blob() if kind == "glb" else g.get_data_from_buffer_uri(g.buffers[0].uri)
     pos = np.frombuffer(blob, np.float32, g.accessors[0].count * 3).reshape(-1, 3)
     np.testing.assert_allclose(np.linalg.norm(pos, axis=1), 1.0, atol=1e-6)     # a unit sphere
