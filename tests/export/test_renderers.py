@@ -38,7 +38,7 @@ ETA = 1.5
 WL = np.arange(380.0, 781.0, 10.0)
 
 
-def model_table(fit, h=20, L=48, M=192):
+def model_table(fit, h=20, L=48, M=192, smooth_coat=True):
     """A reflection-only RGB table of the analytic model itself (``op.evaluate``) with a smooth coat
     delta of ``fit.coat_ior``, projected on cos(k phi_d) by FFT: what the fit must recover."""
     x = radau_hemisphere(h).x
@@ -51,6 +51,8 @@ def model_table(fit, h=20, L=48, M=192):
     a = np.concatenate([F[..., :1], 2 * F[..., 1:L]], axis=-1)
     coeffs = np.zeros((3, 2 * h, 2 * h, L))
     coeffs[:, h:, :h] = a[:, :, ::-1]
+    if not smooth_coat:                  # a rough coat: no delta, the top's roughness in the file's alpha
+        return BSDFTable(mu=mu, coeffs=coeffs, eta=1.0 / fit.coat_ior, alpha=(fit.coat_roughness ** 2, 0.0), delta=None)
     return BSDFTable(mu=mu, coeffs=coeffs, eta=1.0, alpha=(0.0, 0.0), delta={"kind": "fresnel", "eta": fit.coat_ior})
 
 
@@ -144,6 +146,19 @@ def test_fit_recovers_its_own_model(files):
     assert fit.error["cosine_weighted_difference"] < 0.05          # measured 0.031: the h = 20 table of an α = 0.16 lobe
     a = op.fit_albedo(fit, 1.0)
     assert np.all(a > 0) and np.all(a + fresnel_dielectric(1.0, ETA).R <= 1.0)     # energy
+
+
+def test_fit_with_a_rough_coat(tmp_path):
+    """A rough coat (no delta; the file's top roughness α = 0.09 → coat_roughness 0.3, its index from
+    the file's eta): the coat lobe is in both sides, and the base is recovered."""
+    t = op.OpenPBRFit((0.6, 0.3, 0.1), 0.0, 0.7, ETA, 0.3)
+    write_bsdf(tmp_path / "rough.bsdf", model_table(t, smooth_coat=False), truncation=0.0)
+    b = open_bsdf(tmp_path / "rough.bsdf")
+    assert b.delta is None
+    fit = op.fit_openpbr(b)
+    assert fit.coat_roughness == pytest.approx(0.3) and fit.coat_ior == pytest.approx(ETA)
+    np.testing.assert_allclose(fit.base_color, t.base_color, atol=0.02)
+    assert fit.error["worst_dE00_E2539"] < 1.0
 
 
 def test_fit_recovers_a_thin_film(tmp_path):
