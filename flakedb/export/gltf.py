@@ -6,7 +6,9 @@ coat roughness; its index is fixed at 1.5 by the extension), ``KHR_materials_ior
 dielectric index: glTF has no index relative to the coat, so the fit's relative index is written)
 and ``KHR_materials_specular`` (specularColorFactor = the fit's specular colour, which glTF applies
 to F0 only; specularFactor 0 when the fit has no base lobe).  A fitted thin
-film is ``KHR_materials_iridescence`` (factor 1, its index, thickness minimum = maximum = the film's).
+film is ``KHR_materials_iridescence`` (factor 1; the extension's film is in air, so the equivalent
+film of :meth:`flakedb.export.openpbr.OpenPBRFit.film_relative_to_air`; thickness minimum =
+maximum).
 The fit and its error are in the material's ``extras.flakedb_fit``.  Written with the standard
 library only; the tests read it back with ``pygltflib``.
 """
@@ -66,9 +68,9 @@ def gltf_document(fit: OpenPBRFit, name: str):
     }
     used = list(EXTENSIONS)
     if fit.thin_film_thickness_nm > 0:
-        t = float(fit.thin_film_thickness_nm)
+        t, n_f = (float(x) for x in fit.film_relative_to_air())        # glTF's film is in air
         mat["extensions"]["KHR_materials_iridescence"] = {
-            "iridescenceFactor": 1.0, "iridescenceIor": float(fit.thin_film_ior),
+            "iridescenceFactor": 1.0, "iridescenceIor": max(n_f, 1.0),
             "iridescenceThicknessMinimum": t, "iridescenceThicknessMaximum": t}   # no texture: the maximum is used
         used.append("KHR_materials_iridescence")
     n_pos = pos.nbytes

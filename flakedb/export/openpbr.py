@@ -118,6 +118,15 @@ class OpenPBRFit:
     source: str = ""
     error: dict = field(default_factory=dict)
 
+    def film_relative_to_air(self) -> tuple:
+        """(thickness [nm], index) of the same film for a renderer that puts the film and the base's
+        interface in air (Cycles' Principled BSDF, glTF's iridescence): the film in the coat medium
+        of index η_c is exactly the film of index n_f / η_c and thickness η_c d in a medium of index
+        1 over a base of relative index n_s (the interface coefficients depend on index ratios only,
+        the phase on ``d sqrt(n_f² - η_c² sin²θ)``, Born & Wolf §1.6.1)."""
+        nc = self.coat_ior if self.coat_ior > 1.0 else 1.0
+        return self.thin_film_thickness_nm * nc, self.thin_film_ior / nc
+
     @property
     def specular_ior(self) -> float:
         """OpenPBR's ``specular_ior`` (relative to the coat's medium when coated: the base's

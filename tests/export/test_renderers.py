@@ -21,7 +21,7 @@ from flakedb.bsdf.dispatch import FILE_KINDS, file_kind
 from flakedb.bsdf.table import BSDFFileError
 from flakedb.colour.tolerance import delta_E_2000
 from flakedb.export import openpbr as op
-from flakedb.export.blender import bpy_available, render_cycles_sphere, sun_direction
+from flakedb.export.blender import bpy_available, model_sun_image, render_cycles_sphere, sun_direction
 from flakedb.export.gltf import write_gltf
 from flakedb.export.materialx import read_fit, write_mtlx
 from flakedb.export.registry import EXPORT_METHODS, export, export_openpbr
@@ -308,6 +308,14 @@ def test_cycles_matches_preview(files):
                        size=32, spp=16, jitter=False).image.astype(float)
     de = delta_E_2000(_lab(cy), _lab(pv))
     assert de.max() < 4.5, de
+    # the model's own image agrees with the exact preview of its table (the frame, the sun, phi_d)
+    assert delta_E_2000(_lab(model_sun_image(fit, 32, d)), _lab(pv)).max() < 1.0
+    # a thin film: Cycles' film (in air) against the model's (in the coat), mapped by
+    # film_relative_to_air; measured ≤ 3.2 (6.4 with the film's own index and thickness)
+    film = op.OpenPBRFit((0.10, 0.12, 0.15), 0.0, 0.45, ETA, 0.0, specular_color=(1.0, 1.0, 1.0),
+                         specular_ior_relative=3.0, thin_film_thickness_nm=300.0, thin_film_ior=2.3)
+    cy = render_cycles_sphere(film, size=32, samples=64, direction=d)["image"]
+    assert delta_E_2000(_lab(cy), _lab(model_sun_image(film, 32, d))).max() < 4.5
 
 
 # --------------------------------------------------------------------------------------------
