@@ -287,6 +287,7 @@ def _lab(img):
     return channels_to_Lab(np.maximum(v, 1e-6), "rgb", WL)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not BPY_OK, reason=f"Blender's bpy is not available: {BPY_WHY}")
 def test_cycles_matches_preview(files):
     """The fitted Principled BSDF in Cycles (CPU, 32 px, 64 spp, a sun of irradiance 1 at 35° from
