@@ -5,6 +5,7 @@ BSDF (docs/bsdf-format.md, "Evaluation", "pdf"); the compiled loops are in
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -43,6 +44,26 @@ def _channel_flat(flat, start, order, n_channels, weights) -> tuple[np.ndarray, 
         if weights[c] != 0:
             out += weights[c] * flat[np.repeat(st + c * K, K) + local]
     return out, new_start.reshape(order.shape)
+
+
+class KernelArrays(NamedTuple):
+    """What the compiled kernels read of a :class:`FourierBSDF` (:meth:`FourierBSDF.kernel_arrays`).
+
+    nodes (N,), cdf (N, N), order (N, N) int64, n_channels (stored), flat / start: every stored
+    channel in the ``.bsdf`` sparse layout (float64), mix (Cs, Cout): stored -> ``eval`` channels,
+    sample_flat / sample_start: the sampling channel alone, sample_a0 (N, N): its order-0 coefficients.
+    """
+
+    nodes: np.ndarray
+    cdf: np.ndarray
+    order: np.ndarray
+    n_channels: int
+    flat: np.ndarray
+    start: np.ndarray
+    mix: np.ndarray
+    sample_flat: np.ndarray
+    sample_start: np.ndarray
+    sample_a0: np.ndarray
 
 
 class FourierBSDF:
@@ -103,6 +124,20 @@ class FourierBSDF:
     @property
     def n_nodes(self) -> int:
         return self.nodes.size
+
+    def kernel_arrays(self) -> "KernelArrays":
+        """The arrays the compiled kernels of :mod:`flakedb.bsdf.kernels` take, read-only views: the
+        public way for another module's kernels (e.g. the Mitsuba plugin) to evaluate and sample
+        this reader without touching its internals."""
+        ro = []
+        for a in (self.nodes, self.cdf, self.order, self._flat, self._start, self._mix, self._sflat,
+                  self._sstart, self._a0s):
+            v = a.view()
+            v.flags.writeable = False
+            ro.append(v)
+        nodes, cdf, order, flat, start, mix, sflat, sstart, a0s = ro
+        return KernelArrays(nodes=nodes, cdf=cdf, order=order, n_channels=self.n_channels, flat=flat,
+                            start=start, mix=mix, sample_flat=sflat, sample_start=sstart, sample_a0=a0s)
 
     def __repr__(self):
         return (f"FourierBSDF({self.kind}, N={self.n_nodes}, channels={self.n_channels}, "

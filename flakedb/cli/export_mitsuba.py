@@ -45,12 +45,16 @@ MEASURED_SUFFIX = ".measured.tensor"
               help="Half-vector grid vertices per axis [default: 96].")
 @click.option("--n-theta", type=int, default=None,
               help="Incident elevations tabulated [default: 24].")
+@click.option("--coat/--no-coat", default=True, show_default=True,
+              help="Keep the smooth coat's mirror: the table at x2 blended half-and-half with Mitsuba's "
+                   "conductor (k = 0: the dielectric Fresnel), the BSDF written next to OUT as .json and .xml. "
+                   "--no-coat: the bare `measured` table (the mirror term dropped).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
-def export_mitsuba(file, out, variant, res, n_theta, as_json):
+def export_mitsuba(file, out, variant, res, n_theta, coat, as_json):
     """Export a Fourier .bsdf / flakedb .h5 FILE to Mitsuba 3's `measured` format (front-side
-    reflection only).  The smooth coat's mirror term cannot be carried and is dropped: the summary
-    lists the albedo it loses.  Render the full paint with the `flakedb` plugin instead
-    (docs/renderers.md)."""
+    reflection only).  With --coat (the default) the smooth coat's mirror term is kept by a
+    `blendbsdf` of the table and a `conductor` coat (OUT.json / OUT.xml: use that BSDF); with
+    --no-coat it is dropped and the summary lists the albedo it loses (docs/renderers.md)."""
     res = fm.RES_DEFAULT if res is None else res
     n_theta = fm.N_THETA_DEFAULT if n_theta is None else n_theta
     if out is None:
@@ -65,7 +69,10 @@ def export_mitsuba(file, out, variant, res, n_theta, as_json):
         raise FlakedbError(str(e).replace("--out ", "--out directory ", 1)) from None
     try:
         with remove_created_dirs(Path(out).absolute().parent):
-            s = fm.export_measured(file, out, variant=variant, res=res, n_theta=n_theta)
+            if coat:
+                s = fm.export_coated(file, out, variant=variant, res=res, n_theta=n_theta)
+            else:
+                s = fm.export_measured(file, out, variant=variant, res=res, n_theta=n_theta)
     except (BSDFFileError, fm.MeasuredExportError) as e:
         raise FlakedbError(str(e)) from None
     if as_json:
@@ -78,6 +85,10 @@ def export_mitsuba(file, out, variant, res, n_theta, as_json):
     th = d["theta_i_deg"]
     refl = ", ".join(f"{t:g}°: {sum(a) / len(a):.4f}" for t, a in zip(th, s["reflected_albedo"]))
     click.echo(f"reflected albedo (channel mean) kept: {refl}")
+    if s.get("kept"):
+        kept = ", ".join(f"{t:g}°: {a:.4f}" for t, a in zip(th, s["kept"]["delta_albedo"]))
+        click.echo(f"kept: the smooth coat's mirror reflection {s['kept']['delta']} (albedo {kept}) as a conductor "
+                   f"k=0 lobe in a blendbsdf; the table is stored at x2")
     if "delta_albedo" in d:
         lost = ", ".join(f"{t:g}°: {a:.4f}" for t, a in zip(th, d["delta_albedo"]))
         click.echo(f"DROPPED: the smooth coat's mirror reflection {d['delta']} (albedo {lost}); "
@@ -85,4 +96,7 @@ def export_mitsuba(file, out, variant, res, n_theta, as_json):
     if "transmitted_albedo" in d:
         lost = ", ".join(f"{t:g}°: {sum(a) / len(a):.4f}" for t, a in zip(th, d["transmitted_albedo"]))
         click.echo(f"DROPPED: transmission (albedo {lost}); `measured` holds reflection only", err=True)
-    click.echo(f'use: {{"type": "measured", "filename": "{s["out"]}"}}')
+    if "json" in s:
+        click.echo(f"use: the BSDF in {s['json']} (mi.load_dict) or {s['xml']} (scene XML)")
+    else:
+        click.echo(f'use: {{"type": "measured", "filename": "{s["out"]}"}}')

@@ -11,28 +11,30 @@ solver's convergence in the same words compose printed (:func:`flakedb.compose.o
 
 import json
 import struct
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import click
 import numpy as np
 
 from flakedb.bsdf import BSDFFileError, open_bsdf
+from flakedb.bsdf.dispatch import file_kind as dispatch_file_kind
 from flakedb.cli.errors import FlakedbError
 from flakedb.colour.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
 from flakedb.compose.orchestrate import solver_warnings
+from flakedb.export.materialx import read_fit
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.render.mitsuba import read_tensor_file
 
 #: Incident zenith angles [deg] (light arriving from above) at which the albedo is listed.
 INFO_THETA_DEG = (0.0, 30.0, 45.0, 60.0, 75.0, 85.0)
-#: First bytes of a Mitsuba / RGL tensor file.
-MAGIC_TENSOR = b"tensor_file\0"
 #: Slack of the energy check (the readers' float32 and the Catmull-Rom integral).
 ENERGY_SLACK = 1e-3
 
 
 def file_kind(path) -> str:
-    """'tensor' for a Mitsuba tensor file, else 'fourier' (open_bsdf tells .bsdf from .h5 or refuses).
+    """'tensor', 'materialx' or 'fourier', from the one file-kind registry
+    (:data:`flakedb.bsdf.dispatch.FILE_KINDS`; unknown kinds raise BSDFFileError there).
 
     >>> import tempfile
     >>> from pathlib import Path
@@ -40,19 +42,9 @@ def file_kind(path) -> str:
     >>> _ = path.write_bytes(b"SCATFUN" + bytes(57))
     >>> file_kind(path)
     'fourier'
-    >>> file_kind(path.with_name("missing.bsdf"))
-    Traceback (most recent call last):
-    ...
-    flakedb.bsdf.table.BSDFFileError: .../missing.bsdf: no such file
     """
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(len(MAGIC_TENSOR))
-    except FileNotFoundError:
-        raise BSDFFileError(f"{path}: no such file") from None
-    except OSError as e:
-        raise BSDFFileError(f"{path}: cannot read ({e.strerror})") from None
-    return "tensor" if head == MAGIC_TENSOR else "fourier"
+    kind = dispatch_file_kind(path)
+    return kind if kind in ("tensor", "materialx") else "fourier"
 
 
 def _short(v):
@@ -104,8 +96,11 @@ def _checks(b):
 
 def describe(path):
     """A JSON-able summary of the file at ``path`` (raises BSDFFileError when unreadable)."""
-    if file_kind(path) == "tensor":
+    kind = file_kind(path)
+    if kind == "tensor":
         return describe_tensor(path)
+    if kind == "materialx":
+        return describe_fit(path)
     b = open_bsdf(path)
     size = b.path.stat().st_size
     mu = np.cos(np.radians(INFO_THETA_DEG))
@@ -198,6 +193,35 @@ def describe_tensor(path):
     return d
 
 
+def describe_fit(path):
+    """A JSON-able summary of a MaterialX document written by ``flakedb export-openpbr``: the fitted
+    parameters and the fit's error (:mod:`flakedb.export.openpbr`)."""
+    try:
+        fit = read_fit(path)
+    except (ValueError, ET.ParseError) as e:
+        raise BSDFFileError(str(e)) from None
+    p = Path(path)
+    return {"kind": "materialx-fit", "file": str(p), "size_bytes": p.stat().st_size,
+            "format": "MaterialX document, open_pbr_surface fitted by flakedb export-openpbr", "fit": fit}
+
+
+def _print_fit(d):
+    echo = click.echo
+    f = d["fit"]
+    e = f.get("error", {})
+    echo(f"file:          {d['file']} ({d['size_bytes'] / 1e3:.1f} kB): {d['format']}")
+    echo(f"fitted to:     {f.get('source', '?')}")
+    echo(f"parameters:    base_color ({', '.join(f'{x:.4f}' for x in f['base_color'])}), metalness "
+         f"{f['base_metalness']:.3f}, specular_roughness {f['specular_roughness']:.3f}, coat_ior {f['coat_ior']:.4g}, "
+         f"coat_roughness {f['coat_roughness']:.3f}")
+    if e:
+        echo(f"fit error:     worst ΔE00 {e['worst_dE00_E2194']:.2f} (E2194 geometries), {e['worst_dE00_E2539']:.2f} "
+             f"(with E2539's); cosine-weighted BSDF difference {100 * e['cosine_weighted_difference']:.1f} %")
+        for g in e.get("dE00_E2539", []):
+            echo(f"  illumination {g['illumination_deg']:4g} deg, aspecular {g['aspecular_deg']:5g} deg: "
+                 f"ΔE00 {g['dE00']:.2f}")
+
+
 def _print_fourier(d):
     echo = click.echo
     md = d["metadata"] or {}
@@ -280,5 +304,7 @@ def info(file, as_json):
         click.echo(json.dumps(d, indent=2, default=str))
     elif d["kind"] == "mitsuba-measured":
         _print_tensor(d)
+    elif d["kind"] == "materialx-fit":
+        _print_fit(d)
     else:
         _print_fourier(d)

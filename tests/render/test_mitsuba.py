@@ -170,7 +170,7 @@ class TestGeometry:
         mu = np.linspace(0.001, 1, 57)
         for eta in (1.0, 1.33, 1.5, 2.2):
             ref = fresnel_dielectric(mu, eta).R
-            got = [fm._fresnel_unpolarised(m, eta) for m in mu]
+            got = [fm.fresnel_unpolarised(m, eta) for m in mu]
             assert np.allclose(got, ref, rtol=1e-12, atol=1e-15)
 
 
@@ -250,7 +250,7 @@ def test_cli(files, tmp_path):
     from flakedb.cli.main import cli
 
     out = tmp_path / "paint.measured"
-    r = CliRunner().invoke(cli, ["export-mitsuba", str(files["synthetic"]), "--out", str(out), "--res", "32"])
+    r = CliRunner().invoke(cli, ["export-mitsuba", str(files["synthetic"]), "--out", str(out), "--res", "32", "--no-coat"])
     assert r.exit_code == 0, r.output
     assert out.exists() and "DROPPED: the smooth coat's mirror reflection" in r.output
     assert fm.read_tensor_file(out)["rgb"].shape == (1, fm.N_THETA_DEFAULT, 3, 32, 32)
@@ -373,7 +373,7 @@ def test_plugin_eval_pdf_match_reader(mi, files):
     assert np.allclose(got, ref, rtol=2e-6, atol=1e-7 * ref.max())
     assert np.allclose(pdf, ref_pdf, rtol=2e-6, atol=1e-7 * ref_pdf.max())
     # vectorised core (the JIT path) == scalar calls; sample() == the reader's sample()
-    core = fm._Core(str(src), "scalar_rgb", use_delta=False)
+    core = fm.PluginCore(str(src), "scalar_rgb", use_delta=False)
     v, p = core.eval_pdf(WI, WO)
     assert np.allclose(v, ref, rtol=1e-12, atol=1e-12) and np.allclose(p, b.pdf(mu_i, mu_o, phi), rtol=1e-12)
     u = np.random.default_rng(4).random((300, 3))

@@ -1,0 +1,53 @@
+"""`flakedb export-openpbr FILE --out DIR`: the fitted analytic material (OpenPBR / MaterialX, USD,
+glTF, Blender Principled).  Thin: the work is in :func:`flakedb.export.registry.export_openpbr`."""
+
+import json
+from pathlib import Path
+
+import click
+
+from flakedb.bsdf import BSDFFileError
+from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import probe_writable, remove_created_dirs
+from flakedb.compose.orchestrate import OutputError, check_output_dir
+from flakedb.export.registry import export_openpbr as run_export
+
+
+@click.command("export-openpbr")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--out", "out", default=None, type=click.Path(file_okay=False),
+              help="Output directory [default: FILE's directory].")
+@click.option("--name", default=None, help="Base name of the files [default: FILE's stem].")
+@click.option("--json", "as_json", is_flag=True, help="Print the fit and the files as JSON.")
+def export_openpbr(file, out, name, as_json):
+    """Fit an OpenPBR Surface (coat, base colour, metalness, roughness) to a Fourier .bsdf / flakedb
+    .h5 FILE by weighted least squares, and write NAME.mtlx (MaterialX), NAME.usda (USD),
+    NAME.gltf / NAME.glb (glTF sphere) and NAME.blender.py (Principled BSDF).  The fit's error
+    (ΔE00 at the ASTM E2194 / E2539 geometries, cosine-weighted BSDF difference) is printed and
+    stored in each file (`flakedb info NAME.mtlx` shows it)."""
+    out_dir = Path(out) if out is not None else Path(file).absolute().parent
+    try:
+        check_output_dir(out_dir.absolute())
+        probe_writable(out_dir.absolute())
+    except OutputError as e:
+        raise FlakedbError(str(e)) from None
+    try:
+        with remove_created_dirs(out_dir.absolute()):
+            s = run_export(file, out_dir, name=name,
+                           progress=None if as_json else (lambda m: click.echo(m, err=True)))
+    except BSDFFileError as e:
+        raise FlakedbError(str(e)) from None
+    if as_json:
+        click.echo(json.dumps(s, indent=2))
+        return
+    f = s["fit"]
+    e = f["error"]
+    c = ", ".join(f"{x:.4f}" for x in f["base_color"])
+    click.echo(f"fit: base_color ({c}) linear sRGB, metalness {f['base_metalness']:.3f}, roughness "
+               f"{f['specular_roughness']:.3f}; coat ior {f['coat_ior']:.4g}, roughness {f['coat_roughness']:.3f}")
+    click.echo(f"error: worst ΔE00 {e['worst_dE00_E2194']:.2f} at the E2194 geometries, {e['worst_dE00_E2539']:.2f} "
+               f"with E2539's; cosine-weighted BSDF difference {100 * e['cosine_weighted_difference']:.1f} %")
+    click.echo("  " + "  ".join(f"{g['illumination_deg']:g}as{g['aspecular_deg']:g}: {g['dE00']:.2f}"
+                                for g in e["dE00_E2539"]))
+    for k, p in s["files"].items():
+        click.echo(f"wrote {p} ({k})")

@@ -1,0 +1,1 @@
+"""Exporters to the renderers rendering teams use (docs/renderers.md); the registry is :mod:`flakedb.export.registry`."""

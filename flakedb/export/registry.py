@@ -1,0 +1,69 @@
+"""Every export route in one registry, in the style of colour-science's ``method=`` dispatch:
+``export(src, out, method="openpbr")``.  :data:`EXPORT_METHODS` maps a method to its function and
+what the route keeps; ``flakedb export-*`` commands, docs/renderers.md and ``flakedb info`` name
+routes by these keys.  A new route is one function and one entry here."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from flakedb.bsdf import open_bsdf
+from flakedb.export.blender import write_material_script
+from flakedb.export.gltf import write_gltf
+from flakedb.export.materialx import write_mtlx
+from flakedb.export.openpbr import fit_openpbr
+from flakedb.export.usd import write_usda
+from flakedb.render.mitsuba import export_coated, export_measured
+from flakedb.render.mitsuba.coated import pbrt_coated_scene
+
+
+def export_openpbr(src, out_dir, name: str | None = None, progress=None) -> dict:
+    """Fit the analytic material to ``src`` (:func:`flakedb.export.openpbr.fit_openpbr`) and write it
+    as ``NAME.mtlx`` (MaterialX OpenPBR), ``NAME.usda`` (USD, UsdPreviewSurface), ``NAME.gltf`` and
+    ``NAME.glb`` (glTF 2.0 sphere) and ``NAME.blender.py`` (Principled BSDF script) in ``out_dir``.
+    Returns {"fit": fit dict, "files": {kind: path}}."""
+    out_dir = Path(out_dir)
+    name = name or Path(src).name.split(".")[0]
+    b = open_bsdf(src)
+    if progress:
+        progress("fitting OpenPBR parameters (hemisphere + E2194/E2539 geometries)")
+    fit = fit_openpbr(b, source=str(src))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {}
+    for kind, fn, suffix in (("materialx", write_mtlx, ".mtlx"), ("usd", write_usda, ".usda"),
+                             ("gltf", write_gltf, ".gltf"), ("glb", write_gltf, ".glb"),
+                             ("blender", write_material_script, ".blender.py")):
+        files[kind] = str(fn(out_dir / f"{name}{suffix}", fit, name))
+    return {"fit": fit.to_dict(), "files": files}
+
+
+def _mitsuba_coated(src, out, **kw):
+    return export_coated(src, out, **kw)
+
+
+def _pbrt_coated(src, out, **kw):
+    return pbrt_coated_scene(src, out, **kw)
+
+
+def _openpbr(src, out, **kw):
+    return export_openpbr(src, out, **kw)
+
+
+#: method -> (function(src, out, **kwargs), what the route keeps, what it loses).
+EXPORT_METHODS = {
+    "mitsuba-measured": (export_measured, "the table (front-side reflection)", "the smooth coat's mirror term"),
+    "mitsuba-coated": (_mitsuba_coated, "the table and the coat's Fresnel mirror (blendbsdf + conductor k=0)",
+                       "transmission, back side"),
+    "pbrt-v3-coated": (_pbrt_coated, "the table (RGB) and the coat's mirror (mix of glass Kr 2 and fourier x2)",
+                       "spectral channels; not run"),
+    "openpbr": (_openpbr, "coat (index, roughness), base colour, metalness, one GGX lobe",
+                "colour travel, the table's lobe shape beyond one GGX lobe, sparkle"),
+}
+
+
+def export(src, out, method: str = "openpbr", **kwargs):
+    """Export ``src`` by ``method`` (a key of :data:`EXPORT_METHODS`, case-insensitive)."""
+    key = str(method).lower()
+    if key not in EXPORT_METHODS:
+        raise ValueError(f"method = {method!r} is not an export route; the routes are: {', '.join(EXPORT_METHODS)}")
+    return EXPORT_METHODS[key][0](src, out, **kwargs)

@@ -1,0 +1,74 @@
+"""The fitted material as a USD layer (``.usda``, text): a unit sphere bound to a ``UsdPreviewSurface``
+material (the USD schema every Hydra delegate renders).  Written as plain text (no usd-core needed to
+write); the tests open it with ``usd-core`` (``pxr.Usd``).
+
+UsdPreviewSurface's clear coat has a fixed index of 1.5 and its ``ior`` input is the base's: with a
+coat index other than 1.5 the coat's Fresnel differs (at η = 1.5, the catalogue's, it is exact).
+UsdPreviewSurface's metallic workflow has no specular tint: the fit's ``specular_color`` is lost
+(``ior`` is the fit's relative index of the base's dielectric lobe, untinted), and so is a fitted
+thin film (UsdPreviewSurface has none).
+The fit and its error are stored in the layer's ``customLayerData`` (``flakedb_fit``, JSON)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from flakedb.atomic import atomic_path
+from flakedb.export.materialx import safe_name
+from flakedb.export.openpbr import OpenPBRFit
+
+
+def usda_text(fit: OpenPBRFit, name: str) -> str:
+    n = safe_name(name)
+    c = fit.base_color
+    fit_json = json.dumps(json.dumps(fit.to_dict(), separators=(",", ":")))    # a quoted USD string
+    return f'''#usda 1.0
+(
+    defaultPrim = "{n}"
+    metersPerUnit = 1
+    upAxis = "Y"
+    customLayerData = {{
+        string flakedb_fit = {fit_json}
+    }}
+)
+
+def Xform "{n}"
+{{
+    def Sphere "sphere" (
+        prepend apiSchemas = ["MaterialBindingAPI"]
+    )
+    {{
+        double radius = 1
+        rel material:binding = </{n}/Looks/M_{n}>
+    }}
+
+    def Scope "Looks"
+    {{
+        def Material "M_{n}"
+        {{
+            token outputs:surface.connect = </{n}/Looks/M_{n}/PreviewSurface.outputs:surface>
+
+            def Shader "PreviewSurface"
+            {{
+                uniform token info:id = "UsdPreviewSurface"
+                color3f inputs:diffuseColor = ({c[0]:.6g}, {c[1]:.6g}, {c[2]:.6g})
+                float inputs:metallic = {fit.base_metalness:.6g}
+                float inputs:roughness = {fit.specular_roughness:.6g}
+                float inputs:clearcoat = {1.0 if fit.coat_ior > 1.0 else 0.0:g}
+                float inputs:clearcoatRoughness = {fit.coat_roughness:.6g}
+                float inputs:ior = {max(fit.specular_ior_relative, 1.0):.6g}
+                int inputs:useSpecularWorkflow = 0
+                token outputs:surface
+            }}
+        }}
+    }}
+}}
+'''
+
+
+def write_usda(path, fit: OpenPBRFit, name: str) -> Path:
+    path = Path(path)
+    with atomic_path(path, suffix="") as tmp:
+        Path(tmp).write_text(usda_text(fit, name), encoding="utf-8")
+    return path
