@@ -22,11 +22,12 @@ from flakedb.bsdf.table import BSDFTable
 from flakedb.conventions import fourier_weight
 
 
-def stack_to_table(stack, channels=None, eta=None, alpha=0.0, delta="auto", metadata=None) -> BSDFTable:
+def stack_to_table(stack, channels=None, eta=None, alpha=None, delta="auto", metadata=None) -> BSDFTable:
     """:class:`BSDFTable` of a solved stack (:class:`flakedb.rt.stack.StackBSDF`).
 
     ``channels``: names (default by count, :class:`BSDFTable`); ``eta``: the header's relative index
-    (default the stack's); ``alpha``: the top's Beckmann roughness (informational); ``delta``: the
+    (default the stack's); ``alpha``: the top's Beckmann roughness (informational; default the solved stack's
+    ``top_alpha``); ``delta``: the
     analytic mirror term (``"auto"``: ``{"kind": "fresnel", "eta": η}`` when the stack has a smooth
     top's delta term, else None); ``metadata``: str → JSON-able.
 
@@ -52,6 +53,8 @@ def stack_to_table(stack, channels=None, eta=None, alpha=0.0, delta="auto", meta
     n = 2 * h
     if eta is None:
         eta = stack.eta
+    if alpha is None:
+        alpha = getattr(stack, "top_alpha", 0.0)
     if isinstance(delta, str) and delta == "auto":
         delta = {"kind": "fresnel", "eta": float(stack.eta)} if stack.delta_F is not None else None
     kw = dict(mu=np.concatenate([-x[::-1], x]), eta=float(eta), alpha=(float(alpha), 0.0), delta=delta,

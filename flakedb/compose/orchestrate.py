@@ -365,7 +365,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     if flakes:  # the flakes' normal distribution (flakedb.rt.microflake.FLAKE_DISTRIBUTIONS), by recipe path
         md["flake_distributions"] = flakes
     t0 = time.perf_counter()
-    table = stack_to_table(stack, paint.channels, paint.eta, paint.top_alpha, paint.delta, md)
+    table = stack_to_table(stack, paint.channels, paint.eta, None, paint.delta, md)  # α from the solved stack
     t["table"] = time.perf_counter() - t0
     return SolvedRecipe(paint=paint, stack=stack, table=table, n=n_used, n_reason=reason, warnings=warnings,
                         timings_s=t, version=version, store_label=store_label)
@@ -383,7 +383,7 @@ def discretisation_estimate(solved, report, colour_settings=None, log=None) -> d
     budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
     half = solve_paint(paint, n // 2, memory_budget_bytes=float(budget) if budget else None, threads=os.cpu_count() or 1)
     est = discretisation_error(report, colour_report(
-        stack_to_table(half.scattered(), paint.channels, paint.eta, paint.top_alpha, paint.delta,
+        stack_to_table(half.scattered(), paint.channels, paint.eta, None, paint.delta,
                        dict(solved.table.metadata)), paint.mode, paint.wavelength_nm, half.x,
         half.albedo(include_delta=False), paint.eta if paint.delta else None, "", settings=colour_settings), n)
     if log:
@@ -420,7 +420,7 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
         file_table.metadata["channels_from"] = f"spectral bands -> CIE 1931 2deg / D65 -> {gamut_info['rgb_space']}"
     # aspecular geometries never hit an inner mirror: its smoothed series kept out of the report (docs/model.md §4)
     report_table = table if stack.specular is None else stack_to_table(
-        stack.scattered(), paint.channels, paint.eta, paint.top_alpha, paint.delta, dict(table.metadata))
+        stack.scattered(), paint.channels, paint.eta, None, paint.delta, dict(table.metadata))
     report = colour_report(report_table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
                            paint.eta if paint.delta else None, recipe.name, settings=colour_settings)
     report["discretisation"] = discretisation_estimate(solved, report, colour_settings, log)

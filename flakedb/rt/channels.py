@@ -154,7 +154,7 @@ def expand_channels(res, inverse):
         "specular_orders": np.take(np.broadcast_to(res.specular_orders, (int(inverse.max()) + 1,)), inverse)}
     return StackBSDF(x=res.x, w=res.w, Rt=spread(res.Rt), eta=res.eta, delta_F=res.delta_F, Ttb=spread(res.Ttb),
                      Rb=spread(res.Rb), Tbt=spread(res.Tbt), x_in=res.x_in, w_in=res.w_in, info=info,
-                     eta_bottom=res.eta_bottom, **spec)
+                     eta_bottom=res.eta_bottom, top_alpha=res.top_alpha, **spec)
 
 
 def solve_in_channel_groups(solve, top, slabs, bottom, s, C, group):
@@ -175,7 +175,8 @@ def solve_in_channel_groups(solve, top, slabs, bottom, s, C, group):
         p = solve(top, sub_slabs, sub_bottom, s, top_cache=top_cache)
         infos.append(p.info)
         if meta is None:
-            meta = dict(x=p.x, w=p.w, eta=p.eta, delta_F=p.delta_F, x_in=p.x_in, w_in=p.w_in, eta_bottom=p.eta_bottom)
+            meta = dict(x=p.x, w=p.w, eta=p.eta, delta_F=p.delta_F, x_in=p.x_in, w_in=p.w_in, eta_bottom=p.eta_bottom,
+                        top_alpha=p.top_alpha)
         L = max(L, p.n_orders)
         for name in ("Rt", "Ttb", "Rb", "Tbt"):
             b = getattr(p, name)

@@ -238,10 +238,16 @@ def _solve_stack(top, slabs, bottom, s, top_cache=None):
         info.update(oinfo)
         Rt = _with_specular(Rt, Rs, info, q_out)
         return StackBSDF(x=q_out.x, w=q_out.w, Rt=Rt, eta=eta, delta_F=tp.delta_F, x_in=q_in.x, w_in=q_in.w,
-                         info=info, **_specular_fields(Rs, Rt))
+                         info=info, top_alpha=_top_alpha(top), **_specular_fields(Rs, Rt))
     res = _solve_all_orders(parts, bottom, Rc, tp, total_orders(), Rs, q_out, q_in, q_bottom, eta, s, info)
     res.eta_bottom = float(eta_binder)
+    res.top_alpha = _top_alpha(top)
     return res
+
+
+def _top_alpha(top) -> float:
+    """The Beckmann roughness of a rough top (0 for a smooth top or none), as the result records it."""
+    return float(top.alpha) if isinstance(top, Rough) else 0.0
 
 
 def _with_specular(Rt, Rs, info, q_out):

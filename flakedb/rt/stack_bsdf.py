@@ -37,6 +37,8 @@ class StackBSDF:
     #: index of the binder below the stack relative to the air (where ``Ttb`` leads): basic radiance there
     #: carries η² times its flux per unit of the solver's measure
     eta_bottom: float = 1.0
+    #: Beckmann roughness of a rough top interface (0: smooth or none): what the file's header records
+    top_alpha: float = 0.0
 
     @property
     def n_orders(self):
@@ -55,7 +57,8 @@ class StackBSDF:
             series = zero_pole_orders(smoothed_specular(self.specular[c], int(Lc)), self.x, self.x)
             Rt[:int(Lc), c] -= series[:L]
         return StackBSDF(x=self.x, w=self.w, Rt=Rt, eta=self.eta, delta_F=self.delta_F, Ttb=self.Ttb, Rb=self.Rb,
-                         Tbt=self.Tbt, x_in=self.x_in, w_in=self.w_in, info=self.info, eta_bottom=self.eta_bottom)
+                         Tbt=self.Tbt, x_in=self.x_in, w_in=self.w_in, info=self.info, eta_bottom=self.eta_bottom,
+                         top_alpha=self.top_alpha)
 
     def f_coefficients(self, block="Rt"):
         """Cosine coefficients f_l(μ_i → μ_o) (1/sr) of a block, (L, C, h_out, h_in).

@@ -13,7 +13,7 @@ from flakedb.compose.orchestrate import compose
 from flakedb.paint.mapping import build_paint, solve_paint
 from flakedb.paint.recipe import parse_recipe
 from flakedb.rt.media import PhaseMedium
-from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
 
 PHI = np.array([0.0, 0.7, 2.0, np.pi])
 
@@ -125,3 +125,11 @@ def test_an_opaque_paints_h5_is_its_dense_table(tmp_path):
     write_h5(tmp_path / "q.h5", t)
     back = read_h5(tmp_path / "q.h5").to_table()
     np.testing.assert_array_equal(back.coeffs, t.coeffs)
+
+
+def test_table_roughness_comes_from_the_solved_stack():
+    """The file's α is the solved stack's rough top (issue #21: it came from a second copy in the paint)."""
+    rough = solve_stack(Rough(1.5, 0.3), [], Lambertian(0.5), SolverSettings.product(16))
+    smooth = solve_stack(Smooth(1.5), [], Lambertian(0.5), SolverSettings.product(16))
+    assert rough.top_alpha == 0.3 and stack_to_table(rough).alpha[0] == 0.3
+    assert smooth.top_alpha == 0.0 and stack_to_table(smooth).alpha[0] == 0.0
