@@ -9,12 +9,14 @@ import click
 import numpy as np
 
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import check_plan
 from flakedb.cli.options import check_node_count, prediction_options
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
 from flakedb.compose.store_context import StoreContext
 from flakedb.match.cxf import load_target
 from flakedb.match.fit import predict, resolution
 from flakedb.match.targets import GEOMETRY_SETS, TargetError, write_target
+from flakedb.outputs import OutputPlan
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
@@ -77,6 +79,12 @@ def compare(recipe, target_path, cxf_object, observer, illuminant, mi_illuminant
     check_node_count(n)
     if target_path is None and csv_out is None:
         raise FlakedbError("give --target T.csv (compare) and/or --write-csv P.csv (write the prediction)")
+    if csv_out is not None:  # the output plan, before any work: never onto the target, the recipe, the catalogue
+        plan = OutputPlan()
+        for path, label in ((recipe, "RECIPE"), (target_path, "--target"), (catalog_path, "--catalog")):
+            plan.add_input(path, label)
+        plan.add_output(csv_out, "--write-csv")
+        check_plan(plan)
 
     try:
         catalog = load_catalog(catalog_path)

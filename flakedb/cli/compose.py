@@ -3,11 +3,11 @@
 import click
 
 from flakedb.cli.errors import FlakedbError
-from flakedb.cli.failures import probe_writable, remove_created_dirs
+from flakedb.cli.failures import check_plan, probe_writable, remove_created_dirs
 from flakedb.cli.options import RAW_HELP, check_node_count
 from flakedb.cli.progress import StageProgress
 from flakedb.colour.gamut import RGB_SPACES
-from flakedb.compose.orchestrate import OutputError, UnphysicalResultError, check_output_dir
+from flakedb.compose.orchestrate import UnphysicalResultError, output_plan
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
 from flakedb.paint.catalog import CatalogError, load_catalog
@@ -49,10 +49,11 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, buil
     try:
         catalog = load_catalog(catalog_path)
         rec = load_recipe(recipe, catalog)
-        check_output_dir(out_dir)
-        probe_writable(out_dir)
-    except (RecipeError, CatalogError, OutputError) as exc:
+    except (RecipeError, CatalogError) as exc:
         raise FlakedbError(str(exc)) from exc
+    inputs = [(recipe, "RECIPE")] + ([(catalog_path, "--catalog")] if catalog_path else [])
+    check_plan(output_plan(out_dir, rec.name, inputs))
+    probe_writable(out_dir)
     for w in rec.warnings:
         click.echo(f"warning: {w}", err=True)
 
@@ -69,7 +70,7 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, buil
             with remove_created_dirs(out_dir):
                 return compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog,
                                       log=lambda s: click.echo(f"  {s}"), store=store, rgb_space=rgb_space,
-                                      progress=progress, allow_unphysical=allow_unphysical)
+                                      progress=progress, allow_unphysical=allow_unphysical, inputs=inputs)
         finally:
             bar.close()
 

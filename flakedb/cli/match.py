@@ -1,8 +1,9 @@
 """`flakedb match BASE.yaml --target T.csv --out DIR`: fit a recipe's {fit: [min, max]} fields to a target.
 
-Thin: the fit is :func:`flakedb.colour.match.match` (docs/colour-matching.md).  Writes DIR/NAME.yaml
-(the fitted recipe), composes it into DIR/NAME.{bsdf,h5,json} like `flakedb compose`, and writes
-DIR/NAME-prediction.csv (target layout) and DIR/NAME-match.json (the fit record).  Progress lines go
+Thin: the fit is :func:`flakedb.colour.match.match` (docs/colour-matching.md).  Writes DIR/NAME-fitted.yaml
+(the fitted recipe; never over BASE), composes it into DIR/NAME.{bsdf,h5,json} like `flakedb compose`, and writes
+DIR/NAME-prediction.csv (target layout) and DIR/NAME-match.json (the fit record), all six together
+or none (:class:`flakedb.outputs.OutputPlan`).  Progress lines go
 to stderr, one per iteration.
 """
 
@@ -13,18 +14,22 @@ import click
 import numpy as np
 import yaml
 
-from flakedb.atomic import atomic_write_text
 from flakedb.cli.compare import open_store, parse_limits
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import check_plan, remove_created_dirs
 from flakedb.cli.options import check_node_count, prediction_options
-from flakedb.compose.orchestrate import OutputError, check_output_dir
+from flakedb.compose.orchestrate import OUTPUT_SUFFIXES, output_plan
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.match import fit as cm
 from flakedb.match.cxf import load_target
 from flakedb.match.targets import TargetError, write_target
 from flakedb.paint.catalog import CatalogError, load_catalog
-from flakedb.paint.recipe import RecipeError
+from flakedb.paint.recipe import RecipeError, read_recipe_file
 from flakedb.store.versions import StoreError
+
+
+#: The fitted recipe is written as NAME-fitted.yaml, never over the base recipe (issue 25).
+FITTED_SUFFIX = "-fitted.yaml"
 
 
 @click.command()
@@ -48,20 +53,23 @@ def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights,
 
     try:
         catalog = load_catalog(catalog_path)
-        try:
-            doc = yaml.safe_load(Path(base).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise RecipeError(base, ["no such file"]) from None
-        except yaml.YAMLError as exc:
-            raise RecipeError(base, [f"YAML syntax error: {exc}"]) from None
+        _, doc = read_recipe_file(base)  # the recipe's strict loader (duplicate keys, alias bombs refused)
         if not isinstance(doc, dict):
             raise RecipeError(base, ["a recipe is a YAML mapping"])
         target = load_target(target_path, observer, illuminant, cxf_object)
-        check_output_dir(out_dir)
         params = cm.find_fit_parameters(doc, base)
         rec0 = cm.recipe_from_doc(cm.substitute(doc, params, [p.start for p in params]), base, catalog)
+    except (RecipeError, CatalogError, TargetError) as exc:
+        raise FlakedbError(str(exc)) from exc
+    name = rec0.name
+    inputs = [(base, "BASE"), (target_path, "--target")] + ([(catalog_path, "--catalog")] if catalog_path else [])
+    plan = output_plan(out_dir, name, inputs)   # NAME.bsdf/.h5/.json, then the fit's own files
+    paths = {k: plan.in_dir(out_dir, f"{name}{suffix}", f"output NAME{suffix}")
+             for k, suffix in (("yaml", FITTED_SUFFIX), ("csv", "-prediction.csv"), ("json", "-match.json"))}
+    check_plan(plan)   # before any work: never over BASE or the target, no name taken by a directory
+    try:
         version = open_store(store, rec0, n, raw)
-    except (RecipeError, CatalogError, TargetError, OutputError, StoreError) as exc:
+    except StoreError as exc:
         raise FlakedbError(str(exc)) from exc
     w = np.ones(len(target.geometries))
     for (il, asp), v in parse_limits(weights).items():
@@ -78,24 +86,24 @@ def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights,
     except (RecipeError, StoreError, TargetError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
     click.echo(cm.format_match(res))
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    name = res.fitted_doc["name"]
-
     text = (f"# fitted by flakedb match to {target.source} ({res.observer}° / {res.illuminant}); "
             f"max dE00 {res.de_fit.max():.3f}\n" + yaml.safe_dump(res.fitted_doc, sort_keys=False, allow_unicode=True))
-    atomic_write_text(out / f"{name}.yaml", text)
-    rec = cm.recipe_from_doc(res.fitted_doc, str(out / f"{name}.yaml"), catalog)
-    try:
-        comp = compose_recipe(rec, out, n=res.n, raw=raw, catalog=catalog, store=version)
-    except StoreError as exc:
-        raise FlakedbError(str(exc)) from exc
+    rec = cm.recipe_from_doc(res.fitted_doc, str(paths["yaml"]), catalog)
     p = res.prediction
     spectral = p.mode == "spectral"
-    write_target(out / f"{name}-prediction.csv", p.geometries, lab=None if spectral else res.lab_fit,
-                 reflectance=p.rf if spectral else None, wavelength_nm=p.wavelength_nm if spectral else None,
-                 observer=res.observer, illuminant=res.illuminant, name=name,
-                 notes={"generator": f"flakedb match, n = {res.n}, mode {p.mode}"})
-    atomic_write_text(out / f"{name}-match.json", json.dumps(cm.match_report(res), indent=1) + "\n")
-    click.echo(f"wrote {out / (name + '.yaml')} (fitted recipe), {comp.paths['bsdf']}, {comp.paths['h5']}, "
-               f"{comp.paths['json']}, {out / (name + '-prediction.csv')} and {out / (name + '-match.json')}")
+    out = Path(out_dir)
+    with remove_created_dirs(out), plan.staged() as stage:   # every output or none
+        stage_dir = stage.dir_for(out)
+        try:
+            compose_recipe(rec, stage_dir, n=res.n, raw=raw, catalog=catalog, store=version)
+        except StoreError as exc:
+            raise FlakedbError(str(exc)) from exc
+        Path(stage.path(paths["yaml"])).write_text(text, encoding="utf-8")
+        write_target(stage.path(paths["csv"]), p.geometries, lab=None if spectral else res.lab_fit,
+                     reflectance=p.rf if spectral else None, wavelength_nm=p.wavelength_nm if spectral else None,
+                     observer=res.observer, illuminant=res.illuminant, name=name,
+                     notes={"generator": f"flakedb match, n = {res.n}, mode {p.mode}"})
+        stage.path(paths["json"]).write_text(json.dumps(cm.match_report(res), indent=1) + "\n", encoding="utf-8")
+    final = [out / f"{name}{suffix}" for suffix in OUTPUT_SUFFIXES]
+    click.echo(f"wrote {paths['yaml']} (fitted recipe), {final[0]}, {final[1]}, {final[2]}, {paths['csv']} and "
+               f"{paths['json']}")

@@ -17,10 +17,14 @@ from pathlib import Path
 
 import jsonschema
 import numpy as np
-import yaml
 
+from flakedb.paint.checks import YamlFileError, load_yaml_file, value_problems
 from flakedb.paint.materials import material_names
 from flakedb.resources import CATALOG_DIR, PACKAGE_DIR, SCHEMAS_DIR
+
+
+#: Largest catalogue file [bytes] (the shipped one is 7 kB).
+MAX_CATALOG_BYTES = 5_000_000
 
 
 class CatalogError(ValueError):
@@ -132,9 +136,11 @@ def load_catalog(path=None) -> dict:
     ``sweeps``).  Raises :class:`CatalogError` listing every problem as ``path: message``.
     """
     path = Path(path) if path is not None else default_catalog_path()
-    with open(path, encoding="utf-8") as f:
-        doc = yaml.safe_load(f)
-    problems = validate_catalog(doc)
+    try:  # the recipe's strict loader: regular files only, size-limited, no duplicate keys or alias bombs
+        _, doc = load_yaml_file(path, "catalogue", MAX_CATALOG_BYTES)
+    except YamlFileError as exc:
+        raise CatalogError(f"{path}: invalid particle catalogue: {exc.problem}") from None
+    problems = value_problems(doc) or validate_catalog(doc)
     if problems:
         raise CatalogError(f"{path}: invalid particle catalogue:\n  " + "\n  ".join(problems))
     return doc

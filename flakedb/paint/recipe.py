@@ -53,11 +53,10 @@ from pathlib import Path
 
 import jsonschema
 import numpy as np
-import yaml
 
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint.catalog import expand_sweeps, load_catalog
-from flakedb.paint.checks import MAX_RECIPE_BYTES, RecipeInputError, load_yaml_strict, too_large_message, value_problems
+from flakedb.paint.checks import YamlFileError, load_yaml_file, parse_yaml_text, value_problems
 from flakedb.paint.materials import material_names, refractive_index
 from flakedb.resources import PACKAGE_DIR, SCHEMAS_DIR
 from flakedb.rt.media import vmf_kappa_from_mean_cosine
@@ -835,15 +834,14 @@ def parse_recipe(text: str, source="<recipe>", catalog=None) -> Recipe:
     """Parse, validate and check recipe YAML ``text``; returns a :class:`Recipe` or raises
     :class:`RecipeError` listing every problem."""
     try:
-        doc = load_yaml_strict(text)
-    except RecipeInputError as exc:
+        doc = parse_yaml_text(text, source)
+    except YamlFileError as exc:
         raise RecipeError(source, [exc.problem]) from None
-    except RecursionError:
-        raise RecipeError(source, ["YAML nesting is too deep (hint: a recipe nests a few levels)"]) from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
-        raise RecipeError(source, [f"YAML syntax error at {where}: {getattr(exc, 'problem', exc)}"]) from None
+    return recipe_from_document(doc, text, source, catalog)
+
+
+def recipe_from_document(doc, text, source="<recipe>", catalog=None) -> Recipe:
+    """The :class:`Recipe` of a document read by the strict loader (:func:`parse_recipe`)."""
     if not isinstance(doc, dict):
         raise RecipeError(source, validate_recipe(doc, catalog))
     problems = value_problems(doc) or schema_problems(doc)
@@ -861,16 +859,18 @@ def parse_recipe(text: str, source="<recipe>", catalog=None) -> Recipe:
     )
 
 
+def read_recipe_file(path):
+    """``(text, document)`` of the recipe file at ``path``, read by the one strict loader
+    (:func:`flakedb.paint.checks.load_yaml_file`: a regular file, at most 1 MB, no duplicate keys or
+    alias bombs); :class:`RecipeError` otherwise.  Also how ``flakedb match`` reads its base."""
+    try:
+        return load_yaml_file(path, "recipe")
+    except YamlFileError as exc:
+        raise RecipeError(path, [exc.problem]) from None
+
+
 def load_recipe(path, catalog=None) -> Recipe:
     """Read and check the recipe file at ``path`` (see :func:`parse_recipe`)."""
     path = Path(path)
-    try:
-        size = path.stat().st_size
-        if size > MAX_RECIPE_BYTES:
-            raise RecipeError(path, [too_large_message(size)])
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise RecipeError(path, ["no such file"]) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RecipeError(path, [f"cannot read the file ({exc})"]) from None
-    return parse_recipe(text, source=path, catalog=catalog)
+    text, doc = read_recipe_file(path)
+    return recipe_from_document(doc, text, source=path, catalog=catalog)
