@@ -8,14 +8,14 @@ from flakedb.bsdf.evaluator import FourierBSDF
 from flakedb.bsdf.fourier_file import MAGIC_BSDF, read_bsdf
 from flakedb.bsdf.h5file import MAGIC_H5, read_h5
 from flakedb.bsdf.table import BSDFFileError
+from flakedb.safeio import read_head
 
 
 def open_bsdf(path) -> FourierBSDF:
     """Open a ``.bsdf`` or flakedb HDF5 BSDF file, recognised by its magic bytes."""
     path = Path(path)
     try:
-        with open(path, "rb") as fh:
-            magic = fh.read(8)
+        magic = read_head(path, 8)   # a regular file only: a FIFO would block, a device never ends
     except FileNotFoundError:
         raise BSDFFileError(f"{path}: no such file") from None
     except OSError as e:

@@ -22,6 +22,7 @@ from flakedb.colour.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
 from flakedb.compose.orchestrate import solver_warnings
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.render.mitsuba import read_tensor_file
+from flakedb.safeio import read_head
 
 #: Incident zenith angles [deg] (light arriving from above) at which the albedo is listed.
 INFO_THETA_DEG = (0.0, 30.0, 45.0, 60.0, 75.0, 85.0)
@@ -34,8 +35,7 @@ ENERGY_SLACK = 1e-3
 def file_kind(path) -> str:
     """'tensor' for a Mitsuba tensor file, else 'fourier' (open_bsdf tells .bsdf from .h5 or refuses)."""
     try:
-        with open(path, "rb") as fh:
-            head = fh.read(len(MAGIC_TENSOR))
+        head = read_head(path, len(MAGIC_TENSOR))   # regular files only (flakedb.safeio)
     except FileNotFoundError:
         raise BSDFFileError(f"{path}: no such file") from None
     except OSError as e:

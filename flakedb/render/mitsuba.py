@@ -90,6 +90,7 @@ from flakedb.bsdf.table import G_FROM_YRB
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.colour.gamut import desaturate_points
 from flakedb.optics.fresnel import fresnel_dielectric
+from flakedb.safeio import FileTooLargeError, read_limited
 
 # the reader's compiled kernels, by name: this module's own compiled kernels call them
 cr_weights_1 = compiled_kernels().cr_weights_1
@@ -423,10 +424,9 @@ def read_tensor_file(path) -> dict:
         return MeasuredExportError(f"{path}: {what}; not a valid tensor file (corrupt or truncated)")
 
     try:
-        size = path.stat().st_size
-        if size > TENSOR_FILE_MAX_BYTES:
-            raise MeasuredExportError(f"{path}: {size} bytes; the limit is {TENSOR_FILE_MAX_BYTES} bytes")
-        raw = path.read_bytes()
+        raw = read_limited(path, TENSOR_FILE_MAX_BYTES)   # a regular file, at most the limit read
+    except FileTooLargeError as e:
+        raise MeasuredExportError(f"{path}: {e.size} bytes or more; the limit is {TENSOR_FILE_MAX_BYTES} bytes") from None
     except OSError as e:
         raise MeasuredExportError(f"{path}: cannot read ({e.strerror})") from None
     if raw[:12] != b"tensor_file\0" or raw[12:14] != b"\x01\x00":
