@@ -258,7 +258,8 @@ def _print_tensor(d):
 def info(file, as_json):
     """Describe a Fourier .bsdf, a flakedb .h5 or a Mitsuba 3 `measured` export: what paint, which
     channels and colour space, the smooth coat's mirror term, energy / colour / convergence checks in
-    words, and the albedo at a few incident angles."""
+    words, and the albedo at a few incident angles.  Exit status 1 when an energy, colour or data
+    check fails."""
     try:
         d = describe(file)
     except BSDFFileError as e:
@@ -270,3 +271,7 @@ def info(file, as_json):
         _print_tensor(d)
     else:
         _print_fourier(d)
+    failed = [c["check"] for c in d.get("checks", []) if c["ok"] is False and c["check"] != "solver"]
+    if failed:  # a FAIL is an exit status, not only a word (issue 25); solver warnings stay warnings
+        click.echo(f"flakedb info: {file}: check(s) failed: {', '.join(failed)}", err=True)
+        raise SystemExit(1)

@@ -18,6 +18,7 @@ from pathlib import Path
 import jsonschema
 import numpy as np
 
+from flakedb.optics.mie import default_n_quad
 from flakedb.paint.checks import YamlFileError, load_yaml_file, value_problems
 from flakedb.paint.materials import material_names
 from flakedb.resources import CATALOG_DIR, PACKAGE_DIR, SCHEMAS_DIR
@@ -65,11 +66,37 @@ def validate_catalog(doc) -> list[str]:
             # report the branch that got furthest instead of "is not valid under any of the given schemas"
             errs = [max(err.context, key=lambda e: len(e.absolute_path))]
         for e in errs:
-            problems.append(f"{_fmt_path(e.absolute_path)}: {e.message}")
+            why = e.schema.get("description") if isinstance(e.schema, dict) else None
+            problems.append(f"{_fmt_path(e.absolute_path)}: {e.message}" + (f" (allowed: {why})" if why else ""))
     if problems:
         return problems
     problems += _semantic_problems(doc)
     return problems
+
+
+#: Largest memory the Mie size average of one pigment may ask for [bytes] (8 GiB), checked before any work.
+MAX_PIGMENT_BYTES = 8 * 1024 ** 3
+#: Bytes per (band, size node, phase angle) of that average: the amplitudes S1, S2 (complex) and their
+#: temporaries.  Measured (cadmium yellow, 81 bands, 361 angles): d_med 0.3 µm / gsd 1.5 (1133 nodes)
+#: peaks at 1.99 GB RSS, estimate 1.97 GiB; 0.6 µm (2265 nodes) 3.76 GB, estimate 3.95 GiB.
+PIGMENT_BYTES_PER_POINT = 64
+#: Phase angles of a pigment's table (flakedb.paint.mapping.phase_cos_grid: 0.5° steps).
+PIGMENT_PHASE_ANGLES = 361
+#: The grid a catalogue pigment is checked on (the default build grid, 380-780 nm in 5 nm steps).
+DEFAULT_GRID_NM = np.arange(380.0, 781.0, 5.0)
+
+
+def pigment_memory_bytes(median_diameter_um, gsd, wavelength_nm, n_binder) -> float:
+    """Estimated peak memory [bytes] of a pigment's Mie size average (flakedb.optics.mie.lognormal_pigment
+    with the phase table): bands × size nodes (:func:`flakedb.optics.mie.default_n_quad`) × phase angles ×
+    :data:`PIGMENT_BYTES_PER_POINT` (measured, see there)."""
+    wl = np.atleast_1d(np.asarray(wavelength_nm, float))
+    q = default_n_quad(float(np.pi * n_binder / (wl.min() * 1e-3)), float(median_diameter_um), float(gsd))
+    return float(wl.size) * q * PIGMENT_PHASE_ANGLES * PIGMENT_BYTES_PER_POINT
+
+
+#: Most members one sweep may generate (each is a species a build projects: the shipped sweep has 8).
+MAX_SWEEP_MEMBERS = 1000
 
 
 def _semantic_problems(doc) -> list[str]:
@@ -95,6 +122,12 @@ def _semantic_problems(doc) -> list[str]:
                 )
         elif e["kind"] == "pigment":
             check_material(f"{base}.material", e["material"])
+            need = pigment_memory_bytes(e["median_diameter_um"]["value"], e["gsd"]["value"], DEFAULT_GRID_NM, 1.5)
+            if need > MAX_PIGMENT_BYTES:
+                out.append(f"{base}.median_diameter_um = {e['median_diameter_um']['value']:g} µm with {base}.gsd = "
+                           f"{e['gsd']['value']:g}: its Mie size average needs about {need / 2**30:,.0f} GiB over "
+                           f"380-780 nm; the limit is {MAX_PIGMENT_BYTES / 2**30:.0f} GiB (hint: a smaller median "
+                           f"diameter or gsd: pigments are 0.05-5 µm with gsd 1.2-2)")
         elif e["kind"] == "mirror_flake" and "wavelength_nm" in e["albedo"]:
             wl, val = e["albedo"]["wavelength_nm"], e["albedo"]["value"]
             if len(wl) != len(val):
@@ -117,6 +150,13 @@ def _semantic_problems(doc) -> list[str]:
         v = s["values_nm"]
         if v["stop"] < v["start"]:
             out.append(f"{base}.values_nm: stop {v['stop']} < start {v['start']}")
+            continue
+        count = (v["stop"] - v["start"]) // v["step"] + 1
+        if count > MAX_SWEEP_MEMBERS:
+            out.append(f"{base}.values_nm: start {v['start']}, stop {v['stop']}, step {v['step']} make {count:,} "
+                       f"members; the limit is {MAX_SWEEP_MEMBERS} (each member is a species every build projects; "
+                       f"hint: a larger step)")
+            continue
         try:
             generated = [s["name_format"].format(value=x) for x in _sweep_values(v)]
         except (ValueError, KeyError, IndexError) as exc:

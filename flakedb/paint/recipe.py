@@ -55,7 +55,7 @@ import jsonschema
 import numpy as np
 
 from flakedb.colour.colorimetry import spectral_grid
-from flakedb.paint.catalog import expand_sweeps, load_catalog
+from flakedb.paint.catalog import MAX_PIGMENT_BYTES, expand_sweeps, load_catalog, pigment_memory_bytes
 from flakedb.paint.checks import YamlFileError, load_yaml_file, parse_yaml_text, value_problems
 from flakedb.paint.materials import material_names, refractive_index
 from flakedb.resources import PACKAGE_DIR, SCHEMAS_DIR
@@ -610,7 +610,26 @@ def _custom_medium_checks(pp, C, tau, mode=None, grid=None):
     return problems, CustomMedium(albedo, phase, tau, C.get("name", "custom-medium"), pp)
 
 
-def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
+def _pigment_cost_problem(pp, name, P, entry, grid, ior):
+    """A pigment whose Mie size average would need more than :data:`MAX_PIGMENT_BYTES`, naming the field
+    that drives it (the recipe's override or the catalogue's entry), or None."""
+    dm = float(P.get("median_diameter_um", entry["median_diameter_um"]["value"]))
+    g = float(P.get("gsd", entry["gsd"]["value"]))
+    wl = grid if grid is not None else np.arange(380.0, 781.0, 5.0)
+    need = pigment_memory_bytes(dm, g, wl, ior)
+    if need <= MAX_PIGMENT_BYTES:
+        return None
+    sigma = np.log(g)
+    x_max = np.pi * ior * dm * np.exp(5.0 * sigma + 6.0 * sigma ** 2) / (np.min(wl) * 1e-3)
+    fields = [f"{pp}.{k}" if k in P else f"catalogue particles.{name}.{k}" for k in ("median_diameter_um", "gsd")]
+    return (f"{fields[0]} = {dm:g} µm with {fields[1]} = {g:g}: its Mie size average needs about "
+            f"{need / 2**30:,.0f} GiB (size parameters up to {x_max:,.0f} "
+            f"resolved in {np.size(wl)} bands); the limit is {MAX_PIGMENT_BYTES / 2**30:.0f} GiB (hint: a smaller "
+            f"median diameter or gsd: pigments are 0.05-5 µm with gsd 1.2-2; the node count --n does not change "
+            f"this)")
+
+
+def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
     """(problems, warnings, CatalogParticle or None): species known, overrides of its kind, grid
     covered, particle thinner than the layer ``d`` [µm]."""
     problems, warnings = [], []
@@ -648,6 +667,10 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
         if dm > d:
             problems.append(f"{pp}: median particle diameter {dm:g} µm exceeds {base}.thickness_um = {d:g} µm "
                             f"(hint: a layer must be thicker than its pigment particles)")
+        elif mode != "mono":
+            cost = _pigment_cost_problem(pp, name, P, entry, grid, ior)
+            if cost:
+                problems.append(cost)
     particle = CatalogParticle(
         name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
         P.get("median_diameter_um"), P.get("gsd"), pp)
@@ -690,7 +713,7 @@ def _basecoat_checks(base, L, mode, grid, allsp):
                 p, particle = _custom_medium_checks(pp, C, tau, mode, grid)
             problems += p
         else:
-            p, w, particle = _catalog_particle_checks(pp, base, P, bc.thickness_um, mode, grid, allsp)
+            p, w, particle = _catalog_particle_checks(pp, base, P, bc.thickness_um, mode, grid, allsp, bc.ior)
             problems += p
             warnings += w
             if particle is None:
