@@ -5,6 +5,8 @@ Thin: prediction in :mod:`flakedb.match.fit`, differences and tolerances in
 (docs/colour-matching.md).  Exit status 1 when a geometry fails its limit.
 """
 
+import math
+
 import click
 import numpy as np
 
@@ -23,7 +25,7 @@ from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.store.versions import StoreError
 
 
-def parse_limits(items):
+def parse_limits(items, option="--limit"):
     """``ILLUM/ASPEC=VALUE`` or ``ASPEC=VALUE`` (illumination 45°) → {(illum, aspec): value}."""
     out = {}
     for it in items:
@@ -31,10 +33,13 @@ def parse_limits(items):
             geo, val = it.split("=")
             parts = geo.split("/")
             illum, asp = (45.0, float(parts[0])) if len(parts) == 1 else (float(parts[0]), float(parts[1]))
-            out[(illum, asp)] = float(val)
+            value = float(val)
+            if not all(math.isfinite(x) for x in (illum, asp, value)) or value < 0 or len(parts) > 2:
+                raise ValueError(it)
+            out[(illum, asp)] = value
         except ValueError:
-            raise FlakedbError(f"--limit {it}: write ASPECULAR=dE00 (45° illumination) or ILLUM/ASPECULAR=dE00, "
-                               f"e.g. --limit 15=1.2 --limit 15/-15=2") from None
+            raise FlakedbError(f"{option} {it}: write ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V with finite "
+                               f"angles and V ≥ 0, e.g. {option} 15=1.2 {option} 15/-15=2") from None
     return out
 
 
@@ -77,6 +82,8 @@ def compare(recipe, target_path, cxf_object, observer, illuminant, mi_illuminant
             store, raw, catalog_path):
     """Predict RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, dE00, pass/fail."""
     check_node_count(n)
+    if not (math.isfinite(max_de) and max_de >= 0):
+        raise FlakedbError(f"--max-de {max_de}: a ΔE00 limit is a finite number ≥ 0 (e.g. --max-de 1)")
     if target_path is None and csv_out is None:
         raise FlakedbError("give --target T.csv (compare) and/or --write-csv P.csv (write the prediction)")
     if csv_out is not None:  # the output plan, before any work: never onto the target, the recipe, the catalogue

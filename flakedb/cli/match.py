@@ -44,7 +44,7 @@ FITTED_SUFFIX = "-fitted.yaml"
 @click.option("--illuminant", default=None, help="D65, A, F11, ... (default: the target's).")
 @click.option("--weight", "weights", multiple=True,
               help="Weight of a geometry in the fit, ASPECULAR=W or ILLUM/ASPECULAR=W (default 1); repeatable.")
-@click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=int,
+@click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=click.IntRange(1, 10_000),
               help="Most residual evaluations of the least-squares solver.")
 @prediction_options
 def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights, max_nfev, n, store, raw, catalog_path):
@@ -72,7 +72,7 @@ def match(base, target_path, cxf_object, out_dir, observer, illuminant, weights,
     except StoreError as exc:
         raise FlakedbError(str(exc)) from exc
     w = np.ones(len(target.geometries))
-    for (il, asp), v in parse_limits(weights).items():
+    for (il, asp), v in parse_limits(weights, "--weight").items():
         hit = [i for i, g in enumerate(target.geometries) if g[0] == il and g[1] == asp]
         if not hit:
             raise FlakedbError(f"--weight {il:g}/{asp:g}: the target has no such geometry")
