@@ -386,11 +386,15 @@ MAX_ARRAY_CHUNKS = 1_000_000
 def _fs(url):
     """``(filesystem, root)`` of a store URL; an unknown scheme, a protocol whose package is missing or a
     malformed URL is a :class:`StoreError` in words (not an internal error)."""
+    text = str(url)
+    if not text.strip() or re.fullmatch(r"[A-Za-z][A-Za-z0-9+.-]*://+", text.strip()) or "\0" in text:
+        raise StoreError(f"--store {url!r}: an empty store path or URL (hint: give a directory, e.g. --store "
+                         f"flakedb-store, or a URL such as s3://bucket/store)")
     try:
-        return fsspec.core.url_to_fs(str(url))
+        return fsspec.core.url_to_fs(text)
     except ImportError as exc:
         raise StoreError(f"--store {url}: this URL's protocol needs a package that is not installed ({exc}) "
-                         f"(hint: install it, e.g. `pip install s3fs` for s3://)") from None
+                         f"(hint: install the package the message names)") from None
     except (ValueError, TypeError, KeyError) as exc:
         scheme = str(url).split("://", 1)[0] if "://" in str(url) else ""
         raise StoreError(f"--store {url}: not a store path or URL fsspec knows ({'scheme ' + repr(scheme) + ': ' if scheme else ''}"
