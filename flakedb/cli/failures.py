@@ -59,7 +59,9 @@ def as_failure(exc: BaseException) -> click.ClickException:
         hint = _OS_HINTS.get(exc.errno)
         return FlakedbFailure(_one_line(f"{where}{what}" + (f" (hint: {hint})" if hint else "")))
     if isinstance(exc, MemoryError):
-        return FlakedbFailure("out of memory (hint: use a smaller resolution --n, --res or --size)")
+        return FlakedbFailure("out of memory (hint: memory grows with the node count (--n or the recipe's "
+                              "resolution), the number of bands (spectral.step_nm), a pigment's median_diameter_um and "
+                              "gsd, and --res / --size; lower the largest, or set FLAKEDB_MEMORY_BUDGET)")
     if isinstance(exc, BSDFFileError):
         err = click.ClickException(_one_line(exc))
         err.exit_code = 2

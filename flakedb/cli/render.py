@@ -1,6 +1,7 @@
 """`flakedb render FILE…`: preview images of composed BSDF files on a sphere (OpenEXR + PNG), and a
 side-by-side sheet of several paints or of one paint under several lights."""
 
+import math
 import sys
 from pathlib import Path
 
@@ -18,6 +19,8 @@ from flakedb.render.mitsuba import channel_wavelengths
 
 ENV_CONSTANT_RADIANCE = 0.5  # the furnace of renderers.md
 ENVS = ("softbox", "studio", "constant")
+#: Largest |--exposure| [stops].
+MAX_EXPOSURE_STOPS = 40.0
 
 
 def renderable(path):
@@ -61,7 +64,7 @@ def environment(kind):
                    "paint under several lights.")
 @click.option("--sun/--no-sun", default=None,
               help="Add the key light (a 2° disk, sampled directly). Default: on with --env studio only.")
-@click.option("--seed", default=0, show_default=True, type=int, help="Random seed.")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(0, 2 ** 63 - 1), help="Random seed (≥ 0).")
 @click.option("--exposure", default=None, type=float,
               help="PNG exposure [stops] relative to the automatic one (default: automatic, Reinhard 2002 key "
                    "0.18; with --tone clip: stops on the raw radiance).  The EXR is always unscaled radiance.")
@@ -81,6 +84,9 @@ def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, shee
     with sun sampling (MIS, power heuristic); the smooth coat's mirror term (the file's delta)
     added exactly.  Writes OUT/<stem>[-<env>].exr and .png atomically, and a sheet for several."""
     env_kinds = env_kinds or ("softbox",)
+    if exposure is not None and not (math.isfinite(exposure) and abs(exposure) <= MAX_EXPOSURE_STOPS):
+        raise FlakedbError(f"--exposure {exposure}: give a finite number of stops in ±{MAX_EXPOSURE_STOPS:g} (each stop "
+                           f"doubles the brightness; ±{MAX_EXPOSURE_STOPS:g} already spans a factor of 10^12)")
     # the output plan first (issue 25): two files of one paint (a.bsdf, a.h5) would write a.exr twice;
     # --sheet is a file name in --out, not a path; no output may replace an input
     plan = OutputPlan()
