@@ -2,6 +2,7 @@
 flakedb/pipelines/build.py and flakedb/store/versions.py."""
 
 import math
+from pathlib import Path
 
 import click
 
@@ -19,10 +20,10 @@ MAX_M = 4096
 MAX_BUILD_BYTES = 64 * 1024 ** 3
 
 
-#: Band spacing [nm] and range of a build: the recipe's (schemas/recipe.schema.json ``spectral``): finer than
-#: 1 nm is below the CIE tables' resolution, coarser than 20 nm misses the colour; 360-780 nm is the CIE x D65
-#: tables' common domain.
-STEP_NM_RANGE = (1.0, 20.0)
+#: Band spacing [nm] and range of a build: finer than 1 nm is below the CIE tables' resolution (and multiplies
+#: every array); up to the whole 360-780 nm range (coarse grids serve quick tests), the CIE x D65 tables'
+#: common domain.
+STEP_NM_RANGE = (1.0, 420.0)
 RANGE_NM_LIMITS = (360.0, 780.0)
 
 
@@ -31,12 +32,26 @@ def check_spectral_options(range_nm, step_nm):
     lo, hi = STEP_NM_RANGE
     if not (math.isfinite(step_nm) and lo <= step_nm <= hi):
         raise FlakedbError(f"--step-nm {step_nm:g}: the band spacing must be in {lo:g} ≤ step ≤ {hi:g} nm (finer than "
-                           f"1 nm is below the CIE tables' resolution; coarser than 20 nm misses the colour), e.g. "
+                           f"1 nm is below the CIE tables' resolution and multiplies every stored array), e.g. "
                            f"--step-nm 5")
     a, b = range_nm
     if not (all(math.isfinite(x) for x in range_nm) and RANGE_NM_LIMITS[0] <= a < b <= RANGE_NM_LIMITS[1]):
         raise FlakedbError(f"--range-nm {a:g} {b:g}: first < last, both in {RANGE_NM_LIMITS[0]:g}-"
                            f"{RANGE_NM_LIMITS[1]:g} nm (the CIE x D65 tables' common domain), e.g. --range-nm 380 780")
+
+
+def check_store_dir(url):
+    """Refuse to build into an existing local directory that is not a flakedb store (it would get a
+    ``latest`` file and a ``versions/`` directory among the user's own files, and ``latest`` may be
+    theirs)."""
+    if "://" in str(url):
+        return
+    p = Path(url)
+    if p.exists() and not p.is_dir():
+        raise FlakedbError(f"--store {url}: exists and is not a directory (hint: choose a store directory)")
+    if p.is_dir() and any(p.iterdir()) and not (p / "versions").is_dir() and not (p / "latest").is_file():
+        raise FlakedbError(f"--store {url}: an existing directory that is not a flakedb store (no versions/ or "
+                           f"latest); nothing was written (hint: choose a new or empty directory)")
 
 
 def check_build_sizes(n, m):
@@ -138,6 +153,7 @@ def build(store, recipe_path, workers, processes, scheduler, dry_run, n, species
         click.echo(f"store {url}: version state {st.version_state(url, plan.version)}")
         click.echo(plan.describe())
         return
+    check_store_dir(url)
     local = None if scheduler else ("processes" if processes else "threads")
     res = run_build(req, url, scheduler=scheduler or local, workers=workers, progress=True)
     click.echo(f"{res['status']}: version {res['version']} in {res['store']} "

@@ -457,8 +457,12 @@ def version_state(url, version) -> str:
     if fs.exists(posixpath.join(base, "complete")):
         return "complete"
     zj = posixpath.join(base, "zarr.json")
-    if fs.exists(zj) and "version" in _read_json(fs, zj).get("attributes", {}):
-        return "partial"  # the metadata goes in last when the template is written
+    try:
+        if fs.exists(zj) and "version" in (_read_json(fs, zj).get("attributes") or {}):
+            return "partial"  # the metadata goes in last when the template is written
+    except (OSError, ValueError, UnicodeDecodeError, AttributeError, TypeError) as exc:
+        raise StoreError(f"{url}: versions/{version}/zarr.json is unreadable "
+                         f"({getattr(exc, 'strerror', None) or exc}); remove that version or rebuild it") from None
     return "absent"
 
 
@@ -852,6 +856,12 @@ def open_version(url=None, version=None, verify=True) -> "StoreVersion":
     state = version_state(url, version)
     if state != "complete":
         raise StoreError(f"{url}: version {version} is {state}; rerun `flakedb build` with the same inputs to finish it")
+    fs, root = _fs(url)
+    try:  # through the safe reader first: zarr would block on a FIFO or read a device without end
+        _read_json(fs, posixpath.join(root, "versions", version, "zarr.json"))
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        raise StoreError(f"{url}: versions/{version}/zarr.json is unreadable "
+                         f"({getattr(exc, 'strerror', None) or exc}); rebuild with `flakedb build`") from None
     g = zarr.open_group(_version_url(url, version), mode="r")
     fmt = dict(g.attrs).get("format_version")
     if fmt != FORMAT_VERSION:

@@ -355,7 +355,7 @@ def test_flake_diameter_and_catalogue_bounds(tmp_path, no_work):
 
 
 def test_build_step_and_range_are_bounded(tmp_path, no_work):
-    _clean(_run(["build", "--step-nm", "0.000001", "--dry-run", "--store", tmp_path / "s"]), "--step-nm", "1 ≤ step ≤ 20")
+    _clean(_run(["build", "--step-nm", "0.000001", "--dry-run", "--store", tmp_path / "s"]), "--step-nm", "1 ≤ step ≤ 420")
     _clean(_run(["build", "--step-nm", "nan", "--dry-run", "--store", tmp_path / "s"]), "--step-nm")
     _clean(_run(["build", "--range-nm", "780", "380", "--dry-run", "--store", tmp_path / "s"]), "--range-nm")
     _clean(_run(["build", "--eta-top", "1e300", "--dry-run", "--store", tmp_path / "s"]), "--eta-top")

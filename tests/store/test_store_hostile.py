@@ -130,3 +130,31 @@ def test_bad_version_names_in_verify_version(built):
         "version '../x': not a version hash (hex digits); it would point outside versions/"]
     with pytest.raises(st.StoreError, match="not a version hash"):
         st.open_version(built[0], version="../../x")
+
+
+def test_build_refuses_a_directory_that_is_not_a_store(tmp_path):
+    d = tmp_path / "documents"
+    d.mkdir()
+    (d / "latest").mkdir()            # the user's own folder named latest
+    (d / "notes.txt").write_text("mine")
+    _clean(_run(["build", "--store", d, "--species", "cadmium-yellow", "--n", "8", "--range-nm", "450", "650",
+                 "--step-nm", "100"]), "not a flakedb store", codes=(2,))
+    assert sorted(p.name for p in d.iterdir()) == ["latest", "notes.txt"]
+
+
+@pytest.mark.parametrize("kind", ["fifo", "zero"])
+def test_a_special_file_as_version_metadata_is_an_error_not_a_hang(built, tmp_path, kind):
+    import os
+    url = _copy(built, tmp_path)
+    zj = Path(url) / "versions" / built[1] / "zarr.json"
+    zj.unlink()
+    if kind == "fifo":
+        os.mkfifo(zj)
+    else:
+        os.symlink("/dev/zero", zj)
+    with pytest.raises(st.StoreError, match="not a regular file"):
+        st.open_version(url)
+    _clean(_run(["verify", url], bound=30), "not a regular file", codes=(1,))
+    rec = tmp_path / "r.yaml"
+    rec.write_text(RECIPE)
+    _clean(_run(["compose", rec, "--store", url, "--out", tmp_path / "o"], bound=30), "not a regular file")
