@@ -8,6 +8,7 @@ from flakedb.cli.options import RAW_HELP, check_node_count
 from flakedb.cli.progress import StageProgress
 from flakedb.colour.gamut import RGB_SPACES
 from flakedb.compose.orchestrate import UnphysicalResultError, output_plan
+from flakedb.outputs import OutputError
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
 from flakedb.paint.catalog import CatalogError, load_catalog
@@ -89,7 +90,7 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, quiet, buil
             click.echo(f"compose {rec.name}: {b['status']} version {b['version'][:12]} ({b['tasks_run']} of "
                        f"{b['tasks_total']} tasks run, {b['seconds']:.1f} s)", err=True)
             res = attempt()
-    except (StoreError, UnphysicalResultError, RecipeError) as exc:
+    except (StoreError, UnphysicalResultError, RecipeError, OutputError) as exc:
         raise FlakedbError(str(exc)) from exc
     for w in res.warnings:
         if w.startswith("UNPHYSICAL"):
