@@ -163,6 +163,7 @@ class OutputPlan:
     inputs: list = field(default_factory=list)    # (Path, label)
     outputs: list = field(default_factory=list)   # (Path, label)
     dirs: list = field(default_factory=list)      # (Path, option)
+    errors: list = field(default_factory=list)    # OutputError found while planning
 
     def add_input(self, path, label):
         if path is not None:
@@ -182,11 +183,16 @@ class OutputPlan:
         """``out_dir / name`` as an output; ``option`` given: ``name`` came from that option and must be a
         plain file name (:func:`check_file_name`)."""
         if option is not None:
-            check_file_name(name, option, where)
+            try:
+                check_file_name(name, option, where)
+            except OutputError as exc:   # reported by check(), with the rest of the plan
+                self.errors.append(exc)
         return self.add_output(Path(out_dir) / name, label)
 
     def check(self):
         """Refuse the plan (:class:`OutputError`) for the reasons in the module docstring."""
+        if self.errors:
+            raise self.errors[0]
         for d, option in self.dirs:
             check_output_dir(d, option)
         seen = []

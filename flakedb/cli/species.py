@@ -47,7 +47,7 @@ def show(name, out_dir, catalog_path):
     plan = OutputPlan()
     plan.add_dir(out_dir)
     plan.add_input(catalog_path, "--catalog")
-    plan.in_dir(out_dir, f"{name}-optics.png", "plot")
+    plan.in_dir(out_dir, f"{name}-optics.png", "plot", option="NAME")
     check_plan(plan)   # before any work: a writable --out, the plot's name not taken by a directory
     click.echo(optics_table(name, catalog))
     path = plot_optics(name, out_dir, catalog)

@@ -95,6 +95,9 @@ def pigment_memory_bytes(median_diameter_um, gsd, wavelength_nm, n_binder) -> fl
     return float(wl.size) * q * PIGMENT_PHASE_ANGLES * PIGMENT_BYTES_PER_POINT
 
 
+#: A species name (the schema's ``$defs/name``): it also names files, so no separators.
+_NAME_RE = re.compile(r"[a-z0-9][a-z0-9-]*")
+
 #: Most members one sweep may generate (each is a species a build projects: the shipped sweep has 8).
 MAX_SWEEP_MEMBERS = 1000
 
@@ -163,6 +166,10 @@ def _semantic_problems(doc) -> list[str]:
             out.append(f"{base}.name_format: {s['name_format']!r} does not format an integer value ({exc})")
             continue
         for g in generated:
+            if not _NAME_RE.fullmatch(g):
+                out.append(f"{base}.name_format: generates the name {g!r}; a species name is lower-case letters, "
+                           f"digits and '-' (it names files, e.g. NAME-optics.png)")
+                break
             if g in names:
                 out.append(f"{base}: generated name {g!r} is already used")
             names.add(g)

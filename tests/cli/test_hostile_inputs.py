@@ -406,3 +406,13 @@ def test_cxf_with_a_doctype_is_refused(tmp_path, no_work):
     rec.write_text(RECIPE)
     out = _clean(_run(["compare", rec, "--target", cxf]), "DOCTYPE")
     assert "root:" not in out
+
+
+def test_a_sweep_name_cannot_be_a_path(tmp_path, no_work):
+    text = default_catalog_path().read_text()
+    cat = tmp_path / "cat.yaml"
+    cat.write_text(text.replace('name_format: "pearlescent-tio2-{value:03d}nm"', 'name_format: "../../evil-{value:03d}"'))
+    assert cat.read_text() != text
+    _clean(_run(["species", "show", "../../evil-070", "--catalog", cat, "--out", tmp_path / "o"]),
+           "name_format", "a species name is lower-case letters")
+    assert not (tmp_path.parent / "evil-070-optics.png").exists()
