@@ -238,6 +238,10 @@ def read_bsdf(path) -> FourierBSDF:
             and nodes[0] >= -1 and nodes[-1] <= 1):
         raise BSDFFileError(f"{path}: nodes are not strictly ascending within [-1, 1] (apart from the two zero "
                             f"nodes); the file is corrupt")
+    inner = np.r_[nodes[:h], nodes[h + 2:]]
+    if not (inner[h - 1] < 0 < inner[h] and np.allclose(inner[:h], -inner[h:][::-1], rtol=0, atol=1e-12)):
+        raise BSDFFileError(f"{path}: nodes are not one rule mirrored in both hemispheres (negative half = minus "
+                            f"the positive half, no node at 0 apart from the two zero nodes); the file is corrupt")
     check_values(path, "cdf", cdf)
     check_values(path, "coefficients", coeffs)
     K = offsets[:, 1].astype(np.int64)
