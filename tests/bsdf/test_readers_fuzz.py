@@ -26,7 +26,7 @@ def _good_bytes():
     x = np.array([0.2, 0.5, 0.8, 1.0])
     mu = np.concatenate([-x[::-1], x])
     c = np.zeros((3, mu.size, mu.size, 3))
-    c[..., 0] = 0.05
+    c[..., 0] = 0.05 + 0.002 * np.arange(mu.size)[:, None] + 0.001 * np.arange(mu.size)[None, :]
     c[..., 1] = 0.01
     t = BSDFTable(mu=mu, coeffs=c, eta=1.5, delta={"kind": "fresnel", "eta": 1.5}, metadata={"recipe": "fuzz"})
     with tempfile.TemporaryDirectory() as d:
