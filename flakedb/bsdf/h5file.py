@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+import faulthandler
 import json
 import os
+import signal
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -172,17 +177,53 @@ def _short_repr(v):
 MAX_METADATA_CHARS = 50_000_000
 
 
-def read_h5(path) -> FourierBSDF:
-    """Read a file written by :func:`write_h5` into a :class:`FourierBSDF` (float64, channels as
-    stored; the zero nodes inserted as in the ``.bsdf``; cdf computed from the sampling channel)."""
-    path = Path(path)
-    try:
-        st = check_regular(path)   # a FIFO would block HDF5's open, a device never ends
-    except FileNotFoundError:
-        raise BSDFFileError(f"{path}: no such file") from None
-    except OSError as e:
-        raise BSDFFileError(f"{path}: cannot read ({e.strerror})") from None
-    check_bytes(path, "the file", st.st_size)
+#: Reading a .h5 first in a forked child (Linux): a corrupt file can crash the HDF5 C library (measured:
+#: random byte changes to a 30 kB flakedb .h5 segfaulted h5py), and a crash must be a one-line error, not
+#: the end of the process.  Set FLAKEDB_H5_PROBE=0 to read in-process only.
+H5_PROBE = os.environ.get("FLAKEDB_H5_PROBE", "1").strip() != "0"
+#: The child's time limit [s]: a base plus 20 s per GB of file (a 30 kB file reads in 5 ms); HDF5 loops
+#: forever on some corrupt files, so past it the child is killed and the file refused.
+H5_PROBE_BASE_S = 10.0
+
+
+def _crash_probe(path, size):
+    """Read ``path`` in a forked child first; BSDFFileError when the child dies of a signal (module
+    constant :data:`H5_PROBE`).  The child's own exceptions are ignored here: the real read raises them."""
+    if not (H5_PROBE and sys.platform.startswith("linux") and hasattr(os, "fork")):
+        return
+    pid = os.fork()
+    if pid == 0:   # the child: read, exit; never returns into the caller's code
+        code = 0
+        try:
+            faulthandler.disable()   # a crash here is the parent's one-line error, not a dump on the terminal
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, 2)
+            _read_fields(path)
+        except BaseException:
+            code = 3
+        os._exit(code)
+    start = time.monotonic()
+    deadline = start + H5_PROBE_BASE_S + 20.0 * size / 1e9
+    pause = 0.0005
+    while True:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        if time.monotonic() > deadline:   # HDF5 loops on some corrupt files: the parent would too
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            raise BSDFFileError(f"{path}: the HDF5 library did not finish reading it in {deadline - start:.0f} s "
+                                f"(it loops on some corrupt files); the file is corrupt")
+        time.sleep(pause)
+        pause = min(2 * pause, 0.05)
+    if os.WIFSIGNALED(status) and os.WTERMSIG(status) not in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+        raise BSDFFileError(f"{path}: the HDF5 library crashed reading it ({signal.Signals(os.WTERMSIG(status)).name}); "
+                            f"the file is corrupt")
+
+
+def _read_fields(path):
+    """Everything :func:`read_h5` takes from the file, checked as it is read (no external data)."""
     try:
         import h5py  # lazy: h5py takes 50 ms to import; only the .h5 file needs it
 
@@ -215,6 +256,22 @@ def read_h5(path) -> FourierBSDF:
         raise
     except (OSError, KeyError, ValueError, TypeError, AttributeError, RuntimeError) as e:
         raise BSDFFileError(f"{path}: corrupt or incomplete flakedb HDF5 file ({e})") from None
+    return ver, mu, coeffs, eta, alpha, channels, delta, stored, written_by
+
+
+def read_h5(path) -> FourierBSDF:
+    """Read a file written by :func:`write_h5` into a :class:`FourierBSDF` (float64, channels as
+    stored; the zero nodes inserted as in the ``.bsdf``; cdf computed from the sampling channel)."""
+    path = Path(path)
+    try:
+        st = check_regular(path)   # a FIFO would block HDF5's open, a device never ends
+    except FileNotFoundError:
+        raise BSDFFileError(f"{path}: no such file") from None
+    except OSError as e:
+        raise BSDFFileError(f"{path}: cannot read ({e.strerror})") from None
+    check_bytes(path, "the file", st.st_size)
+    _crash_probe(path, st.st_size)
+    ver, mu, coeffs, eta, alpha, channels, delta, stored, written_by = _read_fields(path)
     check_values(path, "mu", mu, -1.0, 1.0)
     check_values(path, "coeffs", coeffs)
     check_eta(path, eta)

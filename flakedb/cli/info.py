@@ -145,8 +145,12 @@ def describe(path):
     }
     if b.kind == "h5" and md.get("wavelength_nm") and len(md["wavelength_nm"]) == b.n_channels:
         wl = np.asarray(md["wavelength_nm"], float)
-        XYZ = reflectance_to_XYZ(albedo, wl)
-        lab = XYZ_to_Lab(XYZ, white=white_XYZ(wl))
+        try:
+            XYZ = reflectance_to_XYZ(albedo, wl)
+            lab = XYZ_to_Lab(XYZ, white=white_XYZ(wl))
+        except ValueError as e:   # a grid the colorimetry does not take (step, range): no CIELAB rows
+            d["checks"].append({"check": "cielab", "ok": None, "text": f"no CIELAB of the albedo: {e}"})
+            return d
         for row, x, c in zip(d["albedo"], XYZ, lab):
             row["albedo_Y"] = float(x[1])
             row["albedo_Lab"] = [float(v) for v in c]
