@@ -9,6 +9,8 @@ import os
 import tempfile
 from pathlib import Path
 
+from flakedb.outputs import temp_prefix
+
 
 def _new_file_mode():
     umask = os.umask(0)
@@ -18,10 +20,11 @@ def _new_file_mode():
 
 def temp_beside(path, suffix=None):
     """``(fd, tmp)``: an open temporary file in ``path``'s directory (created if needed), named
-    ``.NAME.XXXX.tmpSUFFIX`` (the target's suffix by default: some writers pick the format by it)."""
+    ``.NAME.flakedb-tmp-HOST-PID-XXXX.tmpSUFFIX`` (the target's suffix by default: some writers pick the
+    format by it; the tag lets :func:`flakedb.outputs.sweep_stale` find what a killed run left)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temp_prefix(path.name),
                                suffix=".tmp" + (path.suffix if suffix is None else suffix))
     os.fchmod(fd, _new_file_mode())
     return fd, tmp

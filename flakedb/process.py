@@ -12,9 +12,12 @@ n = 200 took 0.28–0.31 s instead of 0.39–0.42 s in a fresh process (the same
 peak stays mapped to the process until it exits (it is reused by later arrays).
 """
 
+import contextlib
 import ctypes
 import ctypes.util
 import os
+import signal
+import threading
 
 #: glibc's mallopt parameters (malloc.h).
 _M_TRIM_THRESHOLD = -1
@@ -46,3 +49,39 @@ def tune_allocator():
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt.restype = ctypes.c_int
     return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP arrived (issue 25): raised in the main thread like Ctrl-C's KeyboardInterrupt,
+    so every ``finally`` / ``except BaseException`` that cleans up after SIGINT (temporary files and
+    directories, half-built outputs) does the same for them.  ``signum`` is the signal's number."""
+
+    def __init__(self, signum):
+        super().__init__(f"terminated by {signal.Signals(signum).name}")
+        self.signum = signum
+
+
+def _raise_terminated(signum, frame):
+    # one clean-up at a time: a second SIGTERM/SIGHUP during the clean-up is ignored (SIGKILL still works,
+    # and the next run removes what a SIGKILL left: flakedb.outputs.sweep_stale)
+    for s in TERMINATING_SIGNALS:
+        with contextlib.suppress(ValueError, OSError):
+            signal.signal(s, signal.SIG_IGN)
+    raise Terminated(signum)
+
+
+#: The signals that end a run the way SIGINT does (those that exist on this platform).
+TERMINATING_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+def install_signal_handlers() -> bool:
+    """Make SIGTERM and SIGHUP raise :class:`Terminated` in the main thread (True when installed; False
+    off the main thread, where Python cannot install handlers).  A signal the parent set to be ignored
+    (``nohup`` ignores SIGHUP) stays ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        return False
+    for s in TERMINATING_SIGNALS:
+        if signal.getsignal(s) is signal.SIG_IGN:
+            continue
+        signal.signal(s, _raise_terminated)
+    return True

@@ -15,6 +15,7 @@ from flakedb.bsdf.evaluator import FourierBSDF
 from flakedb.bsdf.fourier_file import MAGIC_BSDF, read_bsdf
 from flakedb.bsdf.h5file import MAGIC_H5, read_h5
 from flakedb.bsdf.table import BSDFFileError
+from flakedb.safeio import read_head
 
 #: kind -> (magic bytes at offset 0, description).  Checked in order; the first match wins.
 FILE_KINDS = {
@@ -30,8 +31,7 @@ _HEAD = max(len(m) for m, _ in FILE_KINDS.values())
 
 def _head(path) -> bytes:
     try:
-        with open(path, "rb") as fh:
-            return fh.read(_HEAD)
+        return read_head(path, _HEAD)   # a regular file only: a FIFO would block, a device never ends
     except FileNotFoundError:
         raise BSDFFileError(f"{path}: no such file") from None
     except IsADirectoryError:

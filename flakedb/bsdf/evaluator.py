@@ -334,7 +334,11 @@ class FourierBSDF:
         K = self.order.ravel()
         dense = np.zeros((N * N, self.n_channels, L))
         mask = np.broadcast_to(np.arange(L)[None, None, :] < K[:, None, None], dense.shape)
-        dense[mask] = self._flat
+        # gathered by each pair's offset (a file need not store the pairs contiguously or in order)
+        start = self._start.ravel()
+        idx = (start[:, None, None] + np.arange(self.n_channels)[None, :, None] * K[:, None, None]
+               + np.arange(L)[None, None, :])
+        dense[mask] = self._flat[idx[mask]]
         c = np.transpose(dense.reshape(N, N, self.n_channels, L)[np.ix_(keep, keep)], (2, 0, 1, 3))
         if self.kind == "bsdf" and self.n_channels == 3:
             y, r, b = c

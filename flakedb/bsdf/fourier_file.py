@@ -13,10 +13,11 @@ import numpy as np
 
 from flakedb.atomic import atomic_path
 from flakedb.bsdf.evaluator import FourierBSDF
-from flakedb.bsdf.limits import MAX_NODES, MAX_ORDERS, check_alpha, check_bytes, check_count, check_eta, check_values
-from flakedb.bsdf.metadata import format_metadata, parse_metadata
+from flakedb.bsdf.limits import MAX_COEFF_BYTES, MAX_NODES, MAX_ORDERS, check_alpha, check_bytes, check_count, check_eta, check_values
+from flakedb.bsdf.metadata import check_delta, check_known_metadata, format_metadata, parse_metadata
 from flakedb.bsdf.spline import catmull_rom_cdf, insert_zero_nodes
 from flakedb.bsdf.table import G_FROM_YRB, RGB_TO_Y, TRUNCATION_DEFAULT, BSDFFileError, BSDFTable
+from flakedb.safeio import FileTooLargeError, read_limited
 
 #: Identifier, version and flags of the .bsdf header (docs/bsdf-format.md, header table).
 MAGIC_BSDF = b"SCATFUN"
@@ -205,9 +206,11 @@ def read_bsdf(path) -> FourierBSDF:
     (:attr:`FourierBSDF.coeffs`, float32) and as float64 for evaluation.
     """
     path = Path(path)
-    try:
-        check_bytes(path, "the file", path.stat().st_size)
-        raw = path.read_bytes()
+    try:  # a regular file only (no FIFO / device), never more than the limit read
+        raw = read_limited(path, MAX_COEFF_BYTES)
+    except FileTooLargeError as e:
+        check_bytes(path, "the file", e.size)
+        raise
     except FileNotFoundError:
         raise BSDFFileError(f"{path}: no such file") from None
     except OSError as e:
@@ -250,6 +253,10 @@ def read_bsdf(path) -> FourierBSDF:
             and nodes[0] >= -1 and nodes[-1] <= 1):
         raise BSDFFileError(f"{path}: nodes are not strictly ascending within [-1, 1] (apart from the two zero "
                             f"nodes); the file is corrupt")
+    inner = np.r_[nodes[:h], nodes[h + 2:]]
+    if not (inner[h - 1] < 0 < inner[h] and np.allclose(inner[:h], -inner[h:][::-1], rtol=0, atol=1e-12)):
+        raise BSDFFileError(f"{path}: nodes are not one rule mirrored in both hemispheres (negative half = minus "
+                            f"the positive half, no node at 0 apart from the two zero nodes); the file is corrupt")
     check_values(path, "cdf", cdf)
     check_values(path, "coefficients", coeffs)
     K = offsets[:, 1].astype(np.int64)
@@ -262,6 +269,12 @@ def read_bsdf(path) -> FourierBSDF:
     if nodes[h] != 0 or nodes[h + 1] != 0 or Kq[h].any() or Kq[h + 1].any() or Kq[:, h].any() or Kq[:, h + 1].any():
         raise BSDFFileError(f"{path}: the two middle nodes must be 0 and hold no coefficients (spec, 'nodes')")
     metadata, delta = parse_metadata(meta_text)
+    try:
+        if delta is not None:
+            check_delta(delta)
+        check_known_metadata(metadata)
+    except ValueError as e:
+        raise BSDFFileError(f"{path}: metadata {e} (the file is corrupt)") from None
     if C == 3:
         g = np.array(G_FROM_YRB)
         mix = np.array([[0.0, g[0], 0.0], [1.0, g[1], 0.0], [0.0, g[2], 1.0]])   # Y, R, B -> R, G, B

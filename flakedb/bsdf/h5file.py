@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+import faulthandler
 import json
 import os
+import signal
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +26,9 @@ from flakedb.bsdf.limits import (
     check_eta,
     check_values,
 )
+from flakedb.bsdf.metadata import check_delta, check_known_metadata
 from flakedb.bsdf.table import BSDFFileError, BSDFTable
+from flakedb.safeio import check_regular
 
 #: An HDF5 file's first eight bytes.
 MAGIC_H5 = b"\x89HDF\r\n\x1a\n"
@@ -98,6 +105,160 @@ def _check_shapes(path, mu, coeffs):
                                 f"(the file is corrupt)")
 
 
+def _own_dataset(f, name, path):
+    """Dataset ``name`` of the open file ``f``, refused unless it is a hard link to a dataset whose data
+    lives in this file: an external link, HDF5 external storage (raw data in another file, e.g.
+    /dev/zero or a text file) or a virtual dataset would read a file the user never named."""
+    import h5py  # lazy: only the .h5 file needs it
+
+    link = f.get(name, getlink=True)
+    if link is None:
+        raise BSDFFileError(f"{path}: no dataset {name!r} (corrupt or incomplete flakedb HDF5 file)")
+    if not isinstance(link, h5py.HardLink):
+        raise BSDFFileError(f"{path}: dataset {name!r} is a {type(link).__name__} to another location or file; "
+                            f"flakedb reads only data stored in the named file")
+    d = f[name]
+    if not isinstance(d, h5py.Dataset):
+        raise BSDFFileError(f"{path}: {name!r} is not a dataset (corrupt or incomplete flakedb HDF5 file)")
+    if d.external:
+        raise BSDFFileError(f"{path}: dataset {name!r} keeps its data in external file(s) (HDF5 external "
+                            f"storage); flakedb reads only data stored in the named file")
+    if d.is_virtual:
+        raise BSDFFileError(f"{path}: dataset {name!r} is a virtual dataset (its data lives in other files); "
+                            f"flakedb reads only data stored in the named file")
+    return d
+
+
+def _attr(f, key, kind, path, required=True):
+    """Attribute ``key`` as ``kind`` (str, int or float), refused with its name when missing or of the wrong type."""
+    if key not in f.attrs:
+        if not required:
+            return None
+        raise BSDFFileError(f"{path}: attribute {key!r} is missing (corrupt or incomplete flakedb HDF5 file)")
+    v = f.attrs[key]
+    if isinstance(v, bytes):
+        v = v.decode("utf-8", "replace")
+    if kind is str:
+        if not isinstance(v, str):
+            if required:
+                raise BSDFFileError(f"{path}: attribute {key!r} must be text, got {type(v).__name__}")
+            return repr(v)
+        return v
+    arr = np.asarray(v)
+    if arr.size != 1 or arr.dtype.kind not in ("i", "u", "f") or (kind is int and arr.dtype.kind == "f"):
+        raise BSDFFileError(f"{path}: attribute {key!r} must be one {kind.__name__}, got {_short_repr(v)} "
+                            f"(the file is corrupt)")
+    return kind(arr.reshape(-1)[0])
+
+
+def _json_attr(f, key, kinds, path):
+    """Attribute ``key`` holding JSON text of one of the ``kinds``."""
+    text = _attr(f, key, str, path)
+    if len(text) > MAX_METADATA_CHARS:
+        raise BSDFFileError(f"{path}: attribute {key!r} is {len(text):,} characters; the limit is "
+                            f"{MAX_METADATA_CHARS:,}")
+    try:
+        v = json.loads(text)
+    except (ValueError, RecursionError):
+        raise BSDFFileError(f"{path}: attribute {key!r} is not valid JSON (the file is corrupt)") from None
+    if not isinstance(v, kinds):
+        want = " or ".join(k.__name__ for k in (kinds if isinstance(kinds, tuple) else (kinds,)))
+        raise BSDFFileError(f"{path}: attribute {key!r} must be a JSON {want}, got {type(v).__name__} "
+                            f"(the file is corrupt)")
+    return v
+
+
+def _short_repr(v):
+    r = repr(v)
+    return r if len(r) <= 40 else r[:37] + "..."
+
+
+#: Largest JSON attribute (metadata with the recipe text and solver info is ~100 kB).
+MAX_METADATA_CHARS = 50_000_000
+
+
+#: Reading a .h5 first in a forked child (Linux): a corrupt file can crash the HDF5 C library (measured:
+#: random byte changes to a 30 kB flakedb .h5 segfaulted h5py), and a crash must be a one-line error, not
+#: the end of the process.  Set FLAKEDB_H5_PROBE=0 to read in-process only.
+H5_PROBE = os.environ.get("FLAKEDB_H5_PROBE", "1").strip() != "0"
+#: The child's time limit [s]: a base plus 20 s per GB of file (a 30 kB file reads in 5 ms); HDF5 loops
+#: forever on some corrupt files, so past it the child is killed and the file refused.
+H5_PROBE_BASE_S = 10.0
+
+
+def _crash_probe(path, size):
+    """Read ``path`` in a forked child first; BSDFFileError when the child dies of a signal (module
+    constant :data:`H5_PROBE`).  The child's own exceptions are ignored here: the real read raises them."""
+    if not (H5_PROBE and sys.platform.startswith("linux") and hasattr(os, "fork")):
+        return
+    pid = os.fork()
+    if pid == 0:   # the child: read, exit; never returns into the caller's code
+        code = 0
+        try:
+            faulthandler.disable()   # a crash here is the parent's one-line error, not a dump on the terminal
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, 2)
+            _read_fields(path)
+        except BaseException:
+            code = 3
+        os._exit(code)
+    start = time.monotonic()
+    deadline = start + H5_PROBE_BASE_S + 20.0 * size / 1e9
+    pause = 0.0005
+    while True:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        if time.monotonic() > deadline:   # HDF5 loops on some corrupt files: the parent would too
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            raise BSDFFileError(f"{path}: the HDF5 library did not finish reading it in {deadline - start:.0f} s "
+                                f"(it loops on some corrupt files); the file is corrupt")
+        time.sleep(pause)
+        pause = min(2 * pause, 0.05)
+    if os.WIFSIGNALED(status) and os.WTERMSIG(status) not in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+        raise BSDFFileError(f"{path}: the HDF5 library crashed reading it ({signal.Signals(os.WTERMSIG(status)).name}); "
+                            f"the file is corrupt")
+
+
+def _read_fields(path):
+    """Everything :func:`read_h5` takes from the file, checked as it is read (no external data)."""
+    try:
+        import h5py  # lazy: h5py takes 50 ms to import; only the .h5 file needs it
+
+        with h5py.File(path, "r") as f:
+            fmt = _attr(f, "format", str, path, required=False)
+            if fmt != H5_FORMAT:
+                raise BSDFFileError(f"{path}: not a flakedb BSDF HDF5 file (format attribute {fmt!r})")
+            ver = _attr(f, "format_version", int, path)
+            if ver > H5_FORMAT_VERSION:
+                raise BSDFFileError(f"{path}: format_version {ver} is newer than this flakedb reads "
+                                    f"({H5_FORMAT_VERSION}); upgrade flakedb")
+            mu_d, coeffs_d = (_own_dataset(f, name, path) for name in ("mu", "coeffs"))
+            _check_shapes(path, mu_d, coeffs_d)   # before anything is allocated
+            mu = mu_d[...]
+            coeffs = coeffs_d[...]
+            eta = _attr(f, "eta", float, path)
+            alpha = np.asarray(f.attrs["alpha"], dtype=float).reshape(-1) if "alpha" in f.attrs else None
+            if alpha is None or alpha.size != 2:
+                raise BSDFFileError(f"{path}: attribute alpha must hold two numbers (the file is corrupt)")
+            alpha = tuple(float(a) for a in alpha)
+            channels = _json_attr(f, "channels", list, path)
+            if not channels or not all(isinstance(c, str) and len(c) <= 64 for c in channels):
+                raise BSDFFileError(f"{path}: attribute channels must be a JSON list of channel names (the file "
+                                    f"is corrupt)")
+            channels = tuple(channels)
+            delta = _json_attr(f, "delta", (dict, type(None)), path)
+            stored = _json_attr(f, "metadata", dict, path)
+            written_by = _attr(f, "flakedb_version", str, path)
+    except BSDFFileError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError, AttributeError, RuntimeError) as e:
+        raise BSDFFileError(f"{path}: corrupt or incomplete flakedb HDF5 file ({e})") from None
+    return ver, mu, coeffs, eta, alpha, channels, delta, stored, written_by
+
+
 def read_h5(path) -> FourierBSDF:
     """Read a file written by :func:`write_h5` into a :class:`FourierBSDF` (float64, channels as
     stored; the zero nodes inserted as in the ``.bsdf``; cdf computed from the sampling channel).
@@ -118,36 +279,28 @@ def read_h5(path) -> FourierBSDF:
     (True, ('R', 'G', 'B'))
     """
     path = Path(path)
-    if not path.exists():
-        raise BSDFFileError(f"{path}: no such file")
     try:
-        import h5py  # lazy: h5py takes 50 ms to import; only the .h5 file needs it
-
-        with h5py.File(path, "r") as f:
-            fmt = f.attrs.get("format")
-            if fmt != H5_FORMAT:
-                raise BSDFFileError(f"{path}: not a flakedb BSDF HDF5 file (format attribute {fmt!r})")
-            ver = int(f.attrs["format_version"])
-            if ver > H5_FORMAT_VERSION:
-                raise BSDFFileError(f"{path}: format_version {ver} is newer than this flakedb reads "
-                                    f"({H5_FORMAT_VERSION}); upgrade flakedb")
-            _check_shapes(path, f["mu"], f["coeffs"])   # before anything is allocated
-            mu = f["mu"][...]
-            coeffs = f["coeffs"][...]
-            eta = float(f.attrs["eta"])
-            alpha = tuple(float(a) for a in f.attrs["alpha"])
-            channels = tuple(json.loads(f.attrs["channels"]))
-            delta = json.loads(f.attrs["delta"])
-            stored = json.loads(f.attrs["metadata"])
-            written_by = str(f.attrs["flakedb_version"])
-    except BSDFFileError:
-        raise
-    except (OSError, KeyError, ValueError, TypeError, AttributeError) as e:
-        raise BSDFFileError(f"{path}: corrupt or incomplete flakedb HDF5 file ({e})") from None
+        st = check_regular(path)   # a FIFO would block HDF5's open, a device never ends
+    except FileNotFoundError:
+        raise BSDFFileError(f"{path}: no such file") from None
+    except OSError as e:
+        raise BSDFFileError(f"{path}: cannot read ({e.strerror})") from None
+    check_bytes(path, "the file", st.st_size)
+    _crash_probe(path, st.st_size)
+    ver, mu, coeffs, eta, alpha, channels, delta, stored, written_by = _read_fields(path)
     check_values(path, "mu", mu, -1.0, 1.0)
     check_values(path, "coeffs", coeffs)
     check_eta(path, eta)
     check_alpha(path, alpha)
+    if delta is not None:
+        try:
+            check_delta(delta)
+        except ValueError as e:
+            raise BSDFFileError(f"{path}: attribute delta: {e} (the file is corrupt)") from None
+    try:
+        check_known_metadata(stored)
+    except ValueError as e:
+        raise BSDFFileError(f"{path}: metadata {e} (the file is corrupt)") from None
     try:
         table = BSDFTable(mu=mu, coeffs=coeffs, eta=eta, alpha=alpha, delta=delta, metadata=stored,
                           channels=channels)

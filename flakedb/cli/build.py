@@ -1,6 +1,9 @@
 """`flakedb build` (the precompute, issue #5) and `flakedb verify STORE`.  Thin: the work is in
 flakedb/pipelines/build.py and flakedb/store/versions.py."""
 
+import math
+from pathlib import Path
+
 import click
 
 from flakedb.cli.errors import FlakedbError
@@ -15,6 +18,40 @@ from flakedb.store import versions as st
 #: Largest φ_d sample count (--m) and uncompressed size of one build [bytes] (64 GiB).
 MAX_M = 4096
 MAX_BUILD_BYTES = 64 * 1024 ** 3
+
+
+#: Band spacing [nm] and range of a build: finer than 1 nm is below the CIE tables' resolution (and multiplies
+#: every array); up to the whole 360-780 nm range (coarse grids serve quick tests), the CIE x D65 tables'
+#: common domain.
+STEP_NM_RANGE = (1.0, 420.0)
+RANGE_NM_LIMITS = (360.0, 780.0)
+
+
+def check_spectral_options(range_nm, step_nm):
+    """Refuse a --range-nm / --step-nm outside the recipe's limits (with their reason), before planning."""
+    lo, hi = STEP_NM_RANGE
+    if not (math.isfinite(step_nm) and lo <= step_nm <= hi):
+        raise FlakedbError(f"--step-nm {step_nm:g}: the band spacing must be in {lo:g} ≤ step ≤ {hi:g} nm (finer than "
+                           f"1 nm is below the CIE tables' resolution and multiplies every stored array), e.g. "
+                           f"--step-nm 5")
+    a, b = range_nm
+    if not (all(math.isfinite(x) for x in range_nm) and RANGE_NM_LIMITS[0] <= a < b <= RANGE_NM_LIMITS[1]):
+        raise FlakedbError(f"--range-nm {a:g} {b:g}: first < last, both in {RANGE_NM_LIMITS[0]:g}-"
+                           f"{RANGE_NM_LIMITS[1]:g} nm (the CIE x D65 tables' common domain), e.g. --range-nm 380 780")
+
+
+def check_store_dir(url):
+    """Refuse to build into an existing local directory that is not a flakedb store (it would get a
+    ``latest`` file and a ``versions/`` directory among the user's own files, and ``latest`` may be
+    theirs)."""
+    if "://" in str(url):
+        return
+    p = Path(url)
+    if p.exists() and not p.is_dir():
+        raise FlakedbError(f"--store {url}: exists and is not a directory (hint: choose a store directory)")
+    if p.is_dir() and any(p.iterdir()) and not (p / "versions").is_dir() and not (p / "latest").is_file():
+        raise FlakedbError(f"--store {url}: an existing directory that is not a flakedb store (no versions/ or "
+                           f"latest); nothing was written (hint: choose a new or empty directory)")
 
 
 def check_build_sizes(n, m):
@@ -67,6 +104,11 @@ def build(store, recipe_path, workers, processes, scheduler, dry_run, n, species
     """Build (or reuse) the projected-kernel store and point `latest` at it."""
     url = store or st.default_store()
     check_build_sizes(n or DEFAULT_N, None)
+    check_spectral_options(range_nm, step_nm)
+    if workers is not None and not 1 <= workers <= 1024:
+        raise FlakedbError(f"--workers {workers}: give 1 ≤ workers ≤ 1024")
+    if rank_tol is not None and not (math.isfinite(rank_tol) and 0 < rank_tol < 1):
+        raise FlakedbError(f"--rank-tol {rank_tol:g}: a fraction of max R, 0 < rank-tol < 1 (e.g. 1e-5)")
     if str(eta_top).strip().lower() in ("none", "null"):
         eta = None
     else:
@@ -74,15 +116,22 @@ def build(store, recipe_path, workers, processes, scheduler, dry_run, n, species
             eta = float(eta_top)
         except ValueError:
             raise FlakedbError(f"--eta-top {eta_top}: give a number ≥ 1 (e.g. 1.5) or 'none'") from None
+        if not (math.isfinite(eta) and 1.0 <= eta <= 3.0):
+            raise FlakedbError(f"--eta-top {eta_top}: a clear coat's relative index is in 1 ≤ eta ≤ 3 (binders are "
+                               f"1.3-1.7), or 'none'")
     alphas = None
     if alpha:
         alphas = {}
         for a in alpha:
             name, _, val = a.partition("=")
             try:
-                alphas.setdefault(name.strip(), []).append(float(val))
+                v = float(val)
             except ValueError:
                 raise FlakedbError(f"--alpha {a}: give SPECIES=ALPHA with ALPHA a number > 0, e.g. metallic=0.2") from None
+            if not (math.isfinite(v) and 0.001 <= v <= 2.0):
+                raise FlakedbError(f"--alpha {a}: the flake orientation spread must be in 0.001 ≤ α ≤ 2 (the recipe's "
+                                   f"orientation_alpha range: a narrower lobe than any quadrature resolves)")
+            alphas.setdefault(name.strip(), []).append(v)
     try:
         if recipe_path is not None:
             if len(n) > 1:
@@ -111,6 +160,7 @@ def build(store, recipe_path, workers, processes, scheduler, dry_run, n, species
         click.echo(f"store {url}: version state {st.version_state(url, plan.version)}")
         click.echo(plan.describe())
         return
+    check_store_dir(url)
     local = None if scheduler else ("processes" if processes else "threads")
     res = run_build(req, url, scheduler=scheduler or local, workers=workers, progress=True)
     click.echo(f"{res['status']}: version {res['version']} in {res['store']} "

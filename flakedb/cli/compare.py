@@ -10,12 +10,14 @@ Thin: prediction in :mod:`flakedb.match.fit`, differences and tolerances in
 (docs/colour-matching.md).  Exit status 1 when a geometry fails its limit.
 """
 
+import math
 from pathlib import Path
 
 import click
 import numpy as np
 
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import check_plan
 from flakedb.cli.options import check_node_count, prediction_options
 from flakedb.colour.settings import (
     DEFAULT_GEOMETRY_SET,
@@ -31,6 +33,7 @@ from flakedb.match import batch
 from flakedb.match.cxf import load_target
 from flakedb.match.fit import predict, resolution
 from flakedb.match.targets import TargetError, write_target
+from flakedb.outputs import OutputPlan
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
@@ -38,6 +41,12 @@ from flakedb.render.plots import plot_multiangle
 from flakedb.store.versions import StoreError
 
 
+def parse_limits(items, option="--limit"):
+    """``ILLUM/ASPEC=VALUE`` or ``ASPEC=VALUE`` (illumination 45°) → {(illum, aspec): value}.
+
+    >>> parse_limits(["45/15=1.5", "110=2"])
+    {(45.0, 15.0): 1.5, (45.0, 110.0): 2.0}
+    """
 def parse_limits(items):
     """``ILLUM/ASPEC=VALUE`` or ``ASPEC=VALUE`` (illumination 45°) → {(illum, aspec): value}.
 
@@ -50,10 +59,13 @@ def parse_limits(items):
             geo, val = it.split("=")
             parts = geo.split("/")
             illum, asp = (45.0, float(parts[0])) if len(parts) == 1 else (float(parts[0]), float(parts[1]))
-            out[(illum, asp)] = float(val)
+            value = float(val)
+            if not all(math.isfinite(x) for x in (illum, asp, value)) or value < 0 or len(parts) > 2:
+                raise ValueError(it)
+            out[(illum, asp)] = value
         except ValueError:
-            raise FlakedbError(f"--limit {it}: write ASPECULAR=dE00 (45° illumination) or ILLUM/ASPECULAR=dE00, "
-                               f"e.g. --limit 15=1.2 --limit 15/-15=2") from None
+            raise FlakedbError(f"{option} {it}: write ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V with finite "
+                               f"angles and V ≥ 0, e.g. {option} 15=1.2 {option} 15/-15=2") from None
     return out
 
 
@@ -111,8 +123,9 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         raise FlakedbError("give a RECIPE (or a folder of recipes, or --pairs LIST.csv)")
     if not target_paths and csv_out is None and pairs_path is None and table_out is None:
         raise FlakedbError("give --target T.csv (compare) and/or --write-csv P.csv / --table T.csv (write the prediction)")
-    if not (np.isfinite(max_de) and max_de > 0):
-        raise FlakedbError(f"--max-de {max_de:g}: must be a positive dE00")
+    if not (math.isfinite(max_de) and max_de >= 0):
+        raise FlakedbError(f"--max-de {max_de}: a ΔE00 limit is a finite number ≥ 0 (e.g. --max-de 1)")
+    scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))  # before any work
     try:
         recipe_files = batch.expand_paths(recipes, (".yaml", ".yml"))
         target_files = batch.expand_paths(target_paths, (".csv", ".cxf"))
@@ -125,6 +138,12 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
                               geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path)
     recipe = str(recipe_files[0])
     target_path = str(target_files[0]) if target_files else None
+    if csv_out is not None:  # the output plan, before any work: never onto the target, the recipe, the catalogue
+        plan = OutputPlan()
+        for path, label in ((recipe, "RECIPE"), (target_path, "--target"), (catalog_path, "--catalog")):
+            plan.add_input(path, label)
+        plan.add_output(csv_out, "--write-csv")
+        check_plan(plan)
 
     try:
         catalog = load_catalog(catalog_path)
@@ -166,7 +185,6 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         lab_t = target.lab_under(obs, ill)
     except TargetError as exc:
         raise FlakedbError(str(exc)) from exc
-    scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))
     d = lab_differences(lab_t, lab)
     ev = scheme.evaluate(geoms, lab_t, lab)
     mi = None

@@ -15,13 +15,14 @@ A node count the solver cannot use is refused before any work, in one line, exit
 import click
 
 from flakedb.cli.errors import FlakedbError
-from flakedb.cli.failures import probe_writable, remove_created_dirs
+from flakedb.cli.failures import check_plan, probe_writable, remove_created_dirs
 from flakedb.cli.options import RAW_HELP, check_node_count
 from flakedb.cli.progress import StageProgress
 from flakedb.colour.gamut import RGB_SPACES
 from flakedb.colour.settings import DEFAULT_GEOMETRY_SET, DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, GEOMETRY_SETS, resolve
 from flakedb.colour.tolerance import illuminant_name
-from flakedb.compose.orchestrate import OutputError, UnphysicalResultError, check_output_dir
+from flakedb.compose.orchestrate import UnphysicalResultError, output_plan
+from flakedb.outputs import OutputError
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
 from flakedb.paint.catalog import CatalogError, load_catalog
@@ -74,10 +75,11 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, observer, i
         colour = resolve(observer, illuminant, geometry_set, rec.mode)
         if illuminant is not None:
             illuminant_name(illuminant)
-        check_output_dir(out_dir)
-        probe_writable(out_dir)
-    except (RecipeError, CatalogError, OutputError, ValueError) as exc:
+    except (RecipeError, CatalogError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
+    inputs = [(recipe, "RECIPE")] + ([(catalog_path, "--catalog")] if catalog_path else [])
+    check_plan(output_plan(out_dir, rec.name, inputs))
+    probe_writable(out_dir)
     if colour.note:
         click.echo(f"note: {colour.note}", err=True)
     for w in rec.warnings:
@@ -97,7 +99,7 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, observer, i
                 return compose_recipe(rec, out_dir, n=n, raw=raw, catalog=catalog,
                                       log=lambda s: click.echo(f"  {s}"), store=store, rgb_space=rgb_space,
                                       progress=progress, allow_unphysical=allow_unphysical,
-                                      colour_settings=colour)
+                                      colour_settings=colour, inputs=inputs)
         finally:
             bar.close()
 
@@ -116,7 +118,7 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, observer, i
             click.echo(f"compose {rec.name}: {b['status']} version {b['version'][:12]} ({b['tasks_run']} of "
                        f"{b['tasks_total']} tasks run, {b['seconds']:.1f} s)", err=True)
             res = attempt()
-    except (StoreError, UnphysicalResultError, RecipeError) as exc:
+    except (StoreError, UnphysicalResultError, RecipeError, OutputError) as exc:
         raise FlakedbError(str(exc)) from exc
     for w in res.warnings:
         if w.startswith("UNPHYSICAL"):

@@ -14,6 +14,8 @@
 import click
 
 from flakedb.cli.demo_run import run_demo
+from flakedb.cli.failures import check_plan
+from flakedb.outputs import OutputPlan
 
 
 @click.command()
@@ -21,4 +23,7 @@ from flakedb.cli.demo_run import run_demo
               help="Directory for the demo's outputs.")
 def demo(out_dir):
     """Run the end-to-end demo with what flakedb can do today."""
+    plan = OutputPlan()
+    plan.add_dir(out_dir)
+    check_plan(plan)   # a writable --out before any work
     run_demo(out_dir)

@@ -24,8 +24,8 @@ import click
 
 from flakedb.bsdf import BSDFFileError
 from flakedb.cli.errors import FlakedbError
-from flakedb.cli.failures import probe_writable, remove_created_dirs
-from flakedb.compose.orchestrate import OutputError, check_output_dir
+from flakedb.cli.failures import check_plan, probe_writable, remove_created_dirs
+from flakedb.outputs import OutputPlan
 from flakedb.render import mitsuba as fm
 
 #: The export's own extension: the content is an RGL tensor file, not a Fourier .bsdf (Mitsuba's
@@ -61,12 +61,13 @@ def export_mitsuba(file, out, variant, res, n_theta, coat, as_json):
         out = str(Path(file).with_name(Path(file).stem + MEASURED_SUFFIX))
     try:
         fm.check_export_size(res, n_theta)
-        check_output_dir(Path(out).absolute().parent)  # before any work
-        probe_writable(Path(out).absolute().parent)
     except fm.MeasuredExportError as e:
         raise FlakedbError(str(e).replace("n_theta = ", "--n-theta ").replace("res = ", "--res ")) from None
-    except OutputError as e:
-        raise FlakedbError(str(e).replace("--out ", "--out directory ", 1)) from None
+    plan = OutputPlan()
+    plan.add_input(file, "FILE")
+    plan.add_output(out, "--out")
+    check_plan(plan)  # before any work: not onto FILE, not onto a directory, a writable place
+    probe_writable(Path(out).absolute().parent, "--out directory")
     try:
         with remove_created_dirs(Path(out).absolute().parent):
             if coat:

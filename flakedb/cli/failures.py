@@ -7,6 +7,8 @@
   and what to do; the group in :mod:`flakedb.cli.main` applies it unless ``--debug`` is given.
 * :func:`remove_created_dirs`: a context manager that removes the directories a command created
   for its outputs when the command fails and they are still empty.
+* :func:`check_plan`: a command's output plan checked before any work (issue 25), stale temporary
+  entries of killed runs removed and reported.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from pathlib import Path
 
 import click
 
+from flakedb.outputs import OutputError, sweep_stale
 from flakedb.store.errors import StoreError
 
 #: Longest message kept on the one line (a longer one is cut, its start kept).
@@ -73,7 +76,9 @@ def as_failure(exc: BaseException) -> click.ClickException:
         hint = _OS_HINTS.get(exc.errno)
         return FlakedbFailure(_one_line(f"{where}{what}" + (f" (hint: {hint})" if hint else "")))
     if isinstance(exc, MemoryError):
-        return FlakedbFailure("out of memory (hint: use a smaller resolution --n, --res or --size)")
+        return FlakedbFailure("out of memory (hint: memory grows with the node count (--n or the recipe's "
+                              "resolution), the number of bands (spectral.step_nm), a pigment's median_diameter_um and "
+                              "gsd, and --res / --size; lower the largest, or set FLAKEDB_MEMORY_BUDGET)")
     if _is_loaded_instance(exc, "flakedb.bsdf.table", "BSDFFileError"):
         err = click.ClickException(_one_line(exc))
         err.exit_code = 2
@@ -125,3 +130,21 @@ def probe_writable(out_dir, option="--out"):
                                    f"(hint: choose a directory you can write)")
         err.exit_code = 2
         raise err from None
+
+
+def check_plan(plan):
+    """Check a command's :class:`flakedb.outputs.OutputPlan` before any work (an
+    :class:`~flakedb.outputs.OutputError` becomes exit status 2), then remove the stale temporary
+    entries killed runs left in its output directories (:func:`flakedb.outputs.sweep_stale`), each
+    reported on stderr.  Returns the plan."""
+    try:
+        plan.check()
+    except OutputError as exc:
+        err = click.ClickException(_one_line(exc))
+        err.exit_code = 2
+        raise err from None
+    dirs = {str(Path(p).parent) for p, _ in plan.outputs} | {str(d) for d, _ in plan.dirs}
+    for d in sorted(dirs):
+        for p in sweep_stale(d or "."):
+            click.echo(f"note: removed {p}, a temporary entry left by an interrupted flakedb run", err=True)
+    return plan

@@ -25,6 +25,7 @@ from flakedb.compose.orchestrate import solver_warnings
 from flakedb.export.materialx import read_fit
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.render.mitsuba import read_tensor_file
+from flakedb.safeio import read_head
 
 #: Incident zenith angles [deg] (light arriving from above) at which the albedo is listed.
 INFO_THETA_DEG = (0.0, 30.0, 45.0, 60.0, 75.0, 85.0)
@@ -152,8 +153,12 @@ def describe(path):
     }
     if b.kind == "h5" and md.get("wavelength_nm") and len(md["wavelength_nm"]) == b.n_channels:
         wl = np.asarray(md["wavelength_nm"], float)
-        XYZ = reflectance_to_XYZ(albedo, wl)
-        lab = XYZ_to_Lab(XYZ, white=white_XYZ(wl))
+        try:
+            XYZ = reflectance_to_XYZ(albedo, wl)
+            lab = XYZ_to_Lab(XYZ, white=white_XYZ(wl))
+        except ValueError as e:   # a grid the colorimetry does not take (step, range): no CIELAB rows
+            d["checks"].append({"check": "cielab", "ok": None, "text": f"no CIELAB of the albedo: {e}"})
+            return d
         for row, x, c in zip(d["albedo"], XYZ, lab):
             row["albedo_Y"] = float(x[1])
             row["albedo_Lab"] = [float(v) for v in c]
@@ -294,7 +299,8 @@ def _print_tensor(d):
 def info(file, as_json):
     """Describe a Fourier .bsdf, a flakedb .h5 or a Mitsuba 3 `measured` export: what paint, which
     channels and colour space, the smooth coat's mirror term, energy / colour / convergence checks in
-    words, and the albedo at a few incident angles."""
+    words, and the albedo at a few incident angles.  Exit status 1 when an energy, colour or data
+    check fails."""
     try:
         d = describe(file)
     except BSDFFileError as e:
@@ -308,3 +314,7 @@ def info(file, as_json):
         _print_fit(d)
     else:
         _print_fourier(d)
+    failed = [c["check"] for c in d.get("checks", []) if c["ok"] is False and c["check"] != "solver"]
+    if failed:  # a FAIL is an exit status, not only a word (issue 25); solver warnings stay warnings
+        click.echo(f"flakedb info: {file}: check(s) failed: {', '.join(failed)}", err=True)
+        raise SystemExit(1)

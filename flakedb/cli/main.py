@@ -11,7 +11,7 @@ import click
 from flakedb import __version__
 from flakedb.cli.errors import FlakedbError  # noqa: F401  (re-exported for scripts)
 from flakedb.cli.failures import as_failure
-from flakedb.process import tune_allocator
+from flakedb.process import Terminated, install_signal_handlers, tune_allocator
 
 #: Every command and the module that defines it, imported only when that command runs or its help is
 #: shown (click's lazily loaded subcommands): ``flakedb compose`` no longer imports Dask, distributed,
@@ -106,6 +106,9 @@ class FlakedbGroup(click.Group):
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
+        except Terminated as exc:  # SIGTERM / SIGHUP: the command's clean-up has run, as for Ctrl-C
+            click.echo(f"flakedb: {exc}; stopped, temporary files removed, no partial outputs left", err=True)
+            raise SystemExit(128 + exc.signum) from None
         except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort,
                 KeyboardInterrupt, SystemExit):
             raise
@@ -124,6 +127,7 @@ def cli(debug):
 
 def main():
     tune_allocator()  # freed memory kept for reuse: page faults are most of a short solve's overhead
+    install_signal_handlers()  # SIGTERM / SIGHUP clean up as SIGINT does (flakedb.process.Terminated)
     cli(prog_name="flakedb")
 
 

@@ -1,8 +1,9 @@
 """`flakedb match BASE.yaml --target T.csv --out DIR`: fit a recipe's {fit: [min, max]} fields to a target.
 
-Thin: the fit is :func:`flakedb.colour.match.match` (docs/colour-matching.md).  Writes DIR/NAME.yaml
-(the fitted recipe), composes it into DIR/NAME.{bsdf,h5,json} like `flakedb compose`, and writes
-DIR/NAME-prediction.csv (target layout) and DIR/NAME-match.json (the fit record).  Progress lines go
+Thin: the fit is :func:`flakedb.colour.match.match` (docs/colour-matching.md).  Writes DIR/NAME-fitted.yaml
+(the fitted recipe; never over BASE), composes it into DIR/NAME.{bsdf,h5,json} like `flakedb compose`, and writes
+DIR/NAME-prediction.csv (target layout) and DIR/NAME-match.json (the fit record), all six together
+or none (:class:`flakedb.outputs.OutputPlan`, planned for every target before any work).  Progress lines go
 to stderr, one per iteration.  The last line says whether the target's tolerance was reached; exit
 status 1 when it was not.  Several targets (repeated --target, or a folder): one fit per target into
 DIR/<target file name>/, then a summary table; exit status 1 when any target is not reached.
@@ -25,27 +26,32 @@ A target row at the specular geometry is refused before any fit, naming the file
 """
 
 import json
+import math
 from pathlib import Path
 
 import click
 import numpy as np
 import yaml
 
-from flakedb.atomic import atomic_write_text
 from flakedb.cli.compare import open_store, parse_limits
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import check_plan, remove_created_dirs
 from flakedb.cli.options import check_node_count, prediction_options
 from flakedb.colour.settings import DEFAULT_MAX_DE00, resolve
 from flakedb.colour.tolerance import PerAngleLimits
-from flakedb.compose.orchestrate import OutputError, check_output_dir
+from flakedb.compose.orchestrate import OUTPUT_SUFFIXES, output_plan
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.match import batch
 from flakedb.match import fit as cm
 from flakedb.match.cxf import load_target
 from flakedb.match.targets import TargetError, write_target
 from flakedb.paint.catalog import CatalogError, load_catalog
-from flakedb.paint.recipe import RecipeError
+from flakedb.paint.recipe import RecipeError, read_recipe_file
 from flakedb.store.versions import StoreError
+
+
+#: The fitted recipe is written as NAME-fitted.yaml, never over the base recipe (issue 25).
+FITTED_SUFFIX = "-fitted.yaml"
 
 
 @click.command()
@@ -66,7 +72,7 @@ from flakedb.store.versions import StoreError
                    "does not get within it).")
 @click.option("--limit", "limits", multiple=True,
               help="Per-geometry dE00 limit, ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
-@click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=int,
+@click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=click.IntRange(1, 10_000),
               help="Most residual evaluations of the least-squares solver.")
 @prediction_options
 def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights, max_de, limits, max_nfev, n, store,
@@ -77,42 +83,44 @@ def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights
     best fit is still written, and the reason is printed: the failing geometries and any parameter at a
     bound), 2 for an error."""
     check_node_count(n)
-    if not (np.isfinite(max_de) and max_de > 0):
-        raise FlakedbError(f"--max-de {max_de:g}: must be a positive dE00")
+    if not (math.isfinite(max_de) and max_de > 0):
+        raise FlakedbError(f"--max-de {max_de}: a ΔE00 tolerance is a finite number > 0 (e.g. --max-de 1)")
     scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))
+    weight_items = parse_limits(weights, "--weight")
 
     try:
         catalog = load_catalog(catalog_path)
-        try:
-            doc = yaml.safe_load(Path(base).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise RecipeError(base, ["no such file"]) from None
-        except yaml.YAMLError as exc:
-            raise RecipeError(base, [f"YAML syntax error: {exc}"]) from None
+        _, doc = read_recipe_file(base)  # the recipe's strict loader (duplicate keys, alias bombs refused)
         if not isinstance(doc, dict):
             raise RecipeError(base, ["a recipe is a YAML mapping"])
         files = batch.expand_paths(target_paths, (".csv", ".cxf"))
         targets = [load_target(t, observer, illuminant, cxf_object if str(t).lower().endswith(".cxf") else None)
                    for t in files]
-        check_output_dir(out_dir)
         params = cm.find_fit_parameters(doc, base)
         rec0 = cm.recipe_from_doc(cm.substitute(doc, params, [p.start for p in params]), base, catalog)
+    except (RecipeError, CatalogError, TargetError, ValueError) as exc:
+        raise FlakedbError(str(exc)) from exc
+    stems = [Path(str(f)).stem for f in files]
+    if len(targets) > 1 and len(set(stems)) != len(stems):
+        raise FlakedbError("two targets have the same file name: each fit goes to OUT/<target file name>/")
+    outs = [Path(out_dir)] if len(targets) == 1 else [Path(out_dir) / stem for stem in stems]
+    inputs = ([(base, "BASE")] + [(str(f), "--target") for f in files]
+              + ([(catalog_path, "--catalog")] if catalog_path else []))
+    plans = [_output_plan(out, rec0.name, inputs) for out in outs]  # before any work: never over BASE or a target
+    try:
         version = open_store(store, rec0, n, raw)
-    except (RecipeError, CatalogError, TargetError, OutputError, StoreError, ValueError) as exc:
+    except StoreError as exc:
         raise FlakedbError(str(exc)) from exc
     if len(targets) == 1:
-        res = _fit_one(doc, base, params, targets[0], Path(out_dir), observer, illuminant, weights, scheme, max_nfev, n,
-                       catalog, version, raw, store)
+        res = _fit_one(doc, base, params, targets[0], outs[0], plans[0], observer, illuminant, weight_items, scheme,
+                       max_nfev, n, catalog, version, raw, store)
         if not res.reached:
             raise SystemExit(1)
         return
-    stems = [Path(str(f)).stem for f in files]
-    if len(set(stems)) != len(stems):
-        raise FlakedbError("two targets have the same file name: each fit goes to OUT/<target file name>/")
     results = []
-    for k, (t, stem) in enumerate(zip(targets, stems), 1):
+    for k, (t, out, plan) in enumerate(zip(targets, outs, plans), 1):
         click.echo(f"--- target {k}/{len(targets)}: {t.source}")
-        results.append(_fit_one(doc, base, params, t, Path(out_dir) / stem, observer, illuminant, weights, scheme,
+        results.append(_fit_one(doc, base, params, t, out, plan, observer, illuminant, weight_items, scheme,
                                 max_nfev, n, catalog, version, raw, store))
     click.echo(f"{'target':<32} {'max dE00 start':>14} {'max dE00 fit':>13}  reached  at a bound")
     for t, r in zip(targets, results):
@@ -124,11 +132,21 @@ def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights
         raise SystemExit(1)
 
 
-def _fit_one(doc, base, params, target, out, observer, illuminant, weights, scheme, max_nfev, n, catalog, version, raw,
-             store):
-    """One fit and its files (module docstring); returns the MatchResult."""
+def _output_plan(out_dir, name, inputs):
+    """The checked plan of one fit's six outputs in ``out_dir``: ``(plan, paths)`` (:class:`flakedb.outputs.OutputPlan`)."""
+    plan = output_plan(out_dir, name, inputs)   # NAME.bsdf/.h5/.json, then the fit's own files
+    paths = {k: plan.in_dir(out_dir, f"{name}{suffix}", f"output NAME{suffix}")
+             for k, suffix in (("yaml", FITTED_SUFFIX), ("csv", "-prediction.csv"), ("json", "-match.json"))}
+    check_plan(plan)
+    return plan, paths
+
+
+def _fit_one(doc, base, params, target, out, planned, observer, illuminant, weight_items, scheme, max_nfev, n, catalog,
+             version, raw, store):
+    """One fit and its files, all together or none (module docstring); returns the MatchResult."""
+    plan, paths = planned
     w = np.ones(len(target.geometries))
-    for (il, asp), v in parse_limits(weights).items():
+    for (il, asp), v in weight_items.items():
         hit = [i for i, g in enumerate(target.geometries) if g[0] == il and g[1] == asp]
         if not hit:
             raise FlakedbError(f"--weight {il:g}/{asp:g}: the target has no such geometry")
@@ -142,26 +160,27 @@ def _fit_one(doc, base, params, target, out, observer, illuminant, weights, sche
     except (RecipeError, StoreError, TargetError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
     click.echo(cm.format_match(res))
-    out.mkdir(parents=True, exist_ok=True)
     name = res.fitted_doc["name"]
-
     text = (f"# fitted by flakedb match to {target.source} ({res.observer}° / {res.illuminant}); "
             f"max dE00 {res.de_fit.max():.3f}\n" + yaml.safe_dump(res.fitted_doc, sort_keys=False, allow_unicode=True))
-    atomic_write_text(out / f"{name}.yaml", text)
-    rec = cm.recipe_from_doc(res.fitted_doc, str(out / f"{name}.yaml"), catalog)
-    try:
-        comp = compose_recipe(rec, out, n=res.n, raw=raw, catalog=catalog, store=version,
-                              colour_settings=resolve(res.observer, res.illuminant, mode=rec.mode))
-    except StoreError as exc:
-        raise FlakedbError(str(exc)) from exc
+    rec = cm.recipe_from_doc(res.fitted_doc, str(paths["yaml"]), catalog)
     p = res.prediction
     spectral = p.mode == "spectral"
-    write_target(out / f"{name}-prediction.csv", p.geometries, lab=None if spectral else res.lab_fit,
-                 reflectance=p.rf if spectral else None, wavelength_nm=p.wavelength_nm if spectral else None,
-                 observer=res.observer, illuminant=res.illuminant, name=name,
-                 notes={"generator": f"flakedb match, n = {res.n}, mode {p.mode}"})
-    atomic_write_text(out / f"{name}-match.json", json.dumps(cm.match_report(res), indent=1) + "\n")
-    click.echo(f"wrote {out / (name + '.yaml')} (fitted recipe), {comp.paths['bsdf']}, {comp.paths['h5']}, "
-               f"{comp.paths['json']}, {out / (name + '-prediction.csv')} and {out / (name + '-match.json')}")
+    with remove_created_dirs(out), plan.staged() as stage:   # every output or none
+        stage_dir = stage.dir_for(out)
+        try:
+            compose_recipe(rec, stage_dir, n=res.n, raw=raw, catalog=catalog, store=version,
+                           colour_settings=resolve(res.observer, res.illuminant, mode=rec.mode))
+        except StoreError as exc:
+            raise FlakedbError(str(exc)) from exc
+        Path(stage.path(paths["yaml"])).write_text(text, encoding="utf-8")
+        write_target(stage.path(paths["csv"]), p.geometries, lab=None if spectral else res.lab_fit,
+                     reflectance=p.rf if spectral else None, wavelength_nm=p.wavelength_nm if spectral else None,
+                     observer=res.observer, illuminant=res.illuminant, name=name,
+                     notes={"generator": f"flakedb match, n = {res.n}, mode {p.mode}"})
+        stage.path(paths["json"]).write_text(json.dumps(cm.match_report(res), indent=1) + "\n", encoding="utf-8")
+    final = [out / f"{name}{suffix}" for suffix in OUTPUT_SUFFIXES]
+    click.echo(f"wrote {paths['yaml']} (fitted recipe), {final[0]}, {final[1]}, {final[2]}, {paths['csv']} and "
+               f"{paths['json']}")
     click.echo(res.outcome)
     return res

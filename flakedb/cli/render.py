@@ -1,6 +1,7 @@
 """`flakedb render FILE…`: preview images of composed BSDF files on a sphere (OpenEXR + PNG), and a
 side-by-side sheet of several paints or of one paint under several lights."""
 
+import math
 import sys
 from pathlib import Path
 
@@ -9,8 +10,9 @@ import numpy as np
 
 from flakedb.bsdf import BSDFFileError, open_bsdf, table_evaluator
 from flakedb.cli.errors import FlakedbError
-from flakedb.cli.failures import probe_writable, remove_created_dirs
-from flakedb.compose.orchestrate import OutputError, check_output_dir, gamut_safe_file_channels
+from flakedb.cli.failures import check_plan, probe_writable, remove_created_dirs
+from flakedb.compose.orchestrate import gamut_safe_file_channels
+from flakedb.outputs import OutputError, OutputPlan
 from flakedb.render import look, preview
 from flakedb.render.imageio import write_exr, write_png
 from flakedb.render.mitsuba import channel_wavelengths
@@ -20,6 +22,8 @@ from flakedb.paint.texture_inputs import texture_stack
 
 ENV_CONSTANT_RADIANCE = 0.5  # the furnace of renderers.md
 ENVS = ("softbox", "studio", "constant")
+#: Largest |--exposure| [stops].
+MAX_EXPOSURE_STOPS = 40.0
 
 
 def renderable(path):
@@ -108,7 +112,7 @@ def environment(kind):
                    "paint under several lights.")
 @click.option("--sun/--no-sun", default=None,
               help="Add the key light (a 2° disk, sampled directly). Default: on with --env studio only.")
-@click.option("--seed", default=0, show_default=True, type=int, help="Random seed.")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(0, 2 ** 63 - 1), help="Random seed (≥ 0).")
 @click.option("--exposure", default=None, type=float,
               help="PNG exposure [stops] relative to the automatic one (default: automatic, Reinhard 2002 key "
                    "0.18; with --tone clip: stops on the raw radiance).  The EXR is always unscaled radiance.")
@@ -135,6 +139,27 @@ def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, shee
     with sun sampling (MIS, power heuristic); the smooth coat's mirror term (the file's delta)
     added exactly.  Writes OUT/<stem>[-<env>].exr and .png atomically, and a sheet for several."""
     env_kinds = env_kinds or ("softbox",)
+    if exposure is not None and not (math.isfinite(exposure) and abs(exposure) <= MAX_EXPOSURE_STOPS):
+        raise FlakedbError(f"--exposure {exposure}: give a finite number of stops in ±{MAX_EXPOSURE_STOPS:g} (each stop "
+                           f"doubles the brightness; ±{MAX_EXPOSURE_STOPS:g} already spans a factor of 10^12)")
+    # the output plan first (issue 25): two files of one paint (a.bsdf, a.h5) would write a.exr twice;
+    # --sheet is a file name in --out, not a path; no output may replace an input
+    plan = OutputPlan()
+    plan.add_dir(out_dir)
+    out = Path(out_dir)
+    names = []
+    for f in files:
+        plan.add_input(f, "FILE")
+        for kind in env_kinds:
+            stem = Path(f).stem + (f"-{kind}" if len(env_kinds) > 1 else "")
+            names.append((plan.in_dir(out, f"{stem}.exr", f"image of {f}"), plan.in_dir(out, f"{stem}.png", f"image of {f}")))
+    sheet_path = None
+    if len(files) * len(env_kinds) > 1 or sheet_name:
+        try:
+            sheet_path = plan.in_dir(out, sheet_name or "sheet.png", "--sheet", option="--sheet" if sheet_name else None)
+        except OutputError as e:
+            raise FlakedbError(str(e)) from None
+    check_plan(plan)
     bsdfs = []
     for f in files:
         try:
@@ -144,11 +169,7 @@ def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, shee
                                "BSDF files.") from None
         except ValueError as e:
             raise FlakedbError(str(e)) from None
-    try:
-        check_output_dir(out_dir)  # before the work, not after it
-        probe_writable(out_dir)
-    except OutputError as e:
-        raise FlakedbError(str(e)) from None
+    probe_writable(out_dir)
     spp = preview.DEFAULT_SPP if spp is None else spp
     stacks = _sparkle_stacks(sparkle_recipes, len(bsdfs), sun)
     jobs = [(f, b, k, st) for (f, b), st in zip(bsdfs, stacks) for k in env_kinds]
@@ -173,32 +194,23 @@ def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, shee
         scale = look.auto_exposure(stack) * 2.0 ** float(exposure or 0.0)
     else:
         scale = 2.0 ** float(exposure or 0.0)
-    out = Path(out_dir)
     shown, written = [], []
-    with remove_created_dirs(out):
-        out.mkdir(parents=True, exist_ok=True)
-        try:
-            for (f, kind, r), m in zip(results, sphere):
-                stem = Path(f).stem + (f"-{kind}" if len(env_kinds) > 1 else "")
-                disp = look.tone_map(r.image, scale) if tone == "filmic" else np.clip(r.image * scale, 0.0, 1.0)
-                exr = write_exr(out / f"{stem}.exr", r.image)
-                written.append(exr)
-                png = write_png(out / f"{stem}.png", disp)
-                written.append(png)
-                shown.append(disp)
-                mean = r.image[m].mean(axis=0) if m.any() else [float("nan")] * 3
-                click.echo(f"{Path(f).name} ({kind}): rendered in {r.seconds:.1f} s ({r.settings['threads']} threads); "
-                           f"sphere mean RGB {mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f}; "
-                           f"{100 * look.clipped_fraction(disp, m):.2f}% of sphere pixels clip")
-            if len(results) > 1 or sheet_name:
-                sheet = write_png(out / (sheet_name or "sheet.png"), look.contact_sheet(shown))
-                written.append(sheet)
-        except BaseException:
-            for w in written:  # every image or none
-                Path(w).unlink(missing_ok=True)
-            raise
+    with remove_created_dirs(out), plan.staged() as stage:   # every image or none
+        for (f, kind, r), m, (exr_path, png_path) in zip(results, sphere, names):
+            disp = look.tone_map(r.image, scale) if tone == "filmic" else np.clip(r.image * scale, 0.0, 1.0)
+            write_exr(stage.path(exr_path), r.image)
+            written.append(exr_path)
+            write_png(stage.path(png_path), disp)
+            written.append(png_path)
+            shown.append(disp)
+            mean = r.image[m].mean(axis=0) if m.any() else [float("nan")] * 3
+            click.echo(f"{Path(f).name} ({kind}): rendered in {r.seconds:.1f} s ({r.settings['threads']} threads); "
+                       f"sphere mean RGB {mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f}; "
+                       f"{100 * look.clipped_fraction(disp, m):.2f}% of sphere pixels clip")
+        if sheet_path is not None:
+            write_png(stage.path(sheet_path), look.contact_sheet(shown))
+            written.append(sheet_path)
     for w in written:
-        click.echo(f"wrote {w}" + (f" ({len(shown)} images side by side, one exposure)" if w == written[-1] and
-                                   (len(results) > 1 or sheet_name) else ""))
+        click.echo(f"wrote {w}" + (f" ({len(shown)} images side by side, one exposure)" if w == sheet_path else ""))
     if tone == "filmic":
         click.echo(f"exposure: automatic x{scale:.3g} ({np.log2(scale):+.2f} stops), ACES filmic curve")

@@ -13,7 +13,9 @@
 import click
 
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import check_plan
 from flakedb.paint.catalog import CatalogError, expand_sweeps, load_catalog
+from flakedb.outputs import OutputPlan
 from flakedb.paint.species import optics_table
 from flakedb.render.plots import plot_optics
 
@@ -52,6 +54,11 @@ def show(name, out_dir, catalog_path):
     known = list(expand_sweeps(catalog))
     if name not in known:
         raise FlakedbError(f"unknown species {name!r}; known species: {', '.join(known)}")
+    plan = OutputPlan()
+    plan.add_dir(out_dir)
+    plan.add_input(catalog_path, "--catalog")
+    plan.in_dir(out_dir, f"{name}-optics.png", "plot", option="NAME")
+    check_plan(plan)   # before any work: a writable --out, the plot's name not taken by a directory
     click.echo(optics_table(name, catalog))
     path = plot_optics(name, out_dir, catalog)
     click.echo(f"plot: {path}")

@@ -26,17 +26,17 @@ the unscattered-beam spike of a transmissive table is not exact (measured: albed
 1.12 instead of 1 at normal incidence for an index-matched flake slab at n = 16); paints (with a
 primer) have no transmission and are not affected.
 
-No half-written outputs: the output directory is checked before any computation
-(:func:`check_output_dir`), the three files are written into a temporary directory inside it and
-moved into place (``os.replace``) only when all three are complete; on any error nothing is left.
+No half-written outputs: the output plan is checked before any computation (:func:`output_plan`,
+:mod:`flakedb.outputs`: the directory writable, no name taken by a directory, no output onto an input),
+the three files are written into a temporary directory inside it and moved into place together only
+when all three are complete (a failed move puts the previous files back); on any error, a signal
+included, nothing is left.  ``inputs`` of :func:`compose`: ``(path, label)`` pairs no output may replace.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,6 +57,7 @@ from flakedb.compose.report import (
     texture_ground,
 )
 from flakedb.compose.store_context import StoreContext
+from flakedb.outputs import OutputError, OutputPlan, check_output_dir  # noqa: F401  (moved; re-exported)
 from flakedb.paint.mapping import build_paint, catalog_species, resolve_node_count, solve_paint
 from flakedb.paint.texture_inputs import texture_report
 from flakedb.store import versions as st
@@ -73,45 +74,21 @@ BSDF_TRUNCATION = 0.0
 STORE_NONE = "none: computed directly"
 
 
-class OutputError(ValueError):
-    """The output directory cannot be written."""
+def output_plan(out_dir, name, inputs=()) -> OutputPlan:
+    """The plan of compose's outputs DIR/NAME.{bsdf,h5,json} (:class:`flakedb.outputs.OutputPlan`): refused
+    before any work when a name is taken by a directory, is one of ``inputs`` (``(path, label)``), or
+    the directory cannot be written."""
+    plan = OutputPlan()
+    plan.add_dir(out_dir)
+    for path, label in inputs:
+        plan.add_input(path, label)
+    for ext in OUTPUT_SUFFIXES:
+        plan.in_dir(out_dir, f"{name}{ext}", f"output NAME{ext}")
+    return plan
 
 
-def check_output_dir(out_dir) -> Path:
-    """Refuse an output directory that cannot be created or written, before any computation.
-
-    Creates nothing: checks that ``out_dir`` is a writable directory, or that its nearest existing
-    ancestor is a writable directory (it will be created when the files are written).
-
-    A file where the directory should be is refused before any work:
-
-    >>> import tempfile
-    >>> where = Path(tempfile.mkdtemp())
-    >>> _ = (where / "paint").write_text("not a directory")
-    >>> check_output_dir(where / "paint")
-    Traceback (most recent call last):
-    ...
-    flakedb.compose.orchestrate.OutputError: --out .../paint: exists and is not a directory (hint: choose a directory path)
-    >>> check_output_dir(where / "new") == where / "new"                     # created only when written
-    True
-    """
-    p = Path(out_dir)
-    if p.exists():
-        if not p.is_dir():
-            raise OutputError(f"--out {out_dir}: exists and is not a directory (hint: choose a directory path)")
-        if not os.access(p, os.W_OK | os.X_OK):
-            raise OutputError(f"--out {out_dir}: directory is not writable (hint: choose a directory you can write)")
-        return p
-    anc = p.absolute().parent
-    while not anc.exists():
-        anc = anc.parent
-    if not anc.is_dir():
-        raise OutputError(f"--out {out_dir}: {anc} is not a directory, so {out_dir} cannot be created")
-    if not os.access(anc, os.W_OK | os.X_OK):
-        raise OutputError(f"--out {out_dir}: cannot create it, {anc} is not writable "
-                          f"(hint: choose a directory you can write)")
-    return p
-
+#: compose's outputs, in the order they are moved into place.
+OUTPUT_SUFFIXES = (".bsdf", ".h5", ".json")
 
 
 def table_to_file_channels(table, mode, wavelength_nm=None):
@@ -219,26 +196,19 @@ class ComposeResult:
     table: object = None
 
 
-def write_outputs(out_dir, name, table, file_table, report, h5_metadata):
-    """Write DIR/NAME.bsdf, .h5, .json all-or-nothing (module docstring).  Returns (paths, bsdf summary)."""
+def write_outputs(out_dir, name, table, file_table, report, h5_metadata, plan=None):
+    """Write DIR/NAME.bsdf, .h5, .json all-or-nothing (module docstring): checked by ``plan`` (default
+    :func:`output_plan`), written into a staging directory, moved in together
+    (:meth:`flakedb.outputs.OutputPlan.staged`).  Returns (paths, bsdf summary)."""
+    plan = (plan or output_plan(out_dir, name)).check()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=out, prefix=f".{name}.", suffix=".tmp"))
     final = {"bsdf": out / f"{name}.bsdf", "h5": out / f"{name}.h5", "json": out / f"{name}.json"}
-    try:
-        summary = bsdf_files.write_bsdf(tmp / final["bsdf"].name, file_table, truncation=BSDF_TRUNCATION)
-        bsdf_files.write_h5(tmp / final["h5"].name, table, h5_metadata)
-        with open(tmp / final["json"].name, "w", encoding="utf-8") as fh:
+    with plan.staged() as stage:
+        summary = bsdf_files.write_bsdf(stage.path(final["bsdf"]), file_table, truncation=BSDF_TRUNCATION)
+        bsdf_files.write_h5(stage.path(final["h5"]), table, h5_metadata)
+        with open(stage.path(final["json"]), "w", encoding="utf-8") as fh:
             json.dump(report, fh, indent=1, allow_nan=False)
             fh.write("\n")
-        mask = os.umask(0)
-        os.umask(mask)
-        for k in ("h5", "json", "bsdf"):  # temp files are 0600: give them the usual umask mode
-            os.chmod(tmp / final[k].name, 0o666 & ~mask)
-        for k in ("h5", "json", "bsdf"):
-            os.replace(tmp / final[k].name, final[k])
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return {k: str(v) for k, v in final.items()}, summary
 
 
@@ -392,7 +362,7 @@ def discretisation_estimate(solved, report, colour_settings=None, log=None) -> d
 
 
 def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=None, verify=True,
-            rgb_space="srgb", progress=None, allow_unphysical=False, colour_settings=None) -> ComposeResult:
+            rgb_space="srgb", progress=None, allow_unphysical=False, colour_settings=None, inputs=()) -> ComposeResult:
     """Compose ``recipe`` (a :class:`flakedb.paint.recipe.Recipe`) into ``out_dir``; see the module docstring.
 
     ``n`` overrides the recipe's resolution; ``log`` (callable taking a line) reports progress.
@@ -407,7 +377,7 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     :class:`flakedb.store.versions.StoreError` (:class:`~flakedb.store.versions.StoreIntegrityError` for a corrupted
     store) before writing anything.
     """
-    check_output_dir(out_dir)
+    plan = output_plan(out_dir, recipe.name, inputs).check()  # before any work
     gamut.check_space(rgb_space)
     progress = progress or (lambda stage, detail: None)
     solved = solve_recipe(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical)
@@ -450,7 +420,7 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
         table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False), paint.eta if paint.delta else None))
     h5_md["rgb_file"] = gamut_info
     t0 = time.perf_counter()
-    paths, summary = write_outputs(out_dir, recipe.name, table, file_table, report, h5_md)
+    paths, summary = write_outputs(out_dir, recipe.name, table, file_table, report, h5_md, plan)
     t["write"] = time.perf_counter() - t0
     progress("write", {"seconds": t["write"], "paths": paths})
     return ComposeResult(paths=paths, report=report, n=n_used, n_reason=reason, timings_s=t, bsdf_summary=summary,

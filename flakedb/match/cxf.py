@@ -36,6 +36,7 @@ Parsing uses the standard library's expat parser (no DTD loading, no external en
 
 from __future__ import annotations
 
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -44,6 +45,7 @@ import numpy as np
 from flakedb.colour.settings import DEFAULT_ILLUMINANT, DEFAULT_OBSERVER
 from flakedb.colour.tolerance import illuminant_name, observer_name, reflectance_to_Lab
 from flakedb.match.targets import Target, TargetError, read_target, validate_geometries
+from flakedb.safeio import FileTooLargeError, read_limited
 
 #: The CxF3 core namespace.
 NS = "http://colorexchangeformat.com/CxF3-core"
@@ -138,15 +140,20 @@ def read_cxf_target(path_or_bytes, object_name=None, observer=None, illuminant=N
     else:
         p = Path(path_or_bytes)
         where = source or str(p)
-        try:
-            size = p.stat().st_size
+        try:   # a regular file only (no FIFO / device), never more than the limit read
+            data = read_limited(p, MAX_BYTES)
         except FileNotFoundError:
             raise TargetError(f"{where}: no such file") from None
-        if size > MAX_BYTES:
-            raise TargetError(f"{where}: {size:,} bytes is more than the limit of {MAX_BYTES:,} for a CxF target")
-        data = p.read_bytes()
+        except FileTooLargeError as exc:
+            raise TargetError(f"{where}: {exc.size:,} bytes is more than the limit of {MAX_BYTES:,} for a CxF "
+                              f"target") from None
+        except OSError as exc:
+            raise TargetError(f"{where}: cannot read the file ({exc.strerror or exc})") from None
     if len(data) > MAX_BYTES:
         raise TargetError(f"{where}: {len(data):,} bytes is more than the limit of {MAX_BYTES:,} for a CxF target")
+    if re.search(rb"<!(DOCTYPE|ENTITY)", data, re.IGNORECASE):
+        raise TargetError(f"{where}: has a DOCTYPE / ENTITY declaration; CxF3 files have none and flakedb refuses "
+                          f"them (entity expansion, external entities)")
     try:
         root = ET.fromstring(data)
     except ET.ParseError as exc:

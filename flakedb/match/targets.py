@@ -71,6 +71,15 @@ from flakedb.colour.settings import (  # the geometry sets live with the other d
     GEOMETRY_SETS,
 )
 from flakedb.colour.tolerance import delta_E_2000, illuminant_name, observer_name, reflectance_to_Lab
+from flakedb.safeio import FileTooLargeError, read_limited
+
+#: Largest target CSV read [bytes]: 200 geometries × 1000 reflectance columns of 8 characters.
+MAX_TARGET_BYTES = 2_000_000
+#: Most geometries of a target: multi-angle instruments measure 5–20 (E2194 5, E2539 11), and each
+#: geometry costs a BSDF evaluation in every fit iteration, so more is a mistake, not a measurement.
+MAX_TARGET_GEOMETRIES = 200
+#: Most R_<nm> columns (1 nm steps from 300 to 1200 nm are 901).
+MAX_TARGET_BANDS = 1000
 
 __all__ = ["E2194_GEOMETRIES", "E2539_EXTRA", "E2539_GEOMETRIES", "GEOMETRY_SETS", "Target", "TargetError",
            "format_target", "read_target", "validate_geometries", "write_target"]
@@ -123,6 +132,9 @@ class Target:
 
 
 def _validate_geometries(geoms, where):
+    if len(geoms) > MAX_TARGET_GEOMETRIES:
+        raise TargetError(f"{where}: {len(geoms):,} geometries; the limit is {MAX_TARGET_GEOMETRIES} (a multi-angle "
+                          f"instrument measures 5-20, and each costs a BSDF evaluation in every fit iteration)")
     for i, (th_i, asp) in enumerate(geoms):
         if not (0.0 <= th_i < 90.0):
             raise TargetError(f"{where} row {i + 1}: illumination_deg {th_i:g} must be in [0, 90)")
@@ -167,10 +179,19 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     else:
         p = Path(path_or_text)
         where = source or str(p)
-        try:
-            text = p.read_text(encoding="utf-8-sig")
+        try:   # a regular file only (no FIFO / device), never more than the limit read
+            text = read_limited(p, MAX_TARGET_BYTES).decode("utf-8-sig")
         except FileNotFoundError:
             raise TargetError(f"{where}: no such file") from None
+        except FileTooLargeError as exc:
+            raise TargetError(f"{where}: {exc.size:,} bytes or more; the limit is {MAX_TARGET_BYTES:,} bytes for a "
+                              f"target CSV ({MAX_TARGET_GEOMETRIES} geometries at most)") from None
+        except UnicodeDecodeError as exc:
+            raise TargetError(f"{where}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+        except OSError as exc:
+            raise TargetError(f"{where}: cannot read the file ({exc.strerror or exc})") from None
+    if len(text) > MAX_TARGET_BYTES:
+        raise TargetError(f"{where}: {len(text):,} characters; the limit is {MAX_TARGET_BYTES:,} for a target CSV")
     opts, notes, rows = {}, {}, []
     for ln, line in enumerate(text.splitlines(), 1):
         s = line.strip()
@@ -186,7 +207,14 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     if not rows:
         raise TargetError(f"{where}: no header line (illumination_deg,aspecular_deg,L*,a*,b* or …,R_380,…)")
     hdr_ln, hdr = rows[0]
-    header = [h.strip() for h in next(csv.reader(io.StringIO(hdr)))]
+    if len(rows) - 1 > MAX_TARGET_GEOMETRIES:
+        raise TargetError(f"{where}: {len(rows) - 1:,} geometry rows; the limit is {MAX_TARGET_GEOMETRIES} (a "
+                          f"multi-angle instrument measures 5-20 geometries, and each costs a BSDF evaluation in "
+                          f"every fit iteration)")
+    try:
+        header = [h.strip() for h in next(csv.reader(io.StringIO(hdr)))]
+    except csv.Error as exc:
+        raise TargetError(f"{where} line {hdr_ln}: not a CSV line ({exc})") from None
     if header[:2] != ["illumination_deg", "aspecular_deg"]:
         raise TargetError(f"{where} line {hdr_ln}: the header must start with illumination_deg,aspecular_deg; "
                           f"got {','.join(header[:2])}")
@@ -195,6 +223,11 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
         if all(n in header for n in names):
             lab_idx = [header.index(n) for n in names]
     r_cols = [(i, float(_R_COLUMN.match(h).group(1))) for i, h in enumerate(header) if _R_COLUMN.match(h)]
+    if len(r_cols) > MAX_TARGET_BANDS:
+        raise TargetError(f"{where} line {hdr_ln}: {len(r_cols)} R_ columns; the limit is {MAX_TARGET_BANDS} "
+                          f"(1 nm steps over 300-1200 nm)")
+    if len(set(header)) != len(header):
+        raise TargetError(f"{where} line {hdr_ln}: a column name appears twice")
     known = {0, 1} | set(lab_idx or []) | {i for i, _ in r_cols}
     unknown = [h for i, h in enumerate(header) if i not in known]
     if unknown:
@@ -204,13 +237,16 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
         raise TargetError(f"{where} line {hdr_ln}: no colour columns: give L*,a*,b* or R_380,R_390,… (any uniform grid)")
     data = []
     for ln, s in rows[1:]:
-        cells = [c.strip() for c in next(csv.reader(io.StringIO(s)))]
+        try:
+            cells = [c.strip() for c in next(csv.reader(io.StringIO(s)))]
+        except csv.Error as exc:
+            raise TargetError(f"{where} line {ln}: not a CSV line ({exc})") from None
         if len(cells) != len(header):
             raise TargetError(f"{where} line {ln}: {len(cells)} values, the header has {len(header)} columns")
         try:
             data.append([float(c) for c in cells])
         except ValueError:
-            raise TargetError(f"{where} line {ln}: a value is not a number: {s}") from None
+            raise TargetError(f"{where} line {ln}: a value is not a number: {s[:80]}") from None
     if not data:
         raise TargetError(f"{where}: no geometry rows after the header")
     a = np.asarray(data, float)

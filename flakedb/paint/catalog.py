@@ -17,10 +17,15 @@ from pathlib import Path
 
 import jsonschema
 import numpy as np
-import yaml
 
+from flakedb.optics.mie import default_n_quad
+from flakedb.paint.checks import YamlFileError, load_yaml_file, value_problems
 from flakedb.paint.materials import material_names
 from flakedb.resources import CATALOG_DIR, PACKAGE_DIR, SCHEMAS_DIR
+
+
+#: Largest catalogue file [bytes] (the shipped one is 7 kB).
+MAX_CATALOG_BYTES = 5_000_000
 
 
 class CatalogError(ValueError):
@@ -61,11 +66,40 @@ def validate_catalog(doc) -> list[str]:
             # report the branch that got furthest instead of "is not valid under any of the given schemas"
             errs = [max(err.context, key=lambda e: len(e.absolute_path))]
         for e in errs:
-            problems.append(f"{_fmt_path(e.absolute_path)}: {e.message}")
+            why = e.schema.get("description") if isinstance(e.schema, dict) else None
+            problems.append(f"{_fmt_path(e.absolute_path)}: {e.message}" + (f" (allowed: {why})" if why else ""))
     if problems:
         return problems
     problems += _semantic_problems(doc)
     return problems
+
+
+#: Largest memory the Mie size average of one pigment may ask for [bytes] (8 GiB), checked before any work.
+MAX_PIGMENT_BYTES = 8 * 1024 ** 3
+#: Bytes per (band, size node, phase angle) of that average: the amplitudes S1, S2 (complex) and their
+#: temporaries.  Measured (cadmium yellow, 81 bands, 361 angles): d_med 0.3 µm / gsd 1.5 (1133 nodes)
+#: peaks at 1.99 GB RSS, estimate 1.97 GiB; 0.6 µm (2265 nodes) 3.76 GB, estimate 3.95 GiB.
+PIGMENT_BYTES_PER_POINT = 64
+#: Phase angles of a pigment's table (flakedb.paint.mapping.phase_cos_grid: 0.5° steps).
+PIGMENT_PHASE_ANGLES = 361
+#: The grid a catalogue pigment is checked on (the default build grid, 380-780 nm in 5 nm steps).
+DEFAULT_GRID_NM = np.arange(380.0, 781.0, 5.0)
+
+
+def pigment_memory_bytes(median_diameter_um, gsd, wavelength_nm, n_binder) -> float:
+    """Estimated peak memory [bytes] of a pigment's Mie size average (flakedb.optics.mie.lognormal_pigment
+    with the phase table): bands × size nodes (:func:`flakedb.optics.mie.default_n_quad`) × phase angles ×
+    :data:`PIGMENT_BYTES_PER_POINT` (measured, see there)."""
+    wl = np.atleast_1d(np.asarray(wavelength_nm, float))
+    q = default_n_quad(float(np.pi * n_binder / (wl.min() * 1e-3)), float(median_diameter_um), float(gsd))
+    return float(wl.size) * q * PIGMENT_PHASE_ANGLES * PIGMENT_BYTES_PER_POINT
+
+
+#: A species name (the schema's ``$defs/name``): it also names files, so no separators.
+_NAME_RE = re.compile(r"[a-z0-9][a-z0-9-]*")
+
+#: Most members one sweep may generate (each is a species a build projects: the shipped sweep has 8).
+MAX_SWEEP_MEMBERS = 1000
 
 
 def _semantic_problems(doc) -> list[str]:
@@ -97,6 +131,12 @@ def _semantic_problems(doc) -> list[str]:
                            f"value {len(af['value'])}")
             elif af is not None and np.any(np.diff(af["wavelength_nm"]) <= 0):
                 out.append(f"{base}.absorption_factor.wavelength_nm: must be strictly increasing")
+            need = pigment_memory_bytes(e["median_diameter_um"]["value"], e["gsd"]["value"], DEFAULT_GRID_NM, 1.5)
+            if need > MAX_PIGMENT_BYTES:
+                out.append(f"{base}.median_diameter_um = {e['median_diameter_um']['value']:g} µm with {base}.gsd = "
+                           f"{e['gsd']['value']:g}: its Mie size average needs about {need / 2**30:,.0f} GiB over "
+                           f"380-780 nm; the limit is {MAX_PIGMENT_BYTES / 2**30:.0f} GiB (hint: a smaller median "
+                           f"diameter or gsd: pigments are 0.05-5 µm with gsd 1.2-2)")
         elif e["kind"] == "mirror_flake" and "wavelength_nm" in e["albedo"]:
             wl, val = e["albedo"]["wavelength_nm"], e["albedo"]["value"]
             if len(wl) != len(val):
@@ -119,12 +159,23 @@ def _semantic_problems(doc) -> list[str]:
         v = s["values_nm"]
         if v["stop"] < v["start"]:
             out.append(f"{base}.values_nm: stop {v['stop']} < start {v['start']}")
+            continue
+        count = (v["stop"] - v["start"]) // v["step"] + 1
+        if count > MAX_SWEEP_MEMBERS:
+            out.append(f"{base}.values_nm: start {v['start']}, stop {v['stop']}, step {v['step']} make {count:,} "
+                       f"members; the limit is {MAX_SWEEP_MEMBERS} (each member is a species every build projects; "
+                       f"hint: a larger step)")
+            continue
         try:
             generated = [s["name_format"].format(value=x) for x in _sweep_values(v)]
         except (ValueError, KeyError, IndexError) as exc:
             out.append(f"{base}.name_format: {s['name_format']!r} does not format an integer value ({exc})")
             continue
         for g in generated:
+            if not _NAME_RE.fullmatch(g):
+                out.append(f"{base}.name_format: generates the name {g!r}; a species name is lower-case letters, "
+                           f"digits and '-' (it names files, e.g. NAME-optics.png)")
+                break
             if g in names:
                 out.append(f"{base}: generated name {g!r} is already used")
             names.add(g)
@@ -138,9 +189,11 @@ def load_catalog(path=None) -> dict:
     ``sweeps``).  Raises :class:`CatalogError` listing every problem as ``path: message``.
     """
     path = Path(path) if path is not None else default_catalog_path()
-    with open(path, encoding="utf-8") as f:
-        doc = yaml.safe_load(f)
-    problems = validate_catalog(doc)
+    try:  # the recipe's strict loader: regular files only, size-limited, no duplicate keys or alias bombs
+        _, doc = load_yaml_file(path, "catalogue", MAX_CATALOG_BYTES)
+    except YamlFileError as exc:
+        raise CatalogError(f"{path}: invalid particle catalogue: {exc.problem}") from None
+    problems = value_problems(doc) or validate_catalog(doc)
     if problems:
         raise CatalogError(f"{path}: invalid particle catalogue:\n  " + "\n  ".join(problems))
     return doc

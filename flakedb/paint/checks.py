@@ -25,6 +25,7 @@ from yaml.constructor import ConstructorError
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
 from flakedb.paint.limits import NODE_COUNT_MAX
+from flakedb.safeio import FileTooLargeError, read_limited
 
 #: Largest recipe text [bytes]: a recipe with every table at its schema limit is far below it.
 MAX_RECIPE_BYTES = 1_000_000
@@ -108,7 +109,7 @@ def _alias_problem(root):
     return None
 
 
-def load_yaml_strict(text):
+def load_yaml_strict(text, limit=MAX_RECIPE_BYTES):
     """Parse recipe ``text``: raises :class:`RecipeInputError` for a text above the size limit, an
     alias bomb or a recursive alias (checked on the composed node graph, before anything is
     expanded), ``yaml.YAMLError`` (with a mark) for syntax errors and duplicate keys.
@@ -130,8 +131,9 @@ def load_yaml_strict(text):
     flakedb.paint.checks.RecipeInputError: an alias (*name) refers to the collection that contains it (recursive structures are refused)
     """
     size = len(text.encode("utf-8", errors="surrogatepass")) if isinstance(text, str) else len(text)
-    if size > MAX_RECIPE_BYTES:
-        raise RecipeInputError(too_large_message(size))
+    if size > limit:
+        raise RecipeInputError(too_large_message(size) if limit == MAX_RECIPE_BYTES else
+                               f"the text is {size:,} bytes; the limit is {limit:,} bytes")
     loader = StrictLoader(text)
     try:
         node = loader.get_single_node()
@@ -200,3 +202,49 @@ def value_problems(doc, limit=20) -> list[str]:
             for i in reversed(range(len(v))):
                 stack.append((parts + (i,), key, v[i]))
     return out
+
+
+class YamlFileError(ValueError):
+    """A YAML file that cannot be read as a document: ``problem`` is one line (without the path)."""
+
+    def __init__(self, path, problem):
+        self.path = path
+        self.problem = problem
+        super().__init__(f"{path}: {problem}")
+
+
+def load_yaml_file(path, what="recipe", limit=MAX_RECIPE_BYTES):
+    """The one way flakedb reads a YAML file the user names (recipes, match bases, ``--catalog`` files):
+    a regular file only (:mod:`flakedb.safeio`: no FIFO, device or socket, a symlink only to a regular
+    file), at most ``limit`` bytes read, UTF-8, then :func:`load_yaml_strict` (duplicate keys, alias
+    bombs and recursive aliases refused).  Raises :class:`YamlFileError` naming the problem, with the
+    line and column of a syntax error."""
+    try:
+        text = read_limited(path, limit).decode("utf-8")
+    except FileNotFoundError:
+        raise YamlFileError(path, "no such file") from None
+    except FileTooLargeError as exc:
+        raise YamlFileError(path, f"the {what} file is {exc.size:,} bytes or more; the limit is {limit:,} bytes "
+                                  f"(hint: a {what} is a short YAML file)") from None
+    except UnicodeDecodeError as exc:
+        raise YamlFileError(path, f"not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    except OSError as exc:
+        raise YamlFileError(path, f"cannot read the file ({exc.strerror or exc})") from None
+    return text, parse_yaml_text(text, path, limit)
+
+
+def parse_yaml_text(text, source="<yaml>", limit=MAX_RECIPE_BYTES):
+    """:func:`load_yaml_strict` with every failure as a :class:`YamlFileError` (one line, with the
+    line and column of a syntax error)."""
+    try:
+        return load_yaml_strict(text, limit)
+    except RecipeInputError as exc:
+        raise YamlFileError(source, exc.problem) from None
+    except RecursionError:
+        raise YamlFileError(source, "YAML nesting is too deep (hint: a recipe nests a few levels)") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
+        raise YamlFileError(source, f"YAML syntax error at {where}: {getattr(exc, 'problem', exc)}") from None
+    except (ValueError, TypeError, OverflowError) as exc:  # a scalar the safe constructor cannot build (a date 2024-13-45)
+        raise YamlFileError(source, f"YAML value error: {exc}") from None

@@ -53,11 +53,10 @@ from pathlib import Path
 
 import jsonschema
 import numpy as np
-import yaml
 
 from flakedb.colour.colorimetry import spectral_grid
-from flakedb.paint.catalog import expand_sweeps, load_catalog
-from flakedb.paint.checks import MAX_RECIPE_BYTES, RecipeInputError, load_yaml_strict, too_large_message, value_problems
+from flakedb.paint.catalog import MAX_PIGMENT_BYTES, expand_sweeps, load_catalog, pigment_memory_bytes
+from flakedb.paint.checks import YamlFileError, load_yaml_file, parse_yaml_text, value_problems
 from flakedb.paint.limits import roughness_problem
 from flakedb.paint.materials import material_names, refractive_index
 from flakedb.resources import PACKAGE_DIR, SCHEMAS_DIR
@@ -618,7 +617,26 @@ def _custom_medium_checks(pp, C, tau, mode=None, grid=None):
     return problems, CustomMedium(albedo, phase, tau, C.get("name", "custom-medium"), pp)
 
 
-def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
+def _pigment_cost_problem(pp, name, P, entry, grid, ior):
+    """A pigment whose Mie size average would need more than :data:`MAX_PIGMENT_BYTES`, naming the field
+    that drives it (the recipe's override or the catalogue's entry), or None."""
+    dm = float(P.get("median_diameter_um", entry["median_diameter_um"]["value"]))
+    g = float(P.get("gsd", entry["gsd"]["value"]))
+    wl = grid if grid is not None else np.arange(380.0, 781.0, 5.0)
+    need = pigment_memory_bytes(dm, g, wl, ior)
+    if need <= MAX_PIGMENT_BYTES:
+        return None
+    sigma = np.log(g)
+    x_max = np.pi * ior * dm * np.exp(5.0 * sigma + 6.0 * sigma ** 2) / (np.min(wl) * 1e-3)
+    fields = [f"{pp}.{k}" if k in P else f"catalogue particles.{name}.{k}" for k in ("median_diameter_um", "gsd")]
+    return (f"{fields[0]} = {dm:g} µm with {fields[1]} = {g:g}: its Mie size average needs about "
+            f"{need / 2**30:,.0f} GiB (size parameters up to {x_max:,.0f} "
+            f"resolved in {np.size(wl)} bands); the limit is {MAX_PIGMENT_BYTES / 2**30:.0f} GiB (hint: a smaller "
+            f"median diameter or gsd: pigments are 0.05-5 µm with gsd 1.2-2; the node count --n does not change "
+            f"this)")
+
+
+def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
     """(problems, warnings, CatalogParticle or None): species known, overrides of its kind, grid
     covered, particle thinner than the layer ``d`` [µm]."""
     problems, warnings = [], []
@@ -656,6 +674,10 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp):
         if dm > d:
             problems.append(f"{pp}: median particle diameter {dm:g} µm exceeds {base}.thickness_um = {d:g} µm "
                             f"(hint: a layer must be thicker than its pigment particles)")
+        elif mode != "mono":
+            cost = _pigment_cost_problem(pp, name, P, entry, grid, ior)
+            if cost:
+                problems.append(cost)
     particle = CatalogParticle(
         name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
         P.get("median_diameter_um"), P.get("gsd"), pp, P.get("orientation_distribution"), P.get("diameter_gsd"))
@@ -698,7 +720,7 @@ def _basecoat_checks(base, L, mode, grid, allsp):
                 p, particle = _custom_medium_checks(pp, C, tau, mode, grid)
             problems += p
         else:
-            p, w, particle = _catalog_particle_checks(pp, base, P, bc.thickness_um, mode, grid, allsp)
+            p, w, particle = _catalog_particle_checks(pp, base, P, bc.thickness_um, mode, grid, allsp, bc.ior)
             problems += p
             warnings += w
             if particle is None:
@@ -842,15 +864,14 @@ def parse_recipe(text: str, source="<recipe>", catalog=None) -> Recipe:
     """Parse, validate and check recipe YAML ``text``; returns a :class:`Recipe` or raises
     :class:`RecipeError` listing every problem."""
     try:
-        doc = load_yaml_strict(text)
-    except RecipeInputError as exc:
+        doc = parse_yaml_text(text, source)
+    except YamlFileError as exc:
         raise RecipeError(source, [exc.problem]) from None
-    except RecursionError:
-        raise RecipeError(source, ["YAML nesting is too deep (hint: a recipe nests a few levels)"]) from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else "?"
-        raise RecipeError(source, [f"YAML syntax error at {where}: {getattr(exc, 'problem', exc)}"]) from None
+    return recipe_from_document(doc, text, source, catalog)
+
+
+def recipe_from_document(doc, text, source="<recipe>", catalog=None) -> Recipe:
+    """The :class:`Recipe` of a document read by the strict loader (:func:`parse_recipe`)."""
     if not isinstance(doc, dict):
         raise RecipeError(source, validate_recipe(doc, catalog))
     problems = value_problems(doc) or schema_problems(doc)
@@ -868,16 +889,18 @@ def parse_recipe(text: str, source="<recipe>", catalog=None) -> Recipe:
     )
 
 
+def read_recipe_file(path):
+    """``(text, document)`` of the recipe file at ``path``, read by the one strict loader
+    (:func:`flakedb.paint.checks.load_yaml_file`: a regular file, at most 1 MB, no duplicate keys or
+    alias bombs); :class:`RecipeError` otherwise.  Also how ``flakedb match`` reads its base."""
+    try:
+        return load_yaml_file(path, "recipe")
+    except YamlFileError as exc:
+        raise RecipeError(path, [exc.problem]) from None
+
+
 def load_recipe(path, catalog=None) -> Recipe:
     """Read and check the recipe file at ``path`` (see :func:`parse_recipe`)."""
     path = Path(path)
-    try:
-        size = path.stat().st_size
-        if size > MAX_RECIPE_BYTES:
-            raise RecipeError(path, [too_large_message(size)])
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise RecipeError(path, ["no such file"]) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RecipeError(path, [f"cannot read the file ({exc})"]) from None
-    return parse_recipe(text, source=path, catalog=catalog)
+    text, doc = read_recipe_file(path)
+    return recipe_from_document(doc, text, source=path, catalog=catalog)

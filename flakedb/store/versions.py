@@ -51,11 +51,14 @@ This module holds the planning (pure), the per-task work and the readers; Dask l
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import itertools
 import json
+import math
 import os
 import posixpath
+import re
 import shutil
 import sys
 import uuid
@@ -66,12 +69,14 @@ import fsspec
 import jsonschema
 import numpy as np
 import zarr
+from fsspec.implementations.local import LocalFileSystem
 
 from flakedb import __version__
 from flakedb.paint import species as sp
 from flakedb.paint.mapping import FLAKE_C_TOL
 from flakedb.resources import SCHEMAS_DIR
 from flakedb.rt.stored import RANK_TOL, FlakeFactors
+from flakedb.safeio import FileTooLargeError, read_limited
 from flakedb.store.compress import (
     LEGENDRE_STORE_DEGREE,
     ORDER_CHUNK,
@@ -412,8 +417,54 @@ def metadata(plan: BuildPlan) -> dict:
 # --------------------------------------------------------------------------------------------
 
 
+#: A version name: the content hash (hex) that :func:`plan_build` makes; nothing else is read as one.
+_VERSION_RE = re.compile(r"^[0-9a-f]{8,128}$")
+#: Largest store file read whole (a chunk, a zarr.json, checksums.json) [bytes].
+MAX_STORE_FILE_BYTES = 512 * 1024 ** 2
+#: Most chunks one stored array may declare (a catalogue build has at most a few thousand).
+MAX_ARRAY_CHUNKS = 1_000_000
+
+
 def _fs(url):
-    return fsspec.core.url_to_fs(str(url))
+    """``(filesystem, root)`` of a store URL; an unknown scheme, a protocol whose package is missing or a
+    malformed URL is a :class:`StoreError` in words (not an internal error)."""
+    text = str(url)
+    if not text.strip() or re.fullmatch(r"[A-Za-z][A-Za-z0-9+.-]*://+", text.strip()) or "\0" in text:
+        raise StoreError(f"--store {url!r}: an empty store path or URL (hint: give a directory, e.g. --store "
+                         f"flakedb-store, or a URL such as s3://bucket/store)")
+    try:
+        return fsspec.core.url_to_fs(text)
+    except ImportError as exc:
+        raise StoreError(f"--store {url}: this URL's protocol needs a package that is not installed ({exc}) "
+                         f"(hint: install the package the message names)") from None
+    except (ValueError, TypeError, KeyError) as exc:
+        scheme = str(url).split("://", 1)[0] if "://" in str(url) else ""
+        raise StoreError(f"--store {url}: not a store path or URL fsspec knows ({'scheme ' + repr(scheme) + ': ' if scheme else ''}"
+                         f"{exc}) (hint: a local directory, or file://, s3://, gs://, memory://...)") from None
+
+
+def check_version_name(url, version, where="version"):
+    """Refuse a version name that is not a content hash (``latest`` pointing at ``../..``, a path)."""
+    if not isinstance(version, str) or not _VERSION_RE.match(version):
+        raise StoreError(f"{url}: {where} {version!r:.80} is not a version hash (hex digits); it would point outside "
+                         f"versions/ (hint: remove `latest` and rerun `flakedb build` with the same inputs, which "
+                         f"rewrites it)")
+    return version
+
+
+def _cat(fs, path, limit=MAX_STORE_FILE_BYTES) -> bytes:
+    """The bytes of one store file, at most ``limit``: on a local store a regular file only
+    (:func:`flakedb.safeio.read_limited`: a chunk symlinked to /dev/zero or a FIFO is refused, not read
+    until memory runs out); elsewhere its size is checked first."""
+    if isinstance(fs, LocalFileSystem):
+        try:
+            return read_limited(path, limit)
+        except FileTooLargeError as exc:
+            raise OSError(errno.EFBIG, f"more than the limit of {limit:,} bytes for one store file", path) from exc
+    size = fs.size(path)
+    if size is not None and size > limit:
+        raise OSError(errno.EFBIG, f"{size:,} bytes, more than the limit of {limit:,} for one store file", path)
+    return fs.cat_file(path)
 
 
 def _join(url, *parts):
@@ -426,7 +477,7 @@ def _version_url(url, version):
 
 
 def _read_json(fs, path):
-    return json.loads(fs.cat_file(path).decode("utf-8"))
+    return json.loads(_cat(fs, path, 64 * 1024 ** 2).decode("utf-8"))
 
 
 def _write_json(fs, path, doc):
@@ -448,8 +499,12 @@ def version_state(url, version) -> str:
     if fs.exists(posixpath.join(base, "complete")):
         return "complete"
     zj = posixpath.join(base, "zarr.json")
-    if fs.exists(zj) and "version" in _read_json(fs, zj).get("attributes", {}):
-        return "partial"  # the metadata goes in last when the template is written
+    try:
+        if fs.exists(zj) and "version" in (_read_json(fs, zj).get("attributes") or {}):
+            return "partial"  # the metadata goes in last when the template is written
+    except (OSError, ValueError, UnicodeDecodeError, AttributeError, TypeError) as exc:
+        raise StoreError(f"{url}: versions/{version}/zarr.json is unreadable "
+                         f"({getattr(exc, 'strerror', None) or exc}); remove that version or rebuild it") from None
     return "absent"
 
 
@@ -671,10 +726,7 @@ def read_latest(url) -> str | None:
         raise StoreError(f"{url}: `latest` is unreadable ({type(exc).__name__}: {exc}); it must be a JSON file "
                          f'{{"version": "<hash>"}} (hint: remove it and rerun `flakedb build` with the same '
                          f"inputs, which rewrites it)") from None
-    if not isinstance(version, str):
-        raise StoreError(f"{url}: `latest` names version {version!r}, not a version hash (hint: remove it and rerun "
-                         f"`flakedb build`)")
-    return version
+    return check_version_name(url, version, "`latest` names version")
 
 
 # --------------------------------------------------------------------------------------------
@@ -691,6 +743,8 @@ def verify_version(url, version, only=None, deferred=None, sums_out=None) -> lis
     which hashes each one before it reads it (:meth:`StoreVersion.verify`).  ``sums_out``: a dict that
     receives the recorded checksums (key → sha256) of the files selected."""
     fs, root = _fs(url)
+    if not isinstance(version, str) or not _VERSION_RE.match(version):
+        return [f"version {version!r:.80}: not a version hash (hex digits); it would point outside versions/"]
     vroot = posixpath.join(root, "versions", version)
     where = f"versions/{version}"
     if version_state(url, version) == "absent":
@@ -713,7 +767,7 @@ def verify_version(url, version, only=None, deferred=None, sums_out=None) -> lis
         return problems
     try:
         complete = _read_json(fs, posixpath.join(vroot, "complete"))
-        cs_bytes = fs.cat_file(posixpath.join(vroot, "checksums.json"))
+        cs_bytes = _cat(fs, posixpath.join(vroot, "checksums.json"))
         sums = json.loads(cs_bytes.decode("utf-8"))
     except (OSError, ValueError, UnicodeDecodeError) as exc:
         return problems + [f"{where}: complete / checksums.json unreadable ({exc})"]
@@ -727,7 +781,11 @@ def verify_version(url, version, only=None, deferred=None, sums_out=None) -> lis
     if only is not None:
         files = {k: v for k, v in files.items() if "/" not in k or any(k.startswith(p) for p in only)}
     arrays = {**meta.get("arrays", {}), **sums.get("arrays", {})}
-    for key in _all_chunk_keys({p: a for p, a in arrays.items() if only is None or any(p.startswith(q) for q in only)}):
+    selected = {p: a for p, a in arrays.items() if only is None or any(p.startswith(q) for q in only)}
+    shape_problems = _array_problems(fs, vroot, where, selected, meta.get("arrays", {}))
+    if shape_problems:   # before any chunk key is listed: a declared shape of 10^12 would take forever
+        return problems + shape_problems
+    for key in _all_chunk_keys(selected):
         if key not in files:
             problems.append(f"{where}/{key}: chunk has no recorded checksum")
     if sums_out is not None:
@@ -740,13 +798,53 @@ def verify_version(url, version, only=None, deferred=None, sums_out=None) -> lis
             problems.append(f"{where}/{key}: missing")
             continue
         try:
-            got = _sha256(fs.cat_file(p))
-        except OSError as exc:  # e.g. a chunk replaced by a directory
+            got = _sha256(_cat(fs, p))
+        except OSError as exc:  # e.g. a chunk replaced by a directory, a FIFO, a link to /dev/zero
             problems.append(f"{where}/{key}: unreadable ({exc.strerror or type(exc).__name__})")
             continue
         if got != expected:
             problems.append(f"{where}/{key}: sha256 {got[:16]}… != recorded {expected[:16]}… (corrupted)")
     return problems
+
+
+def _array_problems(fs, vroot, where, arrays, declared) -> list[str]:
+    """Problems of the arrays a version declares: shapes and chunks that are lists of positive integers
+    (at most :data:`MAX_ARRAY_CHUNKS` chunks), the same in the version's metadata, its checksums and
+    the array's own zarr.json (a mismatch would make a reader allocate or list the wrong size)."""
+    out = []
+    for path, spec in arrays.items():
+        shape, chunks = (spec.get("shape"), spec.get("chunks")) if isinstance(spec, dict) else (None, None)
+        ok = (isinstance(shape, list) and isinstance(chunks, list) and len(shape) == len(chunks) >= 1
+              and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in shape + chunks))
+        if not ok:
+            out.append(f"{where}/{path}: shape {shape!r:.60} / chunks {chunks!r:.60} must be lists of positive "
+                       f"integers of one length")
+            continue
+        n_chunks = math.prod(-(-s // c) for s, c in zip(shape, chunks))
+        if n_chunks > MAX_ARRAY_CHUNKS:
+            out.append(f"{where}/{path}: shape {shape} in chunks {chunks} is {n_chunks:,} chunks; the limit is "
+                       f"{MAX_ARRAY_CHUNKS:,} (corrupted metadata)")
+            continue
+        d = declared.get(path)
+        if isinstance(d, dict) and (d.get("shape") != shape or d.get("chunks") != chunks):
+            out.append(f"{where}/{path}: checksums.json declares shape {shape} / chunks {chunks}, the version's "
+                       f"metadata {d.get('shape')} / {d.get('chunks')} (corrupted)")
+            continue
+        try:
+            zj = _read_json(fs, posixpath.join(vroot, path, "zarr.json"))
+        except FileNotFoundError:
+            out.append(f"{where}/{path}/zarr.json: missing")
+            continue
+        except (OSError, ValueError, UnicodeDecodeError) as exc:
+            out.append(f"{where}/{path}/zarr.json: unreadable ({getattr(exc, 'strerror', None) or exc})")
+            continue
+        zshape = zj.get("shape") if isinstance(zj, dict) else None
+        grid = (zj.get("chunk_grid") or {}).get("configuration", {}) if isinstance(zj, dict) else {}
+        zchunks = grid.get("chunk_shape") if isinstance(grid, dict) else None
+        if zshape != shape or (zchunks is not None and zchunks != chunks):
+            out.append(f"{where}/{path}: the array's zarr.json declares shape {zshape!r:.60} / chunks {zchunks!r:.60}, "
+                       f"the version's metadata {shape} / {chunks} (corrupted; hint: rebuild with `flakedb build`)")
+    return out
 
 
 def verify_store(url, all_versions=False) -> list[str]:
@@ -763,8 +861,11 @@ def verify_store(url, all_versions=False) -> list[str]:
             doc = _read_json(fs, lp)
             problems += [f"latest: {p}" for p in schema_problems(doc, "latest")]
             latest = doc.get("version") if isinstance(doc, dict) else None
+            if latest is not None and not (isinstance(latest, str) and _VERSION_RE.match(latest)):
+                problems.append(f"latest: names {latest!r:.80}, not a version hash; it would point outside versions/")
+                latest = None
         except (OSError, ValueError, UnicodeDecodeError) as exc:
-            problems.append(f"latest: unreadable ({exc})")
+            problems.append(f"latest: unreadable ({getattr(exc, 'strerror', None) or exc})")
     else:
         problems.append("latest: missing (nothing was published)")
     versions = []
@@ -793,9 +894,16 @@ def open_version(url=None, version=None, verify=True) -> "StoreVersion":
         version = read_latest(url)
         if version is None:
             raise StoreError(f"{url}: no published version (no `latest`); run `flakedb build --store {url}`")
+    check_version_name(url, version)
     state = version_state(url, version)
     if state != "complete":
         raise StoreError(f"{url}: version {version} is {state}; rerun `flakedb build` with the same inputs to finish it")
+    fs, root = _fs(url)
+    try:  # through the safe reader first: zarr would block on a FIFO or read a device without end
+        _read_json(fs, posixpath.join(root, "versions", version, "zarr.json"))
+    except (OSError, ValueError, UnicodeDecodeError) as exc:
+        raise StoreError(f"{url}: versions/{version}/zarr.json is unreadable "
+                         f"({getattr(exc, 'strerror', None) or exc}); rebuild with `flakedb build`") from None
     g = zarr.open_group(_version_url(url, version), mode="r")
     fmt = dict(g.attrs).get("format_version")
     if fmt != FORMAT_VERSION:
@@ -858,7 +966,7 @@ class StoreVersion:
             if expected is None:
                 continue
             try:
-                got = _sha256(fs.cat_file(posixpath.join(root, "versions", self.version, key)))
+                got = _sha256(_cat(fs, posixpath.join(root, "versions", self.version, key)))
             except OSError as exc:
                 problems.append(f"versions/{self.version}/{key}: unreadable ({exc.strerror or type(exc).__name__})")
                 continue

@@ -84,7 +84,14 @@ def test_info_mitsuba_export_is_recognised(yellow, tmp_path):
 
 def test_render_accepts_the_spectral_h5_and_makes_a_sheet(yellow, tmp_path):
     out, _ = yellow
+    # the .h5 and .bsdf of one paint would both write particle-cadmium-yellow.exr: refused (issue 25)
     r = CliRunner().invoke(cli, ["render", str(out / "particle-cadmium-yellow.h5"), str(out / "particle-cadmium-yellow.bsdf"),
+                                 "--size", "24", "--spp", "4", "--out", str(tmp_path)])
+    assert r.exit_code == 2 and "same file" in r.output and not list(tmp_path.iterdir()), r.output
+    rgb = tmp_path / "in" / "yellow-rgb.bsdf"
+    rgb.parent.mkdir()
+    rgb.write_bytes((out / "particle-cadmium-yellow.bsdf").read_bytes())
+    r = CliRunner().invoke(cli, ["render", str(out / "particle-cadmium-yellow.h5"), str(rgb),
                                  "--size", "24", "--spp", "4", "--out", str(tmp_path)])
     assert r.exit_code == 0, r.output
     assert (tmp_path / "sheet.png").exists() and "ACES filmic" in r.output

@@ -116,7 +116,7 @@ def test_several_brdfangles_matched_by_name_and_lab_conditions():
     ("no_grid", "no MeasurementSpec/WavelengthRange"),
     ("bad_increment", "Increment 3 nm"),
     ("not_cxf", "not CxF in the CxF3 namespace"),
-    ("bomb", "not a readable CxF3"),
+    ("bomb", "DOCTYPE / ENTITY declaration"),
     ("specular", "specular direction"),
     ("lab_without_conditions", "without TristimulusSpec"),
 ])

@@ -127,7 +127,7 @@ def test_round_trip_recovers_loadings(tmp_path):
     out = tmp_path / "out"
     r = CliRunner().invoke(cli, ["match", str(tmp_path / "base.yaml"), "--target", str(target), "--out", str(out)])
     assert r.exit_code == 0, r.output
-    fitted = yaml.safe_load((out / "two-species.yaml").read_text())
+    fitted = yaml.safe_load((out / "two-species-fitted.yaml").read_text())
     vf = [p["volume_fraction"] for p in fitted["layers"][1]["basecoat"]["particles"]]
     assert vf == pytest.approx([TRUE["VF_METALLIC"], TRUE["VF_YELLOW"]], rel=0.05)
     rep = json.loads((out / "two-species-match.json").read_text())
@@ -137,7 +137,7 @@ def test_round_trip_recovers_loadings(tmp_path):
         assert (out / name).is_file()
     # the prediction is a target, and the fitted recipe passes `compare` against the original target
     assert read_target(out / "two-species-prediction.csv").spectral
-    r = CliRunner().invoke(cli, ["compare", str(out / "two-species.yaml"), "--target", str(target),
+    r = CliRunner().invoke(cli, ["compare", str(out / "two-species-fitted.yaml"), "--target", str(target),
                                  "--max-de", "0.3", "--metamerism", "A"])
     assert r.exit_code == 0 and "pass" in r.output, r.output
     r = CliRunner().invoke(cli, ["compare", str(tmp_path / "true.yaml").replace("true", "true"), "--target",

@@ -10,6 +10,7 @@ import numpy as np
 
 from flakedb.atomic import atomic_path
 from flakedb.render.mitsuba.directions import MeasuredExportError
+from flakedb.safeio import FileTooLargeError, read_limited
 
 #: Largest tensor file :func:`read_tensor_file` reads [bytes].
 TENSOR_FILE_MAX_BYTES = 4 * 1024 ** 3
@@ -75,10 +76,9 @@ def read_tensor_file(path) -> dict:
         return MeasuredExportError(f"{path}: {what}; not a valid tensor file (corrupt or truncated)")
 
     try:
-        size = path.stat().st_size
-        if size > TENSOR_FILE_MAX_BYTES:
-            raise MeasuredExportError(f"{path}: {size} bytes; the limit is {TENSOR_FILE_MAX_BYTES} bytes")
-        raw = path.read_bytes()
+        raw = read_limited(path, TENSOR_FILE_MAX_BYTES)   # a regular file, at most the limit read
+    except FileTooLargeError as e:
+        raise MeasuredExportError(f"{path}: {e.size} bytes or more; the limit is {TENSOR_FILE_MAX_BYTES} bytes") from None
     except OSError as e:
         raise MeasuredExportError(f"{path}: cannot read ({e.strerror})") from None
     if raw[:12] != b"tensor_file\0" or raw[12:14] != b"\x01\x00":
