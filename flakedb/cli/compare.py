@@ -47,12 +47,6 @@ def parse_limits(items, option="--limit"):
     >>> parse_limits(["45/15=1.5", "110=2"])
     {(45.0, 15.0): 1.5, (45.0, 110.0): 2.0}
     """
-def parse_limits(items):
-    """``ILLUM/ASPEC=VALUE`` or ``ASPEC=VALUE`` (illumination 45°) → {(illum, aspec): value}.
-
-    >>> parse_limits(["45/15=1.5", "110=2"])
-    {(45.0, 15.0): 1.5, (45.0, 110.0): 2.0}
-    """
     out = {}
     for it in items:
         try:

@@ -144,14 +144,17 @@ def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, shee
                            f"doubles the brightness; ±{MAX_EXPOSURE_STOPS:g} already spans a factor of 10^12)")
     # the output plan first (issue 25): two files of one paint (a.bsdf, a.h5) would write a.exr twice;
     # --sheet is a file name in --out, not a path; no output may replace an input
+    stacks = _sparkle_stacks(sparkle_recipes, len(files), sun)   # their names are part of the image names
     plan = OutputPlan()
     plan.add_dir(out_dir)
     out = Path(out_dir)
     names = []
-    for f in files:
+    for path in sparkle_recipes:
+        plan.add_input(path, "--sparkle")
+    for f, st in zip(files, stacks):
         plan.add_input(f, "FILE")
         for kind in env_kinds:
-            stem = Path(f).stem + (f"-{kind}" if len(env_kinds) > 1 else "")
+            stem = Path(f).stem + (f"-{st[0]}" if st is not None else "") + (f"-{kind}" if len(env_kinds) > 1 else "")
             names.append((plan.in_dir(out, f"{stem}.exr", f"image of {f}"), plan.in_dir(out, f"{stem}.png", f"image of {f}")))
     sheet_path = None
     if len(files) * len(env_kinds) > 1 or sheet_name:
@@ -171,7 +174,6 @@ def render(files, out_dir, size, spp, env_kinds, sun, seed, exposure, tone, shee
             raise FlakedbError(str(e)) from None
     probe_writable(out_dir)
     spp = preview.DEFAULT_SPP if spp is None else spp
-    stacks = _sparkle_stacks(sparkle_recipes, len(bsdfs), sun)
     jobs = [(f, b, k, st) for (f, b), st in zip(bsdfs, stacks) for k in env_kinds]
     results = []
     for f, b, kind, st in jobs:

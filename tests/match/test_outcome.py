@@ -38,7 +38,7 @@ def test_unreachable_target_exits_nonzero_and_names_the_bound(tmp_path, target_t
     assert last.startswith("target NOT reached") and "volume_fraction at its upper bound 0.004" in last, last
     rep = json.loads((out / "two-species-match.json").read_text())
     assert rep["reached"] is False and rep["at_bound"][0]["side"] == "upper"
-    assert not all(rep["passed"]) and (out / "two-species.yaml").is_file()
+    assert not all(rep["passed"]) and (out / "two-species-fitted.yaml").is_file()
 
 
 def test_reachable_target_is_reached(target_text):
