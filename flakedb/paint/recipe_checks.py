@@ -1,0 +1,492 @@
+"""A schema-valid recipe's semantic checks: what the schema cannot say (spectral coverage, layer order,
+binder indices, loadings and packing, custom species, the primer and metal base), each problem one line
+naming the field path, the value and the allowed range.  :func:`semantic_problems` runs them all.
+"""
+
+from __future__ import annotations
+
+import difflib
+
+import numpy as np
+
+from flakedb.colour.colorimetry import spectral_grid
+from flakedb.paint.catalog import MAX_PIGMENT_BYTES, expand_sweeps, load_catalog, pigment_memory_bytes
+from flakedb.paint.limits import roughness_problem
+from flakedb.paint.materials import material_names, refractive_index
+from flakedb.paint.recipe_model import (
+    DEFAULT_SPECTRAL,
+    DILUTE_WARNING,
+    PIGMENT_PACKING_LIMIT,
+    PRIMER_ALBEDO,
+    Basecoat,
+    CatalogParticle,
+    Clearcoat,
+    CustomFlake,
+    CustomMedium,
+    FlakeTable,
+    MetalBase,
+    Primer,
+    Spectrum,
+)
+from flakedb.paint.recipe_schema import json_short
+from flakedb.rt.media import vmf_kappa_from_mean_cosine
+
+
+def _spectrum_problems(path, spec, grid, lo_val=None, hi_val=None, what="value"):
+    out = []
+    wl = np.asarray(spec["wavelength_nm"], float)
+    val = np.asarray(spec["value"], float)
+    if wl.size != val.size:
+        out.append(f"{path}: wavelength_nm has {wl.size} entries and value {val.size}; give one value per wavelength")
+        return out
+    if np.any(np.diff(wl) <= 0):
+        out.append(f"{path}.wavelength_nm: must be strictly increasing, got {wl.tolist()}")
+        return out
+    if grid is not None and (wl[0] > grid[0] + 1e-9 or wl[-1] < grid[-1] - 1e-9):
+        out.append(f"{path}.wavelength_nm: covers {wl[0]:g}-{wl[-1]:g} nm but the recipe's grid is "
+                   f"{grid[0]:g}-{grid[-1]:g} nm; extend the table (nothing is extrapolated) or narrow spectral.range_nm")
+    if lo_val is not None and np.any(val < lo_val):
+        k = int(np.argmin(val))
+        out.append(f"{path}.value[{k}]: value {val[k]:g} is outside the allowed range "
+                   f"{lo_val:g} ≤ {what}" + (f" ≤ {hi_val:g}" if hi_val is not None else ""))
+    if hi_val is not None and np.any(val > hi_val):
+        k = int(np.argmax(val))
+        out.append(f"{path}.value[{k}]: value {val[k]:g} is outside the allowed range "
+                   f"{lo_val:g} ≤ {what} ≤ {hi_val:g}")
+    return out
+
+
+def _flake_table(spec) -> FlakeTable:
+    if isinstance(spec, (int, float)):
+        return FlakeTable(np.array([0.0, 1.0]), np.array([float(spec)] * 2))
+    return FlakeTable(np.asarray(spec["c"], float), np.asarray(spec["value"], float))
+
+
+def _flake_table_problems(path, spec):
+    if isinstance(spec, (int, float)):
+        return []
+    c, v = np.asarray(spec["c"], float), np.asarray(spec["value"], float)
+    if c.size != v.size:
+        return [f"{path}: c has {c.size} entries and value {v.size}; give one value per c"]
+    if np.any(np.diff(c) <= 0):
+        return [f"{path}.c: must be strictly increasing in [0, 1] (c = |cos| between light and flake normal), got {c.tolist()}"]
+    return []
+
+
+def spectral_grid_of(doc) -> tuple[str, np.ndarray | None, list[str]]:
+    """(mode, grid or None, problems) of a schema-valid document's ``spectral`` block.
+
+    The default is 380–780 nm every 10 nm (41 bands); a range that ends before it starts is a problem:
+
+    >>> mode, grid, problems = spectral_grid_of({})
+    >>> mode, grid.size, float(grid[0]), float(grid[-1]), problems
+    ('spectral', 41, 380.0, 780.0, [])
+    >>> spectral_grid_of({"spectral": {"range_nm": [700, 400]}})[2]
+    ['spectral.range_nm: value [700.0, 400.0] must be increasing (first < last band, nm)']
+    """
+    sp = {**DEFAULT_SPECTRAL, **(doc.get("spectral") or {})}
+    mode = sp["mode"]
+    lo, hi = (float(v) for v in sp["range_nm"])
+    step = float(sp["step_nm"])
+    if mode == "mono":
+        return mode, None, []
+    if hi <= lo:
+        return mode, None, [f"spectral.range_nm: value {[lo, hi]} must be increasing (first < last band, nm)"]
+    try:
+        grid = spectral_grid((lo, hi), step)
+    except ValueError:
+        return mode, None, [f"spectral.step_nm: value {step:g} does not divide the range {lo:g}-{hi:g} nm "
+                            f"(hint: choose a step such that (last - first) / step is an integer, e.g. 5, 10 or 20)"]
+    if grid.size < 3:
+        return mode, None, [f"spectral: the grid {grid.tolist()} nm has fewer than 3 bands; colour needs the visible range "
+                            f"(hint: range_nm [380, 780])"]
+    return mode, grid, []
+
+
+def _material_coverage_problems(path, entry, grid):
+    """The catalogue materials of a species must cover the grid (nothing is extrapolated silently)."""
+    mats = []
+    if entry["kind"] == "interference_flake":
+        mats = [entry["substrate"]["material"]] + [f["material"] for f in entry["coating"]]
+    elif entry["kind"] == "pigment":
+        mats = [entry["material"]]
+    out = []
+    for m in mats:
+        try:
+            refractive_index(m, np.array([grid[0], grid[-1]]))
+        except ValueError as exc:
+            out.append(f"{path}: {exc} (hint: narrow spectral.range_nm)")
+    if entry["kind"] == "mirror_flake" and "wavelength_nm" in entry["albedo"]:
+        wl = entry["albedo"]["wavelength_nm"]
+        if grid[0] < wl[0] or grid[-1] > wl[-1]:
+            out.append(f"{path}: the albedo spectrum covers {wl[0]:g}-{wl[-1]:g} nm, the grid {grid[0]:g}-{grid[-1]:g} nm "
+                       f"(hint: narrow spectral.range_nm)")
+    return out
+
+
+def _order_problems(kinds) -> list[str]:
+    """At most one clearcoat, first; at most one primer or metal base, last."""
+    problems = []
+    for i, k in enumerate(kinds):
+        if k == "clearcoat" and i != 0:
+            problems.append(f"layers[{i}].clearcoat: a clear coat must be the first (top) layer; layers go top to bottom "
+                            f"(hint: move it to layers[0])")
+        if k == "primer" and i != len(kinds) - 1:
+            problems.append(f"layers[{i}].primer: the primer must be the last (bottom) layer; layers go top to bottom "
+                            f"(hint: move it to the end)")
+        if k == "metal" and i != len(kinds) - 1:
+            problems.append(f"layers[{i}].metal: the metal base must be the last (bottom) layer; layers go top to "
+                            f"bottom (hint: move it to the end)")
+    if kinds.count("clearcoat") > 1:
+        problems.append(f"layers: {kinds.count('clearcoat')} clear coats; at most one (the top layer)")
+    if kinds.count("primer") > 1:
+        problems.append(f"layers: {kinds.count('primer')} primers; at most one (the bottom layer)")
+    if kinds.count("metal") > 1:
+        problems.append(f"layers: {kinds.count('metal')} metal bases; at most one (the bottom layer)")
+    if "metal" in kinds and "primer" in kinds:
+        problems.append("layers: a primer and a metal base; the bottom is one or the other (hint: remove the "
+                        "primer over the metal, or the metal)")
+    return problems
+
+
+def _binder_index_problems(layers, kinds) -> list[str]:
+    """Binder indices below the top interface: each change (a rise or a fall) is a smooth inner interface
+    (docs/model.md §4 "Inner interface"); an index-matched top binder (ior 1: no top interface) cannot sit
+    over one (the solver's output rule is then the top binder's own)."""
+    problems = []
+    iors = [(f"layers[{i}].{k}.ior", float(layers[i][k]["ior"])) for i, k in enumerate(kinds)
+            if k not in ("primer", "metal")]
+    for (p_above, above), (pth, v) in zip(iors, iors[1:]):
+        if v > above and above == 1.0:
+            problems.append(
+                f"{pth}: value {v:g} under {p_above} = 1 (index-matched): an inner interface needs a binder above it "
+                f"(hint: give {p_above} the binder's index, or set {pth} to 1)")
+    return problems
+
+
+def _interface_roughness_warnings(layers, kinds) -> list[str]:
+    """A basecoat's ``interface_roughness`` acts only where its ior differs from the binder above."""
+    out = []
+    above = None
+    for i, k in enumerate(kinds):
+        if k in ("primer", "metal"):
+            continue
+        ior = float(layers[i][k]["ior"])
+        if k == "basecoat" and float(layers[i][k].get("interface_roughness", 0.0)) > 0 and (above is None or ior == above):
+            out.append(f"layers[{i}].basecoat.interface_roughness: ignored, the basecoat's ior {ior:g} equals the "
+                       f"binder's above it (no inner interface there)")
+        above = ior
+    return out
+
+
+def _clearcoat_checks(base, L, mode, grid):
+    """(problems, warnings, Clearcoat) of a clearcoat layer ``L``."""
+    problems, warnings = [], []
+    ab = L.get("absorption_per_um")
+    if isinstance(ab, dict):
+        if mode == "mono":
+            problems.append(f"{base}.absorption_per_um: a spectrum needs spectral or rgb mode; mono mode takes "
+                            f"wavelength-independent inputs only (hint: give a number, or set spectral.mode)")
+        else:
+            problems += _spectrum_problems(f"{base}.absorption_per_um", ab, grid, 0.0, None, "absorption_per_um")
+        ab = Spectrum(np.asarray(ab["wavelength_nm"], float), np.asarray(ab["value"], float))
+    rough = float(L.get("roughness", 0.0))
+    problem = roughness_problem(rough)
+    if problem:
+        problems.append(f"{base}.roughness: {problem}")
+    if float(L["ior"]) == 1.0 and rough > 0:
+        problems.append(f"{base}.roughness: value {rough:g} with ior 1: an index-matched coat has no interface "
+                        f"to be rough (hint: set roughness to 0, or ior > 1)")
+    return problems, warnings, Clearcoat(float(L["thickness_um"]), float(L["ior"]), rough, ab, base)
+
+
+def _custom_flake_checks(pp, C, tau):
+    """(problems, CustomFlake): tables well formed, R + T ≤ 1, some extinction."""
+    problems = []
+    for key in ("R", "T"):
+        problems += _flake_table_problems(f"{pp}.custom.{key}", C[key])
+    R, T = _flake_table(C["R"]), _flake_table(C["T"])
+    if R.c.size == R.value.size and T.c.size == T.value.size:
+        cc = np.union1d(R.c, T.c)
+        s = np.interp(cc, R.c, R.value) + np.interp(cc, T.c, T.value)
+        if np.any(s > 1 + 1e-12):
+            m = int(np.argmax(s))
+            problems.append(
+                f"{pp}.custom: R + T = {s[m]:.6g} at c = {cc[m]:g} exceeds 1 (energy conservation: "
+                f"allowed R + T ≤ 1, the rest is absorbed) (hint: lower R or T)")
+        if np.all(np.interp(cc, T.c, T.value) >= 1.0 - 1e-12):
+            problems.append(f"{pp}.optical_depth: value {tau:g} cannot be met: a flake with T = 1 "
+                            f"at every c has no extinction (hint: T < 1 somewhere)")
+    return problems, CustomFlake(R, T, float(C["orientation_alpha"]), tau, C.get("name", "custom-flake"), pp,
+                                 C.get("orientation_distribution", "beckmann"))
+
+
+def _custom_medium_albedo(pp, C, mode, grid):
+    """(problems, albedo): a number, or a spectrum in [0, 1] covering the grid (spectral or rgb mode)."""
+    alb = C["albedo"]
+    if not isinstance(alb, dict):
+        return [], float(alb)
+    path = f"{pp}.custom.albedo"
+    if mode == "mono":
+        problems = [f"{path}: a spectrum needs spectral or rgb mode; mono mode takes wavelength-independent "
+                    f"inputs only (hint: give a number in [0, 1], or set spectral.mode)"]
+    else:
+        problems = [m + " (hint: a single-scattering albedo sigma_s / sigma_t lies in [0, 1])"
+                    if "outside the allowed range" in m else m
+                    for m in _spectrum_problems(path, alb, grid, 0.0, 1.0, "albedo")]
+    return problems, Spectrum(np.asarray(alb["wavelength_nm"], float), np.asarray(alb["value"], float))
+
+
+def _custom_medium_checks(pp, C, tau, mode=None, grid=None):
+    """(problems, CustomMedium): an albedo number or spectrum (:func:`_custom_medium_albedo`); a vMF
+    phase given by κ or by its mean cosine g; a phase table from -1 to 1, not all zero."""
+    problems, albedo = _custom_medium_albedo(pp, C, mode, grid)
+    ph = C["phase"]
+    if ph == "isotropic":
+        phase = "isotropic"
+    elif "hg" in ph:
+        phase = ("hg", float(ph["hg"]))
+    elif "vmf" in ph:
+        v = ph["vmf"]
+        phase = ("vmf", float(v["kappa"]) if "kappa" in v else float(vmf_kappa_from_mean_cosine(float(v["g"]))))
+    else:
+        ct = np.asarray(ph["table"]["cos_theta"], float)
+        pv = np.asarray(ph["table"]["value"], float)
+        phase = ("table", ct, pv)
+        tp = f"{pp}.custom.phase.table"
+        if ct.size != pv.size:
+            problems.append(f"{tp}: cos_theta has {ct.size} entries and value {pv.size}")
+        elif np.any(np.diff(ct) <= 0) or ct[0] != -1.0 or ct[-1] != 1.0:
+            problems.append(f"{tp}.cos_theta: must increase strictly from -1 to 1 (both ends "
+                            f"included), got {json_short(ct.tolist())}")
+        elif not np.any(pv > 0):
+            problems.append(f"{tp}.value: all zero; a phase function must integrate to 1 "
+                            f"(hint: give relative values; compose normalises them)")
+    return problems, CustomMedium(albedo, phase, tau, C.get("name", "custom-medium"), pp)
+
+
+def _pigment_cost_problem(pp, name, P, entry, grid, ior):
+    """A pigment whose Mie size average would need more than :data:`MAX_PIGMENT_BYTES`, naming the field
+    that drives it (the recipe's override or the catalogue's entry), or None."""
+    dm = float(P.get("median_diameter_um", entry["median_diameter_um"]["value"]))
+    g = float(P.get("gsd", entry["gsd"]["value"]))
+    wl = grid if grid is not None else np.arange(380.0, 781.0, 5.0)
+    need = pigment_memory_bytes(dm, g, wl, ior)
+    if need <= MAX_PIGMENT_BYTES:
+        return None
+    sigma = np.log(g)
+    x_max = np.pi * ior * dm * np.exp(5.0 * sigma + 6.0 * sigma ** 2) / (np.min(wl) * 1e-3)
+    fields = [f"{pp}.{k}" if k in P else f"catalogue particles.{name}.{k}" for k in ("median_diameter_um", "gsd")]
+    return (f"{fields[0]} = {dm:g} µm with {fields[1]} = {g:g}: its Mie size average needs about "
+            f"{need / 2**30:,.0f} GiB (size parameters up to {x_max:,.0f} "
+            f"resolved in {np.size(wl)} bands); the limit is {MAX_PIGMENT_BYTES / 2**30:.0f} GiB (hint: a smaller "
+            f"median diameter or gsd: pigments are 0.05-5 µm with gsd 1.2-2; the node count --n does not change "
+            f"this)")
+
+
+def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
+    """(problems, warnings, CatalogParticle or None): species known, overrides of its kind, grid
+    covered, particle thinner than the layer ``d`` [µm]."""
+    problems, warnings = [], []
+    name = P["species"]
+    vf = float(P["volume_fraction"])
+    if name not in allsp:
+        close = difflib.get_close_matches(name, list(allsp), n=3)
+        problems.append(f"{pp}.species: unknown species {name!r}"
+                        + (f" (did you mean {', '.join(map(repr, close))}?)" if close else "")
+                        + " (hint: `flakedb species list` shows the catalogue; or describe it inline "
+                          "with `custom:` and an optical_depth)")
+        return problems, warnings, None
+    entry = allsp[name]
+    is_flake = entry["kind"] != "pigment"
+    flake_only = ("orientation_alpha", "orientation_distribution", "diameter_um", "opaque", "diameter_gsd")
+    pig_only = ("median_diameter_um", "gsd")
+    for key in (pig_only if is_flake else flake_only):
+        if key in P:
+            problems.append(f"{pp}.{key}: {name!r} is a {entry['kind']}; {key} applies to "
+                            f"{'pigments' if key in pig_only else 'flakes'} only (hint: remove it)")
+    if mode == "mono":
+        problems.append(f"{pp}.species: catalogue species have spectral optics; mono mode takes "
+                        f"wavelength-independent inputs only (hint: set spectral.mode to spectral or rgb)")
+    elif grid is not None:
+        problems += _material_coverage_problems(f"{pp}.species ({name})", entry, grid)
+    if is_flake:
+        t_flake = float(entry["thickness_um"]["value"])
+        if t_flake > d:
+            problems.append(f"{pp}: the flake is {t_flake:g} µm thick but {base}.thickness_um is {d:g} µm "
+                            f"(hint: a layer must be thicker than its flakes)")
+        if P.get("opaque") and entry["kind"] == "mirror_flake":
+            warnings.append(f"{pp}.opaque: a mirror flake is opaque already (T = 0)")
+    else:
+        dm = float(P.get("median_diameter_um", entry["median_diameter_um"]["value"]))
+        if dm > d:
+            problems.append(f"{pp}: median particle diameter {dm:g} µm exceeds {base}.thickness_um = {d:g} µm "
+                            f"(hint: a layer must be thicker than its pigment particles)")
+        elif mode != "mono":
+            cost = _pigment_cost_problem(pp, name, P, entry, grid, ior)
+            if cost:
+                problems.append(cost)
+    particle = CatalogParticle(
+        name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
+        P.get("median_diameter_um"), P.get("gsd"), pp, P.get("orientation_distribution"), P.get("diameter_gsd"))
+    return problems, warnings, particle
+
+
+def _packing_checks(base, particles):
+    """(problems, warnings) of a basecoat's catalogue particles' Σ volume fractions (module docstring)."""
+    problems, warnings = [], []
+    sum_pig = sum(p.volume_fraction for p in particles if not p.is_flake)
+    sum_all = sum(p.volume_fraction for p in particles)
+    if sum_pig > PIGMENT_PACKING_LIMIT:
+        problems.append(f"{base}.particles: the pigments' volume fractions add up to {sum_pig:.4g}, above the "
+                        f"random close packing of spheres {PIGMENT_PACKING_LIMIT} (allowed range: Σ ≤ "
+                        f"{PIGMENT_PACKING_LIMIT}) (hint: lower the volume_fraction values)")
+    if sum_all >= 1.0:
+        problems.append(f"{base}.particles: the volume fractions add up to {sum_all:.4g}; they must stay below 1 "
+                        f"(the particles cannot fill more than the layer) (hint: lower them)")
+    elif sum_all > DILUTE_WARNING:
+        warnings.append(f"{base}.particles: volume fractions add up to {sum_all:.3g} > {DILUTE_WARNING}: the "
+                        f"independent-scattering model (eq. 2 adds cross-sections) is doubtful this dense")
+    return problems, warnings
+
+
+def _basecoat_checks(base, L, mode, grid, allsp):
+    """(problems, warnings, Basecoat): every particle checked, then the packing of the layer."""
+    problems, warnings = [], []
+    bc = Basecoat(float(L["thickness_um"]), float(L["ior"]), [], base, float(L.get("interface_roughness", 0.0)))
+    problem = roughness_problem(bc.interface_roughness)
+    if problem:
+        problems.append(f"{base}.interface_roughness: {problem}")
+    catalogued = []
+    for j, P in enumerate(L["particles"]):
+        pp = f"{base}.particles[{j}]"
+        if "custom" in P:
+            C, tau = P["custom"], float(P["optical_depth"])
+            if C["kind"] == "flake":
+                p, particle = _custom_flake_checks(pp, C, tau)
+            else:
+                p, particle = _custom_medium_checks(pp, C, tau, mode, grid)
+            problems += p
+        else:
+            p, w, particle = _catalog_particle_checks(pp, base, P, bc.thickness_um, mode, grid, allsp, bc.ior)
+            problems += p
+            warnings += w
+            if particle is None:
+                continue
+            catalogued.append(particle)
+        bc.particles.append(particle)
+    p, w = _packing_checks(base, catalogued)
+    return problems + p, warnings + w, bc
+
+
+def _primer_checks(base, L, mode, grid):
+    """(problems, Primer): a colour, an albedo, or a spectrum in [0, 1] covering the grid."""
+    problems = []
+    if "color" in L:
+        return problems, Primer(PRIMER_ALBEDO[L["color"]], L["color"], base)
+    if "albedo" in L:
+        return problems, Primer(float(L["albedo"]), f"albedo {float(L['albedo']):g}", base)
+    if mode == "mono":
+        problems.append(f"{base}.spectrum: a spectrum needs spectral or rgb mode; mono mode takes "
+                        f"wavelength-independent inputs only (hint: give an albedo)")
+    else:
+        problems += _spectrum_problems(f"{base}.spectrum", L["spectrum"], grid, 0.0, 1.0, "albedo")
+    sp = L["spectrum"]
+    return problems, Primer(Spectrum(np.asarray(sp["wavelength_nm"], float), np.asarray(sp["value"], float)),
+                            "spectrum", base)
+
+
+#: Largest extinction coefficient k of a metal base's material below which a warning says it is
+#: hardly a metal: the base is opaque by construction (light refracted into it is absorbed), which
+#: for a dielectric such as SiO2 (k = 0) is not what a panel of that material would do.
+METAL_K_WARNING = 0.5
+
+
+def _metal_checks(base, L, mode, grid):
+    """(problems, warnings, MetalBase): a catalogue material (spectral or rgb mode) that exists and
+    covers the grid, or a constant {n, k}."""
+    problems, warnings = [], []
+    m = L["material"]
+    rough = float(L["roughness"])
+    comp = bool(L.get("energy_compensation", True))
+    if isinstance(m, dict):
+        N = complex(float(m["n"]), float(m["k"]))
+        k_max = N.imag
+        metal = MetalBase(N, rough, comp, f"n = {N.real:g}, k = {N.imag:g}", base)
+    else:
+        metal = MetalBase(str(m), rough, comp, str(m), base)
+        names = material_names()
+        if m not in names:
+            close = difflib.get_close_matches(str(m), names, n=3)
+            problems.append(f"{base}.material: unknown material {json_short(m)}"
+                            + (f" (did you mean {', '.join(map(repr, close))}?)" if close else "")
+                            + f"; known materials: {', '.join(names)} (hint: name one of them, or give a "
+                              f"constant index {{n: …, k: …}})")
+            return problems, warnings, metal
+        if mode == "mono":
+            problems.append(f"{base}.material: {m!r} has a spectral index; mono mode takes wavelength-independent "
+                            f"inputs only (hint: give material: {{n: …, k: …}}, or set spectral.mode)")
+            return problems, warnings, metal
+        try:
+            k_max = float(np.max(refractive_index(m, grid).imag))
+        except ValueError as exc:
+            problems.append(f"{base}.material: {exc} (hint: narrow spectral.range_nm)")
+            return problems, warnings, metal
+    if k_max < METAL_K_WARNING:
+        warnings.append(f"{base}.material: k ≤ {k_max:.3g} < {METAL_K_WARNING:g} on the grid: hardly a metal; the "
+                        f"base is modelled as opaque (light refracted into it is absorbed)")
+    return problems, warnings, metal
+
+
+def _stack_problems(clear, basecoats, primer, metal=None) -> list[str]:
+    """A transmissive stack (no primer or metal base) only without a top interface; something to compose."""
+    problems = []
+    top_ior = clear.ior if clear is not None else (basecoats[0].ior if basecoats else 1.0)
+    if primer is None and metal is None and top_ior != 1.0:
+        problems.append(
+            f"layers: no primer, so the stack transmits into a half-space of the binder (index {top_ior:g}); a "
+            f"transmissive .bsdf needs one node set above and below, which only an index-matched stack (ior 1, no "
+            f"top interface) has (hint: add a primer as the last layer, or set every ior to 1)")
+    if not basecoats and clear is None and primer is None and metal is None:
+        problems.append("layers: nothing to compose (hint: add a primer, a basecoat or a clearcoat)")
+    return problems
+
+
+def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
+    """Checks beyond the schema on a schema-valid document: the dispatcher over the checks above
+    (spectral grid, layer order, binder index, then each layer by kind, then the stack).
+
+    Returns ``(problems, warnings, parts)`` where ``parts`` holds the typed pieces built on the way
+    (used by :func:`build_recipe` when there are no problems).
+    """
+    problems, warnings = [], []
+    mode, grid, p = spectral_grid_of(doc)
+    problems += p
+    layers = doc["layers"]
+    kinds = [next(iter(item)) for item in layers]
+    problems += _order_problems(kinds)
+    catalog = catalog if catalog is not None else load_catalog()
+    allsp = expand_sweeps(catalog)
+    problems += _binder_index_problems(layers, kinds)
+
+    clear, basecoats, primer, metal = None, [], None, None
+    for i, k in enumerate(kinds):
+        base = f"layers[{i}].{k}"
+        L = layers[i][k]
+        if k == "clearcoat":
+            p, w, clear = _clearcoat_checks(base, L, mode, grid)
+        elif k == "basecoat":
+            p, w, bc = _basecoat_checks(base, L, mode, grid, allsp)
+            basecoats.append(bc)
+        elif k == "metal":
+            p, w, metal = _metal_checks(base, L, mode, grid)
+        else:  # primer
+            (p, primer), w = _primer_checks(base, L, mode, grid), []
+        problems += p
+        warnings += w
+
+    problems += _stack_problems(clear, basecoats, primer, metal)
+    warnings += _interface_roughness_warnings(layers, kinds)
+    parts = {"mode": mode, "grid": grid, "clearcoat": clear, "basecoats": basecoats, "primer": primer,
+             "metal": metal}
+    return problems, warnings, parts
