@@ -60,7 +60,6 @@ DOCTEST_EXEMPT = {
     # being split by other engineers (issue #21, item 4): their examples go into the new modules
     "flakedb.rt.stack": "being split (issue #21)",
     "flakedb.render.mitsuba": "being split (issue #21)",
-    "flakedb.store.versions": "being split (issue #21)",
 }
 
 

@@ -126,7 +126,7 @@ def test_interrupted_build_keeps_latest_and_resumes(serial, tmp_path):
     # a task killed mid-way: garbage in one of its chunks, no record; the rerun overwrites it
     plan = st.plan_build(req)
     pending = st.pending_tasks(url, plan)
-    key = st._task_chunk_keys(plan, pending[0])[0]
+    key = st.task_chunk_keys(plan, pending[0])[0]
     chunk = Path(url) / "versions" / plan.version / key
     chunk.parent.mkdir(parents=True, exist_ok=True)
     chunk.write_bytes(b"half-written")
