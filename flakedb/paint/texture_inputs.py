@@ -65,7 +65,7 @@ def texture_stack(recipe) -> tuple[TextureStack, list]:
     ... ''')
     >>> stack, notes = texture_stack(recipe)
     >>> (f,) = stack.flakes
-    >>> round(f.number_density_per_um3 * f.mean_area_um2() * f.flake_thickness_um, 12), f.z_top_um, f.alpha
+    >>> round(float(f.number_density_per_um3 * f.mean_area_um2() * f.flake_thickness_um), 12), f.z_top_um, f.alpha
     (0.08, 40.0, 0.2)
     >>> round(float(stack.y_weights.sum()), 12), notes
     (1.0, [])
