@@ -63,7 +63,7 @@ def flake_normal_map(stack, size, texel_um, seed=0):
     >>> f = FlakeLayer("al", 0.0, 10.0, 2e-4, 15.0, 1.0, 0.3, 0.2, c, np.full((1, 5), 0.9), np.zeros((1, 5)))
     >>> m = flake_normal_map(TextureStack(1.5, np.array([1.0]), (f,)), 128, 2.0, seed=0)
     >>> poisson = 1.0 - np.exp(-f.areal_density_per_um2 * f.mean_area_um2())
-    >>> m.shape, bool(np.allclose(np.linalg.norm(m[..., :3], axis=-1), 1.0, atol=1e-6)), abs(m[..., 3].mean() - poisson) < 0.05
+    >>> m.shape, bool(np.allclose(np.linalg.norm(m[..., :3], axis=-1), 1.0, atol=1e-6)), bool(abs(m[..., 3].mean() - poisson) < 0.05)
     ((128, 128, 4), True, True)
     """
     f = stack.flakes[0]
