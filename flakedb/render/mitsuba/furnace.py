@@ -59,6 +59,8 @@ def furnace_sphere_prediction(albedo, res: int = 64, supersample: int = 8):
     >>> black, _, _ = furnace_sphere_prediction(lambda mu: 0.0 * white(mu), res=16, supersample=4)
     >>> bool(np.allclose(black, FURNACE_RADIANCE * (1.0 - cover)[..., None]))
     True
+    >>> abs(float(cover.mean()) - np.pi / (4 * FURNACE_HALF_WIDTH**2)) < 0.01      # the disc's share of the frame
+    True
     """
     L = FURNACE_RADIANCE
     h = FURNACE_HALF_WIDTH
