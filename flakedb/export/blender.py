@@ -51,7 +51,7 @@ def principled_inputs(fit: OpenPBRFit) -> dict:
     >>> bare = OpenPBRFit((0.8, 0.5, 0.2), 1.0, 0.3, 1.0, 0.1)
     >>> p = principled_inputs(coated)
     >>> p["Coat Weight"], principled_inputs(bare)["Coat Weight"], round(p["Thin Film Thickness"] * p["Thin Film IOR"], 9)
-    (1.0, 0.0, 600.0)
+    (1.0, 0.0, 600.000000000)
     """
     c = tuple(float(x) for x in fit.base_color)
     return {

@@ -130,7 +130,7 @@ class OpenPBRFit:
         >>> fit = OpenPBRFit((0.8, 0.5, 0.2), 1.0, 0.3, 1.5, 0.0, thin_film_thickness_nm=300.0, thin_film_ior=2.0)
         >>> d_air, n_air = fit.film_relative_to_air()
         >>> round(d_air, 9), round(n_air * 1.5, 12), round(d_air * n_air, 9)
-        (450.0, 2.0, 600.0)
+        (450.000000000, 2.000000000000, 600.000000000)
         """
         nc = self.coat_ior if self.coat_ior > 1.0 else 1.0
         return self.thin_film_thickness_nm * nc, self.thin_film_ior / nc

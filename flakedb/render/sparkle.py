@@ -78,7 +78,7 @@ def flake_rgb(stack, cos_d):
     ...     return flake_rgb(TextureStack(1.5, np.full(wl.size, 1 / wl.size), (f,), wavelength_nm=wl), np.array([1.0]))[0]
     >>> grey, warm = rgb(0.9), rgb(0.2)
     >>> bool(np.allclose(grey, 1.0, atol=1e-3)), bool(warm[0] > warm[1] > warm[2]), round(float(warm @ [0.2126, 0.7152, 0.0722]), 3)
-    (True, True, 1.0)
+    (True, True, 1.000)
     """
     f = stack.flakes[0]
     R = f.reflectance(np.asarray(cos_d, float))  # (C, …)

@@ -65,7 +65,7 @@ def person(distance_m: float, pupil_mm: float = 3.0, acuity_rad: float = ARCMIN_
 
     >>> p = person(1.0)                                  # 1 arcmin at 1 m; a 3 mm pupil seen from 1 m
     >>> round(p.spot_um, 1), round(p.aperture_half_angle_rad * 1e3, 4), round(person(3.0).spot_um / p.spot_um, 12)
-    (290.9, 1.5, 3.0)
+    (290.9, 1.5000, 3.000000000000)
     """
     d_um = float(distance_m) * 1e6
     return Observer(

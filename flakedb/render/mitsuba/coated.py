@@ -58,7 +58,7 @@ def coated_bsdf_dict(tensor_filename: str, delta) -> dict:
 
     >>> d = coated_bsdf_dict("paint.bsdf", {"kind": "fresnel", "eta": 1.5})
     >>> d["type"], d["weight"] * d["coat"]["specular_reflectance"], (1 - d["weight"]) * COAT_BLEND_SCALE, d["coat"]["eta"]
-    ('blendbsdf', 1.0, 1.0, 1.5)
+    ('blendbsdf', 1.000000000000, 1.000000000000, 1.5)
     >>> coated_bsdf_dict("paint.bsdf", None)
     {'type': 'measured', 'filename': 'paint.bsdf'}
     """

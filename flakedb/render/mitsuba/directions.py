@@ -60,7 +60,7 @@ def direction_from_file(wi, mu_o, phi_d):
     >>> wi, wo = np.array([0.6, 0.0, 0.8]), np.array([-0.3, 0.4, np.sqrt(0.75)])
     >>> mu_i, mu_o, phi_d = file_coordinates(wi, wo)
     >>> round(float(mu_i), 12), bool(0.0 <= phi_d <= np.pi), bool(np.allclose(direction_from_file(wi, mu_o, phi_d), wo))
-    (0.8, True, True)
+    (0.800000000000, True, True)
     """
     wi = np.asarray(wi, dtype=np.float64)
     mu_o = np.asarray(mu_o, dtype=np.float64)

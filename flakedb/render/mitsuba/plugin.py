@@ -77,7 +77,7 @@ def fresnel_unpolarised(c, eta):
     ``flakedb.optics.fresnel.fresnel_dielectric(c, eta).R``, checked by the tests).
 
     >>> round(fresnel_unpolarised(1.0, 1.5), 12), fresnel_unpolarised(0.3, 1.0), fresnel_unpolarised(0.3, 1 / 1.5)
-    (0.04, 0.0, 1.0)
+    (0.040000000000, 0.0, 1.0)
     """
     if eta == 1.0:
         return 0.0
