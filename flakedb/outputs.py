@@ -158,7 +158,31 @@ def _same(a: Path, b: Path) -> bool:
 
 @dataclass
 class OutputPlan:
-    """Inputs and outputs of one command (module docstring)."""
+    """Inputs and outputs of one command (module docstring).
+
+    An output that is the input is refused before any work; a valid plan's files appear only when its
+    staged block ends, with no temporary entry left behind:
+
+    >>> d = Path(tempfile.mkdtemp())
+    >>> src = d / "in.bsdf"
+    >>> _ = src.write_text("x")
+    >>> bad = OutputPlan()
+    >>> _ = bad.add_input(src, "BSDF"), bad.in_dir(d, "in.bsdf", "image")
+    >>> try:
+    ...     bad.check()
+    ... except OutputError as e:
+    ...     print(str(e).replace(str(d), "D").split(";")[0])
+    image D/in.bsdf: is the input BSDF D/in.bsdf
+    >>> plan = OutputPlan()
+    >>> _ = plan.add_input(src, "BSDF")
+    >>> out = plan.in_dir(d, "out.png", "image")
+    >>> with plan.check().staged() as stage:
+    ...     _ = stage.path(out).write_text("new")
+    ...     print(out.exists())
+    False
+    >>> out.read_text(), sorted(p.name for p in d.iterdir())
+    ('new', ['in.bsdf', 'out.png'])
+    """
 
     inputs: list = field(default_factory=list)    # (Path, label)
     outputs: list = field(default_factory=list)   # (Path, label)

@@ -66,7 +66,22 @@ def check_regular(path) -> os.stat_result:
 def read_limited(path, limit: int) -> bytes:
     """The bytes of the regular file ``path``, at most ``limit``; :class:`FileTooLargeError` when it
     holds more (only ``limit + 1`` bytes are ever read), :class:`NotRegularFileError` for anything
-    that is not a regular file (module docstring)."""
+    that is not a regular file (module docstring).
+
+    >>> import tempfile
+    >>> d = tempfile.mkdtemp()
+    >>> p = os.path.join(d, "a.txt")
+    >>> _ = open(p, "w").write("hello")
+    >>> read_limited(p, 5)
+    b'hello'
+    >>> for bad in ((p, 4), (d, 4)):
+    ...     try:
+    ...         read_limited(*bad)
+    ...     except OSError as e:
+    ...         print(type(e).__name__, e.strerror)
+    FileTooLargeError more than the limit of 4 bytes (5 bytes or more)
+    NotRegularFileError a directory, not a regular file: flakedb reads only regular files
+    """
     path = Path(path)
     check_regular(path)   # before open: opening some devices has effects
     fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))

@@ -56,11 +56,7 @@ def test_built_wheel_carries_its_data_and_composes(tmp_path):
 # --------------------------------------------------------------------------------------------
 
 #: Modules without an example for now, each with its reason.  Remove an entry when its module has one.
-DOCTEST_EXEMPT = {
-    # being split by other engineers (issue #21, item 4): their examples go into the new modules
-    "flakedb.rt.stack": "being split (issue #21)",
-    "flakedb.render.mitsuba": "being split (issue #21)",
-}
+DOCTEST_EXEMPT: dict = {}
 
 
 def public_modules():

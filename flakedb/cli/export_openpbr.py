@@ -1,5 +1,19 @@
 """`flakedb export-openpbr FILE --out DIR`: the fitted analytic material (OpenPBR / MaterialX, USD,
-glTF, Blender Principled).  Thin: the work is in :func:`flakedb.export.registry.export_openpbr`."""
+glTF, Blender Principled).  Thin: the work is in :func:`flakedb.export.registry.export_openpbr`.
+
+A FILE that is not a BSDF is refused with exit status 2 and one line, and nothing is created:
+
+>>> import tempfile
+>>> from click.testing import CliRunner
+>>> from flakedb.cli.main import cli
+>>> d = Path(tempfile.mkdtemp())
+>>> _ = (d / "paint.bsdf").write_bytes(b"not a bsdf file")
+>>> r = CliRunner().invoke(cli, ["export-openpbr", str(d / "paint.bsdf"), "--out", str(d / "out")])
+>>> r.exit_code, r.output.replace(str(d), "D").splitlines()[0]
+(2, "Error: D/paint.bsdf: neither a Fourier .bsdf (SCATFUN) nor an HDF5 file (first bytes b'not a bs')")
+>>> sorted(p.name for p in d.iterdir())
+['paint.bsdf']
+"""
 
 import json
 from pathlib import Path

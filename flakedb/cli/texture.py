@@ -16,7 +16,19 @@ from flakedb.texture.instruments import PRESETS, Observer
 
 
 def format_texture(rep) -> str:
-    """The table ``flakedb texture`` prints (numbers from :func:`flakedb.paint.texture_inputs.texture_report`)."""
+    """The table ``flakedb texture`` prints (numbers from :func:`flakedb.paint.texture_inputs.texture_report`).
+
+    The catalogue's metallic silver seen by the BYK-mac-like preset: its flakes, and fewer glints as the
+    light moves from 15° to 75° (fewer flakes tilted far enough to mirror it):
+
+    >>> from flakedb.resources import RECIPES_DIR
+    >>> lines = format_texture(texture_report(load_recipe(RECIPES_DIR / "metallic-silver.yaml"), [PRESETS["byk-mac-like"]])).splitlines()
+    >>> lines[0], lines[1].split(",")[0].strip()
+    ('texture metallic-silver (model: docs/texture.md)', 'metallic: median diameter 16 µm')
+    >>> glints = [float(ln.split()[2]) for ln in lines[3:6]]
+    >>> [ln.split()[1] for ln in lines[3:6]], glints[0] > glints[1] > glints[2] > 0
+    (['15°', '45°', '75°'], True)
+    """
     lines = [f"texture {rep['recipe']} (model: docs/texture.md)"]
     for n in rep["notes"]:
         lines.append(f"  note: {n}")

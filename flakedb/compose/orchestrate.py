@@ -77,7 +77,21 @@ STORE_NONE = "none: computed directly"
 def output_plan(out_dir, name, inputs=()) -> OutputPlan:
     """The plan of compose's outputs DIR/NAME.{bsdf,h5,json} (:class:`flakedb.outputs.OutputPlan`): refused
     before any work when a name is taken by a directory, is one of ``inputs`` (``(path, label)``), or
-    the directory cannot be written."""
+    the directory cannot be written.
+
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> (d / "paint.h5").mkdir()                        # a directory where an output goes
+    >>> [p.name for p, _ in output_plan(d, "paint").outputs]
+    ['paint.bsdf', 'paint.h5', 'paint.json']
+    >>> try:
+    ...     output_plan(d, "paint").check()
+    ... except OutputError as e:
+    ...     print(str(e).replace(str(d), "D").split(";")[0])
+    output NAME.h5 D/paint.h5: a directory is in its place
+    >>> sorted(p.name for p in d.iterdir())             # nothing written
+    ['paint.h5']
+    """
     plan = OutputPlan()
     plan.add_dir(out_dir)
     for path, label in inputs:

@@ -43,7 +43,16 @@ from flakedb.export.openpbr import OpenPBRFit, evaluate
 
 
 def principled_inputs(fit: OpenPBRFit) -> dict:
-    """Principled BSDF input name -> value (module docstring)."""
+    """Principled BSDF input name -> value (module docstring).
+
+    An uncoated fit turns Cycles' coat off, and the film moved into air keeps its optical thickness:
+
+    >>> coated = OpenPBRFit((0.8, 0.5, 0.2), 1.0, 0.3, 1.5, 0.1, thin_film_thickness_nm=300.0, thin_film_ior=2.0)
+    >>> bare = OpenPBRFit((0.8, 0.5, 0.2), 1.0, 0.3, 1.0, 0.1)
+    >>> p = principled_inputs(coated)
+    >>> p["Coat Weight"], principled_inputs(bare)["Coat Weight"], round(p["Thin Film Thickness"] * p["Thin Film IOR"], 9)
+    (1.0, 0.0, 600.000000000)
+    """
     c = tuple(float(x) for x in fit.base_color)
     return {
         "Base Color": c + (1.0,),

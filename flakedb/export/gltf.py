@@ -99,7 +99,22 @@ def gltf_document(fit: OpenPBRFit, name: str):
 
 def write_gltf(path, fit: OpenPBRFit, name: str) -> Path:
     """``.glb`` (binary: header, JSON chunk, BIN chunk, each 4-byte aligned; glTF 2.0 §4.4) when the
-    suffix is ``.glb``, else a ``.gltf`` with the buffer as a base64 data URI."""
+    suffix is ``.glb``, else a ``.gltf`` with the buffer as a base64 data URI.
+
+    Read back without ``pygltflib``: the GLB header's magic, version and total length, and the material
+    of the JSON chunk:
+
+    >>> import struct, tempfile
+    >>> fit = OpenPBRFit((0.8, 0.5, 0.2), 1.0, 0.3, 1.5, 0.0)
+    >>> b = write_gltf(Path(tempfile.mkdtemp()) / "silver.glb", fit, "silver").read_bytes()
+    >>> magic, version, length = struct.unpack("<4sII", b[:12])
+    >>> n_json, kind = struct.unpack("<I4s", b[12:20])
+    >>> mat = json.loads(b[20:20 + n_json])["materials"][0]
+    >>> magic, version, length == len(b), kind, mat["pbrMetallicRoughness"]["baseColorFactor"]
+    (b'glTF', 2, True, b'JSON', [0.8, 0.5, 0.2, 1.0])
+    >>> OpenPBRFit.from_dict(mat["extras"]["flakedb_fit"]) == fit
+    True
+    """
     path = Path(path)
     doc, blob = gltf_document(fit, name)
     with atomic_path(path, suffix="") as tmp:

@@ -67,7 +67,16 @@ def write_mtlx(path, fit: OpenPBRFit, name: str) -> Path:
 
 
 def read_fit(path) -> dict:
-    """The fit JSON stored in a ``.mtlx`` written by :func:`write_mtlx` (ValueError if absent)."""
+    """The fit JSON stored in a ``.mtlx`` written by :func:`write_mtlx` (ValueError if absent).
+
+    A round trip through a file (plain XML: no ``materialx`` package needed):
+
+    >>> import tempfile
+    >>> fit = OpenPBRFit((0.8, 0.5, 0.2), 1.0, 0.3, 1.5, 0.0, thin_film_thickness_nm=300.0, thin_film_ior=2.0)
+    >>> path = write_mtlx(Path(tempfile.mkdtemp()) / "silver.mtlx", fit, "1 silver")
+    >>> OpenPBRFit.from_dict(read_fit(path)) == fit, ET.parse(path).getroot().find("open_pbr_surface").get("name")
+    (True, 'SR__1_silver')
+    """
     root = ET.parse(path).getroot()
     if root.tag != "materialx":
         raise ValueError(f"{path}: not a MaterialX document (root <{root.tag}>)")

@@ -123,7 +123,15 @@ class OpenPBRFit:
         interface in air (Cycles' Principled BSDF, glTF's iridescence): the film in the coat medium
         of index η_c is exactly the film of index n_f / η_c and thickness η_c d in a medium of index
         1 over a base of relative index n_s (the interface coefficients depend on index ratios only,
-        the phase on ``d sqrt(n_f² - η_c² sin²θ)``, Born & Wolf §1.6.1)."""
+        the phase on ``d sqrt(n_f² - η_c² sin²θ)``, Born & Wolf §1.6.1).
+
+        The film's optical thickness n_f d (its phase at normal incidence) is the same in both frames:
+
+        >>> fit = OpenPBRFit((0.8, 0.5, 0.2), 1.0, 0.3, 1.5, 0.0, thin_film_thickness_nm=300.0, thin_film_ior=2.0)
+        >>> d_air, n_air = fit.film_relative_to_air()
+        >>> round(d_air, 9), round(n_air * 1.5, 12), round(d_air * n_air, 9)
+        (450.000000000, 2.000000000000, 600.000000000)
+        """
         nc = self.coat_ior if self.coat_ior > 1.0 else 1.0
         return self.thin_film_thickness_nm * nc, self.thin_film_ior / nc
 

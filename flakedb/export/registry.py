@@ -62,7 +62,15 @@ EXPORT_METHODS = {
 
 
 def export(src, out, method: str = "openpbr", **kwargs):
-    """Export ``src`` by ``method`` (a key of :data:`EXPORT_METHODS`, case-insensitive)."""
+    """Export ``src`` by ``method`` (a key of :data:`EXPORT_METHODS`, case-insensitive).
+
+    An unknown route is refused by name, before anything is read:
+
+    >>> export("paint.bsdf", "out", method="blender")
+    Traceback (most recent call last):
+    ...
+    ValueError: method = 'blender' is not an export route; the routes are: mitsuba-measured, mitsuba-coated, pbrt-v3-coated, openpbr
+    """
     key = str(method).lower()
     if key not in EXPORT_METHODS:
         raise ValueError(f"method = {method!r} is not an export route; the routes are: {', '.join(EXPORT_METHODS)}")

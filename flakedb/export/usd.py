@@ -68,6 +68,18 @@ def Xform "{n}"
 
 
 def write_usda(path, fit: OpenPBRFit, name: str) -> Path:
+    """Write :func:`usda_text` to ``path`` atomically (temp path, then rename); returns the path.
+
+    Read back without ``pxr``: the default prim and the fit in the layer's ``customLayerData``:
+
+    >>> import tempfile
+    >>> fit = OpenPBRFit((0.8, 0.5, 0.2), 1.0, 0.3, 1.5, 0.0, thin_film_thickness_nm=300.0, thin_film_ior=2.0)
+    >>> text = write_usda(Path(tempfile.mkdtemp()) / "silver.usda", fit, "1 silver").read_text(encoding="utf-8")
+    >>> line = next(ln for ln in text.splitlines() if "string flakedb_fit = " in ln)
+    >>> back = OpenPBRFit.from_dict(json.loads(json.loads(line.split(" = ", 1)[1])))
+    >>> text.splitlines()[0], 'defaultPrim = "_1_silver"' in text, back == fit
+    ('#usda 1.0', True, True)
+    """
     path = Path(path)
     with atomic_path(path, suffix="") as tmp:
         Path(tmp).write_text(usda_text(fit, name), encoding="utf-8")

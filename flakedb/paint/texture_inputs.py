@@ -44,7 +44,32 @@ def _spectrum(value, wl):
 
 
 def texture_stack(recipe) -> tuple[TextureStack, list]:
-    """(:class:`flakedb.texture.model.TextureStack`, notes) of ``recipe`` (module docstring)."""
+    """(:class:`flakedb.texture.model.TextureStack`, notes) of ``recipe`` (module docstring).
+
+    The flakes' volume fraction comes back as ρ⟨A⟩t, below the 40 µm coat, and the luminance weights sum to 1:
+
+    >>> import flakedb
+    >>> recipe = flakedb.parse_recipe('''
+    ... flakedb: 1
+    ... name: doc-silver
+    ... spectral: {mode: spectral, range_nm: [380, 780], step_nm: 20}
+    ... resolution: 16
+    ... layers:
+    ...   - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
+    ...   - basecoat:
+    ...       thickness_um: 15
+    ...       ior: 1.5
+    ...       particles:
+    ...         - {species: metallic, volume_fraction: 0.08, orientation_alpha: 0.2}
+    ...   - primer: {color: gray}
+    ... ''')
+    >>> stack, notes = texture_stack(recipe)
+    >>> (f,) = stack.flakes
+    >>> bool(abs(f.number_density_per_um3 * f.mean_area_um2() * f.flake_thickness_um - 0.08) < 1e-15), f.z_top_um, f.alpha
+    (True, 40.0, 0.2)
+    >>> abs(float(stack.y_weights.sum()) - 1.0) < 1e-14, notes
+    (True, [])
+    """
     notes = []
     wl = None if recipe.wavelength_nm is None else np.asarray(recipe.wavelength_nm, float)
     if wl is None:

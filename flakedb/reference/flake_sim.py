@@ -307,7 +307,14 @@ def _disc_points(n):
 def place_flakes(species, L_um, rng):
     """Flake discs of every species in an L × L µm periodic patch: (X, Y, depth Z, normal NX NY NZ,
     radius, species index).  ``species``: dicts with z_top_um, thickness_um, number_density_per_um3,
-    diameter_median_um, diameter_gsd, alpha."""
+    diameter_median_um, diameter_gsd, alpha.
+
+    >>> sp = dict(z_top_um=5.0, thickness_um=10.0, number_density_per_um3=1e-3, diameter_median_um=15.0,
+    ...           diameter_gsd=1.3, alpha=0.2)
+    >>> X, Y, Z, NX, NY, NZ, RAD, S = place_flakes([sp], 200.0, np.random.default_rng(0))
+    >>> abs(X.size - 400) < 4 * 20, bool(np.all((Z >= 5.0) & (Z <= 15.0))), bool(np.allclose(NX**2 + NY**2 + NZ**2, 1.0))
+    (True, True, True)
+    """
     cols = [[] for _ in range(8)]
     for s, sp in enumerate(species):
         n = rng.poisson(sp["number_density_per_um3"] * sp["thickness_um"] * L_um * L_um)

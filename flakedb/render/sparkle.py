@@ -65,7 +65,21 @@ def _bilinear(table, xg, yg, x, y):
 
 
 def flake_rgb(stack, cos_d):
-    """Linear sRGB of the flakes' R at flake cosines ``cos_d`` (…,), normalised to luminance 1 (…, 3)."""
+    """Linear sRGB of the flakes' R at flake cosines ``cos_d`` (…,), normalised to luminance 1 (…, 3).
+
+    A grey flake is white (D65), a flake that reflects only the long wavelengths is yellow-orange, and both
+    have luminance 1 (Rec. 709 weights):
+
+    >>> from flakedb.texture.model import FlakeLayer, TextureStack
+    >>> c, wl = np.linspace(0.0, 1.0, 5), np.arange(380.0, 781.0, 10.0)
+    >>> def rgb(R_short):
+    ...     R = np.where(wl[:, None] < 550.0, R_short, 0.9) * np.ones((1, 5))
+    ...     f = FlakeLayer("f", 0.0, 10.0, 1e-4, 15.0, 1.3, 0.3, 0.2, c, R, 0.0 * R)
+    ...     return flake_rgb(TextureStack(1.5, np.full(wl.size, 1 / wl.size), (f,), wavelength_nm=wl), np.array([1.0]))[0]
+    >>> grey, warm = rgb(0.9), rgb(0.2)
+    >>> bool(np.allclose(grey, 1.0, atol=1e-3)), bool(warm[0] > warm[1] > warm[2]), round(float(warm @ [0.2126, 0.7152, 0.0722]), 3)
+    (True, True, 1.000)
+    """
     f = stack.flakes[0]
     R = f.reflectance(np.asarray(cos_d, float))  # (C, …)
     wl = getattr(stack, "wavelength_nm", None)

@@ -11,7 +11,12 @@ from flakedb.rt.projection import ProjectedKernel
 from flakedb.rt.stack_bsdf import StackBSDF
 
 def n_channels(slabs, bottom):
-    """Largest channel count among the media (σ_t at one node) and the primer's albedo."""
+    """Largest channel count among the media (σ_t at one node) and the primer's albedo.
+
+    >>> from flakedb.rt.components import Lambertian
+    >>> n_channels([], Lambertian([0.2, 0.5, 1.0])), n_channels([], Lambertian(0.5)), n_channels([], None)
+    (3, 1, 1)
+    """
     C = 1
     for slab in slabs:
         if isinstance(slab, (InnerSmooth, InnerRough)):

@@ -80,7 +80,15 @@ class InnerRough:
 
 @dataclass
 class Lambertian:
-    """Diffuse primer of albedo (scalar or per channel) at the bottom of the stack."""
+    """Diffuse primer of albedo (scalar or per channel) at the bottom of the stack.
+
+    >>> Lambertian([0.2, 0.8]).albedo
+    [0.2, 0.8]
+    >>> Lambertian(1.2)
+    Traceback (most recent call last):
+    ...
+    ValueError: Lambertian.albedo = 1.2 is outside the allowed range 0 ≤ albedo ≤ 1, finite
+    """
 
     albedo: object
 

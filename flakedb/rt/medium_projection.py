@@ -59,6 +59,15 @@ def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True, 
     (``medium.sigma_s``).  A point-sampled kernel narrower than the node spacing
     otherwise creates or destroys energy; the scale factors' spread is reported in ``info``
     (``renorm_max_dev``) and tested.
+
+    >>> from flakedb.rt.media import PhaseMedium
+    >>> from flakedb.rt.quadrature import gauss_radau_unit
+    >>> x, w = gauss_radau_unit(4)
+    >>> pk, info = project_medium(PhaseMedium(2.0, 0.9, ("hg", 0.6)), x, w, 1e-6, 16)
+    >>> K_T, K_R = pk.blocks(0, pk.n_orders)
+    >>> scattered = 2 * np.pi * np.einsum("coi,o->ci", K_T[0] + K_R[0], w)     # = σ_s = 0.9 × 2.0 per µm
+    >>> bool(np.allclose(scattered, 1.8, rtol=0, atol=1e-12)), bool(np.allclose(K_R, K_R.transpose(0, 1, 3, 2)))
+    (True, True)
     """
     mu_o = np.concatenate([-x, x])  # up-going (reflection-like) then down-going
     W = w[:, None] * np.concatenate([w, w])[None, :]  # flux carried i → o per unit kernel

@@ -27,7 +27,21 @@ class OrderBlocks:
     reflects nothing, the stack's R^t is that block, and the result is written into it when the shapes
     allow and ``top_rt_writable`` (the solver's own array, not one shared by channel groups).
     ``threads()``: the threads a slab solve may use now; ``h_out``, ``h_in``: air-side and top-binder
-    node counts; ``specular``: R_s (C, h, h) to take out of every order, or None."""
+    node counts; ``specular``: R_s (C, h, h) to take out of every order, or None.
+
+
+    The order choice, through :func:`flakedb.rt.stack.solve_stack`: the kept orders' dropped tail is within
+    the tolerance, and fewer orders are kept than the cap 2n allows.
+
+    >>> from flakedb.rt.components import Lambertian, Rough, Slab, SolverSettings
+    >>> from flakedb.rt.media import PhaseMedium
+    >>> from flakedb.rt.stack import solve_stack
+    >>> b = solve_stack(Rough(1.5, 0.3), [Slab(10.0, PhaseMedium(0.5, 0.9, ("hg", 0.7)))], Lambertian(0.5),
+    ...                 SolverSettings.product(n=16))
+    >>> L, decay = b.info["orders"], b.info["order_decay"]
+    >>> b.n_orders == L < 32, b.info["order_converged"], sum(decay[L:]) <= b.info["order_tol"]
+    (True, True, True)
+    """
 
     def __init__(self, parts, s, through_top, h_out, h_in, q_bottom=None, albedo=None, Rc=None, top_rt=None,
                  top_rt_writable=True, threads=lambda: 1, specular=None):

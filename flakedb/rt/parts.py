@@ -24,7 +24,13 @@ from flakedb.rt.quadrature import binder_chain_quadratures, radau_hemisphere
 
 def order_range(b, l0, l1):
     """Orders l0 … l1 − 1 of a block that is zero beyond its own orders: a view where it has them, a
-    broadcast zero (no memory) where it has none, padded with zeros in between."""
+    broadcast zero (no memory) where it has none, padded with zeros in between.
+
+
+    >>> b = np.ones((2, 1, 3, 3))                       # a block with orders 0 and 1
+    >>> order_range(b, 1, 4)[:, 0, 0, 0].tolist(), order_range(b, 5, 7).shape, float(order_range(b, 5, 7).max())
+    ([1.0, 0.0, 0.0], (2, 1, 3, 3), 0.0)
+    """
     if l0 >= b.shape[0]:
         return np.broadcast_to(np.zeros((1,) + b.shape[1:]), (l1 - l0,) + b.shape[1:])
     if l1 <= b.shape[0]:

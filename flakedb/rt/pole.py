@@ -17,7 +17,13 @@ def zero_pole_orders(S, x_out, x_in):
     """Orders l ≥ 1 of the row and column of the pole node set to zero in place (a block (L, C, h_o, h_i)
     on the rules with nodes ``x_out``, ``x_in``); returns S.  Order 0 (the energy) is untouched, so
     albedo, reciprocity (rows and columns alike) and positivity (the φ-average of a positive function)
-    are kept."""
+    are kept.
+
+    >>> x = np.array([0.5, 1.0])                       # the last node is the pole μ = 1
+    >>> S = zero_pole_orders(np.ones((3, 1, 2, 2)), x, x)
+    >>> S[0].tolist() == np.ones((1, 2, 2)).tolist(), S[1:, 0, 1, :].tolist(), S[1:, 0, 0, 0].tolist()
+    (True, [[0.0, 0.0], [0.0, 0.0]], [1.0, 1.0])
+    """
     if S.shape[0] < 2:
         return S
     po, pi = pole_index(x_out), pole_index(x_in)

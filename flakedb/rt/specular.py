@@ -56,5 +56,11 @@ def under_smooth(smooth1, h_out):
 
 def smoothed_specular(Rs, L):
     """The specular matrix as L Fourier orders: g_l R_s (L, C, h, h), g the Jackson factors
-    (:func:`flakedb.rt.microfacet.jackson_factors`), order 0 exactly R_s."""
+    (:func:`flakedb.rt.microfacet.jackson_factors`), order 0 exactly R_s.
+
+    >>> Rs = 0.04 * np.eye(3)[None]                    # a mirror: (C, h, h)
+    >>> S = smoothed_specular(Rs, 8)
+    >>> S.shape, bool(np.array_equal(S[0], Rs)), bool(np.all(S >= 0.0)), bool(np.all(np.diff(S[:, 0, 0, 0]) <= 0))
+    ((8, 1, 3, 3), True, True, True)
+    """
     return jackson_factors(L)[:, None, None, None] * Rs[None]

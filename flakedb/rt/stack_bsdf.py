@@ -74,7 +74,14 @@ class StackBSDF:
         return S / (cl * (w_i * x_i)[None, None, None, :])
 
     def albedo(self, include_delta=True):
-        """Directional albedo of reflection at the air-side nodes, (C, h): ∫ f |μ_o| dω_o (+ F)."""
+        """Directional albedo of reflection at the air-side nodes, (C, h): ∫ f |μ_o| dω_o (+ F).
+
+        >>> from flakedb.rt.components import Lambertian, Smooth, SolverSettings
+        >>> from flakedb.rt.stack import solve_stack
+        >>> white = solve_stack(Smooth(1.5), [], Lambertian(1.0), SolverSettings(n=8))   # a lossless stack
+        >>> bool(np.allclose(white.albedo(), 1.0, rtol=0, atol=1e-12)), bool(np.all(white.albedo(False) < 1.0))
+        (True, True)
+        """
         S0 = self.Rt[0]  # (C, h_o, h_i)
         a = np.einsum("coi,o->ci", S0, self.w * self.x) / (self.w * self.x)[None, :]
         if include_delta and self.delta_F is not None:

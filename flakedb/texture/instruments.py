@@ -61,7 +61,12 @@ class Observer:
 
 
 def person(distance_m: float, pupil_mm: float = 3.0, acuity_rad: float = ARCMIN_RAD) -> Observer:
-    """A person at ``distance_m`` under the sun (module docstring)."""
+    """A person at ``distance_m`` under the sun (module docstring).
+
+    >>> p = person(1.0)                                  # 1 arcmin at 1 m; a 3 mm pupil seen from 1 m
+    >>> round(p.spot_um, 1), round(p.aperture_half_angle_rad * 1e3, 4), round(person(3.0).spot_um / p.spot_um, 12)
+    (290.9, 1.5000, 3.000000000000)
+    """
     d_um = float(distance_m) * 1e6
     return Observer(
         name=f"person-{distance_m:g}m",

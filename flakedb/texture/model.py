@@ -381,6 +381,18 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
     give the panel: the part of the smooth BSDF the glints carry, π f_ss), ``sparkle_contrast``
     (sparkle_intensity over the ground: ``ground_luminance_factor`` if given (the smooth BSDF's π f),
     else the flake part), and ``sparkle`` (False when no flake can outshine a white diffuser).
+
+    Doubling the loading of a 10 µm layer of aluminium-like flakes at most doubles the glints (the added
+    flakes also hide some of those below), and their mirror reflections stay below the flakes' R = 0.9:
+
+    >>> from flakedb.texture.instruments import PRESETS
+    >>> c = np.linspace(0.0, 1.0, 5)
+    >>> def stack(rho):
+    ...     f = FlakeLayer("al", 0.0, 10.0, rho, 15.0, 1.3, 0.3, 0.2, c, np.full((1, 5), 0.9), np.zeros((1, 5)))
+    ...     return TextureStack(1.5, np.array([1.0]), (f,))
+    >>> a, b = (sparkle_indices(stack(rho), PRESETS["byk-mac-like"], 15.0) for rho in (1e-4, 2e-4))
+    >>> a["sparkle"], 1.5 < b["glints_per_mm2"] / a["glints_per_mm2"] <= 2.0, a["flake_luminance_factor"] < 0.9
+    (True, True, True)
     """
     g = directional_geometry(stack.eta, light_deg, observer.view_deg, observer.source_half_angle_deg,
                              observer.aperture_half_angle_rad)

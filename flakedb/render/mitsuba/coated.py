@@ -51,7 +51,17 @@ COAT_ALPHA = 0.01
 def coated_bsdf_dict(tensor_filename: str, delta) -> dict:
     """The Mitsuba 3 BSDF dict of the coated route for a ``measured`` file written at scale 2 and the
     file's mirror term ``delta`` (``{"kind": "fresnel", "eta": η}`` or None).  Without a mirror term
-    the tensor is returned as is (its values are then at scale 1)."""
+    the tensor is returned as is (its values are then at scale 1).
+
+    The blend gives each part unit weight: the coat's mirror (weight 1/s × reflectance s) and the body
+    ((1 − 1/s) × the file's values at scale s):
+
+    >>> d = coated_bsdf_dict("paint.bsdf", {"kind": "fresnel", "eta": 1.5})
+    >>> d["type"], d["weight"] * d["coat"]["specular_reflectance"], (1 - d["weight"]) * COAT_BLEND_SCALE, d["coat"]["eta"]
+    ('blendbsdf', 1.000000000000, 1.000000000000, 1.5)
+    >>> coated_bsdf_dict("paint.bsdf", None)
+    {'type': 'measured', 'filename': 'paint.bsdf'}
+    """
     if delta is None:
         return {"type": "measured", "filename": str(tensor_filename)}
     delta_reflectance(delta, 1.0)                       # refuses an unknown kind

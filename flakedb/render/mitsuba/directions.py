@@ -55,7 +55,13 @@ def file_coordinates(wi, wo):
 def direction_from_file(wi, mu_o, phi_d):
     """The local-frame direction wo (..., 3) of outgoing cosine ``mu_o`` and azimuth difference
     ``phi_d`` [rad] (file conventions) for the camera direction ``wi`` (..., 3): the inverse of
-    :func:`file_coordinates` (``φ_o = φ_i + π - phi_d``, ``wo_z = -mu_o``)."""
+    :func:`file_coordinates` (``φ_o = φ_i + π - phi_d``, ``wo_z = -mu_o``).
+
+    >>> wi, wo = np.array([0.6, 0.0, 0.8]), np.array([-0.3, 0.4, np.sqrt(0.75)])
+    >>> mu_i, mu_o, phi_d = file_coordinates(wi, wo)
+    >>> round(float(mu_i), 12), bool(0.0 <= phi_d <= np.pi), bool(np.allclose(direction_from_file(wi, mu_o, phi_d), wo))
+    (0.800000000000, True, True)
+    """
     wi = np.asarray(wi, dtype=np.float64)
     mu_o = np.asarray(mu_o, dtype=np.float64)
     phi_o = np.arctan2(wi[..., 1], wi[..., 0]) + np.pi - np.asarray(phi_d, dtype=np.float64)

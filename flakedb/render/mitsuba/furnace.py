@@ -48,6 +48,19 @@ def furnace_sphere_prediction(albedo, res: int = 64, supersample: int = 8):
     environment: the reflected radiance is the environment's times the albedo); outside it sees
     0.5.  Each pixel is the mean over ``supersample²`` points of its square.  ``mu`` is the view
     cosine at each pixel's centre (0 outside), ``cover`` the fraction of the pixel on the sphere.
+
+
+    A white sphere (albedo 1) vanishes in the white furnace; a black one leaves its silhouette:
+
+    >>> white = lambda mu: np.ones(np.shape(mu) + (3,))
+    >>> img, mu, cover = furnace_sphere_prediction(white, res=16, supersample=4)
+    >>> img.shape, bool(np.allclose(img, FURNACE_RADIANCE)), float(cover.max()), float(cover.min())
+    ((16, 16, 3), True, 1.0, 0.0)
+    >>> black, _, _ = furnace_sphere_prediction(lambda mu: 0.0 * white(mu), res=16, supersample=4)
+    >>> bool(np.allclose(black, FURNACE_RADIANCE * (1.0 - cover)[..., None]))
+    True
+    >>> abs(float(cover.mean()) - np.pi / (4 * FURNACE_HALF_WIDTH**2)) < 0.01      # the disc's share of the frame
+    True
     """
     L = FURNACE_RADIANCE
     h = FURNACE_HALF_WIDTH

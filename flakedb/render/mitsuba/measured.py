@@ -70,7 +70,14 @@ def _half_vector_grid(theta_i, res):
 
 
 def check_export_size(res, n_theta):
-    """Refuse a half-vector grid ``res`` or θ_i count ``n_theta`` outside the allowed ranges."""
+    """Refuse a half-vector grid ``res`` or θ_i count ``n_theta`` outside the allowed ranges.
+
+    >>> check_export_size(RES_DEFAULT, N_THETA_DEFAULT)
+    >>> check_export_size(4, N_THETA_DEFAULT)
+    Traceback (most recent call last):
+    ...
+    flakedb.render.mitsuba.directions.MeasuredExportError: res = 4 is outside the allowed range 8 ≤ res ≤ 512 half-vector vertices per axis (default 96)
+    """
     if not (8 <= int(res) <= RES_MAX):
         raise MeasuredExportError(f"res = {res} is outside the allowed range 8 ≤ res ≤ {RES_MAX} half-vector "
                                   f"vertices per axis (default {RES_DEFAULT})")

@@ -74,7 +74,11 @@ def evaluated_mode():
 def fresnel_unpolarised(c, eta):
     """Unpolarised Fresnel reflectance of light arriving from above (relative index eta = n_below /
     n_above > 0) at cosine ``c`` in (0, 1] (Born & Wolf §1.5.2; equals
-    ``flakedb.optics.fresnel.fresnel_dielectric(c, eta).R``, checked by the tests)."""
+    ``flakedb.optics.fresnel.fresnel_dielectric(c, eta).R``, checked by the tests).
+
+    >>> round(fresnel_unpolarised(1.0, 1.5), 12), fresnel_unpolarised(0.3, 1.0), fresnel_unpolarised(0.3, 1 / 1.5)
+    (0.040000000000, 0.0, 1.0)
+    """
     if eta == 1.0:
         return 0.0
     ct2 = 1.0 - (1.0 - c * c) / (eta * eta)
