@@ -25,7 +25,6 @@ from flakedb.compose.orchestrate import solver_warnings
 from flakedb.export.materialx import read_fit
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.render.mitsuba import read_tensor_file
-from flakedb.safeio import read_head
 
 #: Incident zenith angles [deg] (light arriving from above) at which the albedo is listed.
 INFO_THETA_DEG = (0.0, 30.0, 45.0, 60.0, 75.0, 85.0)
