@@ -2,9 +2,13 @@
 independent Monte Carlo's problem (tests/reference/test_solver_vs_montecarlo.py validates them;
 tests/compose/test_validation_recipes.py checks their recipes compose to the same stacks)."""
 
+import threading
+
 import numpy as np
+from click.testing import CliRunner
 
 import flakedb.reference.montecarlo as mc
+from flakedb.cli.main import cli
 from flakedb.rt import media as rm
 from flakedb.rt.microflake import FlakeOptics
 from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth
@@ -66,3 +70,38 @@ def case(name):
 
 FAST = ["isotropic-slab", "hg-over-lambertian", "smooth-hg-gray", "mirror-flakes-black",
         "mirror-flakes-white", "translucent-flakes-gray", "angle-dependent-flakes", "flakes-and-hg-pigment"]
+
+
+def small_mono_recipe(name):
+    """A small mono recipe (smooth coat, one isotropic custom medium of optical depth 1, a 0.5 primer,
+    n = 16) named ``name``: the command-line tests' input that composes in a fraction of a second."""
+    return f"""\
+flakedb: 1
+name: {name}
+spectral: {{mode: mono}}
+resolution: 16
+layers:
+  - clearcoat: {{thickness_um: 40, ior: 1.5}}
+  - basecoat:
+      thickness_um: 10
+      ior: 1.5
+      particles:
+        - custom: {{kind: medium, albedo: 0.9, phase: isotropic}}
+          optical_depth: 1.0
+  - primer: {{albedo: 0.5}}
+"""
+
+
+def run_cli(args, bound=60):
+    """``flakedb ARGS`` through click's runner in a thread, so that a hang fails the test (after ``bound`` s)
+    instead of stalling the suite."""
+    box = {}
+
+    def go():
+        box["r"] = CliRunner().invoke(cli, [str(a) for a in args])
+
+    t = threading.Thread(target=go, daemon=True)
+    t.start()
+    t.join(bound)
+    assert not t.is_alive(), f"flakedb {' '.join(map(str, args))} did not finish in {bound} s (a hang)"
+    return box["r"]

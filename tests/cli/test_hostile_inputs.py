@@ -7,40 +7,24 @@ option, no traceback, no "internal error", no hang, nothing written."""
 
 import os
 import socket
-import threading
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import flakedb.compose.orchestrate as orch
 from flakedb.bsdf.fourier_file import write_bsdf
 from flakedb.bsdf.h5file import write_h5
 from flakedb.bsdf.table import BSDFTable
-from flakedb.cli.main import cli
 from flakedb.paint.catalog import default_catalog_path
 from flakedb.render import mitsuba as fm
 from flakedb.render import preview
 from flakedb.safeio import FileTooLargeError, NotRegularFileError, read_limited
 from flakedb.store import versions as st
+from tests.cases import run_cli, small_mono_recipe
 
-RECIPE = """\
-flakedb: 1
-name: hostile
-spectral: {mode: mono}
-resolution: 16
-layers:
-  - clearcoat: {thickness_um: 40, ior: 1.5}
-  - basecoat:
-      thickness_um: 10
-      ior: 1.5
-      particles:
-        - custom: {kind: medium, albedo: 0.9, phase: isotropic}
-          optical_depth: 1.0
-  - primer: {albedo: 0.5}
-"""
+RECIPE = small_mono_recipe("hostile")
 
 PIGMENT = """\
 flakedb: 1
@@ -65,17 +49,7 @@ BOUND_S = 60
 
 
 def _run(args, bound=BOUND_S):
-    """Invoke the command in a thread so that a hang fails the test instead of stalling the suite."""
-    box = {}
-
-    def go():
-        box["r"] = CliRunner().invoke(cli, [str(a) for a in args])
-
-    t = threading.Thread(target=go, daemon=True)
-    t.start()
-    t.join(bound)
-    assert not t.is_alive(), f"flakedb {' '.join(map(str, args))} did not finish in {bound} s (a hang)"
-    return box["r"]
+    return run_cli(args, bound)
 
 
 @pytest.fixture()

@@ -24,22 +24,9 @@ from flakedb.outputs import OutputError, OutputPlan, sweep_stale, temp_prefix
 from flakedb.render import mitsuba as fm
 from flakedb.render import preview
 from flakedb.store import versions as st
+from tests.cases import small_mono_recipe
 
-RECIPE = """\
-flakedb: 1
-name: plan-test
-spectral: {mode: mono}
-resolution: 16
-layers:
-  - clearcoat: {thickness_um: 40, ior: 1.5}
-  - basecoat:
-      thickness_um: 10
-      ior: 1.5
-      particles:
-        - custom: {kind: medium, albedo: 0.9, phase: isotropic}
-          optical_depth: 1.0
-  - primer: {albedo: 0.5}
-"""
+RECIPE = small_mono_recipe("plan-test")
 
 BASE = """\
 flakedb: 1

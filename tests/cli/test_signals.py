@@ -12,22 +12,9 @@ from pathlib import Path
 import pytest
 
 from flakedb.process import TERMINATING_SIGNALS, Terminated, install_signal_handlers
+from tests.cases import small_mono_recipe
 
-RECIPE = """\
-flakedb: 1
-name: sig-test
-spectral: {mode: mono}
-resolution: 16
-layers:
-  - clearcoat: {thickness_um: 40, ior: 1.5}
-  - basecoat:
-      thickness_um: 10
-      ior: 1.5
-      particles:
-        - custom: {kind: medium, albedo: 0.9, phase: isotropic}
-          optical_depth: 1.0
-  - primer: {albedo: 0.5}
-"""
+RECIPE = small_mono_recipe("sig-test")
 
 #: Runs `flakedb compose` with the .h5 writer stalled after it wrote its (temporary) file: the .bsdf
 #: and the .h5 are then half of a set in the staging directory when the signal comes.

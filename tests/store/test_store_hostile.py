@@ -4,15 +4,13 @@ problems: exit status 1-2, one line, no "internal error", no hang."""
 
 import json
 import shutil
-import threading
 from pathlib import Path
 
 import pytest
-from click.testing import CliRunner
 
-from flakedb.cli.main import cli
 from flakedb.pipelines.build import build, make_request
 from flakedb.store import versions as st
+from tests.cases import run_cli
 
 RECIPE = """\
 flakedb: 1
@@ -32,16 +30,7 @@ layers:
 
 
 def _run(args, bound=60):
-    box = {}
-
-    def go():
-        box["r"] = CliRunner().invoke(cli, [str(a) for a in args])
-
-    t = threading.Thread(target=go, daemon=True)
-    t.start()
-    t.join(bound)
-    assert not t.is_alive(), f"flakedb {' '.join(map(str, args))} did not finish in {bound} s (a hang)"
-    return box["r"]
+    return run_cli(args, bound)
 
 
 def _clean(r, *words, codes=(1, 2)):
