@@ -44,6 +44,8 @@ PAPER_SIX = {
     "titanium-white": "pigment",
     "iron-black": "pigment",
 }
+#: species the catalogue adds to the paper's six (each with its reason in particles.yaml)
+ADDED = {"pearl-white": "interference_flake"}
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +61,7 @@ def raw():
 
 class TestCatalogue:
     def test_paper_particles_present(self, catalog):
-        assert {n: e["kind"] for n, e in catalog["particles"].items()} == PAPER_SIX
+        assert {n: e["kind"] for n, e in catalog["particles"].items()} == PAPER_SIX | ADDED
 
     def test_every_number_has_a_source(self, catalog):
         def walk(node, path):
@@ -153,6 +155,38 @@ class TestFlakeOptics:
         # Al under MgF2 in a dielectric: 0.83-0.90 at normal incidence; lowest (0.73) at 780 nm and
         # 80°, where Al's interband absorption near 800 nm (1.5 eV) sets in.
         assert np.all(R > 0.7) and np.all(R < 1.0) and R.mean() > 0.8
+
+    def test_pearl_white_is_the_quarter_wave_reflector(self, catalog):
+        # particles.yaml: pearl-white's TiO2 and SiO2 are each a quarter wave at 550 nm.  With exact
+        # λ/(4n) thicknesses every interface reflection adds in phase there and the stack in the binder
+        # (n0 on both sides) has the closed form of a quarter-wave H L H stack: each quarter-wave layer
+        # maps the admittance y -> n_layer²/y, so Y = nH⁴ / (nL² n0) and R = ((n0 - Y)/(n0 + Y))²
+        # (Macleod, Thin-Film Optical Filters, quarter-wave stacks).  The catalogue's rounded 52/94 nm
+        # must stay within 0.3 % of that value; its first-order band must be broad (R >= half its
+        # maximum over 440-700 nm, R(550) within 1 % of the maximum, measured 427-766 nm and 0.995)
+        # with no second maximum in 380-780 nm (a coloured higher order would be a coloured pearl).
+        from flakedb.paint.materials import refractive_index
+
+        e = copy.deepcopy(get_species("pearl-white", catalog))
+        wl0 = np.array([550.0])
+        n0 = float(binder_index(catalog, wl0)[0])
+        nH = float(refractive_index(e["coating"][0]["material"], wl0)[0].real)
+        nL = float(refractive_index(e["substrate"]["material"], wl0)[0].real)
+        Y = nH**4 / (nL**2 * n0)
+        R_closed = ((n0 - Y) / (n0 + Y)) ** 2
+        exact = copy.deepcopy(e)
+        exact["coating"][0]["thickness_nm"]["value"] = 550.0 / (4 * nH)
+        exact["substrate"]["thickness_nm"]["value"] = 550.0 / (4 * nL)
+        R, _ = flake_reflectance_transmittance(exact, wl0, np.array([1.0]), np.array([n0]))
+        assert abs(R[0, 0] - R_closed) < 1e-9
+        R_cat, _ = flake_reflectance_transmittance(e, wl0, np.array([1.0]), np.array([n0]))
+        assert abs(R_cat[0, 0] / R_closed - 1) < 3e-3
+        wl = np.arange(380.0, 781.0, 1.0)
+        Rs = flake_reflectance_transmittance(e, wl, np.array([1.0]), binder_index(catalog, wl))[0][:, 0]
+        assert Rs[wl == 550.0][0] >= 0.99 * Rs.max()
+        assert np.all(Rs[(wl >= 440) & (wl <= 700)] >= 0.5 * Rs.max())
+        inner = (Rs[1:-1] > Rs[:-2]) & (Rs[1:-1] > Rs[2:])
+        assert inner.sum() == 1
 
     def test_lossless_pearlescent_conserves_energy(self, catalog):
         wl = np.arange(430.0, 781.0, 5.0)  # k = 0 for TiO2 (Devore) and SiO2 (Malitson) here
