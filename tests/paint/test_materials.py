@@ -44,6 +44,19 @@ class TestPublishedValues:
         assert abs(N.real - n_ref) < tol
         assert N.imag == 0.0
 
+    # Querry 1985 magnetite as the refractiveindex.info database stores it (database/data/main/Fe3O4/
+    # nk/Querry.yml, rows "λ/µm n k"): the 430-440 nm minimum of k, the 630 nm maximum and two more
+    # rows.  A µm/nm slip, swapped n/k columns or a shifted row would change these; they are also the
+    # numbers catalog/pigment-colours.md gives as the cause of the navy iron black.
+    @pytest.mark.parametrize(
+        "wl_um, n_ref, k_ref",
+        [(0.38, 2.459, 0.096), (0.43, 2.423, 0.026), (0.44, 2.404, 0.026), (0.55, 2.343, 0.105),
+         (0.63, 2.358, 0.148), (0.78, 2.294, 0.123)],
+    )
+    def test_magnetite_reproduces_querry_rows(self, wl_um, n_ref, k_ref):
+        N = refractive_index("Fe3O4", wl_um * 1000.0)
+        assert abs(N.real - n_ref) < 1e-12 and abs(N.imag - k_ref) < 1e-12
+
     def test_rutile_powder_average(self):
         # eps = (2 eps_o + eps_e) / 3 for randomly oriented crystallites (optical-constants README)
         n = np.sqrt((2 * 2.6131**2 + 2.9089**2) / 3)
