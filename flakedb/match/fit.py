@@ -66,7 +66,13 @@ from flakedb.colour.tolerance import (
     reflectance_to_Lab,
 )
 from flakedb.compose.orchestrate import solve_recipe
-from flakedb.compose.report import channels_to_XYZ, eval_table, multiangle_geometry, reference_white, texture_ground
+from flakedb.compose.report import (
+    channels_to_XYZ,
+    eval_table,
+    multiangle_geometry,
+    reference_white,
+    texture_ground,
+)
 from flakedb.match.texture import (
     DEFAULT_TEXTURE_TOLERANCE,
     evaluate_texture,

@@ -76,10 +76,19 @@ from flakedb.colour.settings import (  # the geometry sets live with the other d
     E2539_GEOMETRIES,
     GEOMETRY_SETS,
 )
-from flakedb.colour.tolerance import delta_E_2000, illuminant_name, observer_name, reflectance_to_Lab
-from flakedb.match.texture import DEFAULT_TEXTURE_OBSERVER, check_texture_value, parse_texture_column
-from flakedb.texture.instruments import PRESETS as TEXTURE_PRESETS
+from flakedb.colour.tolerance import (
+    delta_E_2000,
+    illuminant_name,
+    observer_name,
+    reflectance_to_Lab,
+)
+from flakedb.match.texture import (
+    DEFAULT_TEXTURE_OBSERVER,
+    check_texture_value,
+    parse_texture_column,
+)
 from flakedb.safeio import FileTooLargeError, read_limited
+from flakedb.texture.instruments import PRESETS as TEXTURE_PRESETS
 
 #: Largest target CSV read [bytes]: 200 geometries × 1000 reflectance columns of 8 characters.
 MAX_TARGET_BYTES = 2_000_000

@@ -28,8 +28,8 @@ difference is used (docs/texture.md §9 says why 10 %).
 
 >>> tol = texture_tolerances({"sparkle_area_15": 0.002, "graininess": 0.0}, 0.1)
 >>> [round(v, 6) for v in tol.values()]
-[0.001, 0.01]
->>> texture_residuals({"sparkle_area_15": 0.0025, "graininess": 0.005}, {"sparkle_area_15": 0.002, "graininess": 0.0}, 0.1).round(6).tolist()
+[0.0002, 0.01]
+>>> texture_residuals({"sparkle_area_15": 0.0021, "graininess": 0.005}, {"sparkle_area_15": 0.002, "graininess": 0.0}, 0.1).round(6).tolist()
 [0.5, 0.5]
 """
 
@@ -51,9 +51,11 @@ DEFAULT_TEXTURE_OBSERVER = "byk-mac-like"
 #: Column stem → key of :func:`flakedb.texture.model.sparkle_indices` (per light angle).
 SPARKLE_COLUMNS = {"sparkle_area": "sparkle_area_fraction", "sparkle_intensity": "sparkle_intensity",
                    "glints_per_mm2": "glints_per_mm2"}
-#: Absolute floor of each index's tolerance, in its units: an area fraction of 0.1 % of the spots, an
-#: excess luminance factor of 1 (a white diffuser's), 0.1 glints per mm², a graininess of 0.01.
-TEXTURE_FLOORS = {"sparkle_area": 1e-3, "sparkle_intensity": 1.0, "glints_per_mm2": 0.1, "graininess": 0.01}
+#: Absolute floor of each index's tolerance, in its units (it matters only for targets near zero): an area
+#: fraction of 1e-5 of the spots (about 4 of the 4.4e5 spots of a 1 cm² image of 15 µm spots), an
+#: excess luminance factor of 1 (a white diffuser's), 0.01 glints per mm² (one in a 1 cm² image), a
+#: graininess of 0.01.
+TEXTURE_FLOORS = {"sparkle_area": 1e-5, "sparkle_intensity": 1.0, "glints_per_mm2": 0.01, "graininess": 0.01}
 UNITS = {"sparkle_area": "fraction of spots", "sparkle_intensity": "luminance factor",
          "glints_per_mm2": "1/mm²", "graininess": "relative"}
 _COLUMN = re.compile(r"^(sparkle_area|sparkle_intensity|glints_per_mm2)_(\d+(?:\.\d+)?)$")
@@ -144,6 +146,7 @@ def format_texture_rows(rows, sparkle=True) -> list:
         lines.append(f"{r['index']:<22} {r['predicted']:11.4g} {r['target']:11.4g} {r['difference']:+11.4g} "
                      f"{r['tolerance']:10.3g}  {'yes' if r['passed'] else 'NO'}")
     if not sparkle:
-        lines.append("the recipe has no flakes the texture model can use (a pigment-only paint): zero sparkle and "
+        lines.append("the recipe has no flakes the texture model can use (a pigment-only paint, or custom flakes without "
+                     "a diameter): zero sparkle and "
                      "graininess predicted against the target's texture columns")
     return lines
