@@ -33,13 +33,21 @@ parameters), so an iteration costs P + 1 compose calls; results are cached by pa
 The sensitivities reported at the solution are ∂(L*, a*, b*)/∂p per geometry, forward differences
 with the same steps (cache hits when the last Jacobian was taken there).
 
+Texture (docs/colour-matching.md, "Texture"): when the target has texture columns
+(:mod:`flakedb.match.texture`), each compose call also predicts the texture indices
+(:func:`flakedb.paint.texture_inputs.texture_report`, the composed BSDF as the ground) and the
+residual vector gains u · (p_k − t_k)/δ_k per index (u the scheme's default ΔE00 limit): an index at
+its tolerance δ_k costs as much as a geometry at its ΔE00 limit.  The flake diameter does not enter
+the mean BSDF (ρ a = φ/t, docs/texture.md §6), so only such a target determines it; a parameter that
+changes neither the colour nor a texture index is named in :attr:`MatchResult.undetermined`.
+
 The outcome (docs/colour-matching.md, "Outcome")
 -------------------------------------------------
 A fit ends with the best values the bounded solver found; whether that is a match is a separate
 question, answered against a tolerance (a :class:`flakedb.colour.tolerance.PerAngleLimits` or
 :class:`~flakedb.colour.tolerance.WeightedLCH`; default: ΔE00 ≤
 :data:`flakedb.colour.settings.DEFAULT_MAX_DE00` at every geometry).  :attr:`MatchResult.reached`
-says whether every geometry passes; :attr:`MatchResult.at_bound` names the parameters whose fitted
+says whether every geometry (and every texture index) passes; :attr:`MatchResult.at_bound` names the parameters whose fitted
 value lies within :data:`BOUND_FRACTION` of its range (in the fitted variable, ln p or p) from a
 bound: the solver wanted to go further, so widening that bound (or another species) is the next
 step; :attr:`MatchResult.outcome` says it in a sentence.  ``flakedb match`` exits non-zero when the
@@ -484,7 +492,8 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
             J[:, j] = (resid(zj) - r0) / h[j]
         de = delta_E_2000(lab_t, ev.lab(to_p(z)))
         rt = np.abs(ev.texture_residuals(to_p(z)))
-        line = (f"iteration {len(history)}: cost = {float(r0 @ r0):.4g}, max dE00 = {de.max():.3f}"
+        line = (f"iteration {len(history)}: {'cost (colour + texture)' if rt.size else 'sum w*dE00^2'} = "
+                f"{float(r0 @ r0):.4g}, max dE00 = {de.max():.3f}"
                 + (f", max |texture difference|/tolerance = {rt.max():.3f}" if rt.size else "") + "; "
                 + ", ".join(f"{p.name} = {v:.6g}" for p, v in zip(params, to_p(z)))
                 + f"  [{ev.calls} compose calls, {ev.seconds / max(ev.calls, 1):.2f} s/call]")
