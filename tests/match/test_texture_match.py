@@ -112,6 +112,15 @@ def test_compare_reports_texture_beside_de(tmp_path):
     tab = (tmp_path / "tab-texture.csv").read_text().splitlines()
     assert tab[0].startswith("recipe,target,index,unit,predicted,target_value,difference,tolerance,passed")
     assert len(tab) == 11 and sum(ln.endswith("False") for ln in tab) >= 9
+    (tmp_path / "small2.yaml").write_text(_text(TRUE_VF, 12).replace("name: tex-match", "name: small"))
+    r = run_cli(["compare", tmp_path / "big.yaml", tmp_path / "small2.yaml", "--target", tgt, "--table",
+                 tmp_path / "batch.csv"])                                   # a batch: one summary row per pair
+    assert r.exit_code == 1 and "1 of 2 pair(s) pass" in r.output, r.output
+    assert " 10 ok  yes" in r.output and "10/10 NO  NO" in r.output, r.output
+    assert len((tmp_path / "batch-texture.csv").read_text().splitlines()) == 21
+    for args, msg in ((["--with-texture"], "give --write-csv"), (["--texture-tolerance", "0"], "finite number > 0")):
+        r = run_cli(["compare", tmp_path / "big.yaml", "--target", tgt] + args)
+        assert r.exit_code == 2 and msg in r.output, r.output
     r = run_cli(["compare", RECIPES_DIR / "particle-cadmium-yellow.yaml", "--target", tgt])
     assert r.exit_code == 1 and "zero sparkle and graininess predicted" in r.output, r.output
     assert all(float(rows[1]) == 0.0 for rows in (ln.split() for ln in r.output.splitlines())
