@@ -17,8 +17,17 @@ import pytest
 import yaml
 
 from flakedb.match.fit import match, predict, recipe_from_doc
-from flakedb.match.targets import E2194_GEOMETRIES, TargetError, format_target, read_target
-from flakedb.match.texture import DEFAULT_TEXTURE_TOLERANCE, predict_texture, texture_tolerances
+from flakedb.match.targets import (
+    E2194_GEOMETRIES,
+    TargetError,
+    format_target,
+    read_target,
+)
+from flakedb.match.texture import (
+    DEFAULT_TEXTURE_TOLERANCE,
+    predict_texture,
+    texture_tolerances,
+)
 from flakedb.paint.texture_inputs import texture_report
 from flakedb.resources import RECIPES_DIR
 from flakedb.texture.instruments import PRESETS
