@@ -8,6 +8,12 @@ composed once, compared with every target (:mod:`flakedb.match.batch`), one summ
 Thin: prediction in :mod:`flakedb.match.fit`, differences and tolerances in
 :mod:`flakedb.colour.tolerance`, the CSV layout in :mod:`flakedb.match.targets`
 (docs/colour-matching.md).  Exit status 1 when a geometry fails its limit.
+
+A target with texture columns (sparkle_area_<deg>, sparkle_intensity_<deg>, glints_per_mm2_<deg>,
+graininess: :mod:`flakedb.match.texture`, docs/texture.md §9) is also compared on them: one line per
+index with the predicted and target values, their difference and tolerance (``--texture-tolerance``);
+an index outside it fails the comparison like a geometry.  ``--write-csv P.csv --with-texture`` writes
+the predicted texture columns into the prediction, so it can serve as such a target.
 """
 
 import math
@@ -31,8 +37,14 @@ from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism
 from flakedb.compose.store_context import StoreContext
 from flakedb.match import batch
 from flakedb.match.cxf import load_target
-from flakedb.match.fit import predict, resolution
+from flakedb.match.fit import compare_texture, predict, resolution
 from flakedb.match.targets import TargetError, write_target
+from flakedb.match.texture import (
+    DEFAULT_TEXTURE_OBSERVER,
+    DEFAULT_TEXTURE_TOLERANCE,
+    format_texture_rows,
+    predict_texture,
+)
 from flakedb.outputs import OutputPlan
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
@@ -106,9 +118,16 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
               help="Write a figure per comparison into this folder: L*, a*, b* vs aspecular angle with the target, "
                    "a*b* travel, reflectance curves.")
 @click.option("--plot-format", "plot_format", default="png", show_default=True, type=click.Choice(["png", "pdf", "svg"]))
+@click.option("--texture-tolerance", "texture_tol", default=DEFAULT_TEXTURE_TOLERANCE, show_default=True, type=float,
+              help="Relative tolerance of a target's texture columns (sparkle_area_<deg>, sparkle_intensity_<deg>, "
+                   "glints_per_mm2_<deg>, graininess), with a floor per index (docs/texture.md §9).")
+@click.option("--with-texture", "with_texture", is_flag=True,
+              help=f"With --write-csv: also write the predicted texture columns ({DEFAULT_TEXTURE_OBSERVER} "
+                   f"observer, light at 15/45/75°, and graininess).")
 @prediction_options
 def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant, mi_illuminant, max_de, limits,
-            geometry_set, csv_out, table_out, plot_dir, plot_format, n, store, raw, catalog_path):
+            geometry_set, csv_out, table_out, plot_dir, plot_format, texture_tol, with_texture, n, store, raw,
+            catalog_path):
     """Predict each RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, dE00, pass/fail.
 
     RECIPES: recipe YAML files or folders of them.  Exit status 1 when a geometry fails its limit."""
@@ -119,6 +138,11 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         raise FlakedbError("give --target T.csv (compare) and/or --write-csv P.csv / --table T.csv (write the prediction)")
     if not (math.isfinite(max_de) and max_de >= 0):
         raise FlakedbError(f"--max-de {max_de}: a ΔE00 limit is a finite number ≥ 0 (e.g. --max-de 1)")
+    if not (math.isfinite(texture_tol) and texture_tol > 0):
+        raise FlakedbError(f"--texture-tolerance {texture_tol}: a relative tolerance is a finite number > 0 "
+                           f"(e.g. 0.1 for 10 %)")
+    if with_texture and csv_out is None:
+        raise FlakedbError("--with-texture adds texture columns to --write-csv P.csv: give --write-csv")
     scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))  # before any work
     try:
         recipe_files = batch.expand_paths(recipes, (".yaml", ".yml"))
@@ -129,7 +153,8 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         if csv_out or mi_illuminant:
             raise FlakedbError("--write-csv and --metamerism take one recipe and one target; a batch writes --table")
         return _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer, illuminant, max_de, limits,
-                              geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path)
+                              geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path,
+                              texture_tol)
     recipe = str(recipe_files[0])
     target_path = str(target_files[0]) if target_files else None
     if csv_out is not None:  # the output plan, before any work: never onto the target, the recipe, the catalogue
@@ -164,10 +189,16 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
                + (f" with {target.source}" if target else ""))
     if csv_out:
         spectral = pred.mode == "spectral"
+        tex = None
+        if with_texture:
+            names = [f"{k}_{a:g}" for k in ("sparkle_area", "sparkle_intensity", "glints_per_mm2")
+                     for a in (15.0, 45.0, 75.0)] + ["graininess"]
+            tex = predict_texture(rec, names, DEFAULT_TEXTURE_OBSERVER, pred.ground)[0]
         write_target(csv_out, geoms, lab=None if spectral else lab, reflectance=pred.rf if spectral else None,
                      wavelength_nm=pred.wavelength_nm if spectral else None, observer=obs, illuminant=ill,
-                     name=rec.name, notes={"generator": f"flakedb compare, n = {pred.n}, mode {pred.mode}"})
-        click.echo(f"wrote {csv_out} (prediction in the target layout)")
+                     name=rec.name, notes={"generator": f"flakedb compare, n = {pred.n}, mode {pred.mode}"},
+                     texture=tex, texture_observer=DEFAULT_TEXTURE_OBSERVER)
+        click.echo(f"wrote {csv_out} (prediction in the target layout" + (", with texture columns)" if tex else ")"))
     if target is None:
         click.echo(f"{'illum':>6} {'aspec':>6} {'L*':>8} {'a*':>8} {'b*':>8}")
         for g, v in zip(geoms, lab):
@@ -201,11 +232,21 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
                    f"{ev['limit'][i]:6.2f}  {'yes' if ev['passed'][i] else 'NO'}"
                    + (f"  {mi[i]:.3f}" if mi is not None else ""))
     n_fail = int(np.sum(~ev["passed"]))
+    tex, sparkle = compare_texture(rec, pred, target, texture_tol)
+    if tex:
+        click.echo(f"texture ({target.texture_observer} observer; tolerance {texture_tol:.0%} of the target or the "
+                   f"index's floor, docs/texture.md §9):")
+        for line in format_texture_rows(tex, sparkle):
+            click.echo(line)
+    t_fail = sum(not r["passed"] for r in tex)
     comp = batch.Comparison(rec.name, target.name or target.source, np.asarray(geoms, float), lab, lab_t, obs, ill, ev,
-                            d, pred, target.reflectance, target.wavelength_nm)
+                            d, pred, target.reflectance, target.wavelength_nm, tex, sparkle)
     _outputs([comp], table_out, plot_dir, plot_format)
-    click.echo(f"{ev['scheme']}: {'pass' if ev['passed_all'] else f'FAIL at {n_fail} geometr' + ('y' if n_fail == 1 else 'ies')}")
-    if not ev["passed_all"]:
+    verdict = "pass" if ev["passed_all"] else f"FAIL at {n_fail} geometr" + ("y" if n_fail == 1 else "ies")
+    if tex:
+        verdict += "; texture " + ("pass" if not t_fail else f"FAIL at {t_fail} of {len(tex)} indices")
+    click.echo(f"{ev['scheme']}: {verdict}")
+    if not comp.passed:
         raise SystemExit(1)
 
 
@@ -218,6 +259,9 @@ def _outputs(comparisons, table_out, plot_dir, plot_format):
     if table_out:
         batch.write_table(table_out, comparisons)
         click.echo(f"wrote {table_out} ({sum(len(c.geometries) for c in comparisons)} rows)")
+        n_tex = len(batch.texture_rows(comparisons))
+        if n_tex:
+            click.echo(f"wrote {batch.texture_table_path(table_out)} ({n_tex} texture rows)")
     if plot_dir:
         for c in comparisons:
             name = _safe(c.recipe) + ("" if c.target is None else f"--{_safe(Path(str(c.target)).stem)}")
@@ -233,7 +277,8 @@ def _outputs(comparisons, table_out, plot_dir, plot_format):
 
 
 def _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer, illuminant, max_de, limits,
-                   geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path):
+                   geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path,
+                   texture_tol=DEFAULT_TEXTURE_TOLERANCE):
     """Every recipe against every target (or the --pairs list): one summary table; exit 1 when any fails."""
     scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))
     try:
@@ -257,7 +302,7 @@ def _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer,
                    + (f", {len(pairs)} listed pair(s)" if pairs is not None else ""))
         comps = batch.compare_batch(recs, targets, pairs, observer, illuminant, scheme, geometry_set, n, catalog,
                                     store_for=(lambda r: open_store(store, r, n, raw)) if store else None, raw=raw,
-                                    log=lambda s: click.echo(f"  {s}", err=True))
+                                    log=lambda s: click.echo(f"  {s}", err=True), texture_tolerance=texture_tol)
     except (RecipeError, CatalogError, TargetError, StoreError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
     if not targets:
@@ -269,10 +314,12 @@ def _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer,
         _outputs(comps, table_out, plot_dir, plot_format)
         return
     summary = batch.summary_rows(comps)
-    click.echo(f"{'recipe':<28} {'target':<28} {'max dE00':>9} {'worst':>10} {'failed':>7}  ok")
-    for r in summary:
+    click.echo(f"{'recipe':<28} {'target':<28} {'max dE00':>9} {'worst':>10} {'failed':>7} {'texture':>8}  ok")
+    for r, c in zip(summary, [c for c in comps if c.differences is not None]):
+        tx = "-" if r["texture_failed"] is None else f"{r['texture_failed']}/{len(c.texture)} NO" if r["texture_failed"] \
+            else f"{len(c.texture)} ok"
         click.echo(f"{r['recipe'][:28]:<28} {str(r['target'])[:28]:<28} {r['max_dE00']:9.2f} {r['worst_geometry']:>10} "
-                   f"{r['failed']:>4}/{r['geometries']:<2}  {'yes' if r['passed'] else 'NO'}")
+                   f"{r['failed']:>4}/{r['geometries']:<2} {tx:>8}  {'yes' if r['passed'] else 'NO'}")
     _outputs(comps, table_out, plot_dir, plot_format)
     n_fail = sum(1 for r in summary if not r["passed"])
     click.echo(f"{scheme.name}: {len(summary) - n_fail} of {len(summary)} pair(s) pass")

@@ -8,6 +8,11 @@ to stderr, one per iteration.  The last line says whether the target's tolerance
 status 1 when it was not.  Several targets (repeated --target, or a folder): one fit per target into
 DIR/<target file name>/, then a summary table; exit status 1 when any target is not reached.
 
+A target with texture columns (sparkle_area_<deg>, sparkle_intensity_<deg>, glints_per_mm2_<deg>,
+graininess: :mod:`flakedb.match.texture`) is fitted on colour and texture together, so a flake's
+``diameter_um: {fit: [min, max]}`` (which the colour does not depend on) is determined by the sparkle;
+"reached" then also needs every index within ``--texture-tolerance`` (docs/colour-matching.md, "Texture").
+
 A target row at the specular geometry is refused before any fit, naming the file and the row:
 
 >>> import tempfile
@@ -45,10 +50,10 @@ from flakedb.match import batch
 from flakedb.match import fit as cm
 from flakedb.match.cxf import load_target
 from flakedb.match.targets import TargetError, write_target
+from flakedb.match.texture import DEFAULT_TEXTURE_TOLERANCE
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.recipe import RecipeError, read_recipe_file
 from flakedb.store.versions import StoreError
-
 
 #: The fitted recipe is written as NAME-fitted.yaml, never over the base recipe (issue 25).
 FITTED_SUFFIX = "-fitted.yaml"
@@ -74,9 +79,12 @@ FITTED_SUFFIX = "-fitted.yaml"
               help="Per-geometry dE00 limit, ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
 @click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=click.IntRange(1, 10_000),
               help="Most residual evaluations of the least-squares solver.")
+@click.option("--texture-tolerance", "texture_tol", default=DEFAULT_TEXTURE_TOLERANCE, show_default=True, type=float,
+              help="Relative tolerance of a target's texture columns, with a floor per index (docs/texture.md §9); "
+                   "an index at it weighs in the fit as one geometry at the --max-de limit.")
 @prediction_options
-def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights, max_de, limits, max_nfev, n, store,
-          raw, catalog_path):
+def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights, max_de, limits, max_nfev, texture_tol,
+          n, store, raw, catalog_path):
     """Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target.
 
     Exit status 0 when every geometry ends within the tolerance (--max-de / --limit), 1 when not (the
@@ -85,6 +93,9 @@ def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights
     check_node_count(n)
     if not (math.isfinite(max_de) and max_de > 0):
         raise FlakedbError(f"--max-de {max_de}: a ΔE00 tolerance is a finite number > 0 (e.g. --max-de 1)")
+    if not (math.isfinite(texture_tol) and texture_tol > 0):
+        raise FlakedbError(f"--texture-tolerance {texture_tol}: a relative tolerance is a finite number > 0 "
+                           f"(e.g. 0.1 for 10 %)")
     scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))
     weight_items = parse_limits(weights, "--weight")
 
@@ -113,7 +124,7 @@ def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights
         raise FlakedbError(str(exc)) from exc
     if len(targets) == 1:
         res = _fit_one(doc, base, params, targets[0], outs[0], plans[0], observer, illuminant, weight_items, scheme,
-                       max_nfev, n, catalog, version, raw, store)
+                       max_nfev, n, catalog, version, raw, store, texture_tol)
         if not res.reached:
             raise SystemExit(1)
         return
@@ -121,7 +132,7 @@ def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights
     for k, (t, out, plan) in enumerate(zip(targets, outs, plans), 1):
         click.echo(f"--- target {k}/{len(targets)}: {t.source}")
         results.append(_fit_one(doc, base, params, t, out, plan, observer, illuminant, weight_items, scheme,
-                                max_nfev, n, catalog, version, raw, store))
+                                max_nfev, n, catalog, version, raw, store, texture_tol))
     click.echo(f"{'target':<32} {'max dE00 start':>14} {'max dE00 fit':>13}  reached  at a bound")
     for t, r in zip(targets, results):
         click.echo(f"{str(t.source)[-32:]:<32} {r.de_start.max():>14.3f} {r.de_fit.max():>13.3f}  "
@@ -142,7 +153,7 @@ def _output_plan(out_dir, name, inputs):
 
 
 def _fit_one(doc, base, params, target, out, planned, observer, illuminant, weight_items, scheme, max_nfev, n, catalog,
-             version, raw, store):
+             version, raw, store, texture_tol=DEFAULT_TEXTURE_TOLERANCE):
     """One fit and its files, all together or none (module docstring); returns the MatchResult."""
     plan, paths = planned
     w = np.ones(len(target.geometries))
@@ -151,12 +162,13 @@ def _fit_one(doc, base, params, target, out, planned, observer, illuminant, weig
         if not hit:
             raise FlakedbError(f"--weight {il:g}/{asp:g}: the target has no such geometry")
         w[hit] = v
-    click.echo(f"match {doc.get('name')}: {len(params)} parameter(s), {len(target.geometries)} geometries from "
+    click.echo(f"match {doc.get('name')}: {len(params)} parameter(s), {len(target.geometries)} geometries"
+               + (f" and {len(target.texture)} texture indices" if target.texture else "") + f" from "
                f"{target.source}; store: {store if version is not None else 'none (optics computed directly)'}")
     try:
         res = cm.match(doc, target, observer=observer, illuminant=illuminant, weights=w, n=n, catalog=catalog,
                        store=version, raw=raw, log=lambda s: click.echo(f"  {s}", err=True), max_nfev=max_nfev,
-                       source=base, tolerance=scheme)
+                       source=base, tolerance=scheme, texture_tolerance=texture_tol)
     except (RecipeError, StoreError, TargetError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
     click.echo(cm.format_match(res))
@@ -177,7 +189,9 @@ def _fit_one(doc, base, params, target, out, planned, observer, illuminant, weig
         write_target(stage.path(paths["csv"]), p.geometries, lab=None if spectral else res.lab_fit,
                      reflectance=p.rf if spectral else None, wavelength_nm=p.wavelength_nm if spectral else None,
                      observer=res.observer, illuminant=res.illuminant, name=name,
-                     notes={"generator": f"flakedb match, n = {res.n}, mode {p.mode}"})
+                     notes={"generator": f"flakedb match, n = {res.n}, mode {p.mode}"},
+                     texture={r["index"]: r["predicted"] for r in res.texture_fit} or None,
+                     texture_observer=target.texture_observer)
         stage.path(paths["json"]).write_text(json.dumps(cm.match_report(res), indent=1) + "\n", encoding="utf-8")
     final = [out / f"{name}{suffix}" for suffix in OUTPUT_SUFFIXES]
     click.echo(f"wrote {paths['yaml']} (fitted recipe), {final[0]}, {final[1]}, {final[2]}, {paths['csv']} and "

@@ -11,13 +11,18 @@ The results are :class:`Comparison` records; :func:`long_rows` flattens them to 
 returns the long table as a pandas DataFrame (pandas is an optional dependency: ``pip install
 flakedb[dataframe]``).  Colour conditions: the caller's, else each target's, else the defaults
 (:func:`flakedb.colour.settings.resolve`), per pair.
+
+A target with texture columns (:mod:`flakedb.match.texture`) is also compared on them: the
+comparison's ``texture`` rows (predicted, target, difference, tolerance, passed per index) count in
+``passed``, the summary's ``texture_failed``, and :func:`write_table` writes them beside the long table
+as ``<table>-texture.csv`` (:data:`TEXTURE_COLUMNS`).
 """
 
 from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +30,8 @@ import numpy as np
 from flakedb.atomic import atomic_write_text
 from flakedb.colour.settings import DEFAULT_MAX_DE00, GEOMETRY_SETS, resolve
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences
-from flakedb.match.fit import Prediction, predict
+from flakedb.match.fit import Prediction, compare_texture, predict
+from flakedb.match.texture import DEFAULT_TEXTURE_TOLERANCE
 
 
 @dataclass
@@ -44,10 +50,14 @@ class Comparison:
     prediction: Prediction          # reflectance factors at these geometries
     target_reflectance: np.ndarray | None = None
     target_wavelength_nm: np.ndarray | None = None
+    texture: list = field(default_factory=list)   # flakedb.match.texture.evaluate_texture rows ([]: none)
+    sparkle: bool | None = None                   # the recipe's flakes sparkle (None: no texture columns)
 
     @property
     def passed(self) -> bool | None:
-        return None if self.evaluation is None else bool(self.evaluation["passed_all"])
+        if self.evaluation is None:
+            return None
+        return bool(self.evaluation["passed_all"]) and all(r["passed"] for r in self.texture)
 
     @property
     def max_de(self) -> float | None:
@@ -59,12 +69,14 @@ def _key(g) -> tuple:
 
 
 def compare_batch(recipes, targets=(), pairs=None, observer=None, illuminant=None, tolerance=None,
-                  geometry_set=None, n=None, catalog=None, store_for=None, raw=False, log=None) -> list:
+                  geometry_set=None, n=None, catalog=None, store_for=None, raw=False, log=None,
+                  texture_tolerance=DEFAULT_TEXTURE_TOLERANCE) -> list:
     """Compare every paired (recipe, target) (module docstring); returns a list of :class:`Comparison`.
 
     ``recipes``: :class:`flakedb.paint.recipe.Recipe` objects; ``targets``: :class:`flakedb.match.targets.Target`
     objects; ``tolerance``: a scheme with ``evaluate`` (default ΔE00 ≤ :data:`DEFAULT_MAX_DE00`);
-    ``store_for``: None or a callable recipe → open store version (or None); ``log``: one line per compose.
+    ``store_for``: None or a callable recipe → open store version (or None); ``log``: one line per compose;
+    ``texture_tolerance``: the relative tolerance of targets' texture columns (:mod:`flakedb.match.texture`).
     """
     log = log or (lambda s: None)
     targets = list(targets)
@@ -105,15 +117,18 @@ def compare_batch(recipes, targets=(), pairs=None, observer=None, illuminant=Non
             sub = Prediction(t.geometries, pred.rf[rows], pred.mode, pred.wavelength_nm, pred.n)
             lab = sub.lab(cs.observer, cs.illuminant)
             lab_t = t.lab_under(cs.observer, cs.illuminant)
+            tex, sparkle = compare_texture(rec, pred, t, texture_tolerance)
             out.append(Comparison(rec.name, t.name or t.source, np.asarray(t.geometries, float), lab, lab_t,
                                   cs.observer, cs.illuminant, scheme.evaluate(t.geometries, lab_t, lab),
-                                  lab_differences(lab_t, lab), sub, t.reflectance, t.wavelength_nm))
+                                  lab_differences(lab_t, lab), sub, t.reflectance, t.wavelength_nm, tex, sparkle))
     return out
 
 
 LONG_COLUMNS = ("recipe", "target", "illumination_deg", "aspecular_deg", "observer", "illuminant",
                 "L_target", "a_target", "b_target", "L", "a", "b", "dL", "dC", "dH", "dE00", "limit", "passed")
-SUMMARY_COLUMNS = ("recipe", "target", "geometries", "max_dE00", "worst_geometry", "failed", "passed")
+SUMMARY_COLUMNS = ("recipe", "target", "geometries", "max_dE00", "worst_geometry", "failed", "texture_failed", "passed")
+TEXTURE_COLUMNS = ("recipe", "target", "index", "unit", "predicted", "target_value", "difference", "tolerance",
+                   "passed")
 
 
 def long_rows(comparisons) -> list:
@@ -144,8 +159,23 @@ def summary_rows(comparisons) -> list:
         w = int(np.argmax(de))
         rows.append({"recipe": c.recipe, "target": c.target, "geometries": int(len(de)), "max_dE00": float(de[w]),
                      "worst_geometry": f"{c.geometries[w][0]:g}as{c.geometries[w][1]:g}",
-                     "failed": int(np.sum(~c.evaluation["passed"])), "passed": c.passed})
+                     "failed": int(np.sum(~c.evaluation["passed"])),
+                     "texture_failed": sum(not r["passed"] for r in c.texture) if c.texture else None,
+                     "passed": c.passed})
     return rows
+
+
+def texture_rows(comparisons) -> list:
+    """One dict per (recipe, target, texture index), keys :data:`TEXTURE_COLUMNS`."""
+    return [{"recipe": c.recipe, "target": c.target, "index": r["index"], "unit": r["unit"],
+             "predicted": r["predicted"], "target_value": r["target"], "difference": r["difference"],
+             "tolerance": r["tolerance"], "passed": r["passed"]} for c in comparisons for r in c.texture]
+
+
+def texture_table_path(path) -> Path:
+    """Where :func:`write_table` puts the texture rows of the long table ``path``: ``<stem>-texture.csv``."""
+    p = Path(path)
+    return p.with_name(f"{p.stem}-texture{p.suffix or '.csv'}")
 
 
 def to_dataframe(comparisons, summary=False):
@@ -158,7 +188,7 @@ def to_dataframe(comparisons, summary=False):
 
 
 def format_rows(rows, columns) -> str:
-    """CSV text of rows (floats to 4 decimals).
+    """CSV text of rows (floats to 4 decimals; texture values, which span decades, to 6 significant digits).
 
     >>> print(format_rows([{"recipe": "a", "dE00": 0.123456, "note": None}], ["recipe", "dE00", "note"]), end="")
     recipe,dE00,note
@@ -168,14 +198,22 @@ def format_rows(rows, columns) -> str:
     w = csv.writer(out, lineterminator="\n")
     w.writerow(columns)
     for r in rows:
-        w.writerow(["" if r[c] is None else (f"{r[c]:.4f}" if isinstance(r[c], float) else r[c]) for c in columns])
+        w.writerow(["" if r[c] is None else (_fmt(c, r[c]) if isinstance(r[c], float) else r[c]) for c in columns])
     return out.getvalue()
 
 
+def _fmt(column, v) -> str:
+    return f"{v:.6g}" if column in ("predicted", "target_value", "difference", "tolerance") else f"{v:.4f}"
+
+
 def write_table(path, comparisons, summary=False) -> str:
-    """Write the long (or summary) table as CSV, atomically; returns the path."""
+    """Write the long (or summary) table as CSV, atomically; returns the path.  The long table's texture
+    rows, when a target has texture columns, go to :func:`texture_table_path` beside it."""
     rows, cols = (summary_rows(comparisons), SUMMARY_COLUMNS) if summary else (long_rows(comparisons), LONG_COLUMNS)
     atomic_write_text(Path(path), format_rows(rows, cols))
+    tex = texture_rows(comparisons)
+    if tex and not summary:
+        atomic_write_text(texture_table_path(path), format_rows(tex, TEXTURE_COLUMNS))
     return str(path)
 
 

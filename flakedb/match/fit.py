@@ -33,13 +33,21 @@ parameters), so an iteration costs P + 1 compose calls; results are cached by pa
 The sensitivities reported at the solution are ∂(L*, a*, b*)/∂p per geometry, forward differences
 with the same steps (cache hits when the last Jacobian was taken there).
 
+Texture (docs/colour-matching.md, "Texture"): when the target has texture columns
+(:mod:`flakedb.match.texture`), each compose call also predicts the texture indices
+(:func:`flakedb.paint.texture_inputs.texture_report`, the composed BSDF as the ground) and the
+residual vector gains u · (p_k − t_k)/δ_k per index (u the scheme's default ΔE00 limit): an index at
+its tolerance δ_k costs as much as a geometry at its ΔE00 limit.  The flake diameter does not enter
+the mean BSDF (ρ a = φ/t, docs/texture.md §6), so only such a target determines it; a parameter that
+changes neither the colour nor a texture index is named in :attr:`MatchResult.undetermined`.
+
 The outcome (docs/colour-matching.md, "Outcome")
 -------------------------------------------------
 A fit ends with the best values the bounded solver found; whether that is a match is a separate
 question, answered against a tolerance (a :class:`flakedb.colour.tolerance.PerAngleLimits` or
 :class:`~flakedb.colour.tolerance.WeightedLCH`; default: ΔE00 ≤
 :data:`flakedb.colour.settings.DEFAULT_MAX_DE00` at every geometry).  :attr:`MatchResult.reached`
-says whether every geometry passes; :attr:`MatchResult.at_bound` names the parameters whose fitted
+says whether every geometry (and every texture index) passes; :attr:`MatchResult.at_bound` names the parameters whose fitted
 value lies within :data:`BOUND_FRACTION` of its range (in the fitted variable, ln p or p) from a
 bound: the solver wanted to go further, so widening that bound (or another species) is the next
 step; :attr:`MatchResult.outcome` says it in a sentence.  ``flakedb match`` exits non-zero when the
@@ -65,8 +73,20 @@ from flakedb.colour.tolerance import (
     delta_E_2000,
     reflectance_to_Lab,
 )
-from flakedb.compose.report import channels_to_XYZ, eval_table, multiangle_geometry, reference_white
 from flakedb.compose.orchestrate import solve_recipe
+from flakedb.compose.report import (
+    channels_to_XYZ,
+    eval_table,
+    multiangle_geometry,
+    reference_white,
+    texture_ground,
+)
+from flakedb.match.texture import (
+    DEFAULT_TEXTURE_TOLERANCE,
+    evaluate_texture,
+    format_texture_rows,
+    predict_texture,
+)
 from flakedb.paint.mapping import resolve_node_count
 from flakedb.paint.recipe import RecipeError, fmt_path, parse_recipe
 
@@ -192,11 +212,16 @@ def recipe_from_doc(doc, source="<recipe>", catalog=None):
 # ----------------------------------------------------------------------------------------------
 
 
-def compose_table(recipe, n, catalog=None, store=None, raw=False):
-    """``(paint, table)`` of ``recipe`` at ``n`` nodes through compose's own path
+def compose_solved(recipe, n, catalog=None, store=None, raw=False):
+    """``recipe`` solved at ``n`` nodes through compose's own path
     (:func:`flakedb.compose.orchestrate.solve_recipe`: its physical check, threads and memory budget);
     ``store``: an open :class:`flakedb.store.versions.StoreVersion` (verified once by the caller) or None."""
-    solved = solve_recipe(recipe, n, raw=raw, catalog=catalog, store=store, verify=False, generator="flakedb match")
+    return solve_recipe(recipe, n, raw=raw, catalog=catalog, store=store, verify=False, generator="flakedb match")
+
+
+def compose_table(recipe, n, catalog=None, store=None, raw=False):
+    """``(paint, table)`` of ``recipe`` at ``n`` nodes (:func:`compose_solved`)."""
+    solved = compose_solved(recipe, n, catalog, store, raw)
     return solved.paint, solved.table
 
 
@@ -240,6 +265,8 @@ class Prediction:
     mode: str
     wavelength_nm: np.ndarray | None
     n: int
+    #: the smooth BSDF's luminance factors for the texture indices (:func:`flakedb.compose.report.texture_ground`)
+    ground: object = None
 
     def lab(self, observer=None, illuminant=None):
         return channels_to_Lab(self.rf, self.mode, self.wavelength_nm, observer, illuminant)
@@ -253,9 +280,22 @@ def resolution(recipe, n=None) -> int:
 def predict(recipe, geometries, n=None, catalog=None, store=None, raw=False) -> Prediction:
     """Compose ``recipe`` once and evaluate it at ``geometries`` (G, 2)."""
     n = resolution(recipe, n)
-    paint, table = compose_table(recipe, n, catalog, store, raw)
+    solved = compose_solved(recipe, n, catalog, store, raw)
+    paint, table, stack = solved.paint, solved.table, solved.stack
     g = np.asarray(geometries, float).reshape(-1, 2)
-    return Prediction(g, eval_geometries(table, g), paint.mode, paint.wavelength_nm, n)
+    ground = texture_ground(table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
+                            paint.eta if paint.delta else None)   # as compose's report (docs/texture.md §4)
+    return Prediction(g, eval_geometries(table, g), paint.mode, paint.wavelength_nm, n, ground)
+
+
+def compare_texture(recipe, prediction, target, rel=DEFAULT_TEXTURE_TOLERANCE):
+    """``(rows, sparkle)``: :func:`flakedb.match.texture.evaluate_texture` of ``recipe``'s predicted texture
+    against ``target``'s texture columns (the BSDF of ``prediction`` as the ground), and whether the
+    recipe has flakes that sparkle at all; ``([], None)`` for a target without texture columns."""
+    if not target.texture:
+        return [], None
+    pred, rep = predict_texture(recipe, list(target.texture), target.texture_observer, prediction.ground)
+    return evaluate_texture(pred, target.texture, rel), bool(rep["sparkle"])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -290,6 +330,16 @@ class MatchResult:
     history: list = field(default_factory=list)
     tolerance: dict | None = None       # the scheme's evaluation at the fit (PerAngleLimits.evaluate)
     at_bound: list = field(default_factory=list)   # [(parameter name, "lower" | "upper", bound value)]
+    texture_start: list = field(default_factory=list)   # evaluate_texture rows at the start ([]: no texture columns)
+    texture_fit: list = field(default_factory=list)     # … at the fit
+    texture_sensitivities: np.ndarray | None = None     # (K, P): d(index)/dp in the parameter's units
+    texture_tolerance: float = DEFAULT_TEXTURE_TOLERANCE
+    sparkle: bool | None = None                         # the fitted recipe sparkles (None: no texture columns)
+    undetermined: list = field(default_factory=list)    # parameters that change nothing the target measures
+
+    @property
+    def texture_passed(self) -> bool:
+        return all(r["passed"] for r in self.texture_fit)
 
     @property
     def compose_s_per_call(self) -> float:
@@ -297,34 +347,51 @@ class MatchResult:
 
     @property
     def reached(self) -> bool:
-        """Every geometry within the tolerance (module docstring, "The outcome")."""
-        return bool(self.tolerance is not None and self.tolerance["passed_all"])
+        """Every geometry within the tolerance and every texture index within its own (module docstring,
+        "The outcome")."""
+        return bool(self.tolerance is not None and self.tolerance["passed_all"] and self.texture_passed)
 
     @property
     def outcome(self) -> str:
         """One sentence: reached or not, where it fails, and which parameters sit at a bound."""
         tol = self.tolerance
         bound = "; ".join(f"{name} at its {side} bound {v:g}" for name, side, v in self.at_bound)
+        loose = "; ".join(f"{name} changes neither the colour nor a texture index of the target: not determined by "
+                          f"it (left at its start value)" for name in self.undetermined)
+        tex = (f" and every texture index within {self.texture_tolerance:.0%} (or its floor)"
+               if self.texture_fit else "")
+        notes = "; ".join(x for x in (bound, loose) if x)
         if self.reached:
-            return (f"target reached: every geometry within {tol['scheme']}"
-                    + (f" (note: {bound})" if bound else ""))
+            return (f"target reached: every geometry within {tol['scheme']}{tex}"
+                    + (f" (note: {notes})" if notes else ""))
+        parts = []
         fail = [i for i, ok in enumerate(tol["passed"]) if not ok]
-        worst = max(fail, key=lambda i: tol["value"][i])
-        g = self.geometries[worst]
+        if fail:
+            worst = max(fail, key=lambda i: tol["value"][i])
+            g = self.geometries[worst]
+            parts.append(f"{len(fail)} of {len(tol['passed'])} geometries outside {tol['scheme']} "
+                         f"(worst {g[0]:g}as{g[1]:g}: {tol['value'][worst]:.2f} > {tol['limit'][worst]:.2f})")
+        tfail = [r for r in self.texture_fit if not r["passed"]]
+        if tfail:
+            parts.append(f"{len(tfail)} of {len(self.texture_fit)} texture indices outside tolerance ("
+                         + ", ".join(f"{r['index']} {r['predicted']:.4g} vs {r['target']:.4g}" for r in tfail) + ")"
+                         + ("; the fitted recipe has no flakes: no sparkle" if self.sparkle is False else ""))
         why = (f"parameters at a bound: {bound}; widen the bound or use another species" if bound else
-               "no parameter is at a bound: the species in the base recipe cannot reach this colour together "
+               "no parameter is at a bound: the species in the base recipe cannot reach this target together "
                "(or the fit stopped in a local minimum / at the evaluation limit: " + self.message.strip() + ")")
-        return (f"target NOT reached: {len(fail)} of {len(tol['passed'])} geometries outside {tol['scheme']} "
-                f"(worst {g[0]:g}as{g[1]:g}: {tol['value'][worst]:.2f} > {tol['limit'][worst]:.2f}); {why}")
+        return f"target NOT reached: {'; '.join(parts)}; {why}" + (f" (note: {loose})" if loose else "")
 
 
 class _Evaluator:
     """Compose-and-evaluate with a cache on the parameter values; counts compose calls and time."""
 
-    def __init__(self, doc, params, geometries, n, observer, illuminant, catalog, store, raw, source):
+    def __init__(self, doc, params, geometries, n, observer, illuminant, catalog, store, raw, source, target=None,
+                 texture_tol=DEFAULT_TEXTURE_TOLERANCE):
         self.doc, self.params, self.geometries = doc, params, geometries
         self.n, self.observer, self.illuminant = n, observer, illuminant
         self.catalog, self.store, self.raw, self.source = catalog, store, raw, source
+        self.target = target if target is not None and target.texture else None
+        self.texture_tol = texture_tol
         self.cache = {}
         self.calls = 0
         self.seconds = 0.0
@@ -335,14 +402,25 @@ class _Evaluator:
             rec = recipe_from_doc(substitute(self.doc, self.params, key), self.source, self.catalog)
             t0 = time.perf_counter()
             pred = predict(rec, self.geometries, self.n, self.catalog, self.store, self.raw)
+            tex = (compare_texture(rec, pred, self.target, self.texture_tol) if self.target is not None
+                   else ([], None))
             self.seconds += time.perf_counter() - t0
             self.calls += 1
-            self.cache[key] = (pred, pred.lab(self.observer, self.illuminant))
+            self.cache[key] = (pred, pred.lab(self.observer, self.illuminant), tex)
         return self.cache[key][0]
 
     def lab(self, values) -> np.ndarray:
         self.prediction(values)
         return self.cache[tuple(float(v) for v in values)][1]
+
+    def texture(self, values) -> tuple:
+        """(:func:`flakedb.match.texture.evaluate_texture` rows, sparkle) at ``values``."""
+        self.prediction(values)
+        return self.cache[tuple(float(v) for v in values)][2]
+
+    def texture_residuals(self, values) -> np.ndarray:
+        """r_k = (p_k − t_k)/δ_k of the target's texture columns (empty without them)."""
+        return np.array([r["residual"] for r in self.texture(values)[0]], float)
 
 
 def _fd_steps(params, z, lb, ub):
@@ -351,7 +429,8 @@ def _fd_steps(params, z, lb, ub):
 
 
 def match(doc, target, observer=None, illuminant=None, weights=None, n=None, catalog=None, store=None, raw=False,
-          log=None, max_nfev=50, de_tol=DE_TOL, source="<base recipe>", tolerance=None) -> MatchResult:
+          log=None, max_nfev=50, de_tol=DE_TOL, source="<base recipe>", tolerance=None,
+          texture_tolerance=DEFAULT_TEXTURE_TOLERANCE) -> MatchResult:
     """Fit the ``{fit: …}`` fields of recipe document ``doc`` to ``target`` (a
     :class:`flakedb.colour.targets.Target`); see the module docstring.
 
@@ -362,6 +441,11 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
     is judged by (an object with ``evaluate(geometries, lab_ref, lab_sample)``; default ΔE00 ≤
     :data:`flakedb.colour.settings.DEFAULT_MAX_DE00` everywhere).  Raises RecipeError before any
     computation when the recipe is invalid at the start values or at the bounds.
+
+    A target with texture columns (:mod:`flakedb.match.texture`) adds one residual per index,
+    u · (p_k − t_k)/δ_k with δ_k = max(``texture_tolerance`` · |t_k|, floor_k) and u the scheme's default
+    ΔE00 limit (1 for a scheme without one): an index at its tolerance costs as much as one geometry at
+    its ΔE00 limit; "reached" then also needs every |p_k − t_k| ≤ δ_k (docs/colour-matching.md, "Texture").
     """
     log = log or (lambda s: None)
     params = find_fit_parameters(doc, source)
@@ -385,7 +469,9 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
         raise ValueError(f"weights: need {G} non-negative values, one per target geometry")
     sw = np.sqrt(w)
     lab_t = target.lab_under(obs, ill)
-    ev = _Evaluator(doc, params, geoms, n, obs, ill, catalog, store, raw, source)
+    scheme = tolerance if tolerance is not None else PerAngleLimits(default=DEFAULT_MAX_DE00)
+    unit = float(getattr(scheme, "default", DEFAULT_MAX_DE00))  # a texture index at δ_k weighs one ΔE00 limit
+    ev = _Evaluator(doc, params, geoms, n, obs, ill, catalog, store, raw, source, target, texture_tolerance)
     to_p = lambda z: np.array([p.from_z(v) for p, v in zip(params, z)])
     lb = np.array([p.to_z(p.lo) for p in params])
     ub = np.array([p.to_z(p.hi) for p in params])
@@ -393,7 +479,8 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
     history = []
 
     def resid(z):
-        return (sw[:, None] * ciede2000_residuals(lab_t, ev.lab(to_p(z)))).ravel()
+        colour = (sw[:, None] * ciede2000_residuals(lab_t, ev.lab(to_p(z)))).ravel()
+        return np.concatenate([colour, unit * ev.texture_residuals(to_p(z))])
 
     def jac(z):
         r0 = resid(z)
@@ -404,12 +491,16 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
             zj[j] += h[j]
             J[:, j] = (resid(zj) - r0) / h[j]
         de = delta_E_2000(lab_t, ev.lab(to_p(z)))
-        line = (f"iteration {len(history)}: sum w*dE00^2 = {float(r0 @ r0):.4g}, max dE00 = {de.max():.3f}; "
+        rt = np.abs(ev.texture_residuals(to_p(z)))
+        line = (f"iteration {len(history)}: {'cost (colour + texture)' if rt.size else 'sum w*dE00^2'} = "
+                f"{float(r0 @ r0):.4g}, max dE00 = {de.max():.3f}"
+                + (f", max |texture difference|/tolerance = {rt.max():.3f}" if rt.size else "") + "; "
                 + ", ".join(f"{p.name} = {v:.6g}" for p, v in zip(params, to_p(z)))
                 + f"  [{ev.calls} compose calls, {ev.seconds / max(ev.calls, 1):.2f} s/call]")
-        history.append({"values": to_p(z).tolist(), "cost": float(r0 @ r0), "max_dE00": float(de.max())})
+        history.append({"values": to_p(z).tolist(), "cost": float(r0 @ r0), "max_dE00": float(de.max())}
+                       | ({"max_texture_residual": float(rt.max())} if rt.size else {}))
         log(line)
-        if de_tol and de.max() <= de_tol:
+        if de_tol and de.max() <= de_tol and np.all(unit * rt <= de_tol):
             raise _Converged(z.copy())
         return J
 
@@ -420,23 +511,32 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
         z_fit, nfev, status, message = sol.x, int(sol.nfev), int(sol.status), str(sol.message)
     except _Converged as c:
         z_fit, nfev, status = c.z, len(history), 5
-        message = f"every dE00 <= {de_tol:g}"
+        message = f"every dE00 <= {de_tol:g}" + (" and every texture index within 1 % of its tolerance"
+                                                   if target.texture else "")
     p_fit = to_p(z_fit)
     pred = ev.prediction(p_fit)
     lab_fit = ev.lab(p_fit)
     # sensitivities d Lab / dp at the solution (natural units)
     h = _fd_steps(params, z_fit, lb, ub)
     sens = np.empty((G, 3, len(params)))
+    tex_fit, sparkle = ev.texture(p_fit)
+    tex_val = np.array([r["predicted"] for r in tex_fit], float)
+    tsens = np.empty((tex_val.size, len(params)))
     for j, p in enumerate(params):
         zj = z_fit.copy()
         zj[j] += h[j]
         pj = to_p(zj)
         sens[:, :, j] = (ev.lab(pj) - lab_fit) / (pj[j] - p_fit[j])
+        tsens[:, j] = (np.array([r["predicted"] for r in ev.texture(pj)[0]], float) - tex_val) / (pj[j] - p_fit[j])
+    # a parameter that moves neither L*a*b* (by 1e-6 for +1 %) nor a texture index (by 1e-6 of its tolerance)
+    tex_tol = np.array([r["tolerance"] for r in tex_fit], float)
+    undetermined = [p.name for j, p in enumerate(params)
+                    if np.max(np.abs(sens[:, :, j])) * abs(p_fit[j]) / 100.0 < 1e-6
+                    and np.all(np.abs(tsens[:, j]) * abs(p_fit[j]) / 100.0 < 1e-6 * tex_tol)]
     de_fit = delta_E_2000(lab_t, lab_fit)
     log(f"done: {message.strip()} after {len(history)} iteration(s); max dE00 {de_fit.max():.3f}; "
         f"{ev.calls} compose calls, {ev.seconds / max(ev.calls, 1):.2f} s per call")
     values_out = np.array([float(f"{v:.6g}") for v in p_fit])
-    scheme = tolerance if tolerance is not None else PerAngleLimits(default=DEFAULT_MAX_DE00)
     tol = scheme.evaluate(geoms, lab_t, lab_fit)
     span = ub - lb
     at_bound = [(p.name, "lower", p.lo) if z - a <= BOUND_FRACTION * d else (p.name, "upper", p.hi)
@@ -447,7 +547,9 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
         lab_start=lab_start, lab_fit=lab_fit, de_start=delta_E_2000(lab_t, lab_start), de_fit=de_fit,
         sensitivities=sens, fitted_doc=substitute(doc, params, values_out), prediction=pred, n=n,
         observer=obs, illuminant=ill, n_compose=ev.calls, compose_s=ev.seconds, iterations=len(history),
-        nfev=nfev, status=status, message=message, history=history, tolerance=tol, at_bound=at_bound)
+        nfev=nfev, status=status, message=message, history=history, tolerance=tol, at_bound=at_bound,
+        texture_start=ev.texture(to_p(z0))[0], texture_fit=tex_fit, texture_sensitivities=tsens,
+        texture_tolerance=float(texture_tolerance), sparkle=sparkle, undetermined=undetermined)
     log(res.outcome)
     return res
 
@@ -469,6 +571,18 @@ def format_match(res: MatchResult) -> str:
         for g, s in zip(res.geometries, res.sensitivities[:, :, j]):
             d = s * v / 100.0
             lines.append(f"    {g[0]:5g}° {g[1]:5g}°  dL* {d[0]:+8.4f}  da* {d[1]:+8.4f}  db* {d[2]:+8.4f}")
+    if res.texture_fit:
+        lines.append(f"texture ({res.texture_tolerance:.0%} tolerance, or the index's floor; start -> fit):")
+        for r0, r in zip(res.texture_start, res.texture_fit):
+            lines.append(f"  {r['index']:<22} start {r0['predicted']:10.4g}  fit {r['predicted']:10.4g}  target "
+                         f"{r['target']:10.4g}  difference {r['difference']:+10.4g}  tolerance {r['tolerance']:8.3g}  "
+                         f"{'yes' if r['passed'] else 'NO'}")
+        lines.append("  sensitivities: change of each index for a +1 % change of each parameter")
+        for j, (p, v) in enumerate(zip(res.params, res.values)):
+            lines.append(f"    {p.name}: " + ", ".join(f"{r['index']} {s * v / 100.0:+.4g}"
+                                                      for r, s in zip(res.texture_fit, res.texture_sensitivities[:, j])))
+        if res.sparkle is False:
+            lines.append("  " + format_texture_rows([], sparkle=False)[-1])
     lines.append(f"compose calls: {res.n_compose} ({res.compose_s_per_call:.2f} s per call, "
                  f"{res.compose_s:.1f} s in total), {res.iterations} iteration(s)")
     if res.tolerance is not None:
@@ -495,4 +609,10 @@ def match_report(res: MatchResult) -> dict:
         "tolerance": None if res.tolerance is None else res.tolerance["scheme"],
         "passed": None if res.tolerance is None else [bool(v) for v in res.tolerance["passed"]],
         "at_bound": [{"path": n, "side": side, "bound": v} for n, side, v in res.at_bound],
+        "undetermined": list(res.undetermined),
+        "texture": None if not res.texture_fit else {
+            "tolerance_relative": res.texture_tolerance, "sparkle": res.sparkle, "passed": res.texture_passed,
+            "indices": [dict(r, start=r0["predicted"],
+                             d_dp={p.name: float(res.texture_sensitivities[k, j]) for j, p in enumerate(res.params)})
+                        for k, (r0, r) in enumerate(zip(res.texture_start, res.texture_fit))]},
     }

@@ -26,6 +26,12 @@ illuminator's side when negative; :func:`flakedb.report.multiangle_geometry`), t
   percent with ``# reflectance: percent``) on any uniform nm grid of step 1–20 nm; then the target's
   L*a*b* can be computed for any observer and illuminant the grid allows.
 
+Texture columns (optional; :mod:`flakedb.match.texture`, docs/texture.md §9): ``sparkle_area_<L>``,
+``sparkle_intensity_<L>``, ``glints_per_mm2_<L>`` (light at L°) and ``graininess``, the panel's texture
+indices for the observer ``# texture_observer: NAME`` (default ``byk-mac-like``).  A texture value
+belongs to the panel, not to a geometry: it is written on one row, the other rows' cells left empty
+(or all rows give the same value).
+
 A file may carry both (the writer writes both for a spectral prediction); the spectra are then
 what is compared, and the L*a*b* columns are checked against them under the stated observer and
 illuminant (to 0.01 ΔE00) so a file whose two halves disagree is refused.
@@ -70,8 +76,19 @@ from flakedb.colour.settings import (  # the geometry sets live with the other d
     E2539_GEOMETRIES,
     GEOMETRY_SETS,
 )
-from flakedb.colour.tolerance import delta_E_2000, illuminant_name, observer_name, reflectance_to_Lab
+from flakedb.colour.tolerance import (
+    delta_E_2000,
+    illuminant_name,
+    observer_name,
+    reflectance_to_Lab,
+)
+from flakedb.match.texture import (
+    DEFAULT_TEXTURE_OBSERVER,
+    check_texture_value,
+    parse_texture_column,
+)
 from flakedb.safeio import FileTooLargeError, read_limited
+from flakedb.texture.instruments import PRESETS as TEXTURE_PRESETS
 
 #: Largest target CSV read [bytes]: 200 geometries × 1000 reflectance columns of 8 characters.
 MAX_TARGET_BYTES = 2_000_000
@@ -110,6 +127,9 @@ class Target:
     name: str = ""
     notes: dict = field(default_factory=dict)
     source: str = ""
+    #: texture columns {name: value} (module docstring); empty: a colour-only target
+    texture: dict = field(default_factory=dict)
+    texture_observer: str = DEFAULT_TEXTURE_OBSERVER
 
     @property
     def spectral(self) -> bool:
@@ -201,7 +221,7 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
             m = re.match(r"#\s*([A-Za-z_][\w ]*?)\s*:\s*(.*)$", s)
             if m:
                 k, v = m.group(1).strip().lower(), m.group(2).strip()
-                (opts if k in ("observer", "illuminant", "reflectance", "name") else notes)[k] = v
+                (opts if k in ("observer", "illuminant", "reflectance", "name", "texture_observer") else notes)[k] = v
             continue
         rows.append((ln, s))
     if not rows:
@@ -228,14 +248,17 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
                           f"(1 nm steps over 300-1200 nm)")
     if len(set(header)) != len(header):
         raise TargetError(f"{where} line {hdr_ln}: a column name appears twice")
-    known = {0, 1} | set(lab_idx or []) | {i for i, _ in r_cols}
+    tex_idx = [(i, h) for i, h in enumerate(header) if parse_texture_column(h) is not None]
+    known = {0, 1} | set(lab_idx or []) | {i for i, _ in r_cols} | {i for i, _ in tex_idx}
     unknown = [h for i, h in enumerate(header) if i not in known]
     if unknown:
-        raise TargetError(f"{where} line {hdr_ln}: unknown column(s) {', '.join(unknown)} (allowed: L*,a*,b* "
-                          f"and R_<nm> reflectance factors)")
+        raise TargetError(f"{where} line {hdr_ln}: unknown column(s) {', '.join(unknown)} (allowed: L*,a*,b*, "
+                          f"R_<nm> reflectance factors, and the texture columns sparkle_area_<deg>, "
+                          f"sparkle_intensity_<deg>, glints_per_mm2_<deg>, graininess)")
     if lab_idx is None and not r_cols:
         raise TargetError(f"{where} line {hdr_ln}: no colour columns: give L*,a*,b* or R_380,R_390,… (any uniform grid)")
-    data = []
+    data, tex_cells = [], {h: [] for _, h in tex_idx}
+    tex_pos = {i for i, _ in tex_idx}
     for ln, s in rows[1:]:
         try:
             cells = [c.strip() for c in next(csv.reader(io.StringIO(s)))]
@@ -244,7 +267,10 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
         if len(cells) != len(header):
             raise TargetError(f"{where} line {ln}: {len(cells)} values, the header has {len(header)} columns")
         try:
-            data.append([float(c) for c in cells])
+            data.append([float(c) for i, c in enumerate(cells) if i not in tex_pos])
+            for i, h in tex_idx:  # a panel's value: on one row, empty (or the same) on the others
+                if cells[i]:
+                    tex_cells[h].append((ln, float(cells[i])))
         except ValueError:
             raise TargetError(f"{where} line {ln}: a value is not a number: {s[:80]}") from None
     if not data:
@@ -252,6 +278,22 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     a = np.asarray(data, float)
     if not np.all(np.isfinite(a)):
         raise TargetError(f"{where}: values must be finite numbers")
+    texture = {}
+    for _, h in tex_idx:
+        vals = tex_cells[h]
+        if not vals:
+            raise TargetError(f"{where}: column {h} has no value (write the panel's value on one row)")
+        if len({v for _, v in vals}) > 1:
+            raise TargetError(f"{where} line {vals[1][0]}: column {h} is a value of the panel, given once; the rows "
+                              f"disagree ({vals[0][1]:g} on line {vals[0][0]}, {vals[1][1]:g} here)")
+        problem = check_texture_value(h, vals[0][1])
+        if problem:
+            raise TargetError(f"{where} line {vals[0][0]}: {problem}")
+        texture[h] = vals[0][1]
+    tex_obs = opts.get("texture_observer", DEFAULT_TEXTURE_OBSERVER)
+    if tex_obs not in TEXTURE_PRESETS:
+        raise TargetError(f"{where}: '# texture_observer: {tex_obs}': use one of {', '.join(sorted(TEXTURE_PRESETS))}")
+    col = {i: k for k, i in enumerate(i for i in range(len(header)) if i not in tex_pos)}  # header → data column
     geoms = a[:, :2]
     _validate_geometries(geoms, where)
     keys = [tuple(g) for g in geoms.tolist()]
@@ -270,12 +312,13 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     if lab_idx is not None and not r_cols and "observer" not in opts and observer is None:
         notes["assumed"] = (f"observer {obs} deg / illuminant {ill} (not stated in the file: the defaults, "
                             f"flakedb.colour.settings)")
-    t = Target(geometries=geoms, observer=obs, illuminant=ill, name=opts.get("name", ""), notes=notes, source=where)
+    t = Target(geometries=geoms, observer=obs, illuminant=ill, name=opts.get("name", ""), notes=notes, source=where,
+               texture=texture, texture_observer=tex_obs)
     if lab_idx is not None:
-        t.lab = a[:, lab_idx]
+        t.lab = a[:, [col[i] for i in lab_idx]]
     if r_cols:
         wl = np.array([w for _, w in r_cols])
-        R = a[:, [i for i, _ in r_cols]]
+        R = a[:, [col[i] for i, _ in r_cols]]
         unit = opts.get("reflectance", "fraction").lower()
         if unit not in ("fraction", "percent"):
             raise TargetError(f"{where}: '# reflectance: {unit}': use fraction or percent")
@@ -298,8 +341,9 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
 
 def format_target(geometries, lab=None, reflectance=None, wavelength_nm=None, observer=DEFAULT_OBSERVER,
                   illuminant=DEFAULT_ILLUMINANT,
-                  name="", notes=None) -> str:
-    """The CSV text of a target (module docstring); ``lab`` computed from ``reflectance`` when omitted."""
+                  name="", notes=None, texture=None, texture_observer=DEFAULT_TEXTURE_OBSERVER) -> str:
+    """The CSV text of a target (module docstring); ``lab`` computed from ``reflectance`` when omitted;
+    ``texture``: {column: value} written on the first row (the others' cells empty)."""
     g = np.asarray(geometries, float)
     if reflectance is not None:
         R = np.asarray(reflectance, float)
@@ -316,25 +360,30 @@ def format_target(geometries, lab=None, reflectance=None, wavelength_nm=None, ob
     out.write(f"# observer: {observer}\n# illuminant: {illuminant}\n")
     if reflectance is not None:
         out.write("# reflectance: fraction\n")
+    texture = dict(texture or {})
+    if texture:
+        out.write(f"# texture_observer: {texture_observer}\n")
     for k, v in (notes or {}).items():
         out.write(f"# {k}: {v}\n")
     cols = ["illumination_deg", "aspecular_deg", "L*", "a*", "b*"]
     if reflectance is not None:
         cols += [f"R_{w:g}" for w in wl]
+    cols += list(texture)
     w = csv.writer(out, lineterminator="\n")
     w.writerow(cols)
     for i in range(g.shape[0]):
         row = [f"{g[i, 0]:g}", f"{g[i, 1]:g}"] + [f"{v:.6f}" for v in lab[i]]
         if reflectance is not None:
             row += [f"{v:.9g}" for v in R[i]]
+        row += [f"{v:.9g}" if i == 0 else "" for v in texture.values()]
         w.writerow(row)
     return out.getvalue()
 
 
 def write_target(path, geometries, lab=None, reflectance=None, wavelength_nm=None, observer=DEFAULT_OBSERVER,
                  illuminant=DEFAULT_ILLUMINANT,
-                 name="", notes=None) -> str:
+                 name="", notes=None, texture=None, texture_observer=DEFAULT_TEXTURE_OBSERVER) -> str:
     """Write :func:`format_target`'s text to ``path`` atomically; returns the path."""
     atomic_write_text(Path(path), format_target(geometries, lab, reflectance, wavelength_nm, observer, illuminant,
-                                                name, notes))
+                                                name, notes, texture, texture_observer))
     return str(path)
