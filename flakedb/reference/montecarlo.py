@@ -249,7 +249,8 @@ class RoughConductor:
     the conductor Fresnel factor, separable Smith G, exact Beckmann G1): complex index ``N`` = n + ik
     of the metal relative to vacuum (scalar or (C,)); it is divided by the binder's index.  The
     masked/shadowed part and the metal's absorption are both lost (counted in ``absorbed``) unless
-    ``energy_compensation`` (default) adds Kulla & Conty's multiple-scattering lobe."""
+    ``energy_compensation`` (default) adds the multiple-scattering lobe of
+    :func:`flakedb.rt.microfacet.conductor_compensation` (docs/rough-interfaces.md)."""
 
     N: Any
     alpha: float
