@@ -214,8 +214,11 @@ def microfacet_albedo(mu, eta_rel, alpha, fresnel=None, n=48):
 
 
 #: μ grid points (uniform on [0, 1], the first at 1e-3) and slope-space Gauss–Legendre nodes per
-#: dimension of the multiple-scattering chain (:func:`multiple_scattering_escape`)
-MS_CHAIN_GRID = 64
+#: dimension of the multiple-scattering chain (:func:`multiple_scattering_escape`).  Measured against
+#: (128, 96), η 1.5, 32 nodes: escape probabilities within 1.1e-4 (α 0.05), 2.8e-4 (0.1), 2.2e-3 (0.3),
+#: 8.7e-4 (0.5) of the incident flux; the grid is not the limit (32 and 64 points agree to 1e-5), the
+#: facet integral's kinks (edge-on facets, the horizon, the critical angle) are.
+MS_CHAIN_GRID = 32
 MS_CHAIN_QUAD = 48
 
 # Lanczos coefficients (g = 7, 9 terms; Numerical Recipes 3rd ed. §6.1): ln Γ to ~1e-15 for x ≥ 0.5
@@ -276,9 +279,12 @@ def _first_events(mu, eta_rel, alpha, n, fresnel=None):
     cos_t = np.sqrt(np.maximum(1.0 - sin2_t, 0.0))
     otz = -mi / eta_rel + (c / eta_rel - cos_t) * mz
     zT = np.clip(np.abs(otz), 1e-12, 1.0)
-    Lo = _smith_lambda(zT, alpha)
-    beta = np.exp(_lgamma(1.0 + Li) + _lgamma(1.0 + Lo) - _lgamma(2.0 + Li + Lo))
-    eT = np.where((otz < 0) & (sin2_t < 1.0), (1.0 + Li) * beta, 0.0)
+    live = (otz < 0) & (sin2_t < 1.0) & (base > 0)
+    eT = np.zeros_like(otz)
+    Lo = _smith_lambda(zT[live], alpha)
+    Lil = np.broadcast_to(Li, otz.shape)[live]
+    eT[live] = (1.0 + Lil) * np.exp(np.broadcast_to(_lgamma(1.0 + Li), otz.shape)[live] + _lgamma(1.0 + Lo)
+                                     - _lgamma(2.0 + Lil + Lo))
     return F * base, zR, eR, np.where(sin2_t < 1.0, 1.0 - F, 0.0) * base, zT, eT
 
 
@@ -317,6 +323,21 @@ def multiple_scattering_escape(mu_above, mu_below, eta, alpha, n_grid=MS_CHAIN_G
     with the solver's own single-scattering R, T (separable Smith): so the total R of the interface
     is the chain's, including the height-correlated single bounce (Heitz et al. 2016, §5; measured
     against their random walk in tests/reference/test_microsurface.py).  Returns (P_a, P_b)."""
+    # cached: the chain depends only on the cosines, η and α (read-only results)
+    a = np.ascontiguousarray(np.atleast_1d(mu_above), dtype=float)
+    b = np.ascontiguousarray(np.atleast_1d(mu_below), dtype=float)
+    return _ms_escape_cached(a.tobytes(), b.tobytes(), float(eta), float(alpha), int(n_grid), int(n_quad))
+
+
+@functools.lru_cache(maxsize=16)
+def _ms_escape_cached(a, b, eta, alpha, n_grid, n_quad):
+    Pa, Pb = _multiple_scattering_escape(np.frombuffer(a), np.frombuffer(b), eta, alpha, n_grid, n_quad)
+    Pa.flags.writeable = Pb.flags.writeable = False
+    return Pa, Pb
+
+
+def _multiple_scattering_escape(mu_above, mu_below, eta, alpha, n_grid, n_quad):
+    """The chain of :func:`multiple_scattering_escape` (uncached)."""
     grid = np.linspace(0.0, 1.0, n_grid + 1)
     grid[0] = 1e-3
     K = len(grid)
