@@ -673,7 +673,7 @@ def _conductor_lobe(N, alpha, E1):
     grid = (np.arange(MS_TABLE_K + 1) / MS_TABLE_K) ** 2
     mu = np.maximum(grid, 1e-4)
     F = _mf.conductor_fresnel(np.array([N]))
-    white = lambda c: np.ones((1,) + np.shape(c))  # noqa: E731 - F ≡ 1
+    white = lambda c: np.ones((1,) + np.shape(c))
     RF, _ = _mf.microfacet_albedo(mu, 1.0, alpha, fresnel=F)
     P1 = _mf.conductor_multiple_scattering(mu, alpha, white)[0]
     PF = _mf.conductor_multiple_scattering(mu, alpha, F)[0]

@@ -43,8 +43,8 @@ from numpy.polynomial.legendre import leggauss
 
 from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_conductor_real, fresnel_dielectric_real
-from flakedb.rt.special import smith_masking_denominator
 from flakedb.rt.pole import zero_pole_orders
+from flakedb.rt.special import smith_masking_denominator
 
 #: Pairs whose Beckmann factor exp(−tan²θ_h/α²) stays below exp(−PRUNE_T2) for every φ are skipped.
 PRUNE_T2 = 40.0
@@ -460,7 +460,7 @@ def conductor_compensation(m, x, alpha, fresnel, kulla_conty=False):
     Imageworks", SIGGRAPH 2017 course), f_ms = F_ms (1 − E₁(μ_i))(1 − E₁(μ_o)) / (2π Σ m (1 − E₁)),
     F_ms = F̄² Ē₁ / (1 − F̄ (1 − Ē₁)), E₁ the albedo with F ≡ 1, F̄ = 2 Σ m F, Ē₁ = 2 Σ m E₁.
     """
-    white = lambda c: np.ones((1,) + np.shape(c))  # noqa: E731 - F ≡ 1
+    white = lambda c: np.ones((1,) + np.shape(c))
     E1, _ = microfacet_albedo(x, 1.0, alpha, fresnel=white)
     g = np.clip(1.0 - E1[0], 0.0, None)
     mu = np.asarray(x, dtype=float)

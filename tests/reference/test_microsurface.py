@@ -25,7 +25,13 @@ import pytest
 from flakedb.reference import microsurface as ms
 from flakedb.rt import microfacet as mf
 from flakedb.rt.quadrature import radau_hemisphere
-from flakedb.rt.stack import Lambertian, Rough, RoughConductor, SolverSettings, solve_stack
+from flakedb.rt.stack import (
+    Lambertian,
+    Rough,
+    RoughConductor,
+    SolverSettings,
+    solve_stack,
+)
 
 
 def _fresnel(mu, eta):
@@ -102,7 +108,7 @@ def _interface_albedos(q, alpha):
     blocks, _ = mf.rough_dielectric_cells(q.x, q.w, ETA, alpha)
     Rt, Ttb, Rb, Tbt = (b[0, 0] for b in blocks)
     m = q.w * q.x
-    col = lambda S, k: (S * m[:, None]).sum(axis=0) / m * k  # noqa: E731
+    col = lambda S, k: (S * m[:, None]).sum(axis=0) / m * k
     return col(Rt, 1.0), col(Ttb, ETA**2), col(Rb, 1.0), col(Tbt, ETA**-2)
 
 

@@ -18,8 +18,17 @@ from flakedb.bsdf import table_evaluator
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.rt import microfacet as mf
 from flakedb.rt.media import PhaseMedium
-from flakedb.rt.stack import (InnerRough, InnerSmooth, Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings,
-                             solve_stack)
+from flakedb.rt.stack import (
+    InnerRough,
+    InnerSmooth,
+    Lambertian,
+    Rough,
+    RoughConductor,
+    Slab,
+    Smooth,
+    SolverSettings,
+    solve_stack,
+)
 from tests.cases import C_GRID, FAST, N_PATHS, angle_dependent_flake  # noqa: E402,F401
 from tests.cases import case as _case  # noqa: E402
 
