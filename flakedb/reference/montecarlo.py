@@ -1,7 +1,8 @@
 """Independent Monte Carlo reference for the plane-parallel paint stack (docs/model.md §7 item 2).
 
 It solves the same radiative-transfer problem as the adding-doubling solver (:mod:`flakedb.rt`) by
-tracing photon paths, and shares no code with it.  Conventions: :mod:`flakedb.conventions`
+tracing photon paths, and shares no code with it except the definition of the rough interfaces'
+multiple-scattering split (below, "Energy compensation").  Conventions: :mod:`flakedb.conventions`
 (propagation directions, ``mu > 0`` travels down, ``phi_d = 0`` forward/mirror, ``π`` backscatter,
 ``eta = eta_below / eta_above``, phase functions normalised to 1 over the sphere in 1/sr).
 
@@ -55,12 +56,15 @@ Interfaces
   (light from the air) and E_b(μ) (from the binder) are tabulated here by a 192 × 192 tensor
   quadrature of the kernel's own expected weight (:func:`flakedb.reference.kernels.single_scatter_albedo`).
   At each hit the single-scattering event is taken with probability E(μ_i) (weight divided by it),
-  otherwise the compensation lobe with weight 1: it leaves into the air with probability Z_a/Z, into
-  the binder otherwise, with μ_o ∝ μ_o (1 − E_side(μ_o)) and φ uniform, where
-  Z_a = ∫ μ (1 − E_a) dμ, Z = Z_a + η² ∫ μ (1 − E_b) dμ (the η²-weighted étendue of the binder
-  side makes it reciprocal).  A rough conductor bottom gets Kulla & Conty's lobe: taken with
-  probability 1 − E₁(μ_i) (E₁ its albedo with F ≡ 1), weight F_ms = F̄² Ē₁/(1 − F̄(1 − Ē₁)),
-  μ_o ∝ μ_o (1 − E₁(μ_o)).
+  otherwise the compensation lobe with weight 1: from the air it reflects with probability r_a/g_a
+  (μ_o ∝ μ_o r_a) or enters the binder (μ_o ∝ μ_o t_b); from the binder it leaves with probability
+  t_b/g_b (μ_o ∝ μ_o t_a) or reflects (μ_o ∝ μ_o r_b); φ uniform (g = 1 − E).  The split r, t is the
+  solver's definition, imported on purpose (:func:`flakedb.rt.microfacet.multiple_scattering_escape`,
+  :func:`flakedb.rt.microfacet.balance_split`): this Monte Carlo checks the solver's transport and
+  discretisation with the same lobe; the lobe itself is checked against the explicit random walk of
+  :mod:`flakedb.reference.microsurface`.  A rough conductor bottom's lobe is taken with probability
+  1 − E₁(μ_i) (E₁ its albedo with F ≡ 1), weight a(μ_i)/(1 − E₁(μ_i)), μ_o ∝ μ_o a(μ_o), with a the
+  solver's (:func:`flakedb.rt.microfacet.conductor_compensation`).
 
 Estimators
 ----------
