@@ -396,11 +396,13 @@ def _rough_conductor(dx, dy, mu, n, k, alpha, s):
 
 
 # ---- multiple-scattering energy compensation (docs/rough-interfaces.md) ---------------------------
-# Tables on the grid μ_k = (k/K)², k = 0 … K: rows 0 (rough dielectric, light from the air), 1 (from
-# the binder), 2 (rough conductor with F ≡ 1).  ``ms_E[r, k]`` is the single-scattering albedo E_r(μ_k);
-# ``ms_cdf[r, k]`` the CDF over the intervals [μ_k, μ_{k+1}] of the pdf ∝ μ (1 − E_r(μ)).
-# ``ms_par`` = [dielectric compensation on, probability that the dielectric lobe leaves into the air,
-# conductor compensation on, the conductor's F_ms].
+# Tables on the grid μ_k = (k/K)², k = 0 … K.  ``ms_E[r, k]``: rows 0 (rough dielectric, light from the
+# air), 1 (from the binder), 2 (rough conductor with F ≡ 1): the single-scattering albedo E_r(μ_k);
+# row 3: the probability that the dielectric lobe, entered from the air, reflects (r_a / g_a); row 4:
+# that it transmits when entered from the binder (t_b / g_b); row 5: the conductor lobe's weight
+# a / (1 − E₁) (docs/rough-interfaces.md, "Multiple-scattering split").  ``ms_cdf[r, k]``: the CDF over
+# the intervals [μ_k, μ_{k+1}] of an outgoing pdf ∝ μ × (row 0: r_a, 1: r_b, 2: the conductor's a,
+# 3: t_a, 4: t_b).  ``ms_par`` = [dielectric compensation on, unused, conductor compensation on, unused].
 
 
 @njit(cache=True)
@@ -472,16 +474,22 @@ def _sample_ms_mu(ms_grid, ms_cdf, row, s):
 def _rough_interface_ms(dx, dy, mu, from_above, eta, alpha, ms_grid, ms_E, ms_cdf, ms_par, s):
     """One hit of the rough dielectric with the multiple-scattering compensation: with probability
     p = E(μ) (the table) the single-scattering event of :func:`_rough_interface` with its weight
-    divided by p; otherwise the compensation lobe, weight (1 − E)/(1 − p) = 1: the side is the air
-    with probability ``ms_par[1]``, μ ∝ μ (1 − E_side(μ)), φ uniform.  Expected weight
-    E_true + 1 − E_table: lossless up to the table's quadrature error."""
+    divided by p; otherwise the compensation lobe, weight (1 − E)/(1 − p) = 1: from the air it
+    reflects with probability r_a/g_a (row 3; μ ∝ μ r_a) or enters the binder (μ ∝ μ t_b); from the
+    binder it leaves into the air with probability t_b/g_b (row 4; μ ∝ μ t_a) or reflects (μ ∝ μ r_b);
+    φ uniform.  Expected weight E_true + 1 − E_table: lossless up to the table's quadrature error."""
     cos_in = mu if from_above else -mu
     p = _table_E(ms_E, 0 if from_above else 1, cos_in)
     if _uniform(s) < p:
         dx, dy, mu, f = _rough_interface(dx, dy, mu, from_above, eta, alpha, s)
         return dx, dy, mu, f / p
-    air = _uniform(s) < ms_par[1]
-    m = _sample_ms_mu(ms_grid, ms_cdf, 0 if air else 1, s)
+    if from_above:
+        air = _uniform(s) < _table_E(ms_E, 3, cos_in)
+        row = 0 if air else 4
+    else:
+        air = _uniform(s) < _table_E(ms_E, 4, cos_in)
+        row = 3 if air else 1
+    m = _sample_ms_mu(ms_grid, ms_cdf, row, s)
     ph = _TWO_PI * _uniform(s)
     st = math.sqrt(max(0.0, 1.0 - m * m))
     return st * math.cos(ph), st * math.sin(ph), (-m if air else m), 1.0
@@ -489,17 +497,18 @@ def _rough_interface_ms(dx, dy, mu, from_above, eta, alpha, ms_grid, ms_E, ms_cd
 
 @njit(cache=True)
 def _rough_conductor_ms(dx, dy, mu, n, k, alpha, ms_grid, ms_E, ms_cdf, ms_par, s):
-    """One hit of the rough conductor with Kulla & Conty's compensation: with probability p = E₁(μ)
-    the single-scattering reflection (weight / p), otherwise the lobe μ ∝ μ (1 − E₁(μ)), φ uniform,
-    travelling up, weight F_ms (1 − E₁)/(1 − p) = F_ms (``ms_par[3]``)."""
+    """One hit of the rough conductor with its multiple-scattering lobe: with probability p = E₁(μ)
+    the single-scattering reflection (weight / p), otherwise the lobe μ ∝ μ a(μ), φ uniform,
+    travelling up, weight a(μ_i) / (1 − E₁(μ_i)) (row 5)."""
     p = _table_E(ms_E, 2, mu)
     if _uniform(s) < p:
         dx, dy, mu, f = _rough_conductor(dx, dy, mu, n, k, alpha, s)
         return dx, dy, mu, f / p
+    wgt = _table_E(ms_E, 5, mu)
     m = _sample_ms_mu(ms_grid, ms_cdf, 2, s)
     ph = _TWO_PI * _uniform(s)
     st = math.sqrt(max(0.0, 1.0 - m * m))
-    return st * math.cos(ph), st * math.sin(ph), -m, ms_par[3]
+    return st * math.cos(ph), st * math.sin(ph), -m, wgt
 
 
 @njit(cache=True)

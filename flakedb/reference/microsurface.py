@@ -239,14 +239,16 @@ def walk_dielectric(mu_i, alpha, eta, n_paths, seed, from_below=False, cosine_we
             "R_single": float((Rw * one).mean()), "T_single": float((Tw * one).mean()), "lost": lost}
 
 
-def coat_over_lambertian_albedo(mu_i, alpha, eta, albedo, n_paths, seed):
+def coat_over_lambertian_albedo(mu_i, alpha, eta, albedo, n_paths, seed, top=None, below=None):
     """Directional albedo of a rough dielectric coat (no absorption in the binder) over a Lambertian
     primer of ``albedo``, from random walks only: A = R(μ) + T(μ) · a T̄_up / (1 − a R̄_below), with
     R, T of the walk from above at μ and T̄_up, R̄_below of walks from below with cosine-weighted
     incidence (the primer re-emits diffusely whatever reaches it, so the adding of these hemispherical
-    averages is exact).  Returns (A, standard error by first-order propagation)."""
-    top = walk_dielectric(mu_i, alpha, eta, n_paths, seed)
-    bot = walk_dielectric(0.5, alpha, eta, n_paths, seed + 1, from_below=True, cosine_weighted=True)
+    averages is exact).  ``top``, ``below``: results of those two walks to reuse (the walk from below
+    does not depend on μ_i).  Returns (A, standard error by first-order propagation)."""
+    top = walk_dielectric(mu_i, alpha, eta, n_paths, seed) if top is None else top
+    bot = (walk_dielectric(0.5, alpha, eta, n_paths, seed + 1, from_below=True, cosine_weighted=True)
+           if below is None else below)
     R, T, Tu, Rb = top["R"], top["T"], bot["T"], bot["R"]
     D = 1.0 - albedo * Rb
     A = R + T * albedo * Tu / D

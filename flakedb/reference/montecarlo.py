@@ -1,7 +1,8 @@
 """Independent Monte Carlo reference for the plane-parallel paint stack (docs/model.md §7 item 2).
 
 It solves the same radiative-transfer problem as the adding-doubling solver (:mod:`flakedb.rt`) by
-tracing photon paths, and shares no code with it.  Conventions: :mod:`flakedb.conventions`
+tracing photon paths, and shares no code with it except the definition of the rough interfaces'
+multiple-scattering split (below, "Energy compensation").  Conventions: :mod:`flakedb.conventions`
 (propagation directions, ``mu > 0`` travels down, ``phi_d = 0`` forward/mirror, ``π`` backscatter,
 ``eta = eta_below / eta_above``, phase functions normalised to 1 over the sphere in 1/sr).
 
@@ -55,12 +56,15 @@ Interfaces
   (light from the air) and E_b(μ) (from the binder) are tabulated here by a 192 × 192 tensor
   quadrature of the kernel's own expected weight (:func:`flakedb.reference.kernels.single_scatter_albedo`).
   At each hit the single-scattering event is taken with probability E(μ_i) (weight divided by it),
-  otherwise the compensation lobe with weight 1: it leaves into the air with probability Z_a/Z, into
-  the binder otherwise, with μ_o ∝ μ_o (1 − E_side(μ_o)) and φ uniform, where
-  Z_a = ∫ μ (1 − E_a) dμ, Z = Z_a + η² ∫ μ (1 − E_b) dμ (the η²-weighted étendue of the binder
-  side makes it reciprocal).  A rough conductor bottom gets Kulla & Conty's lobe: taken with
-  probability 1 − E₁(μ_i) (E₁ its albedo with F ≡ 1), weight F_ms = F̄² Ē₁/(1 − F̄(1 − Ē₁)),
-  μ_o ∝ μ_o (1 − E₁(μ_o)).
+  otherwise the compensation lobe with weight 1: from the air it reflects with probability r_a/g_a
+  (μ_o ∝ μ_o r_a) or enters the binder (μ_o ∝ μ_o t_b); from the binder it leaves with probability
+  t_b/g_b (μ_o ∝ μ_o t_a) or reflects (μ_o ∝ μ_o r_b); φ uniform (g = 1 − E).  The split r, t is the
+  solver's definition, imported on purpose (:func:`flakedb.rt.microfacet.multiple_scattering_escape`,
+  :func:`flakedb.rt.microfacet.balance_split`): this Monte Carlo checks the solver's transport and
+  discretisation with the same lobe; the lobe itself is checked against the explicit random walk of
+  :mod:`flakedb.reference.microsurface`.  A rough conductor bottom's lobe is taken with probability
+  1 − E₁(μ_i) (E₁ its albedo with F ≡ 1), weight a(μ_i)/(1 − E₁(μ_i)), μ_o ∝ μ_o a(μ_o), with a the
+  solver's (:func:`flakedb.rt.microfacet.conductor_compensation`).
 
 Estimators
 ----------
@@ -92,6 +96,7 @@ from typing import Any
 import numpy as np
 
 from flakedb.reference import kernels as _k
+from flakedb.rt import microfacet as _mf
 
 __all__ = [
     "Isotropic",
@@ -248,7 +253,8 @@ class RoughConductor:
     the conductor Fresnel factor, separable Smith G, exact Beckmann G1): complex index ``N`` = n + ik
     of the metal relative to vacuum (scalar or (C,)); it is divided by the binder's index.  The
     masked/shadowed part and the metal's absorption are both lost (counted in ``absorbed``) unless
-    ``energy_compensation`` (default) adds Kulla & Conty's multiple-scattering lobe."""
+    ``energy_compensation`` (default) adds the multiple-scattering lobe of
+    :func:`flakedb.rt.microfacet.conductor_compensation` (docs/rough-interfaces.md)."""
 
     N: Any
     alpha: float
@@ -625,30 +631,85 @@ def _ms_row(eta_rel, alpha, white):
     return E, cdf, Z
 
 
+def _cdf_rows(grid, h):
+    """CDF over the intervals [μ_k, μ_{k+1}] of the pdf ∝ μ h(μ) (trapezoid in μ², as :func:`_ms_row`)."""
+    W = 0.5 * (h[1:] + h[:-1]) * 0.5 * np.diff(grid**2)
+    Z = float(W.sum())
+    cdf = np.cumsum(W) / Z if Z > 0 else np.linspace(1.0 / len(W), 1.0, len(W))
+    cdf[-1] = 1.0
+    return cdf
+
+
+def _flux_weights(grid):
+    """m_k with Σ m_k h(μ_k) = ∫ μ h dμ by the trapezoid rule in μ² (the weights of :func:`_cdf_rows`)."""
+    t = grid**2
+    w = np.zeros_like(t)
+    w[1:] += 0.5 * np.diff(t)
+    w[:-1] += 0.5 * np.diff(t)
+    return 0.5 * w
+
+
+@functools.lru_cache(maxsize=32)
+def _dielectric_split(eta, alpha):
+    """The lobe's split on the table grid, (r_a, t_a, r_b, t_b) over the kernel's own g = 1 − E: the
+    solver's definition (:func:`flakedb.rt.microfacet.multiple_scattering_escape` minus the single-
+    scattering R, T of :func:`flakedb.rt.microfacet.microfacet_albedo`, made reciprocal by
+    :func:`flakedb.rt.microfacet.balance_split` on this grid's flux weights): shared on purpose, so
+    that the Monte Carlo samples the lobe the solver defines (the random walk of
+    :mod:`flakedb.reference.microsurface` is the independent check of the lobe)."""
+    grid = (np.arange(MS_TABLE_K + 1) / MS_TABLE_K) ** 2
+    mu = np.maximum(grid, 1e-4)
+    Ea, _, _ = _ms_row(eta, alpha, False)
+    Eb, _, _ = _ms_row(1.0 / eta, alpha, False)
+    ga, gb = np.clip(1.0 - Ea, 0.0, None), np.clip(1.0 - Eb, 0.0, None)
+    Ra, _ = _mf.microfacet_albedo(mu, eta, alpha)
+    _, Tb = _mf.microfacet_albedo(mu, 1.0 / eta, alpha)
+    Pa, Pb = _mf.multiple_scattering_escape(mu, mu, eta, alpha)
+    m = _flux_weights(grid)
+    r_a, t_a, r_b, t_b, _ = _mf.balance_split(m, ga, np.clip(Pa - Ra[0], 0.0, ga), m, gb,
+                                              np.clip(Pb - Tb[0], 0.0, gb), eta)
+    return r_a, t_a, r_b, t_b
+
+
+def _conductor_lobe(N, alpha, E1):
+    """The conductor lobe's a(μ) on the table grid (the solver's definition, as
+    :func:`flakedb.rt.microfacet.conductor_compensation`: a = P_F / P_1 − R_F, at most 1 − E₁)."""
+    grid = (np.arange(MS_TABLE_K + 1) / MS_TABLE_K) ** 2
+    mu = np.maximum(grid, 1e-4)
+    F = _mf.conductor_fresnel(np.array([N]))
+    white = lambda c: np.ones((1,) + np.shape(c))
+    RF, _ = _mf.microfacet_albedo(mu, 1.0, alpha, fresnel=F)
+    P1 = _mf.conductor_multiple_scattering(mu, alpha, white)[0]
+    PF = _mf.conductor_multiple_scattering(mu, alpha, F)[0]
+    return np.clip(np.minimum(PF / P1 - RF[0], 1.0 - E1), 0.0, None)
+
+
 def _ms_tables(problem, c):
     """The kernel's compensation arrays (ms_grid, ms_E, ms_cdf, ms_par) for channel c."""
     grid = (np.arange(MS_TABLE_K + 1) / MS_TABLE_K) ** 2
-    E = np.zeros((3, MS_TABLE_K + 1))
-    cdf = np.ones((3, MS_TABLE_K))
+    E = np.zeros((6, MS_TABLE_K + 1))
+    cdf = np.ones((5, MS_TABLE_K))
     par = np.zeros(4)
     top, bot = problem.top, problem.bottom
     if isinstance(top, Rough) and top.energy_compensation:
         eta = float(top.eta)
-        E[0], cdf[0], Za = _ms_row(eta, float(top.alpha), False)
-        E[1], cdf[1], Zb = _ms_row(1.0 / eta, float(top.alpha), False)
+        E[0], _, _ = _ms_row(eta, float(top.alpha), False)
+        E[1], _, _ = _ms_row(1.0 / eta, float(top.alpha), False)
+        r_a, t_a, r_b, t_b = _dielectric_split(eta, float(top.alpha))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            E[3] = np.where(r_a + t_a > 0, r_a / (r_a + t_a), 1.0)
+            E[4] = np.where(r_b + t_b > 0, t_b / (r_b + t_b), 0.0)
+        cdf[0], cdf[1], cdf[3], cdf[4] = (_cdf_rows(grid, h) for h in (r_a, r_b, t_a, t_b))
         par[0] = 1.0
-        par[1] = Za / (Za + eta**2 * Zb) if Za + Zb > 0 else 1.0
     if isinstance(bot, RoughConductor) and bot.energy_compensation:
-        E[2], cdf[2], Z1 = _ms_row(1.0, float(bot.alpha), True)
+        E[2], _, _ = _ms_row(1.0, float(bot.alpha), True)
         Nc = np.atleast_1d(np.asarray(bot.N, dtype=complex))
         Nc = complex(Nc[0] if Nc.size == 1 else Nc[c]) / problem.slab_eta()[-1]
-        x, w = np.polynomial.legendre.leggauss(400)
-        mu, w = 0.5 * (x + 1.0), 0.5 * w
-        F = np.array([_k.fresnel_conductor_unpolarized(float(m), Nc.real, Nc.imag) for m in mu])
-        Fbar = 2.0 * float(np.sum(w * mu * F))
-        Ebar = 1.0 - 2.0 * Z1
+        a = _conductor_lobe(Nc, float(bot.alpha), E[2])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            E[5] = np.where(E[2] < 1.0, a / np.maximum(1.0 - E[2], 1e-300), 0.0)
+        cdf[2] = _cdf_rows(grid, a)
         par[2] = 1.0
-        par[3] = Fbar**2 * Ebar / (1.0 - Fbar * (1.0 - Ebar))
     return grid, E, cdf, par
 
 

@@ -106,7 +106,7 @@ class RoughConductor:
     """Beckmann microfacet metal at the bottom of the stack (Walter et al. 2007 reflection with a
     conductor's Fresnel factor): complex index ``N`` = n + ik of the metal (scalar or per channel),
     relative to vacuum; the solver divides by the binder's index above it.  ``alpha`` > 0.
-    ``energy_compensation``: add Kulla & Conty's multiple-scattering lobe (default)."""
+    ``energy_compensation``: add the multiple-scattering lobe (default; docs/rough-interfaces.md)."""
 
     N: object
     alpha: float

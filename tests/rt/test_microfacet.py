@@ -13,15 +13,25 @@ R, T the coat's directional albedos from above and T̄_b, R̄_b the cosine-weigh
 albedos from below; for α ≤ 0.02, where the model's loss is below 1e-3, it also checks |1 − A|.
 """
 
+import math
+
 import numpy as np
 import pytest
 from scipy.special import roots_legendre
 
 import flakedb.reference.montecarlo as mc
 from flakedb.conventions import fourier_weight
+from flakedb.optics.fresnel import fresnel_dielectric_real
 from flakedb.rt import microfacet as mf
 from flakedb.rt.quadrature import binder_chain_quadratures, radau_hemisphere
-from flakedb.rt.stack import Lambertian, Rough, RoughConductor, Smooth, SolverSettings, solve_stack
+from flakedb.rt.stack import (
+    Lambertian,
+    Rough,
+    RoughConductor,
+    Smooth,
+    SolverSettings,
+    solve_stack,
+)
 from tests import tolerances as tol
 
 ETA = 1.5
@@ -115,6 +125,51 @@ def test_compensation_lobe_reciprocal_and_lossless():
     ms = mf.conductor_compensation(m, q.x, 0.2, lambda c: np.ones((1,) + np.shape(c)))
     E1, _ = mf.microfacet_albedo(q.x, 1.0, 0.2, fresnel=lambda c: np.ones((1,) + np.shape(c)))
     assert np.allclose((tp[None] * ms).sum(1), 1 - E1, atol=1e-14) and np.allclose(ms, np.swapaxes(ms, -1, -2))
+
+
+def test_compensation_lobe_with_a_split_reciprocal_lossless_and_split_as_asked():
+    """dielectric_compensation with an incidence-dependent split (the issue 26 lobe): reciprocal, every
+    column carries exactly 1 − E, the air side reflects exactly r_a and, after balance_split, the
+    transmitted exchange is the same both ways.  Sums of h terms of size ≤ 1: 1e-14."""
+    q = radau_hemisphere(12)
+    m = q.w * q.x
+    Ea, Eb = 1.0 - 0.2 * (1 - q.x) ** 3, 1.0 - 0.5 * (1 - q.x) ** 5
+    ga, gb = 1 - Ea, 1 - Eb
+    r_a, t_b = ga * (0.2 + 0.7 * (1 - q.x)), gb * 0.3 * q.x  # any split within [0, g]
+    Rt, Ttb, Rb, Tbt = mf.dielectric_compensation(m, Ea, Eb, ETA, split=(r_a, t_b))
+    assert np.allclose(Rt, Rt.T) and np.allclose(Rb, Rb.T) and np.allclose(Tbt, ETA**2 * Ttb.T)
+    tp = 2 * np.pi * m[:, None]
+    assert np.allclose((tp * Rt).sum(0), r_a, atol=1e-14)  # the air side is kept as asked
+    assert np.allclose((tp * Rt).sum(0) + ETA**2 * (tp * Ttb).sum(0), ga, atol=1e-14)
+    assert np.allclose((tp * Rb).sum(0) + (tp * Tbt).sum(0) / ETA**2, gb, atol=1e-14)
+    *_, t_a, r_b2, t_b2, imb = mf.balance_split(m, ga, r_a, m, gb, t_b, ETA)
+    assert abs(m @ t_a - ETA**2 * (m @ t_b2)) <= 1e-15 and imb != 0.0
+    assert np.all(t_b2 <= gb + 1e-15) and np.all(r_b2 >= -1e-15)
+
+
+def test_lanczos_lgamma_against_the_standard_library():
+    """ln Γ (for the transmission's Beta function) to 1e-14 relative over 1 … 1e12."""
+    x = np.geomspace(1.0, 1e12, 200)
+    want = np.array([math.lgamma(v) for v in x])
+    assert np.all(np.abs(mf._lgamma(x) - want) <= 1e-14 * np.maximum(1.0, np.abs(want)))
+
+
+@pytest.mark.parametrize("alpha", [0.1, 0.5])
+def test_multiple_scattering_chain_limits(alpha):
+    """The chain's escape probabilities: from the air, at least the height-correlated single bounce's
+    reflection (and at least the solver's separable single R: G2 ≥ G1 G1), at most 1 − T_single; with
+    F ≡ 1 on a conductor the chain keeps all the light (1 up to its quadrature); as
+    α → 0 the surface is a Fresnel mirror (no multiple scattering: P_a = F(μ))."""
+    q = radau_hemisphere(16)
+    Pa, _ = mf.multiple_scattering_escape(q.x, q.x, ETA, alpha)
+    Ra, Ta = mf.microfacet_albedo(q.x, ETA, alpha)
+    assert np.all(Pa >= Ra[0] - 1e-12) and np.all(Pa <= 1.0 - Ta[0] + 1e-12)
+    white = lambda c: np.ones((1,) + np.shape(c))
+    P1 = mf.conductor_multiple_scattering(q.x, alpha, white)[0]
+    assert np.abs(P1 - 1.0).max() <= 1e-3  # measured 2.8e-4 (α 0.5): the facet quadrature
+    P0, _ = mf.multiple_scattering_escape(q.x, q.x, ETA, 1e-3)
+    k = q.x > 0.1
+    assert np.abs(P0[k] - fresnel_dielectric_real(q.x[k], ETA)).max() <= 1e-4  # measured 6e-6
 
 
 def test_white_furnace_was_broken_by_point_sampling():
