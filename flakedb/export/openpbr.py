@@ -159,14 +159,14 @@ class OpenPBRFit:
         >>> round(d_air, 9), round(n_air * 1.5, 12), round(d_air * n_air, 9)
         (450.000000000, 2.000000000000, 600.000000000)
         """
-        nc = self.coat_ior if self.coat_ior > 1.0 else 1.0
+        nc = max(1.0, self.coat_ior)
         return self.thin_film_thickness_nm * nc, self.thin_film_ior / nc
 
     @property
     def specular_ior(self) -> float:
         """OpenPBR's ``specular_ior`` (relative to the coat's medium when coated: the base's
         dielectric interface has the relative index :attr:`specular_ior_relative`)."""
-        return self.specular_ior_relative * (self.coat_ior if self.coat_ior > 1.0 else 1.0)
+        return self.specular_ior_relative * (max(1.0, self.coat_ior))
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -177,7 +177,7 @@ class OpenPBRFit:
         return d
 
     @classmethod
-    def from_dict(cls, d) -> "OpenPBRFit":
+    def from_dict(cls, d) -> OpenPBRFit:
         return cls(tuple(d["base_color"]), float(d["base_metalness"]), float(d["specular_roughness"]),
                    float(d["coat_ior"]), float(d["coat_roughness"]), tuple(d.get("specular_color", (0.0, 0.0, 0.0))),
                    float(d.get("specular_ior_relative", 1.0)), float(d.get("thin_film_thickness_nm", 0.0)),

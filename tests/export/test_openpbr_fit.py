@@ -54,7 +54,9 @@ def test_metal_fresnel_is_openpbr_f82():
     rng = np.random.default_rng(7)
     mu = rng.uniform(0, 1, 200)
     c, s = rng.uniform(0, 1, (2, 200))
-    schlick = lambda m: c + (1 - c) * (1 - m) ** 5          # noqa: E731
+    def schlick(m):
+        return c + (1 - c) * (1 - m) ** 5
+
     mb = 1 / 7
     want = schlick(mu) - mu * (1 - mu) ** 6 / (mb * (1 - mb) ** 6) * (1 - s) * schlick(mb)
     P, Q, K = op.metal_f82_terms(mu)
