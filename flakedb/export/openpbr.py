@@ -35,8 +35,9 @@ by albedo scaling (the spec's eq. [non-reciprocal-albedo-scaling], which it give
 approximation of its physical ``layer``); the model uses its reciprocal form, the loss at both ends
 (``(1 - F_c(μ_i))(1 - F_c(μ_o))``, ``(1 - E(μ_i))(1 - E(μ_o))``) where the spec's example scales
 by the outgoing end's only.  Not modelled: the coat's refraction of the base's lobes (the spec's
-"ground truth" layer refracts; the mixture-of-lobes renderers do not), coat darkening (its
-``coat_darkening`` factor is a uniform scale, absorbed in c), multiple-scattering compensation.
+"ground truth" layer refracts; the mixture-of-lobes renderers do not), coat darkening (the
+``.mtlx`` writes ``coat_darkening = 0``, the spec's Darkening section: the base only albedo-scaled,
+as here; the fitted c holds the paint's own interreflections), multiple-scattering compensation.
 The smooth coat's delta ``F_c(μ_i) δ`` is identical in the file (its ``delta``) and in
 the model, so it is carried exactly and left out of the fit; a rough coat (``alpha > 0`` in the file,
 no delta) is the same GGX lobe with α_c = the file's top roughness (Beckmann and GGX agree to a few %
