@@ -64,7 +64,7 @@ The judged number is the *worst* ΔE00 at the E2194 geometries, and a least squa
 error: the whole search is repeated :data:`MINIMAX_PASSES` times with each E2194 geometry's weight
 multiplied by (its ΔE00 / the worst)² (iteratively reweighted least squares towards the minimax),
 and the pass with the smallest (worst E2194 ΔE00, worst E2539 ΔE00) kept.  Measured on the four
-paints of docs/renderers.md: 6-10 s per paint on one core (the first pass alone: ~1 s).
+paints of docs/renderers.md: 6-10 s per paint on one core of a shared 2-core machine (the first pass alone: ~1 s).
 
 Reported (:class:`OpenPBRFit`): ΔE00 (CIEDE2000, D65 / 2°, the file's white-normalised linear sRGB)
 between fit and file at every E2194 and E2539 geometry, its worst value per set, and the
