@@ -218,6 +218,11 @@ def _print_fit(d):
     echo(f"parameters:    base_color ({', '.join(f'{x:.4f}' for x in f['base_color'])}), metalness "
          f"{f['base_metalness']:.3f}, specular_roughness {f['specular_roughness']:.3f}, coat_ior {f['coat_ior']:.4g}, "
          f"coat_roughness {f['coat_roughness']:.3f}")
+    if "specular_color" in f:
+        film = (f"thin film {f.get('thin_film_thickness_nm', 0.0):g} nm / {f.get('thin_film_ior', 1.5):g}"
+                if f.get("thin_film_thickness_nm", 0.0) > 0 else "no thin film")
+        echo(f"               specular_color ({', '.join(f'{x:.4f}' for x in f['specular_color'])}) (the dielectric "
+             f"lobe's tint and the metal's F82 edge tint), specular_ior {f.get('specular_ior', 1.0):.4g}, {film}")
     if e:
         echo(f"fit error:     worst ΔE00 {e['worst_dE00_E2194']:.2f} (E2194 geometries), {e['worst_dE00_E2539']:.2f} "
              f"(with E2539's); cosine-weighted BSDF difference {100 * e['cosine_weighted_difference']:.1f} %")

@@ -39,6 +39,10 @@ def openpbr_inputs(fit: OpenPBRFit) -> list:
         ("coat_roughness", "float", fit.coat_roughness),
         ("coat_ior", "float", fit.coat_ior),
         ("coat_color", "color3", "1, 1, 1"),
+        # no darkening: the fitted base already holds the paint's interreflections under the coat, and
+        # the fit's model has none (OpenPBR 1.1, Coat / Darkening: at 0 the base is only albedo-scaled;
+        # MaterialX's open_pbr_surface otherwise multiplies it by (1 - K) / (1 - E_base K))
+        ("coat_darkening", "float", 0.0),
         ("thin_film_weight", "float", 1.0 if fit.thin_film_thickness_nm > 0 else 0.0),
         ("thin_film_thickness", "float", fit.thin_film_thickness_nm / 1000.0),   # micrometres
         ("thin_film_ior", "float", fit.thin_film_ior),
