@@ -285,18 +285,20 @@ def blend_weight(stack, observer, light_deg, ground_luminance_factor) -> float:
 def material_xml(name, texel_um, size, weight, measured=None) -> str:
     """The Mitsuba 3 material of docs/texture.md §7 as an XML file to ``<include>``: a ``blendbsdf``
     (id ``flakedb_sparkle``, weight ``weight``) of the ``measured`` export ($measured) and the glint
-    layer (normal map, per-texel α and gain/weight).  The textures tile every ``size · texel_um`` µm:
+    layer (normal map, per-texel α and gain/weight; textures in $sparkle_dir, default ".": Mitsuba
+    resolves relative names against the loaded scene's directory, not the included file's).  The textures tile every ``size · texel_um`` µm:
     give the shape uv = position / that period (its ``to_uv``, or a scaled uv)."""
     f = {k: v.format(name=name) for k, v in FILES.items()}
     measured = measured or f"{name}.measured.tensor"  # `flakedb export-mitsuba NAME.bsdf`'s default name
 
     def tex(pname, fname):
-        return (f'<texture type="bitmap" name="{pname}"><string name="filename" value="{fname}"/>'
+        return (f'<texture type="bitmap" name="{pname}"><string name="filename" value="$sparkle_dir/{fname}"/>'
                 f'<boolean name="raw" value="true"/><string name="filter_type" value="nearest"/></texture>')
 
     return f"""<scene version="3.0.0">
     <!-- flakedb sparkle material (docs/texture.md §7); texture period {size * texel_um:g} um ({size} texels of {texel_um:g} um) -->
     <default name="measured" value="{measured}"/>
+    <default name="sparkle_dir" value="."/>  <!-- the directory of these textures, if not the scene's -->
     <bsdf type="blendbsdf" id="flakedb_sparkle">
         <float name="weight" value="{weight:.9g}"/>
         <bsdf type="measured"><string name="filename" value="$measured"/></bsdf>
@@ -327,16 +329,19 @@ def mitsuba_route(stack, observer, size=512, texel_um=5.0, ground_luminance_fact
     fmap = flake_map(stack, size, texel_um, seed)
     g = glint_layer(stack, fmap, observer.source_half_angle_deg, observer.aperture_half_angle_rad)
     light = float(observer.light_deg[0])
+    b_ss = sparkle_indices(stack, observer, light)["flake_luminance_factor"]
     if ground_luminance_factor is not None:
         w, basis = blend_weight(stack, observer, light, ground_luminance_factor), "flake share beta_ss/M"
     else:
-        w, basis = max(float(fmap["coverage"].mean()), 1e-6), "covered fraction (no ground given: mean not preserved)"
+        w = max(float(fmap["coverage"].mean()), 1e-6)
+        basis = ("covered fraction (no ground given: the mean is (1 - w) M + beta_ss, not M; give M for "
+                 "w = beta_ss/M)")
     params = shader_parameters(stack, observer.spot_um, observer.aperture_half_angle_rad,
                                observer.source_half_angle_deg)
     params["mitsuba"] = {"blend_weight": w, "weight_basis": basis, "texel_um": float(texel_um), "size": int(size),
                          "period_um": float(size * texel_um), "design_light_deg": light,
                          "design_view_deg": float(observer.view_deg),
-                         "ground_luminance_factor": ground_luminance_factor,
+                         "ground_luminance_factor": ground_luminance_factor, "design_flake_luminance_factor": b_ss,
                          "trapped_fraction_of_visible_flake_area": float(1.0 - g["exits"].sum() / max(fmap["coverage"].sum(), 1.0)),
                          "files": {k: v.format(name="NAME") for k, v in FILES.items()}}
     return {"normals": 0.5 * (g["normal"] + 1.0), "alpha": np.repeat(g["alpha"][..., None], 3, axis=-1),
