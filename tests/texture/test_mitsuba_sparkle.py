@@ -12,6 +12,8 @@ no flake reaches the glint threshold (graininess only).  Guards: normals without
 (the route before issue #22: binder normals at the air surface) fail (a).
 """
 
+import json
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -27,7 +29,7 @@ from flakedb.render.mitsuba_sparkle import (
     mitsuba_route,
 )
 from flakedb.texture.instruments import Observer
-from flakedb.texture.model import sparkle_indices
+from flakedb.texture.model import graininess_indices, sparkle_indices
 from tests.render.test_mitsuba import synthetic_table
 from tests.texture.cases import RECIPE, stack_of
 
@@ -249,7 +251,7 @@ def test_large_area_mean_keeps_the_measured_route(mi, route):
 @pytest.mark.slow
 def test_glints_vanish_under_a_constant_environment(mi, route):
     """(c) Under a uniform sky (radiance 1) each flake adds its gain × the conductor's albedo (≤ 1) to
-    the luminance factor: graininess only, nowhere near the model's glint threshold β_peak/2 (β_peak ≥ 1
+    the luminance factor: graininess only (its spread the model's), nowhere near the model's glint threshold β_peak/2 (β_peak ≥ 1
     for sparkle, docs/texture.md §3.3).  Per-flake means over its pixels: the blend picks the glint layer
     with probability s, so one pixel at 64 spp has σ ≈ (gain/s) √(s(1 − s)/64) ≈ 0.3."""
     r = route["r"]
@@ -271,3 +273,29 @@ def test_glints_vanish_under_a_constant_environment(mi, route):
     ratio = mean_ex.sum() / mean_gain.sum()
     print(f"env: excess/gain {ratio:.4f}, max flake excess {mean_ex.max():.3f}, model peak {peak:.3g}")
     assert 0.8 < ratio < 1.0 + 3.0 / np.sqrt(keep.sum())
+    # graininess: the luminance-factor spread of one-pixel spots over the whole patch (the render's
+    # expectation: (1 − s) × the measured-only sky render + gain × the measured albedo) against the
+    # model's luminance_sd for a spot of one texel (docs/texture.md §4); allowed: 3/√(visible flakes)
+    # (the spread's sampling error, one flake ≈ one independent draw) + the model's hiding loss
+    full = (1.0 - r["weight"]) * route["base"]["env"] + ratio * r["layer"]["gain_y"]
+    spot = Observer("pixel", TEXEL_UM, float(np.radians(APERTURE_DEG)), SOURCE_DEG, LIGHTS, 0.0)
+    model = graininess_indices(route["stack"], spot, ground_luminance_factor=float(full.mean()))
+    n_vis = np.unique(r["map"]["flake_id"][r["layer"]["exits"]]).size
+    _, hide = model_tolerance(route["stack"], route["obs"], LIGHTS[0])
+    print(f"graininess: render luminance sd {full.std():.4f} vs model {model['luminance_sd']:.4f} ({n_vis} flakes)")
+    assert full.std() == pytest.approx(model["luminance_sd"], rel=3.0 / np.sqrt(n_vis) + hide)
+
+
+def test_cli_mitsuba_ground_is_checked_and_the_fallback_weight_says_so(tmp_path):
+    rec = tmp_path / f"{NAME}.yaml"
+    rec.write_text(RECIPE.format(name=NAME, species="metallic", pigment="", **KW))
+    res = CliRunner().invoke(cli, ["texture", str(rec), "--observer", "byk-mac-like", "--mitsuba", str(tmp_path / "m"),
+                                   "--mitsuba-ground", "-1"])
+    assert res.exit_code != 0 and "--mitsuba-ground -1" in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "m").exists()
+    res = CliRunner().invoke(cli, ["texture", str(rec), "--observer", "byk-mac-like", "--mitsuba", str(tmp_path / "m")])
+    assert res.exit_code == 0, res.output
+    p = json.loads((tmp_path / "m" / FILES["params"].format(name=NAME)).read_text())["mitsuba"]
+    assert p["weight_basis"].startswith("covered fraction") and 0 < p["blend_weight"] < 1
+    assert p["design_light_deg"] == 15.0 and p["texel_um"] == 5.0
+    assert sorted(x.name for x in (tmp_path / "m").iterdir()) == sorted(v.format(name=NAME) for v in FILES.values())
