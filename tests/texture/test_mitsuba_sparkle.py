@@ -1,15 +1,17 @@
 """The Mitsuba 3 sparkle route (flakedb/render/mitsuba_sparkle.py, `flakedb texture --mitsuba`,
 docs/texture.md §7) rendered and checked against the texture model.
 
-A flat 2 mm patch (512² texels = pixels of 4 µm) under an orthographic camera along the normal and a
-directional light at 15°, 45°, 75° (the BYK-like geometries): (a) the glinting flakes per mm² (a flake
-whose pixels reach half the peak of an aligned facet of its own α and gain, the model's β ≥ β_peak/2)
-match the model's glints_per_mm2 within 3σ (Poisson) plus the model tolerance (hiding of the light path,
-which a normal map cannot have, bounded by the model's own hiding loss; the second-order lobe-shape
-term); (b) the patch's large-area mean equals the `measured`-only render's within the bound of the glint
-layer's β_ss (3σ from the per-flake spread + the hiding tolerance); (c) under a constant environment
-no flake reaches the glint threshold (graininess only).  Guards: normals without the refraction mapping
-(the route before issue #22: binder normals at the air surface) fail (a).
+The files `flakedb texture --mitsuba` writes, loaded through its XML, on a flat 2.56 mm patch (512²
+texels = pixels of 5 µm) under an orthographic camera along the normal, over a `measured` export of a
+synthetic BSDF, with a directional light at 15°, 45°, 75° (the BYK-like geometries; 1 spp: each pixel
+is its texel): (a) the glinting flakes per mm² (a flake whose pixels reach half the peak of an aligned
+facet of its own α and gain: the model's β ≥ β_peak/2) match the model's glints_per_mm2 within 3σ
+(Poisson) plus the model tolerance (the model's own hiding loss, which bounds the light path's
+hiding that a normal map cannot have); (b) at the design light the patch's large-area mean equals
+the `measured`-only render's within 3σ of the glints' per-flake spread + the hiding tolerance × β_ss;
+(c) under a constant environment no flake reaches the glint threshold and the one-pixel luminance
+spread is the model's graininess luminance_sd.  Guards: the same files with the refraction mapping
+dropped (binder normals at the air surface, the route before issue #22) fail (a).  ~20 s in all.
 """
 
 import json
