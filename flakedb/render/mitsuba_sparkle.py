@@ -39,6 +39,8 @@ is a separate route that sits on top of it.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from flakedb.colour.colorimetry import XYZ_to_linear_sRGB, reflectance_to_XYZ
@@ -90,7 +92,7 @@ def shader_parameters(stack, spot_um, aperture_rad, source_half_angle_deg) -> di
 def flake_map(stack, size, texel_um, seed=0) -> dict:
     """The top-most flakes seen from above on a periodic (size, size) grid of ``texel_um`` texels, first
     flake species: ``normal`` (size, size, 3) binder normals (z where none), ``coverage`` (0/1),
-    ``diameter_um`` (0 where none), ``flake_id`` (−1 where none; an index into the drawn flakes).
+    ``diameter_um``, ``depth_um`` (0 where none), ``flake_id`` (−1 where none; an index into the drawn flakes).
 
     Every visible texel of a flake carries that flake's normal and diameter:
 
@@ -134,8 +136,9 @@ def flake_map(stack, size, texel_um, seed=0) -> dict:
     normal = np.zeros((size, size, 3))
     normal[..., 2] = 1.0
     normal[seen] = nrm[ids[seen]]
-    return {"normal": normal, "coverage": seen.astype(float), "diameter_um": np.where(seen, D[np.maximum(ids, 0)], 0.0),
-            "flake_id": ids}
+    k = np.maximum(ids, 0)
+    return {"normal": normal, "coverage": seen.astype(float), "diameter_um": np.where(seen, D[k], 0.0),
+            "depth_um": np.where(seen, z[k], 0.0), "flake_id": ids}
 
 
 def flake_normal_map(stack, size, texel_um, seed=0):
@@ -237,8 +240,10 @@ def half_max_offset(r1, r2):
 def glint_layer(stack, fmap, source_half_angle_deg, aperture_half_angle_rad) -> dict:
     """Per-texel inputs of the glint layer (module docstring) from a :func:`flake_map`: ``normal`` (H, W, 3)
     apparent air normals, ``alpha`` (H, W) Beckmann α, ``gain`` (H, W, 3) linear-sRGB specular
-    reflectance (luminance gain ``gain_y``), ``exits`` (H, W) visible flakes whose glints leave the coat.
-    The aperture enters as a wider source (r_s'² + r_a'², an approximation: exact for a point aperture)."""
+    reflectance (luminance gain ``gain_y``; ``surface_gain_y`` without the absorbers: an aligned surface flake
+    of its kind, the reference of the glint threshold β_peak/2 of docs/texture.md §3.3), ``exits`` (H, W) visible flakes whose glints leave the coat.
+    The absorbers' extinction along both paths is in the gain; hiding by flakes above on the light
+    path is not (a normal map hides on the view path only: the top-most flake).  The aperture enters as a wider source (r_s'² + r_a'², an approximation: exact for a point aperture)."""
     f = stack.flakes[0]
     eta = float(stack.eta)
     ids = fmap["flake_id"]
@@ -246,6 +251,7 @@ def glint_layer(stack, fmap, source_half_angle_deg, aperture_half_angle_rad) -> 
     _, first, inv = np.unique(ids[seen], return_index=True, return_inverse=True)
     nb = fmap["normal"][seen][first].reshape(-1, 3)
     D = fmap["diameter_um"][seen][first]
+    z = fmap["depth_um"][seen][first]
     na, ok = apparent_normals(nb, eta)
     c = nb[:, 2]
     cos_ta = na[:, 2]
@@ -254,6 +260,12 @@ def glint_layer(stack, fmap, source_half_angle_deg, aperture_half_angle_rad) -> 
     t_in, t_out = coat_transmittance(mu_l, eta), float(coat_transmittance(1.0, eta))
     R = f.reflectance(c)  # (C, n)
     y = np.asarray(stack.y_weights, float)
+    surface_y = np.where(ok, t_in * t_out * (y @ R) * c, 0.0)  # unattenuated: the glint threshold's reference
+    tau = np.zeros_like(R)  # absorbers (pigments, an absorbing coat) on the two paths, eq. S1's τ
+    for a in stack.absorbers:
+        seg = np.clip(z - a.z_top_um, 0.0, a.thickness_um)
+        tau += np.asarray(a.sigma_per_um, float).reshape(-1, 1) * seg * (1.0 / mu_lb + 1.0)
+    R = R * np.exp(-tau)
     gain_y = np.where(ok, t_in * t_out * (y @ R) * c, 0.0)
     if stack.wavelength_nm is not None and R.shape[0] > 1:
         rgb = np.maximum(XYZ_to_linear_sRGB(reflectance_to_XYZ(R.T, stack.wavelength_nm)), 0.0)
@@ -268,18 +280,25 @@ def glint_layer(stack, fmap, source_half_angle_deg, aperture_half_angle_rad) -> 
     alpha = np.where(ok, np.sqrt(J * d_half**2 / (4.0 * c * np.log(1.0 / GLINT_FRACTION))), ALPHA_NONE)
     H, W = ids.shape
     out = {"normal": np.zeros((H, W, 3)), "alpha": np.full((H, W), ALPHA_NONE), "gain": np.zeros((H, W, 3)),
-           "gain_y": np.zeros((H, W)), "exits": np.zeros((H, W), bool)}
+           "gain_y": np.zeros((H, W)), "surface_gain_y": np.zeros((H, W)), "exits": np.zeros((H, W), bool)}
     out["normal"][..., 2] = 1.0
     out["normal"][seen], out["alpha"][seen], out["gain"][seen] = na[inv], alpha[inv], gain[inv]
-    out["gain_y"][seen], out["exits"][seen] = gain_y[inv], ok[inv]
+    out["gain_y"][seen], out["surface_gain_y"][seen], out["exits"][seen] = gain_y[inv], surface_y[inv], ok[inv]
     return out
 
 
 def blend_weight(stack, observer, light_deg, ground_luminance_factor) -> float:
     """The ``blendbsdf`` weight s = β_ss/M at (light_deg, observer.view_deg): the model's flake luminance
-    factor over the paint's luminance factor M (π f_r of the composed BSDF), clipped to (0, 1]."""
-    b_ss = sparkle_indices(stack, observer, light_deg)["flake_luminance_factor"]
+    factor over the paint's luminance factor M (π f_r of the composed BSDF), clipped to (0, 1]; β_ss of the
+    first flake species (:func:`first_species`)."""
+    b_ss = sparkle_indices(first_species(stack), observer, light_deg)["flake_luminance_factor"]
     return float(np.clip(b_ss / float(ground_luminance_factor), 1e-6, 1.0))
+
+
+def first_species(stack):
+    """The stack with its first flake species only (the one the texture draws; the others, if any,
+    stay in the ``measured`` BSDF and their hiding of it is not modelled)."""
+    return replace(stack, flakes=stack.flakes[:1])
 
 
 def material_xml(name, texel_um, size, weight, measured=None) -> str:
@@ -329,7 +348,7 @@ def mitsuba_route(stack, observer, size=512, texel_um=5.0, ground_luminance_fact
     fmap = flake_map(stack, size, texel_um, seed)
     g = glint_layer(stack, fmap, observer.source_half_angle_deg, observer.aperture_half_angle_rad)
     light = float(observer.light_deg[0])
-    b_ss = sparkle_indices(stack, observer, light)["flake_luminance_factor"]
+    b_ss = sparkle_indices(first_species(stack), observer, light)["flake_luminance_factor"]
     if ground_luminance_factor is not None:
         w, basis = blend_weight(stack, observer, light, ground_luminance_factor), "flake share beta_ss/M"
     else:

@@ -139,11 +139,11 @@ def render_route(mi, route, light_deg, name="route", spp=1, crop=None):
 
 def glint_count(y, base_y, r, light_deg):
     """Glinting flakes in a rendered patch: flakes with a pixel whose glint-layer radiance (the render
-    minus (1 − s) × the measured-only render) reaches half its texel's aligned-facet peak
-    gain/(4π α² cos θ_a) (E = 1; Beckmann D(0) = 1/(πα²)).  Returns (count, ids of the glinting flakes)."""
+    minus (1 − s) × the measured-only render) reaches half the aligned-facet peak of an unattenuated
+    flake of its kind, surface gain/(4π α² cos θ_a) (E = 1; Beckmann D(0) = 1/(πα²)).  Returns (count, ids of the glinting flakes)."""
     g = r["layer"]
     excess = y - (1.0 - r["weight"]) * base_y
-    peak = g["gain_y"] / (4.0 * np.pi * g["alpha"] ** 2 * g["normal"][..., 2])
+    peak = g["surface_gain_y"] / (4.0 * np.pi * g["alpha"] ** 2 * g["normal"][..., 2])
     hit = g["exits"] & (excess >= 0.5 * peak)
     ids = np.unique(r["map"]["flake_id"][hit])
     return ids.size, ids
