@@ -28,6 +28,7 @@ from flakedb.render.mitsuba_sparkle import (
     FILES,
     apparent_normals,
     mapping_error_deg,
+    material_xml,
     mitsuba_route,
 )
 from flakedb.texture.instruments import Observer
@@ -301,3 +302,28 @@ def test_cli_mitsuba_ground_is_checked_and_the_fallback_weight_says_so(tmp_path)
     assert p["weight_basis"].startswith("covered fraction") and 0 < p["blend_weight"] < 1
     assert p["design_light_deg"] == 15.0 and p["texel_um"] == 5.0
     assert sorted(x.name for x in (tmp_path / "m").iterdir()) == sorted(v.format(name=NAME) for v in FILES.values())
+
+
+@pytest.mark.slow
+def test_pigment_extinction_is_in_the_glint_gain(mi, route, tmp_path):
+    """With an absorbing pigment (iron black, 0.004) the glint layer's mean is still the model's β_ss
+    (e^{−τ} along both paths from each flake's depth, eq. S1), within 3σ of the per-flake spread + the
+    hiding tolerance; without the extinction it would be 0.18 against 0.10."""
+    kw = {**KW, "pigment": "iron-black", "pv": 0.004}
+    stack = stack_of(**kw)
+    assert stack.absorbers
+    la = LIGHTS[0]
+    r = mitsuba_route(stack, route["obs"], SIZE, TEXEL_UM, ground_luminance_factor=route["ground"], seed=0)
+    for k in ("normals", "alpha", "gain"):
+        write_exr(tmp_path / FILES[k].format(name="pig"), r[k])
+    (tmp_path / FILES["xml"].format(name="pig")).write_text(material_xml("pig", TEXEL_UM, SIZE, r["weight"]))
+    rp = dict(route, dir=tmp_path, inc=f'<include filename="{tmp_path / FILES["xml"].format(name="pig")}"/>')
+    y = render_route(mi, rp, la)
+    mean, sig = mean_sigma(y, r)
+    k = np.pi / np.cos(np.radians(la))
+    layer = k * (mean - (1.0 - r["weight"]) * route["base"][la])
+    thin = stack_of(**{**kw, "vf": KW["vf"] / 20})
+    m, m_thin = sparkle_indices(stack, route["obs"], la), sparkle_indices(thin, route["obs"], la)
+    hide = 1.0 - m["flake_luminance_factor"] / (20.0 * m_thin["flake_luminance_factor"])
+    print(f"pigment: layer β_ss {layer:.4f} ± {k * sig:.4f} vs model {m['flake_luminance_factor']:.4f}")
+    assert abs(layer - m["flake_luminance_factor"]) <= 3.0 * k * sig + hide * m["flake_luminance_factor"]
