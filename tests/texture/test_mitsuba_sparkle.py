@@ -11,7 +11,8 @@ hiding that a normal map cannot have); (b) at the design light the patch's large
 the `measured`-only render's within 3σ of the glints' per-flake spread + the hiding tolerance × β_ss;
 (c) under a constant environment no flake reaches the glint threshold and the one-pixel luminance
 spread is the model's graininess luminance_sd.  Guards: the same files with the refraction mapping
-dropped (binder normals at the air surface, the route before issue #22) fail (a).  ~20 s in all.
+dropped (binder normals at the air surface, the route before issue #22) fail (a); a pigmented paint
+keeps β_ss (the gain's extinction).  ~25 s in all.
 """
 
 import json
