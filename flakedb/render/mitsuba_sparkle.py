@@ -238,12 +238,15 @@ def half_max_offset(r1, r2):
 
 
 def glint_layer(stack, fmap, source_half_angle_deg, aperture_half_angle_rad) -> dict:
-    """Per-texel inputs of the glint layer (module docstring) from a :func:`flake_map`: ``normal`` (H, W, 3)
-    apparent air normals, ``alpha`` (H, W) Beckmann α, ``gain`` (H, W, 3) linear-sRGB specular
-    reflectance (luminance gain ``gain_y``; ``surface_gain_y`` without the absorbers: an aligned surface flake
-    of its kind, the reference of the glint threshold β_peak/2 of docs/texture.md §3.3), ``exits`` (H, W) visible flakes whose glints leave the coat.
+    """Per-texel inputs of the glint layer (module docstring) from a :func:`flake_map`: ``normal``
+    (H, W, 3) apparent air normals, ``alpha`` (H, W) Beckmann α, ``gain`` (H, W, 3) linear-sRGB
+    specular reflectance (luminance ``gain_y``; ``surface_gain_y`` without the absorbers: an aligned
+    surface flake of its kind, the reference of the glint threshold β_peak/2 of docs/texture.md §3.3),
+    ``exits`` (H, W): visible flakes whose glints leave the coat toward a normal view.
+
     The absorbers' extinction along both paths is in the gain; hiding by flakes above on the light
-    path is not (a normal map hides on the view path only: the top-most flake).  The aperture enters as a wider source (r_s'² + r_a'², an approximation: exact for a point aperture)."""
+    path is not (a normal map hides on the view path only: the top-most flake).  The aperture enters
+    as a wider source (r_s'² + r_a'²; exact for a point aperture)."""
     f = stack.flakes[0]
     eta = float(stack.eta)
     ids = fmap["flake_id"]
