@@ -5,14 +5,18 @@ from pathlib import Path
 
 import click
 
-from flakedb.atomic import atomic_write_text
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import check_plan, remove_created_dirs
+from flakedb.outputs import OutputPlan
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.paint.texture_inputs import texture_report, texture_stack
 from flakedb.render.imageio import write_exr
-from flakedb.render.mitsuba_sparkle import flake_normal_map, shader_parameters
+from flakedb.render.mitsuba_sparkle import FILES, material_xml, mitsuba_route
 from flakedb.texture.instruments import PRESETS, Observer
+
+#: The Mitsuba route's texture: texels (µm; the observer's spot when smaller) and texels per side.
+MITSUBA_TEXEL_UM, MITSUBA_SIZE = 5.0, 512
 
 
 def format_texture(rep) -> str:
@@ -61,16 +65,27 @@ def format_texture(rep) -> str:
     return "\n".join(lines)
 
 
-def _write_mitsuba(rec, obs, out_dir):
-    """The Mitsuba 3 sparkle route's files, each written atomically."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+def _write_mitsuba(rec, obs, out_dir, ground=None):
+    """The Mitsuba 3 sparkle route's files (docs/texture.md §7), planned and written together
+    (:class:`flakedb.outputs.OutputPlan`): the parameter set, the glint layer's three textures and the
+    material XML.  Texels of min(5 µm, the observer's spot); ``ground``: the paint's luminance factor
+    at the observer's first light angle (sets the blend weight)."""
+    plan = OutputPlan()
+    plan.add_dir(out_dir, "--mitsuba")
+    paths = {k: plan.in_dir(out_dir, v.format(name=rec.name), f"--mitsuba {k}") for k, v in FILES.items()}
+    check_plan(plan)
     st, _ = texture_stack(rec)
-    params = shader_parameters(st, obs.spot_um, obs.aperture_half_angle_rad, obs.source_half_angle_deg)
-    p1 = atomic_write_text(out / f"{rec.name}.sparkle.json", json.dumps(params, indent=1))
-    m = flake_normal_map(st, 512, 5.0)
-    p2 = write_exr(out / f"{rec.name}.flakes.exr", (0.5 * (m[..., :3] + 1.0)) * m[..., 3:4])
-    click.echo(f"wrote {p1} and {p2} (normal map: rgb = (n + 1)/2 where a flake is seen, 0 elsewhere)", err=True)
+    texel = min(MITSUBA_TEXEL_UM, float(obs.spot_um))
+    r = mitsuba_route(st, obs, MITSUBA_SIZE, texel, ground_luminance_factor=ground)
+    with remove_created_dirs(Path(out_dir).absolute()), plan.staged() as stage:
+        for k in ("normals", "alpha", "gain"):
+            write_exr(stage.path(paths[k]), r[k])
+        stage.path(paths["params"]).write_text(json.dumps(r["params"], indent=1))
+        stage.path(paths["xml"]).write_text(material_xml(rec.name, texel, MITSUBA_SIZE, r["weight"]))
+    m = r["params"]["mitsuba"]
+    click.echo(f"wrote {', '.join(str(p) for p in paths.values())}: include {paths['xml'].name} in a Mitsuba 3 "
+               f"scene (bsdf id flakedb_sparkle, -D measured=FILE; uv period {m['period_um']:g} µm); blend weight "
+               f"{m['blend_weight']:.4g} ({m['weight_basis']})", err=True)
 
 
 @click.command()
@@ -92,14 +107,21 @@ def _write_mitsuba(rec, obs, out_dir):
               help="Particle catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON instead of the table.")
 @click.option("--mitsuba", "mitsuba_dir", default=None, type=click.Path(file_okay=False),
-              help="Also write DIR/NAME.sparkle.json (the shader parameter set for the first observer) and "
-                   "DIR/NAME.flakes.exr (a 512² flake normal map, 5 µm texels) for a Mitsuba 3 glint layer "
-                   "(docs/texture.md §7).")
+              help="Also write the Mitsuba 3 sparkle route for the first observer and light angle into DIR: "
+                   "NAME.sparkle.xml (a blendbsdf of the `measured` export and a glint layer), its textures "
+                   "NAME.flakes.exr, NAME.glint_alpha.exr, NAME.glint_gain.exr (512², 5 µm texels) and "
+                   "NAME.sparkle.json (the shader parameter set) (docs/texture.md §7).")
+@click.option("--mitsuba-ground", type=float, default=None,
+              help="With --mitsuba: the paint's luminance factor π f_r at the first light angle (from `flakedb "
+                   "compose`'s report); the blend weight is then the flakes' share, which keeps the mean.")
 def texture(recipe, observers, spot_um, aperture_deg, source_deg, light_deg, view_deg, catalog_path, as_json,
-            mitsuba_dir=None):
+            mitsuba_dir=None, mitsuba_ground=None):
     """Predicted sparkle (glints per mm², area fraction, intensity, contrast) and graininess of RECIPE."""
     import numpy as np  # lazy: CLI start-up
 
+    if mitsuba_ground is not None and not (0.0 < mitsuba_ground < 1e3):
+        raise FlakedbError(f"--mitsuba-ground {mitsuba_ground}: give the paint's luminance factor π f_r, a number in "
+                           f"(0, 1000)")
     try:
         catalog = load_catalog(catalog_path)
         rec = load_recipe(recipe, catalog)
@@ -115,7 +137,7 @@ def texture(recipe, observers, spot_um, aperture_deg, source_deg, light_deg, vie
         obs = [PRESETS[o] for o in (observers or PRESETS)]
     rep = texture_report(rec, obs)
     if mitsuba_dir is not None and rep["sparkle"]:
-        _write_mitsuba(rec, obs[0], mitsuba_dir)
+        _write_mitsuba(rec, obs[0], mitsuba_dir, mitsuba_ground)
     if as_json:
         click.echo(json.dumps(rep, indent=1))
     else:
