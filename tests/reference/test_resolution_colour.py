@@ -8,7 +8,14 @@ import yaml
 
 from flakedb.colour.colorimetry import delta_E_2000
 from flakedb.compose.orchestrate import compose
-from flakedb.paint.mapping import FLAKE_COLOUR_ERROR, METAL_COLOUR_ERROR, auto_resolution
+from flakedb.paint.mapping import (
+    AUTO_COLOUR_MAX_N,
+    AUTO_TARGETS,
+    FLAKE_COLOUR_ERROR,
+    METAL_COLOUR_ERROR,
+    METAL_LOBE_ERROR,
+    auto_resolution,
+)
 from flakedb.paint.recipe import RecipeError, load_recipe, parse_recipe, repo_root
 
 RECIPES = repo_root() / "catalog" / "recipes"
@@ -28,18 +35,36 @@ def _labs(report):
 
 def test_colour_error_takes_the_measured_envelopes():
     """A metal base takes the smallest measured n whose ΔE00(n, 2n) meets the target; flakes h·α_f; the
-    default auto (no colour_error) is unchanged; an unreachable target is refused naming the measurement."""
-    n0, _ = auto_resolution(load_recipe(RECIPES / "coated-aluminium.yaml"))
+    default auto carries colour_error 0.1 (AUTO_TARGETS) and a recipe's own target replaces it; an
+    unreachable target is refused naming the measurement."""
+    n0, why0 = auto_resolution(load_recipe(RECIPES / "coated-aluminium.yaml"))
+    n_default = next(x for x, e in METAL_COLOUR_ERROR if e <= AUTO_TARGETS["colour_error"])
+    assert n0 == n_default == 144 and "colour_error ≤ 0.1" in why0
     target = 0.2
     n, why = auto_resolution(_with("coated-aluminium.yaml", {"colour_error": target}))
     n_table = next(x for x, e in METAL_COLOUR_ERROR if e <= target)
-    assert n == max(n0, n_table) and "colour_error ≤ 0.2" in why and n > n0
+    n_lobe = next(x for x, e in METAL_LOBE_ERROR if e <= AUTO_TARGETS["lobe_error"])
+    assert n == max(n_lobe, n_table) and "colour_error ≤ 0.2" in why and n < n0
     n, why = auto_resolution(_with("metallic-silver.yaml", {"colour_error": 0.1}))
     x = next(x for x, e in FLAKE_COLOUR_ERROR if e <= 0.1)
     assert n >= 2 * int(np.ceil(x / 0.2 - 1e-9)) and "flakes α = 0.2" in why
+    assert auto_resolution(load_recipe(RECIPES / "metallic-silver.yaml"))[0] == n
     with pytest.raises(RecipeError, match=r"colour_error 0.05 for a metal base is not reachable: the smallest "
                                           r"measured ΔE00\(n, 2n\) is"):
         auto_resolution(_with("coated-aluminium.yaml", {"colour_error": 0.05}))
+
+
+def test_default_colour_target_is_bounded_in_cost():
+    """Below the measured metal roughness the colour rule scales n as 0.1/α: the default target stops at
+    AUTO_COLOUR_MAX_N and says so; a recipe's own colour_error goes on to the measured n (or AUTO_MAX_N)."""
+    d = yaml.safe_load((RECIPES / "coated-aluminium.yaml").read_text(encoding="utf-8"))
+    next(layer for layer in d["layers"] if "metal" in layer)["metal"]["roughness"] = 0.05
+    rec = parse_recipe(yaml.safe_dump(d))
+    n, why = auto_resolution(rec)
+    assert n == AUTO_COLOUR_MAX_N and "default colour_error stops at" in why
+    d["resolution"] = {"colour_error": 0.1}
+    n_own, _ = auto_resolution(parse_recipe(yaml.safe_dump(d)))
+    assert n_own == 2 * 144 > n
 
 
 def test_report_states_its_discretisation_from_a_second_solve(tmp_path):
