@@ -52,6 +52,7 @@ from flakedb.compose.report import (
     ASPECULAR_DEG,
     colour_report,
     discretisation_error,
+    second_solve_n,
     eval_table,
     multiangle_geometry,
     texture_ground,
@@ -376,22 +377,23 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
 
 
 def discretisation_estimate(solved, report, colour_settings=None, log=None) -> dict:
-    """The estimated ΔE00 of the solve's own discretisation: the report against a second solve at n/2
-    (:func:`flakedb.compose.report.discretisation_error`, docs/resolution.md), for n ≥ 16 without a store
-    (a store holds the species' factors at its own n only)."""
+    """The estimated ΔE00 of the solve's own discretisation: the report against a second solve at
+    n' = :func:`flakedb.compose.report.second_solve_n` (≈ 3n/4; :func:`flakedb.compose.report.discretisation_error`,
+    docs/resolution.md), for n ≥ 16 without a store (a store holds the species' factors at its own n only)."""
     n, paint = solved.n, solved.paint
     if solved.version is not None:
         return {"method": "not estimated: species factors from the store exist at n only"}
     if n < 16:
         return {"method": f"not estimated: n = {n} < 16"}
+    n2 = second_solve_n(n)
     budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
-    half = solve_paint(paint, n // 2, memory_budget_bytes=float(budget) if budget else None, threads=os.cpu_count() or 1)
+    second = solve_paint(paint, n2, memory_budget_bytes=float(budget) if budget else None, threads=os.cpu_count() or 1)
     est = discretisation_error(report, colour_report(
-        stack_to_table(half.scattered(), paint.channels, paint.eta, None, paint.delta,
-                       dict(solved.table.metadata)), paint.mode, paint.wavelength_nm, half.x,
-        half.albedo(include_delta=False), paint.eta if paint.delta else None, "", settings=colour_settings), n)
+        stack_to_table(second.scattered(), paint.channels, paint.eta, None, paint.delta,
+                       dict(solved.table.metadata)), paint.mode, paint.wavelength_nm, second.x,
+        second.albedo(include_delta=False), paint.eta if paint.delta else None, "", settings=colour_settings), n, n2)
     if log:
-        log(f"discretisation: estimated dE00 {est['estimate_dE00']:.3f} at n = {n} (second solve at n = {n // 2})")
+        log(f"discretisation: estimated dE00(n, 2n) {est['estimate_dE00']:.3f} at n = {n} (second solve at n = {n2})")
     return est
 
 

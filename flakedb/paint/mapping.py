@@ -743,7 +743,7 @@ def auto_resolution(recipe) -> tuple[int, str]:
     directional albedo for θ_i ≤ 80°, and ``lobe_error``, the rough coat's reflection lobe binned in 5°
     bins (per bin, over the reflected total); ``colour_error``, the CIEDE2000 between n and 2n at
     the report geometries (:func:`_colour_needs`: metal bases by n, flakes by h·α_f, other stacks by n; compose
-    states the estimate of its own result from a second solve at n/2).  Each rule is a measured envelope, not
+    states the estimate of its own result from a second solve at ≈ 3n/4).  Each rule is a measured envelope, not
     a guess:
 
     * rough coat of roughness α: h α ≥ the smallest h α of :data:`COAT_LOBE_ERROR` meeting lobe_error

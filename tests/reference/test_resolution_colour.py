@@ -8,6 +8,7 @@ import yaml
 
 from flakedb.colour.colorimetry import delta_E_2000
 from flakedb.compose.orchestrate import compose
+from flakedb.compose.report import DISCRETISATION_ORDER, second_solve_n
 from flakedb.paint.mapping import (
     AUTO_COLOUR_MAX_N,
     AUTO_TARGETS,
@@ -68,15 +69,25 @@ def test_default_colour_target_is_bounded_in_cost():
 
 
 def test_report_states_its_discretisation_from_a_second_solve(tmp_path):
-    """The report's estimate is max ΔE00(n/2, n) over the report geometries, halved: the same as two
-    composes at n/2 and n (a change of either solve, or of the halving, fails it)."""
+    """The report's estimate is max ΔE00(n', n) over the report geometries (n' = 3n/4, even) times
+    (1 − 2^−p)/(r^p − 1): the same as two composes at n' and n (a change of either solve, of n' or of the
+    factor fails it)."""
     rec = _with("fig5-translucent-gray.yaml", 24, rgb=True)
     res = compose(rec, tmp_path / "a")
     d = res.report["discretisation"]
-    half = compose(rec, tmp_path / "b", n=12)
-    dE = delta_E_2000(_labs(half.report), _labs(res.report))
-    np.testing.assert_allclose(d["dE00_half_vs_n"], dE, rtol=1e-9, atol=1e-12)
-    assert d["estimate_dE00"] == pytest.approx(dE.max() / 2, rel=1e-12) and d["n"] == 24 and "n = 12" in d["method"]
+    assert d["n"] == 24 and d["n_second"] == 18 and "n = 18" in d["method"]
+    second = compose(rec, tmp_path / "b", n=18)
+    dE = delta_E_2000(_labs(second.report), _labs(res.report))
+    np.testing.assert_allclose(d["dE00_second_vs_n"], dE, rtol=1e-9, atol=1e-12)
+    p, r = DISCRETISATION_ORDER, 24 / 18
+    assert d["estimate_dE00"] == pytest.approx(dE.max() * (1 - 2**-p) / (r**p - 1), rel=1e-12)
+
+
+def test_second_solve_is_even_for_every_allowed_n():
+    """n' is even, at least 8 and below n for every allowed n ≥ 16 (n = 30 asked for n/2 = 15 and failed)."""
+    for n in range(16, 513, 2):
+        n2 = second_solve_n(n)
+        assert n2 % 2 == 0 and 8 <= n2 < n and abs(n2 - 0.75 * n) <= 1  # 3n/8 rounded, times 2
 
 
 @pytest.mark.slow
