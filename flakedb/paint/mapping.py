@@ -673,8 +673,9 @@ def catalog_species(recipe) -> list:
 #: lobe_error: …, colour_error: …}`` overrides them); docs/resolution.md.  ``colour_error`` (ΔE00 between n
 #: and 2n at the report geometries) is a default since issue 26: without it coated aluminium's auto (n 48)
 #: was ΔE00 0.66 from 2×auto and 0.81 from n 192; with it every catalogue recipe's auto is within 0.1 of
-#: 2×auto (measured, docs/resolution.md "colour_error").  It raises three catalogue recipes' n: coated
-#: aluminium 48 → 144, metallic silver and tri-coat pearl white 32 → 40 (their compose times: docs/resolution.md).
+#: 2×auto (measured, docs/resolution.md "colour_error").  It raises the n of coated aluminium 48 → 144, of
+#: metallic silver and tri-coat pearl white (flakes α_f 0.2) 32 → 48 and of the flake recipes of α_f 0.25 32 → 40
+#: (their compose times: docs/resolution.md); pigment and HG recipes keep theirs.
 #: A recipe relaxes it with e.g. ``resolution: {colour_error: 10}``.
 AUTO_TARGETS = {"albedo_error": 0.03, "lobe_error": 0.05, "colour_error": 0.1}
 #: The largest n the *default* colour_error may ask for (a recipe's own colour_error goes to
@@ -712,11 +713,12 @@ METAL_ALPHA_MEASURED = 0.05
 METAL_COLOUR_ERROR = ((48, 0.657), (64, 0.378), (96, 0.183), (128, 0.114), (144, 0.095))
 #: Roughness of that measurement: below it n is scaled by METAL_COLOUR_ALPHA / α (the lobe is α wide).
 METAL_COLOUR_ALPHA = 0.1
-#: Flakes, by h·α_f: metallic-silver (α_f 0.2, spectral) h·α_f 3.2 → 0.101, 4.0 → 0.063 (n 40, 2026-12-03),
-#: 4.8 → 0.045; the flake recipes of α_f 0.25 at n 32 (h·α_f 4.0): particle-metallic 0.063, particle-pearlescent
-#: 0.055, particle-gray-mirror 0.061, fig7 100 nm 0.062 (the 4.0 row is the worst of these); tri-coat-pearl-white
+#: Flakes, by h·α_f: metallic-silver (α_f 0.2, spectral) h·α_f 3.2 → 0.101, 4.8 → 0.045; at h·α_f 4.0 the worst
+#: measured is fig5-translucent-black in RGB mode at n 32 (α_f 0.25), 0.169 at the −15° geometry (2026-12-03;
+#: metallic silver spectral at n 40: 0.063; the α_f 0.25 recipes in spectral mode at n 32: particle-metallic
+#: 0.063, particle-pearlescent 0.055, particle-gray-mirror 0.061, fig7 100 nm 0.062); tri-coat-pearl-white
 #: (α_f 0.2) at n 32 0.061, research-custom-flake 0.017.
-FLAKE_COLOUR_ERROR = ((3.2, 0.101), (4.0, 0.063), (4.8, 0.045))
+FLAKE_COLOUR_ERROR = ((3.2, 0.101), (4.0, 0.169), (4.8, 0.045))
 #: Stacks without flakes or a metal base (the fig5 series, pigments, HG and isotropic media, catalogue), by n:
 #: worst 0.053 at n 32 (fig5-translucent-black, the −15° geometry).
 PLAIN_COLOUR_ERROR = ((32, 0.053),)

@@ -357,9 +357,9 @@ def test_auto_resolution_from_targets():
 
     d = doc()
     d["resolution"] = "auto"
-    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 40          # α_f 0.2: colour h·α_f ≥ 4.0 → h 20
+    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 48          # α_f 0.2: colour h·α_f ≥ 4.8 → h 24
     d["layers"][1]["basecoat"]["particles"][0]["orientation_alpha"] = 0.05
-    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 160         # h = 4.0/0.05 = 80 (albedo: 64)
+    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 192         # h = 4.8/0.05 = 96 (albedo: 64)
     d["resolution"] = {"albedo_error": 0.01}                                     # h·α_f ≥ 9.6 → h 192
     assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 384
     d["layers"][1]["basecoat"]["particles"][0]["orientation_alpha"] = 0.01
