@@ -1,99 +1,202 @@
 """The solver's cost model (docs/cost-model.md) against measurement (see bench/run.py for the protocol).
 
-Each row composes one catalogue recipe at one n without a store, reads the shapes of the solve from its
-``info`` (binder nodes, channels, orders solved, φ samples and basis functions of each sampled kernel) and
-compares the measured solve time with the model's prediction from two machine rates measured in the same
-row: ``rate_flops`` (batched h × h LU solves and products, the adding's and eigen-solution's kernels) and
-``sample_s`` (one kernel sample of the recipe's own medium, with its share of the φ transform).  The
-columns ``model_s`` and ``measured_over_model`` are the check (docs/cost-model.md states the band).
+Each row solves one catalogue recipe at one n without a store (``solve_paint``, one thread), reads the shapes
+of the solve from its ``info`` (binder nodes, channels, orders solved, φ samples, rounds and basis functions of
+each sampled kernel, Legendre degree) and compares the solve's CPU time with the model's prediction from unit
+costs measured in the same row, all CPU time on one BLAS thread: ``call_s`` (one small solve, once),
+``medium_node_s`` (the medium's σ_t, σ_s per node), ``sample_s`` and ``transform_s`` (one kernel sample, one
+sample's share of a round's transform and criteria), ``legendre_s`` (the addition theorem's blocks),
+``eigen_s`` (one slab eigen-solution per order and channel) and ``rate_flops`` (batched LU solves and
+products: the adding).  The columns ``model_s`` and ``measured_over_model`` are the check (docs/cost-model.md
+states the band).
 """
 
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
+
+from flakedb.paint.mapping import build_paint, solve_paint
+from flakedb.paint.recipe import load_recipe
+from flakedb.rt.fourier import cosine_coefficients
+from flakedb.rt.layer import eigen_slab
+from flakedb.rt.legendre import LegendreKernel
+from flakedb.rt.media import kernel_basis
+from flakedb.rt.medium_projection import PHI_SAMPLES_PER_ORDER, legendre_moments
+from flakedb.rt.quadrature import radau_hemisphere
 
 RECIPES = Path(__file__).resolve().parents[1] / "catalog" / "recipes"
 CASES = [(r, n) for r in ("research-hg-slab", "particle-titanium-white", "metallic-silver") for n in (32, 64, 128, 256)]
 
 
 def _rate_flops(h, batch=64):
-    """Flop rate of the solver's dense kernels at size h: batched solve + two products (≈ 2/3 h³ + 2 h³ + 4 h³)."""
+    """Flop rate of the solver's dense kernels at size h on one BLAS thread (as the solve runs them): batched
+    solve + two products (≈ 2/3 h³ + 2 h³ + 4 h³), CPU time, the best of five."""
     rng = np.random.default_rng(0)
     A = np.eye(h) + 0.01 * rng.random((batch, h, h))
     B = rng.random((batch, h, h))
     best = np.inf
-    for _ in range(5):  # the best of five: a shared machine's load does not enter the rate
-        t0 = time.perf_counter()
-        X = np.linalg.solve(A, B)
-        Y = A @ X
-        Y @ B
-        best = min(best, time.perf_counter() - t0)
-    return batch * (2.0 / 3.0 + 2.0 + 4.0) * h**3 / best
+    with threadpool_limits(limits=1, user_api="blas"):
+        for _ in range(5):
+            t0 = time.process_time()
+            X = np.linalg.solve(A, B)
+            Y = A @ X
+            Y @ B
+            best = min(best, time.process_time() - t0)
+    return batch * (2.0 / 3.0 + 2.0 + 4.0) * h**3 / max(best, 1e-9)
 
 
-def _sample_s(medium, h):
-    """Seconds per kernel sample of ``medium`` at h nodes (its basis kernels, 64 azimuths, and the DCT)."""
-    from flakedb.rt.fourier import cosine_coefficients
-    from flakedb.rt.media import kernel_basis
-    from flakedb.rt.quadrature import radau_hemisphere
+def _eigen_s(h, L=4, C=8):
+    """CPU seconds of the slab's eigen-solution (:func:`flakedb.rt.layer.eigen_slab`: a Cholesky, one ``eigh``, three
+    solves and products) per (order, channel) at h nodes, one BLAS thread, best of seven: ``eigh`` runs far
+    below the LU rate of :func:`_rate_flops`, so the slab is timed on its own kernel rather than counted in flops."""
+    q = radau_hemisphere(h)
+    K = np.full((L, C, h, h), 0.5 / (4 * np.pi))  # an isotropic kernel of albedo 0.5 per µm (σ_t 1)
+    best = np.inf
+    with threadpool_limits(limits=1, user_api="blas"):
+        for _ in range(7):
+            t0 = time.process_time()
+            eigen_slab(q.x, q.w, np.ones((C, h)), K, K, 10.0)
+            best = min(best, time.process_time() - t0)
+    return best / (L * C)
 
+
+def _legendre_s(medium, h, L=16):
+    """CPU seconds per (order, channel, Legendre degree, node pair) of the Legendre kernel's blocks
+    (:class:`flakedb.rt.legendre.LegendreKernel`, addition theorem) of ``medium`` at h nodes, or 0 for a
+    medium without moments."""
+    lm = legendre_moments(medium, 1e-5)
+    if lm is None:
+        return 0.0
+    x = radau_hemisphere(h).x
+    chi = lm[0]
+    pk = LegendreKernel(x, chi, np.atleast_2d(medium.sigma_s(x))[:, 0], max_orders=L)
+    pk.blocks(0, 1)  # the normalised Legendre functions, once
+    best = np.inf
+    for _ in range(3):
+        t0 = time.process_time()
+        pk.blocks(0, pk.n_orders)
+        best = min(best, time.process_time() - t0)
+    return best / (pk.n_orders * pk.channels * chi.shape[-1] * 2 * h * h)
+
+
+def _kernel_rates(medium, h):
+    """(seconds per kernel sample, seconds per transformed sample, B) of ``medium``'s basis kernels at h nodes:
+    the evaluation of 65 azimuths, and one round's work per sample (the DCT and the criteria's envelope)."""
     kb = kernel_basis(medium)
     if kb is None:
-        return 0.0, 1
+        return 0.0, 0.0, 1
     x = radau_hemisphere(h).x
     mu_o = np.concatenate([-x, x])
     phi = np.linspace(0.0, np.pi, 65)
-    t0 = time.perf_counter()
-    v = np.asarray(kb.fn(x[:, None, None], mu_o[None, :, None], phi[None, None, :]))
-    cosine_coefficients(v)
-    return (time.perf_counter() - t0) / (v.size), int(kb.M.shape[1])
+    t_eval = t_tr = np.inf
+    for _ in range(3):
+        t0 = time.process_time()
+        v = np.asarray(kb.fn(x[:, None, None], mu_o[None, :, None], phi[None, None, :]))
+        t1 = time.process_time()
+        a = cosine_coefficients(v)
+        np.tensordot(np.abs(kb.M).max(axis=0), np.abs(a), axes=(0, 0)).max()
+        t2 = time.process_time()
+        t_eval, t_tr = min(t_eval, t1 - t0), min(t_tr, t2 - t1)
+    return t_eval / v.size, t_tr / v.size, int(kb.M.shape[1])
 
 
-def model(info, n, h_b, C, rate, sample_s):
-    """(projection s, solve s) predicted from the solve's shapes (docs/cost-model.md)."""
+def _medium_node_s(medium):
+    """Seconds per node of the medium's σ_t and σ_s (a flake's orientation moments, docs/cost-model.md) at 16
+    nodes it has not seen (their tables are cached by node)."""
+    x = np.sort(np.random.default_rng().uniform(0.05, 0.99, 16))
+    t0 = time.process_time()
+    medium.sigma_t(x)
+    if hasattr(medium, "sigma_s"):
+        medium.sigma_s(x)
+    return (time.process_time() - t0) / x.size
+
+
+_CALL_S = []
+
+
+def _call_s():
+    """The fixed cost of one solve (settings, quadrature, parts, the order loop's Python), measured once: the
+    CPU time of the HG slab at n = 8, best of five."""
+    if not _CALL_S:
+        from flakedb.paint.mapping import build_paint, solve_paint
+        from flakedb.paint.recipe import load_recipe
+
+        paint = build_paint(load_recipe(RECIPES / "research-hg-slab.yaml"))
+        best = np.inf
+        for _ in range(5):
+            t0 = time.process_time()
+            solve_paint(paint, 8, threads=1)
+            best = min(best, time.process_time() - t0)
+        _CALL_S.append(best)
+    return _CALL_S[0]
+
+
+def _rounds(n_start, n_phi):
+    """The φ-sampling rounds of a projection from n_start intervals to n_phi: Σ (m + 1) of the transforms."""
+    m, total = max(2, int(n_start)), int(n_start) + 1
+    while m < n_phi:
+        m *= 2
+        total += m + 1
+    return total
+
+
+def model(info, n, h_b, C, rate, kernel, medium_node_s, call_s, n_start, eigen_s, legendre_s=0.0):
+    """(fixed + medium tables + projection s, solve s) predicted from the solve's shapes (docs/cost-model.md)."""
+    eval_s, tr_s, _ = kernel
     proj = 0.0
     groups = info.get("groups") or [info]
     g0 = groups[0]
     for k in sorted(key for key in g0 if key.startswith("slab")):
         sl = g0[k]
-        if "n_phi" in sl:  # a sampled kernel: every φ sample of every node pair, once (rounds add only odd ones)
-            proj += sl.get("basis_functions", C) * h_b * 2 * h_b * (sl["n_phi"] + 1) * sample_s
+        if "n_phi" in sl:  # a sampled kernel: every φ sample once (chunked rounds: every round's), each round transformed
+            pairs = sl.get("basis_functions", C) * h_b * 2 * h_b
+            rounds = _rounds(n_start, sl["n_phi"])
+            evals = rounds if sl.get("row_chunks") else sl["n_phi"] + 1
+            proj += pairs * (evals * eval_s + rounds * tr_s)
+        elif "legendre_degree" in sl:  # the addition theorem's blocks of the orders solved
+            L_s = min(sl.get("orders", 1), max(g.get("orders_solved", g.get("orders", 1)) for g in groups))
+            proj += L_s * C * (sl["legendre_degree"] + 1) * 2 * h_b * h_b * legendre_s
     slabs = sum(1 for key in g0 if key.startswith("slab"))
     L = sum(g.get("orders_solved", g.get("orders", 1)) * 1 for g in groups) / max(1, len(groups))
-    # per order and channel: an eigen-solution of each slab (≈ 35 h³) and one adding step per part (≈ 6.7 h³)
-    flops = C * L * slabs * (35.0 + 6.7) * h_b**3
-    return proj, flops / rate
+    # per order and channel: an eigen-solution of each slab (timed, eigen_s) and one adding step per part (≈ 6.7 h³)
+    flops = C * L * slabs * 6.7 * h_b**3
+    return call_s + medium_node_s * h_b + proj, flops / rate + C * L * slabs * eigen_s
 
 
 def _setup(name, n):
     def setup():
-        from flakedb.paint.recipe import load_recipe
-
         return load_recipe(RECIPES / f"{name}.yaml"), n
 
     return setup
 
 
 def _run(arg):
-    from flakedb.compose.orchestrate import compose
-    from flakedb.paint.mapping import build_paint
-
     rec, n = arg
-    with tempfile.TemporaryDirectory(prefix="flakedb-bench-") as out:
-        res = compose(rec, out, n=n)
-    st = res.stack
-    h_b = int(len(st.x_in)) if st.x_in is not None else n // 2
+    paint = build_paint(rec)
+    call_s = _call_s()
+    measured = np.inf
+    for _ in range(3):  # CPU seconds of the solve alone, one thread (the load does not enter); best of three below 0.1 s
+        t0 = time.process_time()
+        st = solve_paint(paint, n, threads=1)
+        measured = min(measured, time.process_time() - t0)
+        if measured > 0.1:  # (a repeat would find the medium tables cached)
+            break
+    h_b = len(st.x_in) if st.x_in is not None else n // 2
     C = int(st.info.get("distinct_channels", st.Rt.shape[1]))
     rate = _rate_flops(h_b)
-    med = next((s.medium for s in build_paint(rec).slabs if hasattr(s, "medium")), None)
-    sample_s, B = _sample_s(med, max(4, n // 4)) if med is not None else (0.0, 1)
-    proj, solve = model(st.info, n, h_b, C, rate, sample_s)
-    measured = res.timings_s["solve"]
-    return {"n": n, "h_binder": h_b, "channels": C, "rate_GFLOPs": rate / 1e9, "sample_ns": sample_s * 1e9,
-            "model_projection_s": proj, "model_solve_s": solve, "model_s": proj + solve, "measured_solve_s": measured,
-            "measured_over_model": measured / max(proj + solve, 1e-9)}
+    med = next((s.medium for s in paint.slabs if hasattr(s, "medium")), None)
+    kernel = _kernel_rates(med, max(4, min(32, n // 4))) if med is not None else (0.0, 0.0, 1)
+    node_s = _medium_node_s(build_paint(rec).slabs[0].medium) if med is not None else 0.0
+    n_start = min(max(4, int(getattr(med, "phi_bandwidth", 16))), max(int(PHI_SAMPLES_PER_ORDER * 2 * n), 128))
+    eigen_s = _eigen_s(h_b)
+    leg_s = _legendre_s(med, max(4, min(32, n // 4))) if med is not None else 0.0
+    fixed, solve = model(st.info, n, h_b, C, rate, kernel, node_s, call_s, n_start, eigen_s, leg_s)
+    return {"n": n, "h_binder": h_b, "channels": C, "rate_GFLOPs": rate / 1e9, "sample_ns": kernel[0] * 1e9,
+            "transform_ns": kernel[1] * 1e9, "eigen_us": eigen_s * 1e6, "legendre_ps": leg_s * 1e12, "medium_node_ms": node_s * 1e3, "call_ms": call_s * 1e3,
+            "model_fixed_projection_s": fixed, "model_solve_s": solve, "model_s": fixed + solve,
+            "measured_solve_cpu_s": measured, "measured_over_model": measured / max(fixed + solve, 1e-9)}
 
 
 BENCHMARKS = [(f"cost model: {r} n={n}", _setup(r, n), _run, {"recipe": r, "what": "compose solve vs cost model"})

@@ -52,11 +52,13 @@ from flakedb.compose.report import (
     ASPECULAR_DEG,
     colour_report,
     discretisation_error,
+    second_solve_n,
     eval_table,
     multiangle_geometry,
     texture_ground,
 )
 from flakedb.compose.store_context import StoreContext
+from flakedb.conventions import fourier_weight
 from flakedb.outputs import OutputError, OutputPlan, check_output_dir  # noqa: F401  (moved; re-exported)
 from flakedb.paint.mapping import build_paint, catalog_species, resolve_node_count, solve_paint
 from flakedb.paint.texture_inputs import texture_report
@@ -260,8 +262,7 @@ def check_physical(stack, n_phi=37):
         c, i = np.unravel_index(int(np.argmax(A)), A.shape)
         problems.append(f"albedo {amax:.6f} > 1 + {ALBEDO_SLACK:g} at θ_i = {np.degrees(np.arccos(stack.x[i])):.1f}° "
                         f"(channel {c}) for a passive stack")
-    g = stack.eval_nodes(np.linspace(0.0, np.pi, n_phi)) * (stack.x[:, None] * stack.x[None, :])[None, :, :, None]
-    gmax, gmin = float(g.max()), float(g.min())
+    gmax, gmin = _bsdf_range(stack, np.linspace(0.0, np.pi, n_phi))
     if gmax > 0 and gmin < -NEGATIVE_SLACK * gmax:
         problems.append(f"negative BSDF value: f·μ_i·μ_o = {gmin:.3g} (max {gmax:.3g}, allowed down to "
                         f"−{NEGATIVE_SLACK:g} × max)")
@@ -269,6 +270,26 @@ def check_physical(stack, n_phi=37):
         problems.append(f"Fourier orders did not converge (dropped tail {stack.info.get('order_tail', float('nan')):.2g} "
                         f"> order_tol {stack.info.get('order_tol')})")
     return problems
+
+
+#: Channels per block of :func:`_bsdf_range` (issue 26 item 5: the whole (L, C, h, h) coefficient array
+#: and its f copy held 1.15 GB each for a rough 0.1 coat over 41 bands at n = 200, 351 orders).
+CHECK_CHANNEL_BLOCK = 4
+
+
+def _bsdf_range(stack, phi):
+    """(max, min) of the cosine-weighted BSDF f μ_i μ_o of reflection over the node pairs and azimuths ``phi``,
+    a few channels at a time (:data:`CHECK_CHANNEL_BLOCK`), so no copy of the whole coefficient array is made."""
+    Rt, x, w = stack.Rt, stack.x, stack.w
+    cos = np.cos(np.arange(Rt.shape[0])[:, None] * phi[None, :])  # (L, P)
+    # f_l μ_i μ_o = S_l μ_o / (c_l w_i) (conventions; StackBSDF.f_coefficients times μ_i μ_o)
+    scale = (x[:, None] / w[None, :])[None, None] / fourier_weight(np.arange(Rt.shape[0]))[:, None, None, None]
+    gmax, gmin = -np.inf, np.inf
+    C = 1 if Rt.shape[1] > 1 and Rt.strides[1] == 0 else Rt.shape[1]  # channels solved once: one is enough
+    for c0 in range(0, C, CHECK_CHANNEL_BLOCK):
+        g = np.einsum("lcoi,lp->coip", Rt[:, c0:c0 + CHECK_CHANNEL_BLOCK] * scale, cos)
+        gmax, gmin = max(gmax, float(g.max())), min(gmin, float(g.min()))
+    return gmax, gmin
 
 
 @dataclass
@@ -356,22 +377,23 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
 
 
 def discretisation_estimate(solved, report, colour_settings=None, log=None) -> dict:
-    """The estimated ΔE00 of the solve's own discretisation: the report against a second solve at n/2
-    (:func:`flakedb.compose.report.discretisation_error`, docs/resolution.md), for n ≥ 16 without a store
-    (a store holds the species' factors at its own n only)."""
+    """The estimated ΔE00 of the solve's own discretisation: the report against a second solve at
+    n' = :func:`flakedb.compose.report.second_solve_n` (≈ 3n/4; :func:`flakedb.compose.report.discretisation_error`,
+    docs/resolution.md), for n ≥ 16 without a store (a store holds the species' factors at its own n only)."""
     n, paint = solved.n, solved.paint
     if solved.version is not None:
         return {"method": "not estimated: species factors from the store exist at n only"}
     if n < 16:
         return {"method": f"not estimated: n = {n} < 16"}
+    n2 = second_solve_n(n)
     budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
-    half = solve_paint(paint, n // 2, memory_budget_bytes=float(budget) if budget else None, threads=os.cpu_count() or 1)
+    second = solve_paint(paint, n2, memory_budget_bytes=float(budget) if budget else None, threads=os.cpu_count() or 1)
     est = discretisation_error(report, colour_report(
-        stack_to_table(half.scattered(), paint.channels, paint.eta, None, paint.delta,
-                       dict(solved.table.metadata)), paint.mode, paint.wavelength_nm, half.x,
-        half.albedo(include_delta=False), paint.eta if paint.delta else None, "", settings=colour_settings), n)
+        stack_to_table(second.scattered(), paint.channels, paint.eta, None, paint.delta,
+                       dict(solved.table.metadata)), paint.mode, paint.wavelength_nm, second.x,
+        second.albedo(include_delta=False), paint.eta if paint.delta else None, "", settings=colour_settings), n, n2)
     if log:
-        log(f"discretisation: estimated dE00 {est['estimate_dE00']:.3f} at n = {n} (second solve at n = {n // 2})")
+        log(f"discretisation: estimated dE00(n, 2n) {est['estimate_dE00']:.3f} at n = {n} (second solve at n = {n2})")
     return est
 
 

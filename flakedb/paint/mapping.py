@@ -670,9 +670,18 @@ def catalog_species(recipe) -> list:
 
 
 #: Default accuracy targets of ``resolution: auto`` (a recipe's ``resolution: {albedo_error: …,
-#: lobe_error: …, colour_error: …}`` overrides them; ``colour_error`` (ΔE00 between n and 2n at the report
-#: geometries) applies only when a recipe gives it); docs/resolution.md.
-AUTO_TARGETS = {"albedo_error": 0.03, "lobe_error": 0.05}
+#: lobe_error: …, colour_error: …}`` overrides them); docs/resolution.md.  ``colour_error`` (ΔE00 between n
+#: and 2n at the report geometries) is a default since issue 26: without it coated aluminium's auto (n 48)
+#: was ΔE00 0.66 from 2×auto and 0.81 from n 192; with it every catalogue recipe's auto is within 0.1 of
+#: 2×auto (measured, docs/resolution.md "colour_error").  It raises the n of coated aluminium 48 → 144, of
+#: metallic silver and tri-coat pearl white (flakes α_f 0.2) 32 → 48 and of the flake recipes of α_f 0.25 32 → 40
+#: (their compose times: docs/resolution.md); pigment and HG recipes keep theirs.
+#: A recipe relaxes it with e.g. ``resolution: {colour_error: 10}``.
+AUTO_TARGETS = {"albedo_error": 0.03, "lobe_error": 0.05, "colour_error": 0.1}
+#: The largest n the *default* colour_error may ask for (a recipe's own colour_error goes to
+#: :data:`AUTO_MAX_N`): below the measured metal roughness 0.1 its n scales as 0.1/α (α 0.05 → 288,
+#: α 0.02 → 512), a cost cliff a default must not have; the report's own estimate states the rest.
+AUTO_COLOUR_MAX_N = 192
 #: The largest node count auto may choose: the largest allowed (:data:`flakedb.paint.limits.NODE_COUNT_MAX`).
 AUTO_MAX_N = NODE_COUNT_MAX
 #: Measured envelopes (docs/resolution.md), (h·α, worst error at that h·α or above), h = n/2:
@@ -704,10 +713,12 @@ METAL_ALPHA_MEASURED = 0.05
 METAL_COLOUR_ERROR = ((48, 0.657), (64, 0.378), (96, 0.183), (128, 0.114), (144, 0.095))
 #: Roughness of that measurement: below it n is scaled by METAL_COLOUR_ALPHA / α (the lobe is α wide).
 METAL_COLOUR_ALPHA = 0.1
-#: Flakes, by h·α_f: metallic-silver (α_f 0.2, spectral) h·α_f 3.2 → 0.101, 4.8 → 0.045 (the other flake recipes
-#: at their default auto n: particle-metallic 0.063, particle-pearlescent 0.055, tri-coat-pearl-white 0.061,
-#: fig7 100 nm 0.062, research-custom-flake 0.017).
-FLAKE_COLOUR_ERROR = ((3.2, 0.101), (4.8, 0.045))
+#: Flakes, by h·α_f: metallic-silver (α_f 0.2, spectral) h·α_f 3.2 → 0.101, 4.8 → 0.045; at h·α_f 4.0 the worst
+#: measured is fig5-translucent-black in RGB mode at n 32 (α_f 0.25), 0.169 at the −15° geometry (2026-12-03;
+#: metallic silver spectral at n 40: 0.063; the α_f 0.25 recipes in spectral mode at n 32: particle-metallic
+#: 0.063, particle-pearlescent 0.055, particle-gray-mirror 0.061, fig7 100 nm 0.062); tri-coat-pearl-white
+#: (α_f 0.2) at n 32 0.061, research-custom-flake 0.017.
+FLAKE_COLOUR_ERROR = ((3.2, 0.101), (4.0, 0.169), (4.8, 0.045))
 #: Stacks without flakes or a metal base (the fig5 series, pigments, HG and isotropic media, catalogue), by n:
 #: worst 0.053 at n 32 (fig5-translucent-black, the −15° geometry).
 PLAIN_COLOUR_ERROR = ((32, 0.053),)
@@ -732,9 +743,9 @@ def auto_resolution(recipe) -> tuple[int, str]:
 
     Targets (``recipe.targets`` over :data:`AUTO_TARGETS`): ``albedo_error``, the relative error of the
     directional albedo for θ_i ≤ 80°, and ``lobe_error``, the rough coat's reflection lobe binned in 5°
-    bins (per bin, over the reflected total); with ``colour_error`` (given), the CIEDE2000 between n and 2n at
+    bins (per bin, over the reflected total); ``colour_error``, the CIEDE2000 between n and 2n at
     the report geometries (:func:`_colour_needs`: metal bases by n, flakes by h·α_f, other stacks by n; compose
-    states the estimate of its own result from a second solve at n/2).  Each rule is a measured envelope, not
+    states the estimate of its own result from a second solve at ≈ 3n/4).  Each rule is a measured envelope, not
     a guess:
 
     * rough coat of roughness α: h α ≥ the smallest h α of :data:`COAT_LOBE_ERROR` meeting lobe_error
@@ -827,7 +838,13 @@ def auto_resolution(recipe) -> tuple[int, str]:
         need.append((n_m // 2 + n_m % 2, why))
     t_col = targets.get("colour_error")
     if t_col is not None:
-        need += _colour_needs(recipe, float(t_col), flake_alphas, metal)
+        col = _colour_needs(recipe, float(t_col), flake_alphas, metal)
+        if "colour_error" not in (getattr(recipe, "targets", None) or {}):  # the default target: bounded cost
+            h_cap = AUTO_COLOUR_MAX_N // 2
+            col = [(hh, why) if hh <= h_cap else
+                   (h_cap, why + f"; the default colour_error stops at n = {AUTO_COLOUR_MAX_N} (set colour_error "
+                                 "in resolution: to go further; the report states the estimate)") for hh, why in col]
+        need += col
     if not flakes:
         n_alb, err = _needed(PLAIN_ALBEDO_ERROR, t_alb)
         if n_alb is None:

@@ -9,7 +9,7 @@ import numpy as np
 from flakedb.rt.legendre import LegendreKernel
 from flakedb.rt.media import kernel_basis
 from flakedb.rt.microfacet import jackson_factors
-from flakedb.rt.projection import ProjectedKernel, project_kernel_basis
+from flakedb.rt.projection import RESIDENT_ORDERS, ProjectedKernel, project_kernel_basis
 
 #: φ samples of a kernel projection at most, per order of the cap 2n (and at least 128).  It was 2 (4n samples:
 #: where the cap binds, aliasing from orders ≥ 2L far below the truncation): metallic silver at n = 128 then
@@ -88,8 +88,11 @@ def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True, 
     else:
         kb = kernel_basis(medium) if basis else None
         fn, M = (medium.kernel, None) if kb is None else (kb.fn, kb.M)
-        coeffs, info = project_kernel_basis(fn, M, x, mu_o, tol=tol, n_start=n_start, n_max=n_max, weights=W)
-        pk = ProjectedKernel(coeffs[:max_orders], M)
+        # over its memory budget the projection keeps its first RESIDENT_ORDERS orders (the order choice
+        # rarely asks for more) and evaluates higher ones again on demand
+        coeffs, info = project_kernel_basis(fn, M, x, mu_o, tol=tol, n_start=n_start, n_max=n_max, weights=W,
+                                            max_orders=max_orders, resident_orders=RESIDENT_ORDERS)
+        pk = ProjectedKernel(coeffs, M)
         if M is not None:
             info["basis_functions"] = int(M.shape[1])
     if renormalize and hasattr(medium, "sigma_s"):

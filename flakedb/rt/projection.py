@@ -35,9 +35,18 @@ def _chunks(hi, per):
 #: 4.27 → 2.67 GB peak, CPU 18 → 24.5 s, colours identical (ΔE00 0).  A caller may pass ``budget_bytes``.
 PROJECTION_BUDGET_BYTES = 1 * 2**30
 
+#: Orders of a projection over its memory budget kept in memory (:class:`ChunkedCoefficients`); higher
+#: orders are evaluated again when a solver asks for them.  The order choice of an opaque stack solves
+#: blocks of 16, then 32, 64 … orders (:data:`flakedb.rt.order_blocks.FIRST_ORDER_BLOCK`) and stops where
+#: its BSDF's tail is within the order tolerance: 11–31 orders for every catalogue recipe at n = 128
+#: (docs/cost-model.md), while the projection of a kernel that never converges at grazing pairs carries
+#: up to the cap 2n = 256.  Particle pearlescent at n = 128 (B = 41 basis kernels): the 256 orders held
+#: 1.3 GB, the 64 kept 0.33 GB.
+RESIDENT_ORDERS = 64
+
 
 def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, weights=None,
-                         chunk_elems=250_000, budget_bytes=None):
+                         chunk_elems=250_000, budget_bytes=None, max_orders=None, resident_orders=None):
     """Cosine coefficients of the C functions Σ_b M[c, b] fn_b(μ_i, μ_o, φ_d), kept per basis function.
 
     ``fn(mu_i[:, None, None], mu_o[None, :, None], phi[None, None, :])`` → (B, Hi, Ho, P);
@@ -56,8 +65,11 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
     rounds continue on chunks of incident nodes (:meth:`_BasisProjection.row_chunks`): the criteria are
     maxima over node pairs, so they are gathered chunk by chunk, each chunk's samples evaluated afresh
     each round (the coarser round's coefficients are those of its even samples), and the kept orders are
-    computed in a last pass.  Same azimuths, same values, same result (tested); about 3× the kernel
-    evaluations, memory bounded by the budget.
+    kept from the last round's chunks.  Same azimuths, same values, same result (tested); about 2× the
+    kernel evaluations, memory bounded by the budget.  ``max_orders`` caps the order count L (the tail in
+    ``info`` is that of the uncapped count, as before).  With ``resident_orders`` (the solver passes
+    :data:`RESIDENT_ORDERS`), a chunked projection keeps only its first orders and its last one in memory
+    and returns a :class:`ChunkedCoefficients`, which evaluates the others again when asked.
 
     A kernel μ_i μ_o (1 + ½ cos φ) has two orders, a_0 = μ_i μ_o and a_1 = ½ μ_i μ_o:
 
@@ -70,11 +82,14 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
     """
     pr = _BasisProjection(fn, M, mu_i, mu_o, tol, n_max, weights, chunk_elems, budget_bytes)
     n = max(2, int(n_start))
+    B = pr.M.shape[1] if pr.M is not None else pr.evaluate(np.zeros(1), slice(0, 1)).shape[0]
+    if 5 * 8 * B * pr.hi * pr.ho * (2 * n + 1) > pr.budget:  # the first round is already over the budget
+        return pr.row_chunks(n, B, max_orders, resident_orders)
     a = pr.coefficients(n)
     while True:
         if 5 * 8 * a.shape[0] * pr.hi * pr.ho * (2 * n + 1) > pr.budget:
             pr.samples.clear()
-            return pr.row_chunks(n, a.shape[0])
+            return pr.row_chunks(n, a.shape[0], max_orders, resident_orders)
         a_prev, a = a, pr.coefficients(2 * n)
         scale, change, upper = pr.stats(a, a_prev, n)
         if scale == 0.0:
@@ -85,7 +100,8 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
             break
         n *= 2
     pr.samples.clear()
-    return pr.truncate(a, scale, {"n_phi": 2 * n, "converged": bool(max(change, upper) <= tol)})
+    coeffs, info = pr.truncate(a, scale, {"n_phi": 2 * n, "converged": bool(max(change, upper) <= tol)})
+    return (coeffs if max_orders is None else coeffs[:max_orders]), info
 
 
 class _BasisProjection:
@@ -184,19 +200,27 @@ class _BasisProjection:
         return coeffs, {"n_phi": info["n_phi"], "tail": float(worst[L]) if L < K else 0.0,
                         "converged": info["converged"]}
 
-    def _chunk_round(self, m, n, per):
+    def _chunk_round(self, m, n, per, kept=None, last=None):
         """One round at m = 2n intervals over chunks of ``per`` incident nodes: (scale, change, upper,
-        worst tails (m + 1,))."""
+        worst tails (m + 1,)).  ``kept`` (K, B, Ho, Hi): filled with the round's orders 0 … K − 1;
+        ``last`` ``(l, (1, B, Ho, Hi))``: filled with order l."""
         scale = s_exact = change = upper = 0.0
         worst = np.zeros(m + 1)
         for sl in _chunks(self.hi, per):
             v = self.evaluate(phi_samples(m), sl)
             ac, ap = cosine_coefficients(v), cosine_coefficients(v[..., 0::2])
-            Wc = self.W[sl, :, None]
             if self.M is not None:
                 scale = max(scale, self.scale_of(v, ac, self.W[sl]))
+            del v
+            if kept is not None:
+                kept[..., sl] = np.transpose(ac[..., : kept.shape[0]], (3, 0, 2, 1))
+            if last is not None:
+                last[1][..., sl] = np.transpose(ac[..., last[0]: last[0] + 1], (3, 0, 2, 1))
+            Wc = self.W[sl, :, None]
             change = max(change, float((self.envelope(ac[..., :n] - ap[..., :n]) * Wc).max()))
+            del ap
             e = self.envelope(ac) * Wc
+            del ac
             if self.M is None:
                 s_exact = max(s_exact, float(e.sum(axis=-1).max()))
             upper = max(upper, float(e[..., n:].sum(axis=-1).max()))
@@ -204,29 +228,120 @@ class _BasisProjection:
             worst = np.maximum(worst, tails.reshape(-1, m + 1).max(axis=0))
         return (s_exact if self.M is None else scale), change, upper, worst
 
-    def row_chunks(self, n, B):
+    def row_chunks(self, n, B, max_orders=None, resident=None):
         """The rounds from n on, incident nodes in chunks within the budget (see
-        :func:`project_kernel_basis`); ``B`` basis functions."""
+        :func:`project_kernel_basis`); ``B`` basis functions.  Each round keeps its chunks' orders below
+        ``resident`` (all without it) and the order ``max_orders`` − 1: the last round's are the result,
+        so no pass of its own computes them; orders beyond those are evaluated on demand
+        (:class:`ChunkedCoefficients`)."""
         ho, hi = self.ho, self.hi
         while True:
             m = 2 * n
             per = max(1, int(self.budget // (5 * 8 * B * ho * (m + 1))))
-            scale, change, upper, worst = self._chunk_round(m, n, per)
+            K = m + 1 if resident is None else min(m + 1, int(resident))
+            if max_orders is not None:
+                K = min(K, int(max_orders))
+            kept = np.empty((K, B, ho, hi))
+            j = None if max_orders is None else int(max_orders) - 1
+            last = (j, np.empty((1, B, ho, hi))) if j is not None and K <= j < m + 1 else None
+            scale, change, upper, worst = self._chunk_round(m, n, per, kept, last)
             if scale == 0.0:
                 return np.zeros((1, B, ho, hi)), {"n_phi": m, "tail": 0.0, "converged": True}
             converged = max(change, upper) / scale <= self.tol
             if converged or m >= self.n_max:
                 break
+            del kept, last
             n *= 2
         worst /= scale
         below = np.nonzero(worst <= self.tol)[0]
         L = max(int(below[0]) if len(below) else m + 1, 1)
-        coeffs = np.empty((L, B, ho, hi))
-        for sl in _chunks(hi, per):
+        info = {"n_phi": m, "tail": float(worst[L]) if L < m + 1 else 0.0,
+                "converged": bool(converged), "row_chunks": True}
+        if max_orders is not None:
+            L = min(L, int(max_orders))
+        if L <= K:
+            return (kept if L == K else np.ascontiguousarray(kept[:L])), info
+        known = {L - 1: last[1]} if last is not None and last[0] == L - 1 else {}
+        return ChunkedCoefficients(kept, L, _Recompute(self, m, per), known), info
+
+    def orders_pass(self, m, per, l0, l1):
+        """Orders l0 … l1 − 1 (l1 − l0, B, Ho, Hi) of the projection at m intervals, chunk by chunk as
+        :meth:`row_chunks` computed them (the same samples, the same transform: the same values)."""
+        out = None
+        for sl in _chunks(self.hi, per):
             ac = cosine_coefficients(self.evaluate(phi_samples(m), sl))
-            coeffs[..., sl] = np.transpose(ac[..., :L], (3, 0, 2, 1))
-        return coeffs, {"n_phi": m, "tail": float(worst[L]) if L < m + 1 else 0.0,
-                        "converged": bool(converged), "row_chunks": True}
+            if out is None:
+                out = np.empty((l1 - l0, ac.shape[0], self.ho, self.hi))
+            out[..., sl] = np.transpose(ac[..., l0:l1], (3, 0, 2, 1))
+        return out
+
+
+class _Recompute:
+    """Orders of a chunked projection evaluated again (:meth:`_BasisProjection.orders_pass`), the last
+    range asked kept (the channel groups of a solve ask the same blocks in turn)."""
+
+    def __init__(self, pr, m, per):
+        self.pr, self.m, self.per = pr, m, per
+        self.cache = (None, None)
+        self.passes = 0
+
+    def __call__(self, l0, l1):
+        if self.cache[0] != (l0, l1):
+            self.passes += 1
+            self.cache = ((l0, l1), self.pr.orders_pass(self.m, self.per, l0, l1))
+        return self.cache[1]
+
+
+class ChunkedCoefficients:
+    """Basis coefficients (L, B, Ho, Hi) of a projection over its memory budget
+    (:func:`project_kernel_basis` with ``resident_orders``): orders 0 … K − 1 and the orders in
+    ``known`` are held, the others evaluated again from the kernel on demand (the same values:
+    :meth:`_BasisProjection.orders_pass`).  Sliced by orders (:meth:`orders`) or by basis functions
+    (``c[:, idx]``); ``np.asarray`` gives every order.
+
+    >>> c = ChunkedCoefficients(np.zeros((2, 1, 1, 1)), 4, lambda l0, l1: np.ones((l1 - l0, 1, 1, 1)))
+    >>> c.shape, c.orders(1, 3)[:, 0, 0, 0].tolist(), np.asarray(c)[:, 0, 0, 0].tolist()
+    ((4, 1, 1, 1), [0.0, 1.0], [0.0, 0.0, 1.0, 1.0])
+    """
+
+    def __init__(self, resident, L, recompute, known=None, idx=None):
+        self.resident, self.L, self.recompute = resident, int(L), recompute
+        self.known = dict(known or {})
+        self.idx = idx
+
+    @property
+    def shape(self):
+        return (self.L,) + self.resident.shape[1:]
+
+    def _sub(self, a):
+        return a if self.idx is None else a[:, self.idx]
+
+    def orders(self, l0, l1):
+        """Coefficients of orders l0 … l1 − 1 (l1 ≤ L)."""
+        K = self.resident.shape[0]
+        l1 = min(int(l1), self.L)
+        if l1 <= K:
+            return self.resident[l0:l1]
+        if l1 - l0 == 1 and l0 in self.known:
+            return self.known[l0]
+        parts = [self.resident[l0:K]] if l0 < K else []
+        parts.append(self._sub(self.recompute(max(l0, K), l1)))
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def __getitem__(self, key):
+        """``c[:, idx]``: the basis functions ``idx`` (sharing the recomputation); ``c[l0:l1]``: orders."""
+        if isinstance(key, tuple) and len(key) == 2 and key[0] == slice(None):
+            full = np.arange(self.resident.shape[1]) if self.idx is None else np.asarray(self.idx)
+            idx = full[key[1]]  # into the recomputed (all basis functions) arrays
+            return ChunkedCoefficients(self.resident[:, key[1]], self.L, self.recompute,
+                                       {k: v[:, key[1]] for k, v in self.known.items()}, idx)
+        if isinstance(key, slice) and key.step is None:
+            return self.orders(key.start or 0, self.L if key.stop is None else key.stop)
+        raise IndexError(f"ChunkedCoefficients takes c[l0:l1] or c[:, idx], not {key!r}")
+
+    def __array__(self, dtype=None, copy=None):
+        a = self.orders(0, self.L)
+        return a if dtype is None else a.astype(dtype)
 
 
 class ProjectedKernel:
@@ -261,7 +376,8 @@ class ProjectedKernel:
         out = np.zeros((max(0, l1 - l0), C, 2 * h, h))
         k1 = min(l1, L)
         if k1 > l0:
-            a = self.coeffs[l0:k1]  # (l, B, 2h, h)
+            c = self.coeffs
+            a = c[l0:k1] if isinstance(c, np.ndarray) else c.orders(l0, k1)  # (l, B, 2h, h)
             if self.M is None:
                 out[: k1 - l0] = a
             else:

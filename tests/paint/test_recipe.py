@@ -17,6 +17,7 @@ import yaml
 from click.testing import CliRunner
 
 from flakedb.cli.main import cli
+from flakedb.paint import mapping
 from flakedb.paint.mapping import auto_resolution, build_paint, solve_paint
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError, load_recipe, parse_recipe
 from flakedb.rt.stack import InnerSmooth
@@ -271,7 +272,7 @@ def test_stack_shape_checks():
     assert not any("roughness" in w for w in parse_recipe(yaml.safe_dump(d)).warnings)
 
 
-def test_metal_base_parses_and_is_checked():
+def test_metal_base_parses_and_is_checked(monkeypatch):
     """A metal base (issue 12 item 3(b)) in place of the primer: a catalogue material or {n, k}, with a
     Beckmann roughness; each problem names the field, the value, the allowed range or names, a fix."""
     d = doc()
@@ -304,7 +305,10 @@ def test_metal_base_parses_and_is_checked():
     assert any("hardly a metal" in w for w in parse_recipe(yaml.safe_dump(d)).warnings)
     # resolution: auto takes the metal lobe's measured envelope (docs/resolution.md "Metal base")
     d["layers"][1]["metal"]["material"] = "Al"
-    n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))
+    n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))  # the default colour_error 0.1 binds (issue 26)
+    assert n == 144 and "colour_error ≤ 0.1" in why
+    monkeypatch.setattr(mapping, "AUTO_TARGETS", {k: v for k, v in mapping.AUTO_TARGETS.items() if k != "colour_error"})
+    n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))  # the lobe rule alone
     assert n == 48 and "metal base α = 0.1" in why and "measured 0.048" in why
     d["layers"][1]["metal"]["roughness"] = 0.01
     n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))
@@ -353,9 +357,9 @@ def test_auto_resolution_from_targets():
 
     d = doc()
     d["resolution"] = "auto"
-    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 32          # α_f 0.2: h·α_f ≥ 3.2 → h 16
+    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 48          # α_f 0.2: colour h·α_f ≥ 4.8 → h 24
     d["layers"][1]["basecoat"]["particles"][0]["orientation_alpha"] = 0.05
-    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 128         # h = 3.2/0.05 = 64
+    assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 192         # h = 4.8/0.05 = 96 (albedo: 64)
     d["resolution"] = {"albedo_error": 0.01}                                     # h·α_f ≥ 9.6 → h 192
     assert auto_resolution(parse_recipe(yaml.safe_dump(d)))[0] == 384
     d["layers"][1]["basecoat"]["particles"][0]["orientation_alpha"] = 0.01

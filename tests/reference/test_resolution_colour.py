@@ -8,7 +8,15 @@ import yaml
 
 from flakedb.colour.colorimetry import delta_E_2000
 from flakedb.compose.orchestrate import compose
-from flakedb.paint.mapping import FLAKE_COLOUR_ERROR, METAL_COLOUR_ERROR, auto_resolution
+from flakedb.compose.report import DISCRETISATION_ORDER, second_solve_n
+from flakedb.paint.mapping import (
+    AUTO_COLOUR_MAX_N,
+    AUTO_TARGETS,
+    FLAKE_COLOUR_ERROR,
+    METAL_COLOUR_ERROR,
+    METAL_LOBE_ERROR,
+    auto_resolution,
+)
 from flakedb.paint.recipe import RecipeError, load_recipe, parse_recipe, repo_root
 
 RECIPES = repo_root() / "catalog" / "recipes"
@@ -28,30 +36,58 @@ def _labs(report):
 
 def test_colour_error_takes_the_measured_envelopes():
     """A metal base takes the smallest measured n whose ΔE00(n, 2n) meets the target; flakes h·α_f; the
-    default auto (no colour_error) is unchanged; an unreachable target is refused naming the measurement."""
-    n0, _ = auto_resolution(load_recipe(RECIPES / "coated-aluminium.yaml"))
+    default auto carries colour_error 0.1 (AUTO_TARGETS) and a recipe's own target replaces it; an
+    unreachable target is refused naming the measurement."""
+    n0, why0 = auto_resolution(load_recipe(RECIPES / "coated-aluminium.yaml"))
+    n_default = next(x for x, e in METAL_COLOUR_ERROR if e <= AUTO_TARGETS["colour_error"])
+    assert n0 == n_default == 144 and "colour_error ≤ 0.1" in why0
     target = 0.2
     n, why = auto_resolution(_with("coated-aluminium.yaml", {"colour_error": target}))
     n_table = next(x for x, e in METAL_COLOUR_ERROR if e <= target)
-    assert n == max(n0, n_table) and "colour_error ≤ 0.2" in why and n > n0
+    n_lobe = next(x for x, e in METAL_LOBE_ERROR if e <= AUTO_TARGETS["lobe_error"])
+    assert n == max(n_lobe, n_table) and "colour_error ≤ 0.2" in why and n < n0
     n, why = auto_resolution(_with("metallic-silver.yaml", {"colour_error": 0.1}))
     x = next(x for x, e in FLAKE_COLOUR_ERROR if e <= 0.1)
     assert n >= 2 * int(np.ceil(x / 0.2 - 1e-9)) and "flakes α = 0.2" in why
+    assert auto_resolution(load_recipe(RECIPES / "metallic-silver.yaml"))[0] == n
     with pytest.raises(RecipeError, match=r"colour_error 0.05 for a metal base is not reachable: the smallest "
                                           r"measured ΔE00\(n, 2n\) is"):
         auto_resolution(_with("coated-aluminium.yaml", {"colour_error": 0.05}))
 
 
+def test_default_colour_target_is_bounded_in_cost():
+    """Below the measured metal roughness the colour rule scales n as 0.1/α: the default target stops at
+    AUTO_COLOUR_MAX_N and says so; a recipe's own colour_error goes on to the measured n (or AUTO_MAX_N)."""
+    d = yaml.safe_load((RECIPES / "coated-aluminium.yaml").read_text(encoding="utf-8"))
+    next(layer for layer in d["layers"] if "metal" in layer)["metal"]["roughness"] = 0.05
+    rec = parse_recipe(yaml.safe_dump(d))
+    n, why = auto_resolution(rec)
+    assert n == AUTO_COLOUR_MAX_N and "default colour_error stops at" in why
+    d["resolution"] = {"colour_error": 0.1}
+    n_own, _ = auto_resolution(parse_recipe(yaml.safe_dump(d)))
+    assert n_own == 2 * 144 > n
+
+
 def test_report_states_its_discretisation_from_a_second_solve(tmp_path):
-    """The report's estimate is max ΔE00(n/2, n) over the report geometries, halved: the same as two
-    composes at n/2 and n (a change of either solve, or of the halving, fails it)."""
+    """The report's estimate is max ΔE00(n', n) over the report geometries (n' = 3n/4, even) times
+    (1 − 2^−p)/(r^p − 1): the same as two composes at n' and n (a change of either solve, of n' or of the
+    factor fails it)."""
     rec = _with("fig5-translucent-gray.yaml", 24, rgb=True)
     res = compose(rec, tmp_path / "a")
     d = res.report["discretisation"]
-    half = compose(rec, tmp_path / "b", n=12)
-    dE = delta_E_2000(_labs(half.report), _labs(res.report))
-    np.testing.assert_allclose(d["dE00_half_vs_n"], dE, rtol=1e-9, atol=1e-12)
-    assert d["estimate_dE00"] == pytest.approx(dE.max() / 2, rel=1e-12) and d["n"] == 24 and "n = 12" in d["method"]
+    assert d["n"] == 24 and d["n_second"] == 18 and "n = 18" in d["method"]
+    second = compose(rec, tmp_path / "b", n=18)
+    dE = delta_E_2000(_labs(second.report), _labs(res.report))
+    np.testing.assert_allclose(d["dE00_second_vs_n"], dE, rtol=1e-9, atol=1e-12)
+    p, r = DISCRETISATION_ORDER, 24 / 18
+    assert d["estimate_dE00"] == pytest.approx(dE.max() * (1 - 2**-p) / (r**p - 1), rel=1e-12)
+
+
+def test_second_solve_is_even_for_every_allowed_n():
+    """n' is even, at least 8 and below n for every allowed n ≥ 16 (n = 30 asked for n/2 = 15 and failed)."""
+    for n in range(16, 513, 2):
+        n2 = second_solve_n(n)
+        assert n2 % 2 == 0 and 8 <= n2 < n and abs(n2 - 0.75 * n) <= 1  # 3n/8 rounded, times 2
 
 
 @pytest.mark.slow

@@ -8,7 +8,7 @@ from flakedb.rt.layer import Layer
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, kernel_basis
 from flakedb.rt.microflake import FlakeOptics, table_basis
 from flakedb.rt.orders import order_tail, reflection_over, reflection_under_smooth
-from flakedb.rt.projection import project_kernel_basis
+from flakedb.rt.projection import ChunkedCoefficients, ProjectedKernel, project_kernel_basis
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
 from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, medium_kernel_blocks, solve_stack
 from tests import tolerances as tol
@@ -194,3 +194,32 @@ def test_inner_orders_of_a_rough_top_change_nothing(monkeypatch):
         L = min(f.n_orders, ref.n_orders)
         assert abs(f.n_orders - ref.n_orders) <= 2
         assert np.allclose(f.Rt[:L], ref.Rt[:L], rtol=1e-11, atol=1e-14 * np.abs(ref.Rt).max())
+
+
+@pytest.mark.parametrize("basis", [True, False])
+def test_chunked_projection_keeps_few_orders_and_recomputes_the_rest(basis):
+    """Over its budget, with ``resident_orders``, the projection holds only its first orders (and the
+    last) and evaluates the others again on demand (issue 26: particle pearlescent at n = 128 held 256
+    orders, 1.3 GB, while the solve used 32): every order, a channel subset and the order cap equal the
+    in-memory projection's, bit for bit (the same samples and transform, chunk by chunk)."""
+    med = _mixture()
+    q = radau_hemisphere(12)
+    mu_o = np.concatenate([-q.x, q.x])
+    W = q.w[:, None] * np.concatenate([q.w, q.w])[None, :]
+    kb = kernel_basis(med)
+    fn, M = (kb.fn, kb.M) if basis else (med.kernel, None)
+    a, ia = project_kernel_basis(fn, M, q.x, mu_o, tol=1e-5, n_start=8, weights=W)
+    L = a.shape[0]
+    assert L > 4
+    cap = L - 1
+    b, ib = project_kernel_basis(fn, M, q.x, mu_o, tol=1e-5, n_start=8, weights=W, budget_bytes=1,
+                                 max_orders=cap, resident_orders=2)
+    assert isinstance(b, ChunkedCoefficients) and b.shape == (cap,) + a.shape[1:]
+    assert b.resident.shape[0] == 2 and list(b.known) == [cap - 1]  # the last order kept from the round
+    np.testing.assert_array_equal(np.asarray(b), a[:cap])  # exact by construction, as above
+    np.testing.assert_array_equal(b.orders(1, 4), a[1:4])
+    np.testing.assert_array_equal(b.orders(cap - 1, cap), a[cap - 1:cap])  # the kept last order
+    sub = b[:, [a.shape[1] - 1]]
+    np.testing.assert_array_equal(sub.orders(2, cap), a[2:cap, [a.shape[1] - 1]])
+    np.testing.assert_array_equal(ProjectedKernel(b, M).blocks(0, cap)[1], ProjectedKernel(a[:cap], M).blocks()[1])
+    assert ib.pop("row_chunks") and ia == ib
