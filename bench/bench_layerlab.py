@@ -5,6 +5,8 @@ layerlab (W. Jakob, github.com/wjakob/layerlab) is a C++ adding-doubling code wi
 where (it is put on ``sys.path`` here and on the children's ``PYTHONPATH``).  Without an importable
 layerlab the rows are skipped with the reason (``SKIPPED``; bench/run.py records them).
 
+Results of a run: bench/layerlab_results.json (``python bench/run.py --only layerlab: --out bench/layerlab_results.json``).
+
 Rows (each: commands started in turn, A B A B …, ``PAIRS`` times; the ratio is taken pair by pair and
 its median reported, so a drift of the shared machine's speed cancels):
 
@@ -25,8 +27,9 @@ Agreement (setup, untimed, in-process): the directional albedo of the two solver
 45, 60, 75 and 85° (each interpolated from its own nodes by a cubic spline in μ), with flakedb's
 multiple-scattering compensation lobe off (layerlab has none: Walter et al. 2007 single scattering on both
 sides) and on (what is timed); the columns give the largest relative differences, at all angles and
-off the pole (θ > 0).  Measured (this machine): single scattering within 0.15 % at 10–85° at n = 100 and
-200 in every channel; at 0° layerlab is lower by 0.002–0.003 absolute (1–2.4 %): its albedo dips from
+off the pole (θ > 0).  Measured (this machine), single scattering: n = 200, every channel, within 0.15 %
+at 10–85°; n = 100 within 0.2 % at 10–75° and 1.1 % at 85° (layerlab 0.5485, flakedb 0.5426; at n = 200 both
+0.543); at 0° layerlab is lower by 0.002–0.003 absolute (1–2.4 %): its albedo dips from
 0.2427 at 10° to 0.2395 at 0° (its coat is point-sampled at the μ = 1 endpoint of its Gauss–Lobatto rule),
 while flakedb's stays flat (0.2423 from 0 to 5°), as an albedo must near the normal.  With the lobe on,
 flakedb is higher by up to 4–5 % at 85° (issue #26 reports the same against layerlab).  The timings are
