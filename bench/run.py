@@ -72,6 +72,11 @@ def main():
         spec = importlib.util.spec_from_file_location(path.stem, path)
         mod = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(mod)
+        for name, reason in getattr(mod, "SKIPPED", ()):  # rows a module cannot run here (a missing tool)
+            if (args.only and args.only not in name) or (args.skip and args.skip in name):
+                continue
+            results.append({"name": name, "module": path.name, "skipped": reason})
+            print(f"{name:60s} skipped: {reason}", flush=True)
         for name, setup, run, meta in mod.BENCHMARKS:
             if (args.only and args.only not in name) or (args.skip and args.skip in name):
                 continue
