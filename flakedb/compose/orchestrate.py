@@ -306,6 +306,7 @@ class SolvedRecipe:
     timings_s: dict
     version: object = None
     store_label: str = STORE_NONE
+    stored: object = None  # the StoreContext the optics came from (None: computed directly)
 
 
 def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, verify=True, progress=None,
@@ -373,7 +374,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     table = stack_to_table(stack, paint.channels, paint.eta, None, paint.delta, md)  # α from the solved stack
     t["table"] = time.perf_counter() - t0
     return SolvedRecipe(paint=paint, stack=stack, table=table, n=n_used, n_reason=reason, warnings=warnings,
-                        timings_s=t, version=version, store_label=store_label)
+                        timings_s=t, version=version, store_label=store_label, stored=stored)
 
 
 def discretisation_estimate(solved, report, colour_settings=None, log=None) -> dict:
@@ -453,7 +454,8 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     report["rgb_file"] = gamut_info
     report["warnings"] = list(warnings)
     report["texture"] = texture_report(recipe, list(TEXTURE_OBSERVERS.values()), texture_ground(  # docs/texture.md
-        table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False), paint.eta if paint.delta else None))
+        table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False), paint.eta if paint.delta else None),
+        stored=solved.stored)
     h5_md["rgb_file"] = gamut_info
     t0 = time.perf_counter()
     paths, summary = write_outputs(out_dir, recipe.name, table, file_table, report, h5_md, plan)

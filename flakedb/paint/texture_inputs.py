@@ -7,8 +7,10 @@ the extinction of everything else, from the same catalogue optics the solver use
   :data:`DEFAULT_DIAMETER_GSD`), thickness and α as :mod:`flakedb.paint.mapping` (so ρ⟨A⟩ = φ/t =
   the solver's aρ); R(c, λ), T(c, λ) from :func:`flakedb.paint.species.flake_reflectance_transmittance`
   on the adaptive c grid of :func:`flakedb.paint.mapping.adaptive_flake_optics`; ``opaque`` sets T = 0.
-* Pigments: σ_t = ρ⟨C_ext⟩ per band (:func:`flakedb.paint.species.pigment_optics`, Mie, Du 2004):
-  the extinction of the direct beam (scattered light joins the ground, not the glint).
+* Pigments: σ_t = ρ⟨C_ext⟩ per band (:func:`flakedb.paint.species.pigment_optics`, Mie, Du 2004, or
+  with ``stored`` the store's cross-sections, as the solver takes them:
+  :func:`flakedb.paint.mapping.build_paint`): the extinction of the direct beam (scattered light joins
+  the ground, not the glint).
 * An absorbing clear coat: its absorption; a custom medium: σ_t = τ/d (grey).
 * Luminance weights: the Y column of :func:`flakedb.colour.colorimetry.tristimulus_weights` (D65,
   CIE 1931 2°) on the recipe's grid (spectral and RGB modes both evaluate on the spectral grid).
@@ -43,8 +45,12 @@ def _spectrum(value, wl):
     return value.at(wl) if isinstance(value, Spectrum) else np.full(wl.size, float(value))
 
 
-def texture_stack(recipe) -> tuple[TextureStack, list]:
+def texture_stack(recipe, stored=None) -> tuple[TextureStack, list]:
     """(:class:`flakedb.texture.model.TextureStack`, notes) of ``recipe`` (module docstring).
+
+    ``stored``: the :class:`flakedb.compose.store_context.StoreContext` the solve used, or None: catalogue
+    pigments' ⟨C_ext⟩ and ⟨V⟩ come from it (at the recipe's bands) instead of a second Mie evaluation,
+    exactly where :func:`flakedb.paint.mapping.build_paint` takes them from it.
 
     The flakes' volume fraction comes back as ρ⟨A⟩t, below the 40 µm coat, and the luminance weights sum to 1:
 
@@ -105,6 +111,10 @@ def texture_stack(recipe) -> tuple[TextureStack, list]:
                 mean_area = 0.25 * np.pi * Dm * Dm * np.exp(2.0 * np.log(gsd) ** 2)
                 rho = p.volume_fraction / (mean_area * t)
                 flakes.append(FlakeLayer(p.species, z, b.thickness_um, rho, Dm, gsd, t, recipe_alpha(p), c, R, T))
+            elif isinstance(p, CatalogParticle) and stored is not None and wl is not None:
+                po = stored.pigment(p.species)  # the solver's own cross-sections (mapping._stored_pigment_component)
+                absorbers.append(Absorber(z, b.thickness_um,
+                                          p.volume_fraction / po["mean_volume_um3"] * np.asarray(po["c_ext_um2"])))
             elif isinstance(p, CatalogParticle):
                 entry = copy.deepcopy(p.entry)
                 if p.median_diameter_um is not None:
@@ -123,13 +133,14 @@ def texture_stack(recipe) -> tuple[TextureStack, list]:
     return TextureStack(eta, y, tuple(flakes), tuple(absorbers), wl), notes
 
 
-def texture_report(recipe, observers, ground=None) -> dict:
-    """The ``texture`` report of a recipe: one entry per observer (:func:`flakedb.texture.model.texture_indices`).
+def texture_report(recipe, observers, ground=None, stored=None) -> dict:
+    """The ``texture`` report of a recipe: one entry per observer (:func:`flakedb.texture.model.texture_indices`);
+    ``stored`` as :func:`texture_stack`.
 
     ``ground``: optional callable ``ground(observer) -> {"directional": {light_deg: β}, "diffuse": β}``
     giving the smooth BSDF's luminance factors (compose passes one); without it contrasts and
     graininess are relative to the flakes' own mean (upper bounds, ``ground: "flakes"``)."""
-    stack, notes = texture_stack(recipe)
+    stack, notes = texture_stack(recipe, stored)
     out = {"recipe": recipe.name, "model": "docs/texture.md", "notes": notes,
            "flakes": [{"species": f.name, "diameter_median_um": f.diameter_median_um, "diameter_gsd": f.diameter_gsd,
                        "orientation_alpha": f.alpha, "flakes_per_mm2": f.areal_density_per_um2 * 1e6,

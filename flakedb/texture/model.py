@@ -22,15 +22,36 @@ Optics reused from the solver's kernels: the flake-normal density (paper eq. 5,
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
-from numpy.polynomial.hermite_e import hermegauss
+from numpy.polynomial.hermite_e import hermegauss as _hermegauss
 from numpy.polynomial.laguerre import laggauss
-from numpy.polynomial.legendre import leggauss
+from numpy.polynomial.legendre import leggauss as _leggauss
 
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.rt.microflake import flake_ndf_Beckmann, projected_area_Beckmann
 from flakedb.texture.instruments import DIFFRACTION_WAVELENGTH_NM
+
+
+@lru_cache(maxsize=64)
+def _gauss_rule(kind, n):
+    x, w = (_leggauss if kind == "legendre" else _hermegauss)(int(n))
+    x.setflags(write=False)
+    w.setflags(write=False)
+    return x, w
+
+
+def leggauss(n):
+    """Gauss–Legendre nodes and weights of ``n`` points, computed once per ``n`` (read-only arrays): the
+    indices ask for the same few rules hundreds of times per recipe."""
+    return _gauss_rule("legendre", n)
+
+
+def hermegauss(n):
+    """Gauss–Hermite (probabilists') nodes and weights, cached as :func:`leggauss`."""
+    return _gauss_rule("hermite", n)
+
 
 #: A glint is a flake at least this fraction as bright as the brightest flake of its kind could be
 #: (aligned, unattenuated, at the surface): a full-width-at-half-maximum count (docs/texture.md §3.3).
@@ -359,14 +380,9 @@ def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v):
     K = _k_max(lam_max, T_max)
     k = np.arange(K + 1)
     Pl, Pv, Pb = _poisson(k, lam_l), _poisson(k, lam_v), _poisson(k, lam_b)  # (nz, K+1)
-    ws, ps = [], []
-    for i in range(K + 1):
-        for j in range(K + 1 - i):
-            for b in range(K + 1 - i - j):
-                tr = T_l**i * T_v**j * (T_l * T_v) ** b * att
-                ws.append(yR @ tr / R_Y)
-                ps.append(Pl[:, i] * Pv[:, j] * Pb[:, b])
-    return np.stack(ws, axis=1), np.stack(ps, axis=1)
+    i, j, b = np.array([(i, j, b) for i in range(K + 1) for j in range(K + 1 - i) for b in range(K + 1 - i - j)]).T
+    tr = T_l[..., None] ** (i + b) * T_v[..., None] ** (j + b) * att[..., None]  # (C, nz, combinations)
+    return np.einsum("c,cnk->nk", yR, tr) / R_Y, Pl[:, i] * Pv[:, j] * Pb[:, b]
 
 
 def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_factor=None) -> dict:
