@@ -3,6 +3,11 @@ pearlescent at n = 128 without a store within 2 GB and 20 s; every catalogue rec
 docs/cost-model.md).  Each row runs the command line in a child process and reads the child's own resource
 usage (``os.wait4``): peak RSS (``ru_maxrss``, kB) and CPU seconds (user + sys), which a loaded machine's wall
 clock does not give.  Timings and memory live here and never in pass/fail tests.
+
+The compose is started by a small launcher process (:data:`LAUNCHER`), not by the benchmark process itself:
+on Linux a child's ``ru_maxrss`` includes the high-water mark of the memory it was forked from (kept across
+``exec``), so a child forked straight from ``make bench`` (GBs after the other benchmarks) reported that
+process's peak (3.64 GB for every row on 2026-12-03) instead of its own.
 """
 
 import os
@@ -22,18 +27,23 @@ def _setup(name, n):
     return setup
 
 
+#: Runs argv[1:], waits for it with os.wait4 and prints "maxrss_kB cpu_s exit_code": its own memory is small, so
+#: the child's ru_maxrss is the child's (module docstring).
+LAUNCHER = ("import os, subprocess, sys\n"
+            "p = subprocess.Popen(sys.argv[1:], stdout=subprocess.DEVNULL)\n"
+            "_, status, ru = os.wait4(p.pid, 0)\n"
+            "print(ru.ru_maxrss, ru.ru_utime + ru.ru_stime, os.waitstatus_to_exitcode(status))\n")
+
+
 def _run(arg):
     recipe, n = arg
     with tempfile.TemporaryDirectory(prefix="flakedb-bench-") as out:
-        p = subprocess.Popen([sys.executable, "-m", "flakedb.cli.main", "compose", str(recipe), "--n", str(n),
-                              "--out", out, "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        _, status, ru = os.wait4(p.pid, 0)
-        p.returncode = os.waitstatus_to_exitcode(status)
-        err = p.stderr.read().decode(errors="replace")
-        p.stderr.close()
-    if p.returncode != 0:
-        raise RuntimeError(f"compose exited {p.returncode}: {err[-500:]}")
-    return {"n": n, "peak_rss_GB": ru.ru_maxrss * 1024 / 1e9, "cpu_s": ru.ru_utime + ru.ru_stime,
+        r = subprocess.run([sys.executable, "-c", LAUNCHER, sys.executable, "-m", "flakedb.cli.main", "compose",
+                            str(recipe), "--n", str(n), "--out", out, "--quiet"], capture_output=True, text=True)
+    maxrss_kb, cpu_s, code = r.stdout.split()
+    if r.returncode != 0 or int(code) != 0:
+        raise RuntimeError(f"compose exited {code}: {r.stderr[-500:]}")
+    return {"n": n, "peak_rss_GB": int(maxrss_kb) * 1024 / 1e9, "cpu_s": float(cpu_s),
             "target": "<= 2 GB and <= 20 s (metallic silver, particle pearlescent); < 3 GB every catalogue recipe"}
 
 
