@@ -92,6 +92,17 @@ layers:
 """
 
 
+def basecoat_recipe(name, particles, *, spectral="{mode: spectral, range_nm: [400, 700], step_nm: 20}",
+                    resolution=16, primer="{color: gray}"):
+    """Recipe text of a smooth 1.5 coat (40 µm) over one 15 µm basecoat of index 1.5 holding ``particles``
+    (the YAML flow mappings, one per entry) over ``primer``: the catalogue-species tests' input."""
+    lines = "\n".join(f"        - {p}" for p in particles)
+    return (f"flakedb: 1\nname: {name}\nspectral: {spectral}\nresolution: {resolution}\nlayers:\n"
+            f"  - clearcoat: {{thickness_um: 40, ior: 1.5, roughness: 0}}\n"
+            f"  - basecoat:\n      thickness_um: 15\n      ior: 1.5\n      particles:\n{lines}\n"
+            f"  - primer: {primer}\n")
+
+
 def run_cli(args, bound=60):
     """``flakedb ARGS`` through click's runner in a thread, so that a hang fails the test (after ``bound`` s)
     instead of stalling the suite."""

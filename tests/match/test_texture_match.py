@@ -10,7 +10,6 @@ started); texture tolerances that do not count in "reached".
 """
 
 import json
-import textwrap
 
 import numpy as np
 import pytest
@@ -31,23 +30,10 @@ from flakedb.match.texture import (
 from flakedb.paint.texture_inputs import texture_report
 from flakedb.resources import RECIPES_DIR
 from flakedb.texture.instruments import PRESETS
-from tests.cases import run_cli
+from tests.cases import basecoat_recipe, run_cli
 
-BASE = textwrap.dedent("""\
-    flakedb: 1
-    name: tex-match
-    spectral: {mode: spectral, range_nm: [400, 700], step_nm: 20}
-    resolution: 12
-    layers:
-      - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
-      - basecoat:
-          thickness_um: 15
-          ior: 1.5
-          particles:
-            - {species: metallic, volume_fraction: VF, orientation_alpha: 0.2, diameter_um: DM}
-            - {species: cadmium-yellow, volume_fraction: 0.01}
-      - primer: {color: gray}
-    """)
+BASE = basecoat_recipe("tex-match", ["{species: metallic, volume_fraction: VF, orientation_alpha: 0.2, diameter_um: DM}",
+                                      "{species: cadmium-yellow, volume_fraction: 0.01}"], resolution=12)
 TRUE_VF, TRUE_DM = 0.03, 24.0
 COLUMNS = ["sparkle_area_15", "sparkle_area_45", "sparkle_intensity_15", "sparkle_intensity_45", "graininess"]
 

@@ -10,22 +10,12 @@ from flakedb.paint import texture_inputs
 from flakedb.paint.texture_inputs import texture_report, texture_stack
 from flakedb.pipelines.build import build, request_for_recipe
 from flakedb.texture.instruments import PRESETS
+from tests.cases import basecoat_recipe
 
-RECIPE = """
-flakedb: 1
-name: tex-store
-spectral: {mode: spectral, range_nm: [500, 540], step_nm: 20}
-resolution: 8
-layers:
-  - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
-  - basecoat:
-      thickness_um: 15
-      ior: 1.5
-      particles:
-        - {species: metallic, volume_fraction: 0.04, orientation_alpha: 0.2}
-        - {species: cadmium-yellow, volume_fraction: 0.02}
-  - primer: {albedo: 0.5}
-"""
+RECIPE = basecoat_recipe("tex-store", ["{species: metallic, volume_fraction: 0.04, orientation_alpha: 0.2}",
+                                      "{species: cadmium-yellow, volume_fraction: 0.02}"],
+                         spectral="{mode: spectral, range_nm: [500, 540], step_nm: 20}", resolution=8,
+                         primer="{albedo: 0.5}")
 
 
 @pytest.fixture(scope="module")
