@@ -27,7 +27,11 @@ import copy
 import numpy as np
 
 from flakedb.colour.colorimetry import tristimulus_weights
-from flakedb.paint.mapping import adaptive_flake_optics, recipe_alpha
+from flakedb.paint.mapping import (
+    adaptive_flake_optics,
+    pigment_number_density,
+    recipe_alpha,
+)
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, Spectrum
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
 from flakedb.texture.model import Absorber, FlakeLayer, TextureStack, texture_indices
@@ -114,7 +118,7 @@ def texture_stack(recipe, stored=None) -> tuple[TextureStack, list]:
             elif isinstance(p, CatalogParticle) and stored is not None and wl is not None:
                 po = stored.pigment(p.species)  # the solver's own cross-sections (mapping._stored_pigment_component)
                 absorbers.append(Absorber(z, b.thickness_um,
-                                          p.volume_fraction / po["mean_volume_um3"] * np.asarray(po["c_ext_um2"])))
+                                          pigment_number_density(p.volume_fraction, po["mean_volume_um3"]) * np.asarray(po["c_ext_um2"])))
             elif isinstance(p, CatalogParticle):
                 entry = copy.deepcopy(p.entry)
                 if p.median_diameter_um is not None:
@@ -122,7 +126,7 @@ def texture_stack(recipe, stored=None) -> tuple[TextureStack, list]:
                 if p.gsd is not None:
                     entry["gsd"] = {"value": float(p.gsd)}
                 po = pigment_optics(entry, wl, b.ior)
-                absorbers.append(Absorber(z, b.thickness_um, p.volume_fraction / po.mean_volume_um3 * np.asarray(po.c_ext_um2)))
+                absorbers.append(Absorber(z, b.thickness_um, pigment_number_density(p.volume_fraction, po.mean_volume_um3) * np.asarray(po.c_ext_um2)))
             elif isinstance(p, CustomMedium):
                 absorbers.append(Absorber(z, b.thickness_um, np.full(C, float(p.optical_depth) / b.thickness_um)))
             elif isinstance(p, CustomFlake):
