@@ -138,9 +138,18 @@ class TextureStack:
 
 
 def _interp_rows(xp, table, x):
+    """np.interp of every row of ``table`` (C, nc) at ``x`` (any shape) on the shared ascending nodes
+    ``xp`` (values beyond the ends held): the nodes and weights found once for all rows → (C, *x.shape)."""
     x = np.asarray(x, float)
-    out = np.stack([np.interp(x.ravel(), xp, row) for row in np.atleast_2d(table)])
-    return out.reshape((out.shape[0],) + x.shape)
+    xp = np.asarray(xp, float)
+    table = np.atleast_2d(np.asarray(table, float))
+    if xp.size == 1:
+        return np.repeat(table[:, :1], x.size, axis=1).reshape((table.shape[0],) + x.shape)
+    xc = np.clip(x.ravel(), xp[0], xp[-1])
+    i = np.clip(np.searchsorted(xp, xc, side="right") - 1, 0, xp.size - 2)
+    t = (xc - xp[i]) / (xp[i + 1] - xp[i])
+    out = table[:, i] * (1.0 - t) + table[:, i + 1] * t
+    return out.reshape((table.shape[0],) + x.shape)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -165,7 +174,8 @@ def cone_solid_angle(half_angle_rad):
 
 
 def lens_area(d, r1, r2):
-    """Area of the intersection of two discs of radii r1, r2 whose centres are d apart (planar)."""
+    """Area of the intersection of two discs of radii r1, r2 (scalars > 0) whose centres are d apart
+    (planar); the result has d's shape.  Equal radii: 2r² arccos(d/2r) − (d/2)√(4r² − d²)."""
     d = np.asarray(d, float)
     r1, r2 = float(r1), float(r2)
     small, big = min(r1, r2), max(r1, r2)
@@ -174,6 +184,10 @@ def lens_area(d, r1, r2):
     out[inside] = np.pi * small * small
     part = (~inside) & (d < r1 + r2)
     dd = d[part]
+    if r1 == r2:
+        out[part] = 2.0 * r1 * r1 * np.arccos(np.minimum(dd / (2.0 * r1), 1.0)) - 0.5 * dd * np.sqrt(
+            np.maximum(4.0 * r1 * r1 - dd * dd, 0.0))
+        return out
     a1 = r1 * r1 * np.arccos(np.clip((dd * dd + r1 * r1 - r2 * r2) / (2 * dd * r1), -1, 1))
     a2 = r2 * r2 * np.arccos(np.clip((dd * dd + r2 * r2 - r1 * r1) / (2 * dd * r2), -1, 1))
     k = 0.5 * np.sqrt(np.maximum((-dd + r1 + r2) * (dd + r1 - r2) * (dd - r1 + r2) * (dd + r1 + r2), 0.0))
@@ -192,7 +206,7 @@ def _poisson(k, lam):
     """Poisson probabilities P(k; λ) for k (K,) and λ (...) → (..., K)."""
     lam = np.asarray(lam, float)[..., None]
     k = np.asarray(k, float)
-    lg = np.array([np.sum(np.log(np.arange(1, int(j) + 1))) for j in k])
+    lg = np.concatenate([[0.0], np.cumsum(np.log(np.arange(1.0, k.max(initial=0) + 1.0)))])[k.astype(int)]  # ln k!
     with np.errstate(divide="ignore"):
         logp = k * np.log(np.where(lam > 0, lam, 1.0)) - lam - lg
     return np.where(lam > 0, np.exp(logp), (k == 0).astype(float))
@@ -261,7 +275,7 @@ def _shared(stack, z, slope_gap, n=16):
         acc = np.zeros(z.size)
         for D, wd in zip(Dn, Dw):
             r = 0.5 * D
-            acc += wd * np.sum(lens_area(sep.ravel(), r, r).reshape(sep.shape) * wx[None, :], axis=1) * 0.5 * span
+            acc += wd * (lens_area(sep, r, r) @ wx) * 0.5 * span
         out += f.number_density_per_um3 * acc
     return out
 
@@ -319,27 +333,36 @@ def _offset_tables(r_s, r_d, r_a, n=N_OFFSET, n_r=12, n_t=24):
     """The fraction of a flake's beam that the aperture collects, against the offset d of the beam's
     centre from the aperture's centre (ω_o space, docs/texture.md eq. S1b): the beam is the source
     disc (radius r_s) convolved with the diffraction disc (r_d), density lens(|y|; r_s, r_d)/(π r_s² π r_d²),
-    integrated over the aperture disc (r_a) by Gauss–Legendre in radius × midpoint in angle.
-    Returns d on [0, r_s + r_d + r_a], f(d), and I(d) = ∫_0^d f 2πx dx / f(0) (φ = f/f(0))."""
-    d = np.linspace(0.0, r_s + r_d + r_a, n)
+    integrated over the aperture disc (r_a) by Gauss–Legendre in radius × midpoint in angle (``n_t``
+    even: the angles θ and 2π − θ give the same distance, so half of them are evaluated, twice weighted).
+    ``r_d``: a scalar or (nD,) diffraction radii, one table each.
+    Returns d on [0, r_s + r_d + r_a], f(d), and I(d) = ∫_0^d f 2πx dx / f(0) (φ = f/f(0)), each with
+    the shape of ``r_d`` followed by (n,) (f(0): the shape of ``r_d``)."""
+    r_d = np.asarray(r_d, float)
+    d = np.linspace(0.0, 1.0, n)[None, :] * (r_s + r_d.reshape(-1, 1) + r_a)  # (nD, n)
     x, wx = leggauss(n_r)
     rr = 0.5 * r_a * (x + 1.0)
     wr = 0.5 * r_a * wx * rr
-    th = (np.arange(n_t) + 0.5) * 2.0 * np.pi / n_t
+    half = n_t // 2
+    th = (np.arange(half) + 0.5) * 2.0 * np.pi / n_t  # (0, π); the mirror angles 2π − θ are alike
     ax = (rr[:, None] * np.cos(th)[None, :]).ravel()
     ay = (rr[:, None] * np.sin(th)[None, :]).ravel()
-    wa = np.repeat(wr, n_t) * (2.0 * np.pi / n_t)
-    dist = np.hypot(ax[None, :] - d[:, None], ay[None, :])
-    if r_d > 0:
-        dens = lens_area(dist.ravel(), r_s, r_d).reshape(dist.shape) / (np.pi * r_s * r_s * np.pi * r_d * r_d)
-    else:
-        dens = (dist <= r_s) / (np.pi * r_s * r_s)
-    f = dens @ wa
-    f = np.minimum.accumulate(f)  # non-increasing in d (removes quadrature ripples)
-    phi = f / f[0]
+    wa = np.repeat(wr, half) * (2.0 * 2.0 * np.pi / n_t)
+    dist = np.hypot(ax[None, None, :] - d[:, :, None], ay[None, None, :])  # (nD, n, n_r·n_t/2)
+    f = np.empty(d.shape)
+    for i, r in enumerate(r_d.ravel()):  # lens_area takes scalar radii: one diffraction radius at a time
+        if r > 0:
+            f[i] = (lens_area(dist[i], r_s, r) / (np.pi * r_s * r_s * np.pi * r * r)) @ wa
+        else:
+            f[i] = ((dist[i] <= r_s) / (np.pi * r_s * r_s)) @ wa
+    f = np.minimum.accumulate(f, axis=-1)  # non-increasing in d (removes quadrature ripples)
+    phi = f / f[:, :1]
     g = phi * 2.0 * np.pi * d
-    I = np.concatenate([[0.0], np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(d))])
-    return d, phi, I, float(f[0])
+    I = np.concatenate([np.zeros((d.shape[0], 1)), np.cumsum(0.5 * (g[:, 1:] + g[:, :-1]) * np.diff(d, axis=-1), axis=-1)],
+                       axis=-1)
+    shape = r_d.shape
+    return (d.reshape(shape + (n,)), phi.reshape(shape + (n,)), I.reshape(shape + (n,)),
+            f[:, 0].reshape(shape) if shape else float(f[0, 0]))
 
 
 def _threshold_offset(q, d, phi):
@@ -350,24 +373,26 @@ def _threshold_offset(q, d, phi):
 
 
 def _cumtrapz(y, x):
-    return np.concatenate([[0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(x))])
+    """Cumulative trapezoid integral along the last axis (0 at the first node)."""
+    seg = 0.5 * (y[..., 1:] + y[..., :-1]) * np.diff(x, axis=-1)
+    return np.concatenate([np.zeros(seg.shape[:-1] + (1,)), np.cumsum(seg, axis=-1)], axis=-1)
 
 
 def _ring_density(g, alpha, d, n_angle=16):
     """The upper-hemisphere flake-normal density p(m) = 2 D(m) (paper eq. 5) averaged over the circle
     of normals whose beams land at offset d from the aperture's centre (docs/texture.md eq. S2b):
     a beam offset (δ∥, δ⊥) in ω_o space is a normal offset (δ∥/2, δ⊥/(2c)) around h' (the half-vector
-    map, area Jacobian 1/(4c)).  Returns (len(d),), 1/sr; → p(h') as d → 0."""
+    map, area Jacobian 1/(4c)).  ``d``: any shape.  Returns d's shape, 1/sr; → p(h') as d → 0."""
     th = np.arccos(np.clip(g.cos_h, -1.0, 1.0))
     h = np.array([np.sin(th), 0.0, np.cos(th)])
     e_par = np.array([np.cos(th), 0.0, -np.sin(th)])
     e_perp = np.array([0.0, 1.0, 0.0])
     ang = (np.arange(n_angle) + 0.5) * 2.0 * np.pi / n_angle
-    a = 0.5 * d[:, None] * np.cos(ang)[None, :]
-    b = 0.5 * d[:, None] * np.sin(ang)[None, :] / g.c
-    m = h[None, None, :] + a[..., None] * e_par + b[..., None] * e_perp
+    a = 0.5 * d[..., None] * np.cos(ang)
+    b = 0.5 * d[..., None] * np.sin(ang) / g.c
+    m = h + a[..., None] * e_par + b[..., None] * e_perp
     mz = m[..., 2] / np.linalg.norm(m, axis=-1)
-    return 2.0 * flake_ndf_Beckmann(mz, alpha).mean(axis=1)
+    return 2.0 * flake_ndf_Beckmann(mz, alpha).mean(axis=-1)
 
 
 def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v):
@@ -380,8 +405,12 @@ def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v):
     K = _k_max(lam_max, T_max)
     k = np.arange(K + 1)
     Pl, Pv, Pb = _poisson(k, lam_l), _poisson(k, lam_v), _poisson(k, lam_b)  # (nz, K+1)
-    i, j, b = np.array([(i, j, b) for i in range(K + 1) for j in range(K + 1 - i) for b in range(K + 1 - i - j)]).T
-    tr = T_l[..., None] ** (i + b) * T_v[..., None] ** (j + b) * att[..., None]  # (C, nz, combinations)
+    i, j, b = np.indices((K + 1,) * 3).reshape(3, -1)
+    keep = i + j + b <= K  # every (k_l, k_v, k_b) with k_l + k_v + k_b ≤ K, in lexicographic order
+    i, j, b = i[keep], j[keep], b[keep]
+    powers = np.arange(2 * K + 1)
+    Tl_k, Tv_k = T_l[..., None] ** powers, T_v[..., None] ** powers  # (C, nz, 2K + 1)
+    tr = Tl_k[..., i + b] * Tv_k[..., j + b] * att[..., None]  # (C, nz, combinations)
     return np.einsum("c,cnk->nk", yR, tr) / R_Y, Pl[:, i] * Pv[:, j] * Pb[:, b]
 
 
@@ -435,23 +464,27 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
         lam_b = np.minimum(_shared(stack, z, np.full(z.size, _gap(lb, vb))), np.minimum(lam_l, lam_v))
         w, P = _path_weights(y * R_h, R_Y, att, lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v)
         Nz = f.number_density_per_um3 * f.thickness_um  # flakes per µm² in the layer
-        for D, wd in zip(Dn, Dw):
-            d, phi, I, f_max = _offset_tables(g.r_s, float(diffraction_radius(D, stack.eta)), g.r_a)
-            ring = _ring_density(g, f.alpha, d)  # p(m) averaged on circles of offset d, 1/sr
-            x2 = 2.0 * np.pi * d
-            S_P = _cumtrapz(ring * x2, d)  # ∫_0^d p dS
-            I_P = _cumtrapz(ring * phi * x2, d)  # ∫_0^d p φ dS
-            b_peak = np.pi * g.t_in * g.t_out * R_Y * f_max * g.c / (g.mu_l_b * g.mu_v * g.omega_a)
-            A = 0.25 * np.pi * D * D
-            q = GLINT_FRACTION / np.maximum(w, 1e-300)
-            dq = _threshold_offset(q, d, phi)
-            S_q, I_q = np.interp(dq, d, S_P), np.interp(dq, d, I_P)
-            dens = Nz * wd / (4.0 * g.c)  # flakes per µm² per unit ω_o-space area and unit density
-            cnt = dens * np.einsum("z,zk,zk->", wz, P, S_q)
-            n_g += cnt
-            flux += dens * b_peak * min(A, a_spot) / a_spot * np.einsum("z,zk,zk,zk->", wz, P, w, I_q)
-            mean_all += dens * b_peak * A * np.einsum("z,zk,zk->", wz, P, w) * I_P[-1]
-            mink += cnt * (a_spot + 2.0 * p * D + 0.25 * np.pi * D * D)
+        # one offset table per diameter node (the diffraction disc depends on D), all at once
+        d, phi, _, f_max = _offset_tables(g.r_s, diffraction_radius(Dn, stack.eta), g.r_a)  # (nD, n) …, (nD,)
+        ring = _ring_density(g, f.alpha, d)  # p(m) averaged on circles of offset d, 1/sr
+        x2 = 2.0 * np.pi * d
+        S_P = _cumtrapz(ring * x2, d)  # ∫_0^d p dS
+        I_P = _cumtrapz(ring * phi * x2, d)  # ∫_0^d p φ dS
+        b_peak = np.pi * g.t_in * g.t_out * R_Y * f_max * g.c / (g.mu_l_b * g.mu_v * g.omega_a)  # (nD,)
+        A = 0.25 * np.pi * Dn * Dn
+        q = GLINT_FRACTION / np.maximum(w, 1e-300)
+        S_q = np.empty((Dn.size,) + q.shape)
+        I_q = np.empty_like(S_q)
+        for i in range(Dn.size):  # np.interp is one-dimensional: one call per diameter node
+            dq = _threshold_offset(q, d[i], phi[i])
+            S_q[i], I_q[i] = np.interp(dq, d[i], S_P[i]), np.interp(dq, d[i], I_P[i])
+        dens = Nz * Dw / (4.0 * g.c)  # flakes per µm² per unit ω_o-space area and unit density
+        wP = wz[:, None] * P
+        cnt = dens * np.einsum("zk,dzk->d", wP, S_q)
+        n_g += float(cnt.sum())
+        flux += float(np.sum(dens * b_peak * np.minimum(A, a_spot) / a_spot * np.einsum("zk,dzk->d", wP * w, I_q)))
+        mean_all += float(np.sum(dens * b_peak * A * float(np.sum(wP * w)) * I_P[:, -1]))
+        mink += float(np.sum(cnt * (a_spot + 2.0 * p * Dn + 0.25 * np.pi * Dn * Dn)))
         fm = _offset_tables(g.r_s, float(diffraction_radius(f.diameter_median_um, stack.eta)), g.r_a, n=2)[3]
         peak = max(peak, np.pi * g.t_in * g.t_out * R_Y * fm * g.c / (g.mu_l_b * g.mu_v * g.omega_a))
     sparkle = bool(stack.flakes) and bool(peak >= SPARKLE_MIN_PEAK) and bool(n_g > 0)
@@ -557,7 +590,7 @@ def _pair_term(f, z, wz, b0, lam, tau, r, spot_um, n=16):
     dz = f.thickness_um / nu
     zu = f.z_top_um + (np.arange(nu) + 0.5) * dz
     h = zu - f.z_top_um
-    S = np.array([np.sum(ws * (cover * np.exp(rho * lens * hj * (1.0 - tau) ** 2) - 1.0)) for hj in h])
+    S = (cover * np.exp(rho * (1.0 - tau) ** 2 * h[:, None] * lens[None, :]) - 1.0) @ ws  # (nu,)
     g = np.interp(zu, z, b0) * np.exp(-np.interp(zu, z, lam) * (1.0 - tau)) * dz
     tri = np.tril(np.ones((nu, nu)), -1) + 0.5 * np.eye(nu)  # [i, j]: z_j < z_i
     return 2.0 * rho * rho * float(g @ tri @ (g * S))
@@ -580,7 +613,6 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
     mu_vb = float(binder_cosine(observer.view_deg, eta))
     vb = np.array([-np.sqrt(1 - mu_vb**2), 0.0, mu_vb])
     t_out = float(coat_transmittance(mu_v, eta))
-    a_spot = float(observer.spot_um) ** 2
     mean, var = 0.0, 0.0
     for f in stack.flakes:
         m, wm = _sky_normals(f.alpha)

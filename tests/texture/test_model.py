@@ -4,11 +4,10 @@ under diffuse light or for a random orientation.  Guards against a wrong orienta
 half-vector Jacobian, loading or size distribution."""
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
-
-from pathlib import Path
 
 from flakedb.paint.recipe import load_recipe
 from flakedb.paint.texture_inputs import texture_report
@@ -16,7 +15,7 @@ from flakedb.resources import PACKAGE_DIR
 from flakedb.rt.microflake import FlakeOptics, extinction_Ergun, kernel_Ergun
 from flakedb.texture import model as tm
 from flakedb.texture.instruments import PRESETS, Observer
-from tests.texture.cases import TEST_OBSERVER, recipe, stack_of
+from tests.texture.cases import TEST_OBSERVER, stack_of
 
 
 def _f_ss(stack, light_deg, view_deg):
@@ -129,3 +128,23 @@ def test_lens_area():
     assert tm.lens_area(np.array([3.0]), 1.0, 2.0)[0] == 0.0
     # two unit discs one radius apart: 2π/3 − √3/2
     assert tm.lens_area(np.array([1.0]), 1.0, 1.0)[0] == pytest.approx(2 * np.pi / 3 - np.sqrt(3) / 2, rel=1e-12)
+    # the unequal-radius formula against an independent grid count (1/400 of a radius: area error ~ h·perimeter)
+    h = 1.0 / 400
+    x, y = np.meshgrid(np.arange(-1.0, 1.0, h) + h / 2, np.arange(-1.0, 1.0, h) + h / 2)
+    d, r2 = 1.5, 0.8
+    grid = h * h * np.count_nonzero((x * x + y * y <= 1.0) & ((x - d) ** 2 + y * y <= r2 * r2))
+    assert tm.lens_area(np.array([d]), 1.0, r2)[0] == pytest.approx(grid, rel=5e-3)
+    # both branches agree where they meet (r2 → r1), and the result is symmetric in the radii
+    s = np.linspace(0.0, 2.5, 11)
+    assert np.allclose(tm.lens_area(s, 1.0, 1.0 + 1e-9), tm.lens_area(s, 1.0, 1.0), rtol=1e-7, atol=1e-8)
+    assert np.allclose(tm.lens_area(s, 1.0, 0.7), tm.lens_area(s, 0.7, 1.0), rtol=1e-13, atol=1e-15)  # summation order
+
+
+def test_interp_rows_is_np_interp_per_row():
+    """The shared-weight row interpolation equals np.interp row by row, ends held, at any shape of x."""
+    rng = np.random.default_rng(3)
+    xp = np.sort(rng.uniform(0.0, 1.0, 9))
+    table = rng.uniform(-1.0, 1.0, (4, 9))
+    x = rng.uniform(-0.2, 1.2, (5, 3))
+    want = np.stack([np.interp(x, xp, row) for row in table])
+    assert np.allclose(tm._interp_rows(xp, table, x), want, rtol=0, atol=1e-15)
