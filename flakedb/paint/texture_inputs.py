@@ -158,5 +158,6 @@ def texture_report(recipe, observers, ground=None, stored=None) -> dict:
         out["observers"] = []
         return out
     out["sparkle"] = True
-    out["observers"] = [texture_indices(stack, o, ground(o) if ground else None) for o in observers]
+    memo = {}  # the observers share the light and view directions' parts (flakedb.texture.model.texture_indices)
+    out["observers"] = [texture_indices(stack, o, ground(o) if ground else None, memo=memo) for o in observers]
     return out

@@ -414,7 +414,28 @@ def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v):
     return np.einsum("c,cnk->nk", yR, tr) / R_Y, Pl[:, i] * Pv[:, j] * Pb[:, b]
 
 
-def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_factor=None) -> dict:
+def _glint_paths(stack, f, g):
+    """The part of :func:`sparkle_indices` for flake layer ``f`` that depends on the light and view
+    directions only (not on the observer's spot, aperture or source size): depth nodes z, wz, the
+    crossing-count weights and probabilities w, P (:func:`_path_weights`) and the luminance of the
+    flakes' mirror reflectance R_Y at the half-vector; None where R_Y = 0."""
+    y = np.asarray(stack.y_weights, float)
+    z, wz = _depth_nodes(f)
+    tau_l, lam_l, T_l = _path(stack, z, g.mu_l_b)
+    tau_v, lam_v, T_v = _path(stack, z, g.mu_v_b)
+    att = np.exp(-(tau_l + tau_v))  # (C, nz)
+    R_h = f.reflectance(np.array([g.c]))[:, 0]  # (C,)
+    R_Y = float(y @ R_h)
+    if R_Y <= 0.0:
+        return None
+    lb = np.array([np.sqrt(1 - g.mu_l_b**2), 0.0, g.mu_l_b])
+    vb = np.array([-np.sqrt(1 - g.mu_v_b**2), 0.0, g.mu_v_b])
+    lam_b = np.minimum(_shared(stack, z, np.full(z.size, _gap(lb, vb))), np.minimum(lam_l, lam_v))
+    w, P = _path_weights(y * R_h, R_Y, att, lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v)
+    return z, wz, w, P, R_Y
+
+
+def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_factor=None, memo=None) -> dict:
     """The glint statistics of docs/texture.md §3 for one directional geometry.
 
     Returns a dict (units in the keys): ``glints_per_mm2`` (expected glints per mm² of panel: flakes
@@ -426,6 +447,8 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
     give the panel: the part of the smooth BSDF the glints carry, π f_ss), ``sparkle_contrast``
     (sparkle_intensity over the ground: ``ground_luminance_factor`` if given (the smooth BSDF's π f),
     else the flake part), and ``sparkle`` (False when no flake can outshine a white diffuser).
+    ``memo``: an optional dict shared by calls on the same ``stack`` (:func:`texture_indices` of several
+    observers) that keeps the parts that depend on the light and view only (:func:`_glint_paths`).
 
     Doubling the loading of a 10 µm layer of aluminium-like flakes at most doubles the glints (the added
     flakes also hide some of those below), and their mirror reflections stay below the flakes' R = 0.9:
@@ -441,7 +464,6 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
     """
     g = directional_geometry(stack.eta, light_deg, observer.view_deg, observer.source_half_angle_deg,
                              observer.aperture_half_angle_rad)
-    y = np.asarray(stack.y_weights, float)
     a_spot = float(observer.spot_um) ** 2
     p = float(observer.spot_um)
     n_g = 0.0
@@ -449,20 +471,18 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
     mean_all = 0.0
     mink = 0.0
     peak = 0.0
-    for f in stack.flakes:
-        Dn, Dw = f.diameters()
-        z, wz = _depth_nodes(f)
-        tau_l, lam_l, T_l = _path(stack, z, g.mu_l_b)
-        tau_v, lam_v, T_v = _path(stack, z, g.mu_v_b)
-        att = np.exp(-(tau_l + tau_v))  # (C, nz)
-        R_h = f.reflectance(np.array([g.c]))[:, 0]  # (C,)
-        R_Y = float(y @ R_h)
-        if R_Y <= 0.0:
+    for i_f, f in enumerate(stack.flakes):
+        key = ("glint", i_f, g.mu_l_b, g.mu_v_b)
+        if memo is None or key not in memo:
+            paths = _glint_paths(stack, f, g)
+            if memo is not None:
+                memo[key] = paths
+        else:
+            paths = memo[key]
+        if paths is None:
             continue
-        lb = np.array([np.sqrt(1 - g.mu_l_b**2), 0.0, g.mu_l_b])
-        vb = np.array([-np.sqrt(1 - g.mu_v_b**2), 0.0, g.mu_v_b])
-        lam_b = np.minimum(_shared(stack, z, np.full(z.size, _gap(lb, vb))), np.minimum(lam_l, lam_v))
-        w, P = _path_weights(y * R_h, R_Y, att, lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v)
+        _, wz, w, P, R_Y = paths
+        Dn, Dw = f.diameters()
         Nz = f.number_density_per_um3 * f.thickness_um  # flakes per µm² in the layer
         # one offset table per diameter node (the diffraction disc depends on D), all at once
         d, phi, _, f_max = _offset_tables(g.r_s, diffraction_radius(Dn, stack.eta), g.r_a)  # (nD, n) …, (nD,)
@@ -596,7 +616,61 @@ def _pair_term(f, z, wz, b0, lam, tau, r, spot_um, n=16):
     return 2.0 * rho * rho * float(g @ tri @ (g * S))
 
 
-def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=None) -> dict:
+def _sky_terms(stack, f, view_deg):
+    """The part of :func:`graininess_indices` for flake layer ``f`` that depends on the view only (not on
+    the observer's spot): E[b], E[b²] over normals and depths (docs/texture.md eq. G3), the depth nodes,
+    the unhidden mean luminance factor per depth b0, the view path's crossings λ_v and the luminance of
+    T² of a flake crossed by both vertical paths (the inputs of :func:`_pair_term`)."""
+    eta = float(stack.eta)
+    y = np.asarray(stack.y_weights, float)
+    mu_v = float(np.cos(np.radians(view_deg)))
+    mu_vb = float(binder_cosine(view_deg, eta))
+    vb = np.array([-np.sqrt(1 - mu_vb**2), 0.0, mu_vb])
+    t_out = float(coat_transmittance(mu_v, eta))
+    m, wm = _sky_normals(f.alpha)
+    cv = m @ vb
+    lm = 2.0 * cv[:, None] * m - vb  # mirrored direction (toward the sky)
+    mu_lb = lm[:, 2]
+    s2 = np.maximum(1.0 - mu_lb**2, 0.0) * eta * eta
+    ok = (mu_lb > 1e-6) & (s2 < 1.0)
+    mu_air = np.sqrt(np.clip(1.0 - s2, 0.0, 1.0))
+    t_in = np.where(ok, coat_transmittance(mu_air, eta), 0.0)
+    R = f.reflectance(np.abs(cv))  # (C, M)
+    z, wz = _depth_nodes(f, N_DEPTH_SKY)
+    mu_lb_s = np.where(ok, mu_lb, 1.0)
+    # paths: in along each m's mirrored direction, out along v'
+    tau_v, lam_v, T_v = _path(stack, z, mu_vb)  # (C, nz), (nz,), (C, nz)
+    M, nz = m.shape[0], z.size
+    zz = np.repeat(z[None, :], M, axis=0).ravel()
+    mm = np.repeat(mu_lb_s[:, None], nz, axis=1).ravel()
+    tau_l, lam_l, T_l = _path(stack, zz, mm)
+    C = y.size
+    tau_l, lam_l, T_l = tau_l.reshape(C, M, nz), lam_l.reshape(M, nz), T_l.reshape(C, M, nz)
+    gap = np.repeat(_gap(np.where(ok[:, None], lm, vb[None, :]), vb)[:, None], nz, axis=1).ravel()
+    lam_b = np.minimum(_shared(stack, zz, gap), np.minimum(lam_l.ravel(), np.repeat(lam_v[None, :], M, 0).ravel()))
+    lam_b = lam_b.reshape(M, nz)
+    lo_l, lo_v = lam_l - lam_b, lam_v[None, :] - lam_b  # one path only
+    # per channel: amp = T_in T_out R e^{−τ}; Poisson crossings average exactly (docs/texture.md eq. G3):
+    # E[b_c] = a_c exp(−λ_l'(1−T_l) − λ_v'(1−T_v) − λ_b(1−T_l T_v)),
+    # E[b_c b_c'] = a_c a_c' exp(−λ_l'(1−T_l T_l') − λ_v'(1−T_v T_v') − λ_b(1−T_l T_v T_l' T_v'))
+    amp = (t_in * t_out)[None, :, None] * R[:, :, None] * np.exp(-(tau_l + tau_v[:, None, :]))  # (C, M, nz)
+    Tv = np.broadcast_to(T_v[:, None, :], T_l.shape)
+    Eb_c = amp * np.exp(-lo_l * (1 - T_l) - lo_v * (1 - Tv) - lam_b * (1 - T_l * Tv))
+    b1 = np.einsum("c,cmz->mz", y, Eb_c)
+    ya = y[:, None, None] * amp
+    b2 = np.zeros((M, nz))
+    for c1 in range(C):
+        ex = (-lo_l * (1 - T_l[c1] * T_l) - lo_v * (1 - Tv[c1] * Tv)
+              - lam_b * (1 - T_l[c1] * Tv[c1] * T_l * Tv))
+        b2 += ya[c1] * np.sum(ya * np.exp(ex), axis=0)
+    wgt = wm[:, None] * wz[None, :]
+    Eb, Eb2 = float(np.sum(wgt * b1)), float(np.sum(wgt * b2))
+    b0 = np.einsum("c,cmz,m->z", y, amp, wm)  # unhidden mean luminance factor per depth
+    tau_y = float(y @ (T_v[:, -1] ** 2))  # a flake crossed by both (vertical) paths transmits T²
+    return Eb, Eb2, z, wz, b0, lam_v, tau_y
+
+
+def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=None, memo=None) -> dict:
     """Graininess under a uniform sky (docs/texture.md §4): the spot-to-spot relative standard
     deviation of luminance, G = σ(β_spot)/⟨β_spot⟩, for resolved spots of side ``observer.spot_um``
     viewed at ``observer.view_deg``.
@@ -606,53 +680,18 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
     number of flakes: ⟨β⟩ = Σ N_A ⟨A⟩ E[b], Var β = Σ N_A ⟨A²/(A + a)⟩ E[b²] / a … (docs/texture.md
     eq. G2).  ``ground_luminance_factor``: the paint's total luminance factor under the sky (its
     directional albedo at the view), which replaces the flakes' mean in the denominator; without
-    it G is the flake-only value (an upper bound).  Returns a dict."""
-    eta = float(stack.eta)
-    y = np.asarray(stack.y_weights, float)
-    mu_v = float(np.cos(np.radians(observer.view_deg)))
-    mu_vb = float(binder_cosine(observer.view_deg, eta))
-    vb = np.array([-np.sqrt(1 - mu_vb**2), 0.0, mu_vb])
-    t_out = float(coat_transmittance(mu_v, eta))
+    it G is the flake-only value (an upper bound).  ``memo``: as :func:`sparkle_indices` (keeps
+    :func:`_sky_terms`).  Returns a dict."""
     mean, var = 0.0, 0.0
-    for f in stack.flakes:
-        m, wm = _sky_normals(f.alpha)
-        cv = m @ vb
-        lm = 2.0 * cv[:, None] * m - vb  # mirrored direction (toward the sky)
-        mu_lb = lm[:, 2]
-        s2 = np.maximum(1.0 - mu_lb**2, 0.0) * eta * eta
-        ok = (mu_lb > 1e-6) & (s2 < 1.0)
-        mu_air = np.sqrt(np.clip(1.0 - s2, 0.0, 1.0))
-        t_in = np.where(ok, coat_transmittance(mu_air, eta), 0.0)
-        R = f.reflectance(np.abs(cv))  # (C, M)
-        z, wz = _depth_nodes(f, N_DEPTH_SKY)
-        mu_lb_s = np.where(ok, mu_lb, 1.0)
-        # paths: in along each m's mirrored direction, out along v'
-        tau_v, lam_v, T_v = _path(stack, z, mu_vb)  # (C, nz), (nz,), (C, nz)
-        M, nz = m.shape[0], z.size
-        zz = np.repeat(z[None, :], M, axis=0).ravel()
-        mm = np.repeat(mu_lb_s[:, None], nz, axis=1).ravel()
-        tau_l, lam_l, T_l = _path(stack, zz, mm)
-        C = y.size
-        tau_l, lam_l, T_l = tau_l.reshape(C, M, nz), lam_l.reshape(M, nz), T_l.reshape(C, M, nz)
-        gap = np.repeat(_gap(np.where(ok[:, None], lm, vb[None, :]), vb)[:, None], nz, axis=1).ravel()
-        lam_b = np.minimum(_shared(stack, zz, gap), np.minimum(lam_l.ravel(), np.repeat(lam_v[None, :], M, 0).ravel()))
-        lam_b = lam_b.reshape(M, nz)
-        lo_l, lo_v = lam_l - lam_b, lam_v[None, :] - lam_b  # one path only
-        # per channel: amp = T_in T_out R e^{−τ}; Poisson crossings average exactly (docs/texture.md eq. G3):
-        # E[b_c] = a_c exp(−λ_l'(1−T_l) − λ_v'(1−T_v) − λ_b(1−T_l T_v)),
-        # E[b_c b_c'] = a_c a_c' exp(−λ_l'(1−T_l T_l') − λ_v'(1−T_v T_v') − λ_b(1−T_l T_v T_l' T_v'))
-        amp = (t_in * t_out)[None, :, None] * R[:, :, None] * np.exp(-(tau_l + tau_v[:, None, :]))  # (C, M, nz)
-        Tv = np.broadcast_to(T_v[:, None, :], T_l.shape)
-        Eb_c = amp * np.exp(-lo_l * (1 - T_l) - lo_v * (1 - Tv) - lam_b * (1 - T_l * Tv))
-        b1 = np.einsum("c,cmz->mz", y, Eb_c)
-        ya = y[:, None, None] * amp
-        b2 = np.zeros((M, nz))
-        for c1 in range(C):
-            ex = (-lo_l * (1 - T_l[c1] * T_l) - lo_v * (1 - Tv[c1] * Tv)
-                  - lam_b * (1 - T_l[c1] * Tv[c1] * T_l * Tv))
-            b2 += ya[c1] * np.sum(ya * np.exp(ex), axis=0)
-        wgt = wm[:, None] * wz[None, :]
-        Eb, Eb2 = float(np.sum(wgt * b1)), float(np.sum(wgt * b2))
+    for i_f, f in enumerate(stack.flakes):
+        key = ("sky", i_f, float(observer.view_deg))
+        if memo is None or key not in memo:
+            terms = _sky_terms(stack, f, float(observer.view_deg))
+            if memo is not None:
+                memo[key] = terms
+        else:
+            terms = memo[key]
+        Eb, Eb2, z, wz, b0, lam_v, tau_y = terms
         Dn, Dw = f.diameters()
         A = 0.25 * np.pi * Dn * Dn
         NA = f.areal_density_per_um2
@@ -660,8 +699,6 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
         ov = np.array([overlap_integral(D, observer.spot_um) for D in Dn])
         var += NA * float(Dw @ ov) * Eb2
         # pairs of flakes of this layer, one above the other (docs/texture.md eq. G4)
-        b0 = np.einsum("c,cmz,m->z", y, amp, wm)  # unhidden mean luminance factor per depth
-        tau_y = float(y @ (T_v[:, -1] ** 2))  # a flake crossed by both (vertical) paths transmits T²
         Dj, wj = f.diameters(6)
         var += float(wj @ np.array([_pair_term(f, z, wz, b0, lam_v, tau_y, 0.5 * D, observer.spot_um) for D in Dj]))
     ground = float(ground_luminance_factor) if ground_luminance_factor is not None else mean
@@ -675,14 +712,15 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
     }
 
 
-def texture_indices(stack: TextureStack, observer, ground=None) -> dict:
+def texture_indices(stack: TextureStack, observer, ground=None, memo=None) -> dict:
     """Every index of one observer: one :func:`sparkle_indices` row per light angle and the
     :func:`graininess_indices`.  ``ground``: optional {"directional": {light_deg: β}, "diffuse": β}
-    from the smooth BSDF."""
+    from the smooth BSDF.  ``memo``: an optional dict shared by the calls of several observers on the
+    same ``stack``: what depends on the light and view directions only is computed once."""
     ground = ground or {}
     gd = ground.get("directional", {})
-    rows = [sparkle_indices(stack, observer, a, gd.get(float(a))) for a in observer.light_deg]
+    rows = [sparkle_indices(stack, observer, a, gd.get(float(a)), memo=memo) for a in observer.light_deg]
     return {"observer": observer.name, "spot_um": float(observer.spot_um),
             "aperture_half_angle_rad": float(observer.aperture_half_angle_rad),
             "source_half_angle_deg": float(observer.source_half_angle_deg),
-            "directional": rows, "diffuse": graininess_indices(stack, observer, ground.get("diffuse"))}
+            "directional": rows, "diffuse": graininess_indices(stack, observer, ground.get("diffuse"), memo=memo)}
