@@ -27,9 +27,11 @@ import numpy as np
 
 from flakedb.atomic import atomic_write_text
 from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import check_plan
 from flakedb.cli.options import check_node_count
 from flakedb.match import calibrate as cal
-from flakedb.paint.catalog import CatalogError, load_catalog
+from flakedb.outputs import OutputPlan
+from flakedb.paint.catalog import CatalogError, default_catalog_path, load_catalog
 from flakedb.paint.recipe import RecipeError
 
 
@@ -54,6 +56,16 @@ def calibrate(ladder, out_catalog, catalog_path, degree, n, max_nfev, report_pat
         species, name, free, panels = cal.read_ladder(ladder)
         if not Path(out_catalog).parent.is_dir():
             raise ValueError(f"--out-catalog {out_catalog}: the folder {Path(out_catalog).parent} does not exist")
+        plan = OutputPlan()  # before any work: the outputs are never an input (the base catalogue above all)
+        plan.add_input(ladder, "LADDER")
+        plan.add_input(catalog_path if catalog_path is not None else default_catalog_path(), "--catalog")
+        for pn in panels:
+            for q in pn.paths:
+                plan.add_input(q, f"panel {pn.name}")
+        plan.add_output(out_catalog, "--out-catalog")
+        if report_path:
+            plan.add_output(report_path, "--report")
+        check_plan(plan)
         if name in catalog["particles"]:
             raise ValueError(f"{ladder}: name {name!r} is already a species of the base catalogue; choose another name")
         if species not in catalog["particles"]:

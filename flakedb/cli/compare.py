@@ -46,7 +46,7 @@ from flakedb.match.texture import (
     predict_texture,
 )
 from flakedb.outputs import OutputPlan
-from flakedb.paint.catalog import CatalogError, load_catalog
+from flakedb.paint.catalog import CatalogError, default_catalog_path, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.render.plots import plot_multiangle
@@ -149,6 +149,7 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         target_files = batch.expand_paths(target_paths, (".csv", ".cxf"))
     except ValueError as exc:
         raise FlakedbError(str(exc)) from exc
+    _check_outputs(recipe_files, target_files, pairs_path, catalog_path, csv_out, table_out)
     if pairs_path is not None or len(recipe_files) > 1 or len(target_files) > 1:
         if csv_out or mi_illuminant:
             raise FlakedbError("--write-csv and --metamerism take one recipe and one target; a batch writes --table")
@@ -157,12 +158,6 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
                               texture_tol)
     recipe = str(recipe_files[0])
     target_path = str(target_files[0]) if target_files else None
-    if csv_out is not None:  # the output plan, before any work: never onto the target, the recipe, the catalogue
-        plan = OutputPlan()
-        for path, label in ((recipe, "RECIPE"), (target_path, "--target"), (catalog_path, "--catalog")):
-            plan.add_input(path, label)
-        plan.add_output(csv_out, "--write-csv")
-        check_plan(plan)
 
     try:
         catalog = load_catalog(catalog_path)
@@ -252,6 +247,34 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
 
 def _safe(name) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in str(name))[:80] or "x"
+
+
+def _check_outputs(recipe_files, target_files, pairs_path, catalog_path, csv_out, table_out):
+    """The output plan of compare, checked before any work (:class:`flakedb.outputs.OutputPlan`): --write-csv,
+    --table and the table's texture companion are never a recipe, a target, the --pairs list or a file it
+    names, the catalogue (given or default) or one another."""
+    if csv_out is None and table_out is None:
+        return
+    plan = OutputPlan()
+    for path in recipe_files:
+        plan.add_input(path, "RECIPE")
+    for path in target_files:
+        plan.add_input(path, "--target")
+    plan.add_input(pairs_path, "--pairs")
+    plan.add_input(catalog_path if catalog_path is not None else default_catalog_path(), "--catalog")
+    if pairs_path is not None:
+        try:
+            for r, t, _ in batch.read_pair_list(pairs_path):
+                plan.add_input(r, "RECIPE (--pairs)")
+                plan.add_input(t, "--target (--pairs)")
+        except ValueError as exc:
+            raise FlakedbError(str(exc)) from exc
+    if csv_out is not None:
+        plan.add_output(csv_out, "--write-csv")
+    if table_out is not None:
+        plan.add_output(table_out, "--table")
+        plan.add_output(batch.texture_table_path(table_out), "--table (texture rows)")
+    check_plan(plan)
 
 
 def _outputs(comparisons, table_out, plot_dir, plot_format):

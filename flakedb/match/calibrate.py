@@ -74,6 +74,8 @@ class Panel:
     name: str
     recipe_doc: dict
     target: Target
+    #: the files it was read from (recipe, target), for the command's output plan
+    paths: tuple = ()
 
 
 @dataclass
@@ -325,7 +327,8 @@ def read_ladder(path):
             tgt = load_target(p.parent / str(e["target"]), object_name=e.get("cxf_object"))
         except TargetError as exc:
             raise ValueError(f"{where}.target: {exc}") from None
-        panels.append(Panel(name=str(e.get("name") or rp.stem), recipe_doc=rdoc, target=tgt))
+        panels.append(Panel(name=str(e.get("name") or rp.stem), recipe_doc=rdoc, target=tgt,
+                            paths=(rp, p.parent / str(e["target"]))))
     free = doc.get("free")
     return str(doc["species"]), str(doc["name"]), (None if free is None else list(free)), panels
 

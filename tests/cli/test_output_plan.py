@@ -20,6 +20,7 @@ from flakedb.bsdf.h5file import write_h5
 from flakedb.bsdf.table import BSDFTable
 from flakedb.cli.main import cli
 from flakedb.match import fit as cm
+from flakedb.match.batch import texture_table_path
 from flakedb.outputs import OutputError, OutputPlan, sweep_stale, temp_prefix
 from flakedb.render import mitsuba as fm
 from flakedb.render import preview
@@ -122,6 +123,60 @@ def test_compare_write_csv_onto_the_target_is_refused(tmp_path, no_work):
              "--write-csv", "is the input --target")
     _refused(_run(["compare", tmp_path / "r.yaml", "--write-csv", tmp_path / "r.yaml"]), "is the input RECIPE")
     assert _snapshot(tmp_path) == before
+
+
+def test_compare_table_onto_an_input_is_refused(tmp_path, no_work):
+    """--table (and its texture companion) is planned like --write-csv, batch or not: never onto a target,
+    a recipe, a --pairs list or a file it names, nor onto --write-csv."""
+    (tmp_path / "r.yaml").write_text(RECIPE)
+    (tmp_path / "r2.yaml").write_text(RECIPE.replace("plan-test", "plan-test-2"))
+    (tmp_path / "t.csv").write_text(TARGET)
+    (tmp_path / "pairs.csv").write_text("recipe,target\nr.yaml,t.csv\n")
+    before = _snapshot(tmp_path)
+    r, r2, t = tmp_path / "r.yaml", tmp_path / "r2.yaml", tmp_path / "t.csv"
+    _refused(_run(["compare", r, "--target", t, "--table", t]), "--table", "is the input --target")
+    _refused(_run(["compare", r, "--table", r]), "--table", "is the input RECIPE")
+    _refused(_run(["compare", r, r2, "--target", t, "--table", t]), "is the input --target")        # a batch
+    _refused(_run(["compare", "--pairs", tmp_path / "pairs.csv", "--table", t]), "is the input --target (--pairs)")
+    _refused(_run(["compare", "--pairs", tmp_path / "pairs.csv", "--table", tmp_path / "pairs.csv"]),
+             "is the input --pairs")
+    _refused(_run(["compare", r, "--write-csv", tmp_path / "p.csv", "--table", tmp_path / "p.csv"]),
+             "are the same file")
+    # the texture rows go to NAME.texture.csv beside the table: that file is an output too
+    tex = texture_table_path(tmp_path / "x.csv")
+    tex.write_text(TARGET)
+    before = _snapshot(tmp_path)
+    _refused(_run(["compare", r, "--target", tex, "--table", tmp_path / "x.csv"]), "is the input --target")
+    assert _snapshot(tmp_path) == before
+
+
+def test_calibrate_never_writes_over_its_inputs(tmp_path, no_work, monkeypatch):
+    """--out-catalog and --report are never the base catalogue (given or the default), the ladder or a panel's
+    recipe or target, nor each other; refused before any fit."""
+    import flakedb.cli.calibrate as ccal
+    from flakedb.paint.catalog import default_catalog_path
+
+    def work(*a, **k):
+        raise AssertionError("the fit started before the output plan was refused")
+
+    monkeypatch.setattr(ccal.cal, "calibrate", work)
+    (tmp_path / "m.yaml").write_text(RECIPE)
+    (tmp_path / "m.csv").write_text(TARGET)
+    ladder = tmp_path / "ladder.yaml"
+    ladder.write_text("species: cadmium-yellow\nname: cy-lab\npanels:\n  - {recipe: m.yaml, target: m.csv}\n")
+    cat = tmp_path / "base.yaml"
+    cat.write_bytes(default_catalog_path().read_bytes())
+    shipped = hashlib.sha256(default_catalog_path().read_bytes()).hexdigest()
+    before = _snapshot(tmp_path)
+    _refused(_run(["calibrate", ladder, "--catalog", cat, "--out-catalog", cat]), "--out-catalog", "is the input --catalog")
+    _refused(_run(["calibrate", ladder, "--out-catalog", default_catalog_path()]), "is the input --catalog")
+    _refused(_run(["calibrate", ladder, "--out-catalog", ladder]), "is the input LADDER")
+    _refused(_run(["calibrate", ladder, "--out-catalog", tmp_path / "u.yaml", "--report", tmp_path / "m.csv"]),
+             "--report", "is the input panel")
+    _refused(_run(["calibrate", ladder, "--out-catalog", tmp_path / "u.yaml", "--report", tmp_path / "u.yaml"]),
+             "are the same file")
+    assert _snapshot(tmp_path) == before
+    assert hashlib.sha256(default_catalog_path().read_bytes()).hexdigest() == shipped
 
 
 def test_match_never_writes_over_its_base(tmp_path, monkeypatch, no_work):
