@@ -49,7 +49,7 @@ def export_openpbr(file, out, name, as_json):
         with remove_created_dirs(out_dir.absolute()):
             s = run_export(file, out_dir, name=name,
                            progress=None if as_json else (lambda m: click.echo(m, err=True)))
-    except BSDFFileError as e:
+    except (BSDFFileError, OutputError) as e:
         raise FlakedbError(str(e)) from None
     if as_json:
         click.echo(json.dumps(s, indent=2))

@@ -13,6 +13,7 @@ from flakedb.export.gltf import write_gltf
 from flakedb.export.materialx import write_mtlx
 from flakedb.export.openpbr import fit_openpbr
 from flakedb.export.usd import write_usda
+from flakedb.outputs import OutputPlan
 from flakedb.render.mitsuba import export_coated, export_measured
 from flakedb.render.mitsuba.coated import pbrt_coated_scene
 
@@ -24,17 +25,22 @@ def export_openpbr(src, out_dir, name: str | None = None, progress=None) -> dict
     Returns {"fit": fit dict, "files": {kind: path}}."""
     out_dir = Path(out_dir)
     name = name or Path(src).name.split(".")[0]
+    routes = (("materialx", write_mtlx, ".mtlx"), ("usd", write_usda, ".usda"), ("gltf", write_gltf, ".gltf"),
+              ("glb", write_gltf, ".glb"), ("blender", write_material_script, ".blender.py"))
+    # the output plan before any work (flakedb.outputs): no output is the input (a BSDF named NAME.glb, say)
+    plan = OutputPlan()
+    plan.add_input(src, "FILE")
+    finals = {kind: plan.in_dir(out_dir, f"{name}{suffix}", kind) for kind, _, suffix in routes}
+    plan.check()
     b = open_bsdf(src)
     if progress:
         progress("fitting OpenPBR parameters (hemisphere + E2194/E2539 geometries)")
     fit = fit_openpbr(b, source=str(src))
     out_dir.mkdir(parents=True, exist_ok=True)
-    files = {}
-    for kind, fn, suffix in (("materialx", write_mtlx, ".mtlx"), ("usd", write_usda, ".usda"),
-                             ("gltf", write_gltf, ".gltf"), ("glb", write_gltf, ".glb"),
-                             ("blender", write_material_script, ".blender.py")):
-        files[kind] = str(fn(out_dir / f"{name}{suffix}", fit, name))
-    return {"fit": fit.to_dict(), "files": files}
+    with plan.staged() as stage:  # the five files land together or not at all
+        for kind, fn, _ in routes:
+            fn(stage.path(finals[kind]), fit, name)
+    return {"fit": fit.to_dict(), "files": {kind: str(p) for kind, p in finals.items()}}
 
 
 def _mitsuba_coated(src, out, **kw):

@@ -150,6 +150,21 @@ def test_compare_table_onto_an_input_is_refused(tmp_path, no_work):
     assert _snapshot(tmp_path) == before
 
 
+def test_export_openpbr_onto_its_input_is_refused(paint, no_work, monkeypatch):
+    """export-openpbr writes NAME.mtlx/.usda/.gltf/.glb/.blender.py: a BSDF file named like one of them is its
+    input and is refused before the fit; nothing is written."""
+    import flakedb.export.registry as reg
+
+    def work(*a, **k):
+        raise AssertionError("the fit started before the output plan was refused")
+
+    monkeypatch.setattr(reg, "fit_openpbr", work)
+    (paint / "p.glb").write_bytes((paint / "p.bsdf").read_bytes())   # a Fourier .bsdf that is called p.glb
+    before = _snapshot(paint)
+    _refused(_run(["export-openpbr", paint / "p.glb"]), "is the input FILE")
+    assert _snapshot(paint) == before
+
+
 def test_calibrate_never_writes_over_its_inputs(tmp_path, no_work, monkeypatch):
     """--out-catalog and --report are never the base catalogue (given or the default), the ladder or a panel's
     recipe or target, nor each other; refused before any fit."""
