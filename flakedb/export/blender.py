@@ -220,7 +220,7 @@ def render_cycles_sphere(fit: OpenPBRFit, *, size: int = 32, samples: int = 16, 
     return {"image": np.asarray(out["pixels"], dtype=np.float64), "blender": out["blender"]}
 
 
-def _sphere_normals(size: int, extent: float):
+def sphere_normals(size: int, extent: float):
     """Normals (size, size, 3) of the unit sphere at the pixel centres of the orthographic frame of
     :func:`render_cycles_sphere` (row 0 at the top, camera along -z), and the mask of pixels on it."""
     x = -extent + (np.arange(size) + 0.5) * 2 * extent / size
@@ -237,7 +237,7 @@ def model_sun_image(fit: OpenPBRFit, size: int = 32, direction=(0.0, 0.0, 1.0), 
     sun is above the local horizon, 0 elsewhere (the coat's delta does not reach a pixel centre)."""
     d = np.asarray(direction, float)
     d = d / np.linalg.norm(d)
-    N, on = _sphere_normals(size, extent)
+    N, on = sphere_normals(size, extent)
     mu_v, mu_s = N[..., 2], N @ d
     tv = np.array([0.0, 0.0, 1.0]) - N * mu_v[..., None]             # tangent parts of view and sun
     ts = d - N * mu_s[..., None]
@@ -409,7 +409,7 @@ def principled_sun_image(fit: OpenPBRFit, size: int = 32, direction=(0.0, 0.0, 1
     if film and m > 0.0:
         raise ValueError(f"principled_sun_image: a metallic fit (base_metalness {m}) with a thin film "
                          f"({fit.thin_film_thickness_nm} nm) is not modelled (Cycles also puts the film on the metal)")
-    N, on = _sphere_normals(size, extent)
+    N, on = sphere_normals(size, extent)
     mu_v = N[..., 2]
     ok = on & (mu_v > 0)
     Nk, mv = N[ok], mu_v[ok]                                                           # (P, 3), (P,)

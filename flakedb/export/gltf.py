@@ -10,7 +10,12 @@ film is ``KHR_materials_iridescence`` (factor 1; the extension's film is in air,
 film of :meth:`flakedb.export.openpbr.OpenPBRFit.film_relative_to_air`; thickness minimum =
 maximum).
 The fit and its error are in the material's ``extras.flakedb_fit``.  Written with the standard
-library only; the tests read it back with ``pygltflib``.
+library only; the tests read it back with ``pygltflib`` and render it in three.js
+(``tools/gltf_lit.py``, ``tests/export/test_gltf_lit.py``).
+
+:func:`threejs_sun_image` states in numpy what three.js r187's ``MeshPhysicalMaterial`` (the
+material its ``GLTFLoader`` makes of these extensions) renders of the file under one
+``DirectionalLight``, and :func:`threejs_coat_fresnel` the Fresnel its clearcoat uses.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from flakedb.atomic import atomic_path
+from flakedb.export.blender import ggx_lobe_averages, sphere_normals
 from flakedb.export.openpbr import OpenPBRFit
 
 EXTENSIONS = ["KHR_materials_clearcoat", "KHR_materials_ior", "KHR_materials_specular"]
@@ -130,3 +136,115 @@ def write_gltf(path, fit: OpenPBRFit, name: str) -> Path:
             doc["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(blob).decode("ascii")
             Path(tmp).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     return path
+
+
+# --------------------------------------------------------------------------------------------
+# What three.js (r187, WebGL MeshPhysicalMaterial) renders of the file under a DirectionalLight
+# --------------------------------------------------------------------------------------------
+#: three.js's minimum perceptual roughness of the base lobe and the clearcoat (lights_physical_fragment)
+THREE_MIN_ROUGHNESS = 0.045
+
+
+def threejs_schlick(f0, f90, cos):
+    """three.js's ``F_Schlick`` (common.glsl): ``f0 (1 - w) + f90 w`` with Epic's spherical-Gaussian
+    ``w = 2^((-5.55473 c - 6.98316) c)`` in place of Schlick's ``(1 - c)^5`` (≤ 0.006 apart).
+
+    >>> round(float(threejs_schlick(0.04, 1.0, 1.0)), 5), round(float(threejs_schlick(0.04, 1.0, 0.0)), 5)
+    (0.04016, 1.0)
+    """
+    c = np.asarray(cos, float)
+    w = np.exp2((-5.55473 * c - 6.98316) * c)
+    return np.asarray(f0, float) * (1.0 - w) + np.asarray(f90, float) * w
+
+
+def threejs_coat_fresnel(mu_v):
+    """The clearcoat's Fresnel in three.js: :func:`threejs_schlick` with F0 0.04 (index 1.5, fixed
+    by ``KHR_materials_clearcoat``) and F90 1.  It scales everything under the coat by
+    ``1 - F(μ_v)`` (the view end only) and, in an environment of uniform radiance L, adds
+    ``L (F0 A + B)`` (its DFG table at the coat's roughness ≈ this F for a smooth coat)."""
+    return threejs_schlick(0.04, 1.0, mu_v)
+
+
+def _ggx_V_D(alpha, mu_v, mu_l, cos_h):
+    """three.js's ``V_GGX_SmithCorrelated · D_GGX`` (lights_physical_pars): the height-correlated
+    Smith visibility ``0.5 / (μ_l sqrt(α² + (1 - α²) μ_v²) + μ_v sqrt(α² + (1 - α²) μ_l²))`` times
+    ``α² / (π (cos²θ_h (α² - 1) + 1)²)``; ``alpha`` = perceptual roughness²."""
+    a2 = alpha * alpha
+    V = 0.5 / np.maximum(mu_l * np.sqrt(a2 + (1 - a2) * mu_v ** 2) + mu_v * np.sqrt(a2 + (1 - a2) * mu_l ** 2), 1e-6)
+    return V * a2 / (np.pi * (cos_h ** 2 * (a2 - 1.0) + 1.0) ** 2)
+
+
+def threejs_sun_image(fit: OpenPBRFit, size: int = 32, direction=(0.0, 0.0, 1.0), irradiance: float = 1.0,
+                      extent: float = 1.05, pixel_size: float | None = None) -> np.ndarray:
+    """(size, size, 3) image that three.js r187 renders of :func:`gltf_document` on the unit sphere
+    under one ``DirectionalLight`` of intensity ``irradiance`` along ``direction``, no environment,
+    at pixel centres in the frame of :func:`flakedb.export.blender.render_cycles_sphere` (row 0 at
+    the top), the way its shaders evaluate ``MeshPhysicalMaterial`` (``RE_Direct_Physical``,
+    ``BRDF_GGX``, ``BRDF_GGX_Clearcoat``, meshphysical.glsl), with c the base colour, m the
+    metalness, s the specular colour, k the specular factor, n the ior and
+    F0 = min(((n - 1) / (n + 1))² s, 1) k::
+
+        L = [(1 - F_c(μ_v)) (f_spec + f_diff) + F_c(cos θ_d) V D(α_c)] μ_l E
+        f_spec = F(mix(F0, c, m), mix(k, 1, m); cos θ_d) V D(α) (1 + mix(F0, c, m) (1/E_ss(r, μ_v) - 1))
+        f_diff = c (1 - m) / π (1 - F(F0, mix(k, 1, m); cos θ_d))
+
+    F = :func:`threejs_schlick`, F_c = :func:`threejs_coat_fresnel`, V D = :func:`_ggx_V_D`, E_ss the
+    GGX albedo with F = 1 (three.js reads it from its 16 x 16 DFG table; here
+    :func:`flakedb.export.blender.ggx_lobe_averages`), α = r², r = min(max(r_fit, 0.045) + g, 1) and
+    α_c likewise from the coat's roughness: three.js adds ``g``, the largest screen-space
+    derivative of the normal (``geometryRoughness``), ``pixel_size`` (default 2 extent / size) times
+    max(1, |x|/z, |y|/z) on the sphere.  Where the fit and three.js differ: the coat takes
+    ``1 - F_c(μ_v)`` at the view end only (the model: both ends) with Schlick's F (the model: the
+    exact F(θ; η_c)); the metal is Schlick to the base colour (the model: F82 with the edge tint
+    s); the lobe's tint s is on F0 only (the model: the whole Fresnel curve) and the lobe gets the
+    multiple-scattering factor; the diffuse is ``1 - F(cos θ_d)`` under the lobe (the model: the
+    lobe's albedo at both ends).  Raises ValueError for a fit with a thin film (three.js's
+    iridescence, Belcour & Barla 2017, is not modelled here).
+
+    A white diffuse sphere: E cos θ / π:
+
+    >>> img = threejs_sun_image(OpenPBRFit((1.0, 1.0, 1.0), 0.0, 1.0, 1.0, 0.0), size=8, extent=1.0)
+    >>> bool(np.allclose(img[3:5, 3:5], np.sqrt(1 - 2 * 0.125 ** 2) / np.pi, rtol=1e-12))
+    True
+    """
+    if fit.thin_film_thickness_nm > 0:
+        raise ValueError(f"threejs_sun_image: a fit with a thin film ({fit.thin_film_thickness_nm} nm) is not "
+                         f"modelled (three.js's KHR_materials_iridescence)")
+    d = np.asarray(direction, float)
+    d = d / np.linalg.norm(d)
+    N, on = sphere_normals(size, extent)
+    mu_v = N[..., 2]
+    ok = on & (mu_v > 0)
+    Nk, mv = N[ok], mu_v[ok]
+    p = 2.0 * extent / size if pixel_size is None else float(pixel_size)
+    g = p * np.maximum(1.0, np.abs(Nk[:, :2]).max(axis=1) / mv)
+    c = np.asarray(fit.base_color, float)
+    m = float(fit.base_metalness)
+    n = max(float(fit.specular_ior_relative), 1.0)
+    k = 1.0 if fit.specular_ior_relative > 1.0 else 0.0
+    F0 = np.minimum(((n - 1) / (n + 1)) ** 2 * np.asarray(fit.specular_color, float), 1.0) * k
+    f90 = k + (1.0 - k) * m
+    F0b = F0 + (c - F0) * m
+    r = np.minimum(max(float(fit.specular_roughness), THREE_MIN_ROUGHNESS) + g, 1.0)
+    # E_ss on roughness nodes 0.01 apart, linear in between (E's slope in r is ≤ 1: ≤ 1e-5 off)
+    r_nodes = np.arange(np.floor(r.min() / 0.01), np.ceil(r.max() / 0.01) + 1) * 0.01
+    E_nodes = np.array([ggx_lobe_averages(float(x), mv, 1.5)[1] for x in r_nodes])       # (R, P)
+    j = np.clip(np.searchsorted(r_nodes, r) - 1, 0, max(len(r_nodes) - 2, 0))
+    t = np.clip((r - r_nodes[j]) / 0.01, 0.0, 1.0) if len(r_nodes) > 1 else np.zeros_like(r)
+    cols = np.arange(len(r))
+    E_ss = (1 - t) * E_nodes[j, cols] + t * E_nodes[np.minimum(j + 1, len(r_nodes) - 1), cols]
+    msc = 1.0 + F0b[None, :] * (1.0 / E_ss[:, None] - 1.0)
+    mu_l = np.clip(Nk @ d, 0.0, 1.0)
+    h = d + np.array([0.0, 0.0, 1.0])
+    h = h / np.linalg.norm(h)
+    cos_h, cos_d = np.clip(Nk @ h, 0.0, 1.0), float(np.clip(h[2], 0.0, 1.0))
+    f_spec = threejs_schlick(F0b, f90, cos_d)[None, :] * _ggx_V_D(r * r, mv, mu_l, cos_h)[:, None] * msc
+    f_diff = (c * (1.0 - m) / np.pi * (1.0 - threejs_schlick(F0, f90, cos_d)))[None, :]
+    f = f_spec + f_diff
+    if fit.coat_ior > 1.0:
+        rc = np.minimum(max(float(fit.coat_roughness), THREE_MIN_ROUGHNESS) + g, 1.0)
+        f = (1.0 - threejs_coat_fresnel(mv))[:, None] * f + (
+            threejs_coat_fresnel(cos_d) * _ggx_V_D(rc * rc, mv, mu_l, cos_h))[:, None]
+    img = np.zeros((size, size, 3))
+    img[ok] = f * (mu_l * irradiance)[:, None]
+    return img
