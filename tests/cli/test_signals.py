@@ -19,7 +19,13 @@ RECIPE = small_mono_recipe("sig-test")
 #: Runs `flakedb compose` with the .h5 writer stalled after it wrote its (temporary) file: the .bsdf
 #: and the .h5 are then half of a set in the staging directory when the signal comes.
 SCRIPT = """
-import os, sys, time
+import os, signal, sys, time
+# the tested signals at their defaults: a suite run under nohup, or as a background job of a
+# non-interactive shell, hands SIGHUP / SIGINT down ignored, and compose keeps an ignored signal ignored
+# (flakedb.process.install_signal_handlers), so the run would never end
+signal.signal(signal.SIGTERM, signal.SIG_DFL)
+signal.signal(signal.SIGHUP, signal.SIG_DFL)
+signal.signal(signal.SIGINT, signal.default_int_handler)
 import flakedb.bsdf as bf
 real = bf.write_h5
 def stalled(path, *a, **k):
