@@ -306,7 +306,7 @@ def test_metal_base_parses_and_is_checked(monkeypatch):
     # resolution: auto takes the metal lobe's measured envelope (docs/resolution.md "Metal base")
     d["layers"][1]["metal"]["material"] = "Al"
     n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))  # the default colour_error 0.1 binds (issue 26)
-    assert n == 144 and "colour_error ≤ 0.1" in why
+    assert n == 176 and "colour_error ≤ 0.1" in why
     monkeypatch.setattr(mapping, "AUTO_TARGETS", {k: v for k, v in mapping.AUTO_TARGETS.items() if k != "colour_error"})
     n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))  # the lobe rule alone
     assert n == 48 and "metal base α = 0.1" in why and "measured 0.048" in why

@@ -35,12 +35,13 @@ def _labs(report):
 
 
 def test_colour_error_takes_the_measured_envelopes():
-    """A metal base takes the smallest measured n whose ΔE00(n, 2n) meets the target; flakes h·α_f; the
+    """A metal base takes the smallest measured n whose ΔE00 against the converged answer meets the target;
+    flakes h·α_f (ΔE00(n, 2n)); the
     default auto carries colour_error 0.1 (AUTO_TARGETS) and a recipe's own target replaces it; an
     unreachable target is refused naming the measurement."""
     n0, why0 = auto_resolution(load_recipe(RECIPES / "coated-aluminium.yaml"))
     n_default = next(x for x, e in METAL_COLOUR_ERROR if e <= AUTO_TARGETS["colour_error"])
-    assert n0 == n_default == 144 and "colour_error ≤ 0.1" in why0
+    assert n0 == n_default == 176 and "colour_error ≤ 0.1" in why0 and "converged" in why0
     target = 0.2
     n, why = auto_resolution(_with("coated-aluminium.yaml", {"colour_error": target}))
     n_table = next(x for x, e in METAL_COLOUR_ERROR if e <= target)
@@ -50,9 +51,10 @@ def test_colour_error_takes_the_measured_envelopes():
     x = next(x for x, e in FLAKE_COLOUR_ERROR if e <= 0.1)
     assert n >= 2 * int(np.ceil(x / 0.2 - 1e-9)) and "flakes α = 0.2" in why
     assert auto_resolution(load_recipe(RECIPES / "metallic-silver.yaml"))[0] == n
-    with pytest.raises(RecipeError, match=r"colour_error 0.05 for a metal base is not reachable: the smallest "
-                                          r"measured ΔE00\(n, 2n\) is"):
-        auto_resolution(_with("coated-aluminium.yaml", {"colour_error": 0.05}))
+    assert auto_resolution(_with("coated-aluminium.yaml", {"colour_error": 0.05}))[0] == 256  # 0.038 against the limit
+    with pytest.raises(RecipeError, match=r"colour_error 0.05 for this stack is not reachable: the smallest "
+                                          r"measured ΔE00 is 0.053"):
+        auto_resolution(_with("particle-titanium-white.yaml", {"colour_error": 0.05}))
 
 
 def test_default_colour_target_is_bounded_in_cost():
@@ -65,7 +67,7 @@ def test_default_colour_target_is_bounded_in_cost():
     assert n == AUTO_COLOUR_MAX_N and "default colour_error stops at" in why
     d["resolution"] = {"colour_error": 0.1}
     n_own, _ = auto_resolution(parse_recipe(yaml.safe_dump(d)))
-    assert n_own == 2 * 144 > n
+    assert n_own == 2 * 176 > n
 
 
 def test_report_states_its_discretisation_from_a_second_solve(tmp_path):
@@ -99,3 +101,21 @@ def test_colour_error_is_met_between_auto_and_twice_auto(tmp_path):
     a = compose(rec, tmp_path / "a")
     b = compose(rec, tmp_path / "b", n=2 * n)
     assert a.n == n and delta_E_2000(_labs(a.report), _labs(b.report)).max() <= 0.1
+
+
+@pytest.mark.slow
+def test_coated_aluminium_at_auto_is_within_the_target_of_the_converged_answer(tmp_path):
+    """Issue 26: coated aluminium at auto within ΔE00 0.1 of the converged answer at every report geometry (RGB
+    mode: ΔE00(144, 288) is 0.0949 there and 0.095 in 41 bands).  The limit is n = 512 (the largest allowed) plus
+    its own remainder, bounded by ΔE00(384, 512)·512^−p/(384^−p − 512^−p) with p = DISCRETISATION_ORDER (1.5,
+    below the 2.06 measured, so the bound is generous); ΔE00 is taken as additive along the error's direction."""
+    rec = _with("coated-aluminium.yaml", "auto", rgb=True)
+    a = compose(rec, tmp_path / "auto")
+    b = compose(rec, tmp_path / "n384", n=384)
+    c = compose(rec, tmp_path / "n512", n=512)
+    p = DISCRETISATION_ORDER
+    remainder = delta_E_2000(_labs(b.report), _labs(c.report)).max() * 512.0**-p / (384.0**-p - 512.0**-p)
+    err = delta_E_2000(_labs(a.report), _labs(c.report)) + remainder
+    assert a.n == 176 and err.max() <= AUTO_TARGETS["colour_error"], (a.n, err, remainder)
+    # and the report's own estimate against the converged answer does not understate it
+    assert a.report["discretisation"]["estimate_dE00_converged"] >= err.max() - remainder
