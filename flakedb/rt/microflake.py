@@ -289,21 +289,29 @@ def _smoothstep_gauss_legendre(n):
     return _GL_CACHE[n]
 
 
-def _azimuth_moments(a, b, lo, hi):
-    """∫_0^π 1[lo < a + b cos φ < hi] (a + b cos φ)^j dφ for j = 0, 1, 2 in closed form (b ≥ 0)."""
+def _azimuth_moments_halves(a, b, c):
+    """∫_0^π 1[lo < a + b cos φ < hi] (a + b cos φ)^j dφ, j = 0, 1, 2, in closed form (b ≥ 0), for the two
+    halves (lo, hi) = (0, c) and (−c, 0) of |a + b cos φ| < c: ``((g0, g1, g2) of (0, c), (g0, g1, g2) of
+    (−c, 0))``.  The set is φ ∈ (arccos x_hi, arccos x_lo), x = (level − a)/b clipped to [−1, 1], so with
+    p = arccos x: ∫ dφ = Δp, ∫ cos φ dφ = Δ sin p, ∫ cos² φ dφ = Δp/2 + Δ sin 2p/4, and sin p = √(1 − x²),
+    sin 2p = 2x√(1 − x²): three arccos and three square roots for both halves (the level 0 is shared) instead
+    of four arccos and eight sines.  b = 0: x = sign(level − a) (the whole or none of the half-circle)."""
     pos = b > 0.0
     b_safe = np.where(pos, b, 1.0)
-    x_lo = np.where(pos, (lo - a) / b_safe, np.sign(lo - a))
-    x_hi = np.where(pos, (hi - a) / b_safe, np.sign(hi - a))
-    p1 = np.arccos(np.clip(x_hi, -1.0, 1.0))
-    p2 = np.arccos(np.clip(x_lo, -1.0, 1.0))
-    dp = p2 - p1
-    ds = np.sin(p2) - np.sin(p1)
-    ds2 = np.sin(2.0 * p2) - np.sin(2.0 * p1)
-    g0 = dp
-    g1 = a * dp + b * ds
-    g2 = a * a * dp + 2.0 * a * b * ds + b * b * (0.5 * dp + 0.25 * ds2)
-    return g0, g1, g2
+
+    def cut(level):
+        x = np.clip(np.where(pos, (level - a) / b_safe, np.sign(level - a)), -1.0, 1.0)
+        sq = np.sqrt(1.0 - x * x)
+        return np.arccos(x), sq, x * sq
+
+    def moments(lo, hi):  # lo, hi: (arccos x, sin p, sin p cos p) at the two levels
+        dp = lo[0] - hi[0]
+        ds = lo[1] - hi[1]
+        ds2 = 2.0 * (lo[2] - hi[2])
+        return dp, a * dp + b * ds, a * a * dp + 2.0 * a * b * ds + b * b * (0.5 * dp + 0.25 * ds2)
+
+    top, mid, bottom = cut(c), cut(0.0), cut(-c)
+    return moments(mid, top), moments(bottom, mid)
 
 
 def _abs_cosine_moments_Beckmann(mu_abs, alpha, levels, n_quad):
@@ -312,7 +320,7 @@ def _abs_cosine_moments_Beckmann(mu_abs, alpha, levels, n_quad):
     ``mu_abs`` (M,), ``levels`` (K,) in (0, 1] → array (3, M, K).  Quadrature: upper hemisphere
     (×2 by D(m) = D(−m)) in t = tan θ_m with weight exp(−t²/α²) t/(2πα²); the azimuth integral of
     the flake cosine ω·m = a + b cos φ_m (a = −|μ| cos θ_m, b = s sin θ_m) over the set where
-    |ω·m| < c, split at ω·m = 0, is done in closed form (:func:`_azimuth_moments`); the t integral is
+    |ω·m| < c, split at ω·m = 0, is done in closed form (:func:`_azimuth_moments_halves`); the t integral is
     split into panels at every t where an azimuthal breakpoint enters or leaves [0, π]
     (ω·m ∈ {−c, 0, c} at φ_m = 0 or π: θ_m ∈ {γ − θ, θ − γ, θ + γ}, γ = arccos(−x)), plus a few fixed
     splits at multiples of α, and each panel uses smoothstep-mapped Gauss-Legendre (``n_quad`` nodes).
@@ -369,8 +377,7 @@ def _accumulate_azimuth(out, rows, wt, a, b, lev):
     (m, K, P, n_quad)) and ``wt`` the polar weights of the density on the upper hemisphere (D even)."""
     # the top level c = 1 must include |ω·m| = 1 exactly (μ = ±1 and θ_m → 0 give a = −1 in floats)
     c4 = np.where(lev >= 1.0, 1.0 + 1e-9, lev)[..., None, None]
-    p0, p1, p2 = _azimuth_moments(a, b, 0.0, c4)
-    n0, n1, n2 = _azimuth_moments(a, b, -c4, 0.0)
+    (p0, p1, p2), (n0, n1, n2) = _azimuth_moments_halves(a, b, c4)
     # ×2 for φ_m ∈ [π, 2π], ×2 for the lower hemisphere
     out[0, rows] = 4.0 * np.sum(wt * (p0 + n0), axis=(-1, -2))
     out[1, rows] = 4.0 * np.sum(wt * (p1 - n1), axis=(-1, -2))
