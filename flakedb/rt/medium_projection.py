@@ -104,19 +104,37 @@ def renormalization(pk, target, w):
     """Symmetric scale factors s (C, h) of a projected kernel, K[o, i] → s_o K[o, i] s_i (which keeps it
     reciprocal), so that Σ_o 2π w_o (K_T + K_R)_0[o, i] equals ``target`` (C, h) = σ_s(μ_i): the fixed
     point of s_i Σ_o M[o, i] w_o s_o = σ_s(μ_i) by a damped multiplicative iteration.  Returns
-    ``(scale, max |s² − 1|)``."""
+    ``(scale, max |s² − 1|)``.
+
+    Where σ_s(μ_i) = 0 (a flake whose R(c) is 0 near c = 1, e.g. an interference minimum of a pearlescent
+    flake in one RGB channel, seen along its narrow normal distribution) light from μ_i does not scatter:
+    s_i = 0 zeroes column i (and, symmetrically, row i, which reciprocity also makes zero), and the
+    iteration keeps it there (it used to divide 0 by 0: a NaN BSDF at every n).  Such columns are left out
+    of the reported deviation (nothing of theirs is renormalised but sampling residue of a zero kernel).
+
+    >>> M = np.array([[[1.0, 0.5], [0.5, 1.0]]]) / (2 * np.pi)       # (C, o, i), K_T0 + K_R0
+    >>> class PK:
+    ...     def blocks(self, l0, l1):
+    ...         return M[None], 0.0 * M[None]
+    >>> s, dev = renormalization(PK(), np.array([[1.5, 0.0]]), np.array([1.0, 1.0]))
+    >>> np.round(s, 12).tolist(), round(dev, 12)                     # s_0² = 1.5, s_1 = 0
+    ([[1.224744871392, 0.0]], 0.5)
+    """
     h = len(w)
     K_T0, K_R0 = pk.blocks(0, 1)
     M0 = 2.0 * np.pi * (K_T0[0] + K_R0[0])  # (C, o, i)
-    scale = np.ones(np.broadcast_shapes(target.shape, M0.shape[:1] + (h,)))
+    shape = np.broadcast_shapes(target.shape, M0.shape[:1] + (h,))
+    target = np.broadcast_to(target, shape)
+    live = target > 0.0
+    scale = np.where(live, 1.0, 0.0)
     for _ in range(50):
         col = np.einsum("coi,o,co->ci", M0, w, scale)
         with np.errstate(divide="ignore", invalid="ignore"):
-            upd = np.where(col > 0, np.sqrt(target / (scale * col)), 1.0)
+            upd = np.where(live & (col > 0), np.sqrt(target / (scale * col)), 1.0)
         scale = scale * upd
         if np.abs(upd - 1.0).max() < 1e-15:
             break
-    return scale, float(np.abs(scale**2 - 1.0).max())
+    return scale, float(np.abs(scale**2 - 1.0)[live].max(initial=0.0))
 
 
 #: A kernel whose last kept order still exceeds CAPPED_TAIL × its order 0 was cut by the order cap.

@@ -184,7 +184,15 @@ def binder_chain_quadratures(anchor, n_anchor, indices, first_segment_nodes=None
     # the segments: (u_hi, μ and w in the binder whose grazing range the segment is), the anchor first
     own = [(n0, anchor.x, anchor.w)]
     placed = anchor.h
-    breaks = sorted({v for v in n2 if v > n0})
+    # one break per distinct index: the chain's indices are products of the interfaces' ratios, so a binder that
+    # returns to an index above it (1.37 → 1.48 → 1.37) lands a few ulps off it (1.37 · (1.48/1.37) · (1.37/1.48)
+    # = 1.3699999999999999); taken as its own segment, that gap of ~1e-16 got 4 Gauss nodes of weight ~1e-17,
+    # whose flux cells the rough interfaces' cell rule divided by zero (a NaN BSDF) and whose near-duplicate
+    # nodes made the smooth steps' tables ring below zero
+    breaks = []
+    for v in sorted(n2):
+        if v > n0 * (1.0 + 1e-12) and (not breaks or v > breaks[-1] * (1.0 + 1e-12)):
+            breaks.append(v)
     lo = n0
     for k, hi in enumerate(breaks):
         ell = np.sqrt(1.0 - lo / hi)
