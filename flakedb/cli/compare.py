@@ -189,6 +189,11 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
             names = [f"{k}_{a:g}" for k in ("sparkle_area", "sparkle_intensity", "glints_per_mm2")
                      for a in (15.0, 45.0, 75.0)] + ["graininess"]
             tex = predict_texture(rec, names, DEFAULT_TEXTURE_OBSERVER, pred.ground)[0]
+            dropped = [k for k, v in tex.items() if v is None]
+            if dropped:  # outside the texture model (flakedb.texture.model.graininess_indices): no number to write
+                click.echo(f"note: {', '.join(dropped)} not predicted for {rec.name} (the hiding term cancels the "
+                           f"single-flake term, docs/texture.md §4): left out of --write-csv", err=True)
+                tex = {k: v for k, v in tex.items() if v is not None}
         write_target(csv_out, geoms, lab=None if spectral else lab, reflectance=pred.rf if spectral else None,
                      wavelength_nm=pred.wavelength_nm if spectral else None, observer=obs, illuminant=ill,
                      name=rec.name, notes={"generator": f"flakedb compare, n = {pred.n}, mode {pred.mode}"},

@@ -57,6 +57,9 @@ def format_texture(rep) -> str:
                          f"{r['sparkle_intensity']:>10.3g} {r['sparkle_contrast']:>9.3g} "
                          f"{r['peak_luminance_factor']:>8.3g}")
         d = o["diffuse"]
+        if d["graininess"] is None:
+            lines.append(f"  {o['observer']:<14} {'sky':>6} {d['note']}")
+            continue
         lines.append(f"  {o['observer']:<14} {'sky':>6} graininess {d['graininess']:.3g} "
                      f"(spot {o['spot_um']:.3g} µm; relative to the {'BSDF' if d['ground'] == 'bsdf' else 'flakes'}' mean)")
     lines.append("  glints/mm²: flakes at least half as bright as an aligned surface flake; per spot: in one resolved "

@@ -419,8 +419,16 @@ class _Evaluator:
         return self.cache[tuple(float(v) for v in values)][2]
 
     def texture_residuals(self, values) -> np.ndarray:
-        """r_k = (p_k − t_k)/δ_k of the target's texture columns (empty without them)."""
-        return np.array([r["residual"] for r in self.texture(values)[0]], float)
+        """r_k = (p_k − t_k)/δ_k of the target's texture columns (empty without them).  An index the model
+        cannot predict at these values (graininess of a thick, dense flake layer) ends the fit with a
+        ValueError naming it: a least-squares residual must be a number."""
+        rows = self.texture(values)[0]
+        missing = [r["index"] for r in rows if r["residual"] is None]
+        if missing:
+            raise ValueError(f"target texture column(s) {', '.join(missing)}: not predicted for this recipe at "
+                             f"{', '.join(f'{v:.4g}' for v in values)} (the hiding term cancels the single-flake term: "
+                             f"outside the texture model, docs/texture.md §4); match without them")
+        return np.array([r["residual"] for r in rows], float)
 
 
 def _fd_steps(params, z, lb, ub):

@@ -681,8 +681,9 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
     eq. G2).  ``ground_luminance_factor``: the paint's total luminance factor under the sky (its
     directional albedo at the view), which replaces the flakes' mean in the denominator; without
     it G is the flake-only value (an upper bound).  ``memo``: as :func:`sparkle_indices` (keeps
-    :func:`_sky_terms`).  Returns a dict."""
-    mean, var = 0.0, 0.0
+    :func:`_sky_terms`).  Returns a dict; where the variance comes out ≤ 0 (the hiding term cancels the
+    single-flake term: thick, dense flake layers) ``graininess`` is None, ``valid`` False and ``note`` says why."""
+    mean, var_single, var_pair = 0.0, 0.0, 0.0
     for i_f, f in enumerate(stack.flakes):
         key = ("sky", i_f, float(observer.view_deg))
         if memo is None or key not in memo:
@@ -697,19 +698,29 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
         NA = f.areal_density_per_um2
         mean += NA * float(Dw @ A) * Eb
         ov = np.array([overlap_integral(D, observer.spot_um) for D in Dn])
-        var += NA * float(Dw @ ov) * Eb2
+        var_single += NA * float(Dw @ ov) * Eb2
         # pairs of flakes of this layer, one above the other (docs/texture.md eq. G4)
         Dj, wj = f.diameters(6)
-        var += float(wj @ np.array([_pair_term(f, z, wz, b0, lam_v, tau_y, 0.5 * D, observer.spot_um) for D in Dj]))
+        var_pair += float(wj @ np.array([_pair_term(f, z, wz, b0, lam_v, tau_y, 0.5 * D, observer.spot_um) for D in Dj]))
+    var = var_single + var_pair
     ground = float(ground_luminance_factor) if ground_luminance_factor is not None else mean
-    sd = float(np.sqrt(var))
-    return {
+    out = {
         "view_deg": float(observer.view_deg),
-        "graininess": sd / ground if ground > 0 else 0.0,
-        "luminance_sd": sd,
         "flake_luminance_factor": mean,
         "ground": "bsdf" if ground_luminance_factor is not None else "flakes",
+        # the hiding (pair) term over the single-flake term: 0 for sparse flakes, → −1 where hiding dominates
+        "pair_over_single": var_pair / var_single if var_single > 0 else 0.0,
     }
+    if not (np.isfinite(var) and var > 0.0):
+        # a variance ≤ 0: the pair term, a second-order correction, cancels the first-order one (thick, dense
+        # flake layers), so the model has no number to give (docs/texture.md §4, "Validity")
+        out.update(graininess=None, luminance_sd=None, valid=False,
+                   note=f"graininess not predicted: the hiding (pair) term is {out['pair_over_single']:+.2f}× the "
+                        f"single-flake term, beyond the first-order model (docs/texture.md §4, Validity)")
+        return out
+    sd = float(np.sqrt(var))
+    out.update(graininess=sd / ground if ground > 0 else 0.0, luminance_sd=sd, valid=True)
+    return out
 
 
 def texture_indices(stack: TextureStack, observer, ground=None, memo=None) -> dict:

@@ -4,6 +4,7 @@ under diffuse light or for a random orientation.  Guards against a wrong orienta
 half-vector Jacobian, loading or size distribution."""
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ from flakedb.resources import PACKAGE_DIR
 from flakedb.rt.microflake import FlakeOptics, extinction_Ergun, kernel_Ergun
 from flakedb.texture import model as tm
 from flakedb.texture.instruments import PRESETS, Observer
-from tests.texture.cases import TEST_OBSERVER, stack_of
+from tests.texture.cases import TEST_OBSERVER, recipe, stack_of
 
 
 def _f_ss(stack, light_deg, view_deg):
@@ -148,3 +149,21 @@ def test_interp_rows_is_np_interp_per_row():
     x = rng.uniform(-0.2, 1.2, (5, 3))
     want = np.stack([np.interp(x, xp, row) for row in table])
     assert np.allclose(tm._interp_rows(xp, table, x), want, rtol=0, atol=1e-15)
+
+
+def test_graininess_outside_the_model_is_reported_not_nan(tmp_path):
+    """A thick, dense flake layer (100 µm of pearlescent at 5 %, found by fuzzing compose): the hiding (pair)
+    term cancels the single-flake term, Var β ≤ 0.  The model says so (graininess None, valid False, a note,
+    pair_over_single ≤ −0.9) instead of a NaN that made compose crash writing its JSON after the solve; a
+    sparse layer stays valid with a small negative pair term (docs/texture.md §4, Validity)."""
+    from flakedb.compose.orchestrate import compose
+
+    kw = {"species": "pearlescent", "vf": 0.05, "d": 100.0, "alpha": 0.25, "D": 15.0}
+    thick = recipe("thick", **kw)
+    g = tm.graininess_indices(stack_of(**kw), PRESETS["byk-mac-like"])
+    assert g["graininess"] is None and g["valid"] is False and g["pair_over_single"] <= -0.9 and "not predicted" in g["note"]
+    sparse = tm.graininess_indices(stack_of(vf=0.005), PRESETS["byk-mac-like"])
+    assert sparse["valid"] and sparse["graininess"] > 0 and -0.9 < sparse["pair_over_single"] <= 0.0
+    r = compose(thick, tmp_path / "out", n=16)   # the whole compose: a valid JSON report, the index null
+    doc = json.loads((tmp_path / "out" / "thick.json").read_text())
+    assert all(o["diffuse"]["graininess"] is None for o in doc["texture"]["observers"]) and r.n == 16
