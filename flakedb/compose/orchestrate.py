@@ -60,7 +60,15 @@ from flakedb.compose.report import (
 from flakedb.compose.store_context import StoreContext
 from flakedb.conventions import fourier_weight
 from flakedb.outputs import OutputError, OutputPlan, check_output_dir  # noqa: F401  (moved; re-exported)
-from flakedb.paint.mapping import build_paint, catalog_species, resolve_node_count, solve_paint
+from flakedb.paint.mapping import (
+    AUTO_REFINE_STEPS,
+    AUTO_TARGETS,
+    build_paint,
+    catalog_species,
+    refine_auto_n,
+    resolve_node_count,
+    solve_paint,
+)
 from flakedb.paint.texture_inputs import texture_report
 from flakedb.store import versions as st
 from flakedb.texture.instruments import PRESETS as TEXTURE_OBSERVERS
@@ -310,10 +318,11 @@ class SolvedRecipe:
 
 
 def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, verify=True, progress=None,
-                 allow_unphysical=False, generator="flakedb compose") -> SolvedRecipe:
+                 allow_unphysical=False, generator="flakedb compose", n_reason=None) -> SolvedRecipe:
     """Recipe → checked solution → full-precision table: the one orchestration that compose and match share.
 
-    The node count from :func:`flakedb.paint.mapping.resolve_node_count` (``n`` > the recipe's > auto);
+    The node count from :func:`flakedb.paint.mapping.resolve_node_count` (``n`` > the recipe's > auto; ``n_reason``
+    replaces the reason, for auto's refinement);
     ``store``: None, a store URL or an open :class:`flakedb.store.versions.StoreVersion` (checked against the
     recipe, its checksums verified with ``verify``); the solve with every core and the memory budget
     (``FLAKEDB_MEMORY_BUDGET`` bytes, else the solver's default); the result checked by
@@ -323,6 +332,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     log = log or (lambda s: None)
     progress = progress or (lambda stage, detail: None)
     n_used, reason = resolve_node_count(recipe, n)
+    reason = n_reason or reason  # auto's refinement (compose) names its own reason
     warnings = list(recipe.warnings)
     t = {}
     version = stored = None
@@ -419,19 +429,43 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     gamut.check_space(rgb_space)
     progress = progress or (lambda stage, detail: None)
     solved = solve_recipe(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical)
-    paint, stack, table, version = solved.paint, solved.stack, solved.table, solved.version
-    warnings, t, n_used, reason = solved.warnings, solved.timings_s, solved.n, solved.n_reason
-    progress("write", {"start": True})
-    t0 = time.perf_counter()
+    auto_reason, refined, spent = solved.n_reason, [], 0.0
+    while True:  # resolution: auto checks its own result (flakedb.paint.mapping.refine_auto_n)
+        paint, stack, table, version = solved.paint, solved.stack, solved.table, solved.version
+        warnings, t = solved.warnings, solved.timings_s
+        progress("write", {"start": True})
+        t0 = time.perf_counter()
+        # aspecular geometries never hit an inner mirror: its smoothed series kept out of the report (docs/model.md §4)
+        report_table = table if stack.specular is None else stack_to_table(
+            stack.scattered(), paint.channels, paint.eta, None, paint.delta, dict(table.metadata))
+        report = colour_report(report_table, paint.mode, paint.wavelength_nm, stack.x,
+                               stack.albedo(include_delta=False), paint.eta if paint.delta else None, recipe.name,
+                               settings=colour_settings)
+        report["discretisation"] = discretisation_estimate(solved, report, colour_settings, log)
+        est = report["discretisation"].get("estimate_dE00")
+        if n is not None or recipe.n is not None or est is None:
+            break
+        n_new, why = refine_auto_n(recipe, solved.n, est)
+        if n_new is None or len(refined) >= AUTO_REFINE_STEPS:
+            if refined or est > (getattr(recipe, "targets", None) or {}).get("colour_error", AUTO_TARGETS["colour_error"]):
+                refined.append(why if n_new is None else f"stopped after {AUTO_REFINE_STEPS} refinements: {why}")
+            break
+        if log:
+            log(why)
+        refined.append(why)
+        spent += time.perf_counter() - t0 + sum(solved.timings_s.values())
+        solved = solve_recipe(recipe, n_new, raw, catalog, log, store, verify, progress, allow_unphysical,
+                              n_reason=why)
+    n_used = solved.n
+    reason = auto_reason if not refined else auto_reason + "; " + "; ".join(refined)
+    if refined and est is not None and est > (getattr(recipe, "targets", None) or {}).get(
+            "colour_error", AUTO_TARGETS["colour_error"]):
+        warnings = list(warnings) + [f"resolution auto: {refined[-1]}"]
+    if spent:
+        t["refinement"] = spent
     file_table, gamut_info = gamut_safe_file_channels(table, paint.mode, paint.wavelength_nm, rgb_space)
     if paint.mode == "spectral" and file_table.channels != ("mono",):
         file_table.metadata["channels_from"] = f"spectral bands -> CIE 1931 2deg / D65 -> {gamut_info['rgb_space']}"
-    # aspecular geometries never hit an inner mirror: its smoothed series kept out of the report (docs/model.md §4)
-    report_table = table if stack.specular is None else stack_to_table(
-        stack.scattered(), paint.channels, paint.eta, None, paint.delta, dict(table.metadata))
-    report = colour_report(report_table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
-                           paint.eta if paint.delta else None, recipe.name, settings=colour_settings)
-    report["discretisation"] = discretisation_estimate(solved, report, colour_settings, log)
     t["table_report"] = time.perf_counter() - t0 + t.pop("table")
     h5_md = {
         "recipe_text": recipe.text, "recipe_source": recipe.source,

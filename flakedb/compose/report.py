@@ -63,6 +63,7 @@ from flakedb.colour.tolerance import observer_name
 from flakedb.colour.tolerance import reflectance_to_XYZ as reflectance_to_XYZ_under
 from flakedb.colour.tolerance import white_XYZ as white_XYZ_under
 from flakedb.optics.fresnel import fresnel_dielectric
+from flakedb.paint.mapping import DISCRETISATION_ORDER
 
 #: Illumination zenith angle (degrees) of the multi-angle geometries.
 ILLUMINATION_DEG = 45.0
@@ -320,10 +321,6 @@ def format_report(rep) -> str:
     return "\n".join(lines)
 
 
-#: Convergence order in n assumed by :func:`discretisation_error`: below every order observed in the measured
-#: ΔE00(n, 2n) envelopes (docs/resolution.md: coated aluminium 1.7–1.8, metallic silver 1.95–2.0), so the
-#: estimate's factor (1 − 2^−p)/(r^p − 1), which falls as p grows, is on the safe side.
-DISCRETISATION_ORDER = 1.5
 
 
 def second_solve_n(n) -> int:

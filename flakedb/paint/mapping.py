@@ -730,6 +730,47 @@ FLAKE_COLOUR_ERROR = ((3.2, 0.101), (4.0, 0.169), (4.8, 0.045))
 PLAIN_COLOUR_ERROR = ((32, 0.053),)
 
 
+#: Convergence order in n assumed by the report's estimate (:func:`flakedb.compose.report.discretisation_error`)
+#: and by :func:`refine_auto_n`: below every order observed in the measured ΔE00(n, 2n) envelopes
+#: (docs/resolution.md: coated aluminium 1.7–2.1, metallic silver 1.95–2.0), so the estimate's factor
+#: (1 − 2^−p)/(r^p − 1), which falls as p grows, is on the safe side, and so is the n it asks for.
+DISCRETISATION_ORDER = 1.5
+#: ``resolution: auto`` refines its n at most this many times when the report's own estimate misses the colour
+#: target (:func:`refine_auto_n`), each step ×1.5 … ×2.
+AUTO_REFINE_STEPS = 3
+
+
+def refine_auto_n(recipe, n, estimate_dE00):
+    """``(n', reason)`` when ``resolution: auto`` chose ``n`` but the report's own estimate of ΔE00(n, 2n)
+    (:func:`flakedb.compose.report.discretisation_error`) exceeds the recipe's colour_error target, else
+    ``(None, reason)``: the measured envelopes (:func:`auto_resolution`) do not cover every stack (a rough,
+    nearly index-matched inner interface has a transmitted lobe far narrower than its α; docs/resolution.md,
+    "Closed loop"), so auto checks its result and solves again.  n' = n (estimate/target)^(1/p), p =
+    :data:`DISCRETISATION_ORDER`, kept within ×1.5 … ×2 of n (an estimate from a pre-asymptotic n overshoots),
+    rounded up to a multiple of 8, at most :data:`AUTO_COLOUR_MAX_N` for the default target (the recipe's own
+    colour_error goes to :data:`AUTO_MAX_N`).
+
+    >>> class R: targets = None
+    >>> refine_auto_n(R(), 32, 2.56)[0], refine_auto_n(R(), 64, 0.11)[0], refine_auto_n(R(), 64, 0.09)[0]
+    (64, 96, None)
+    >>> refine_auto_n(R(), 192, 0.5)
+    (None, 'the estimate 0.5 exceeds colour_error 0.1 at n = 192, the largest the default target may take (set colour_error in resolution: to go further)')
+    """
+    own = getattr(recipe, "targets", None) or {}
+    target = float(own.get("colour_error", AUTO_TARGETS["colour_error"]))
+    cap = AUTO_MAX_N if "colour_error" in own else AUTO_COLOUR_MAX_N
+    if not estimate_dE00 > target:
+        return None, f"the estimate {estimate_dE00:.3g} meets colour_error {target:g}"
+    if n >= cap:
+        return None, (f"the estimate {estimate_dE00:.3g} exceeds colour_error {target:g} at n = {n}, the largest the "
+                      + ("recipe's target may take" if "colour_error" in own else
+                         "default target may take (set colour_error in resolution: to go further)"))
+    ratio = min(2.0, max(1.5, (estimate_dE00 / target) ** (1.0 / DISCRETISATION_ORDER)))
+    n_new = min(cap, 8 * int(np.ceil(n * ratio / 8)))
+    return n_new, (f"auto refined n {n} → {n_new}: the report's estimate ΔE00(n, 2n) {estimate_dE00:.3g} exceeded "
+                   f"colour_error {target:g}")
+
+
 def _needed(table, target):
     """Smallest tabulated abscissa whose measured error is ≤ target, and that error (None if none is)."""
     for x, e in table:
