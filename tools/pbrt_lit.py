@@ -55,6 +55,7 @@ combination of R, G and B, is below 0 only where some channel is).
 """
 
 import argparse
+import importlib.util
 import json
 import math
 import subprocess
@@ -66,6 +67,12 @@ import numpy as np
 from flakedb.bsdf.dispatch import open_bsdf
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.render.mitsuba.coated import pbrt_coated_scene
+
+# the PFM reader of the furnace tool beside this one (tools/ is not a package; the test loads this file by path)
+_furnace_spec = importlib.util.spec_from_file_location("pbrt_furnace", Path(__file__).with_name("pbrt_furnace.py"))
+_furnace = importlib.util.module_from_spec(_furnace_spec)
+_furnace_spec.loader.exec_module(_furnace)
+read_pfm = _furnace.read_pfm
 from flakedb.render.preview import (
     Sun,
     constant_environment,
@@ -107,16 +114,6 @@ Shape "sphere" "float radius" 1
 AttributeEnd
 WorldEnd
 """
-
-
-def read_pfm(path) -> np.ndarray:
-    """(h, w, channels) float32 of a PFM file, row 0 at the top."""
-    with open(path, "rb") as f:
-        kind = f.readline().strip()
-        w, h = map(int, f.readline().split())
-        scale = float(f.readline())
-        d = np.frombuffer(f.read(), dtype="<f4" if scale < 0 else ">f4").reshape(h, w, 3 if kind == b"PF" else 1)
-    return d[::-1]
 
 
 def scene_text(material: str, size: int, spp_side: int, out: str) -> str:

@@ -62,7 +62,7 @@ from flakedb.conventions import fourier_weight
 from flakedb.outputs import OutputError, OutputPlan, check_output_dir  # noqa: F401  (moved; re-exported)
 from flakedb.paint.mapping import (
     AUTO_REFINE_STEPS,
-    AUTO_TARGETS,
+    auto_colour_target,
     build_paint,
     catalog_species,
     refine_auto_n,
@@ -430,6 +430,7 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     progress = progress or (lambda stage, detail: None)
     solved = solve_recipe(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical)
     auto_reason, refined, spent = solved.n_reason, [], 0.0
+    colour_target = auto_colour_target(recipe)[0]
     while True:  # resolution: auto checks its own result (flakedb.paint.mapping.refine_auto_n)
         paint, stack, table, version = solved.paint, solved.stack, solved.table, solved.version
         warnings, t = solved.warnings, solved.timings_s
@@ -447,7 +448,7 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
             break
         n_new, why = refine_auto_n(recipe, solved.n, est)
         if n_new is None or len(refined) >= AUTO_REFINE_STEPS:
-            if refined or est > (getattr(recipe, "targets", None) or {}).get("colour_error", AUTO_TARGETS["colour_error"]):
+            if refined or est > colour_target:
                 refined.append(why if n_new is None else f"stopped after {AUTO_REFINE_STEPS} refinements: {why}")
             break
         if log:
@@ -458,8 +459,7 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
                               n_reason=why)
     n_used = solved.n
     reason = auto_reason if not refined else auto_reason + "; " + "; ".join(refined)
-    if refined and est is not None and est > (getattr(recipe, "targets", None) or {}).get(
-            "colour_error", AUTO_TARGETS["colour_error"]):
+    if refined and est is not None and est > colour_target:
         warnings = list(warnings) + [f"resolution auto: {refined[-1]}"]
     if spent:
         t["refinement"] = spent

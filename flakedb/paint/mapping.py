@@ -740,6 +740,12 @@ DISCRETISATION_ORDER = 1.5
 AUTO_REFINE_STEPS = 3
 
 
+def auto_colour_target(recipe) -> tuple[float, bool]:
+    """``(colour_error, own)``: the recipe's own ``colour_error`` target (own True) or :data:`AUTO_TARGETS`'s."""
+    own = getattr(recipe, "targets", None) or {}
+    return float(own.get("colour_error", AUTO_TARGETS["colour_error"])), "colour_error" in own
+
+
 def refine_auto_n(recipe, n, estimate_dE00):
     """``(n', reason)`` when ``resolution: auto`` chose ``n`` but the report's own estimate of ΔE00(n, 2n)
     (:func:`flakedb.compose.report.discretisation_error`) exceeds the recipe's colour_error target, else
@@ -756,14 +762,13 @@ def refine_auto_n(recipe, n, estimate_dE00):
     >>> refine_auto_n(R(), 192, 0.5)
     (None, 'the estimate 0.5 exceeds colour_error 0.1 at n = 192, the largest the default target may take (set colour_error in resolution: to go further)')
     """
-    own = getattr(recipe, "targets", None) or {}
-    target = float(own.get("colour_error", AUTO_TARGETS["colour_error"]))
-    cap = AUTO_MAX_N if "colour_error" in own else AUTO_COLOUR_MAX_N
+    target, own = auto_colour_target(recipe)
+    cap = AUTO_MAX_N if own else AUTO_COLOUR_MAX_N
     if not estimate_dE00 > target:
         return None, f"the estimate {estimate_dE00:.3g} meets colour_error {target:g}"
     if n >= cap:
         return None, (f"the estimate {estimate_dE00:.3g} exceeds colour_error {target:g} at n = {n}, the largest the "
-                      + ("recipe's target may take" if "colour_error" in own else
+                      + ("recipe's target may take" if own else
                          "default target may take (set colour_error in resolution: to go further)"))
     ratio = min(2.0, max(1.5, (estimate_dE00 / target) ** (1.0 / DISCRETISATION_ORDER)))
     n_new = min(cap, 8 * int(np.ceil(n * ratio / 8)))
