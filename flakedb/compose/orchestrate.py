@@ -38,6 +38,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -69,7 +70,7 @@ from flakedb.paint.mapping import (
     resolve_node_count,
     solve_paint,
 )
-from flakedb.paint.texture_inputs import texture_report
+from flakedb.paint.texture_inputs import texture_report, texture_report_grounded
 from flakedb.store import versions as st
 from flakedb.texture.instruments import PRESETS as TEXTURE_OBSERVERS
 
@@ -318,7 +319,7 @@ class SolvedRecipe:
 
 
 def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, verify=True, progress=None,
-                 allow_unphysical=False, generator="flakedb compose", n_reason=None) -> SolvedRecipe:
+                 allow_unphysical=False, generator="flakedb compose", n_reason=None, on_stored=None) -> SolvedRecipe:
     """Recipe → checked solution → full-precision table: the one orchestration that compose and match share.
 
     The node count from :func:`flakedb.paint.mapping.resolve_node_count` (``n`` > the recipe's > auto; ``n_reason``
@@ -328,6 +329,8 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     (``FLAKEDB_MEMORY_BUDGET`` bytes, else the solver's default); the result checked by
     :func:`check_physical` (a problem raises :class:`UnphysicalResultError`, or with ``allow_unphysical``
     becomes a warning) and the solver's convergence notes (:func:`solver_warnings`) added to the warnings.
+    ``on_stored``: called with the open :class:`StoreContext` (None without a store) before the optics are
+    built (compose starts the texture model there, to run beside the solve).
     """
     log = log or (lambda s: None)
     progress = progress or (lambda stage, detail: None)
@@ -349,6 +352,8 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
         t["store_open"] = time.perf_counter() - t0
         store_label = f"{version.url} version {version.version} ({'raw' if raw else 'compressed'})"
         log(f"store: {store_label}, opened{' and verified' if verify else ''} in {t['store_open']:.2f} s")
+    if on_stored is not None:
+        on_stored(stored)
     t0 = time.perf_counter()
     progress("optics", {"start": True})
     paint = build_paint(recipe, catalog, stored=stored)
@@ -428,7 +433,25 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     plan = output_plan(out_dir, recipe.name, inputs).check()  # before any work
     gamut.check_space(rgb_space)
     progress = progress or (lambda stage, detail: None)
-    solved = solve_recipe(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="flakedb-texture") as pool:
+        return _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, progress, allow_unphysical,
+                        colour_settings, plan, pool)
+
+
+def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, progress, allow_unphysical,
+             colour_settings, plan, pool) -> ComposeResult:
+    """:func:`compose`'s body; ``pool`` runs the texture model (it needs neither the resolution nor the BSDF, only
+    the store's cross-sections, and is grounded on the BSDF after: :func:`texture_report_grounded`) beside the
+    solve, whose numpy and LAPACK calls leave the interpreter free most of the time."""
+    observers = list(TEXTURE_OBSERVERS.values())
+    texture = []
+
+    def start_texture(stored):
+        if not texture:  # once: auto's refinement re-solves at another n, and the texture does not depend on n
+            texture.append(pool.submit(texture_report, recipe, observers, None, stored))
+
+    solved = solve_recipe(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical,
+                          on_stored=start_texture)
     auto_reason, refined, spent = solved.n_reason, [], 0.0
     colour_target = auto_colour_target(recipe)[0]
     while True:  # resolution: auto checks its own result (flakedb.paint.mapping.refine_auto_n)
@@ -488,9 +511,8 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
     report["store"] = solved.store_label
     report["rgb_file"] = gamut_info
     report["warnings"] = list(warnings)
-    report["texture"] = texture_report(recipe, list(TEXTURE_OBSERVERS.values()), texture_ground(  # docs/texture.md
-        table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False), paint.eta if paint.delta else None),
-        stored=solved.stored)
+    report["texture"] = texture_report_grounded(texture[0].result(), observers, texture_ground(  # docs/texture.md
+        table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False), paint.eta if paint.delta else None))
     h5_md["rgb_file"] = gamut_info
     t0 = time.perf_counter()
     paths, summary = write_outputs(out_dir, recipe.name, table, file_table, report, h5_md, plan)

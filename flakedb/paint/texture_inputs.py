@@ -34,7 +34,7 @@ from flakedb.paint.mapping import (
 )
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, Spectrum
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
-from flakedb.texture.model import Absorber, FlakeLayer, TextureStack, texture_indices
+from flakedb.texture.model import Absorber, FlakeLayer, TextureStack, texture_indices, texture_indices_grounded
 
 #: Default geometric standard deviation of flake diameters (number distribution).  Assumption: effect
 #: pigment grades are sold by D10/D50/D90 of the volume distribution with D90/D10 ≈ 2.5–3.5 (e.g.
@@ -143,7 +143,9 @@ def texture_report(recipe, observers, ground=None, stored=None) -> dict:
 
     ``ground``: optional callable ``ground(observer) -> {"directional": {light_deg: β}, "diffuse": β}``
     giving the smooth BSDF's luminance factors (compose passes one); without it contrasts and
-    graininess are relative to the flakes' own mean (upper bounds, ``ground: "flakes"``)."""
+    graininess are relative to the flakes' own mean (upper bounds, ``ground: "flakes"``), and
+    :func:`texture_report_grounded` can ground them later (what compose does: the texture is computed
+    while the BSDF is solved, and grounded on it after)."""
     stack, notes = texture_stack(recipe, stored)
     out = {"recipe": recipe.name, "model": "docs/texture.md", "notes": notes,
            "flakes": [{"species": f.name, "diameter_median_um": f.diameter_median_um, "diameter_gsd": f.diameter_gsd,
@@ -161,3 +163,14 @@ def texture_report(recipe, observers, ground=None, stored=None) -> dict:
     memo = {}  # the observers share the light and view directions' parts (flakedb.texture.model.texture_indices)
     out["observers"] = [texture_indices(stack, o, ground(o) if ground else None, memo=memo) for o in observers]
     return out
+
+
+def texture_report_grounded(report: dict, observers, ground) -> dict:
+    """A :func:`texture_report` of ``observers`` made without ``ground``, grounded on ``ground`` (the
+    callable of :func:`texture_report`): the same report as passing ``ground`` to it, to the last bit
+    (:func:`flakedb.texture.model.texture_indices_grounded`)."""
+    entries = report.get("observers") or []
+    names = [o.name for o in observers]
+    if [e["observer"] for e in entries] != names[:len(entries)] or (entries and len(entries) != len(names)):
+        raise ValueError(f"texture report of observers {[e['observer'] for e in entries]} grounded for {names}")
+    return dict(report, observers=[texture_indices_grounded(e, ground(o)) for e, o in zip(entries, observers)])

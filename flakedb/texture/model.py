@@ -509,19 +509,27 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
         peak = max(peak, np.pi * g.t_in * g.t_out * R_Y * fm * g.c / (g.mu_l_b * g.mu_v * g.omega_a))
     sparkle = bool(stack.flakes) and bool(peak >= SPARKLE_MIN_PEAK) and bool(n_g > 0)
     intensity = flux / n_g if n_g > 0 else 0.0
-    ground = float(ground_luminance_factor) if ground_luminance_factor is not None else mean_all
-    return {
+    return sparkle_grounded({
         "light_deg": float(light_deg), "view_deg": float(observer.view_deg),
         "sparkle": sparkle,
         "glints_per_mm2": float(n_g * 1e6) if sparkle else 0.0,
         "glints_per_spot": float(n_g * a_spot) if sparkle else 0.0,
         "sparkle_area_fraction": float(-np.expm1(-mink)) if sparkle else 0.0,
         "sparkle_intensity": float(intensity) if sparkle else 0.0,
-        "sparkle_contrast": float(intensity / ground if ground > 0 else 0.0) if sparkle else 0.0,
         "peak_luminance_factor": float(peak),
         "flake_luminance_factor": float(mean_all),
-        "ground": "bsdf" if ground_luminance_factor is not None else "flakes",
-    }
+    }, ground_luminance_factor)
+
+
+def sparkle_grounded(row: dict, ground_luminance_factor=None) -> dict:
+    """A :func:`sparkle_indices` row with its contrast taken against ``ground_luminance_factor`` (the
+    smooth BSDF's π f at the row's geometry), or, when None, against the flakes' own mean
+    (``flake_luminance_factor``: an upper bound): ``sparkle_contrast`` = sparkle_intensity / ground
+    (docs/texture.md §3.4) and ``ground`` ("bsdf" or "flakes").  The ground enters nothing else, so
+    the glint statistics can be computed before the BSDF is solved and grounded after."""
+    ground = float(ground_luminance_factor) if ground_luminance_factor is not None else row["flake_luminance_factor"]
+    contrast = row["sparkle_intensity"] / ground if row["sparkle"] and ground > 0 else 0.0
+    return dict(row, sparkle_contrast=float(contrast), ground="bsdf" if ground_luminance_factor is not None else "flakes")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -703,24 +711,41 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
         Dj, wj = f.diameters(6)
         var_pair += float(wj @ np.array([_pair_term(f, z, wz, b0, lam_v, tau_y, 0.5 * D, observer.spot_um) for D in Dj]))
     var = var_single + var_pair
-    ground = float(ground_luminance_factor) if ground_luminance_factor is not None else mean
     out = {
         "view_deg": float(observer.view_deg),
         "flake_luminance_factor": mean,
-        "ground": "bsdf" if ground_luminance_factor is not None else "flakes",
         # the hiding (pair) term over the single-flake term: 0 for sparse flakes, → −1 where hiding dominates
         "pair_over_single": var_pair / var_single if var_single > 0 else 0.0,
     }
     if not (np.isfinite(var) and var > 0.0):
         # a variance ≤ 0: the pair term, a second-order correction, cancels the first-order one (thick, dense
         # flake layers), so the model has no number to give (docs/texture.md §4, "Validity")
-        out.update(graininess=None, luminance_sd=None, valid=False,
+        out.update(luminance_sd=None, valid=False,
                    note=f"graininess not predicted: the hiding (pair) term is {out['pair_over_single']:+.2f}× the "
                         f"single-flake term, beyond the first-order model (docs/texture.md §4, Validity)")
-        return out
-    sd = float(np.sqrt(var))
-    out.update(graininess=sd / ground if ground > 0 else 0.0, luminance_sd=sd, valid=True)
-    return out
+    else:
+        out.update(luminance_sd=float(np.sqrt(var)), valid=True)
+    return graininess_grounded(out, ground_luminance_factor)
+
+
+def graininess_grounded(row: dict, ground_luminance_factor=None) -> dict:
+    """A :func:`graininess_indices` row with G = luminance_sd / ground, the ground being
+    ``ground_luminance_factor`` (the paint's luminance factor under the sky) or, when None, the flakes'
+    own mean (an upper bound on G); ``ground`` says which; G is None where the row is not ``valid``
+    (as :func:`sparkle_grounded`: the ground enters nothing else)."""
+    ground = float(ground_luminance_factor) if ground_luminance_factor is not None else row["flake_luminance_factor"]
+    sd = row["luminance_sd"]
+    g = None if not row["valid"] else (sd / ground if ground > 0 else 0.0)
+    return dict(row, ground="bsdf" if ground_luminance_factor is not None else "flakes", graininess=g)
+
+
+def texture_indices_grounded(entry: dict, ground=None) -> dict:
+    """A :func:`texture_indices` entry grounded on ``ground`` ({"directional": {light_deg: β}, "diffuse": β},
+    or None: the flakes' own means), by :func:`sparkle_grounded` and :func:`graininess_grounded`."""
+    ground = ground or {}
+    gd = ground.get("directional", {})
+    return dict(entry, directional=[sparkle_grounded(r, gd.get(float(r["light_deg"]))) for r in entry["directional"]],
+                diffuse=graininess_grounded(entry["diffuse"], ground.get("diffuse")))
 
 
 def texture_indices(stack: TextureStack, observer, ground=None, memo=None) -> dict:

@@ -167,3 +167,31 @@ def test_graininess_outside_the_model_is_reported_not_nan(tmp_path):
     r = compose(thick, tmp_path / "out", n=16)   # the whole compose: a valid JSON report, the index null
     doc = json.loads((tmp_path / "out" / "thick.json").read_text())
     assert all(o["diffuse"]["graininess"] is None for o in doc["texture"]["observers"]) and r.n == 16
+
+
+def test_grounding_after_is_grounding_during():
+    """compose computes the texture beside the solve and grounds it on the BSDF after
+    (texture_report_grounded): the report must be the one texture_report gives with the ground, bit for bit,
+    and the ground must change exactly the contrast and graininess (their ratio to the flakes' own mean)."""
+    from flakedb.paint.texture_inputs import texture_report_grounded
+
+    r = recipe("metallic")
+    obs = [PRESETS["byk-mac-like"], PRESETS["person-1m"]]
+    g = {"byk-mac-like": {"directional": {15.0: 0.31, 45.0: 0.12}, "diffuse": 0.43},
+         "person-1m": {"directional": {45.0: 0.2}, "diffuse": 0.5}}
+    during = texture_report(r, obs, lambda o: g[o.name])
+    bare = texture_report(r, obs)
+    after = texture_report_grounded(bare, obs, lambda o: g[o.name])
+    assert json.dumps(after, sort_keys=True) == json.dumps(during, sort_keys=True)
+    for e_bare, e_g, o in zip(bare["observers"], after["observers"], obs):
+        for rb, rg in zip(e_bare["directional"], e_g["directional"]):
+            given = g[o.name]["directional"].get(rb["light_deg"])
+            assert rg["ground"] == ("bsdf" if given is not None else "flakes")
+            if rb["sparkle"] and given is not None:
+                assert rg["sparkle_contrast"] == pytest.approx(rb["sparkle_contrast"] * rb["flake_luminance_factor"] / given,
+                                                               rel=1e-14)
+        d_b, d_g = e_bare["diffuse"], e_g["diffuse"]
+        assert d_g["graininess"] == pytest.approx(d_b["graininess"] * d_b["flake_luminance_factor"] / g[o.name]["diffuse"],
+                                                  rel=1e-14)
+    with pytest.raises(ValueError, match="grounded for"):
+        texture_report_grounded(bare, obs[::-1], lambda o: g[o.name])
