@@ -53,9 +53,9 @@ from flakedb.compose.report import (
     ASPECULAR_DEG,
     colour_report,
     discretisation_error,
-    second_solve_n,
     eval_table,
     multiangle_geometry,
+    second_solve_n,
     texture_ground,
 )
 from flakedb.compose.store_context import StoreContext

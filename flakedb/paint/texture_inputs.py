@@ -34,7 +34,13 @@ from flakedb.paint.mapping import (
 )
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, Spectrum
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
-from flakedb.texture.model import Absorber, FlakeLayer, TextureStack, texture_indices, texture_indices_grounded
+from flakedb.texture.model import (
+    Absorber,
+    FlakeLayer,
+    TextureStack,
+    texture_indices,
+    texture_indices_grounded,
+)
 
 #: Default geometric standard deviation of flake diameters (number distribution).  Assumption: effect
 #: pigment grades are sold by D10/D50/D90 of the volume distribution with D90/D10 ≈ 2.5–3.5 (e.g.
