@@ -106,3 +106,19 @@ def test_an_array_of_another_layout_is_opened_with_zarr(store, tmp_path):
     np.testing.assert_array_equal(a[:], data)
     with pytest.raises(KeyError):
         PlainGroup(fs, posixpath.join(root, "versions", version), vurl)["no_such_array"]
+
+
+def test_zstd_chunks_of_earlier_stores_are_decoded(store):
+    """Stores written before flakedb.store.write.COMPRESSORS = None hold zstd chunks (zarr's default): the plain
+    reader decodes them itself, to zarr's values, edge chunks and NaN fill included."""
+    url, version = store
+    vurl = st.version_url(url, version)
+    data = np.arange(35.0).reshape(5, 7)
+    data[4, 6] = np.nan
+    zarr.create_array(vurl, name="extra_zstd", shape=data.shape, chunks=(2, 3), dtype="f8", fill_value=np.nan,
+                      compressors=zarr.codecs.ZstdCodec(level=0))[...] = data
+    fs, root = open_fs(url)
+    a = PlainGroup(fs, posixpath.join(root, "versions", version), vurl)["extra_zstd"]
+    assert isinstance(a, PlainArray) and a._zstd
+    np.testing.assert_array_equal(a[:], data)
+    np.testing.assert_array_equal(a[1:4, 2:6], data[1:4, 2:6])
