@@ -160,6 +160,51 @@ def with_inputs(src, dst, **values) -> Path:
     return Path(dst)
 
 
+def usd_preview_mtlx(usda, dst, **override) -> Path:
+    """A ``.mtlx`` of the ``.usda``'s UsdPreviewSurface shader, its inputs read back with usd-core
+    (``pxr.UsdShade``) into MaterialX's own ``UsdPreviewSurface`` node (ND_UsdPreviewSurface_surfaceshader,
+    libraries/bxdf/usd_preview_surface.mtlx), ``override`` replacing inputs (floats): the USD material
+    rendered with MaterialX's definition of its shader."""
+    from pxr import Usd, UsdShade   # optional: usd-core
+
+    stage = Usd.Stage.Open(str(usda))
+    shader = next(UsdShade.Shader(p) for p in stage.Traverse()
+                  if p.GetTypeName() == "Shader" and UsdShade.Shader(p).GetIdAttr().Get() == "UsdPreviewSurface")
+    vals = {}
+    for i in shader.GetInputs():
+        v, name = i.Get(), i.GetBaseName()
+        if hasattr(v, "__len__"):
+            vals[name] = ("color3", ", ".join(f"{x:.9g}" for x in v))
+        elif isinstance(v, (bool, int)):
+            vals[name] = ("integer", str(int(v)))
+        else:
+            vals[name] = ("float", f"{float(v):.9g}")
+    vals.update({k: ("float", f"{float(v):.9g}") for k, v in override.items()})
+    root = ET.Element("materialx", {"version": "1.39", "colorspace": "lin_rec709"})
+    node = ET.SubElement(root, "UsdPreviewSurface", {"name": "SR_usd", "type": "surfaceshader"})
+    for k, (t, v) in vals.items():
+        ET.SubElement(node, "input", {"name": k, "type": t, "value": v})
+    m = ET.SubElement(root, "surfacematerial", {"name": "M_usd", "type": "material"})
+    ET.SubElement(m, "input", {"name": "surfaceshader", "type": "surfaceshader", "nodename": "SR_usd"})
+    ET.ElementTree(root).write(dst, encoding="unicode", xml_declaration=True)
+    return Path(dst)
+
+
+def analyse_usd(sun, sun_bare, furnace, furnace_bare, eta: float = 1.5) -> dict:
+    """The coat of a UsdPreviewSurface render, without a prediction of its base: coated / clearcoat-0
+    under the sun and coated - clearcoat-0 in the uniform sky at the 63 pixels, against 1 - F(μ_v; η)
+    and F(μ_v; η) (the spec's coat of index ``ior``)."""
+    mu = _pixel_normals()[:, 2]
+    pix = [(r + i, c + j) for r, c in PIXELS for i in (-1, 0, 1) for j in (-1, 0, 1)]
+    rr, cc = np.array(pix).T
+    s, sb, f, fb = (grid32(x) for x in (sun, sun_bare, furnace, furnace_bare))
+    ratio = s[rr, cc].sum(-1) / np.maximum(sb[rr, cc].sum(-1), 1e-30)
+    F = fresnel_dielectric(mu, eta).R
+    return {"coat_sun_ratio_range": [float(ratio.min()), float(ratio.max())],
+            "one_minus_F_range": [float((1 - F).min()), float((1 - F).max())],
+            "coated_minus_bare_furnace_centre": [float(x) for x in (f - fb)[16, 16]], "F_centre": float(F[4])}
+
+
 def fit_of(mtlx) -> OpenPBRFit:
     return OpenPBRFit.from_dict(read_fit(mtlx))
 
@@ -341,12 +386,23 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("out", type=Path)
     ap.add_argument("mtlx", nargs="+", type=Path)
+    ap.add_argument("--usd", action="store_true", help="the arguments are .usda files: render their UsdPreviewSurface")
     a = ap.parse_args(argv)
     tool, why = tools()
     if tool is None:
         print(f"cannot render: {why}", file=sys.stderr)
         return 2
     a.out.mkdir(parents=True, exist_ok=True)
+    if a.usd:
+        jobs = []
+        for u in a.mtlx:
+            jobs += renders_for(usd_preview_mtlx(u, a.out / f"{u.stem}.usd.mtlx"),
+                                usd_preview_mtlx(u, a.out / f"{u.stem}.usd.nocoat.mtlx", clearcoat=0.0))
+        imgs, info = render(jobs, tool)
+        summary = {"renderer": info, "paints": {u.stem: analyse_usd(*imgs[4 * i:4 * i + 4]) for i, u in enumerate(a.mtlx)}}
+        (a.out / "summary-usd.json").write_text(json.dumps(summary, indent=1))
+        print(json.dumps(summary, indent=1))
+        return 0
     jobs = []
     for m in a.mtlx:
         jobs += renders_for(m, without_coat(m, a.out / f"{m.stem}.nocoat.mtlx"))
