@@ -18,8 +18,8 @@ Reported at the 7 off-highlight pixels of ``test_cycles_matches_preview`` (3 x 3
 * the coat in the furnace: the coat's own reflection of the uniform sky,
   ``F̂ = (L_coated - L_off) / (1 - L_off)`` (the coated pixel is ``F + (1 - F) L_off`` when the
   coat's reflection is F and it passes 1 - F), per ring of μ_v over the whole sphere, against the
-  ring's mean F(μ_v; 1.5), with the ring's standard error from the pixels' scatter (where the
-  coat-off sphere absorbs ≥ 20 % of the sky: :data:`MIN_DARK`);
+  ring's mean F(μ_v; 1.5), with the standard error of the mean of F̂ - F(μ_v) over the ring's pixels
+  (reported where the coat-off sphere absorbs ≥ 20 % of the sky: :data:`MIN_DARK`);
 * Cycles against what flakedb predicts it renders of the imported inputs
   (:func:`flakedb.export.blender.principled_sun_image`, ``distribution="MULTI_GGX"``), and in ΔE00
   against flakedb's preview of the exact ``.bsdf`` (``--bsdf DIR`` holding NAME.bsdf), against the
@@ -144,10 +144,10 @@ def coat_checks(imported: OpenPBRFit, sun, sun_bare, furnace, furnace_bare) -> d
         m = on & (mu > lo) & (mu <= hi)
         k = int(m.sum())
         dark = float((1.0 - L_u[m]).mean())
-        ring = {"mu": [lo, hi], "pixels": k, "one_minus_L_off": dark,
-                "F_exact": float(fresnel_dielectric(mu[m], 1.5).R.mean())}
-        if dark >= MIN_DARK:
-            ring.update(F_hat=float(F_hat[m].mean()), standard_error=float(F_hat[m].std(ddof=1) / np.sqrt(k)))
+        F = fresnel_dielectric(mu[m], 1.5).R
+        ring = {"mu": [lo, hi], "pixels": k, "one_minus_L_off": dark, "F_exact": float(F.mean())}
+        if dark >= MIN_DARK:          # the standard error of the mean of F̂ - F(μ_v) over the ring's pixels
+            ring.update(F_hat=float(F_hat[m].mean()), standard_error=float((F_hat[m] - F).std(ddof=1) / np.sqrt(k)))
         rings.append(ring)
     return {"sun_ratio_range": [float(ratio.min()), float(ratio.max())],
             "sun_ratio_minus_predicted_max": float(np.abs(ratio - w).max()),
