@@ -119,18 +119,24 @@ def write_material_script(path, fit: OpenPBRFit, name: str) -> Path:
     return path
 
 
-_RENDER = _BUILD + '''
+#: The render script's parts (run by :func:`run_bpy_script` in the bpy interpreter; they import only
+#: bpy, mathutils and the standard library): ``SCENE_SETUP_SCRIPT`` (Cycles settings, the world), an object
+#: part, ``CAMERA_SUN_RENDER_SCRIPT`` (camera, sun, render, pixels out).  ``INFO`` is a dict the object part
+#: may fill; it comes back as the result's ``info``.
+SCENE_SETUP_SCRIPT = '''
 import json, math, sys
 import bpy
 from mathutils import Vector
 
 a = json.loads(open(sys.argv[-1]).read())
+INFO = {}
 bpy.ops.wm.read_factory_settings(use_empty=True)
 sc = bpy.context.scene
 sc.render.engine = "CYCLES"
 sc.cycles.device = "CPU"
 sc.cycles.samples = a["samples"]
 sc.cycles.use_denoising = False
+sc.cycles.use_adaptive_sampling = a["adaptive_sampling"]     # Blender's default: on (noise threshold 0.01)
 sc.cycles.seed = a["seed"]
 sc.cycles.max_bounces = 4
 sc.cycles.filter_width = a["filter_width"]
@@ -143,18 +149,26 @@ sc.view_settings.look = "None"
 sc.view_settings.exposure = 0.0
 sc.view_settings.gamma = 1.0
 sc.render.film_transparent = False
-w = bpy.data.worlds.new("black"); sc.world = w; w.use_nodes = True
-w.node_tree.nodes["Background"].inputs[1].default_value = 0.0
+w = bpy.data.worlds.new("world"); sc.world = w; w.use_nodes = True
+w.node_tree.nodes["Background"].inputs[0].default_value = (1.0, 1.0, 1.0, 1.0)
+w.node_tree.nodes["Background"].inputs[1].default_value = a.get("world_radiance", 0.0)
+'''
+
+_PRINCIPLED_SPHERE_SCRIPT = '''
 bpy.ops.mesh.primitive_uv_sphere_add(segments=128, ring_count=64, radius=1.0)
 ob = bpy.context.object
 bpy.ops.object.shade_smooth()
 ob.data.materials.append(build_material(bpy, "flakedb_fit", {k: (tuple(v) if isinstance(v, list) else v)
                                                              for k, v in a["inputs"].items()}, "{}"))
+'''
+
+CAMERA_SUN_RENDER_SCRIPT = '''
 cam = bpy.data.cameras.new("cam"); cam.type = "ORTHO"; cam.ortho_scale = 2.0 * a["extent"]
 co = bpy.data.objects.new("cam", cam); sc.collection.objects.link(co); co.location = (0.0, 0.0, 4.0); sc.camera = co
-ld = bpy.data.lights.new("sun", "SUN"); ld.energy = a["irradiance"]; ld.angle = 2.0 * math.radians(a["half_angle_deg"])
-lo = bpy.data.objects.new("sun", ld); sc.collection.objects.link(lo)
-lo.rotation_euler = Vector(a["direction"]).to_track_quat("Z", "Y").to_euler()
+if a["irradiance"] > 0.0:
+    ld = bpy.data.lights.new("sun", "SUN"); ld.energy = a["irradiance"]; ld.angle = 2.0 * math.radians(a["half_angle_deg"])
+    lo = bpy.data.objects.new("sun", ld); sc.collection.objects.link(lo)
+    lo.rotation_euler = Vector(a["direction"]).to_track_quat("Z", "Y").to_euler()
 sc.render.image_settings.file_format = "OPEN_EXR"
 sc.render.image_settings.color_depth = "32"
 sc.render.filepath = a["exr"]
@@ -163,8 +177,11 @@ img = bpy.data.images.load(a["exr"])
 n = a["size"]
 px = list(img.pixels)
 rows = [[px[(r * n + c) * 4:(r * n + c) * 4 + 3] for c in range(n)] for r in range(n)]
-open(a["out"], "w").write(json.dumps({"pixels": rows[::-1], "blender": bpy.app.version_string}))  # row 0 at the top
+open(a["out"], "w").write(json.dumps({"pixels": rows[::-1], "blender": bpy.app.version_string,  # row 0 at the top
+                                      "info": INFO}))
 '''
+
+_RENDER = _BUILD + SCENE_SETUP_SCRIPT + _PRINCIPLED_SPHERE_SCRIPT + CAMERA_SUN_RENDER_SCRIPT
 
 
 def bpy_available(python: str | None = None) -> tuple[bool, str]:
@@ -190,6 +207,48 @@ def _interpreter(python: str | None) -> str:
     return os.path.abspath(python) if os.sep in python else python
 
 
+def render_args(*, size: int, samples: int, direction, irradiance: float, half_angle_deg: float, extent: float,
+                threads: int, seed: int, filter_width_px: float, world_radiance: float = 0.0,
+                adaptive_sampling: bool = True) -> dict:
+    """The arguments of the render script's scene, camera and sun (:data:`SCENE_SETUP_SCRIPT`,
+    :data:`CAMERA_SUN_RENDER_SCRIPT`; module docstring): ``direction`` normalised, a uniform world of
+    radiance ``world_radiance`` (0: black; 1 is a white furnace), no sun when ``irradiance`` is 0;
+    ``adaptive_sampling`` is Blender's default (on: Cycles stops sampling a pixel once its noise
+    estimate is below 0.01, so ``samples`` is a maximum); off, every pixel gets ``samples``."""
+    d = np.asarray(direction, float)
+    d = d / np.linalg.norm(d)
+    return {"size": int(size), "samples": int(samples), "seed": int(seed), "threads": int(threads),
+            "filter_width": float(filter_width_px), "extent": float(extent), "irradiance": float(irradiance),
+            "half_angle_deg": float(half_angle_deg), "direction": d.tolist(), "world_radiance": float(world_radiance),
+            "adaptive_sampling": bool(adaptive_sampling)}
+
+
+def run_bpy_script(script: str, args: dict, *, python: str | None = None, timeout: float = 600.0,
+                   files: dict | None = None) -> dict:
+    """Run a render ``script`` (ending with :data:`CAMERA_SUN_RENDER_SCRIPT`) in a subprocess of ``python``
+    (default: this interpreter) with ``args`` (JSON; ``exr`` and ``out`` are added: paths in a temporary
+    folder), ``files`` {name: text} written beside it first (their paths are added to ``args`` under
+    their names).  Returns {"image": (size, size, 3) float64 linear sRGB, row 0 at the top, "blender":
+    version, "info": what the script put in ``INFO``}.  Raises RuntimeError with Blender's last lines
+    on failure."""
+    with tempfile.TemporaryDirectory(prefix="flakedb-cycles-") as tmp:
+        t = Path(tmp)
+        args = dict(args, exr=str(t / "render.exr"), out=str(t / "pixels.json"))
+        for name, text in (files or {}).items():
+            (t / name).write_text(text, encoding="utf-8")
+            args[name] = str(t / name)
+        (t / "args.json").write_text(json.dumps(args))
+        (t / "render.py").write_text(script)
+        env = dict(os.environ, PYTHONNOUSERSITE="1")
+        r = subprocess.run([_interpreter(python), str(t / "render.py"), str(t / "args.json")],
+                           check=False, capture_output=True, text=True, timeout=timeout, cwd=tmp, env=env)
+        if r.returncode != 0 or not (t / "pixels.json").exists():
+            tail = "\n".join((r.stdout + r.stderr).strip().splitlines()[-8:])
+            raise RuntimeError(f"the Cycles render failed (exit {r.returncode}):\n{tail}")
+        out = json.loads((t / "pixels.json").read_text())
+    return {"image": np.asarray(out["pixels"], dtype=np.float64), "blender": out["blender"], "info": out["info"]}
+
+
 def render_cycles_sphere(fit: OpenPBRFit, *, size: int = 32, samples: int = 16, direction=(0.0, 0.0, 1.0),
                          irradiance: float = 1.0, half_angle_deg: float = 2.0, extent: float = 1.05,
                          threads: int = 1, seed: int = 1, filter_width_px: float = 0.01, python: str | None = None,
@@ -198,26 +257,12 @@ def render_cycles_sphere(fit: OpenPBRFit, *, size: int = 32, samples: int = 16, 
     ``python`` (default: this interpreter), ``samples`` per pixel with Cycles' sampling ``seed``.
     Returns {"image": (size, size, 3) float64 linear sRGB, row 0 at the top, "blender": version}.
     Raises RuntimeError with Blender's last lines on failure."""
-    d = np.asarray(direction, float)
-    d = d / np.linalg.norm(d)
-    with tempfile.TemporaryDirectory(prefix="flakedb-cycles-") as tmp:
-        t = Path(tmp)
-        args = {"size": int(size), "samples": int(samples), "seed": int(seed), "threads": int(threads),
-                "filter_width": float(filter_width_px), "extent": float(extent),
-                "irradiance": float(irradiance), "half_angle_deg": float(half_angle_deg),
-                "direction": d.tolist(), "inputs": {k: list(v) if isinstance(v, tuple) else v
-                                                    for k, v in principled_inputs(fit).items()},
-                "exr": str(t / "render.exr"), "out": str(t / "pixels.json")}
-        (t / "args.json").write_text(json.dumps(args))
-        (t / "render.py").write_text(_RENDER)
-        env = dict(os.environ, PYTHONNOUSERSITE="1")
-        r = subprocess.run([_interpreter(python), str(t / "render.py"), str(t / "args.json")],
-                           check=False, capture_output=True, text=True, timeout=timeout, cwd=tmp, env=env)
-        if r.returncode != 0 or not (t / "pixels.json").exists():
-            tail = "\n".join((r.stdout + r.stderr).strip().splitlines()[-8:])
-            raise RuntimeError(f"the Cycles render failed (exit {r.returncode}):\n{tail}")
-        out = json.loads((t / "pixels.json").read_text())
-    return {"image": np.asarray(out["pixels"], dtype=np.float64), "blender": out["blender"]}
+    args = render_args(size=size, samples=samples, direction=direction, irradiance=irradiance,
+                       half_angle_deg=half_angle_deg, extent=extent, threads=threads, seed=seed,
+                       filter_width_px=filter_width_px)
+    args["inputs"] = {k: list(v) if isinstance(v, tuple) else v for k, v in principled_inputs(fit).items()}
+    out = run_bpy_script(_RENDER, args, python=python, timeout=timeout)
+    return {"image": out["image"], "blender": out["blender"]}
 
 
 def sphere_normals(size: int, extent: float):
@@ -359,10 +404,44 @@ def sun_disk(direction, half_angle_deg: float, n_rings: int = 3, n_azimuth: int 
     return dirs, wts
 
 
+def real_fresnel_Fss(n: float) -> float:
+    """Cycles' fit of the cosine-weighted hemispherical average ``∫ 2μ F(μ; n) dμ`` of the dielectric
+    Fresnel for n ≥ 1, ``(n - 1) / (4.08567 + 1.00071 n)`` (Kulla & Conty 2017; Cycles'
+    ``bsdf_microfacet_setup_fresnel_generalized_schlick`` and the coat)."""
+    return (n - 1.0) / (4.08567 + 1.00071 * n)
+
+
+def ggx_energy_compensation(roughness: float, mu_v, Fss, n: float = 1.5):
+    """``(boost, E)``: the factor ``1 + F_ms (1 - E) / E`` by which Cycles' energy-preserving GGX
+    scales a lobe of perceptual roughness r at view cosines ``mu_v`` (P,), and E(μ_v) its albedo with
+    F = 1 (:func:`ggx_lobe_averages`), where ``F_ms = F_ss E_avg / (1 - F_ss (1 - E_avg))``, ``E_avg =
+    ∫ 2μ E(μ) dμ`` (16-node Gauss-Legendre) and ``Fss`` the lobe's average Fresnel, a scalar or (3,)
+    per channel (Kulla & Conty 2017, appendix; Cycles' ``microfacet_ggx_preserve_energy``, which
+    multiplies the closure's weight by ``E (1 + F_ms (1 - E)/E)`` and its evaluation by 1/E).
+    Returns boost (P,) or (P, 3) and E (P,); r = 0: no compensation (boost 1, E 1).
+
+    A white lobe (F_ss = 1) gets all its missing energy back, E boost = 1:
+
+    >>> b, E = ggx_energy_compensation(0.6, np.array([0.3, 0.9]), 1.0)
+    >>> bool(np.allclose(b * E, 1.0)), bool(np.all(E < 1))
+    (True, True)
+    """
+    mu_v = np.asarray(mu_v, float)
+    _, E = ggx_lobe_averages(roughness, mu_v, n)
+    if roughness <= 0.0:
+        return np.ones(mu_v.shape + np.shape(Fss)), E
+    x, wx = np.polynomial.legendre.leggauss(16)
+    mu_q = 0.5 * (x + 1.0)
+    E_avg = float(np.sum(0.5 * wx * 2.0 * mu_q * ggx_lobe_averages(roughness, mu_q, n)[1]))
+    Fss = np.asarray(Fss, float)
+    F_ms = Fss * E_avg / (1.0 - Fss * (1.0 - E_avg))
+    return 1.0 + np.multiply.outer((1.0 - E) / E, F_ms), E
+
+
 def principled_sun_image(fit: OpenPBRFit, size: int = 32, direction=(0.0, 0.0, 1.0), irradiance: float = 1.0,
-                         half_angle_deg: float = 2.0, extent: float = 1.05) -> np.ndarray:
+                         half_angle_deg: float = 2.0, extent: float = 1.05, distribution: str = "GGX") -> np.ndarray:
     """(size, size, 3) image that Cycles 5.0 renders of :func:`principled_inputs` (``distribution``
-    GGX) on the unit sphere under a sun of ``irradiance`` and angular radius ``half_angle_deg``
+    GGX, or ``"MULTI_GGX"``: Blender's default, which the USD importer makes, below) on the unit sphere under a sun of ``irradiance`` and angular radius ``half_angle_deg``
     (:func:`sun_disk`), at pixel centres, in the frame of :func:`render_cycles_sphere`: the Principled
     BSDF as its kernel evaluates it (``intern/cycles/kernel/svm/closure.h``, the Principled branch;
     ``closure/bsdf_microfacet.h``; ``closure/bsdf_util.h``), every lobe in air with
@@ -392,6 +471,13 @@ def principled_sun_image(fit: OpenPBRFit, size: int = 32, direction=(0.0, 0.0, 1
     (Cycles has no table for films).  Raises ValueError for a metallic fit with a thin film (Cycles
     5.0 also puts the film on the metal lobe, with an index estimated from F0 and F82: not modelled).
 
+    ``distribution="MULTI_GGX"`` (Multiscatter GGX) adds Cycles' energy compensation to the metal and
+    the dielectric lobe as to a rough coat (:func:`ggx_energy_compensation`): the metal's F82 lobe
+    times the boost of ``F_ss = c + (1 - c)/21 - B/126`` (the F82-tint model's average; Cycles'
+    ``bsdf_microfacet_setup_fresnel_f82_tint``, clipped to [0, 1]), the dielectric lobe times the
+    boost of ``F_ss = f0 + (1 - f0) s_ss``, ``s_ss = (F_ss(n_s) - F0) / (1 - F0)`` clipped
+    (:func:`real_fresnel_Fss`; ``..._generalized_schlick``), and its albedo estimate A_s times E boost.
+
     What is left between this image and Cycles': its Monte Carlo noise, the linear interpolation of
     its 16-node tables, and its spectral film approximation.
 
@@ -401,11 +487,17 @@ def principled_sun_image(fit: OpenPBRFit, size: int = 32, direction=(0.0, 0.0, 1
     >>> bool(np.allclose(img[3:5, 3:5], np.sqrt(1 - 2 * 0.125 ** 2) / np.pi, rtol=1e-3))
     True
     """
+    if distribution not in ("GGX", "MULTI_GGX"):
+        raise ValueError(f"principled_sun_image: distribution {distribution!r} is not modelled; use 'GGX' or 'MULTI_GGX'")
+    multi = distribution == "MULTI_GGX"
     c = np.clip(np.asarray(fit.base_color, float), 0.0, 1.0)
     s = np.clip(np.asarray(fit.specular_color, float), 0.0, None)
     m, r, n_s = float(fit.base_metalness), float(fit.specular_roughness), float(fit.specular_ior_relative)
     d_air, n_air = fit.film_relative_to_air()
     film = n_s > 1.0 and d_air > 0.1                    # Cycles' THINFILM_THICKNESS_CUTOFF [nm]
+    if film and multi:
+        raise ValueError("principled_sun_image: a thin film with distribution 'MULTI_GGX' is not modelled "
+                         "(Cycles' albedo estimate of a filmed, energy-compensated lobe)")
     if film and m > 0.0:
         raise ValueError(f"principled_sun_image: a metallic fit (base_metalness {m}) with a thin film "
                          f"({fit.thin_film_thickness_nm} nm) is not modelled (Cycles also puts the film on the metal)")
@@ -420,12 +512,7 @@ def principled_sun_image(fit: OpenPBRFit, size: int = 32, direction=(0.0, 0.0, 1
         sc, Ec = ggx_lobe_averages(rc, mv, nc)
         boost = np.ones_like(mv)
         if rc > 0.0:
-            x, wx = np.polynomial.legendre.leggauss(16)
-            mu_q = 0.5 * (x + 1.0)
-            E_avg = float(np.sum(0.5 * wx * 2.0 * mu_q * ggx_lobe_averages(rc, mu_q, nc)[1]))
-            F_ss = (nc - 1.0) / (4.08567 + 1.00071 * nc)
-            F_ms = F_ss * E_avg / (1.0 - F_ss * (1.0 - E_avg))
-            boost = 1.0 + F_ms * (1.0 - Ec) / Ec
+            boost, _ = ggx_energy_compensation(rc, mv, real_fresnel_Fss(nc), nc)
             f_coat = (nc, rc, boost)
         w = w * np.clip(1.0 - (_F0(nc) + (1.0 - _F0(nc)) * sc) * boost / (1.0 + (1.0 - Ec) / Ec), 0.0, 1.0)
     f0 = np.clip(_F0(n_s) * s, 0.0, 1.0)
@@ -440,6 +527,15 @@ def principled_sun_image(fit: OpenPBRFit, size: int = 32, direction=(0.0, 0.0, 1
         A_s = film_F(mv)
     elif n_s > 1.0:
         A_s = f0 + (1.0 - f0) * ggx_lobe_averages(r, mv, n_s)[0][:, None]
+    boost_s = boost_m = 1.0
+    if multi and n_s > 1.0:
+        s_ss = float(np.clip((real_fresnel_Fss(n_s) - _F0(n_s)) / (1.0 - _F0(n_s)), 0.0, 1.0))
+        boost_s, E_s = ggx_energy_compensation(r, mv, f0 + (1.0 - f0) * s_ss, n_s)
+        A_s = A_s * E_s[:, None] * boost_s
+    if multi and m > 0.0:
+        f5 = (6.0 / 7.0) ** 5
+        B = (c + (1.0 - c) * f5) * (7.0 / (f5 * 6.0 / 7.0)) * (1.0 - np.minimum(s, 1.0))
+        boost_m, _ = ggx_energy_compensation(r, mv, np.clip(c + (1.0 - c) / 21.0 - B / 126.0, 0.0, 1.0))
     w_1, w_2 = w, w * (1.0 - m)
     w_3 = w_2 * np.clip(1.0 - A_s.max(axis=-1), 0.0, 1.0) if n_s > 1.0 else w_2
     dirs, wts = sun_disk(direction, half_angle_deg)
@@ -456,10 +552,10 @@ def principled_sun_image(fit: OpenPBRFit, size: int = 32, direction=(0.0, 0.0, 1
             f5 = (6.0 / 7.0) ** 5
             B = (c + (1.0 - c) * f5) * (7.0 / (f5 * 6.0 / 7.0)) * (1.0 - np.minimum(s, 1.0))
             F82 = np.clip(c + (1.0 - c) * (1.0 - cos_d) ** 5 - B * cos_d * (1.0 - cos_d) ** 6, 0.0, 1.0)
-            f = f + (w_1 * m * L)[:, None] * F82
+            f = f + (w_1 * m * L)[:, None] * F82 * boost_m
         if n_s > 1.0:
             F_s = film_F(np.array([cos_d]))[0] if film else f0 + (1.0 - f0) * fresnel_blend(cos_d, n_s)
-            f = f + (w_2 * L)[:, None] * F_s
+            f = f + (w_2 * L)[:, None] * F_s * boost_s
         if f_coat:
             nc, rc, boost = f_coat
             f = f + (fresnel_dielectric(max(cos_d, 1e-9), nc).R * ggx_lobe_height_correlated(mv, mu_l, cos_h, rc * rc)

@@ -1,6 +1,13 @@
 """The fitted material as a USD layer (``.usda``, text): a unit sphere bound to a ``UsdPreviewSurface``
 material (the USD schema every Hydra delegate renders).  Written as plain text (no usd-core needed to
-write); the tests open it with ``usd-core`` (``pxr.Usd``).
+write); the tests open it with ``usd-core`` (``pxr.Usd``) and render it through Blender's USD importer
+in Cycles (:mod:`flakedb.export.usd_render`, ``tests/export/test_usd_cycles.py``).
+
+The sphere is a ``Mesh`` (the 48 x 24 UV sphere of :func:`flakedb.export.gltf.uv_sphere`, exact
+vertex normals, ``subdivisionScheme = "none"``), not a ``Sphere`` gprim: Blender 5.0.1's USD importer
+tessellates a ``Sphere`` into 92 vertices and **drops its material binding** (its shape reader assigns
+no material; the mesh reader does), so a ``Sphere`` rendered in Blender without the fitted material,
+coat and all.
 
 UsdPreviewSurface's clear coat has a fixed index of 1.5 and its ``ior`` input is the base's: with a
 coat index other than 1.5 the coat's Fresnel differs (at η = 1.5, the catalogue's, it is exact).
@@ -14,13 +21,24 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from flakedb.atomic import atomic_path
+from flakedb.export.gltf import uv_sphere
 from flakedb.export.materialx import safe_name
 from flakedb.export.openpbr import OpenPBRFit
 
 
+def _vec3_array(a: np.ndarray) -> str:
+    """A USD ``point3f[]`` / ``normal3f[]`` value: ``[(x, y, z), ...]`` at float32's 7 digits."""
+    return "[" + ", ".join(f"({x:.7g}, {y:.7g}, {z:.7g})" for x, y, z in np.asarray(a, float)) + "]"
+
+
 def usda_text(fit: OpenPBRFit, name: str) -> str:
     n = safe_name(name)
+    pos, nrm, idx = uv_sphere()
+    counts = "[" + ", ".join(["3"] * (len(idx) // 3)) + "]"
+    indices = "[" + ", ".join(str(int(i)) for i in idx) + "]"
     c = fit.base_color
     fit_json = json.dumps(json.dumps(fit.to_dict(), separators=(",", ":")))    # a quoted USD string
     return f'''#usda 1.0
@@ -35,11 +53,18 @@ def usda_text(fit: OpenPBRFit, name: str) -> str:
 
 def Xform "{n}"
 {{
-    def Sphere "sphere" (
+    def Mesh "sphere" (
         prepend apiSchemas = ["MaterialBindingAPI"]
     )
     {{
-        double radius = 1
+        float3[] extent = [(-1, -1, -1), (1, 1, 1)]
+        int[] faceVertexCounts = {counts}
+        int[] faceVertexIndices = {indices}
+        point3f[] points = {_vec3_array(pos)}
+        normal3f[] normals = {_vec3_array(nrm)} (
+            interpolation = "vertex"
+        )
+        uniform token subdivisionScheme = "none"
         rel material:binding = </{n}/Looks/M_{n}>
     }}
 
