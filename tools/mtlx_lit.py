@@ -165,7 +165,7 @@ def usd_preview_mtlx(usda, dst, **override) -> Path:
     (``pxr.UsdShade``) into MaterialX's own ``UsdPreviewSurface`` node (ND_UsdPreviewSurface_surfaceshader,
     libraries/bxdf/usd_preview_surface.mtlx), ``override`` replacing inputs (floats): the USD material
     rendered with MaterialX's definition of its shader."""
-    from pxr import Usd, UsdShade   # optional: usd-core
+    from pxr import Usd, UsdShade  # optional: usd-core
 
     stage = Usd.Stage.Open(str(usda))
     shader = next(UsdShade.Shader(p) for p in stage.Traverse()

@@ -9,11 +9,15 @@ tessellates a ``Sphere`` into 92 vertices and **drops its material binding** (it
 no material; the mesh reader does), so a ``Sphere`` rendered in Blender without the fitted material,
 coat and all.
 
-UsdPreviewSurface's clear coat has a fixed index of 1.5 and its ``ior`` input is the base's: with a
-coat index other than 1.5 the coat's Fresnel differs (at η = 1.5, the catalogue's, it is exact).
-UsdPreviewSurface's metallic workflow has no specular tint: the fit's ``specular_color`` is lost
-(``ior`` is the fit's relative index of the base's dielectric lobe, untinted), and so is a fitted
-thin film (UsdPreviewSurface has none).
+UsdPreviewSurface has one index, ``ior``, "to be used for translucent objects and objects with
+specular components, including the clearcoat if clearcoat > 0" (the UsdPreviewSurface specification,
+openusd.org; MaterialX's ``ND_UsdPreviewSurface_surfaceshader`` takes the coat's F0 from it).  A
+coated fit writes the **coat's** index there, so that the mirror every reader draws is the paint's
+(``tools/mtlx_lit.py --usd``: with the base's relative index written instead, MaterialX drew no coat on
+metallic silver and pearl white, whose lobe index is 1, and a coat of F0 0.25 on the pearlescent's 3);
+the base's dielectric lobe then takes that index too (Blender's importer puts ``ior`` on the base and
+keeps its coat at 1.5): the fit's own lobe index is lost on this route, as are the lobe's tint
+(``specular_color``: the metallic workflow has none) and a fitted thin film.
 The fit and its error are stored in the layer's ``customLayerData`` (``flakedb_fit``, JSON)."""
 
 from __future__ import annotations
@@ -32,6 +36,12 @@ from flakedb.export.openpbr import OpenPBRFit
 def _vec3_array(a: np.ndarray) -> str:
     """A USD ``point3f[]`` / ``normal3f[]`` value: ``[(x, y, z), ...]`` at float32's 7 digits."""
     return "[" + ", ".join(f"({x:.7g}, {y:.7g}, {z:.7g})" for x, y, z in np.asarray(a, float)) + "]"
+
+
+def usd_ior(fit: OpenPBRFit) -> float:
+    """UsdPreviewSurface's ``ior`` for ``fit`` (module docstring): the coat's index when it has a coat, else
+    the base lobe's index (≥ 1)."""
+    return float(fit.coat_ior) if fit.coat_ior > 1.0 else max(float(fit.specular_ior_relative), 1.0)
 
 
 def usda_text(fit: OpenPBRFit, name: str) -> str:
@@ -82,7 +92,7 @@ def Xform "{n}"
                 float inputs:roughness = {fit.specular_roughness:.6g}
                 float inputs:clearcoat = {1.0 if fit.coat_ior > 1.0 else 0.0:g}
                 float inputs:clearcoatRoughness = {fit.coat_roughness:.6g}
-                float inputs:ior = {max(fit.specular_ior_relative, 1.0):.6g}
+                float inputs:ior = {usd_ior(fit):.6g}
                 int inputs:useSpecularWorkflow = 0
                 token outputs:surface
             }}

@@ -37,8 +37,14 @@ import re
 from pathlib import Path
 
 from flakedb.atomic import atomic_path
-from flakedb.export.blender import CAMERA_SUN_RENDER_SCRIPT, SCENE_SETUP_SCRIPT, render_args, run_bpy_script
+from flakedb.export.blender import (
+    CAMERA_SUN_RENDER_SCRIPT,
+    SCENE_SETUP_SCRIPT,
+    render_args,
+    run_bpy_script,
+)
 from flakedb.export.openpbr import OpenPBRFit
+from flakedb.export.usd import usd_ior
 
 #: The object part of the render script (:func:`flakedb.export.blender.run_bpy_script`): import the
 #: file as it is, and report the meshes and the materials Blender made (every Principled input that
@@ -173,13 +179,14 @@ def imported_fit(material: dict) -> OpenPBRFit:
 def usd_route_fit(fit: OpenPBRFit) -> OpenPBRFit:
     """What the ``.usda`` route leaves of ``fit`` in a UsdPreviewSurface consumer that reads it as
     Blender does (module docstring): the lobe's tint white (for a metal: no F82 edge tint), no thin
-    film, the coat's index 1.5 (UsdPreviewSurface's), the base's relative index as written (``ior``
-    ≥ 1; 1 means no dielectric lobe).  Render it with ``distribution="MULTI_GGX"`` for Blender."""
+    film, the coat's index 1.5 (Blender's Coat IOR), the base's index the written ``ior``
+    (:func:`flakedb.export.usd.usd_ior`: the coat's index on a coated fit; 1 means no dielectric lobe).
+    Render it with ``distribution="MULTI_GGX"`` for Blender."""
     return OpenPBRFit(base_color=tuple(float(x) for x in fit.base_color), base_metalness=float(fit.base_metalness),
                       specular_roughness=float(fit.specular_roughness),
                       coat_ior=1.5 if fit.coat_ior > 1.0 else 1.0, coat_roughness=float(fit.coat_roughness),
                       specular_color=(1.0, 1.0, 1.0),
-                      specular_ior_relative=max(float(fit.specular_ior_relative), 1.0))
+                      specular_ior_relative=usd_ior(fit))
 
 
 _CLEARCOAT = re.compile(r"(float inputs:clearcoat = )([-+0-9.eE]+)")

@@ -123,3 +123,40 @@ def test_colours_match_prediction(rendered):
     assert np.all(de <= de_pred + 116 / 3 * RTOL_PRED), (de, de_pred)
     print("dE00 MaterialX vs preview", de, "prediction vs preview", de_pred)
     assert delta_E_2000(ml.lab(ml.means(model_sun_image(fit, 32, d))), ml.lab(ml.means(pv))).max() < 1.0
+
+
+@pytest.fixture(scope="module")
+def usd_rendered(tmp_path_factory):
+    """A metal fit whose base lobe index is 1 (as metallic silver's and pearl white's), its .usda read back
+    with usd-core into MaterialX's own UsdPreviewSurface node (tools/mtlx_lit.py --usd), with and
+    without clearcoat, and the same file with ``ior`` the base's index as flakedb wrote it before."""
+    pytest.importorskip("pxr", reason="usd-core (pxr) is not installed")
+    from flakedb.export.usd import write_usda
+
+    d = tmp_path_factory.mktemp("usd-mtlx")
+    fit = op.OpenPBRFit((0.6, 0.6, 0.62), 1.0, 0.5, 1.5, 0.0, specular_ior_relative=1.0)
+    u = write_usda(d / "silver.usda", fit, "silver")
+    jobs = ml.renders_for(ml.usd_preview_mtlx(u, d / "a.mtlx"), ml.usd_preview_mtlx(u, d / "b.mtlx", clearcoat=0.0))
+    jobs += ml.renders_for(ml.usd_preview_mtlx(u, d / "c.mtlx", ior=1.0),
+                           ml.usd_preview_mtlx(u, d / "e.mtlx", ior=1.0, clearcoat=0.0))[:2]
+    imgs, _ = ml.render(jobs, TOOL)
+    return imgs
+
+
+def test_usd_route_keeps_the_coat(usd_rendered):
+    """UsdPreviewSurface takes the clear coat's index from ``ior`` (its specification; MaterialX's node does):
+    flakedb.export.usd writes the coat's 1.5 there, so MaterialX draws the coat: coated / clearcoat-0 under
+    the sun = 1 - F(μ_v; 1.5) within MaterialX's albedo fit of the coat (0.956–0.960 for 0.944–0.960, as the
+    .mtlx route's t_c) and the uniform sky's coat reflection at the centre, coated − t_c · clearcoat-0 (t_c the
+    sun's ratio at that pixel: what the coat passes of the base), F(0°; 1.5) = 0.040.  The bite: ``ior`` = the
+    base lobe's 1, as written before, gives no coat (ratio 1)."""
+    sun, sun_b, sky, sky_b, sun_old, sun_old_b = usd_rendered
+    r = ml.analyse_usd(sun, sun_b, sky, sky_b)
+    lo, hi = r["coat_sun_ratio_range"]
+    assert 0.950 <= lo and hi <= 0.961, r
+    t_c = ml.grid32(sun)[16, 16] / ml.grid32(sun_b)[16, 16]
+    coat = ml.grid32(sky)[16, 16] - t_c * ml.grid32(sky_b)[16, 16]
+    print("USD route in MaterialX: sun ratio", r["coat_sun_ratio_range"], "coat reflection at the centre", coat)
+    np.testing.assert_allclose(coat, 0.04, atol=2e-3)
+    old = ml.analyse_usd(sun_old, sun_old_b, sky, sky_b)
+    assert old["coat_sun_ratio_range"][0] > 0.99, old
