@@ -85,8 +85,9 @@ Root attributes: ``format``, ``format_version``, ``flakedb_version``, ``eta``, `
 ``channels`` (JSON list of names), ``delta`` (JSON object or ``null``), ``metadata`` (JSON object:
 the table's metadata merged with ``extra_metadata``).  Datasets: ``mu`` float64 (n,) -- the
 solver's nodes without the zero nodes; ``coeffs`` float64 (C, n, n, L), every order, chunked per
-(channel, incident node), shuffle + gzip(1) (an opaque paint's reflection quadrant is written alone, the
-rest is the dataset's fill value 0: the same array read back); ``albedo`` float64 (C, n), the Catmull-Rom albedo of
+(channel, incident node, outgoing hemisphere), shuffle + gzip(1) when at least half of it is exactly 0
+(``flakedb.bsdf.h5file.h5_filters``; float64 coefficients do not compress) (an opaque paint's reflection
+quadrant is written alone, the rest is the dataset's fill value 0: the same array read back); ``albedo`` float64 (C, n), the Catmull-Rom albedo of
 each channel at each incident node (derived, for inspection).  The reader inserts the two zero
 nodes exactly as the ``.bsdf`` writer does, so both files evaluate identically up to float32.
 """
