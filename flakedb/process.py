@@ -10,6 +10,11 @@ blocks), so with the threshold at 32 MiB and trimming at 1 GiB the rough coat α
 n = 200 took 0.28–0.31 s instead of 0.39–0.42 s in a fresh process (the same call a second time:
 0.24–0.27 s either way; docs/rough-interfaces.md, "Whole process").  The cost: memory freed after a
 peak stays mapped to the process until it exits (it is reused by later arrays).
+
+:func:`request_fast_exit` / :func:`fast_exit`: a command whose outputs are all written and closed (compose)
+may end the process without the interpreter's teardown, which freed every object one by one and took
+45–50 ms of a 0.7 s whole-process compose (measured: external wall − the end of the work, 0.07 s with the
+teardown, 0.027 s with ``os._exit`` after flushing; atexit handlers themselves took < 1 ms).
 """
 
 import contextlib
@@ -17,6 +22,7 @@ import ctypes
 import ctypes.util
 import os
 import signal
+import sys
 import threading
 
 #: glibc's mallopt parameters (malloc.h).
@@ -85,3 +91,30 @@ def install_signal_handlers() -> bool:
             continue
         signal.signal(s, _raise_terminated)
     return True
+
+
+#: Set by :func:`request_fast_exit`.
+_FAST_EXIT = []
+
+
+def request_fast_exit():
+    """Say that the running command's work is done and every file it wrote is closed (called by ``flakedb
+    compose`` at its end): :func:`fast_exit` may then end the process without the interpreter's teardown."""
+    _FAST_EXIT.append(True)
+
+
+def fast_exit(code) -> None:
+    """End the process now with status 0 if :func:`request_fast_exit` was called and ``code`` is success (0
+    or None), after flushing stdout and stderr and running the ``atexit`` handlers (``os._exit``: no freeing
+    of every object, no module teardown; module docstring); otherwise return (the caller exits normally)."""
+    if not _FAST_EXIT or code not in (0, None):
+        return
+    import atexit  # lazy: only the fast exit needs it
+
+    run = getattr(atexit, "_run_exitfuncs", None)  # CPython's own hook (what a normal exit calls)
+    if run is not None:
+        run()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(0)

@@ -19,17 +19,24 @@ from flakedb.cli.failures import check_plan, probe_writable, remove_created_dirs
 from flakedb.cli.options import RAW_HELP, check_node_count
 from flakedb.cli.progress import StageProgress
 from flakedb.colour.gamut import RGB_SPACES
-from flakedb.colour.settings import DEFAULT_GEOMETRY_SET, DEFAULT_ILLUMINANT, DEFAULT_OBSERVER, GEOMETRY_SETS, resolve
+from flakedb.colour.settings import (
+    DEFAULT_GEOMETRY_SET,
+    DEFAULT_ILLUMINANT,
+    DEFAULT_OBSERVER,
+    GEOMETRY_SETS,
+    resolve,
+)
 from flakedb.colour.tolerance import illuminant_name
 from flakedb.compose.orchestrate import UnphysicalResultError, output_plan
-from flakedb.outputs import OutputError
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.compose.report import format_report
+from flakedb.outputs import OutputError
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.pipelines.build import build as run_build
 from flakedb.pipelines.build import request_for_recipe
+from flakedb.process import request_fast_exit
 from flakedb.store.versions import StoreError, StoreIntegrityError
 
 
@@ -103,6 +110,7 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, observer, i
         finally:
             bar.close()
 
+    built = False
     try:
         try:
             res = attempt()
@@ -115,6 +123,7 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, observer, i
                        f"building what it needs into {store} as a new version", err=True)
             b = run_build(request_for_recipe(rec, n=n, store_raw=raw), store, scheduler="threads",
                           progress=not quiet)
+            built = True
             click.echo(f"compose {rec.name}: {b['status']} version {b['version'][:12]} ({b['tasks_run']} of "
                        f"{b['tasks_total']} tasks run, {b['seconds']:.1f} s)", err=True)
             res = attempt()
@@ -131,3 +140,5 @@ def compose(recipe, out_dir, n, store, raw, catalog_path, rgb_space, observer, i
     click.echo(f"wrote {res.paths['h5']} (full precision) and {res.paths['json']} (colour report)")
     click.echo(f"time: {sum(res.timings_s.values()):.1f} s (" +
                ", ".join(f"{k} {v:.2f} s" for k, v in res.timings_s.items()) + ")")
+    if not built:  # every output written and closed, no build's scheduler left: no teardown needed (flakedb.process)
+        request_fast_exit()

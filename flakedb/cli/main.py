@@ -11,7 +11,12 @@ import click
 from flakedb import __version__
 from flakedb.cli.errors import FlakedbError  # noqa: F401  (re-exported for scripts)
 from flakedb.cli.failures import as_failure
-from flakedb.process import Terminated, install_signal_handlers, tune_allocator
+from flakedb.process import (
+    Terminated,
+    fast_exit,
+    install_signal_handlers,
+    tune_allocator,
+)
 
 #: Every command and the module that defines it, imported only when that command runs or its help is
 #: shown (click's lazily loaded subcommands): ``flakedb compose`` no longer imports Dask, distributed,
@@ -128,7 +133,11 @@ def cli(debug):
 def main():
     tune_allocator()  # freed memory kept for reuse: page faults are most of a short solve's overhead
     install_signal_handlers()  # SIGTERM / SIGHUP clean up as SIGINT does (flakedb.process.Terminated)
-    cli(prog_name="flakedb")
+    try:
+        cli(prog_name="flakedb")
+    except SystemExit as exc:
+        fast_exit(exc.code)  # a finished compose skips the interpreter's teardown (flakedb.process)
+        raise
 
 
 if __name__ == "__main__":
