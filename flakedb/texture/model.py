@@ -202,16 +202,6 @@ def diffraction_radius(diameter_um, eta, wavelength_nm=DIFFRACTION_WAVELENGTH_NM
     return 2.0 * lam_um / (np.pi * np.asarray(diameter_um, float))
 
 
-def _poisson(k, lam):
-    """Poisson probabilities P(k; λ) for k (K,) and λ (...) → (..., K)."""
-    lam = np.asarray(lam, float)[..., None]
-    k = np.asarray(k, float)
-    lg = np.concatenate([[0.0], np.cumsum(np.log(np.arange(1.0, k.max(initial=0) + 1.0)))])[k.astype(int)]  # ln k!
-    with np.errstate(divide="ignore"):
-        logp = k * np.log(np.where(lam > 0, lam, 1.0)) - lam - lg
-    return np.where(lam > 0, np.exp(logp), (k == 0).astype(float))
-
-
 def _k_max(lam_max, T_max):
     """Largest crossing count kept: beyond it the Poisson tail (λ + 6√λ + 6: < 1e-7) or the
     transmitted fraction (T_max^k < 1e-7) is negligible; 0 for opaque flakes."""
