@@ -73,6 +73,36 @@ def reflection_under_smooth(t, F_in, h_tir, bottom_Rt):
     return t[:, None] * R * t[None, :]
 
 
+def next_block_end(a, L_max, tol, block, k=4):
+    """End of the next block of orders to solve after the L = len(``a``) solved, whose decay ``a`` did not
+    yet meet :func:`order_tail`'s criterion (docs/orders.md): where the geometric tail that
+    :func:`order_tail` extrapolates from the last ``k`` orders (ratio r < 1) predicts the criterion holds,
+    i.e. L_keep + 1 with L_keep the first order whose extrapolated tail a_{L−1} r^(L_keep−L+1)/(1 − r) is
+    ≤ ``tol``, at least ``k`` orders more (the next estimate then rests on new orders only) and at most
+    double the count solved (or ``block`` orders in all, the first block's size).  Without a decaying
+    estimate (fewer than k + 1 orders, r ≥ 1, a zero): doubling.  Never beyond ``L_max``.
+
+    Orders are independent, so solving fewer orders changes none of them; only the count solved does.
+
+    >>> a = [1.0, 0.24, 0.09, 0.037, 0.016, 0.0059, 0.0029, 0.00098]     # r ≈ 0.40 over the last 4
+    >>> next_block_end(a, 200, 1e-4, 16)                                  # L_keep 11 predicted
+    12
+    >>> next_block_end(a[:3], 200, 1e-4, 16), next_block_end([1.0] * 8, 200, 1e-4, 16)
+    (16, 16)
+    """
+    a = np.asarray(a, dtype=float)
+    L = a.size
+    grow = min(int(L_max), max(int(block), 2 * L))
+    if L <= k or a[-1 - k] <= 0.0 or a[-1] <= 0.0:
+        return grow
+    r = (a[-1] / a[-1 - k]) ** (1.0 / k)
+    if not r < 1.0:
+        return grow
+    # a_{L-1} r^m / (1 − r) ≤ tol for the tail from order L − 1 + m
+    m = max(1, int(np.ceil(np.log(tol * (1.0 - r) / a[-1]) / np.log(r))))
+    return min(grow, max(L + k, L + m))
+
+
 def order_tail(a, L_max, tol, k=4):
     """Choose the number of orders from the decay of the BSDF's coefficients (docs/orders.md).
 

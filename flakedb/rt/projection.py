@@ -37,7 +37,7 @@ PROJECTION_BUDGET_BYTES = 1 * 2**30
 
 #: Orders of a projection over its memory budget kept in memory (:class:`ChunkedCoefficients`); higher
 #: orders are evaluated again when a solver asks for them.  The order choice of an opaque stack solves
-#: blocks of 16, then 32, 64 … orders (:data:`flakedb.rt.order_blocks.FIRST_ORDER_BLOCK`) and stops where
+#: blocks of 8, then as far as its decay predicts (:data:`flakedb.rt.order_blocks.FIRST_ORDER_BLOCK`) and stops where
 #: its BSDF's tail is within the order tolerance: 11–31 orders for every catalogue recipe at n = 128
 #: (docs/cost-model.md), while the projection of a kernel that never converges at grazing pairs carries
 #: up to the cap 2n = 256.  Particle pearlescent at n = 128 (B = 41 basis kernels): the 256 orders held

@@ -7,7 +7,7 @@ import pytest
 from flakedb.rt.layer import Layer
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, kernel_basis
 from flakedb.rt.microflake import FlakeOptics, table_basis
-from flakedb.rt.orders import order_tail, reflection_over, reflection_under_smooth
+from flakedb.rt.orders import next_block_end, order_tail, reflection_over, reflection_under_smooth
 from flakedb.rt.projection import ChunkedCoefficients, ProjectedKernel, project_kernel_basis
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
 from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, medium_kernel_blocks, solve_stack
@@ -113,6 +113,31 @@ def test_order_tail_estimate():
     assert not done
     L, tail, done = order_tail(np.r_[1.0, 1e-3 * np.ones(7)], 8, 1e-2)  # all orders solved: exact tail
     assert done and L == 1
+
+
+@pytest.mark.parametrize("r", [0.2, 0.4, 0.55])
+def test_next_block_end_is_where_the_criterion_first_holds(r):
+    """For a geometric decay a_l = r^l the predicted block end L' is the first count at which
+    :func:`order_tail` is met (its estimate is exact for a geometric series), so the loop solves no order
+    the criterion does not need (within the block's bounds: ≥ 4 more, ≤ double); a slow decay (r 0.8) is
+    held to doubling."""
+    a = r ** np.arange(200.0)
+    first = next(L for L in range(9, 200) if order_tail(a[:L], 200, 1e-4)[2])
+    # at least k = 4 orders more than the 8 solved, at most double
+    assert next_block_end(a[:8], 200, 1e-4, 16) == min(16, max(12, first))
+    assert next_block_end(0.8 ** np.arange(8.0), 200, 1e-4, 16) == 16
+    assert next_block_end(0.8 ** np.arange(16.0), 20, 1e-4, 16) == 20  # never beyond L_max
+
+
+def test_order_loop_solves_fewer_orders_with_the_same_result():
+    """A flake basecoat under a smooth coat: the predicted blocks stop within 4 orders of the count kept
+    (doubling solved up to 2× of it), and the kept orders are the all-orders solve's (orders are
+    independent)."""
+    ref = _flake_paint(None)
+    for order_tol in (1e-3, 1e-4, 1e-6):  # keeps 11, 13, 18 orders (doubling solved 16, 16, 32)
+        r = _flake_paint(order_tol)
+        assert r.info["order_converged"] and r.info["orders_solved"] <= r.n_orders + 4, (order_tol, r.info)
+        np.testing.assert_allclose(r.Rt, ref.Rt[: r.n_orders], rtol=1e-12, atol=1e-14 * np.abs(ref.Rt).max())
 
 
 def test_reflection_only_adding_equals_full_adding():
