@@ -59,7 +59,7 @@ class LocalFiles:
 
     @staticmethod
     def modified(path):
-        return datetime.datetime.fromtimestamp(os.stat(path).st_mtime, tz=datetime.timezone.utc)
+        return datetime.datetime.fromtimestamp(os.stat(path).st_mtime, tz=datetime.UTC)
 
     @staticmethod
     def size(path):

@@ -55,8 +55,8 @@ def test_urls_and_writes_go_through_fsspec(tmp_path):
 
 
 def test_reading_a_local_store_imports_no_fsspec(store):
-    url, version = store
+    url, _ = store
     code = ("import sys; from flakedb.store.read import open_version; v = open_version(sys.argv[1]); "
             "v.group['wavelength_nm'][:]; assert 'fsspec' not in sys.modules, 'fsspec imported'")
-    run = subprocess.run([sys.executable, "-c", code, url], capture_output=True, text=True)
+    run = subprocess.run([sys.executable, "-c", code, url], capture_output=True, text=True, check=False)
     assert run.returncode == 0, run.stderr[-2000:]
