@@ -43,7 +43,7 @@ def write_template(url, plan: BuildPlan):
         raise StoreIntegrityError("metadata breaks schemas/store.schema.json:\n  " + "\n  ".join(problems))
     if version_state(url, plan.version) != "absent":
         return False
-    fs, root = open_fs(url)
+    fs, root = open_fs(url, writable=True)
     local = "file" in (fs.protocol if isinstance(fs.protocol, (tuple, list)) else (fs.protocol,))
     final = posixpath.join(root, "versions", plan.version)
     if local:
@@ -130,7 +130,7 @@ def run_task(url, plan: BuildPlan, task: Task) -> dict:
             za = _sized_array(vurl, path, arr, chunks, {"units": spec["units"], "info": info})
             za[...] = arr
             created[path] = spec
-    fs, root = open_fs(url)
+    fs, root = open_fs(url, writable=True)
     vroot = posixpath.join(root, "versions", plan.version)
     chunks = {key: sha256(fs.cat_file(posixpath.join(vroot, key))) for key in task_chunk_keys(plan, task, created)}
     record = {"task": task.id, "version": plan.version, "chunks": chunks, "arrays": created,
@@ -166,7 +166,7 @@ def _sized_array(vurl, path, arr, chunks, attributes):
 
 def pending_tasks(url, plan: BuildPlan) -> list:
     """Tasks of the plan without a record in the version (all of them for a fresh version)."""
-    fs, root = open_fs(url)
+    fs, root = open_fs(url, writable=True)
     vroot = posixpath.join(root, "versions", plan.version)
     return [t for t in plan.tasks if not fs.exists(posixpath.join(vroot, t.record_name))]
 
@@ -184,7 +184,7 @@ def all_chunk_keys(arrays: dict):
 def finalize(url, plan: BuildPlan):
     """After every task: collect the checksums (task records, coordinates, every zarr.json) into
     ``checksums.json``, then write ``complete``.  Refuses when a task record or chunk is missing."""
-    fs, root = open_fs(url)
+    fs, root = open_fs(url, writable=True)
     vroot = posixpath.join(root, "versions", plan.version)
     missing = pending_tasks(url, plan)
     if missing:
@@ -213,5 +213,5 @@ def publish(url, version):
     (atomic on a local file system; on object stores a single-object PUT is atomic too)."""
     if version_state(url, version) != "complete":
         raise StoreError(f"refusing to publish version {version}: it is not complete")
-    fs, root = open_fs(url)
+    fs, root = open_fs(url, writable=True)
     write_json(fs, posixpath.join(root, "latest"), {"version": version})
