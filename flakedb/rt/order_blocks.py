@@ -19,8 +19,8 @@ from flakedb.rt.parts import order_range
 #: First block of orders solved by the order choice; later blocks end where the decay measured so far predicts
 #: the tolerance is met (at least 4 orders more, at most double: :func:`flakedb.rt.orders.next_block_end`).
 #: Measured (docs/orders.md): the bench's 3-species basecoat keeps 11 orders; a first block of 16 solved 16
-#: of them, 8 and the prediction solve 12 (the slab's eigen-solutions, most of the solve: 0.28–0.43 s →
-#: 0.23 s in a fresh process, peak memory 266 → 171 MB).
+#: of them, 8 and the prediction solve 12 (the slab's eigen-solutions, most of the solve: 0.28–0.44 s →
+#: 0.20–0.22 s in a fresh process, peak memory 262 → 166 MB).
 FIRST_ORDER_BLOCK = 8
 #: Orders of the body solved while a rough top is built in the background (before the stack's order count is
 #: known): ``body_orders`` clipped to this range.
@@ -133,14 +133,16 @@ class OrderBlocks:
         return amax / fourier_weight(np.arange(l0, l1))
 
     def solve(self, x_out, w_out, L_max, body_orders=None):
-        """Run the order loop.  ``L_max``: the stack's order count, or a function returning it (waiting for
-        a top built in the background: the body's first orders, up to ``body_orders`` (at most 64) or the
-        first block, are solved before it is called).  Returns (R^t (L', C, h, h) of the scattered light,
+        """Run the order loop.  ``L_max``: the stack's order count, or a function returning it; with
+        ``body_orders`` (not None: a top built in the background) the body's first orders, ``body_orders``
+        clipped to :data:`OVERLAP_ORDERS`, are solved before it is called.  Returns (R^t (L', C, h, h) of the scattered light,
         info)."""
         s = self.s
         self.x_out, self.w_out = x_out, w_out
         first = None
-        if callable(L_max):  # the body's first block does not need the top: solve it while the top is built
+        if callable(L_max) and body_orders is None:  # no top built in the background: nothing to overlap
+            L_max = L_max()
+        elif callable(L_max):  # the body's first block does not need the top: solve it while the top is built
             lo, hi = OVERLAP_ORDERS
             self.L_report = L_first = min(s.order_cap, max(lo, min(body_orders or 0, hi)))
             first = self.body(0, L_first)
@@ -168,7 +170,8 @@ class OrderBlocks:
             L_keep, tail, done = order_tail(a, L_max, s.order_tol)
             if done:
                 break
-        info = {"orders": int(L_keep), "orders_solved": int(l0), "orders_available": int(L_max),
+        solved = max(l0, 0 if first is None else first.shape[0])  # the overlapped first block may go further
+        info = {"orders": int(L_keep), "orders_solved": int(solved), "orders_available": int(L_max),
                 "order_tol": float(s.order_tol), "order_tail": float(tail), "order_converged": bool(done),
                 "order_decay": [float(v) for v in a]}
         return out[:L_keep], info

@@ -244,7 +244,7 @@ def _solve_stack(top, slabs, bottom, s, top_cache=None):
                          top_rt=(lambda: tp.rough_layer().Rt) if isinstance(top, Rough) else None,
                          top_rt_writable=top_cache is None,
                          threads=lambda: max(1, s.threads - 1) if tp.busy() else s.threads, specular=Rs)
-        Rt, oinfo = ob.solve(q_out.x, q_out.w, total_orders, body_orders=inner if isinstance(top, Rough) else None)
+        Rt, oinfo = ob.solve(q_out.x, q_out.w, total_orders, body_orders=(inner or 0) if isinstance(top, Rough) else None)
         info.update(oinfo)
         Rt = _with_specular(Rt, Rs, info, q_out)
         return StackBSDF(x=q_out.x, w=q_out.w, Rt=Rt, eta=eta, delta_F=tp.delta_F, x_in=q_in.x, w_in=q_in.w,
