@@ -39,6 +39,12 @@ H5_FORMAT_VERSION = 1
 # --------------------------------------------------------------------------------------------
 # HDF5
 # --------------------------------------------------------------------------------------------
+def preload_h5py() -> None:
+    """Import h5py now, for a caller that will write an ``.h5`` later and has a thread to spare (compose runs
+    this in its worker beside the solve: the import, 17–23 ms, then is off the write's path)."""
+    import h5py  # lazy: h5py takes 17-50 ms to import; only the .h5 file needs it  # noqa: F401
+
+
 def write_h5(path, table: BSDFTable, extra_metadata: dict | None = None) -> dict:
     """Write the full-precision table (float64, every order, all channels) to HDF5, atomically.
 

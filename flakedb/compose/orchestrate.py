@@ -47,6 +47,7 @@ import numpy as np
 import flakedb.bsdf as bsdf_files  # the module, so a test can replace its writers
 from flakedb import __version__
 from flakedb.bsdf.convert import stack_to_table
+from flakedb.bsdf.h5file import preload_h5py
 from flakedb.colour import gamut
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.compose.report import (
@@ -449,6 +450,7 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
     def start_texture(stored):
         if not texture:  # once: auto's refinement re-solves at another n, and the texture does not depend on n
             texture.append(pool.submit(texture_report, recipe, observers, None, stored))
+            pool.submit(preload_h5py)  # then h5py's import, off the write's path (flakedb.bsdf.h5file)
 
     solved = solve_recipe(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical,
                           on_stored=start_texture)
