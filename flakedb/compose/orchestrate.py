@@ -297,7 +297,7 @@ def _bsdf_range(stack, phi):
     gmax, gmin = -np.inf, np.inf
     C = 1 if Rt.shape[1] > 1 and Rt.strides[1] == 0 else Rt.shape[1]  # channels solved once: one is enough
     for c0 in range(0, C, CHECK_CHANNEL_BLOCK):
-        g = np.einsum("lcoi,lp->coip", Rt[:, c0:c0 + CHECK_CHANNEL_BLOCK] * scale, cos)
+        g = np.matmul(np.moveaxis(Rt[:, c0:c0 + CHECK_CHANNEL_BLOCK] * scale, 0, -1), cos)  # (c, o, i, P)
         gmax, gmin = max(gmax, float(g.max())), min(gmin, float(g.min()))
     return gmax, gmin
 
