@@ -12,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import sys
 import time
-from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from flakedb.colour.colorimetry import spectral_grid
@@ -216,8 +215,11 @@ class _TaskCallback:
 
 
 def _worker_died(exc) -> bool:
-    """A lost worker process: a broken local pool, or a dask.distributed KilledWorker."""
-    return isinstance(exc, BrokenProcessPool) or type(exc).__name__ == "KilledWorker"
+    """A lost worker process: a broken local pool, or a dask.distributed KilledWorker.  concurrent.futures.process
+    is imported only by a process pool (flakedb.pipelines.workers: 3 ms of every compose otherwise), so a pool that
+    broke has it loaded."""
+    proc = sys.modules.get("concurrent.futures.process")
+    return (proc is not None and isinstance(exc, proc.BrokenProcessPool)) or type(exc).__name__ == "KilledWorker"
 
 
 def build(request: st.BuildRequest, store=None, scheduler=None, workers=None, client=None, progress=False,

@@ -15,7 +15,10 @@ import signal
 import sys
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from concurrent.futures import ProcessPoolExecutor
 
 #: How many times a build restarts its process pool after a worker died before it stops.
 MAX_POOL_RESTARTS = 2
@@ -48,5 +51,9 @@ def process_pool(workers: int | None = None) -> ProcessPoolExecutor:
     ...     pool.submit(os.getppid).result() == os.getpid()                 # the worker is this process's child
     True
     """
+    from concurrent.futures import (
+        ProcessPoolExecutor,  # lazy: 3 ms of every compose (multiprocessing's queues); only a build's pool needs it
+    )
+
     return ProcessPoolExecutor(max_workers=workers or os.cpu_count(), mp_context=multiprocessing.get_context("spawn"),
                                initializer=die_with_parent, initargs=(os.getpid(),))

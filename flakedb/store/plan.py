@@ -5,7 +5,6 @@ their chunks, and the version's metadata (docs/store.md).  Pure: no file, no Zar
 from __future__ import annotations
 
 import hashlib
-import importlib.metadata
 import itertools
 import json
 import os
@@ -333,5 +332,12 @@ def metadata(plan: BuildPlan) -> dict:
         "tasks": [t.id for t in plan.tasks],
         "arrays": plan.arrays,
         "provenance": {"created_by": f"flakedb {__version__} (flakedb.store.versions)", "python": sys.version.split()[0],
-                       "numpy": np.__version__, "zarr": importlib.metadata.version("zarr")},
+                       "numpy": np.__version__, "zarr": _zarr_version()},
     }
+
+
+def _zarr_version() -> str:
+    """The installed zarr's version (the provenance of a version a build writes)."""
+    import importlib.metadata  # lazy: 9 ms (email parsing) of every compose, which reads a store and writes none
+
+    return importlib.metadata.version("zarr")
