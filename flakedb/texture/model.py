@@ -219,13 +219,15 @@ def _lens_area_sq(d, d2, r1, r2, equal=False):
     den = np.multiply(d, 2.0 * r1)
     out = np.add(d2, c)
     out /= den
-    np.clip(out, -1.0, 1.0, out=out)
+    np.maximum(out, -1.0, out=out)
+    np.minimum(out, 1.0, out=out)
     np.arccos(out, out=out)
     out *= r1 * r1
     np.multiply(d, 2.0 * r2, out=den)
     t = np.subtract(d2, c)
     t /= den
-    np.clip(t, -1.0, 1.0, out=t)
+    np.maximum(t, -1.0, out=t)
+    np.minimum(t, 1.0, out=t)
     np.arccos(t, out=t)
     t *= r2 * r2
     out += t
@@ -306,11 +308,13 @@ def _shared(stack, z, slope_gap, n=16):
         zp = lo + 0.5 * span[:, None] * (x[None, :] + 1.0)  # (nz, n) depths of the flakes above
         sep = (z[:, None] - zp) * gap[:, None]
         Dn, Dw = f.diameters()
-        acc = np.zeros(z.size)
-        for D, wd in zip(Dn, Dw):
-            r = 0.5 * D
-            acc += wd * (lens_area(sep, r, r) @ wx) * 0.5 * span
-        out += f.number_density_per_um3 * acc
+        r = 0.5 * Dn[:, None, None]
+        acc = np.empty(z.size)
+        blk = max(1, 8192 // (Dn.size * n))  # depths per block: ~8000 lens evaluations at a time
+        for lo_ in range(0, z.size, blk):
+            sp = sep[None, lo_:lo_ + blk]
+            acc[lo_:lo_ + blk] = Dw @ (_lens_area_sq(sp, sp * sp, r, r, equal=True) @ wx)
+        out += f.number_density_per_um3 * (acc * 0.5 * span)
     return out
 
 
@@ -474,6 +478,18 @@ def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v, combos):
     λ (*S); T (C, *S), S the depths' shape, whose last axis is the combination's (one column of depths per
     combination) or 1 (the same depths for all).  Returns (w, P), each (*S[:-1], combinations)."""
     i, j, b = combos
+    if np.shape(T_l)[-1] == 1 and np.size(i) > 1:
+        # the same depths for all combinations: powers T^e and P(k; λ) for e, k = 0 … K once, and
+        # w(e_l, e_v) = Σ_c yR_c att_c T_l,c^e_l T_v,c^e_v for every exponent pair by one matrix product
+        e_l, e_v = i + b, j + b
+        e = np.arange(int(max(e_l.max(), e_v.max())) + 1)
+        Tl = np.moveaxis(T_l[..., 0, None] ** e, 0, -2)  # (*S[:-1], C, K + 1)
+        Tv = np.moveaxis(T_v[..., 0, None] ** e, 0, -2)
+        ya = np.moveaxis(yR.reshape((-1,) + (1,) * (att.ndim - 1)) * att, 0, -1)  # (*S[:-1], 1, C)
+        W = np.matmul(np.swapaxes(Tl, -1, -2) * ya, Tv) / R_Y  # (*S[:-1], K + 1, K + 1)
+        k = np.arange(int(max(i.max(), j.max(), b.max())) + 1)
+        P = (_poisson_each(k, lam_l)[..., i] * _poisson_each(k, lam_v)[..., j] * _poisson_each(k, lam_b)[..., b])
+        return W[..., e_l, e_v], P
     tr = T_l ** (i + b) * T_v ** (j + b) * att  # (C, ..., combinations)
     w = np.tensordot(yR, tr, axes=(0, 0)) / R_Y
     return w, _poisson_each(i, lam_l) * _poisson_each(j, lam_v) * _poisson_each(b, lam_b)
@@ -516,16 +532,17 @@ def _glint_paths(stack, f, g):
         tau_v, lam_v, T_v = _path(stack, z.ravel(), g.mu_v_b)
         lam_b = np.minimum(_shared(stack, z.ravel(), np.full(z.size, gap)), np.minimum(lam_l, lam_v))
         cs = (C,) + shape
-        return _path_weights(yR, R_Y, np.exp(-(tau_l + tau_v)).reshape(cs), (lam_l - lam_b).reshape(shape),
-                             (lam_v - lam_b).reshape(shape), lam_b.reshape(shape), T_l.reshape(cs),
-                             T_v.reshape(cs), combos), (lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v)
+        inputs = (np.exp(-(tau_l + tau_v)).reshape(cs), (lam_l - lam_b).reshape(shape), (lam_v - lam_b).reshape(shape),
+                  lam_b.reshape(shape), T_l.reshape(cs), T_v.reshape(cs))
+        out = None if combos is None else _path_weights(yR, R_Y, *inputs, combos)
+        return out, (lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v), inputs
 
     z, wz = _depth_nodes(f)
-    _, (ll, lv, lbb, Tl, Tv) = weights(z[:, None], ([0], [0], [0]))
+    _, (ll, lv, lbb, Tl, Tv), inputs = weights(z[:, None], None)
     combos = _combinations(ll, lv, lbb, Tl, Tv)
-    (w, P), _ = weights(z[:, None], combos)
+    w, P = _path_weights(yR, R_Y, *inputs, combos)
     zf = top + d * np.linspace(0.0, 1.0, N_CUT)
-    (wf, _), _ = weights(zf[:, None], combos)  # (N_CUT, combinations)
+    (wf, _), _, _ = weights(zf[:, None], combos)  # (N_CUT, combinations)
     below = wf < GLINT_FRACTION
     first = np.where(below.any(axis=0), below.argmax(axis=0), N_CUT)  # first depth index that stops glinting
     live = np.flatnonzero(first > 0)
@@ -539,7 +556,7 @@ def _glint_paths(stack, f, g):
     span = z_end - top  # (glinting combinations,)
     zg = top + 0.5 * (x[:, None] + 1.0) * span[None, :]  # (N_DEPTH, glinting combinations)
     wzg = 0.5 * wx[:, None] * (span / d)[None, :]
-    (wg, Pg), _ = weights(zg, tuple(c[live] for c in combos))
+    (wg, Pg), _, _ = weights(zg, tuple(c[live] for c in combos))
     return (wz, w, P), (wzg, wg, Pg), R_Y
 
 

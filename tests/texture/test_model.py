@@ -222,6 +222,27 @@ def test_overlap_integral_of_an_array_is_the_scalar_rule():
         assert tm.overlap_integral(float(D[1]), p) == pytest.approx(want[1], rel=1e-13)
 
 
+def test_path_weights_tables_are_the_elementwise_powers():
+    """_path_weights at depths shared by all crossing combinations takes T^e and P(k; λ) from tables and w from
+    one matrix product over the exponent pairs: the same as the elementwise powers and Poisson terms of each
+    combination (the path taken when every combination has depths of its own), to rounding."""
+    rng = np.random.default_rng(7)
+    C, nz = 5, 9
+    yR = rng.uniform(0.0, 1.0, C)
+    att = rng.uniform(0.2, 1.0, (C, nz, 1))
+    T_l, T_v = rng.uniform(0.0, 0.9, (C, nz, 1)), rng.uniform(0.0, 0.9, (C, nz, 1))
+    lam = [rng.uniform(0.0, 3.0, (nz, 1)) for _ in range(3)]
+    lam[2][0] = 0.0  # no shared crossings at the top
+    combos = tm._combinations(lam[0], lam[1], lam[2], T_l, T_v)
+    assert combos[0].size > 50
+    w, P = tm._path_weights(yR, 0.7, att, *lam, T_l, T_v, combos)
+    k = combos[0].size
+    wide = [np.broadcast_to(a, a.shape[:-1] + (k,)) for a in (att, T_l, T_v)]
+    w0, P0 = tm._path_weights(yR, 0.7, wide[0], *(np.broadcast_to(x, (nz, k)) for x in lam), wide[1], wide[2], combos)
+    assert w.shape == P.shape == (nz, k)
+    assert np.allclose(w, w0, rtol=1e-13, atol=0) and np.array_equal(P, P0)
+
+
 def test_interp_rows_is_np_interp_per_row():
     """The shared-weight row interpolation equals np.interp row by row, ends held, at any shape of x."""
     rng = np.random.default_rng(3)
