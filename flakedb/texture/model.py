@@ -436,16 +436,19 @@ def _ring_density(g, alpha, d, n_angle=16):
     """The upper-hemisphere flake-normal density p(m) = 2 D(m) (paper eq. 5) averaged over the circle
     of normals whose beams land at offset d from the aperture's centre (docs/texture.md eq. S2b):
     a beam offset (δ∥, δ⊥) in ω_o space is a normal offset (δ∥/2, δ⊥/(2c)) around h' (the half-vector
-    map, area Jacobian 1/(4c)).  ``d``: any shape.  Returns d's shape, 1/sr; → p(h') as d → 0."""
+    map, area Jacobian 1/(4c)).  ``d``: any shape.  Returns d's shape, 1/sr; → p(h') as d → 0.
+    With h' = (sin θ, 0, cos θ), e∥ = (cos θ, 0, −sin θ), e⊥ = (0, 1, 0) orthonormal, the normal
+    h' + a e∥ + b e⊥ has |·|² = 1 + a² + b² and z-component cos θ − a sin θ; the angles ψ and 2π − ψ of
+    the ``n_angle`` (even) midpoint angles give the same (a, b²), so half of them are evaluated."""
     th = np.arccos(np.clip(g.cos_h, -1.0, 1.0))
-    h = np.array([np.sin(th), 0.0, np.cos(th)])
-    e_par = np.array([np.cos(th), 0.0, -np.sin(th)])
-    e_perp = np.array([0.0, 1.0, 0.0])
-    ang = (np.arange(n_angle) + 0.5) * 2.0 * np.pi / n_angle
-    a = 0.5 * d[..., None] * np.cos(ang)
-    b = 0.5 * d[..., None] * np.sin(ang) / g.c
-    m = h + a[..., None] * e_par + b[..., None] * e_perp
-    mz = m[..., 2] / np.linalg.norm(m, axis=-1)
+    ang = (np.arange(n_angle // 2) + 0.5) * 2.0 * np.pi / n_angle  # (0, π)
+    d = np.asarray(d, float)[..., None]
+    a = d * (0.5 * np.cos(ang))
+    q = (d * d) * (0.25 * (np.cos(ang) ** 2 + (np.sin(ang) / g.c) ** 2))  # a² + b²
+    q += 1.0
+    np.sqrt(q, out=q)
+    mz = np.cos(th) - a * np.sin(th)
+    mz /= q
     return 2.0 * flake_ndf_Beckmann(mz, alpha).mean(axis=-1)
 
 
@@ -855,11 +858,17 @@ def _sky_terms(stack, f, view_deg):
     Eb_c = amp * np.exp(-lo_l * (1 - T_l) - lo_v * (1 - Tv) - lam_b * (1 - T_l * Tv))
     b1 = np.einsum("c,cmz->mz", y, Eb_c)
     ya = y[:, None, None] * amp
+    # the exponent is symmetric in (c, c'): the pairs c' > c counted twice, the diagonal once
+    base = -(lo_l + lo_v + lam_b)
+    A_l, A_v, TT = lo_l * T_l, lo_v * Tv, T_l * Tv
+    A_b = lam_b * TT
     b2 = np.zeros((M, nz))
     for c1 in range(C):
-        ex = (-lo_l * (1 - T_l[c1] * T_l) - lo_v * (1 - Tv[c1] * Tv)
-              - lam_b * (1 - T_l[c1] * Tv[c1] * T_l * Tv))
-        b2 += ya[c1] * np.sum(ya * np.exp(ex), axis=0)
+        ex = base + A_l[c1] * T_l[c1:] + A_v[c1] * Tv[c1:] + A_b[c1] * TT[c1:]
+        np.exp(ex, out=ex)
+        ex *= ya[c1:]
+        ex[1:] *= 2.0
+        b2 += ya[c1] * np.sum(ex, axis=0)
     wgt = wm[:, None] * wz[None, :]
     Eb, Eb2 = float(np.sum(wgt * b1)), float(np.sum(wgt * b2))
     b0 = np.einsum("c,cmz,m->z", y, amp, wm)  # unhidden mean luminance factor per depth
