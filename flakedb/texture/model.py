@@ -820,14 +820,17 @@ def _sky_terms(stack, f, view_deg):
     """The part of :func:`graininess_indices` for flake layer ``f`` that depends on the view only (not on
     the observer's spot): E[b], E[b²] over normals and depths (docs/texture.md eq. G3), the depth nodes,
     the unhidden mean luminance factor per depth b0, the view path's crossings λ_v and the luminance of
-    T² of a flake crossed by both vertical paths (the inputs of :func:`_pair_term`)."""
+    T² of a flake crossed by both vertical paths (the inputs of :func:`_pair_kernel`).  A view along the
+    normal (v' = z) sees every azimuth of a normal alike (v'·m, the mirrored direction's polar angle and the
+    paths' drift depend on the tilt only), so there the normals are the tilts alone (one azimuth each, the
+    weight of all: the azimuth average of equal terms)."""
     eta = float(stack.eta)
     y = np.asarray(stack.y_weights, float)
     mu_v = float(np.cos(np.radians(view_deg)))
     mu_vb = float(binder_cosine(view_deg, eta))
     vb = np.array([-np.sqrt(1 - mu_vb**2), 0.0, mu_vb])
     t_out = float(coat_transmittance(mu_v, eta))
-    m, wm = _sky_normals(f.alpha)
+    m, wm = _sky_normals(f.alpha, n_p=1 if vb[2] == 1.0 else N_AZIMUTH)
     cv = m @ vb
     lm = 2.0 * cv[:, None] * m - vb  # mirrored direction (toward the sky)
     mu_lb = lm[:, 2]

@@ -243,6 +243,19 @@ def test_path_weights_tables_are_the_elementwise_powers():
     assert np.allclose(w, w0, rtol=1e-13, atol=0) and np.array_equal(P, P0)
 
 
+def test_sky_terms_at_the_normal_view_need_the_tilts_only(monkeypatch):
+    """A view along the normal sees every azimuth of a flake normal alike, so _sky_terms evaluates one
+    azimuth per tilt there: the same E[b], E[b²], b0, λ_v and τ as all N_AZIMUTH azimuths, to rounding."""
+    st = stack_of(species="pearlescent", vf=0.03, alpha=0.25, D=20.0, pigment="iron-black", pv=0.002)
+    f = st.flakes[0]
+    tilts = tm._sky_terms(st, f, 0.0)
+    full_normals = tm._sky_normals
+    monkeypatch.setattr(tm, "_sky_normals", lambda alpha, n_t=tm.N_TILT, n_p=tm.N_AZIMUTH: full_normals(alpha, n_t, tm.N_AZIMUTH))
+    full = tm._sky_terms(st, f, 0.0)
+    for a, b in zip(tilts, full):
+        assert np.allclose(a, b, rtol=1e-13, atol=0)
+
+
 def test_interp_rows_is_np_interp_per_row():
     """The shared-weight row interpolation equals np.interp row by row, ends held, at any shape of x."""
     rng = np.random.default_rng(3)
