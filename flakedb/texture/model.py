@@ -271,6 +271,8 @@ def _path(stack, z, mu):
     depth per channel (C, nz), the expected number of flakes crossed (nz,) and the crossing-rate-
     weighted flake transmittance per channel (C, nz) at c = μ (flakes near the surface's normal)."""
     z = np.asarray(z, float)
+    # one cosine for all depths: the flakes' crossing rate and transmittance evaluated once
+    mu_f = np.asarray(mu, float).reshape(1) if np.ndim(mu) == 0 else np.broadcast_to(np.asarray(mu, float), z.shape)
     mu = np.broadcast_to(np.asarray(mu, float), z.shape)
     C = np.asarray(stack.y_weights).size
     tau = np.zeros((C, z.size))
@@ -281,10 +283,10 @@ def _path(stack, z, mu):
     lamT = np.zeros((C, z.size))
     for f in stack.flakes:
         seg = np.clip(z - f.z_top_um, 0.0, f.thickness_um)
-        rate = f.number_density_per_um3 * f.mean_area_um2() * projected_area_Beckmann(mu, f.alpha) / mu
+        rate = f.number_density_per_um3 * f.mean_area_um2() * projected_area_Beckmann(mu_f, f.alpha) / mu_f
         lam_f = rate * seg
         lam += lam_f
-        lamT += lam_f * f.transmittance(mu)
+        lamT += lam_f * f.transmittance(mu_f)
     with np.errstate(invalid="ignore", divide="ignore"):
         T = np.where(lam > 0, lamT / np.where(lam > 0, lam, 1.0), 0.0)
     return tau, lam, T
@@ -401,11 +403,13 @@ def _offset_tables(r_s, r_d, r_a, n=N_OFFSET, n_r=12, n_t=24):
     small, big = np.minimum(r_s, rd), np.maximum(r_s, rd)
     inside = (d + rr.max() <= (big - small)[:, None] * (1.0 - 1e-9)) & pos[:, None]
     f[inside] = np.broadcast_to((np.pi * small * small / np.where(pos, norm, 1.0) * wa.sum())[:, None], d.shape)[inside]
-    ii, jj = np.nonzero(~inside & (d - rr.max() < (r_s + rd)[:, None] * (1.0 + 1e-9)) & pos[:, None])
-    for lo in range(0, ii.size, _OFFSET_ROWS):  # blocks of offsets × the aperture's nodes
-        i, j = ii[lo:lo + _OFFSET_ROWS], jj[lo:lo + _OFFSET_ROWS]
-        d2 = (ax - d[i, j][:, None]) ** 2 + ay2  # (rows, n_r·n_t/2)
-        f[i, j] = (_lens_area_sq(np.sqrt(d2), d2, r_s, rd[i][:, None]) @ wa) / norm[i]
+    mid = ~inside & (d - rr.max() < (r_s + rd)[:, None] * (1.0 + 1e-9)) & pos[:, None]
+    for i in np.flatnonzero(mid.any(axis=1)):  # one diffraction radius at a time (scalar radii: fast loops)
+        jj = np.flatnonzero(mid[i])
+        for lo in range(0, jj.size, _OFFSET_ROWS):  # blocks of offsets × the aperture's nodes
+            j = jj[lo:lo + _OFFSET_ROWS]
+            d2 = (ax - d[i, j][:, None]) ** 2 + ay2  # (rows, n_r·n_t/2)
+            f[i, j] = (_lens_area_sq(np.sqrt(d2), d2, r_s, float(rd[i]), equal=bool(rd[i] == r_s)) @ wa) / norm[i]
     for i in np.flatnonzero(~pos):  # no diffraction: the source disc alone
         dist = np.sqrt((ax[None, :] - d[i][:, None]) ** 2 + ay2)
         f[i] = ((dist <= r_s) / (np.pi * r_s * r_s)) @ wa
@@ -541,11 +545,12 @@ def _glint_paths(stack, f, g):
         return out, (lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v), inputs
 
     z, wz = _depth_nodes(f)
-    _, (ll, lv, lbb, Tl, Tv), inputs = weights(z[:, None], None)
-    combos = _combinations(ll, lv, lbb, Tl, Tv)
-    w, P = _path_weights(yR, R_Y, *inputs, combos)
     zf = top + d * np.linspace(0.0, 1.0, N_CUT)
-    (wf, _), _, _ = weights(zf[:, None], combos)  # (N_CUT, combinations)
+    nz = z.size
+    _, (ll, lv, lbb, Tl, Tv), inputs = weights(np.concatenate([z, zf])[:, None], None)  # the Gauss and the cut depths
+    combos = _combinations(ll[:nz], lv[:nz], lbb[:nz], Tl[:, :nz], Tv[:, :nz])
+    w, P = _path_weights(yR, R_Y, *(a[..., :nz, :] for a in inputs), combos)
+    wf, _ = _path_weights(yR, R_Y, *(a[..., nz:, :] for a in inputs), combos)  # (N_CUT, combinations)
     below = wf < GLINT_FRACTION
     first = np.where(below.any(axis=0), below.argmax(axis=0), N_CUT)  # first depth index that stops glinting
     live = np.flatnonzero(first > 0)
@@ -702,8 +707,8 @@ def _sky_normals(alpha, n_t=N_TILT, n_p=N_AZIMUTH):
     return m.reshape(-1, 3), w.ravel()
 
 
-#: Rows of the offset grid per block in :func:`_pair_moments` (n = 16 columns: 8192 elements at a time).
-_PAIR_ROWS = 512
+#: Rows of the offset grid per block in :func:`_pair_moments` (n = 16 columns: ~16000 elements at a time).
+_PAIR_ROWS = 1024
 
 
 def _pair_moments(D, D2, s, h, n=16, n_dir=3):
@@ -721,32 +726,26 @@ def _pair_moments(D, D2, s, h, n=16, n_dir=3):
     u = h[:, :, None] * x  # (k, S, n)
     wu = h[:, :, None] * w
     au = np.abs(u)
+    W = np.stack([wu, wu * au], axis=-2)  # (k, S, 2, n): the weights of M0 and of the |δ| moments
     dx = u[:, :, None, :] - (s[:, None] * np.cos(ang))[None, :, :, None]  # (k, S, T, n): δ_x − s cos t
-    dy = u[:, :, None, :] - (s[:, None] * np.sin(ang))[None, :, :, None]
-    order = np.argsort(D2 == D, kind="stable")  # the equal-radius pair last: one contiguous block of rows
-    ki, si, ti, ii = np.nonzero((np.abs(dx) < (R * (1.0 + 1e-12))[:, None, None, None])[order])
-    ki = order[ki]
-    n_ne = np.count_nonzero(D2[ki] != D)
+    dy2 = (u[:, :, None, :] - (s[:, None] * np.sin(ang))[None, :, :, None]) ** 2
+    kp, si, ti, ii = np.nonzero(np.abs(dx) < (R * (1.0 + 1e-12))[:, None, None, None])  # rows grouped by D2
+    dx2 = dx[kp, si, ti, ii] ** 2
+    Wi = W[kp, si, :, ii]  # (rows, 2): w_i, w_i |δ_x,i|
     M = np.zeros((3, k * S))
-    for lo in range(0, ki.size, _PAIR_ROWS):
-        sl = slice(lo, lo + _PAIR_ROWS)
-        kk, ss_, tt, ii_ = ki[sl], si[sl], ti[sl], ii[sl]
-        d2 = dx[kk, ss_, tt, ii_][:, None] ** 2 + dy[kk, ss_, tt, :] ** 2  # (rows, n)
-        d = np.sqrt(d2)
-        g = np.empty_like(d)
-        m = max(0, min(n_ne - lo, g.shape[0]))  # rows [0, m) of this block have D2 ≠ D
-        if m:
-            g[:m] = _lens_area_sq(d[:m], d2[:m], 0.5 * D, 0.5 * D2[kk[:m], None])
-        if m < g.shape[0]:
-            g[m:] = _lens_area_sq(d[m:], d2[m:], 0.5 * D, 0.5 * D, equal=True)
-        wj = wu[kk, ss_]  # (rows, n)
-        A = np.einsum("rj,rj->r", g, wj)
-        B = np.einsum("rj,rj->r", g, wj * au[kk, ss_])
-        wi, ui = wu[kk, ss_, ii_], au[kk, ss_, ii_]
-        idx = kk * S + ss_
-        M[0] += np.bincount(idx, wi * A, k * S)
-        M[1] += np.bincount(idx, wi * (B + ui * A), k * S)
-        M[2] += np.bincount(idx, wi * ui * B, k * S)
+    starts = np.searchsorted(kp, np.arange(k + 1))
+    for kk in range(k):  # one radius pair at a time (scalar radii: the fast ufunc loops), in blocks of rows
+        for lo in range(starts[kk], starts[kk + 1], _PAIR_ROWS):
+            sl = slice(lo, min(lo + _PAIR_ROWS, starts[kk + 1]))
+            ss_ = si[sl]
+            d2 = dx2[sl, None] + dy2[kk, ss_, ti[sl], :]  # (rows, n)
+            g = _lens_area_sq(np.sqrt(d2), d2, 0.5 * D, 0.5 * float(D2[kk]), equal=bool(D2[kk] == D))
+            AB = np.einsum("rcj,rj->rc", W[kk, ss_], g)  # Σ_j w_j g, Σ_j w_j |δ_y,j| g
+            wi, bi = Wi[sl, 0], Wi[sl, 1]
+            idx = kk * S + ss_
+            M[0] += np.bincount(idx, wi * AB[:, 0], k * S)
+            M[1] += np.bincount(idx, wi * AB[:, 1] + bi * AB[:, 0], k * S)
+            M[2] += np.bincount(idx, bi * AB[:, 1], k * S)
     return M.reshape(3, k, S)
 
 
