@@ -197,11 +197,11 @@ def lens_area(d, r1, r2):
 
 
 def _lens_area_sq(d, d2, r1, r2, equal=False):
-    """:func:`lens_area` from the distances ``d`` and their squares ``d2`` (same shape; d > 0 unless ``equal``),
-    radii r1, r2 (scalars or arrays that broadcast with d): the formulas without the case selection.  Both
-    are exact outside their branch: one disc inside the other clips the arccos arguments to ∓1 (π r_small²)
-    and zeroes the root; discs apart clip both to 1.  ``equal`` (r1 == r2): 2r² arccos(d/2r) − (d/2)√(4r² − d²)
-    (d = 0 allowed).  In-place passes on three buffers (few temporaries: the indices call it on ~10⁴ elements
+    """:func:`lens_area` from the distances ``d`` ≥ 0 and their squares ``d2`` (same shape), radii r1, r2
+    (scalars or arrays that broadcast with d): the formulas without the case selection.  Both are exact
+    outside their branch: one disc inside the other clips the arccos arguments to ∓1 (π r_small², d = 0
+    included: ±∞ clipped) and zeroes the root; discs apart clip both to 1.  ``equal`` (r1 == r2, which the
+    two-arc formula cannot take at d = 0): 2r² arccos(d/2r) − (d/2)√(4r² − d²).  In-place passes on three buffers (few temporaries: the indices call it on ~10⁴ elements
     at a time).  Agrees with :func:`lens_area` to rounding (reassociated; test_model.py)."""
     if equal:
         out = np.divide(d, 2.0 * r1)
@@ -218,14 +218,16 @@ def _lens_area_sq(d, d2, r1, r2, equal=False):
     c = r1 * r1 - r2 * r2
     den = np.multiply(d, 2.0 * r1)
     out = np.add(d2, c)
-    out /= den
+    with np.errstate(divide="ignore"):  # d = 0: ±∞, clipped below
+        out /= den
     np.maximum(out, -1.0, out=out)
     np.minimum(out, 1.0, out=out)
     np.arccos(out, out=out)
     out *= r1 * r1
     np.multiply(d, 2.0 * r2, out=den)
     t = np.subtract(d2, c)
-    t /= den
+    with np.errstate(divide="ignore"):
+        t /= den
     np.maximum(t, -1.0, out=t)
     np.minimum(t, 1.0, out=t)
     np.arccos(t, out=t)
