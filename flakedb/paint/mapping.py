@@ -189,23 +189,37 @@ def adaptive_flake_optics(fn, tol=FLAKE_C_TOL, n_start=FLAKE_C_START, max_nodes=
     within ``tol`` at every interval midpoint (all bands), or ``max_nodes`` would be exceeded.
 
     Returns ``(c, R, T, max_midpoint_error)``; the error is that of the last refinement pass
-    (≤ tol unless the node cap stopped it).
+    (≤ tol unless the node cap stopped it).  An interval that passed keeps its midpoint and error, so
+    each pass evaluates ``fn`` only at the midpoints of the intervals the last one split (``fn`` acts on
+    each c alone: the table is the one that re-evaluating every midpoint gives).
     """
     c = flake_cos_grid(n_start)
     R, T = fn(c)
+    mid = 0.5 * (c[:-1] + c[1:])
+    Rm, Tm = fn(mid)
     while True:
-        mid = 0.5 * (c[:-1] + c[1:])
-        Rm, Tm = fn(mid)
         err = np.maximum(np.abs(Rm - 0.5 * (R[:, :-1] + R[:, 1:])),
                          np.abs(Tm - 0.5 * (T[:, :-1] + T[:, 1:]))).max(axis=0)
         bad = err > tol
         if not bad.any() or c.size + int(bad.sum()) > max_nodes:
             return c, R, T, float(err.max())
-        c = np.concatenate([c, mid[bad]])
-        R = np.concatenate([R, Rm[:, bad]], axis=1)
-        T = np.concatenate([T, Tm[:, bad]], axis=1)
-        order = np.argsort(c)
-        c, R, T = c[order], R[:, order], T[:, order]
+        # node i of the refined grid: the old nodes with each split interval's midpoint after its left node
+        split = np.flatnonzero(bad)
+        c = np.insert(c, split + 1, mid[split])
+        R = np.insert(R, split + 1, Rm[:, split], axis=1)
+        T = np.insert(T, split + 1, Tm[:, split], axis=1)
+        # the refined grid's intervals: a kept one per passed interval, two halves per split one
+        new = np.zeros(c.size - 1, bool)
+        pos = split + np.arange(split.size)  # the left half of each split interval in the refined grid
+        new[pos] = new[pos + 1] = True
+        mid = 0.5 * (c[:-1] + c[1:])
+        keep = np.flatnonzero(~new)
+        Rn, Tn = fn(mid[new])
+        Rm2 = np.empty((R.shape[0], mid.size))
+        Tm2 = np.empty_like(Rm2)
+        Rm2[:, keep], Tm2[:, keep] = Rm[:, ~bad], Tm[:, ~bad]
+        Rm2[:, new], Tm2[:, new] = Rn, Tn
+        Rm, Tm = Rm2, Tm2
 
 
 def phase_cos_grid(step_deg=PHASE_THETA_STEP_DEG) -> np.ndarray:

@@ -174,24 +174,72 @@ def cone_solid_angle(half_angle_rad):
 
 
 def lens_area(d, r1, r2):
-    """Area of the intersection of two discs of radii r1, r2 (scalars > 0) whose centres are d apart
-    (planar); the result has d's shape.  Equal radii: 2r² arccos(d/2r) − (d/2)√(4r² − d²)."""
+    """Area of the intersection of two discs of radii r1, r2 (> 0) whose centres are d apart (planar).
+    ``r1``, ``r2``: scalars, or arrays that broadcast with ``d`` (the result has the broadcast shape).
+    Equal radii (r1 == r2 everywhere): 2r² arccos(d/2r) − (d/2)√(4r² − d²); otherwise the two-arc formula
+    r1² arccos((d² + r1² − r2²)/(2dr1)) + r2² arccos((d² + r2² − r1²)/(2dr2)) − ½√((−d+r1+r2)(d+r1−r2)(d−r1+r2)(d+r1+r2)),
+    π min(r1, r2)² where one disc holds the other and 0 where they are apart.  The formula is evaluated on
+    every element and the case selected after (no masked gathers), each element as the scalar formula.
+    The hot loops use :func:`_lens_area_sq`, the same formula with d² given."""
     d = np.asarray(d, float)
-    r1, r2 = float(r1), float(r2)
-    small, big = min(r1, r2), max(r1, r2)
-    out = np.zeros_like(d)
-    inside = d <= big - small
-    out[inside] = np.pi * small * small
-    part = (~inside) & (d < r1 + r2)
-    dd = d[part]
-    if r1 == r2:
-        out[part] = 2.0 * r1 * r1 * np.arccos(np.minimum(dd / (2.0 * r1), 1.0)) - 0.5 * dd * np.sqrt(
-            np.maximum(4.0 * r1 * r1 - dd * dd, 0.0))
+    r1, r2 = np.asarray(r1, float), np.asarray(r2, float)
+    if r1.shape == r2.shape and np.array_equal(r1, r2):
+        # d ≥ 2r gives exactly 0 here (arccos(1) = 0, √0 = 0); d = 0 is the whole disc
+        part = 2.0 * r1 * r1 * np.arccos(np.minimum(d / (2.0 * r1), 1.0)) - 0.5 * d * np.sqrt(
+            np.maximum(4.0 * r1 * r1 - d * d, 0.0))
+        return np.where(d <= 0.0, np.pi * r1 * r1, part)
+    small, big = np.minimum(r1, r2), np.maximum(r1, r2)
+    with np.errstate(divide="ignore", invalid="ignore"):  # d = 0 lies inside: replaced below
+        a1 = r1 * r1 * np.arccos(np.minimum(np.maximum((d * d + r1 * r1 - r2 * r2) / (2 * d * r1), -1.0), 1.0))
+        a2 = r2 * r2 * np.arccos(np.minimum(np.maximum((d * d + r2 * r2 - r1 * r1) / (2 * d * r2), -1.0), 1.0))
+        k = 0.5 * np.sqrt(np.maximum((-d + r1 + r2) * (d + r1 - r2) * (d - r1 + r2) * (d + r1 + r2), 0.0))
+    return np.where(d <= big - small, np.pi * small * small, np.where(d < r1 + r2, a1 + a2 - k, 0.0))
+
+
+def _lens_area_sq(d, d2, r1, r2, equal=False):
+    """:func:`lens_area` from the distances ``d`` ≥ 0 and their squares ``d2`` (same shape), radii r1, r2
+    (scalars or arrays that broadcast with d): the formulas without the case selection.  Both are exact
+    outside their branch: one disc inside the other clips the arccos arguments to ∓1 (π r_small², d = 0
+    included: ±∞ clipped) and zeroes the root; discs apart clip both to 1.  ``equal`` (r1 == r2, which the
+    two-arc formula cannot take at d = 0): 2r² arccos(d/2r) − (d/2)√(4r² − d²).  In-place passes on three buffers (few temporaries: the indices call it on ~10⁴ elements
+    at a time).  Agrees with :func:`lens_area` to rounding (reassociated; test_model.py)."""
+    if equal:
+        out = np.divide(d, 2.0 * r1)
+        np.minimum(out, 1.0, out=out)
+        np.arccos(out, out=out)
+        out *= 2.0 * r1 * r1
+        t = np.subtract(4.0 * r1 * r1, d2)
+        np.maximum(t, 0.0, out=t)
+        np.sqrt(t, out=t)
+        t *= d
+        t *= 0.5
+        out -= t
         return out
-    a1 = r1 * r1 * np.arccos(np.clip((dd * dd + r1 * r1 - r2 * r2) / (2 * dd * r1), -1, 1))
-    a2 = r2 * r2 * np.arccos(np.clip((dd * dd + r2 * r2 - r1 * r1) / (2 * dd * r2), -1, 1))
-    k = 0.5 * np.sqrt(np.maximum((-dd + r1 + r2) * (dd + r1 - r2) * (dd - r1 + r2) * (dd + r1 + r2), 0.0))
-    out[part] = a1 + a2 - k
+    c = r1 * r1 - r2 * r2
+    den = np.multiply(d, 2.0 * r1)
+    out = np.add(d2, c)
+    with np.errstate(divide="ignore"):  # d = 0: ±∞, clipped below
+        out /= den
+    np.maximum(out, -1.0, out=out)
+    np.minimum(out, 1.0, out=out)
+    np.arccos(out, out=out)
+    out *= r1 * r1
+    np.multiply(d, 2.0 * r2, out=den)
+    t = np.subtract(d2, c)
+    with np.errstate(divide="ignore"):
+        t /= den
+    np.maximum(t, -1.0, out=t)
+    np.minimum(t, 1.0, out=t)
+    np.arccos(t, out=t)
+    t *= r2 * r2
+    out += t
+    np.subtract((r1 + r2) * (r1 + r2), d2, out=den)
+    np.subtract(d2, (r1 - r2) * (r1 - r2), out=t)
+    den *= t
+    np.maximum(den, 0.0, out=den)
+    np.sqrt(den, out=den)
+    den *= 0.5
+    out -= den
     return out
 
 
@@ -225,6 +273,8 @@ def _path(stack, z, mu):
     depth per channel (C, nz), the expected number of flakes crossed (nz,) and the crossing-rate-
     weighted flake transmittance per channel (C, nz) at c = μ (flakes near the surface's normal)."""
     z = np.asarray(z, float)
+    # one cosine for all depths: the flakes' crossing rate and transmittance evaluated once
+    mu_f = np.asarray(mu, float).reshape(1) if np.ndim(mu) == 0 else np.broadcast_to(np.asarray(mu, float), z.shape)
     mu = np.broadcast_to(np.asarray(mu, float), z.shape)
     C = np.asarray(stack.y_weights).size
     tau = np.zeros((C, z.size))
@@ -235,10 +285,10 @@ def _path(stack, z, mu):
     lamT = np.zeros((C, z.size))
     for f in stack.flakes:
         seg = np.clip(z - f.z_top_um, 0.0, f.thickness_um)
-        rate = f.number_density_per_um3 * f.mean_area_um2() * projected_area_Beckmann(mu, f.alpha) / mu
+        rate = f.number_density_per_um3 * f.mean_area_um2() * projected_area_Beckmann(mu_f, f.alpha) / mu_f
         lam_f = rate * seg
         lam += lam_f
-        lamT += lam_f * f.transmittance(mu)
+        lamT += lam_f * f.transmittance(mu_f)
     with np.errstate(invalid="ignore", divide="ignore"):
         T = np.where(lam > 0, lamT / np.where(lam > 0, lam, 1.0), 0.0)
     return tau, lam, T
@@ -262,11 +312,13 @@ def _shared(stack, z, slope_gap, n=16):
         zp = lo + 0.5 * span[:, None] * (x[None, :] + 1.0)  # (nz, n) depths of the flakes above
         sep = (z[:, None] - zp) * gap[:, None]
         Dn, Dw = f.diameters()
-        acc = np.zeros(z.size)
-        for D, wd in zip(Dn, Dw):
-            r = 0.5 * D
-            acc += wd * (lens_area(sep, r, r) @ wx) * 0.5 * span
-        out += f.number_density_per_um3 * acc
+        r = 0.5 * Dn[:, None, None]
+        acc = np.empty(z.size)
+        blk = max(1, 8192 // (Dn.size * n))  # depths per block: ~8000 lens evaluations at a time
+        for lo_ in range(0, z.size, blk):
+            sp = sep[None, lo_:lo_ + blk]
+            acc[lo_:lo_ + blk] = Dw @ (_lens_area_sq(sp, sp * sp, r, r, equal=True) @ wx)
+        out += f.number_density_per_um3 * (acc * 0.5 * span)
     return out
 
 
@@ -319,6 +371,10 @@ def directional_geometry(eta, light_deg, view_deg, source_half_angle_deg, apertu
                     om_s, om_a, float(np.sqrt(om_sb / np.pi)), float(np.sqrt(om_ab / np.pi)))
 
 
+#: Offsets per block in :func:`_offset_tables` (× 144 aperture nodes: ~8000 elements at a time).
+_OFFSET_ROWS = 56
+
+
 def _offset_tables(r_s, r_d, r_a, n=N_OFFSET, n_r=12, n_t=24):
     """The fraction of a flake's beam that the aperture collects, against the offset d of the beam's
     centre from the aperture's centre (ω_o space, docs/texture.md eq. S1b): the beam is the source
@@ -329,7 +385,8 @@ def _offset_tables(r_s, r_d, r_a, n=N_OFFSET, n_r=12, n_t=24):
     Returns d on [0, r_s + r_d + r_a], f(d), and I(d) = ∫_0^d f 2πx dx / f(0) (φ = f/f(0)), each with
     the shape of ``r_d`` followed by (n,) (f(0): the shape of ``r_d``)."""
     r_d = np.asarray(r_d, float)
-    d = np.linspace(0.0, 1.0, n)[None, :] * (r_s + r_d.reshape(-1, 1) + r_a)  # (nD, n)
+    rd = r_d.reshape(-1)
+    d = np.linspace(0.0, 1.0, n)[None, :] * (r_s + rd[:, None] + r_a)  # (nD, n)
     x, wx = leggauss(n_r)
     rr = 0.5 * r_a * (x + 1.0)
     wr = 0.5 * r_a * wx * rr
@@ -337,14 +394,27 @@ def _offset_tables(r_s, r_d, r_a, n=N_OFFSET, n_r=12, n_t=24):
     th = (np.arange(half) + 0.5) * 2.0 * np.pi / n_t  # (0, π); the mirror angles 2π − θ are alike
     ax = (rr[:, None] * np.cos(th)[None, :]).ravel()
     ay = (rr[:, None] * np.sin(th)[None, :]).ravel()
+    ay2 = ay * ay
     wa = np.repeat(wr, half) * (2.0 * 2.0 * np.pi / n_t)
-    dist = np.hypot(ax[None, None, :] - d[:, :, None], ay[None, None, :])  # (nD, n, n_r·n_t/2)
-    f = np.empty(d.shape)
-    for i, r in enumerate(r_d.ravel()):  # lens_area takes scalar radii: one diffraction radius at a time
-        if r > 0:
-            f[i] = (lens_area(dist[i], r_s, r) / (np.pi * r_s * r_s * np.pi * r * r)) @ wa
-        else:
-            f[i] = ((dist[i] <= r_s) / (np.pi * r_s * r_s)) @ wa
+    f = np.zeros(d.shape)
+    pos = rd > 0
+    norm = np.pi * r_s * r_s * np.pi * rd * rd
+    # offsets whose whole aperture lies inside the larger disc's lens plateau (|a − d| ≤ r_big − r_small at
+    # every node: f = π r_small² Σ w / norm) or beyond the beam (|a − d| ≥ r_s + r_d: f = 0) need no
+    # lens evaluation; the margins keep every node of a skipped offset strictly in its case
+    small, big = np.minimum(r_s, rd), np.maximum(r_s, rd)
+    inside = (d + rr.max() <= (big - small)[:, None] * (1.0 - 1e-9)) & pos[:, None]
+    f[inside] = np.broadcast_to((np.pi * small * small / np.where(pos, norm, 1.0) * wa.sum())[:, None], d.shape)[inside]
+    mid = ~inside & (d - rr.max() < (r_s + rd)[:, None] * (1.0 + 1e-9)) & pos[:, None]
+    for i in np.flatnonzero(mid.any(axis=1)):  # one diffraction radius at a time (scalar radii: fast loops)
+        jj = np.flatnonzero(mid[i])
+        for lo in range(0, jj.size, _OFFSET_ROWS):  # blocks of offsets × the aperture's nodes
+            j = jj[lo:lo + _OFFSET_ROWS]
+            d2 = (ax - d[i, j][:, None]) ** 2 + ay2  # (rows, n_r·n_t/2)
+            f[i, j] = (_lens_area_sq(np.sqrt(d2), d2, r_s, float(rd[i]), equal=bool(rd[i] == r_s)) @ wa) / norm[i]
+    for i in np.flatnonzero(~pos):  # no diffraction: the source disc alone
+        dist = np.sqrt((ax[None, :] - d[i][:, None]) ** 2 + ay2)
+        f[i] = ((dist <= r_s) / (np.pi * r_s * r_s)) @ wa
     f = np.minimum.accumulate(f, axis=-1)  # non-increasing in d (removes quadrature ripples)
     phi = f / f[:, :1]
     g = phi * 2.0 * np.pi * d
@@ -372,16 +442,19 @@ def _ring_density(g, alpha, d, n_angle=16):
     """The upper-hemisphere flake-normal density p(m) = 2 D(m) (paper eq. 5) averaged over the circle
     of normals whose beams land at offset d from the aperture's centre (docs/texture.md eq. S2b):
     a beam offset (δ∥, δ⊥) in ω_o space is a normal offset (δ∥/2, δ⊥/(2c)) around h' (the half-vector
-    map, area Jacobian 1/(4c)).  ``d``: any shape.  Returns d's shape, 1/sr; → p(h') as d → 0."""
+    map, area Jacobian 1/(4c)).  ``d``: any shape.  Returns d's shape, 1/sr; → p(h') as d → 0.
+    With h' = (sin θ, 0, cos θ), e∥ = (cos θ, 0, −sin θ), e⊥ = (0, 1, 0) orthonormal, the normal
+    h' + a e∥ + b e⊥ has |·|² = 1 + a² + b² and z-component cos θ − a sin θ; the angles ψ and 2π − ψ of
+    the ``n_angle`` (even) midpoint angles give the same (a, b²), so half of them are evaluated."""
     th = np.arccos(np.clip(g.cos_h, -1.0, 1.0))
-    h = np.array([np.sin(th), 0.0, np.cos(th)])
-    e_par = np.array([np.cos(th), 0.0, -np.sin(th)])
-    e_perp = np.array([0.0, 1.0, 0.0])
-    ang = (np.arange(n_angle) + 0.5) * 2.0 * np.pi / n_angle
-    a = 0.5 * d[..., None] * np.cos(ang)
-    b = 0.5 * d[..., None] * np.sin(ang) / g.c
-    m = h + a[..., None] * e_par + b[..., None] * e_perp
-    mz = m[..., 2] / np.linalg.norm(m, axis=-1)
+    ang = (np.arange(n_angle // 2) + 0.5) * 2.0 * np.pi / n_angle  # (0, π)
+    d = np.asarray(d, float)[..., None]
+    a = d * (0.5 * np.cos(ang))
+    q = (d * d) * (0.25 * (np.cos(ang) ** 2 + (np.sin(ang) / g.c) ** 2))  # a² + b²
+    q += 1.0
+    np.sqrt(q, out=q)
+    mz = np.cos(th) - a * np.sin(th)
+    mz /= q
     return 2.0 * flake_ndf_Beckmann(mz, alpha).mean(axis=-1)
 
 
@@ -414,6 +487,18 @@ def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v, combos):
     λ (*S); T (C, *S), S the depths' shape, whose last axis is the combination's (one column of depths per
     combination) or 1 (the same depths for all).  Returns (w, P), each (*S[:-1], combinations)."""
     i, j, b = combos
+    if np.shape(T_l)[-1] == 1 and np.size(i) > 1:
+        # the same depths for all combinations: powers T^e and P(k; λ) for e, k = 0 … K once, and
+        # w(e_l, e_v) = Σ_c yR_c att_c T_l,c^e_l T_v,c^e_v for every exponent pair by one matrix product
+        e_l, e_v = i + b, j + b
+        e = np.arange(int(max(e_l.max(), e_v.max())) + 1)
+        Tl = np.moveaxis(T_l[..., 0, None] ** e, 0, -2)  # (*S[:-1], C, K + 1)
+        Tv = np.moveaxis(T_v[..., 0, None] ** e, 0, -2)
+        ya = np.moveaxis(yR.reshape((-1,) + (1,) * (att.ndim - 1)) * att, 0, -1)  # (*S[:-1], 1, C)
+        W = np.matmul(np.swapaxes(Tl, -1, -2) * ya, Tv) / R_Y  # (*S[:-1], K + 1, K + 1)
+        k = np.arange(int(max(i.max(), j.max(), b.max())) + 1)
+        P = (_poisson_each(k, lam_l)[..., i] * _poisson_each(k, lam_v)[..., j] * _poisson_each(k, lam_b)[..., b])
+        return W[..., e_l, e_v], P
     tr = T_l ** (i + b) * T_v ** (j + b) * att  # (C, ..., combinations)
     w = np.tensordot(yR, tr, axes=(0, 0)) / R_Y
     return w, _poisson_each(i, lam_l) * _poisson_each(j, lam_v) * _poisson_each(b, lam_b)
@@ -456,16 +541,18 @@ def _glint_paths(stack, f, g):
         tau_v, lam_v, T_v = _path(stack, z.ravel(), g.mu_v_b)
         lam_b = np.minimum(_shared(stack, z.ravel(), np.full(z.size, gap)), np.minimum(lam_l, lam_v))
         cs = (C,) + shape
-        return _path_weights(yR, R_Y, np.exp(-(tau_l + tau_v)).reshape(cs), (lam_l - lam_b).reshape(shape),
-                             (lam_v - lam_b).reshape(shape), lam_b.reshape(shape), T_l.reshape(cs),
-                             T_v.reshape(cs), combos), (lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v)
+        inputs = (np.exp(-(tau_l + tau_v)).reshape(cs), (lam_l - lam_b).reshape(shape), (lam_v - lam_b).reshape(shape),
+                  lam_b.reshape(shape), T_l.reshape(cs), T_v.reshape(cs))
+        out = None if combos is None else _path_weights(yR, R_Y, *inputs, combos)
+        return out, (lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v), inputs
 
     z, wz = _depth_nodes(f)
-    _, (ll, lv, lbb, Tl, Tv) = weights(z[:, None], ([0], [0], [0]))
-    combos = _combinations(ll, lv, lbb, Tl, Tv)
-    (w, P), _ = weights(z[:, None], combos)
     zf = top + d * np.linspace(0.0, 1.0, N_CUT)
-    (wf, _), _ = weights(zf[:, None], combos)  # (N_CUT, combinations)
+    nz = z.size
+    _, (ll, lv, lbb, Tl, Tv), inputs = weights(np.concatenate([z, zf])[:, None], None)  # the Gauss and the cut depths
+    combos = _combinations(ll[:nz], lv[:nz], lbb[:nz], Tl[:, :nz], Tv[:, :nz])
+    w, P = _path_weights(yR, R_Y, *(a[..., :nz, :] for a in inputs), combos)
+    wf, _ = _path_weights(yR, R_Y, *(a[..., nz:, :] for a in inputs), combos)  # (N_CUT, combinations)
     below = wf < GLINT_FRACTION
     first = np.where(below.any(axis=0), below.argmax(axis=0), N_CUT)  # first depth index that stops glinting
     live = np.flatnonzero(first > 0)
@@ -479,7 +566,7 @@ def _glint_paths(stack, f, g):
     span = z_end - top  # (glinting combinations,)
     zg = top + 0.5 * (x[:, None] + 1.0) * span[None, :]  # (N_DEPTH, glinting combinations)
     wzg = 0.5 * wx[:, None] * (span / d)[None, :]
-    (wg, Pg), _ = weights(zg, tuple(c[live] for c in combos))
+    (wg, Pg), _, _ = weights(zg, tuple(c[live] for c in combos))
     return (wz, w, P), (wzg, wg, Pg), R_Y
 
 
@@ -589,16 +676,23 @@ def overlap_integral(diameter_um, spot_um, n=48):
     """∫ (area of a disc of diameter D inside a p × p square, as a fraction of p²)² over the disc's
     centre position x (µm²; docs/texture.md eq. G2): = p⁻⁴ ∫ g(δ) K(δ) dδ with g the disc's set
     covariogram (lens area of two discs d apart) and K(δ) = (p − |δ_x|)(p − |δ_y|) the square's,
-    by n × n Gauss–Legendre on [0, min(p, D)]² (× 4 by symmetry).  Limits: A²/p² (D ≪ p), A (D ≫ p)."""
-    D, p = float(diameter_um), float(spot_um)
-    h = min(p, D)
+    by n × n Gauss–Legendre on [0, min(p, D)]² (× 4 by symmetry; K is separable, so it joins the
+    weights).  Limits: A²/p² (D ≪ p), A (D ≫ p).  ``diameter_um``: a scalar (→ float) or an array
+    of diameters (→ its shape)."""
+    D_all = np.asarray(diameter_um, float)
+    p = float(spot_um)
     x, w = leggauss(n)
-    u = 0.5 * h * (x + 1.0)
-    wu = 0.5 * h * w
-    dx, dy = np.meshgrid(u, u, indexing="ij")
-    g = lens_area(np.hypot(dx, dy).ravel(), 0.5 * D, 0.5 * D).reshape(dx.shape)
-    K = (p - dx) * (p - dy)
-    return 4.0 * float(wu @ (g * K) @ wu) / p**4
+    out = np.empty(D_all.size)
+    Df = D_all.ravel()
+    for lo in range(0, Df.size, 4):  # four diameters (4 n² elements) at a time: few, small temporaries
+        D = Df[lo:lo + 4, None]
+        h = np.minimum(p, D)
+        u = 0.5 * h * (x + 1.0)  # (k, n)
+        a = 0.5 * h * w * (p - u)  # Gauss weights × K's factor
+        d2 = u[:, :, None] ** 2 + u[:, None, :] ** 2
+        g = _lens_area_sq(np.sqrt(d2), d2, 0.5 * D[:, :, None], 0.5 * D[:, :, None], equal=True)
+        out[lo:lo + 4] = 4.0 * np.einsum("ki,kij,kj->k", a, g, a) / p**4
+    return float(out[0]) if D_all.ndim == 0 else out.reshape(D_all.shape)
 
 
 def _sky_normals(alpha, n_t=N_TILT, n_p=N_AZIMUTH):
@@ -615,37 +709,82 @@ def _sky_normals(alpha, n_t=N_TILT, n_p=N_AZIMUTH):
     return m.reshape(-1, 3), w.ravel()
 
 
-def pair_overlap(diameter_um, spot_um, s_um, n=16, n_dir=3, diameter2_um=None):
-    """O(s) = ∫ o_i(x) o_j(x) dx (µm²) for two discs of diameter D whose centres are s apart, o the
-    fraction of p² a disc covers in a p × p square at position x: p⁻⁴ ∫ g(|δ − s e|) K(δ) dδ
-    (g the disc covariogram, K(δ) = (p − |δ_x|)(p − |δ_y|)), averaged over directions e in [0, π/4]
-    (the square's symmetry); n × n Gauss–Legendre over δ ∈ [−h, h]², h = min(p, s + D).
-    O(0) = :func:`overlap_integral`.  ``diameter2_um``: the second disc's diameter (default the same)."""
-    D, p = float(diameter_um), float(spot_um)
-    D2 = D if diameter2_um is None else float(diameter2_um)
-    s_um = np.atleast_1d(np.asarray(s_um, float))
+#: Rows of the offset grid per block in :func:`_pair_moments` (n = 16 columns: ~16000 elements at a time).
+_PAIR_ROWS = 1024
+
+
+def _pair_moments(D, D2, s, h, n=16, n_dir=3):
+    """The spot-independent sums of :func:`pair_overlap`: (M0, M1, M2), each (k, S), with
+    Σ_e Σ_ij w_i w_j g(|δ_ij − s e|) (p − |δ_x|)(p − |δ_y|) = p² M0 − p M1 + M2 for the Gauss nodes δ = h x,
+    weights h w on [−h, h]² (``h`` (k, S): the half-widths; one row of the n × n grid per node δ_x).
+    ``D`` the first disc's diameter (scalar), ``D2`` (k,) the second's, ``s`` (S,) the offsets.  Only the
+    grid rows with |δ_x − s e_x| < (D + D2)/2 are evaluated: on the others the discs never meet (g = 0
+    exactly, as the full grid gives).  The rows of D2 = D take the equal-radius lens."""
+    D2 = np.asarray(D2, float)
+    k, S = h.shape
     x, w = leggauss(n)
-    angles = (np.arange(n_dir) + 0.5) * (0.25 * np.pi / n_dir)
-    h = np.minimum(p, s_um + 0.5 * (D + D2))  # (S,) half-width of each offset's integration square
-    u = h[:, None] * x[None, :]  # (S, n)
-    wu = h[:, None] * w[None, :]
-    dx, dy = u[:, :, None], u[:, None, :]  # (S, n, 1), (S, 1, n)
-    K = (p - np.abs(dx)) * (p - np.abs(dy))  # (S, n, n)
-    acc = np.zeros(s_um.size)
-    for t in angles:
-        dist = np.hypot(dx - s_um[:, None, None] * np.cos(t), dy - s_um[:, None, None] * np.sin(t))
-        g = lens_area(dist.ravel(), 0.5 * D, 0.5 * D2).reshape(dist.shape)
-        acc += np.einsum("si,sij,sj->s", wu, g * K, wu)
-    return acc / n_dir / p**4
+    ang = (np.arange(n_dir) + 0.5) * (0.25 * np.pi / n_dir)
+    R = 0.5 * (D + D2)  # (k,) the discs meet below this centre distance
+    u = h[:, :, None] * x  # (k, S, n)
+    wu = h[:, :, None] * w
+    au = np.abs(u)
+    W = np.stack([wu, wu * au], axis=-2)  # (k, S, 2, n): the weights of M0 and of the |δ| moments
+    dx = u[:, :, None, :] - (s[:, None] * np.cos(ang))[None, :, :, None]  # (k, S, T, n): δ_x − s cos t
+    dy2 = (u[:, :, None, :] - (s[:, None] * np.sin(ang))[None, :, :, None]) ** 2
+    kp, si, ti, ii = np.nonzero(np.abs(dx) < (R * (1.0 + 1e-12))[:, None, None, None])  # rows grouped by D2
+    dx2 = dx[kp, si, ti, ii] ** 2
+    Wi = W[kp, si, :, ii]  # (rows, 2): w_i, w_i |δ_x,i|
+    M = np.zeros((3, k * S))
+    starts = np.searchsorted(kp, np.arange(k + 1))
+    for kk in range(k):  # one radius pair at a time (scalar radii: the fast ufunc loops), in blocks of rows
+        for lo in range(starts[kk], starts[kk + 1], _PAIR_ROWS):
+            sl = slice(lo, min(lo + _PAIR_ROWS, starts[kk + 1]))
+            ss_ = si[sl]
+            d2 = dx2[sl, None] + dy2[kk, ss_, ti[sl], :]  # (rows, n)
+            g = _lens_area_sq(np.sqrt(d2), d2, 0.5 * D, 0.5 * float(D2[kk]), equal=bool(D2[kk] == D))
+            AB = np.einsum("rcj,rj->rc", W[kk, ss_], g)  # Σ_j w_j g, Σ_j w_j |δ_y,j| g
+            wi, bi = Wi[sl, 0], Wi[sl, 1]
+            idx = kk * S + ss_
+            M[0] += np.bincount(idx, wi * AB[:, 0], k * S)
+            M[1] += np.bincount(idx, wi * AB[:, 1] + bi * AB[:, 0], k * S)
+            M[2] += np.bincount(idx, bi * AB[:, 1], k * S)
+    return M.reshape(3, k, S)
 
 
-def _pair_term(f, z, wz, b0, lam, tau, r, spot_um, n=16):
-    """Second-order (pair) term of the spot variance from hiding within one flake layer (docs/texture.md
-    eq. G4), for an upper flake of radius r: 2ρ² ∫∫_{z_j < z_i} b0_i b0_j e^{−(λ_i + λ_j)(1 − τ)} S(z_j)
-    dz_i dz_j with S(z_j) = ∫ 2πs ds O(s) ([τ if s < r else 1] · e^{Λ(s)(1 − τ)²} − 1), where
-    Λ(s) = ρ ⟨lens(s; r', r')⟩_{r'} (z_j − z_top) counts the flakes above both that cover both centres
-    (r' over the size distribution) and O(s) = ∫ o_i o_j dx (:func:`pair_overlap`): the upper flake j
-    hides the lower i when its disc covers i's centre (paths taken vertical)."""
+def pair_overlap(diameter_um, spot_um, s_um, n=16, n_dir=3, diameter2_um=None, memo=None):
+    """O(s) = ∫ o_i(x) o_j(x) dx (µm²) for two discs of diameters D, D2 whose centres are s apart, o the
+    fraction of p² a disc covers in a p × p square at position x: p⁻⁴ ∫ g(|δ − s e|) K(δ) dδ
+    (g the discs' cross-covariogram, K(δ) = (p − |δ_x|)(p − |δ_y|)), averaged over directions e in [0, π/4]
+    (the square's symmetry); n × n Gauss–Legendre over δ ∈ [−h, h]², h = min(p, s + (D + D2)/2).
+    O(0) = :func:`overlap_integral`.  ``diameter2_um``: the second disc's diameter, a scalar (default D;
+    → (S,)) or an array (→ its shape + (S,)).  K is a quadratic in p, so the grid sums are the
+    spot-independent moments of :func:`_pair_moments`; ``memo``: an optional dict that keeps them per
+    (D, D2, s, h), for observers whose integration squares coincide (spots wider than s + (D + D2)/2 at
+    every offset: both person presets)."""
+    D, p = float(diameter_um), float(spot_um)
+    D2 = np.asarray(D if diameter2_um is None else diameter2_um, float)
+    s_um = np.atleast_1d(np.asarray(s_um, float))
+    D2f = D2.reshape(-1)
+    h = np.minimum(p, s_um[None, :] + 0.5 * (D + D2f[:, None]))  # (k, S) half-width of each integration square
+    key = ("pair_overlap", D, D2f.tobytes(), s_um.tobytes(), h.tobytes(), n, n_dir)
+    M = None if memo is None else memo.get(key)
+    if M is None:
+        M = _pair_moments(D, D2f, s_um, h, n, n_dir)
+        if memo is not None:
+            memo[key] = M
+    O = (p * p * M[0] - p * M[1] + M[2]) / n_dir / p**4
+    return O.reshape(D2.shape + s_um.shape)
+
+
+def _pair_kernel(f, z, b0, lam, tau, r, n=16):
+    """The spot-independent part of the second-order (pair) term of the spot variance from hiding within one
+    flake layer (docs/texture.md eq. G4), for an upper flake of radius r: the term is
+    2ρ² ∫∫_{z_j < z_i} b0_i b0_j e^{−(λ_i + λ_j)(1 − τ)} S(z_j) dz_i dz_j with S(z_j) = ∫ 2πs ds O(s)
+    ([τ if s < r else 1] · e^{Λ(s)(1 − τ)²} − 1), where Λ(s) = ρ ⟨lens(s; r', r')⟩_{r'} (z_j − z_top) counts
+    the flakes above both that cover both centres (r' over the size distribution) and O(s) = ∫ o_i o_j dx
+    (:func:`pair_overlap`, averaged over the lower flake's diameter): the upper flake j hides the lower i when
+    its disc covers i's centre (paths taken vertical).  The term is linear in O: returns the offsets s (2n,)
+    and c (2n,) with term = Σ_s c(s) O(s)."""
     rho = float(f.number_density_per_um3)
     Dn, Dw = f.diameters()
     r_far = max(float(r), 0.5 * float(Dn.max()))
@@ -654,36 +793,45 @@ def _pair_term(f, z, wz, b0, lam, tau, r, spot_um, n=16):
     s_out = r + 0.5 * (2.0 * r_far - r) * (x + 1.0)
     w_out = 0.5 * (2.0 * r_far - r) * wx
     ss = np.concatenate([s_in, s_out])
-    # O(s) averaged over the lower flake's diameter (6-node rule: the size distribution's weights)
-    Di, wi = f.diameters(6)
-    O = sum(w * pair_overlap(2.0 * r, spot_um, ss, diameter2_um=d) for d, w in zip(Di, wi))
-    ws = np.concatenate([w_in, w_out]) * 2.0 * np.pi * ss * O
+    ws = np.concatenate([w_in, w_out]) * 2.0 * np.pi * ss
     cover = np.concatenate([np.full(n, tau), np.ones(n)])
-    lens = sum(wd * lens_area(ss, 0.5 * D, 0.5 * D) for D, wd in zip(Dn, Dw))
+    rr = 0.5 * Dn[:, None]
+    lens = Dw @ _lens_area_sq(np.broadcast_to(ss, (Dn.size, ss.size)), ss * ss, rr, rr, equal=True)
     # the triangle z_j < z_i on a uniform midpoint grid, diagonal cells halved (second order);
     # b0 and λ interpolated from the depth nodes (smooth in z)
     nu = 48
     dz = f.thickness_um / nu
     zu = f.z_top_um + (np.arange(nu) + 0.5) * dz
     h = zu - f.z_top_um
-    S = (cover * np.exp(rho * (1.0 - tau) ** 2 * h[:, None] * lens[None, :]) - 1.0) @ ws  # (nu,)
+    E = cover * np.exp(rho * (1.0 - tau) ** 2 * h[:, None] * lens[None, :]) - 1.0  # (nu, 2n): S = E @ (ws O)
     g = np.interp(zu, z, b0) * np.exp(-np.interp(zu, z, lam) * (1.0 - tau)) * dz
-    tri = np.tril(np.ones((nu, nu)), -1) + 0.5 * np.eye(nu)  # [i, j]: z_j < z_i
-    return 2.0 * rho * rho * float(g @ tri @ (g * S))
+    tri = _lower_triangle(nu)  # [i, j]: z_j < z_i
+    return ss, 2.0 * rho * rho * (((g @ tri) * g) @ E) * ws
+
+
+@lru_cache(maxsize=8)
+def _lower_triangle(nu):
+    """[i, j] = 1 for j < i, ½ on the diagonal (read-only)."""
+    t = np.tril(np.ones((nu, nu)), -1) + 0.5 * np.eye(nu)
+    t.setflags(write=False)
+    return t
 
 
 def _sky_terms(stack, f, view_deg):
     """The part of :func:`graininess_indices` for flake layer ``f`` that depends on the view only (not on
     the observer's spot): E[b], E[b²] over normals and depths (docs/texture.md eq. G3), the depth nodes,
     the unhidden mean luminance factor per depth b0, the view path's crossings λ_v and the luminance of
-    T² of a flake crossed by both vertical paths (the inputs of :func:`_pair_term`)."""
+    T² of a flake crossed by both vertical paths (the inputs of :func:`_pair_kernel`).  A view along the
+    normal (v' = z) sees every azimuth of a normal alike (v'·m, the mirrored direction's polar angle and the
+    paths' drift depend on the tilt only), so there the normals are the tilts alone (one azimuth each, the
+    weight of all: the azimuth average of equal terms)."""
     eta = float(stack.eta)
     y = np.asarray(stack.y_weights, float)
     mu_v = float(np.cos(np.radians(view_deg)))
     mu_vb = float(binder_cosine(view_deg, eta))
     vb = np.array([-np.sqrt(1 - mu_vb**2), 0.0, mu_vb])
     t_out = float(coat_transmittance(mu_v, eta))
-    m, wm = _sky_normals(f.alpha)
+    m, wm = _sky_normals(f.alpha, n_p=1 if vb[2] == 1.0 else N_AZIMUTH)
     cv = m @ vb
     lm = 2.0 * cv[:, None] * m - vb  # mirrored direction (toward the sky)
     mu_lb = lm[:, 2]
@@ -714,11 +862,17 @@ def _sky_terms(stack, f, view_deg):
     Eb_c = amp * np.exp(-lo_l * (1 - T_l) - lo_v * (1 - Tv) - lam_b * (1 - T_l * Tv))
     b1 = np.einsum("c,cmz->mz", y, Eb_c)
     ya = y[:, None, None] * amp
+    # the exponent is symmetric in (c, c'): the pairs c' > c counted twice, the diagonal once
+    base = -(lo_l + lo_v + lam_b)
+    A_l, A_v, TT = lo_l * T_l, lo_v * Tv, T_l * Tv
+    A_b = lam_b * TT
     b2 = np.zeros((M, nz))
     for c1 in range(C):
-        ex = (-lo_l * (1 - T_l[c1] * T_l) - lo_v * (1 - Tv[c1] * Tv)
-              - lam_b * (1 - T_l[c1] * Tv[c1] * T_l * Tv))
-        b2 += ya[c1] * np.sum(ya * np.exp(ex), axis=0)
+        ex = base + A_l[c1] * T_l[c1:] + A_v[c1] * Tv[c1:] + A_b[c1] * TT[c1:]
+        np.exp(ex, out=ex)
+        ex *= ya[c1:]
+        ex[1:] *= 2.0
+        b2 += ya[c1] * np.sum(ex, axis=0)
     wgt = wm[:, None] * wz[None, :]
     Eb, Eb2 = float(np.sum(wgt * b1)), float(np.sum(wgt * b2))
     b0 = np.einsum("c,cmz,m->z", y, amp, wm)  # unhidden mean luminance factor per depth
@@ -737,7 +891,7 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
     eq. G2).  ``ground_luminance_factor``: the paint's total luminance factor under the sky (its
     directional albedo at the view), which replaces the flakes' mean in the denominator; without
     it G is the flake-only value (an upper bound).  ``memo``: as :func:`sparkle_indices` (keeps
-    :func:`_sky_terms`).  Returns a dict; where the variance comes out ≤ 0 (the hiding term cancels the
+    :func:`_sky_terms`, :func:`_pair_kernel` and the moments of :func:`pair_overlap`).  Returns a dict; where the variance comes out ≤ 0 (the hiding term cancels the
     single-flake term: thick, dense flake layers) ``graininess`` is None, ``valid`` False and ``note`` says why."""
     mean, var_single, var_pair = 0.0, 0.0, 0.0
     for i_f, f in enumerate(stack.flakes):
@@ -753,11 +907,22 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
         A = 0.25 * np.pi * Dn * Dn
         NA = f.areal_density_per_um2
         mean += NA * float(Dw @ A) * Eb
-        ov = np.array([overlap_integral(D, observer.spot_um) for D in Dn])
-        var_single += NA * float(Dw @ ov) * Eb2
-        # pairs of flakes of this layer, one above the other (docs/texture.md eq. G4)
+        var_single += NA * float(Dw @ overlap_integral(Dn, observer.spot_um)) * Eb2
+        # pairs of flakes of this layer, one above the other (docs/texture.md eq. G4): Σ_j w_j Σ_s c_j(s) ⟨O_j(s)⟩,
+        # ⟨O⟩ over the lower flake's diameter (the same 6-node rule as the upper one's)
         Dj, wj = f.diameters(6)
-        var_pair += float(wj @ np.array([_pair_term(f, z, wz, b0, lam_v, tau_y, 0.5 * D, observer.spot_um) for D in Dj]))
+        pair = np.empty(Dj.size)
+        for j, D in enumerate(Dj):
+            key = ("pair", i_f, float(observer.view_deg), float(D))
+            if memo is None or key not in memo:
+                kern = _pair_kernel(f, z, b0, lam_v, tau_y, 0.5 * D)
+                if memo is not None:
+                    memo[key] = kern
+            else:
+                kern = memo[key]
+            ss, c = kern
+            pair[j] = c @ (wj @ pair_overlap(D, observer.spot_um, ss, diameter2_um=Dj, memo=memo))
+        var_pair += float(wj @ pair)
     var = var_single + var_pair
     out = {
         "view_deg": float(observer.view_deg),

@@ -247,3 +247,45 @@ def test_recipe_interface_roughness_checks():
         _inner_recipe(0.005)
     same = _inner_recipe(0.2, ior_below=1.6)
     assert any("interface_roughness: ignored" in w for w in same.warnings)
+
+
+def _adaptive_reevaluating_every_midpoint(fn, tol, n_start, max_nodes):
+    """The refinement before midpoints were kept: every pass evaluates fn at every interval's midpoint."""
+    from flakedb.paint.mapping import flake_cos_grid
+
+    c = flake_cos_grid(n_start)
+    R, T = fn(c)
+    while True:
+        mid = 0.5 * (c[:-1] + c[1:])
+        Rm, Tm = fn(mid)
+        err = np.maximum(np.abs(Rm - 0.5 * (R[:, :-1] + R[:, 1:])), np.abs(Tm - 0.5 * (T[:, :-1] + T[:, 1:]))).max(axis=0)
+        bad = err > tol
+        if not bad.any() or c.size + int(bad.sum()) > max_nodes:
+            return c, R, T, float(err.max())
+        order = np.argsort(np.concatenate([c, mid[bad]]))
+        c = np.concatenate([c, mid[bad]])[order]
+        R, T = np.concatenate([R, Rm[:, bad]], axis=1)[:, order], np.concatenate([T, Tm[:, bad]], axis=1)[:, order]
+
+
+@pytest.mark.parametrize("species,tol,max_nodes", [("pearlescent", 1e-4, 257), ("pearlescent", 1e-3, 257),
+                                                   ("metallic", 1e-5, 257), ("pearl-white", 1e-4, 100)])
+def test_adaptive_flake_optics_keeps_passed_midpoints(species, tol, max_nodes):
+    """adaptive_flake_optics evaluates fn only at the midpoints of the intervals the last pass split (a passed
+    interval keeps its midpoint and error): the grid, the tables and the reported error are, bit for bit, those
+    of re-evaluating every midpoint each pass (fn acts on each c alone), the node cap included (100 nodes)."""
+    from flakedb.paint.catalog import get_species
+    from flakedb.paint.mapping import FLAKE_C_START, adaptive_flake_optics
+    from flakedb.paint.species import flake_reflectance_transmittance
+
+    e = get_species(species)
+    wl = np.arange(400.0, 701.0, 20.0)
+    calls = []
+    fn = lambda c: calls.append(c.size) or flake_reflectance_transmittance(e, wl, c, 1.5)  # noqa: E731
+    want = _adaptive_reevaluating_every_midpoint(fn, tol, FLAKE_C_START, max_nodes)
+    n_old = sum(calls)
+    calls.clear()
+    got = adaptive_flake_optics(fn, tol, max_nodes=max_nodes)
+    for a, b in zip(got[:3], want[:3]):
+        assert np.array_equal(a, b)
+    assert got[3] == want[3] and FLAKE_C_START < got[0].size <= max_nodes
+    assert sum(calls) < n_old  # fewer evaluations

@@ -141,6 +141,121 @@ def test_lens_area():
     assert np.allclose(tm.lens_area(s, 1.0, 0.7), tm.lens_area(s, 0.7, 1.0), rtol=1e-13, atol=1e-15)  # summation order
 
 
+def test_lens_area_sq_is_lens_area():
+    """The hot loops' lens (flakedb.texture.model._lens_area_sq: d² given, no case selection, radii that
+    broadcast) against lens_area, the case-selecting scalar formula, over the three cases (one disc inside
+    the other, crossing, apart) and at their boundaries.  The formula is the same, reassociated: the
+    difference is rounding, 1e-11 of the smaller disc's area at most (measured: 2e-13), except within
+    rounding of a tangency, where an arccos argument of ±(1 − ε) gives √(2ε) ~ 1e-8 of the larger disc's
+    area (lens_area selects the case there; its formula has the same error just on the other side)."""
+    rng = np.random.default_rng(5)
+    for r1, r2 in ((10.0, 25.0), (25.0, 10.0), (1.0, 2.0), (0.0115, 0.0016), (3.0, 3.0)):
+        area = np.pi * min(r1, r2) ** 2
+        d = rng.uniform(1e-9, 1.3 * (r1 + r2), 4000)
+        got = tm._lens_area_sq(d, d * d, r1, r2, equal=r1 == r2)
+        assert np.max(np.abs(got - tm.lens_area(d, r1, r2))) <= 1e-11 * area, (r1, r2)
+        tangent = np.array([abs(r1 - r2) or 1e-3, r1 + r2])
+        got = tm._lens_area_sq(tangent, tangent**2, r1, r2, equal=r1 == r2)
+        assert np.max(np.abs(got - tm.lens_area(tangent, r1, r2))) <= 1e-7 * np.pi * max(r1, r2) ** 2, (r1, r2)
+    # radii that broadcast: one row per second radius, as _pair_moments and _offset_tables call it
+    r2 = np.array([[0.5], [2.0], [7.0]])
+    d = rng.uniform(1e-6, 10.0, (3, 500))
+    want = np.stack([tm.lens_area(d[i], 3.0, r2[i, 0]) for i in range(3)])
+    assert np.allclose(tm._lens_area_sq(d, d * d, 3.0, r2), want, rtol=0, atol=1e-11 * np.pi * 0.25)
+    r = np.array([[1.0], [4.0]])
+    d = np.concatenate([np.zeros((2, 1)), rng.uniform(1e-6, 9.0, (2, 300))], axis=1)
+    want = np.stack([tm.lens_area(d[i], r[i, 0], r[i, 0]) for i in range(2)])
+    assert np.allclose(tm._lens_area_sq(d, d * d, r, r, equal=True), want, rtol=1e-14, atol=1e-13)
+
+
+def _pair_overlap_full_grid(D, p, s, D2, n=16, n_dir=3):
+    """The full-grid evaluation pair_overlap replaced: every node of the n × n grid of each offset and
+    direction, K(δ) in the integrand, the case-selecting lens_area."""
+    x, w = tm.leggauss(n)
+    out = np.zeros(s.size)
+    for k, sk in enumerate(s):
+        h = min(p, sk + 0.5 * (D + D2))
+        u, wu = h * x, h * w
+        dx, dy = np.meshgrid(u, u, indexing="ij")
+        K = (p - np.abs(dx)) * (p - np.abs(dy))
+        for t in (np.arange(n_dir) + 0.5) * (0.25 * np.pi / n_dir):
+            g = tm.lens_area(np.hypot(dx - sk * np.cos(t), dy - sk * np.sin(t)), 0.5 * D, 0.5 * D2)
+            out[k] += wu @ (g * K) @ wu
+    return out / n_dir / p**4
+
+
+@pytest.mark.parametrize("p", [15.0, 290.9, 872.7])
+def test_pair_overlap_is_the_full_grid_sum(p):
+    """pair_overlap evaluates only the grid rows where the discs can meet and sums the spot-independent
+    moments of K (a quadratic in p), kept in a memo for observers whose grids coincide: against the full
+    grid with K in the integrand, for spots narrower than the discs (15 µm: the integration square is the
+    spot) and wider (the person presets), the lower diameter as an array with the equal-radius pair in it.
+    Agreement to 1e-12 of the largest O (reassociation; the moments' cancellation is bounded by
+    ((p + h)/(p − h))² rounding, measured 6e-15)."""
+    D, D2 = 12.4, np.array([4.2, 12.4, 61.6])
+    s = np.concatenate([np.linspace(0.05, 6.0, 7), np.linspace(7.0, 140.0, 9)])
+    want = np.stack([_pair_overlap_full_grid(D, p, s, d2) for d2 in D2])
+    memo = {}
+    got = tm.pair_overlap(D, p, s, diameter2_um=D2, memo=memo)
+    assert got.shape == (3, s.size)
+    assert np.max(np.abs(got - want)) <= 1e-12 * np.max(np.abs(want))
+    assert tm.pair_overlap(D, p, s, diameter2_um=4.2)[None, :] == pytest.approx(got[:1], rel=1e-14)
+    # a wider spot with the same integration squares (all s + (D + D2)/2 < p) reuses the memo's moments
+    wide = tm.pair_overlap(D, 2 * p, s, diameter2_um=D2, memo=memo)
+    assert len(memo) == (1 if p > 200 else 2)
+    assert np.max(np.abs(wide - np.stack([_pair_overlap_full_grid(D, 2 * p, s, d2) for d2 in D2]))) <= 1e-12 * np.max(wide)
+
+
+def test_overlap_integral_of_an_array_is_the_scalar_rule():
+    """overlap_integral over an array of diameters (K folded into the Gauss weights) against the n × n grid
+    with K in the integrand, one diameter at a time."""
+    x, w = tm.leggauss(48)
+    for p in (15.0, 290.9):
+        D = np.array([2.0, 14.0, 15.0, 40.0, 149.0])
+        want = []
+        for Dk in D:
+            h = min(p, Dk)
+            u, wu = 0.5 * h * (x + 1.0), 0.5 * h * w
+            dx, dy = np.meshgrid(u, u, indexing="ij")
+            want.append(4.0 * wu @ (tm.lens_area(np.hypot(dx, dy), 0.5 * Dk, 0.5 * Dk) * (p - dx) * (p - dy)) @ wu / p**4)
+        assert tm.overlap_integral(D, p) == pytest.approx(np.array(want), rel=1e-13)
+        assert tm.overlap_integral(float(D[1]), p) == pytest.approx(want[1], rel=1e-13)
+
+
+def test_path_weights_tables_are_the_elementwise_powers():
+    """_path_weights at depths shared by all crossing combinations takes T^e and P(k; λ) from tables and w from
+    one matrix product over the exponent pairs: the same as the elementwise powers and Poisson terms of each
+    combination (the path taken when every combination has depths of its own), to rounding."""
+    rng = np.random.default_rng(7)
+    C, nz = 5, 9
+    yR = rng.uniform(0.0, 1.0, C)
+    att = rng.uniform(0.2, 1.0, (C, nz, 1))
+    T_l, T_v = rng.uniform(0.0, 0.9, (C, nz, 1)), rng.uniform(0.0, 0.9, (C, nz, 1))
+    lam = [rng.uniform(0.0, 3.0, (nz, 1)) for _ in range(3)]
+    lam[2][0] = 0.0  # no shared crossings at the top
+    combos = tm._combinations(lam[0], lam[1], lam[2], T_l, T_v)
+    assert combos[0].size > 50
+    w, P = tm._path_weights(yR, 0.7, att, *lam, T_l, T_v, combos)
+    k = combos[0].size
+    wide = [np.broadcast_to(a, a.shape[:-1] + (k,)) for a in (att, T_l, T_v)]
+    w0, P0 = tm._path_weights(yR, 0.7, wide[0], *(np.broadcast_to(x, (nz, k)) for x in lam), wide[1], wide[2], combos)
+    assert w.shape == P.shape == (nz, k)
+    assert np.allclose(w, w0, rtol=1e-13, atol=0) and np.array_equal(P, P0)
+
+
+def test_sky_terms_at_the_normal_view_need_the_tilts_only(monkeypatch):
+    """A view along the normal sees every azimuth of a flake normal alike, so _sky_terms evaluates one
+    azimuth per tilt there: the same E[b], E[b²], b0, λ_v and τ as all N_AZIMUTH azimuths, to rounding."""
+    st = stack_of(species="pearlescent", vf=0.03, alpha=0.25, D=20.0, pigment="iron-black", pv=0.002)
+    f = st.flakes[0]
+    tilts = tm._sky_terms(st, f, 0.0)
+    full_normals = tm._sky_normals
+    monkeypatch.setattr(tm, "_sky_normals", lambda alpha, n_t=tm.N_TILT, n_p=tm.N_AZIMUTH: full_normals(alpha, n_t, tm.N_AZIMUTH))
+    full = tm._sky_terms(st, f, 0.0)
+    for a, b in zip(tilts, full):
+        assert np.allclose(a, b, rtol=1e-13, atol=0)
+
+
 def test_interp_rows_is_np_interp_per_row():
     """The shared-weight row interpolation equals np.interp row by row, ends held, at any shape of x."""
     rng = np.random.default_rng(3)
