@@ -35,6 +35,7 @@ from flakedb.rt.stack import project_medium
 from flakedb.rt.stored import StoredFlakeMedium, StoredGridMismatch
 from flakedb.store import compress as C
 from flakedb.store import versions as st
+from flakedb.store.errors import StoreIntegrityError
 
 N = 16
 WL = (500.0, 520.0, 540.0, 560.0, 580.0, 600.0)
@@ -411,3 +412,30 @@ def tiny_url_smooth(tmp_path_factory):
     url = str(tmp_path_factory.mktemp("smooth") / "store")
     build(make_request(species=[FLAKE], n=N, wavelength_nm=WL, eta_top=ETA), url, scheduler="sync")
     return url
+
+
+def test_a_deferred_chunk_missing_or_corrupted_is_refused_when_read(tiny, tmp_path):
+    """The flakes' V chunks are hashed on the bytes they are decoded from (one read each): a chunk whose file is
+    gone reads as no fill value but as a verification failure, and a corrupted one as well; a sound version reads
+    every chunk and leaves none pending."""
+    url0, _, v = tiny
+    key = f"species/{FLAKE}/n{N}/a0.25/V/c/0/0/0/0/0"
+    sound = st.open_version(url0, v.version)
+    f = sound.flake_factors(FLAKE, N, 0.25)
+    f.read(0, f.n_orders)
+    prefix = sound.flake_prefix(FLAKE, N, 0.25) + "/V/c/"
+    assert any(k.startswith(prefix) for k in st.open_version(url0, v.version).pending_checksums)
+    assert not any(k.startswith(prefix) for k in sound.pending_checksums)
+    for damage in ("missing", "corrupted"):
+        url = str(tmp_path / damage)
+        shutil.copytree(url0, url)
+        p = Path(url) / "versions" / v.version / key
+        if damage == "missing":
+            p.unlink()
+        else:
+            data = bytearray(p.read_bytes())
+            data[7] ^= 0x01
+            p.write_bytes(bytes(data))
+        sv = st.open_version(url, v.version)
+        with pytest.raises(StoreIntegrityError, match=damage):
+            sv.flake_factors(FLAKE, N, 0.25).read(0, 1)
