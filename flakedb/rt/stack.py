@@ -152,7 +152,7 @@ class _Top:
             if self.job is None:
                 self.job = _submit(s.threads, itf.rough_dielectric, q_out, q_in, top.eta, top.alpha, tol=s.tol,
                                    max_orders=s.order_cap, energy_compensation=top.energy_compensation,
-                                   inner_orders=inner)
+                                   inner_orders=inner, threads=s.threads)
                 if key is not None:
                     top_cache[key] = self.job
 

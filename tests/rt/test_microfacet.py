@@ -372,3 +372,27 @@ def test_rough_dielectric_between_two_rules_is_lossless_and_reciprocal(eta):
     two, _ = mf.rough_dielectric_cells(qa.x, qa.w, eta, 0.2, x_below=qa.x, w_below=qa.w)
     for a, b in zip(one, two):
         assert np.abs(a - b).max() <= 1e-12 * np.abs(a).max()
+
+
+@pytest.mark.parametrize("eta, two_rules", [(1.5, False), (1.45 / 1.6, True)])
+def test_threads_and_shared_reflection_geometry_change_no_bit(eta, two_rules):
+    """Guards the speed paths of rough_dielectric_cells: with threads > 1 its independent parts (cell
+    blocks, albedo integrals, the compensation's chain) run concurrently, and R^t and R^b of one rule are
+    integrated together (_cell_blocks with two indices: one half-vector geometry, one Fresnel factor per
+    index).  Both must give the serial, one-block-at-a-time result bit for bit."""
+    alpha, h = 0.15, 16
+    q = radau_hemisphere(h)
+    below = dict(x_below=radau_hemisphere(20).x, w_below=radau_hemisphere(20).w) if two_rules else {}
+    serial, info1 = mf.rough_dielectric_cells(q.x, q.w, eta, alpha, inner_orders=8, **below)
+    threaded, info2 = mf.rough_dielectric_cells(q.x, q.w, eta, alpha, inner_orders=8, threads=3, **below)
+    assert info1["orders"] == info2["orders"]
+    for a, b in zip(serial, threaded):
+        np.testing.assert_array_equal(a, b)
+    rule = mf.cell_rule(q.x, q.w, 0.05)
+    both = mf._cell_blocks(rule, rule, h, h, (eta, 1.0 / eta), alpha, False, None, 1, 1e-5, 64, symmetric=True,
+                           keep_orders=(None, 8))
+    for (block, L), e, keep in zip(both, (eta, 1.0 / eta), (None, 8)):
+        alone, L_alone = mf._cell_block(rule, rule, h, h, e, alpha, False, None, 1, 1e-5, 64, symmetric=True,
+                                        keep_orders=keep)
+        assert L == L_alone
+        np.testing.assert_array_equal(block, alone)
