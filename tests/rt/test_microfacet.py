@@ -396,3 +396,43 @@ def test_threads_and_shared_reflection_geometry_change_no_bit(eta, two_rules):
                                         keep_orders=keep)
         assert L == L_alone
         np.testing.assert_array_equal(block, alone)
+
+
+@pytest.mark.parametrize("eta, alpha", [(1.5, 0.1), (1.0 / 1.5, 0.3), (1.1, 0.02)])
+def test_albedos_from_the_chain_are_microfacet_albedo_bit_for_bit(eta, alpha):
+    """Guards dielectric_albedo_and_escape, which takes the single-scattering albedos from the facet samples
+    of the compensation's chain instead of a second pass of microfacet_albedo: the same values bit for bit,
+    also at a cosine where one reflected (and one refracted) direction is horizontal to rounding, where the
+    chain clips |cos| at 1e-12 and microfacet_albedo does not (the few such samples are re-evaluated)."""
+    from scipy.optimize import brentq
+
+    gu, _ = mf._gauss_legendre(mf.ALBEDO_NODES)
+    tan_m = alpha * np.sqrt(-np.log1p(-0.5 * (gu + 1.0)))
+    cm, sm, cph = 1.0 / np.sqrt(1.0 + tan_m**2), tan_m / np.sqrt(1.0 + tan_m**2), np.cos(0.5 * np.pi * (gu + 1.0))
+
+    def out_z(mu, a, b, e, refract):  # z of the reflected / refracted direction off facet (a, b); NaN: none
+        c = np.sqrt(1.0 - mu * mu) * sm[a] * cph[b] + mu * cm[a]
+        s2 = (1.0 - c * c) / e**2
+        z = 2.0 * c * cm[a] - mu if not refract else -mu / e + (c / e - np.sqrt(np.maximum(1.0 - s2, 0.0))) * cm[a]
+        return np.where((c > 0) & (not refract or s2 < 1.0), z, np.nan)
+
+    # a cosine at which a facet reflects horizontally, and one at which a facet refracts horizontally out of
+    # the denser side (into it, the refracted ray stays within the critical angle of −m)
+    grid = np.linspace(1e-3, 0.999, 400)
+    a, b = np.meshgrid(np.arange(len(gu)), np.arange(len(gu)), indexing="ij")
+    horizontal = []
+    for e, refract in ((eta, False), (min(eta, 1.0 / eta), True)):
+        z = out_z(grid[:, None, None], a[None], b[None], e, refract)
+        k, ka, kb = np.nonzero(z[:-1] * z[1:] < 0)
+        mu_h = brentq(lambda m: float(out_z(m, ka[0], kb[0], e, refract)), grid[k[0]], grid[k[0] + 1],
+                      xtol=1e-300, rtol=8.9e-16)
+        horizontal += list(mu_h + np.arange(-20, 21) * np.spacing(mu_h))  # |o_z| ≲ 1e-14 either side
+    mu = np.concatenate([radau_hemisphere(12).x, horizontal])
+    (Ra, Ta), (Rb, Tb), (Pa, Pb) = mf.dielectric_albedo_and_escape(mu, mu[::-1].copy(), eta, alpha)
+    for (R, T), (R2, T2) in (((Ra, Ta), mf.microfacet_albedo(mu, eta, alpha)),
+                             ((Rb, Tb), mf.microfacet_albedo(mu[::-1].copy(), 1.0 / eta, alpha))):
+        np.testing.assert_array_equal(R, R2)
+        np.testing.assert_array_equal(T, T2)
+    Pa2, Pb2 = mf._multiple_scattering_escape(mu, mu[::-1].copy(), eta, alpha, mf.MS_CHAIN_GRID, mf.MS_CHAIN_QUAD)
+    np.testing.assert_array_equal(Pa, Pa2[0])
+    np.testing.assert_array_equal(Pb, Pb2[0])
