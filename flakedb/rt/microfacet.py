@@ -235,6 +235,10 @@ def microfacet_albedo(mu, eta_rel, alpha, fresnel=None, n=ALBEDO_NODES):
 #: facet integral's kinks (edge-on facets, the horizon, the critical angle) are.
 MS_CHAIN_GRID = 32
 MS_CHAIN_QUAD = 48
+#: Facet samples (cosines × n_quad²) the chain evaluates at once at the nodes, so that the temporaries
+#: (0.4 MB each) stay in cache: measured at n 200, α 0.1, the chain took 0.088 s with all 100 cosines of a
+#: hemisphere at once, 0.070 s at 50 000 samples (21 cosines), 0.075 at 20 000 or 100 000
+MS_CHUNK_SAMPLES = 50_000
 
 # Lanczos coefficients (g = 7, 9 terms; Numerical Recipes 3rd ed. §6.1): ln Γ to ~1e-15 for x ≥ 0.5
 _LANCZOS_G = 7.0
@@ -407,13 +411,19 @@ def _multiple_scattering_escape(mu_above, mu_below, eta, alpha, n_grid, n_quad):
     pa, pb = p[:K], p[K:]
 
     def at(mu, eta_rel, refl_p, trans_p, esc_refl):
-        wR, zR, eR, wT, zT, eT, single = _first_events(np.atleast_1d(np.asarray(mu, dtype=float)), eta_rel, alpha,
-                                                        n_quad, albedo=True)
+        wR, zR, eR, wT, zT, eT, single = _first_events(mu, eta_rel, alpha, n_quad, albedo=True)
         direct = np.sum((wR * eR) if esc_refl else (wT * eT), axis=(1, 2))
         return (direct + _escape_then(zR, wR * (1.0 - eR), refl_p, grid)
                 + _escape_then(zT, wT * (1.0 - eT), trans_p, grid)), single
 
-    return at(mu_above, eta, pa, pb, True), at(mu_below, 1.0 / eta, pb, pa, False)
+    def at_all(mu, *args):  # a few cosines at a time: every value is per cosine, the temporaries stay in cache
+        mu = np.atleast_1d(np.asarray(mu, dtype=float))
+        step = max(1, MS_CHUNK_SAMPLES // (n_quad * n_quad))
+        parts = [at(mu[k:k + step], *args) for k in range(0, len(mu), step)]
+        return (np.concatenate([P for P, _ in parts]),
+                tuple(np.concatenate([single[j] for _, single in parts], axis=-1) for j in range(2)))
+
+    return at_all(mu_above, eta, pa, pb, True), at_all(mu_below, 1.0 / eta, pb, pa, False)
 
 
 def conductor_multiple_scattering(mu, alpha, fresnel, n_grid=MS_CHAIN_GRID, n_quad=MS_CHAIN_QUAD):

@@ -399,11 +399,13 @@ def test_threads_and_shared_reflection_geometry_change_no_bit(eta, two_rules):
 
 
 @pytest.mark.parametrize("eta, alpha", [(1.5, 0.1), (1.0 / 1.5, 0.3), (1.1, 0.02)])
-def test_albedos_from_the_chain_are_microfacet_albedo_bit_for_bit(eta, alpha):
+def test_albedos_from_the_chain_are_microfacet_albedo_bit_for_bit(eta, alpha, monkeypatch):
     """Guards dielectric_albedo_and_escape, which takes the single-scattering albedos from the facet samples
     of the compensation's chain instead of a second pass of microfacet_albedo: the same values bit for bit,
     also at a cosine where one reflected (and one refracted) direction is horizontal to rounding, where the
-    chain clips |cos| at 1e-12 and microfacet_albedo does not (the few such samples are re-evaluated)."""
+    chain clips |cos| at 1e-12 and microfacet_albedo does not (the few such samples are re-evaluated); and
+    the chain's escape probabilities evaluated a few cosines at a time (MS_CHUNK_SAMPLES) are those of all
+    cosines at once."""
     from scipy.optimize import brentq
 
     gu, _ = mf._gauss_legendre(mf.ALBEDO_NODES)
@@ -433,6 +435,8 @@ def test_albedos_from_the_chain_are_microfacet_albedo_bit_for_bit(eta, alpha):
                              ((Rb, Tb), mf.microfacet_albedo(mu[::-1].copy(), 1.0 / eta, alpha))):
         np.testing.assert_array_equal(R, R2)
         np.testing.assert_array_equal(T, T2)
+    assert len(mu) * mf.MS_CHAIN_QUAD**2 > 2 * mf.MS_CHUNK_SAMPLES  # more than two parts
+    monkeypatch.setattr(mf, "MS_CHUNK_SAMPLES", 10**9)
     Pa2, Pb2 = mf._multiple_scattering_escape(mu, mu[::-1].copy(), eta, alpha, mf.MS_CHAIN_GRID, mf.MS_CHAIN_QUAD)
     np.testing.assert_array_equal(Pa, Pa2[0])
     np.testing.assert_array_equal(Pb, Pb2[0])
