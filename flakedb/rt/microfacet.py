@@ -37,14 +37,13 @@ several % at grazing for α = 0.3) and the discretisation carries exactly that, 
 """
 
 import functools
-import threading
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numpy.polynomial.legendre import leggauss
 
 from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_conductor_real, fresnel_dielectric_real
+from flakedb.rt.jobs import SharedJobs
 from flakedb.rt.pole import zero_pole_orders
 from flakedb.rt.special import smith_masking_denominator
 
@@ -840,7 +839,8 @@ def _to_S(fbar, x, w):
 
 
 def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width=None,
-                           energy_compensation=True, x_below=None, w_below=None, inner_orders=None, threads=1):
+                           energy_compensation=True, x_below=None, w_below=None, inner_orders=None, threads=1,
+                           jobs=None):
     """Rough dielectric interface (Beckmann α, relative index η = n_below / n_above) by flux-cell
     integration; returns the four blocks (L, 1, h_o, h_i) and an info dict.
 
@@ -863,9 +863,11 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     the top of a stack whose body reflects nothing beyond that order needs no more of them (their higher
     orders multiply zero).  The blocks then have different order counts; their values are unchanged.
 
-    ``threads`` > 1: the three cell blocks, the two albedo integrals and the compensation's chain are
-    computed concurrently on that many threads (:func:`_run_independent`); each is the same pure
-    function of its arguments as in the serial path, so the result is bit-identical.
+    Its independent parts (the cell blocks; the albedo integrals and the compensation's chain) are
+    :class:`flakedb.rt.jobs.SharedJobs`: on ``threads`` threads, and other threads may take the parts not
+    yet started through ``jobs`` (a :class:`~flakedb.rt.jobs.SharedJobs` to run them on; its own thread
+    count then applies).  Each part is the same pure function of its arguments whichever thread runs it:
+    the result is the serial one, bit for bit.
     """
     xa = np.asarray(x, dtype=float)
     wa = np.asarray(w, dtype=float)
@@ -876,35 +878,37 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     rule_a = cell_rule(xa, wa, max(sub, 1e-6))
     rule_b = rule_a if x_below is None else cell_rule(xb, wb, max(sub, 1e-6))
     ma, mb = wa * xa, wb * xb
-    # the independent parts, the most expensive first (measured at n 200, α 0.1, serial: the chain of the
-    # compensation 107 ms on first use, R^t with R^b 110 (107 + 57 apart), T^tb 49, the albedos 27 and
-    # 23 ms); exact energy: columns of order 0 carry the continuous albedo at the node
+    # the independent parts, the longest first (measured at n 200, α 0.1, serial: R^t with R^b 110 ms,
+    # 107 + 57 apart; the compensation's chain with the albedos 70, the albedos alone 50; T^tb 49);
+    # exact energy: columns of order 0 carry the continuous albedo at the node
     reflect = (rule_a, rule_a, ha, ha, (eta, 1.0 / eta), alpha, False, None, 1, tol, max_orders)
     if x_below is None:  # one rule on both sides: R^t and R^b share their pairs and geometry
-        jobs = [(_cell_blocks, reflect, {"symmetric": True, "keep_orders": (None, inner_orders)})]
+        named = [("R", (_cell_blocks, reflect, {"symmetric": True, "keep_orders": (None, inner_orders)}))]
     else:
-        jobs = [(_cell_blocks, reflect[:4] + ((eta,),) + reflect[5:], {"symmetric": True}),
-                (_cell_blocks, (rule_b, rule_b, hb, hb, (1.0 / eta,)) + reflect[5:],
-                 {"symmetric": True, "keep_orders": (inner_orders,)})]
-    jobs += [(_cell_block, (rule_a, rule_b, ha, hb, eta, alpha, True, None, 1, tol, max_orders),
-              {"keep_orders": inner_orders}),
-]
+        named = [("Rt", (_cell_blocks, reflect[:4] + ((eta,),) + reflect[5:], {"symmetric": True})),
+                 ("Rb", (_cell_blocks, (rule_b, rule_b, hb, hb, (1.0 / eta,)) + reflect[5:],
+                         {"symmetric": True, "keep_orders": (inner_orders,)}))]
     shared = energy_compensation and MS_CHAIN_QUAD == ALBEDO_NODES  # the chain samples the albedos' facets
     if shared:
-        jobs.insert(0, (dielectric_albedo_and_escape, (xa, xb, eta, alpha), {}))
-    else:
-        jobs += [(microfacet_albedo, (xb, 1.0 / eta, alpha), {}), (microfacet_albedo, (xa, eta, alpha), {})]
-        if energy_compensation:
-            jobs.insert(0, (multiple_scattering_escape, (xa, xb, eta, alpha), {}))
-    done = _run_independent(jobs, threads)
-    if shared:
-        (R_a, T_a), (R_b, T_b), P_ab = done.pop(0)
+        named.append(("chain", (dielectric_albedo_and_escape, (xa, xb, eta, alpha), {})))
     elif energy_compensation:
-        P_ab = done.pop(0)
-    (Rt, L1), (Rb, L2) = done.pop(0) if x_below is None else (done.pop(0)[0], done.pop(0)[0])
-    (Ttb, L3) = done.pop(0)
+        named.append(("escape", (multiple_scattering_escape, (xa, xb, eta, alpha), {})))
+    named.append(("Ttb", (_cell_block, (rule_a, rule_b, ha, hb, eta, alpha, True, None, 1, tol, max_orders),
+                          {"keep_orders": inner_orders})))
     if not shared:
-        (R_b, T_b), (R_a, T_a) = done
+        named += [("albedo_b", (microfacet_albedo, (xb, 1.0 / eta, alpha), {})),
+                  ("albedo_a", (microfacet_albedo, (xa, eta, alpha), {}))]
+    runner = SharedJobs(threads) if jobs is None else jobs
+    done = dict(zip([name for name, _ in named], runner.run([job for _, job in named])))
+    if x_below is None:
+        (Rt, L1), (Rb, L2) = done["R"]
+    else:
+        ((Rt, L1),), ((Rb, L2),) = done["Rt"], done["Rb"]
+    Ttb, L3 = done["Ttb"]
+    if shared:
+        (R_a, T_a), (R_b, T_b), P_ab = done["chain"]
+    else:
+        (R_a, T_a), (R_b, T_b), P_ab = done["albedo_a"], done["albedo_b"], done.get("escape")
     L = max(L1, L2, L3)
     if inner_orders is None:  # Σ ω ω f_l; f̃ = that / (m_o m_i)
         Rt, Rb, Ttb = (_pad(b, L) for b in (Rt, Rb, Ttb))
@@ -948,26 +952,6 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
             "energy_before_max_dev": float(np.abs(before / target[0] - 1.0).max()),
             "albedo_above": (R_a + T_a)[0], "albedo_below": (R_b + T_b)[0]}
     return [b[:Lt] for b in blocks], info
-
-
-#: Threads of :func:`_run_independent`, one pool per thread count, created on first use (a pool of its
-#: own: the solver's other pools may be busy with, or waiting for, the caller).
-_POOLS: dict = {}
-_POOLS_LOCK = threading.Lock()
-
-
-def _run_independent(jobs, threads):
-    """``[fn(*args, **kw) for fn, args, kw in jobs]``, on ``threads`` threads when > 1 (numpy's ufuncs and
-    matrix products release the GIL on large arrays), the jobs started in the listed order."""
-    threads = min(int(threads), len(jobs))
-    if threads <= 1:
-        return [fn(*args, **kw) for fn, args, kw in jobs]
-    with _POOLS_LOCK:
-        pool = _POOLS.get(threads)
-        if pool is None:
-            pool = _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="flakedb-rough")
-    futs = [pool.submit(fn, *args, **kw) for fn, args, kw in jobs]
-    return [f.result() for f in futs]
 
 
 def _truncate_orders_from_top(blocks, m, tol, chunk=16):
