@@ -703,9 +703,11 @@ def _cell_blocks(rule_i, rule_o, h_i, h_o, etas, alpha, transmit, fresnel, C, to
     L_used = [L_all if k is None else max(1, min(L_all, int(k))) for k in keep_orders]
     outs = [np.zeros((Lu, C, h_o * h_i)) for Lu in L_used]  # [order, channel, cell pair]: the block's own layout
     group = bucket * (j_phi.max(initial=0) + 1) + j_phi
-    for g in np.unique(group):
-        sel = np.nonzero(group == g)[0]
-        sel = sel[np.argsort(pair_cell[sel], kind="stable")]  # the sub-pairs of a cell pair adjacent
+    # the pairs by group, within a group by cell pair (the sub-pairs of a cell pair adjacent, in index
+    # order): one stable sort, not a pass per group (nor np.unique, whose first call imports numpy.ma)
+    by_group = np.lexsort((pair_cell, group))
+    bounds = np.flatnonzero(np.diff(group[by_group])) + 1
+    for sel in np.split(by_group, bounds) if len(by_group) else []:
         P = int(np.ceil(MIN_PHI_NODES * 2.0 ** (bucket[sel[0]] / 2.0)))
         gx, gw = _gauss_legendre(P)
         phi = phi_max[sel[0]] * 0.5 * (gx + 1.0)  # (P,) shared by the group
