@@ -127,34 +127,91 @@ def walter_bsdf(mu_i, mu_o, cos_phi, eta_rel, alpha, transmit, G, fresnel=None):
         return F * DG
     si = np.sqrt(np.maximum(1.0 - mu_i * mu_i, 0.0))
     so = np.sqrt(np.maximum(1.0 - mu_o * mu_o, 0.0))
-    dot = -mu_i * mu_o - si * so * cos_phi
-    h2 = np.maximum(1.0 + eta_rel**2 + 2.0 * eta_rel * dot, 1e-300)
+    # each expression in place on arrays of the full shape (the same operations in the same order)
+    dot = (si * so) * cos_phi
+    dot = _full(dot, mu_i, mu_o, G)
+    np.subtract(-mu_i * mu_o, dot, out=dot)                 # −μ_i μ_o − s_i s_o cos φ
+    h2 = (2.0 * eta_rel) * dot
+    h2 += 1.0 + eta_rel**2
+    np.maximum(h2, 1e-300, out=h2)                          # 1 + η² + 2η dot
     hz_un = eta_rel * mu_o - mu_i
-    flip = np.where(hz_un < 0, -1.0, 1.0)
-    inv_h = 1.0 / np.sqrt(h2)
-    i_h = -flip * (1.0 + eta_rel * dot) * inv_h
-    o_h = -flip * (dot + eta_rel) * inv_h
+    neg_flip = -np.where(hz_un < 0, -1.0, 1.0)
+    inv_h = np.sqrt(h2)
+    np.divide(1.0, inv_h, out=inv_h)
+    i_h = eta_rel * dot
+    i_h += 1.0
+    i_h *= neg_flip
+    i_h *= inv_h                                            # −flip (1 + η dot) / |h|
+    o_h = dot
+    o_h += eta_rel
+    o_h *= neg_flip
+    o_h *= inv_h                                            # −flip (dot + η) / |h|
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        tan2 = np.maximum(h2 - hz_un * hz_un, 0.0) / (hz_un * hz_un)
-        D = np.exp(-tan2 / alpha**2) * (1.0 + tan2) ** 2 / (np.pi * alpha**2)
-        denom = (i_h + eta_rel * o_h) ** 2
-        f = np.abs(i_h * o_h) * (1.0 - fresnel_dielectric_real(i_h, eta_rel)) * D * G / (mu_i * mu_o * denom)
-    valid = (i_h > 0) & (o_h < 0) & (hz_un != 0) & (denom > 0)
-    return np.where(valid, f, 0.0)
+        hz2 = hz_un * hz_un
+        tan2 = np.subtract(h2, hz2, out=h2)
+        np.maximum(tan2, 0.0, out=tan2)
+        tan2 /= hz2
+        D = _beckmann_times_cos4(tan2, alpha)
+        denom = eta_rel * o_h
+        denom += i_h
+        denom *= denom                                      # (i·h + η o·h)²
+        valid = (i_h > 0) & (o_h < 0) & (hz_un != 0) & (denom > 0)
+        F = fresnel_dielectric_real(i_h, eta_rel)
+        np.subtract(1.0, F, out=F)
+        f = np.multiply(i_h, o_h, out=inv_h)
+        np.abs(f, out=f)
+        f *= F
+        f *= D
+        f *= G
+        denom *= mu_i * mu_o
+        f /= denom                                          # |i·h||o·h| (1 − F) D G / (μ_i μ_o denom)
+    f[~valid] = 0.0
+    return f
+
+
+def _full(a, *others):
+    """``a`` itself when it already has the broadcast shape of ``a`` and ``others`` (the in-place
+    expressions then never need to grow it), else a broadcast copy."""
+    shape = np.broadcast_shapes(a.shape, *(np.shape(o) for o in others))
+    return a if a.shape == shape else np.array(np.broadcast_to(a, shape))
+
+
+def _beckmann_times_cos4(tan2, alpha):
+    """The Beckmann distribution D(h) = exp(−tan²θ_h/α²) / (π α² cos⁴θ_h) of :func:`walter_bsdf`, written
+    with 1/cos⁴θ_h = (1 + tan²θ_h)², computed in place over ``tan2`` (overwritten)."""
+    D = np.negative(tan2)
+    D /= alpha**2
+    np.exp(D, out=D)
+    tan2 += 1.0
+    tan2 *= tan2
+    D *= tan2
+    D /= np.pi * alpha**2
+    return D
 
 
 def _walter_reflection_geometry(mu_i, mu_o, cos_phi, alpha, G):
     """What Walter's reflection f_r = F(i·h) D G / (4 μ_i μ_o) (:func:`walter_bsdf`) shares between
-    indices: (i·h, D G / (4 μ_i μ_o)); the half vector of a reflection does not depend on η."""
+    indices: (i·h, D G / (4 μ_i μ_o)); the half vector of a reflection does not depend on η.  Each
+    expression in place on arrays of the full shape (the same operations in the same order as
+    written out: the same values)."""
     si = np.sqrt(np.maximum(1.0 - mu_i * mu_i, 0.0))
     so = np.sqrt(np.maximum(1.0 - mu_o * mu_o, 0.0))
-    dot = mu_i * mu_o - si * so * cos_phi  # w_i · w_o (w_o mirrored at φ_d = 0)
-    h2 = np.maximum(2.0 + 2.0 * dot, 1e-300)
-    hz = mu_i + mu_o
-    tan2 = np.maximum(h2 - hz * hz, 0.0) / (hz * hz)
-    i_h = 0.5 * np.sqrt(h2)
-    D = np.exp(-tan2 / alpha**2) * (1.0 + tan2) ** 2 / (np.pi * alpha**2)
-    return i_h, D * G / (4.0 * mu_i * mu_o)
+    dot = _full((si * so) * cos_phi, mu_i, mu_o, G)
+    np.subtract(mu_i * mu_o, dot, out=dot)                  # w_i · w_o (w_o mirrored at φ_d = 0)
+    dot *= 2.0
+    dot += 2.0
+    h2 = np.maximum(dot, 1e-300, out=dot)                   # |w_i + w_o|² = 2 + 2 w_i·w_o
+    hz2 = mu_i + mu_o
+    hz2 = hz2 * hz2
+    tan2 = np.subtract(h2, hz2)
+    np.maximum(tan2, 0.0, out=tan2)
+    tan2 /= hz2
+    i_h = np.sqrt(h2, out=h2)
+    i_h *= 0.5
+    DG = _beckmann_times_cos4(tan2, alpha)
+    DG *= G
+    DG /= 4.0 * mu_i * mu_o
+    return i_h, DG
 
 
 #: Slope-space Gauss–Legendre nodes per dimension of :func:`microfacet_albedo` (accuracy in its docstring).
@@ -726,13 +783,14 @@ def _cell_blocks(rule_i, rule_o, h_i, h_o, etas, alpha, transmit, fresnel, C, to
                 fs = [walter_bsdf(mu_i, mu_o, cphi, etas[0], alpha, True, G[k, None])]
             else:
                 i_h, DG = _walter_reflection_geometry(mu_i, mu_o, cphi, alpha, G[k, None])
-                fs = [(fresnel(i_h) if fresnel is not None else fresnel_dielectric_real(i_h, eta)) * DG
-                      for eta in etas]
+                fs = [fresnel(i_h) if fresnel is not None else fresnel_dielectric_real(i_h, eta) for eta in etas]
+                for F in fs:
+                    F *= DG  # new arrays of the full shape: the products in place
             pc = pair_cell[k]
             starts = np.flatnonzero(np.concatenate([[True], pc[1:] != pc[:-1]]))
             for f, out, Lu in zip(fs, outs, L_used):
                 Lg = min(int(L_pair[k].max()), Lu)
-                f = f * weight[k][:, None]                        # (K, P) or (C, K, P)
+                f *= weight[k][:, None]                           # (K, P) or (C, K, P)
                 if f.ndim == 3:
                     f = np.transpose(f, (1, 0, 2))
                 coef = (f.reshape(-1, P) @ table[:, :Lg]).reshape(len(k), -1, Lg)  # (K, C|1, Lg)

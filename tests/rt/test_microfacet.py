@@ -467,3 +467,48 @@ def test_a_rough_coat_solved_and_written_imports_neither_scipy_nor_numpy_ma():
                        env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1"})
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "[]", r.stdout
+
+
+def _walter_written_out(mu_i, mu_o, cos_phi, eta_rel, alpha, transmit, G):
+    """walter_bsdf's expressions as written in Walter et al. 2007 (eq. 20, 21 / η²), broadcast, no in-place."""
+    si = np.sqrt(np.maximum(1.0 - mu_i * mu_i, 0.0))
+    so = np.sqrt(np.maximum(1.0 - mu_o * mu_o, 0.0))
+    if not transmit:
+        dot = mu_i * mu_o - si * so * cos_phi
+        h2 = np.maximum(2.0 + 2.0 * dot, 1e-300)
+        hz = mu_i + mu_o
+        tan2 = np.maximum(h2 - hz * hz, 0.0) / (hz * hz)
+        i_h = 0.5 * np.sqrt(h2)
+        D = np.exp(-tan2 / alpha**2) * (1.0 + tan2) ** 2 / (np.pi * alpha**2)
+        return fresnel_dielectric_real(i_h, eta_rel) * (D * G / (4.0 * mu_i * mu_o))
+    dot = -mu_i * mu_o - si * so * cos_phi
+    h2 = np.maximum(1.0 + eta_rel**2 + 2.0 * eta_rel * dot, 1e-300)
+    hz_un = eta_rel * mu_o - mu_i
+    flip = np.where(hz_un < 0, -1.0, 1.0)
+    inv_h = 1.0 / np.sqrt(h2)
+    i_h = -flip * (1.0 + eta_rel * dot) * inv_h
+    o_h = -flip * (dot + eta_rel) * inv_h
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        tan2 = np.maximum(h2 - hz_un * hz_un, 0.0) / (hz_un * hz_un)
+        D = np.exp(-tan2 / alpha**2) * (1.0 + tan2) ** 2 / (np.pi * alpha**2)
+        denom = (i_h + eta_rel * o_h) ** 2
+        f = np.abs(i_h * o_h) * (1.0 - fresnel_dielectric_real(i_h, eta_rel)) * D * G / (mu_i * mu_o * denom)
+    return np.where((i_h > 0) & (o_h < 0) & (hz_un != 0) & (denom > 0), f, 0.0)
+
+
+@pytest.mark.parametrize("transmit", [False, True])
+@pytest.mark.parametrize("eta", [ETA, 1.0 / ETA])
+def test_walter_bsdf_in_place_is_the_written_out_model_bit_for_bit(transmit, eta):
+    """Guards walter_bsdf's in-place evaluation (the cell blocks' hot path): the same values as the
+    model's expressions written out, for the cell blocks' shapes and for broadcasting ones (a scalar
+    μ_i, G wider than the cosines)."""
+    rng = np.random.default_rng(5)
+    mu_i, mu_o = rng.uniform(0.01, 1.0, (300, 1)), rng.uniform(0.01, 1.0, (300, 1))
+    cphi = np.cos(np.linspace(0.0, 0.4, 24))[None, :]
+    for a in (0.02, 0.1, 0.5):
+        G = mf.smith_G1(mu_i, a) * mf.smith_G1(mu_o, a)
+        for args in ((mu_i, mu_o, cphi, G), (0.7, mu_o, cphi, G), (mu_i[:1], mu_o[:1], cphi, np.full((5, 24), 0.9))):
+            got = mf.walter_bsdf(*args[:3], eta, a, transmit, args[3])
+            want = _walter_written_out(*args[:3], eta, a, transmit, args[3])
+            assert got.shape == want.shape
+            np.testing.assert_array_equal(got, want)
