@@ -307,10 +307,18 @@ def _lgamma(x):
     """ln Γ(x) for x ≥ 1 elementwise (Lanczos), float64 arrays."""
     x = np.asarray(x, dtype=float) - 1.0
     a = np.full_like(x, _LANCZOS[0])
-    for k, c in enumerate(_LANCZOS[1:], start=1):
-        a = a + c / (x + k)
+    term = np.empty_like(x)
+    for k, c in enumerate(_LANCZOS[1:], start=1):  # a + c / (x + k), in place
+        np.add(x, k, out=term)
+        np.divide(c, term, out=term)
+        a += term
     t = x + _LANCZOS_G + 0.5
-    return 0.5 * np.log(2.0 * np.pi) + (x + 0.5) * np.log(t) - t + np.log(a)
+    out = np.log(t)                                 # ½ ln 2π + (x + ½) ln t − t + ln a, in place
+    out *= x + 0.5
+    out += 0.5 * np.log(2.0 * np.pi)
+    out -= t
+    out += np.log(a, out=a)
+    return out
 
 
 def _smith_lambda(mu, alpha):

@@ -512,3 +512,15 @@ def test_walter_bsdf_in_place_is_the_written_out_model_bit_for_bit(transmit, eta
             want = _walter_written_out(*args[:3], eta, a, transmit, args[3])
             assert got.shape == want.shape
             np.testing.assert_array_equal(got, want)
+
+
+def test_lanczos_lgamma_in_place_is_the_written_out_sum_bit_for_bit():
+    """Guards _lgamma's in-place evaluation (the chain's escape probabilities): the Lanczos sum written out."""
+    x = np.concatenate([np.random.default_rng(4).uniform(1.0, 60.0, 2000), [1.0, 2.0, 1.5]])
+    y = x - 1.0
+    a = np.full_like(y, mf._LANCZOS[0])
+    for k, c in enumerate(mf._LANCZOS[1:], start=1):
+        a = a + c / (y + k)
+    t = y + mf._LANCZOS_G + 0.5
+    want = 0.5 * np.log(2.0 * np.pi) + (y + 0.5) * np.log(t) - t + np.log(a)
+    np.testing.assert_array_equal(mf._lgamma(x), want)
