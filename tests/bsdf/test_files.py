@@ -612,3 +612,21 @@ def test_info_command(tmp_path):
     (tmp_path / "bad.bsdf").write_bytes((tmp_path / "t.bsdf").read_bytes()[:-3])
     r = CliRunner().invoke(cli, ["info", str(tmp_path / "bad.bsdf")])
     assert r.exit_code != 0 and "truncated" in r.output
+
+
+@pytest.mark.parametrize("where", ["coeffs", "broadcast", "reflection"])
+def test_table_refuses_nan_and_inf(where):
+    """A BSDFTable holding NaN or inf is refused, also when its channels are one broadcast array (a grey
+    table, whose check reads each stored value once)."""
+    t = synthetic_table(h=4, L=5, channels=1 if where == "broadcast" else 3)
+    for bad in (np.nan, np.inf):
+        c = t.coeffs.copy()
+        c[-1, 5, 2, 3] = bad  # in the last channel
+        kw = {"coeffs": c}
+        if where == "broadcast":
+            kw = {"coeffs": np.broadcast_to(c, (3,) + c.shape[1:])}
+        elif where == "reflection":
+            kw = {"reflection": np.ascontiguousarray(c[:, 4:, :4])}
+        with pytest.raises(ValueError, match="NaN or inf"):
+            BSDFTable(mu=t.mu, **kw)
+    BSDFTable(mu=t.mu, coeffs=np.broadcast_to(t.coeffs[:1], (3,) + t.coeffs.shape[1:]))  # finite: accepted
