@@ -379,8 +379,15 @@ def _first_events(mu, eta_rel, alpha, n, fresnel=None, albedo=False):
     else:
         Lo = _smith_lambda(zT[live], alpha)
     Lil = np.broadcast_to(Li, otz.shape)[live]
-    eT[live] = (1.0 + Lil) * np.exp(np.broadcast_to(_lgamma(1.0 + Li), otz.shape)[live] + _lgamma(1.0 + Lo)
-                                     - _lgamma(2.0 + Lil + Lo))
+    # ln Γ(1 + Λ_o) and ln Γ(2 + Λ_i + Λ_o): where Λ_o = 0 (G1 = 1, most refracted directions: from the
+    # air all of them at α 0.1) they are ln Γ(1) and the incidence's ln Γ(2 + Λ_i), taken per cosine
+    lg_o = np.broadcast_to(_lgamma(np.ones(1)), Lo.shape).copy()
+    lg_s = np.broadcast_to(_lgamma(2.0 + Li), otz.shape)[live]
+    some = Lo != 0.0
+    if some.any():
+        lg_o[some] = _lgamma(1.0 + Lo[some])
+        lg_s[some] = _lgamma(2.0 + Lil[some] + Lo[some])
+    eT[live] = (1.0 + Lil) * np.exp(np.broadcast_to(_lgamma(1.0 + Li), otz.shape)[live] + lg_o - lg_s)
     out = F * base, zR, eR, np.where(sin2_t < 1.0, 1.0 - F, 0.0) * base, zT, eT
     if not albedo:
         return out

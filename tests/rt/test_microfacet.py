@@ -524,3 +524,19 @@ def test_lanczos_lgamma_in_place_is_the_written_out_sum_bit_for_bit():
     t = y + mf._LANCZOS_G + 0.5
     want = 0.5 * np.log(2.0 * np.pi) + (y + 0.5) * np.log(t) - t + np.log(a)
     np.testing.assert_array_equal(mf._lgamma(x), want)
+
+
+@pytest.mark.parametrize("eta, alpha", [(1.5, 0.1), (1.0 / 1.5, 0.1), (1.5, 0.5)])
+def test_refracted_escape_is_the_written_out_beta_function_bit_for_bit(eta, alpha):
+    """Guards _first_events' shortcut for the refracted escape (1 + Λ_i) B(1 + Λ_i, 1 + Λ_o): where Λ_o = 0 its
+    ln Γ terms are taken per incidence cosine; every escape probability must be the written-out
+    (1 + Λ_i) exp(ln Γ(1 + Λ_i) + ln Γ(1 + Λ_o) − ln Γ(2 + Λ_i + Λ_o)), bit for bit."""
+    mu = radau_hemisphere(24).x
+    wR, zR, eR, wT, zT, eT = mf._first_events(mu, eta, alpha, 48)
+    live = eT > 0
+    Li = np.broadcast_to(mf._smith_lambda(mu, alpha)[:, None, None], eT.shape)[live]
+    Lo = mf._smith_lambda(zT[live], alpha)
+    assert (Lo == 0).any() and ((Lo > 0).any() or (eta, alpha) == (1.5, 0.1))  # both branches (from the air at
+    # α 0.1 every refracted direction has G1 = 1)
+    want = (1.0 + Li) * np.exp(mf._lgamma(1.0 + Li) + mf._lgamma(1.0 + Lo) - mf._lgamma(2.0 + Li + Lo))
+    np.testing.assert_array_equal(eT[live], want)
