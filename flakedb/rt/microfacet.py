@@ -151,7 +151,7 @@ def walter_bsdf(mu_i, mu_o, cos_phi, eta_rel, alpha, transmit, G, fresnel=None):
         tan2 = np.subtract(h2, hz2, out=h2)
         np.maximum(tan2, 0.0, out=tan2)
         tan2 /= hz2
-        D = _beckmann_times_cos4(tan2, alpha)
+        D = _beckmann_ndf(tan2, alpha)
         denom = eta_rel * o_h
         denom += i_h
         denom *= denom                                      # (i·h + η o·h)²
@@ -176,7 +176,7 @@ def _full(a, *others):
     return a if a.shape == shape else np.array(np.broadcast_to(a, shape))
 
 
-def _beckmann_times_cos4(tan2, alpha):
+def _beckmann_ndf(tan2, alpha):
     """The Beckmann distribution D(h) = exp(−tan²θ_h/α²) / (π α² cos⁴θ_h) of :func:`walter_bsdf`, written
     with 1/cos⁴θ_h = (1 + tan²θ_h)², computed in place over ``tan2`` (overwritten)."""
     D = np.negative(tan2)
@@ -208,7 +208,7 @@ def _walter_reflection_geometry(mu_i, mu_o, cos_phi, alpha, G):
     tan2 /= hz2
     i_h = np.sqrt(h2, out=h2)
     i_h *= 0.5
-    DG = _beckmann_times_cos4(tan2, alpha)
+    DG = _beckmann_ndf(tan2, alpha)
     DG *= G
     DG /= 4.0 * mu_i * mu_o
     return i_h, DG
