@@ -45,13 +45,15 @@ def _truncation_orders(c: np.ndarray, truncation: float) -> np.ndarray:
     channels; entries whose coefficients are all exactly 0 get K = 0.  ``truncation = 0`` keeps
     everything up to the last non-zero coefficient.
     """
-    a = np.abs(c)
-    tail = np.cumsum(a[..., ::-1], axis=-1)[..., ::-1]                 # tail[..., j] = Σ_{k>=j}
+    # rev[..., L − 1 − j] = tail[j] = Σ_{k>=j} |a_k|: the sums from the highest order down, accumulated in
+    # place in one reversed copy (one array, no second pass of |a|)
+    rev = np.abs(c[..., ::-1])
+    np.cumsum(rev, axis=-1, out=rev)
     # tails never increase with j (sums of |a_k| ≥ 0, also in floating point), so the first j ≥ 1 with
     # tail[j] ≤ truncation·|a_0| (tail[L] = 0 always is) comes after exactly the j whose tail is above it
-    k = 1 + np.count_nonzero(tail[..., 1:] > truncation * a[..., :1], axis=-1)
+    k = 1 + np.count_nonzero(rev[..., :-1] > truncation * np.abs(c[..., :1]), axis=-1)
     k = k.max(axis=0)
-    k[a.max(axis=(0, -1)) == 0] = 0
+    k[rev[..., -1].max(axis=0) == 0] = 0  # all coefficients 0 (a sum of |a_k| is 0 only then)
     return k
 
 
@@ -67,6 +69,31 @@ def _file_channels(coeffs_row: np.ndarray) -> np.ndarray:
     r, g, b = coeffs_row
     y = RGB_TO_Y[0] * r + RGB_TO_Y[1] * g + RGB_TO_Y[2] * b
     return np.stack([y, r, b])
+
+
+def _file_coefficients(src: np.ndarray, K: np.ndarray, grey: bool) -> np.ndarray:
+    """The file's coefficients of a chunk of entries, float32 in file order: ``src`` (C, rows, n_o, L) table
+    coefficients, ``K`` (rows, n_o) the entries' orders; entry by entry (row-major), each file channel's
+    K_e orders after the previous channel's.  Only the coefficients the file keeps are read (the median
+    entry of the n = 200 benchmark keeps 12 of 350 orders): they are gathered, turned into the file's
+    channels by :func:`_file_channels`' products (Y, R, B from R, G, B) and cast, the same values as
+    converting every order.  ``grey``: every channel the same array (a broadcast): read once."""
+    C, L = src.shape[0], src.shape[-1]
+    k = K.ravel()
+    total = int(k.sum())
+    starts = np.repeat(np.cumsum(k) - k, k)                        # per kept coefficient: its entry's start
+    order = np.arange(total) - starts                               # … and its order
+    flat = np.repeat(np.arange(k.size) * L, k) + order              # in the chunk's (entries, L)
+    chans = [np.take(src[c].reshape(-1), flat) for c in range(1 if grey else C)]
+    if C == 3:
+        r, g, b = chans * 3 if grey else chans
+        chans = [RGB_TO_Y[0] * r + RGB_TO_Y[1] * g + RGB_TO_Y[2] * b, r, b]
+    out = np.empty(total * C, dtype="<f4")
+    pos = C * starts + order
+    kk = np.repeat(k, k)
+    for c, v in enumerate(chans):
+        out[pos + c * kk] = v                                       # channel c's orders after channel c − 1's
+    return out
 
 
 def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -> dict:
@@ -178,13 +205,8 @@ def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -
             fh.write(nodes32.astype("<f4").tobytes())
             fh.write(cdf.tobytes())
             fh.write(offsets.tobytes())
-            kk = np.arange(L)
             for r in chunks:                                         # pass 2: coefficients, in file order
-                fc = _file_channels(src[:, r, src_o]).astype("<f4")   # (C, rows, n_o, L)
-                block = np.transpose(fc, (1, 2, 0, 3))               # (rows, n_o, C, L): entry, channel, order
-                k = Kt[row0 + r.start:row0 + r.stop, o_sl]
-                mask = np.broadcast_to(kk < k[:, :, None, None], block.shape)
-                fh.write(block[mask].tobytes())                      # the zero-node entries hold nothing
+                fh.write(_file_coefficients(src[:, r, src_o], Kt[row0 + r.start:row0 + r.stop, o_sl], grey).tobytes())
             fh.write(meta_bytes)
         if os.path.getsize(tmp) != size:
             raise RuntimeError(f"internal error: wrote {os.path.getsize(tmp)} bytes, spec size is {size}")

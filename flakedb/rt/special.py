@@ -38,10 +38,11 @@ _Q = (1.0, 1.32281951154744992508E1, 8.67072140885989742329E1, 3.549377788878198
 
 
 def _poly(x, coef):
-    """Horner's rule, coefficients highest degree first."""
+    """Horner's rule, coefficients highest degree first (in place: one array)."""
     y = np.full_like(x, coef[0])
     for c in coef[1:]:
-        y = y * x + c
+        y *= x
+        y += c
     return y
 
 

@@ -41,6 +41,7 @@ from flakedb.rt.components import (  # noqa: F401  (the public interface of the 
     Smooth,
     SolverSettings,
 )
+from flakedb.rt.jobs import SharedJobs
 from flakedb.rt.layer import Layer, add, add_reflection_only, identity_layer, pad_orders
 from flakedb.rt.media import channel_subset
 from flakedb.rt.medium_projection import (  # noqa: F401
@@ -137,32 +138,40 @@ def _submit(n_threads, fn, /, *args, **kw):
 class _Top:
     """The top interface of one solve: None, a smooth top's layer (``smooth1``) and delta, or a rough top
     built (in the background with threads > 1) by :func:`flakedb.rt.interface.rough_dielectric`, shared
-    through ``top_cache`` by channel groups (read only, never written in place)."""
+    through ``top_cache`` by channel groups (read only, never written in place).
+
+    The background build's independent parts are :class:`flakedb.rt.jobs.SharedJobs` (``parts``): the
+    background thread takes them in order while the main thread solves the body's first orders (on
+    threads − 1 threads), and the main thread, once it needs the top, takes those not yet started
+    (:meth:`rough_layer`, with threads − 2 workers) instead of waiting idle."""
 
     def __init__(self, top, q_out, q_in, s, inner, top_cache):
         self.top, self.s, self.q_out = top, s, q_out
-        self.smooth1 = self.delta_F = self.job = self.layer = None
+        self.smooth1 = self.delta_F = self.job = self.parts = self.layer = None
         if isinstance(top, Smooth):
             self.smooth1, self.delta_F = itf.smooth_dielectric(q_out, q_in, top.eta, 1)
         elif isinstance(top, Rough):
             key = None if top_cache is None else (
                 q_out.x.tobytes(), q_out.w.tobytes(), q_in.x.tobytes(), q_in.w.tobytes(), float(top.eta),
                 float(top.alpha), s.tol, s.order_cap, bool(top.energy_compensation), inner)
-            self.job = None if key is None else top_cache.get(key)
+            self.job, self.parts = (None, None) if key is None else top_cache.get(key, (None, None))
             if self.job is None:
+                self.parts = SharedJobs()
                 self.job = _submit(s.threads, itf.rough_dielectric, q_out, q_in, top.eta, top.alpha, tol=s.tol,
                                    max_orders=s.order_cap, energy_compensation=top.energy_compensation,
-                                   inner_orders=inner)
+                                   inner_orders=inner, jobs=self.parts)
                 if key is not None:
-                    top_cache[key] = self.job
+                    top_cache[key] = (self.job, self.parts)
 
     def busy(self):
         """Whether the rough top is still being built in the background."""
         return self.job is not None and not self.job.done()
 
     def rough_layer(self):
-        """The rough top's layer (waits for the background build)."""
+        """The rough top's layer: the parts of its build not yet started are run here (on the solver's
+        threads), then it waits for the background build."""
         if self.layer is None:
+            self.parts.help(max(1, self.s.threads - 1))  # beside the background thread
             self.layer, _ = self.job.result()
         return self.layer
 

@@ -334,6 +334,34 @@ def test_default_truncation_is_the_spec_rule(tmp_path):
     assert np.max(np.abs(got - want)) <= 2.5e-3 * np.max(np.abs(table.coeffs[:, 3, 2, 0])) + 1e-6
 
 
+@pytest.mark.parametrize("kind", ["rgb", "grey", "mono", "quadrant"])
+def test_truncated_file_holds_exactly_the_kept_float32_coefficients(tmp_path, kind):
+    """Guards the writer's gather of the kept orders (only the first K_e orders of each entry are read and
+    turned into Y, R, B): every stored coefficient is the table's, converted to the file's channels in
+    float64 and cast to float32 (a slow loop over entries here), for an RGB table, a grey one (one channel
+    broadcast to three, read once), a mono one and a reflection-only quadrant."""
+    t = synthetic_table(h=6, L=40, channels=1 if kind in ("mono", "grey") else 3)
+    if kind == "grey":
+        t = BSDFTable(mu=t.mu, coeffs=np.broadcast_to(t.coeffs, (3,) + t.coeffs.shape[1:]), channels=None)
+    if kind == "quadrant":
+        h = t.n // 2
+        t = BSDFTable(mu=t.mu, reflection=np.ascontiguousarray(t.coeffs[:, h:, :h]), channels=None)
+    write_bsdf(tmp_path / "t.bsdf", t)
+    b = read_bsdf(tmp_path / "t.bsdf")
+    c = t.coeffs
+    files = c if c.shape[0] == 1 else np.stack([0.212671 * c[0] + 0.715160 * c[1] + 0.072169 * c[2], c[0], c[2]])
+    n, h, C = t.n, t.n // 2, files.shape[0]
+    kept = 0
+    for i in range(n):
+        for o in range(n):
+            e = (i if i < h else i + 2) * (n + 2) + (o if o < h else o + 2)
+            K, start = int(b.offsets[e, 1]), int(b.offsets[e, 0])
+            want = files[:, i, o, :K].astype(np.float32).ravel()
+            np.testing.assert_array_equal(b.coeffs[start:start + C * K], want)
+            kept += K
+    assert 0 < kept < n * n * c.shape[-1]  # truncated, and not empty
+
+
 @pytest.mark.parametrize("name", FILES)
 def test_rewrite_layerlab_file(tmp_path, name):
     src = os.path.join(DATA, name + ".bsdf")
@@ -584,3 +612,21 @@ def test_info_command(tmp_path):
     (tmp_path / "bad.bsdf").write_bytes((tmp_path / "t.bsdf").read_bytes()[:-3])
     r = CliRunner().invoke(cli, ["info", str(tmp_path / "bad.bsdf")])
     assert r.exit_code != 0 and "truncated" in r.output
+
+
+@pytest.mark.parametrize("where", ["coeffs", "broadcast", "reflection"])
+def test_table_refuses_nan_and_inf(where):
+    """A BSDFTable holding NaN or inf is refused, also when its channels are one broadcast array (a grey
+    table, whose check reads each stored value once)."""
+    t = synthetic_table(h=4, L=5, channels=1 if where == "broadcast" else 3)
+    for bad in (np.nan, np.inf):
+        c = t.coeffs.copy()
+        c[-1, 5, 2, 3] = bad  # in the last channel
+        kw = {"coeffs": c}
+        if where == "broadcast":
+            kw = {"coeffs": np.broadcast_to(c, (3,) + c.shape[1:])}
+        elif where == "reflection":
+            kw = {"reflection": np.ascontiguousarray(c[:, 4:, :4])}
+        with pytest.raises(ValueError, match="NaN or inf"):
+            BSDFTable(mu=t.mu, **kw)
+    BSDFTable(mu=t.mu, coeffs=np.broadcast_to(t.coeffs[:1], (3,) + t.coeffs.shape[1:]))  # finite: accepted

@@ -306,3 +306,18 @@ def test_conductor_reflectance_in_real_arithmetic_is_the_complex_one():
     assert np.all(got[:, n == 1.0][:, k[n == 1.0] == 0.0] == 0.0)             # no interface, no reflection
     normal = ((n - 1) ** 2 + k ** 2) / ((n + 1) ** 2 + k ** 2)
     np.testing.assert_allclose(fresnel_conductor_real(1.0, n + 1j * k), normal, rtol=1e-13, atol=1e-16)
+
+
+@pytest.mark.parametrize("eta", [1.5, 1.0 / 1.5, 1.0, 1.0001, 0.9999, 3.0, 0.4])
+def test_real_dielectric_in_place_path_is_the_broadcast_expressions_bit_for_bit(eta):
+    """Guards fresnel_dielectric_real's in-place evaluation (a scalar index and a float64 array, the rough
+    interfaces' hot path): the same values as the broadcast expressions of the general path (here the
+    0-d path, element by element, which never takes it), total internal reflection and grazing included
+    (against fresnel_dielectric: test_fast_fresnel_of_rough_interface_matches_reference, tests/rt)."""
+    from flakedb.optics.fresnel import fresnel_dielectric_real
+
+    rng = np.random.default_rng(11)
+    c = np.concatenate([rng.random(500), np.linspace(0.0, 1.0, 257), [1e-300, 1e-17, -0.2, 1.2]])
+    F = fresnel_dielectric_real(c.reshape(-1, 1), eta)[:, 0]
+    one_by_one = np.array([fresnel_dielectric_real(v, eta) for v in c])
+    np.testing.assert_array_equal(F, one_by_one)

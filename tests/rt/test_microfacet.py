@@ -372,3 +372,171 @@ def test_rough_dielectric_between_two_rules_is_lossless_and_reciprocal(eta):
     two, _ = mf.rough_dielectric_cells(qa.x, qa.w, eta, 0.2, x_below=qa.x, w_below=qa.w)
     for a, b in zip(one, two):
         assert np.abs(a - b).max() <= 1e-12 * np.abs(a).max()
+
+
+@pytest.mark.parametrize("eta, two_rules", [(1.5, False), (1.45 / 1.6, True)])
+def test_threads_and_shared_reflection_geometry_change_no_bit(eta, two_rules):
+    """Guards the speed paths of rough_dielectric_cells: with threads > 1 its independent parts (cell
+    blocks, albedo integrals, the compensation's chain) run concurrently, and R^t and R^b of one rule are
+    integrated together (_cell_blocks with two indices: one half-vector geometry, one Fresnel factor per
+    index).  Both must give the serial, one-block-at-a-time result bit for bit."""
+    alpha, h = 0.15, 16
+    q = radau_hemisphere(h)
+    below = dict(x_below=radau_hemisphere(20).x, w_below=radau_hemisphere(20).w) if two_rules else {}
+    serial, info1 = mf.rough_dielectric_cells(q.x, q.w, eta, alpha, inner_orders=8, **below)
+    threaded, info2 = mf.rough_dielectric_cells(q.x, q.w, eta, alpha, inner_orders=8, threads=3, **below)
+    assert info1["orders"] == info2["orders"]
+    for a, b in zip(serial, threaded):
+        np.testing.assert_array_equal(a, b)
+    rule = mf.cell_rule(q.x, q.w, 0.05)
+    both = mf._cell_blocks(rule, rule, h, h, (eta, 1.0 / eta), alpha, False, None, 1, 1e-5, 64, symmetric=True,
+                           keep_orders=(None, 8))
+    for (block, L), e, keep in zip(both, (eta, 1.0 / eta), (None, 8)):
+        alone, L_alone = mf._cell_block(rule, rule, h, h, e, alpha, False, None, 1, 1e-5, 64, symmetric=True,
+                                        keep_orders=keep)
+        assert L == L_alone
+        np.testing.assert_array_equal(block, alone)
+
+
+@pytest.mark.parametrize("eta, alpha", [(1.5, 0.1), (1.0 / 1.5, 0.3), (1.1, 0.02)])
+def test_albedos_from_the_chain_are_microfacet_albedo_bit_for_bit(eta, alpha, monkeypatch):
+    """Guards dielectric_albedo_and_escape, which takes the single-scattering albedos from the facet samples
+    of the compensation's chain instead of a second pass of microfacet_albedo: the same values bit for bit,
+    also at a cosine where one reflected (and one refracted) direction is horizontal to rounding, where the
+    chain clips |cos| at 1e-12 and microfacet_albedo does not (the few such samples are re-evaluated); and
+    the chain's escape probabilities evaluated a few cosines at a time (MS_CHUNK_SAMPLES) are those of all
+    cosines at once."""
+    from scipy.optimize import brentq
+
+    gu, _ = mf._gauss_legendre(mf.ALBEDO_NODES)
+    tan_m = alpha * np.sqrt(-np.log1p(-0.5 * (gu + 1.0)))
+    cm, sm, cph = 1.0 / np.sqrt(1.0 + tan_m**2), tan_m / np.sqrt(1.0 + tan_m**2), np.cos(0.5 * np.pi * (gu + 1.0))
+
+    def out_z(mu, a, b, e, refract):  # z of the reflected / refracted direction off facet (a, b); NaN: none
+        c = np.sqrt(1.0 - mu * mu) * sm[a] * cph[b] + mu * cm[a]
+        s2 = (1.0 - c * c) / e**2
+        z = 2.0 * c * cm[a] - mu if not refract else -mu / e + (c / e - np.sqrt(np.maximum(1.0 - s2, 0.0))) * cm[a]
+        return np.where((c > 0) & (not refract or s2 < 1.0), z, np.nan)
+
+    # a cosine at which a facet reflects horizontally, and one at which a facet refracts horizontally out of
+    # the denser side (into it, the refracted ray stays within the critical angle of −m)
+    grid = np.linspace(1e-3, 0.999, 400)
+    a, b = np.meshgrid(np.arange(len(gu)), np.arange(len(gu)), indexing="ij")
+    horizontal = []
+    for e, refract in ((eta, False), (min(eta, 1.0 / eta), True)):
+        z = out_z(grid[:, None, None], a[None], b[None], e, refract)
+        k, ka, kb = np.nonzero(z[:-1] * z[1:] < 0)
+        mu_h = brentq(lambda m: float(out_z(m, ka[0], kb[0], e, refract)), grid[k[0]], grid[k[0] + 1],
+                      xtol=1e-300, rtol=8.9e-16)
+        horizontal += list(mu_h + np.arange(-20, 21) * np.spacing(mu_h))  # |o_z| ≲ 1e-14 either side
+    mu = np.concatenate([radau_hemisphere(12).x, horizontal])
+    (Ra, Ta), (Rb, Tb), (Pa, Pb) = mf.dielectric_albedo_and_escape(mu, mu[::-1].copy(), eta, alpha)
+    for (R, T), (R2, T2) in (((Ra, Ta), mf.microfacet_albedo(mu, eta, alpha)),
+                             ((Rb, Tb), mf.microfacet_albedo(mu[::-1].copy(), 1.0 / eta, alpha))):
+        np.testing.assert_array_equal(R, R2)
+        np.testing.assert_array_equal(T, T2)
+    assert len(mu) * mf.MS_CHAIN_QUAD**2 > 2 * mf.MS_CHUNK_SAMPLES  # more than two parts
+    monkeypatch.setattr(mf, "MS_CHUNK_SAMPLES", 10**9)
+    Pa2, Pb2 = mf._multiple_scattering_escape(mu, mu[::-1].copy(), eta, alpha, mf.MS_CHAIN_GRID, mf.MS_CHAIN_QUAD)
+    np.testing.assert_array_equal(Pa, Pa2[0])
+    np.testing.assert_array_equal(Pb, Pb2[0])
+
+
+def test_a_rough_coat_solved_and_written_imports_neither_scipy_nor_numpy_ma():
+    """Guards the whole-process cost of a rough coat (docs/model.md §4, "Imports"): solving one and writing
+    its .bsdf imports no scipy (0.15 s) and no numpy.ma (6–15 ms; numpy's np.unique imports it on first
+    use, which the cell blocks' grouping once did)."""
+    import subprocess
+    import sys
+    import textwrap
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    code = textwrap.dedent("""
+        import sys, tempfile, os
+        from flakedb.bsdf import write_bsdf
+        from flakedb.bsdf.convert import stack_to_table
+        from flakedb.rt.media import PhaseMedium
+        from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+        slab = Slab(2.0, PhaseMedium([1.0] * 3, [0.95] * 3, ("hg", 0.7)))
+        s = solve_stack(Rough(1.5, 0.1), [slab], Lambertian([0.5] * 3), SolverSettings.product(16, threads=2))
+        write_bsdf(os.path.join(tempfile.mkdtemp(), "t.bsdf"), stack_to_table(s))
+        print(sorted(m for m in sys.modules if m.split(".")[0] == "scipy" or m == "numpy.ma" or m.startswith("numpy.ma.")))
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=300,
+                       env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1"})
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]", r.stdout
+
+
+def _walter_written_out(mu_i, mu_o, cos_phi, eta_rel, alpha, transmit, G):
+    """walter_bsdf's expressions as written in Walter et al. 2007 (eq. 20, 21 / η²), broadcast, no in-place."""
+    si = np.sqrt(np.maximum(1.0 - mu_i * mu_i, 0.0))
+    so = np.sqrt(np.maximum(1.0 - mu_o * mu_o, 0.0))
+    if not transmit:
+        dot = mu_i * mu_o - si * so * cos_phi
+        h2 = np.maximum(2.0 + 2.0 * dot, 1e-300)
+        hz = mu_i + mu_o
+        tan2 = np.maximum(h2 - hz * hz, 0.0) / (hz * hz)
+        i_h = 0.5 * np.sqrt(h2)
+        D = np.exp(-tan2 / alpha**2) * (1.0 + tan2) ** 2 / (np.pi * alpha**2)
+        return fresnel_dielectric_real(i_h, eta_rel) * (D * G / (4.0 * mu_i * mu_o))
+    dot = -mu_i * mu_o - si * so * cos_phi
+    h2 = np.maximum(1.0 + eta_rel**2 + 2.0 * eta_rel * dot, 1e-300)
+    hz_un = eta_rel * mu_o - mu_i
+    flip = np.where(hz_un < 0, -1.0, 1.0)
+    inv_h = 1.0 / np.sqrt(h2)
+    i_h = -flip * (1.0 + eta_rel * dot) * inv_h
+    o_h = -flip * (dot + eta_rel) * inv_h
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        tan2 = np.maximum(h2 - hz_un * hz_un, 0.0) / (hz_un * hz_un)
+        D = np.exp(-tan2 / alpha**2) * (1.0 + tan2) ** 2 / (np.pi * alpha**2)
+        denom = (i_h + eta_rel * o_h) ** 2
+        f = np.abs(i_h * o_h) * (1.0 - fresnel_dielectric_real(i_h, eta_rel)) * D * G / (mu_i * mu_o * denom)
+    return np.where((i_h > 0) & (o_h < 0) & (hz_un != 0) & (denom > 0), f, 0.0)
+
+
+@pytest.mark.parametrize("transmit", [False, True])
+@pytest.mark.parametrize("eta", [ETA, 1.0 / ETA])
+def test_walter_bsdf_in_place_is_the_written_out_model_bit_for_bit(transmit, eta):
+    """Guards walter_bsdf's in-place evaluation (the cell blocks' hot path): the same values as the
+    model's expressions written out, for the cell blocks' shapes and for broadcasting ones (a scalar
+    μ_i, G wider than the cosines)."""
+    rng = np.random.default_rng(5)
+    mu_i, mu_o = rng.uniform(0.01, 1.0, (300, 1)), rng.uniform(0.01, 1.0, (300, 1))
+    cphi = np.cos(np.linspace(0.0, 0.4, 24))[None, :]
+    for a in (0.02, 0.1, 0.5):
+        G = mf.smith_G1(mu_i, a) * mf.smith_G1(mu_o, a)
+        for args in ((mu_i, mu_o, cphi, G), (0.7, mu_o, cphi, G), (mu_i[:1], mu_o[:1], cphi, np.full((5, 24), 0.9))):
+            got = mf.walter_bsdf(*args[:3], eta, a, transmit, args[3])
+            want = _walter_written_out(*args[:3], eta, a, transmit, args[3])
+            assert got.shape == want.shape
+            np.testing.assert_array_equal(got, want)
+
+
+def test_lanczos_lgamma_in_place_is_the_written_out_sum_bit_for_bit():
+    """Guards _lgamma's in-place evaluation (the chain's escape probabilities): the Lanczos sum written out."""
+    x = np.concatenate([np.random.default_rng(4).uniform(1.0, 60.0, 2000), [1.0, 2.0, 1.5]])
+    y = x - 1.0
+    a = np.full_like(y, mf._LANCZOS[0])
+    for k, c in enumerate(mf._LANCZOS[1:], start=1):
+        a = a + c / (y + k)
+    t = y + mf._LANCZOS_G + 0.5
+    want = 0.5 * np.log(2.0 * np.pi) + (y + 0.5) * np.log(t) - t + np.log(a)
+    np.testing.assert_array_equal(mf._lgamma(x), want)
+
+
+@pytest.mark.parametrize("eta, alpha", [(1.5, 0.1), (1.0 / 1.5, 0.1), (1.5, 0.5)])
+def test_refracted_escape_is_the_written_out_beta_function_bit_for_bit(eta, alpha):
+    """Guards _first_events' shortcut for the refracted escape (1 + Λ_i) B(1 + Λ_i, 1 + Λ_o): where Λ_o = 0 its
+    ln Γ terms are taken per incidence cosine; every escape probability must be the written-out
+    (1 + Λ_i) exp(ln Γ(1 + Λ_i) + ln Γ(1 + Λ_o) − ln Γ(2 + Λ_i + Λ_o)), bit for bit."""
+    mu = radau_hemisphere(24).x
+    wR, zR, eR, wT, zT, eT = mf._first_events(mu, eta, alpha, 48)
+    live = eT > 0
+    Li = np.broadcast_to(mf._smith_lambda(mu, alpha)[:, None, None], eT.shape)[live]
+    Lo = mf._smith_lambda(zT[live], alpha)
+    assert (Lo == 0).any() and ((Lo > 0).any() or (eta, alpha) == (1.5, 0.1))  # both branches (from the air at
+    # α 0.1 every refracted direction has G1 = 1)
+    want = (1.0 + Li) * np.exp(mf._lgamma(1.0 + Li) + mf._lgamma(1.0 + Lo) - mf._lgamma(2.0 + Li + Lo))
+    np.testing.assert_array_equal(eT[live], want)

@@ -60,3 +60,14 @@ def test_sph_legendre_all_matches_scipy(K, M):
     m = min(M, 3)
     dfac = np.prod(np.arange(2 * m + 1, 0, -2, dtype=float)) / max(1.0, np.prod(np.arange(2 * m, 0, -2, dtype=float)))
     assert np.allclose(got[m, m], (-1) ** m * np.sqrt(dfac / (4 * np.pi)) * np.sin(th) ** m, rtol=1e-13, atol=1e-15)
+
+
+def test_horner_in_place_is_the_written_out_rule_bit_for_bit():
+    """Guards special._poly's in-place Horner rule (erf and Smith's G1 in every rough interface): the values
+    of y = y·x + c written out."""
+    x = np.random.default_rng(3).uniform(-7.0, 7.0, 1000)
+    for coef in (special._T, special._U, special._P, special._Q):
+        want = np.full_like(x, coef[0])
+        for c in coef[1:]:
+            want = want * x + c
+        np.testing.assert_array_equal(special._poly(x, coef), want)
