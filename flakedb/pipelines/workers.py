@@ -8,6 +8,7 @@ a watchdog thread checks the parent once a second.  Without this, killing ``flak
 
 from __future__ import annotations
 
+import concurrent.futures
 import ctypes
 import multiprocessing
 import os
@@ -15,10 +16,6 @@ import signal
 import sys
 import threading
 import time
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from concurrent.futures import ProcessPoolExecutor
 
 #: How many times a build restarts its process pool after a worker died before it stops.
 MAX_POOL_RESTARTS = 2
@@ -44,16 +41,14 @@ def die_with_parent(ppid: int):
     threading.Thread(target=_watch_parent, args=(ppid,), daemon=True, name="flakedb-parent-watch").start()
 
 
-def process_pool(workers: int | None = None) -> ProcessPoolExecutor:
+def process_pool(workers: int | None = None) -> concurrent.futures.ProcessPoolExecutor:
     """A spawn-context process pool whose workers end with this process.
 
     >>> with process_pool(1) as pool:
     ...     pool.submit(os.getppid).result() == os.getpid()                 # the worker is this process's child
     True
     """
-    from concurrent.futures import (
-        ProcessPoolExecutor,  # lazy: 3 ms of every compose (multiprocessing's queues); only a build's pool needs it
-    )
-
-    return ProcessPoolExecutor(max_workers=workers or os.cpu_count(), mp_context=multiprocessing.get_context("spawn"),
-                               initializer=die_with_parent, initargs=(os.getpid(),))
+    # concurrent.futures loads its process pool (multiprocessing's queues: 3 ms of every compose) on this first use
+    return concurrent.futures.ProcessPoolExecutor(max_workers=workers or os.cpu_count(),
+                                                  mp_context=multiprocessing.get_context("spawn"),
+                                                  initializer=die_with_parent, initargs=(os.getpid(),))

@@ -10,7 +10,9 @@ a wrong powder average for birefringent rutile; shape handling.
 
 import numpy as np
 import pytest
+import yaml
 
+from flakedb.paint import materials
 from flakedb.paint.materials import (
     HC_EV_NM,
     dispersion_formula_n,
@@ -153,3 +155,11 @@ class TestRangeAndExtrapolation:
             return refractive_index("PMMA", w).real - refractive_index("PMMA-Zhang2020", w).real
 
         assert abs(offset(400.0) - offset(450.0)) < 0.0015
+
+
+def test_the_fast_yaml_loader_reads_the_index_as_the_python_one():
+    """materials.yaml through libyaml's loader (when present) gives exactly PyYAML's SafeLoader document."""
+    path = materials.materials_dir() / "materials.yaml"
+    text = path.read_text(encoding="utf-8")
+    assert yaml.load(text, Loader=materials.YAML_LOADER) == yaml.load(text, Loader=yaml.SafeLoader)
+    assert materials.YAML_LOADER is getattr(yaml, "CSafeLoader", yaml.SafeLoader)
