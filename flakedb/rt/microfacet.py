@@ -121,6 +121,10 @@ def walter_bsdf(mu_i, mu_o, cos_phi, eta_rel, alpha, transmit, G, fresnel=None):
     Reflection f_r = F D G / (4 μ_i μ_o) (eq. 20); transmission
     f_t = |i·h||o·h| (1 − F) D G / (μ_i μ_o (i·h + η o·h)²) (eq. 21 / η², basic radiance).
     """
+    if all(np.ndim(v) == 0 for v in (mu_i, mu_o, cos_phi, G)):  # scalars: the in-place expressions need arrays
+        one = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (mu_i, mu_o, cos_phi, G))
+        mi, mo, cp, g = one
+        return walter_bsdf(mi, mo, cp, eta_rel, alpha, transmit, g, fresnel)[..., 0]
     if not transmit:
         i_h, DG = _walter_reflection_geometry(mu_i, mu_o, cos_phi, alpha, G)
         F = fresnel(i_h) if fresnel is not None else fresnel_dielectric_real(i_h, eta_rel)
@@ -170,10 +174,13 @@ def walter_bsdf(mu_i, mu_o, cos_phi, eta_rel, alpha, transmit, G, fresnel=None):
 
 
 def _full(a, *others):
-    """``a`` itself when it already has the broadcast shape of ``a`` and ``others`` (the in-place
-    expressions then never need to grow it), else a broadcast copy."""
-    shape = np.broadcast_shapes(a.shape, *(np.shape(o) for o in others))
-    return a if a.shape == shape else np.array(np.broadcast_to(a, shape))
+    """``a`` (a temporary of the caller's) itself when it is an array that already has the broadcast shape of ``a``
+    and ``others`` (the in-place expressions then never need to grow it), else a broadcast copy (a scalar too: the
+    arguments of :func:`walter_bsdf` may all be scalars)."""
+    shape = np.broadcast_shapes(np.shape(a), *(np.shape(o) for o in others))
+    if isinstance(a, np.ndarray) and a.shape == shape and a.dtype == np.float64:
+        return a
+    return np.array(np.broadcast_to(np.asarray(a, dtype=float), shape))
 
 
 def _beckmann_ndf(tan2, alpha):

@@ -1,4 +1,4 @@
-"""R^t of an opaque stack solved in blocks of Fourier orders (8, then up to where the decay predicts the
+"""R^t of an opaque stack solved in blocks of Fourier orders (8, 16, then up to where the decay predicts the
 tolerance is met, :func:`flakedb.rt.orders.next_block_end`) bottom-up with reflection-only adding, until
 the BSDF's dropped tail is within the order tolerance (docs/orders.md).
 
@@ -13,14 +13,14 @@ import numpy as np
 from flakedb.conventions import fourier_weight
 from flakedb.rt import interface as itf
 from flakedb.rt.layer import pad_orders
-from flakedb.rt.orders import next_block_end, order_tail, reflection_over
+from flakedb.rt.orders import MIN_ORDERS_CHECKED, next_block_end, order_tail, reflection_over
 from flakedb.rt.parts import order_range
 
-#: First block of orders solved by the order choice; later blocks end where the decay measured so far predicts
-#: the tolerance is met (at least 4 orders more, at most double: :func:`flakedb.rt.orders.next_block_end`).
-#: Measured (docs/orders.md): the bench's 3-species basecoat keeps 11 orders; a first block of 16 solved 16
-#: of them, 8 and the prediction solve 12 (the slab's eigen-solutions, most of the solve: 0.28–0.44 s →
-#: 0.20–0.22 s in a fresh process, peak memory 262 → 166 MB).
+#: First block of orders solved by the order choice; the next ends at 16 (the criterion is not accepted before,
+#: :data:`flakedb.rt.orders.MIN_ORDERS_CHECKED`), later ones where the decay measured so far predicts the tolerance
+#: is met (at least 4 orders more, at most double: :func:`flakedb.rt.orders.next_block_end`).  Blocks of 8 rather
+#: than one of 16 halve the eigen-solutions' temporaries (docs/orders.md: the bench's 3-species basecoat, peak
+#: memory 262 → 166 MB, the same 16 orders solved).
 FIRST_ORDER_BLOCK = 8
 #: Orders of the body solved while a rough top is built in the background (before the stack's order count is
 #: known): ``body_orders`` clipped to this range.
@@ -167,7 +167,7 @@ class OrderBlocks:
                 f0max = float(amax[0])
             a.extend((amax / (f0max if f0max > 0 else 1.0)).tolist())
             l0 = l1
-            L_keep, tail, done = order_tail(a, L_max, s.order_tol)
+            L_keep, tail, done = order_tail(a, L_max, s.order_tol, min_orders=MIN_ORDERS_CHECKED)
             if done:
                 break
         solved = max(l0, 0 if first is None else first.shape[0])  # the overlapped first block may go further

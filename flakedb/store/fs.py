@@ -44,14 +44,14 @@ class LocalFiles:
 
     @staticmethod
     def exists(path):
-        return os.path.lexists(path)
+        return os.path.exists(path)  # a dangling symlink is absent, as fsspec's info() that follows it
 
     @staticmethod
     def ls(path, detail=False):
         if detail:
             raise NotImplementedError("LocalFiles.ls lists names only (detail=False)")
         if not os.path.isdir(path):
-            if not os.path.lexists(path):
+            if not os.path.exists(path):
                 raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), path)
             return [path]
         with os.scandir(path) as it:
@@ -89,8 +89,14 @@ def local_root(text):
 
 
 def is_local_path(text) -> bool:
-    """A plain local path (no URL scheme, no fsspec chain ``::``) on a POSIX system: read without fsspec."""
-    return os.sep == "/" and "://" not in text and "::" not in text
+    """A plain local path on a POSIX system, read without fsspec: no URL scheme (``://``), no fsspec chain
+    (``::``) and none of the ``file:`` / ``local:`` prefixes fsspec's LocalFileSystem strips (those go to fsspec).
+
+    >>> [is_local_path(t) for t in ("store", "/tmp/s", "my:store", "file:/tmp/s", "local:/s", "s3://b/s")]
+    [True, True, True, False, False, False]
+    """
+    return (os.sep == "/" and "://" not in text and "::" not in text
+            and not text.startswith(("file:", "local:")))
 
 
 def open_fs(url, writable=False):

@@ -101,19 +101,25 @@ class PlainArray:
         self.fs, self.path = fs, path
         self.shape, self.chunks, self.dtype, self.fill_value, self._zstd = plain_layout(meta)
         self.attrs = dict(meta.get("attributes", {}))
-        #: ``check(path, data)``, called with each chunk's file bytes (None: no file) before they are decoded, or
-        #: None: the reader's integrity check on the bytes it decodes, one read per chunk
-        #: (:meth:`flakedb.store.read.StoreVersion.flake_factors`); it raises to refuse them
+        #: ``check(path, data, error)``, called with each chunk's file bytes (None: no file; ``error``: the OSError
+        #: that kept it from being read) before they are decoded, or None: the reader's integrity check on the
+        #: bytes it decodes, one read per chunk (:meth:`flakedb.store.read.StoreVersion.flake_factors`); it raises
+        #: to refuse them
         self.check = None
 
     def _chunk(self, idx) -> np.ndarray | None:
         key = posixpath.join(self.path, "c", *map(str, idx))
+        data = error = None
         try:
             data = cat(self.fs, key)
         except FileNotFoundError:
-            data = None
+            pass
+        except OSError as exc:
+            if self.check is None:
+                raise
+            error = exc
         if self.check is not None:
-            self.check(key, data)
+            self.check(key, data, error)
         if data is None:
             return None
         if self._zstd:

@@ -299,8 +299,9 @@ class StoreVersion:
     version: str
     group: object
     metadata: dict
-    #: recorded sha256 of the files still to be hashed when first read (:meth:`verify`); None: no checks
-    pending_checksums: dict | None = None
+    #: recorded sha256 of the files hashed as they are read, at every read (:meth:`verify`: the flakes' V order
+    #: chunks under the verified prefixes); None: not verified, no checks
+    deferred_checksums: dict | None = None
 
     def verify(self, prefixes=None):
         """Check this version's files under ``prefixes`` (None: all) against ``checksums.json``:
@@ -311,44 +312,49 @@ class StoreVersion:
         problems = verify_version(self.url, self.version, only=prefixes, deferred=_is_order_chunk, sums_out=sums)
         if problems:
             raise _integrity_error(self.url, self.version, problems)
-        self.pending_checksums = {k: v for k, v in sums.items() if _is_order_chunk(k)}
+        self.deferred_checksums = {k: v for k, v in sums.items() if _is_order_chunk(k)}
 
     def _verify_chunks(self, keys):
-        if self.pending_checksums is None:
+        if self.deferred_checksums is None:
             return
         fs, root = open_fs(self.url)
         problems = []
         for key in keys:
-            if key not in self.pending_checksums:
-                continue
             try:
-                data = cat(fs, posixpath.join(root, "versions", self.version, key))
+                data, error = cat(fs, posixpath.join(root, "versions", self.version, key)), None
+            except FileNotFoundError:
+                data, error = None, None
             except OSError as exc:
-                problems.append(f"versions/{self.version}/{key}: unreadable ({exc.strerror or type(exc).__name__})")
-                continue
-            problems += self._checked(key, data)
+                data, error = None, exc
+            problems += self._checked(key, data, error)
         if problems:
             raise _integrity_error(self.url, self.version, problems)
 
-    def _checked(self, key, data) -> list[str]:
-        """The problem of a deferred chunk's bytes (None: no file) against its recorded checksum (empty: sound, and
-        no longer pending; a key without a pending checksum: nothing to check)."""
-        expected = self.pending_checksums.get(key) if self.pending_checksums is not None else None
-        if expected is None:
+    def _checked(self, key, data, error=None) -> list[str]:
+        """The problems of a deferred chunk's bytes against its recorded checksum (empty: sound): ``data`` None is
+        no file, ``error`` the OSError that kept it from being read.  Nothing is checked without verification
+        (:attr:`deferred_checksums` None); an order chunk with no recorded checksum is a problem (a key that does
+        not match the record would otherwise pass unhashed)."""
+        if self.deferred_checksums is None:
             return []
+        where = f"versions/{self.version}/{key}"
+        expected = self.deferred_checksums.get(key)
+        if expected is None:
+            return [f"{where}: no recorded checksum (not among the verified files)"] if _is_order_chunk(key) else []
+        if error is not None:
+            return [f"{where}: unreadable ({getattr(error, 'strerror', None) or type(error).__name__})"]
         if data is None:
-            return [f"versions/{self.version}/{key}: unreadable (missing)"]
+            return [f"{where}: unreadable (missing)"]
         got = sha256(data)
         if got != expected:
-            return [f"versions/{self.version}/{key}: sha256 {got[:16]}… != recorded {expected[:16]}… (corrupted)"]
-        del self.pending_checksums[key]
+            return [f"{where}: sha256 {got[:16]}… != recorded {expected[:16]}… (corrupted)"]
         return []
 
     def _chunk_check(self, vroot):
         """:attr:`flakedb.store.plain.PlainArray.check` for this version's arrays under ``vroot``: the bytes a
-        chunk is decoded from are the bytes hashed (one read per chunk; :meth:`verify`)."""
-        def check(path, data):
-            problems = self._checked(posixpath.relpath(path, vroot), data)
+        chunk is decoded from are the bytes hashed, at every read (:meth:`verify`)."""
+        def check(path, data, error=None):
+            problems = self._checked(posixpath.relpath(path, vroot), data, error)
             if problems:
                 raise _integrity_error(self.url, self.version, problems)
         return check

@@ -540,3 +540,16 @@ def test_refracted_escape_is_the_written_out_beta_function_bit_for_bit(eta, alph
     # α 0.1 every refracted direction has G1 = 1)
     want = (1.0 + Li) * np.exp(mf._lgamma(1.0 + Li) + mf._lgamma(1.0 + Lo) - mf._lgamma(2.0 + Li + Lo))
     np.testing.assert_array_equal(eT[live], want)
+
+
+@pytest.mark.parametrize("transmit", [False, True])
+def test_walter_bsdf_takes_scalars(transmit):
+    """All arguments broadcast, scalars included (the in-place evaluation needs arrays: a scalar call is the
+    one-element array call), for both branches and a conductor's per-channel Fresnel factor."""
+    for mu_i, mu_o, c in ((0.5, 0.6, 1.0), (0.9, 0.3, -0.4), (np.float64(0.2), 0.95, 0.1)):
+        G = float(mf.smith_G1(np.array([mu_i]), 0.3)[0] * mf.smith_G1(np.array([mu_o]), 0.3)[0])
+        one = mf.walter_bsdf(mu_i, mu_o, c, 1.5, 0.3, transmit, G)
+        arr = mf.walter_bsdf(np.array([mu_i]), np.array([mu_o]), np.array([c]), 1.5, 0.3, transmit, np.array([G]))
+        assert np.shape(one) == () and one == arr[0]
+    F = lambda c: np.stack([np.full_like(c, 0.9), np.full_like(c, 0.5)])  # noqa: E731
+    assert mf.walter_bsdf(0.5, 0.6, 1.0, 1.5, 0.3, False, 1.0, F).shape == (2,)

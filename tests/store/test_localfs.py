@@ -43,7 +43,22 @@ def test_every_reading_call_matches_fsspec(store):
             assert fs.size(p) == ref.size(p) and fs.cat_file(p) == ref.cat_file(p), p
 
 
-@pytest.mark.parametrize("path", ["/tmp/s/", "rel/store", "./rel", ".", "~/store", "/"])
+def test_dangling_links_are_absent_as_in_fsspec(tmp_path):
+    (tmp_path / "target").write_text("x")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    (tmp_path / "link").symlink_to(tmp_path / "target")
+    fs, root = open_fs(str(tmp_path))
+    ref = LocalFileSystem()
+    for name in ("dangling", "link", "target"):
+        p = posixpath.join(root, name)
+        assert fs.exists(p) == ref.exists(p), name
+    with pytest.raises(FileNotFoundError):
+        fs.ls(posixpath.join(root, "dangling"))
+    assert sorted(fs.ls(root)) == sorted(ref.ls(root, detail=False))
+    assert fs.modified(posixpath.join(root, "link")) == ref.modified(posixpath.join(root, "link"))
+
+
+@pytest.mark.parametrize("path", ["/tmp/s/", "rel/store", "./rel", ".", "~/store", "/", "my:store"])
 def test_local_root_is_fsspecs(path):
     assert local_root(path) == fsspec.core.url_to_fs(path)[1]
 
@@ -51,6 +66,9 @@ def test_local_root_is_fsspecs(path):
 def test_urls_and_writes_go_through_fsspec(tmp_path):
     assert isinstance(open_fs(str(tmp_path), writable=True)[0], LocalFileSystem)
     assert isinstance(open_fs(f"file://{tmp_path}")[0], LocalFileSystem)
+    for prefix in ("file:", "local:"):  # the prefixes fsspec strips: the same root as fsspec's
+        fs, root = open_fs(f"{prefix}{tmp_path}")
+        assert isinstance(fs, LocalFileSystem) and root == str(tmp_path)
     assert type(open_fs("memory://flakedb-test-store")[0]).__name__ == "MemoryFileSystem"
 
 

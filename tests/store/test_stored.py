@@ -415,23 +415,25 @@ def tiny_url_smooth(tmp_path_factory):
 
 
 def test_a_deferred_chunk_missing_or_corrupted_is_refused_when_read(tiny, tmp_path):
-    """The flakes' V chunks are hashed on the bytes they are decoded from (one read each): a chunk whose file is
-    gone reads as no fill value but as a verification failure, and a corrupted one as well; a sound version reads
-    every chunk and leaves none pending."""
+    """The flakes' V chunks are hashed on the bytes they are decoded from (one read each, every read): a chunk whose
+    file is gone is a verification failure (not the fill value), as is a corrupted one and one that cannot be read
+    (a directory in its place: StoreIntegrityError, not a bare OSError); a sound version reads every chunk."""
     url0, _, v = tiny
     key = f"species/{FLAKE}/n{N}/a0.25/V/c/0/0/0/0/0"
     sound = st.open_version(url0, v.version)
     f = sound.flake_factors(FLAKE, N, 0.25)
     f.read(0, f.n_orders)
     prefix = sound.flake_prefix(FLAKE, N, 0.25) + "/V/c/"
-    assert any(k.startswith(prefix) for k in st.open_version(url0, v.version).pending_checksums)
-    assert not any(k.startswith(prefix) for k in sound.pending_checksums)
-    for damage in ("missing", "corrupted"):
+    assert any(k.startswith(prefix) for k in sound.deferred_checksums)
+    for damage in ("missing", "corrupted", "unreadable"):
         url = str(tmp_path / damage)
         shutil.copytree(url0, url)
         p = Path(url) / "versions" / v.version / key
         if damage == "missing":
             p.unlink()
+        elif damage == "unreadable":  # a directory in the chunk's place: an OSError other than "no such file"
+            p.unlink()
+            p.mkdir()
         else:
             data = bytearray(p.read_bytes())
             data[7] ^= 0x01
@@ -439,3 +441,7 @@ def test_a_deferred_chunk_missing_or_corrupted_is_refused_when_read(tiny, tmp_pa
         sv = st.open_version(url, v.version)
         with pytest.raises(StoreIntegrityError, match=damage):
             sv.flake_factors(FLAKE, N, 0.25).read(0, 1)
+    sv = st.open_version(url0, v.version)
+    del sv.deferred_checksums[key]  # a chunk the record does not name is not read unhashed
+    with pytest.raises(StoreIntegrityError, match="no recorded checksum"):
+        sv.flake_factors(FLAKE, N, 0.25).read(0, 1)
