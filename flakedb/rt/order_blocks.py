@@ -13,7 +13,12 @@ import numpy as np
 from flakedb.conventions import fourier_weight
 from flakedb.rt import interface as itf
 from flakedb.rt.layer import pad_orders
-from flakedb.rt.orders import MIN_ORDERS_CHECKED, next_block_end, order_tail, reflection_over
+from flakedb.rt.orders import (
+    MIN_ORDERS_CHECKED,
+    next_block_end,
+    order_tail,
+    reflection_over,
+)
 from flakedb.rt.parts import order_range
 
 #: First block of orders solved by the order choice; the next ends at 16 (the criterion is not accepted before,
