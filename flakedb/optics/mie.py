@@ -70,6 +70,7 @@ orders change no result by more than 1e-13 relative.
 
 from __future__ import annotations
 
+import threading
 from typing import NamedTuple
 
 import numpy as np
@@ -129,21 +130,29 @@ class LognormalPigment(NamedTuple):
 #: The functions compiled by numba (:func:`_compile_kernels`), callers after callees.
 _KERNELS = ("_cf_ratio", "_ratio_down", "_coefficients", "_scatter_kernel", "_coefficient_table_kernel")
 _compiled = False
+#: Held while the kernels are replaced: compose's texture thread and its solve may both reach a first Mie
+#: evaluation at once (a pigment without a store), and a second replacement would wrap a dispatcher again
+#: (numba: "a jit decorator was called on an already jitted function").
+_COMPILE_LOCK = threading.Lock()
 
 
 def _compile_kernels():
     """Replace the plain functions named in :data:`_KERNELS` by their numba dispatchers, once, before the first
-    Mie evaluation: numba is imported here, not with the module, so a compose whose pigments come from the
-    store (no Mie series) does not pay its 0.3–0.5 s import.  Compiled code is cached on disk (``cache=True``)."""
+    Mie evaluation (under :data:`_COMPILE_LOCK`: any thread may be first): numba is imported here, not with the
+    module, so a compose whose pigments come from the store (no Mie series) does not pay its 0.3–0.5 s import.
+    Compiled code is cached on disk (``cache=True``)."""
     global _compiled
     if _compiled:
         return
-    from numba import njit  # lazy: importing numba takes 0.3-0.5 s; only a Mie evaluation needs it
+    with _COMPILE_LOCK:
+        if _compiled:
+            return
+        from numba import njit  # lazy: importing numba takes 0.3-0.5 s; only a Mie evaluation needs it
 
-    g = globals()
-    for name in _KERNELS:  # a kernel's callees are globals, so they are dispatchers before it compiles
-        g[name] = njit(cache=True, error_model="numpy")(g[name])
-    _compiled = True
+        g = globals()
+        for name in _KERNELS:  # a kernel's callees are globals, so they are dispatchers before it compiles
+            g[name] = njit(cache=True, error_model="numpy")(g[name])
+        _compiled = True
 
 
 

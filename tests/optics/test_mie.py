@@ -16,6 +16,9 @@ Bugs these tests guard against:
   d⁶-weighted tail, a quadrature that does not converge, a wrong monodisperse limit.
 """
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -620,3 +623,20 @@ class TestLognormal:
             lognormal_pigment(1.5, 500.0, 1.5, -0.3, 1.5)
         with pytest.raises(ValueError, match="Im"):
             lognormal_pigment(1.5 - 0.1j, 500.0, 1.5, 0.3, 1.5)
+
+
+def test_first_mie_evaluations_in_two_threads_at_once():
+    """compose's texture thread and its solve may both make the first Mie evaluation of a process (a pigment
+    without a store): the kernels are compiled once, and both get the series (numba refused a second
+    replacement: "a jit decorator was called on an already jitted function")."""
+    code = ("import threading; from flakedb.optics import mie; out = []\n"
+            "def run():\n"
+            "    try:\n"
+            "        mie._compile_kernels(); out.append('ok')\n"
+            "    except Exception as e:\n"
+            "        out.append(repr(e))\n"
+            "ts = [threading.Thread(target=run) for _ in range(3)]\n"
+            "[t.start() for t in ts]; [t.join() for t in ts]\n"
+            "assert out == ['ok'] * 3, out")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert run.returncode == 0, run.stderr[-2000:]
