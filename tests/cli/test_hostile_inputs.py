@@ -121,6 +121,19 @@ def test_read_limited_reads_at_most_limit_plus_one(tmp_path, monkeypatch):
     assert sum(seen) <= 11
 
 
+def test_read_limited_reads_a_file_whole_in_one_read(tmp_path, monkeypatch):
+    """A regular file is read with one call for its size and one more byte (then EOF), its bytes unchanged, not in
+    1 MiB pieces joined (a copy of every store chunk)."""
+    p = tmp_path / "f"
+    data = os.urandom(3 * 2**20 + 17)
+    p.write_bytes(data)
+    seen = []
+    real_read = os.read
+    monkeypatch.setattr(os, "read", lambda fd, n: (seen.append(n), real_read(fd, n))[1])
+    assert read_limited(p, 2**30) == data
+    assert seen[0] == len(data) + 1 and len(seen) == 2
+
+
 @pytest.mark.parametrize("kind", ["fifo", "zero"])
 def test_every_reader_refuses_special_files(specials, tmp_path, kind, no_work):
     bad = specials[kind]
