@@ -24,8 +24,8 @@ from flakedb.rt.parts import order_range
 #: First block of orders solved by the order choice; the next ends at 16 (the criterion is not accepted before,
 #: :data:`flakedb.rt.orders.MIN_ORDERS_CHECKED`), later ones where the decay measured so far predicts the tolerance
 #: is met (at least 4 orders more, at most double: :func:`flakedb.rt.orders.next_block_end`).  Blocks of 8 rather
-#: than one of 16 halve the eigen-solutions' temporaries (docs/orders.md: the bench's 3-species basecoat, peak
-#: memory 262 → 166 MB, the same 16 orders solved).
+#: than one of 16 halve the eigen-solutions' temporaries (docs/orders.md: the bench's 3-species basecoat, the
+#: solve's process peak 266 → 191 MB, the same 16 orders solved).
 FIRST_ORDER_BLOCK = 8
 #: Orders of the body solved while a rough top is built in the background (before the stack's order count is
 #: known): ``body_orders`` clipped to this range.
