@@ -17,17 +17,20 @@ import threading
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 
-#: Worker threads of :meth:`SharedJobs.help`, one pool per count, created on first use (their own: the
-#: solver's other pools may be busy with, or waiting for, the caller).
+#: The solver's thread pools by (name, workers), created on first use under the lock.  Each user has pools of
+#: its own name (the slab solves' "flakedb-slab", the rough top's background "flakedb-solve", the helpers of
+#: :meth:`SharedJobs.help` "flakedb-jobs"): one may wait for another's jobs, so they never share threads.
 _POOLS: dict = {}
 _POOLS_LOCK = threading.Lock()
 
 
-def _pool(workers):
+def thread_pool(workers, name) -> ThreadPoolExecutor:
+    """The process's pool of ``workers`` threads named ``name`` (one per pair, kept for the process)."""
+    key = (str(name), int(workers))
     with _POOLS_LOCK:
-        pool = _POOLS.get(workers)
+        pool = _POOLS.get(key)
         if pool is None:
-            pool = _POOLS[workers] = ThreadPoolExecutor(workers, thread_name_prefix="flakedb-jobs")
+            pool = _POOLS[key] = ThreadPoolExecutor(key[1], thread_name_prefix=key[0])
     return pool
 
 
@@ -79,6 +82,6 @@ class SharedJobs:
     def _workers(self, threads, n_jobs):
         workers = min(int(threads) - 1, n_jobs - 1)
         if workers > 0:
-            pool = _pool(workers)
+            pool = thread_pool(workers, "flakedb-jobs")
             for _ in range(workers):
                 pool.submit(self.help)

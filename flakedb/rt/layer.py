@@ -16,12 +16,12 @@ are plain matrix products.  Channel axes of size 1 broadcast.
 Everything is batched over (L, C): one LAPACK call per step, no Python loop over orders or channels.
 """
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
 from flakedb.conventions import fourier_weight
+from flakedb.rt.jobs import thread_pool
 
 
 @dataclass
@@ -205,10 +205,6 @@ def _double_symmetric_serial(R, T, times):
     return Rout, Tout
 
 
-#: Threads of :func:`double_symmetric`'s batch split, created on first use.
-_POOLS: dict[int, ThreadPoolExecutor] = {}
-
-
 def double_symmetric(R, T, times, threads=1):
     """Double a top/bottom-symmetric layer ``times`` times (R^t = R^b = R, T^tb = T^bt = T).
 
@@ -225,7 +221,7 @@ def double_symmetric(R, T, times, threads=1):
     Rf = R.reshape((L * C,) + R.shape[2:])
     Tf = np.broadcast_to(T, R.shape).reshape(Rf.shape)
     parts = np.array_split(np.arange(L * C), threads)
-    pool = _POOLS.setdefault(threads, ThreadPoolExecutor(threads))
+    pool = thread_pool(threads, "flakedb-slab")
     futs = [pool.submit(_double_symmetric_serial, Rf[p[0]:p[-1] + 1], Tf[p[0]:p[-1] + 1], times) for p in parts]
     res = [f.result() for f in futs]
     return (np.concatenate([r for r, _ in res]).reshape(R.shape),
@@ -382,7 +378,7 @@ def _eigen_slab_threads(x, w, sigma_t, K_T, K_R, thickness_um, l0, threads):
     threads = int(threads)
     if threads <= 1 or max(L, C) < 2 * threads:
         return eigen_slab(x, w, sigma_t, K_T, K_R, thickness_um, l0)
-    pool = _POOLS.setdefault(threads, ThreadPoolExecutor(threads))
+    pool = thread_pool(threads, "flakedb-slab")
     if L >= 2 * threads:
         parts = [p for p in np.array_split(np.arange(L), threads) if p.size]
         futs = [pool.submit(eigen_slab, x, w, sigma_t, K_T[p[0]:p[-1] + 1], K_R[p[0]:p[-1] + 1], thickness_um,

@@ -73,6 +73,16 @@ def reflection_under_smooth(t, F_in, h_tir, bottom_Rt):
     return t[:, None] * R * t[None, :]
 
 
+def _decay_ratio(a, k):
+    """The geometric decay ratio r = (a_{L−1} / a_{L−1−k})^(1/k) of the last ``k`` orders of ``a`` when r < 1 (the
+    tail :func:`order_tail` extrapolates and :func:`next_block_end` predicts from), else None (fewer than k + 1
+    orders, a zero, no decay)."""
+    if a.size <= k or not (a[-1 - k] > 0.0 and a[-1] > 0.0):
+        return None
+    r = (a[-1] / a[-1 - k]) ** (1.0 / k)
+    return float(r) if r < 1.0 else None
+
+
 #: The fewest orders solved before :func:`order_tail` may declare the series converged (unless all L_max are): the
 #: decay of orders 12–15 is seen before the geometric estimate is trusted, as the former 16-then-doubling blocks
 #: saw it.  A weak, slowly decaying lobe under a fast-falling broad one (narrow flakes at a low loading beside a
@@ -106,10 +116,8 @@ def next_block_end(a, L_max, tol, block, k=4, min_orders=MIN_ORDERS_CHECKED):
     L_max = int(L_max)
     grow = min(L_max, max(int(block), 2 * L))
     floor = min(L_max, int(min_orders))
-    if L <= k or a[-1 - k] <= 0.0 or a[-1] <= 0.0 or not (np.isfinite(tol) and tol > 0.0):
-        return max(grow, floor)
-    r = (a[-1] / a[-1 - k]) ** (1.0 / k)
-    if not r < 1.0:
+    r = _decay_ratio(a, k)
+    if r is None or not (np.isfinite(tol) and tol > 0.0):
         return max(grow, floor)
     # a_{L-1} r^m / (1 − r) ≤ tol for the tail from order L − 1 + m
     m = max(1, int(np.ceil(np.log(tol * (1.0 - r) / a[-1]) / np.log(r))))
@@ -139,10 +147,9 @@ def order_tail(a, L_max, tol, k=4, min_orders=0):
         last = a[-k:] if L >= k else a
         flat = float(last.max()) * (L_max - L)
         est = flat
-        if L > k and a[-1 - k] > 0.0 and a[-1] > 0.0:
-            r = (a[-1] / a[-1 - k]) ** (1.0 / k)
-            if r < 1.0:
-                est = min(flat, float(a[-1]) * r / (1.0 - r))
+        r = _decay_ratio(a, k)
+        if r is not None:
+            est = min(flat, float(a[-1]) * r / (1.0 - r))
     tails = np.concatenate([np.flip(np.cumsum(np.flip(a))), [0.0]]) + est  # tails[l] = Σ_{j≥l} a_j + est
     ok = np.nonzero(tails <= tol)[0]
     if len(ok) == 0 or L < min(int(min_orders), int(L_max)):

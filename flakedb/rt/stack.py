@@ -15,8 +15,7 @@ pole (:mod:`flakedb.rt.specular`), the opaque order loop (:mod:`flakedb.rt.order
 channels (:mod:`flakedb.rt.channels`).  This module joins them; its names are the public interface.
 """
 
-import threading
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -41,7 +40,7 @@ from flakedb.rt.components import (  # noqa: F401  (the public interface of the 
     Smooth,
     SolverSettings,
 )
-from flakedb.rt.jobs import SharedJobs
+from flakedb.rt.jobs import SharedJobs, thread_pool
 from flakedb.rt.layer import Layer, add, add_reflection_only, identity_layer, pad_orders
 from flakedb.rt.media import channel_subset
 from flakedb.rt.medium_projection import (  # noqa: F401
@@ -118,21 +117,14 @@ def _solve_stack_grouped(top, slabs, bottom, s, channels):
     return _solve_stack(top, slabs, bottom, s)
 
 
-#: The background thread of :func:`_submit` (created on first use, under the lock).
-_BACKGROUND: list = []
-_BACKGROUND_LOCK = threading.Lock()
-
-
 def _submit(n_threads, fn, /, *args, **kw):
-    """``fn(*args, **kw)`` in the background thread when ``n_threads`` > 1, else now; a future either way."""
+    """``fn(*args, **kw)`` in the background thread (:func:`flakedb.rt.jobs.thread_pool` "flakedb-solve") when
+    ``n_threads`` > 1, else now; a future either way."""
     if int(n_threads) <= 1:
         done = Future()
         done.set_result(fn(*args, **kw))
         return done
-    with _BACKGROUND_LOCK:
-        if not _BACKGROUND:
-            _BACKGROUND.append(ThreadPoolExecutor(1, thread_name_prefix="flakedb-solve"))
-    return _BACKGROUND[0].submit(fn, *args, **kw)
+    return thread_pool(1, "flakedb-solve").submit(fn, *args, **kw)
 
 
 class _Top:
