@@ -189,7 +189,16 @@ def _setup(name, n):
 
 
 def _run(arg):
-    rec, n = arg
+    """One row, every step of it on one BLAS thread (the model's unit: docs/cost-model.md).  Unlimited, an
+    OpenBLAS call on 2 threads in one step (the kernel rates' ``tensordot``) left its worker thread spinning,
+    and the process CPU time of the next step counted it: the HG slab's eigen unit at 64 nodes read 1.15 ms
+    instead of 0.56 ms (measured/model 0.54 at n = 128) and its n = 64 solve 8.7 ms instead of 4.5 ms (1.55)
+    whenever ``OPENBLAS_NUM_THREADS`` was unset, as in ``make bench``."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run_one_thread(*arg)
+
+
+def _run_one_thread(rec, n):
     paint = build_paint(rec)
     call_s = _call_s()
     measured = np.inf

@@ -1,11 +1,11 @@
-"""flakedb.process: the allocator setting the command line applies (and its opt-out)."""
+"""flakedb.process: the allocator and BLAS-thread settings the command line applies (and their opt-outs)."""
 
 import ctypes.util
 import platform
 
 import pytest
 
-from flakedb.process import tune_allocator
+from flakedb.process import BLAS_THREAD_VARIABLES, tune_allocator
 
 
 def test_opt_out_leaves_the_allocator_alone(monkeypatch):
@@ -48,3 +48,38 @@ def test_fast_exit_keeps_every_line_and_file_and_every_failure_status(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "flakedb", "compose", str(recipe), "--out", str(tmp_path / "o2"),
                           "--n", "15"], capture_output=True, text=True, check=False)
     assert bad.returncode not in (0, None) and "--n" in bad.stderr + bad.stdout
+
+
+def _blas_threads_of_a_command(tmp_path, **env_vars):
+    """The BLAS thread count numpy got in a ``flakedb --version`` process (read by an atexit handler that
+    imports numpy after the command ran), with ``env_vars`` added to an environment free of
+    :data:`flakedb.process.BLAS_THREAD_VARIABLES`."""
+    import os
+    import subprocess
+    import sys
+
+    probe = tmp_path / "probe.py"
+    probe.write_text("import atexit, sys\n"
+                     "def report():\n"
+                     "    import numpy  # noqa: F401\n"
+                     "    from threadpoolctl import threadpool_info\n"
+                     "    print('BLAS', max(i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'))\n"
+                     "atexit.register(report)\n"
+                     "from flakedb.cli.main import main\nmain()\n")
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
+    env.update(env_vars)
+    r = subprocess.run([sys.executable, str(probe), "--version"], capture_output=True, text=True, env=env,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    return int(r.stdout.split("BLAS")[-1])
+
+
+def test_the_command_line_runs_blas_on_one_thread(tmp_path):
+    """flakedb.process.blas_one_thread, called first by main(): numpy's BLAS gets one thread (left at its
+    default, OpenBLAS takes one per core and its spinning worker competed with the solve)."""
+    assert _blas_threads_of_a_command(tmp_path) == 1
+
+
+@pytest.mark.skipif((__import__("os").cpu_count() or 1) < 2, reason="OpenBLAS caps its threads at the cores")
+def test_a_user_set_blas_thread_count_is_obeyed(tmp_path):
+    assert _blas_threads_of_a_command(tmp_path, OPENBLAS_NUM_THREADS="2") == 2

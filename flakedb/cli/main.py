@@ -13,6 +13,7 @@ from flakedb.cli.errors import FlakedbError  # noqa: F401  (re-exported for scri
 from flakedb.cli.failures import as_failure
 from flakedb.process import (
     Terminated,
+    blas_one_thread,
     fast_exit,
     install_signal_handlers,
     tune_allocator,
@@ -131,6 +132,7 @@ def cli(debug):
 
 
 def main():
+    blas_one_thread()  # before numpy loads: the BLAS's own threads only compete with flakedb's (flakedb.process)
     tune_allocator()  # freed memory kept for reuse: page faults are most of a short solve's overhead
     install_signal_handlers()  # SIGTERM / SIGHUP clean up as SIGINT does (flakedb.process.Terminated)
     try:
