@@ -399,7 +399,9 @@ def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, proj
     (the whole spectrum): R(c),
     T(c) tabulated on the adaptive c grid of the direct path (:func:`flakedb.paint.mapping.adaptive_flake_optics`),
     then :func:`flakedb.rt.stored.flake_factors` (spectral SVD, projection of the basis kernels, σ's).
-    Returns ``U`` float64, ``V`` float32 (r, L, 2, h, h), ``sigma_t``, ``sigma_s``, ``projected_area`` and ``info``."""
+    Returns ``U`` float64, ``V`` float32 (r, L, 2, h, h), ``V_last_order`` = V[:, L − 1] (r, 2, h, h) (the order
+    the Jackson filter's test reads, :func:`flakedb.rt.medium_projection.damp_if_capped`, without the 16-order
+    chunk that holds it), ``sigma_t``, ``sigma_s``, ``projected_area`` and ``info``."""
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     nb = np.broadcast_to(np.asarray(n_binder, dtype=float), wl.shape)
     c, R, T, c_err = adaptive_flake_optics(lambda cc: sp.flake_reflectance_transmittance(entry, wl, cc, nb))
@@ -412,8 +414,8 @@ def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, proj
     W, r = f["U"].shape
     L, h = V.shape[1], x.size
     info["storage_ratio"] = float(W * L * 2 * h * h / (r * L * 2 * h * h + W * r))  # per-wavelength blocks / factors
-    return {"U": f["U"], "V": V, "sigma_t": f["sigma_t"], "sigma_s": f["sigma_s"],
-            "projected_area": f["projected_area"], "info": info}
+    return {"U": f["U"], "V": V, "V_last_order": np.ascontiguousarray(V[:, -1]), "sigma_t": f["sigma_t"],
+            "sigma_s": f["sigma_s"], "projected_area": f["projected_area"], "info": info}
 
 
 def pigment_task(entry, wavelength_nm, n_binder, degree=LEGENDRE_STORE_DEGREE, nodes=LEGENDRE_STORE_NODES,

@@ -15,6 +15,8 @@ Layout (``STORE`` a local directory or any fsspec URL)::
         species/<flake>/n<N>/a<α>/V           (r, L, 2, h, h) float32 projected basis kernels per unit
                                               loading: [rank, order, (K_T, K_R), outgoing, incident],
                                               chunked by ORDER_CHUNK orders
+        species/<flake>/n<N>/a<α>/V_last_order (r, 2, h, h) float32 = V[:, L − 1], the order compose's
+                                              Jackson filter test reads (versions before it lack it)
         species/<flake>/n<N>/a<α>/sigma_t     (W, h) σ_t per unit aρ at the nodes (and sigma_s,
                                               projected_area (h,) for opaque flakes)
         species/<pigment>/c_ext_um2, c_sca_um2, mean_volume_um3   (W,) ensemble Mie optics
