@@ -410,8 +410,8 @@ def discretisation_estimate(solved, report, colour_settings=None, log=None) -> d
                        dict(solved.table.metadata)), paint.mode, paint.wavelength_nm, second.x,
         second.albedo(include_delta=False), paint.eta if paint.delta else None, "", settings=colour_settings), n, n2)
     if log:
-        log(f"discretisation: estimated dE00(n, 2n) {est['estimate_dE00']:.3f}, against the converged answer "
-            f"{est['estimate_dE00_converged']:.3f}, at n = {n} (second solve at n = {n2})")
+        log(f"discretisation: estimated dE00(n, 2n) {est['estimate_dE00']:.3f}, at most "
+            f"{est['estimate_dE00_converged']:.3f} against the converged answer, at n = {n} (second solve at n = {n2})")
     return est
 
 

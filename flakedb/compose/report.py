@@ -312,7 +312,8 @@ def format_report(rep) -> str:
     if d and "estimate_dE00" in d:
         conv = d.get("estimate_dE00_converged")
         lines.append(f"discretisation: estimated ΔE00(n, 2n) {d['estimate_dE00']:.3f} at n = {d['n']}"
-                     + (f", against the converged answer {conv:.3f}" if conv is not None else "")
+                     + (f", at most {conv:.3f} against the converged answer (error order ≥ {DISCRETISATION_ORDER:g} "
+                        "assumed)" if conv is not None else "")
                      + f" (second solve at n = {d['n_second']}: largest ΔE00 {max(d['dE00_second_vs_n']):.3f}, "
                      f"times {d['factor']:.2f})")
     lines.append(f"{'theta_i':>8} {'albedo Y':>9} {'tabulated':>10} {'mirror':>8}")
