@@ -9,7 +9,7 @@ import click
 
 class StageProgress:
     """``progress(stage, detail)`` callback of :func:`flakedb.compose.orchestrate.compose` (and the
-    solver's :class:`flakedb.rt.stack.SolverSettings` ``progress``): stages optics, projection, solve,
+    solver's :class:`flakedb.rt.stack.SolverSettings` ``progress``): stages optics, discretisation, projection, solve,
     channels, write and warning.  ``stream`` defaults to stderr; ``tty`` to whether it is a terminal.
 
     Into a log, one time-stamped line per event:
@@ -59,6 +59,9 @@ class StageProgress:
         elif stage == "channels":
             c0, c1 = d["channels"]
             self._emit(f"solve: spectral channels {c0 + 1}-{c1} of {d['of']}")
+        elif stage == "discretisation":
+            self._emit(f"discretisation: second solve at n = {d.get('n')} (the report's error estimate)…"
+                       if d.get("start") else f"discretisation: second solve done ({d.get('seconds', 0):.1f} s)")
         elif stage == "write":
             self._emit("write: .bsdf, .h5, .json…" if d.get("start") else
                        f"write: done ({d.get('seconds', 0):.1f} s)", final=not d.get("start"))

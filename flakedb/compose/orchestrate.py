@@ -317,10 +317,12 @@ class SolvedRecipe:
     version: object = None
     store_label: str = STORE_NONE
     stored: object = None  # the StoreContext the optics came from (None: computed directly)
+    before: object = None  # what ``before_solve`` returned (compose: the discretisation's second report)
 
 
 def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, verify=True, progress=None,
-                 allow_unphysical=False, generator="flakedb compose", n_reason=None, on_stored=None) -> SolvedRecipe:
+                 allow_unphysical=False, generator="flakedb compose", n_reason=None, on_stored=None,
+                 before_solve=None) -> SolvedRecipe:
     """Recipe → checked solution → full-precision table: the one orchestration that compose and match share.
 
     The node count from :func:`flakedb.paint.mapping.resolve_node_count` (``n`` > the recipe's > auto; ``n_reason``
@@ -331,7 +333,9 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     :func:`check_physical` (a problem raises :class:`UnphysicalResultError`, or with ``allow_unphysical``
     becomes a warning) and the solver's convergence notes (:func:`solver_warnings`) added to the warnings.
     ``on_stored``: called with the open :class:`StoreContext` (None without a store) before the optics are
-    built (compose starts the texture model there, to run beside the solve).
+    built (compose starts the texture model there, to run beside the solve).  ``before_solve``: called with
+    ``(paint, n, version)`` after the optics are built and before the solve, its result kept as ``before``
+    (compose makes its discretisation's second solve there: :func:`second_report`).
     """
     log = log or (lambda s: None)
     progress = progress or (lambda stage, detail: None)
@@ -362,6 +366,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     log(f"optics: {len(paint.components)} component(s), {paint.n_channels} channel(s) ({paint.mode}), "
         f"{t['optics']:.2f} s")
     progress("optics", {"seconds": t["optics"], "channels": paint.n_channels})
+    before = None if before_solve is None else before_solve(paint, n_used, version)
     t0 = time.perf_counter()
     budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
     stack = solve_paint(paint, n_used, memory_budget_bytes=float(budget) if budget else None,
@@ -390,25 +395,46 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     table = stack_to_table(stack, paint.channels, paint.eta, None, paint.delta, md)  # α from the solved stack
     t["table"] = time.perf_counter() - t0
     return SolvedRecipe(paint=paint, stack=stack, table=table, n=n_used, n_reason=reason, warnings=warnings,
-                        timings_s=t, version=version, store_label=store_label, stored=stored)
+                        timings_s=t, version=version, store_label=store_label, stored=stored, before=before)
+
+
+def second_report(paint, n, version, colour_settings=None, progress=None):
+    """``(n', colour report at n')`` of the discretisation's second solve at n' = :func:`flakedb.compose.report.second_solve_n`
+    (≈ 3n/4), or a dict saying why there is none: n < 16, or a store (it holds the species' factors at its own n
+    only).  Made before the solve at n (:func:`solve_recipe`'s ``before_solve``), so that its arrays are freed
+    before those of n exist: made after, while n's R^t and table were held, it set the compose's peak (cadmium
+    yellow under a rough 0.1 coat, 41 bands, n = 200: 3.95 GB, of which 1.6 GB the second solve's)."""
+    if version is not None:
+        return {"method": "not estimated: species factors from the store exist at n only"}
+    if n < 16:
+        return {"method": f"not estimated: n = {n} < 16"}
+    progress = progress or (lambda stage, detail: None)
+    n2 = second_solve_n(n)
+    t0 = time.perf_counter()
+    progress("discretisation", {"start": True, "n": n2})
+    budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
+    second = solve_paint(paint, n2, memory_budget_bytes=float(budget) if budget else None, threads=os.cpu_count() or 1)
+    table = stack_to_table(second.scattered(), paint.channels, paint.eta, None, paint.delta, {})
+    x, albedo = second.x, second.albedo(include_delta=False)
+    del second  # its R^t, before the report's evaluation
+    report = colour_report(table, paint.mode, paint.wavelength_nm, x, albedo, paint.eta if paint.delta else None, "",
+                           settings=colour_settings)
+    progress("discretisation", {"seconds": time.perf_counter() - t0, "n": n2})
+    return n2, report
 
 
 def discretisation_estimate(solved, report, colour_settings=None, log=None) -> dict:
     """The estimated ΔE00 of the solve's own discretisation: the report against a second solve at
     n' = :func:`flakedb.compose.report.second_solve_n` (≈ 3n/4; :func:`flakedb.compose.report.discretisation_error`,
-    docs/resolution.md), for n ≥ 16 without a store (a store holds the species' factors at its own n only)."""
-    n, paint = solved.n, solved.paint
-    if solved.version is not None:
-        return {"method": "not estimated: species factors from the store exist at n only"}
-    if n < 16:
-        return {"method": f"not estimated: n = {n} < 16"}
-    n2 = second_solve_n(n)
-    budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
-    second = solve_paint(paint, n2, memory_budget_bytes=float(budget) if budget else None, threads=os.cpu_count() or 1)
-    est = discretisation_error(report, colour_report(
-        stack_to_table(second.scattered(), paint.channels, paint.eta, None, paint.delta,
-                       dict(solved.table.metadata)), paint.mode, paint.wavelength_nm, second.x,
-        second.albedo(include_delta=False), paint.eta if paint.delta else None, "", settings=colour_settings), n, n2)
+    docs/resolution.md), for n ≥ 16 without a store (a store holds the species' factors at its own n only); the
+    second solve is ``solved.before`` when :func:`second_report` made it before the solve, else made now."""
+    n = solved.n
+    second = solved.before if solved.before is not None else second_report(solved.paint, n, solved.version,
+                                                                            colour_settings)
+    if isinstance(second, dict):
+        return second
+    n2, report_second = second
+    est = discretisation_error(report, report_second, n, n2)
     if log:
         log(f"discretisation: estimated dE00(n, 2n) {est['estimate_dE00']:.3f}, at most "
             f"{est['estimate_dE00_converged']:.3f} against the converged answer, at n = {n} (second solve at n = {n2})")
@@ -452,8 +478,11 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
             texture.append(pool.submit(texture_report, recipe, observers, None, stored))
             pool.submit(preload_h5py)  # then h5py's import, off the write's path (flakedb.bsdf.h5file)
 
+    def second(paint, n_solve, version):  # the discretisation's second solve, before the solve at n_solve
+        return second_report(paint, n_solve, version, colour_settings, progress)
+
     solved = solve_recipe(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical,
-                          on_stored=start_texture)
+                          on_stored=start_texture, before_solve=second)
     auto_reason, refined, spent = solved.n_reason, [], 0.0
     colour_target = auto_colour_target(recipe)[0]
     while True:  # resolution: auto checks its own result (flakedb.paint.mapping.refine_auto_n)
@@ -481,7 +510,7 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
         refined.append(why)
         spent += time.perf_counter() - t0 + sum(solved.timings_s.values())
         solved = solve_recipe(recipe, n_new, raw, catalog, log, store, verify, progress, allow_unphysical,
-                              n_reason=why)
+                              n_reason=why, before_solve=second)
     n_used = solved.n
     reason = auto_reason if not refined else auto_reason + "; " + "; ".join(refined)
     if refined and est is not None and est > colour_target:
