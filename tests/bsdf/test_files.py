@@ -40,6 +40,7 @@ from flakedb.bsdf import (
     write_bsdf,
     write_h5,
 )
+from flakedb.bsdf.h5file import h5_filters
 
 DATA = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "data", "bsdf-files")
 if not os.path.isdir(DATA):  # the shared data folder sits beside the checkout
@@ -630,3 +631,35 @@ def test_table_refuses_nan_and_inf(where):
         with pytest.raises(ValueError, match="NaN or inf"):
             BSDFTable(mu=t.mu, **kw)
     BSDFTable(mu=t.mu, coeffs=np.broadcast_to(t.coeffs[:1], (3,) + t.coeffs.shape[1:]))  # finite: accepted
+
+
+@pytest.mark.parametrize("reflection_only", [True, False])
+def test_h5_compressed_chunks_read_back_exactly(tmp_path, reflection_only):
+    """A table of mostly zeros (orders beyond each pair's count, as a rough coat's) is written compressed,
+    its chunks shuffled and deflated on several threads (flakedb.bsdf.h5file.write_chunks_deflated) and stored
+    with write_direct_chunk: HDF5 itself (h5py's reader and its filters) must decode every chunk to the table,
+    bit for bit, as it does h5py's own compressed write of the same data."""
+    import h5py
+
+    base = synthetic_table(h=6, L=40, channels=5)
+    coeffs = np.array(base.coeffs)
+    ell = np.arange(coeffs.shape[-1])
+    rng = np.random.default_rng(11)
+    counts = rng.integers(1, 12, size=coeffs.shape[1:3])  # each pair's own order count
+    coeffs[..., ell[None, None, :] >= counts[..., None]] = 0.0
+    h = coeffs.shape[1] // 2
+    if reflection_only:
+        table = BSDFTable(base.mu, reflection=np.ascontiguousarray(coeffs[:, h:, :h]), eta=1.5)
+    else:
+        table = BSDFTable(base.mu, coeffs=coeffs, eta=1.5)
+    assert h5_filters(table.stored)  # the compressed path is the one under test
+    write_h5(tmp_path / "c.h5", table)
+    with h5py.File(tmp_path / "c.h5", "r") as f:
+        d = f["coeffs"]
+        assert d.compression == "gzip" and d.shuffle
+        got = d[...]
+        with h5py.File(tmp_path / "own.h5", "w") as g:  # h5py's own filters on the same data, as a reference
+            own = g.create_dataset("c", data=table.coeffs, chunks=d.chunks, **h5_filters(table.stored))[...]
+    np.testing.assert_array_equal(got, table.coeffs)
+    np.testing.assert_array_equal(own, got)
+    np.testing.assert_array_equal(read_h5(tmp_path / "c.h5").to_table().coeffs, table.coeffs)
