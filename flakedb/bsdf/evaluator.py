@@ -32,6 +32,22 @@ def _sparse_from_dense(dense: np.ndarray, order: np.ndarray) -> tuple[np.ndarray
     return flat, start.reshape(N, N)
 
 
+def _sparse_from_quadrant(quadrant, rows, cols, N):
+    """``(order, flat, start)`` of :func:`_sparse_from_dense` for a table whose only non-zero block is the
+    reflection quadrant (C, h, h, L) at dense ``rows`` × ``cols`` of the (N, N) node grid, without the dense
+    array: the other entries hold no order, and within the block the entries run in the same row-major order."""
+    q = np.transpose(quadrant, (1, 2, 0, 3))                               # (h, h, C, L), a view
+    L = q.shape[-1]
+    nz = (q != 0).any(axis=2)                                              # (h, h, L)
+    K = np.where(nz.any(axis=-1), L - np.argmax(nz[..., ::-1], axis=-1), 0)
+    order = np.zeros((N, N), dtype=K.dtype)
+    order[np.ix_(rows, cols)] = K
+    start = np.zeros(N * N, dtype=np.int64)
+    start[1:] = np.cumsum(order.ravel() * q.shape[2])[:-1]
+    flat = np.ascontiguousarray(q[np.broadcast_to(np.arange(L) < K[:, :, None, None], q.shape)], dtype=np.float64)
+    return order, flat, start.reshape(N, N)
+
+
 def _channel_flat(flat, start, order, n_channels, weights) -> tuple[np.ndarray, np.ndarray]:
     """The single channel ``Σ_c weights[c] · channel_c`` as its own ``(flat, start)``."""
     K = order.ravel().astype(np.int64)
@@ -368,23 +384,28 @@ def table_evaluator(table: BSDFTable, path=None, metadata=None) -> FourierBSDF:
     >>> np.round(ev.albedo(np.array([0.3, 0.9])), 9).tolist()
     [[0.8, 0.5, 0.2], [0.8, 0.5, 0.2]]
     """
-    C, n, _, L = table.coeffs.shape
+    C, n, L = table.n_channels, table.n, table.n_orders
     h = n // 2
     N = n + 2
     nodes = insert_zero_nodes(table.mu)
-    dense = np.zeros((N, N, C, L))
     sel = np.r_[0:h, h + 2:N]
-    dense[np.ix_(sel, sel)] = np.transpose(table.coeffs, (1, 2, 0, 3))
-    nz = (dense != 0).any(axis=2)                                        # (N, N, L)
-    order = np.where(nz.any(axis=-1), L - np.argmax(nz[..., ::-1], axis=-1), 0)
-    flat, start = _sparse_from_dense(dense, order)
-    del dense
+    if table.reflection_only:  # the quadrant alone: the full (N, N, C, L) array would be 4x the table
+        rows, cols = sel[h:], sel[:h]
+        order, flat, start = _sparse_from_quadrant(table.stored, rows, cols, N)
+    else:
+        rows = cols = sel
+        dense = np.zeros((N, N, C, L))
+        dense[np.ix_(sel, sel)] = np.transpose(table.coeffs, (1, 2, 0, 3))
+        nz = (dense != 0).any(axis=2)                                        # (N, N, L)
+        order = np.where(nz.any(axis=-1), L - np.argmax(nz[..., ::-1], axis=-1), 0)
+        flat, start = _sparse_from_dense(dense, order)
+        del dense
     if C == 3 and tuple(table.channels) == ("R", "G", "B"):
         sw = np.array(RGB_TO_Y)
     else:
         sw = np.full(C, 1.0 / C)
     a0s = np.zeros((N, N))
-    a0s[np.ix_(sel, sel)] = np.einsum("cio,c->io", table.coeffs[..., 0], sw)
+    a0s[np.ix_(rows, cols)] = np.einsum("cio,c->io", table.stored[..., 0], sw)
     cdf = catmull_rom_cdf(nodes, a0s)
     return FourierBSDF(kind="h5", path=path, nodes=nodes, cdf=cdf, order=order, flat=flat,
                        start=start, n_channels=C, mix=np.eye(C), sample_weights=sw,

@@ -160,3 +160,51 @@ def test_tensor_reader_checks_what_it_reads(tmp_path):
     (tmp_path / "short.bin").write_bytes(raw[:20])
     with pytest.raises(fm.MeasuredExportError, match="short.bin"):
         fm.read_tensor_file(tmp_path / "short.bin")
+
+
+def _compressed_h5(path):
+    """A flakedb .h5 whose coefficients are stored compressed (mostly zeros): the layout read_chunks_deflated
+    inflates itself; returns the table written."""
+    x = np.array([0.2, 0.5, 0.8, 1.0])
+    mu = np.concatenate([-x[::-1], x])
+    c = np.zeros((2, 8, 8, 12))
+    c[..., 0] = 0.05
+    c[:, 4:, :4, 1] = 0.01
+    table = BSDFTable(mu=mu, coeffs=c, eta=1.5)
+    write_h5(path, table)
+    with h5py.File(path, "r") as f:
+        assert f["coeffs"].compression == "gzip" and f["coeffs"].id.get_num_chunks() > 0
+    return table
+
+
+@pytest.mark.parametrize("damage", ["garbage", "bomb", "short", "filter-skipped"])
+def test_h5_damaged_compressed_chunk(tmp_path, damage):
+    """A stored chunk that is not what its filters say: garbage or a truncated stream is refused naming the
+    chunk; one that inflates to more than its size (a deflate bomb) is refused without inflating more than the
+    chunk's size; a chunk whose filters HDF5 records as skipped is left to HDF5 (read as HDF5 reads it)."""
+    import zlib
+
+    p = tmp_path / "c.h5"
+    table = _compressed_h5(p)
+    size = 4 * 12 * 8  # one chunk (1, 1, 4, 12) of float64
+    with h5py.File(p, "r+") as f:
+        d = f["coeffs"]
+        off = d.id.get_chunk_info(0).chunk_offset
+        _, good = d.id.read_direct_chunk(off)
+        if damage == "garbage":
+            d.id.write_direct_chunk(off, b"\x00not a deflate stream" * 4)
+        elif damage == "bomb":
+            d.id.write_direct_chunk(off, zlib.compress(bytes(1000 * size), 9))
+        elif damage == "short":
+            d.id.write_direct_chunk(off, good[: len(good) // 2])
+        else:  # the deflate filter skipped: the stored bytes are shuffled but not deflated
+            raw = zlib.decompress(good)
+            d.id.write_direct_chunk(off, raw, filter_mask=0b10)
+    if damage == "filter-skipped":
+        t = open_bsdf(p).to_table()
+        with h5py.File(p, "r") as f:
+            np.testing.assert_array_equal(t.coeffs, f["coeffs"][...])  # what HDF5 itself decodes
+        np.testing.assert_array_equal(t.coeffs, table.coeffs)
+        return
+    with pytest.raises(BSDFFileError, match=r"chunk \(\d+, \d+, \d+, 0\) does not inflate to its 384 bytes"):
+        open_bsdf(p)
