@@ -478,8 +478,14 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
             texture.append(pool.submit(texture_report, recipe, observers, None, stored))
             pool.submit(preload_h5py)  # then h5py's import, off the write's path (flakedb.bsdf.h5file)
 
+    second_s = []
+
     def second(paint, n_solve, version):  # the discretisation's second solve, before the solve at n_solve
-        return second_report(paint, n_solve, version, colour_settings, progress)
+        t0 = time.perf_counter()
+        try:
+            return second_report(paint, n_solve, version, colour_settings, progress)
+        finally:
+            second_s.append(time.perf_counter() - t0)
 
     solved = solve_recipe(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical,
                           on_stored=start_texture, before_solve=second)
@@ -517,6 +523,8 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
         warnings = list(warnings) + [f"resolution auto: {refined[-1]}"]
     if spent:
         t["refinement"] = spent
+    if second_s and second_s[-1] > 0.0:  # the last solve's discretisation solve (earlier ones are in "refinement")
+        t["discretisation"] = second_s[-1]
     file_table, gamut_info = gamut_safe_file_channels(table, paint.mode, paint.wavelength_nm, rgb_space)
     if paint.mode == "spectral" and file_table.channels != ("mono",):
         file_table.metadata["channels_from"] = f"spectral bands -> CIE 1931 2deg / D65 -> {gamut_info['rgb_space']}"
