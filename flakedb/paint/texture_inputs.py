@@ -37,6 +37,7 @@ from flakedb.paint.species import flake_reflectance_transmittance, pigment_optic
 from flakedb.texture.model import (
     Absorber,
     FlakeLayer,
+    TextureModelLimit,
     TextureStack,
     texture_indices,
     texture_indices_grounded,
@@ -167,7 +168,10 @@ def texture_report(recipe, observers, ground=None, stored=None) -> dict:
         return out
     out["sparkle"] = True
     memo = {}  # the observers share the light and view directions' parts (flakedb.texture.model.texture_indices)
-    out["observers"] = [texture_indices(stack, o, ground(o) if ground else None, memo=memo) for o in observers]
+    try:
+        out["observers"] = [texture_indices(stack, o, ground(o) if ground else None, memo=memo) for o in observers]
+    except TextureModelLimit as e:  # the BSDF is still composed; the texture says why it has no numbers
+        out.update(sparkle=False, observers=[], summary=f"sparkle and graininess not predicted: {e}")
     return out
 
 

@@ -458,12 +458,29 @@ def _ring_density(g, alpha, d, n_angle=16):
     return 2.0 * flake_ndf_Beckmann(mz, alpha).mean(axis=-1)
 
 
+class TextureModelLimit(ValueError):
+    """A flake layer too thick or dense in transmitting flakes for the model's crossing-count sums."""
+
+
+#: Most crossing-count combinations (:func:`_combinations`) the model evaluates: their weights are
+#: (depths × channels × combinations) arrays, and K = 60 crossings (37 820 combinations) already spans
+#: λ ≈ 33 crossed flakes or T^K = 1e-7 at T = 0.76.  A 5000 µm layer of pearlescent flakes asked for
+#: K = 153 (620 620 combinations, 153 GiB).
+MAX_COMBINATIONS = 40_000
+
+
 def _combinations(lam_l, lam_v, lam_b, T_l, T_v):
     """The crossing-count combinations (k_l, k_v, k_b) with k_l + k_v + k_b ≤ K (:func:`_k_max` of the
-    largest λ and T), in lexicographic order: three int arrays."""
+    largest λ and T), in lexicographic order: three int arrays.  :class:`TextureModelLimit` beyond
+    :data:`MAX_COMBINATIONS`."""
     T_max = max(float(np.max(T_l, initial=0.0)), float(np.max(T_v, initial=0.0)))
     lam_max = max(float(lam_l.max()), float(lam_v.max()), float(lam_b.max()))
     K = _k_max(lam_max, T_max)
+    if (K + 1) * (K + 2) * (K + 3) // 6 > MAX_COMBINATIONS:
+        raise TextureModelLimit(
+            f"a path crosses up to {K} flakes that transmit (expected {lam_max:.0f} crossings, largest flake "
+            f"transmittance {T_max:.2f}): beyond the model's {MAX_COMBINATIONS} crossing combinations "
+            "(docs/texture.md §4, Validity)")
     i, j, b = np.indices((K + 1,) * 3).reshape(3, -1)
     keep = i + j + b <= K
     return i[keep], j[keep], b[keep]
@@ -930,12 +947,15 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
         # the hiding (pair) term over the single-flake term: 0 for sparse flakes, → −1 where hiding dominates
         "pair_over_single": var_pair / var_single if var_single > 0 else 0.0,
     }
+    if not np.isfinite(out["pair_over_single"]):  # overflowing terms (a layer of thousands of µm): no ratio to give
+        out["pair_over_single"] = None
     if not (np.isfinite(var) and var > 0.0):
         # a variance ≤ 0: the pair term, a second-order correction, cancels the first-order one (thick, dense
         # flake layers), so the model has no number to give (docs/texture.md §4, "Validity")
         out.update(luminance_sd=None, valid=False,
-                   note=f"graininess not predicted: the hiding (pair) term is {out['pair_over_single']:+.2f}× the "
-                        f"single-flake term, beyond the first-order model (docs/texture.md §4, Validity)")
+                   note=("graininess not predicted: the hiding (pair) term is "
+                         + (f"{out['pair_over_single']:+.2f}×" if out["pair_over_single"] is not None else "not finite beside")
+                         + " the single-flake term, beyond the first-order model (docs/texture.md §4, Validity)"))
     else:
         out.update(luminance_sd=float(np.sqrt(var)), valid=True)
     return graininess_grounded(out, ground_luminance_factor)

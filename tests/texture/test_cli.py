@@ -30,3 +30,24 @@ def test_pigment_only_and_bad_observer():
     assert r.exit_code == 0 and "no flakes: no sparkle" in r.output
     r = CliRunner().invoke(cli, ["texture", str(RECIPES / "metallic-silver.yaml"), "--spot-um", "0"])
     assert r.exit_code == 2 and "--spot-um" in r.output and "0.1" in r.output and "Traceback" not in r.output
+
+
+def test_a_layer_beyond_the_models_crossing_sums_is_not_predicted_and_says_why(tmp_path):
+    """A 5000 µm basecoat of pearlescent flakes at 19 %: a path crosses ~1 700 transmitting flakes, and the
+    crossing-count sums asked for 153 GiB (a compose then failed with nothing written).  The texture report now
+    says it predicts nothing and why (flakedb.texture.model.MAX_COMBINATIONS), and `flakedb texture` exits 0."""
+    from flakedb.paint.recipe import parse_recipe
+    from flakedb.paint.texture_inputs import texture_report
+    from flakedb.texture.instruments import PRESETS
+
+    text = ("flakedb: 1\nname: thick-pearl\nspectral: {mode: rgb}\nresolution: 16\nlayers:\n"
+            "  - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}\n"
+            "  - basecoat: {thickness_um: 5000, ior: 1.5, particles: [{species: pearlescent, volume_fraction: 0.19}]}\n"
+            "  - primer: {color: black}\n")
+    rep = texture_report(parse_recipe(text), list(PRESETS.values()))
+    assert rep["sparkle"] is False and rep["observers"] == []
+    assert "not predicted" in rep["summary"] and "crossing combinations" in rep["summary"]
+    (tmp_path / "r.yaml").write_text(text)
+    res = CliRunner().invoke(cli, ["texture", str(tmp_path / "r.yaml")])
+    assert res.exit_code == 0, res.output
+    assert "not predicted" in res.output
