@@ -30,7 +30,11 @@ from flakedb.pipelines.build import build, make_request
 from flakedb.rt.legendre import LegendreKernel, legendre_moments_gauss
 from flakedb.rt.media import FlakeMedium, PhaseMedium
 from flakedb.rt.microflake import FlakeOptics
-from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
+from flakedb.rt.quadrature import (
+    default_tir_nodes,
+    radau_hemisphere,
+    snell_mapped_quadrature,
+)
 from flakedb.rt.stack import project_medium
 from flakedb.rt.stored import StoredFlakeMedium, StoredGridMismatch
 from flakedb.store import compress as C
