@@ -423,14 +423,12 @@ def second_report(paint, n, version, colour_settings=None, progress=None):
     return n2, report
 
 
-def discretisation_estimate(solved, report, colour_settings=None, log=None) -> dict:
-    """The estimated ΔE00 of the solve's own discretisation: the report against a second solve at
+def discretisation_estimate(solved, report, log=None) -> dict:
+    """The estimated ΔE00 of the solve's own discretisation: the report against the second solve at
     n' = :func:`flakedb.compose.report.second_solve_n` (≈ 3n/4; :func:`flakedb.compose.report.discretisation_error`,
-    docs/resolution.md), for n ≥ 16 without a store (a store holds the species' factors at its own n only); the
-    second solve is ``solved.before`` when :func:`second_report` made it before the solve, else made now."""
-    n = solved.n
-    second = solved.before if solved.before is not None else second_report(solved.paint, n, solved.version,
-                                                                            colour_settings)
+    docs/resolution.md) that :func:`second_report` made before the solve (``solved.before``), for n ≥ 16 without
+    a store (a store holds the species' factors at its own n only)."""
+    n, second = solved.n, solved.before
     if isinstance(second, dict):
         return second
     n2, report_second = second
@@ -502,7 +500,7 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
         report = colour_report(report_table, paint.mode, paint.wavelength_nm, stack.x,
                                stack.albedo(include_delta=False), paint.eta if paint.delta else None, recipe.name,
                                settings=colour_settings)
-        report["discretisation"] = discretisation_estimate(solved, report, colour_settings, log)
+        report["discretisation"] = discretisation_estimate(solved, report, log)
         est = report["discretisation"].get("estimate_dE00")
         if n is not None or recipe.n is not None or est is None:
             break

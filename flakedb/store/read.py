@@ -437,15 +437,13 @@ class StoreVersion:
             V.check = self._chunk_check(self.group.root)
         L = int(V.shape[1])
         try:  # the last order on its own (verified with the version's other small arrays); older versions lack it
-            last = [g["V_last_order"]]
+            last = g["V_last_order"][:][:, None]
         except KeyError:
             last = None
 
         def read(l0, l1):
             if last is not None and (l0, l1) == (L - 1, L):  # the Jackson filter's test: 1 order, not a 16-order chunk
-                if not isinstance(last[0], np.ndarray):
-                    last[0] = last[0][:][:, None]
-                return last[0]
+                return last
             c0, c1 = l0 // ORDER_CHUNK, -(-l1 // ORDER_CHUNK)
             key = (c0, c1)
             if key not in cache:
