@@ -512,7 +512,7 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
         if log:
             log(why)
         refined.append(why)
-        spent += time.perf_counter() - t0 + sum(solved.timings_s.values())
+        spent += time.perf_counter() - t0 + sum(solved.timings_s.values()) + (second_s[-1] if second_s else 0.0)
         solved = solve_recipe(recipe, n_new, raw, catalog, log, store, verify, progress, allow_unphysical,
                               n_reason=why, before_solve=second)
     n_used = solved.n
