@@ -31,7 +31,7 @@ from flakedb.colour.settings import (
     DEFAULT_MAX_DE00,
     DEFAULT_OBSERVER,
     GEOMETRY_SETS,
-    resolve,
+    for_target,
 )
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
 from flakedb.compose.store_context import StoreContext
@@ -169,11 +169,7 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
     geoms = target.geometries if target is not None else np.asarray(GEOMETRY_SETS[geometry_set])
     try:
         pred = predict(rec, geoms, n, catalog, version, raw)
-        # the caller's conditions, else the target's, else the defaults (flakedb.colour.settings); a
-        # spectral target can be integrated under an RGB paint's D65/2° when none was asked for
-        free = target is None or (target.spectral and pred.mode == "rgb")
-        cs = resolve(observer or (None if free else target.observer),
-                     illuminant or (None if free else target.illuminant), geometry_set, pred.mode)
+        cs = for_target(pred.mode, target, observer, illuminant, geometry_set)
         obs, ill = cs.observer, cs.illuminant
         lab = pred.lab(obs, ill)
     except (StoreError, ValueError) as exc:

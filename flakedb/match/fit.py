@@ -66,7 +66,7 @@ import yaml
 from scipy.optimize import least_squares
 
 from flakedb.colour.colorimetry import XYZ_to_Lab
-from flakedb.colour.settings import DEFAULT_MAX_DE00, resolve
+from flakedb.colour.settings import DEFAULT_MAX_DE00, for_target, resolve
 from flakedb.colour.tolerance import (
     PerAngleLimits,
     ciede2000_residuals,
@@ -468,8 +468,8 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
         if label == "start values":
             rec0 = rec
     n = resolution(rec0, n)
-    obs = target.observer if observer is None else str(observer)
-    ill = target.illuminant if illuminant is None else str(illuminant)
+    cs = for_target(rec0.mode, target, observer, illuminant)
+    obs, ill = cs.observer, cs.illuminant
     geoms = np.asarray(target.geometries, float)
     G = geoms.shape[0]
     w = np.ones(G) if weights is None else np.asarray(weights, float)
