@@ -56,20 +56,24 @@ from flakedb.compose.report import (
     discretisation_error,
     eval_table,
     multiangle_geometry,
-    second_solve_n,
     texture_ground,
+)
+from flakedb.solve.resolution import (
+    second_solve_n,
 )
 from flakedb.compose.store_context import StoreContext
 from flakedb.conventions import fourier_weight
 from flakedb.outputs import OutputError, OutputPlan, check_output_dir  # noqa: F401  (moved; re-exported)
 from flakedb.paint.mapping import (
-    AUTO_REFINE_STEPS,
-    auto_colour_target,
     build_paint,
     catalog_species,
+    solve_paint,
+)
+from flakedb.solve.resolution import (
+    AUTO_REFINE_STEPS,
+    auto_colour_target,
     refine_auto_n,
     resolve_node_count,
-    solve_paint,
 )
 from flakedb.paint.texture_inputs import texture_report, texture_report_grounded
 from flakedb.store import versions as st
@@ -325,7 +329,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
                  before_solve=None) -> SolvedRecipe:
     """Recipe → checked solution → full-precision table: the one orchestration that compose and match share.
 
-    The node count from :func:`flakedb.paint.mapping.resolve_node_count` (``n`` > the recipe's > auto; ``n_reason``
+    The node count from :func:`flakedb.solve.resolution.resolve_node_count` (``n`` > the recipe's > auto; ``n_reason``
     replaces the reason, for auto's refinement);
     ``store``: None, a store URL or an open :class:`flakedb.store.versions.StoreVersion` (checked against the
     recipe, its checksums verified with ``verify``); the solve with every core and the memory budget
@@ -399,7 +403,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
 
 
 def second_report(paint, n, version, colour_settings=None, progress=None):
-    """``(n', colour report at n')`` of the discretisation's second solve at n' = :func:`flakedb.compose.report.second_solve_n`
+    """``(n', colour report at n')`` of the discretisation's second solve at n' = :func:`flakedb.solve.resolution.second_solve_n`
     (≈ 3n/4), or a dict saying why there is none: n < 16, or a store (it holds the species' factors at its own n
     only).  Made before the solve at n (:func:`solve_recipe`'s ``before_solve``), so that its arrays are freed
     before those of n exist: made after, while n's R^t and table were held, it set the compose's peak (cadmium
@@ -425,7 +429,7 @@ def second_report(paint, n, version, colour_settings=None, progress=None):
 
 def discretisation_estimate(solved, report, log=None) -> dict:
     """The estimated ΔE00 of the solve's own discretisation: the report against the second solve at
-    n' = :func:`flakedb.compose.report.second_solve_n` (≈ 3n/4; :func:`flakedb.compose.report.discretisation_error`,
+    n' = :func:`flakedb.solve.resolution.second_solve_n` (≈ 3n/4; :func:`flakedb.compose.report.discretisation_error`,
     docs/resolution.md) that :func:`second_report` made before the solve (``solved.before``), for n ≥ 16 without
     a store (a store holds the species' factors at its own n only)."""
     n, second = solved.n, solved.before
@@ -489,7 +493,7 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
                           on_stored=start_texture, before_solve=second)
     auto_reason, refined, spent = solved.n_reason, [], 0.0
     colour_target = auto_colour_target(recipe)[0]
-    while True:  # resolution: auto checks its own result (flakedb.paint.mapping.refine_auto_n)
+    while True:  # resolution: auto checks its own result (flakedb.solve.resolution.refine_auto_n)
         paint, stack, table, version = solved.paint, solved.stack, solved.table, solved.version
         warnings, t = solved.warnings, solved.timings_s
         progress("write", {"start": True})

@@ -63,7 +63,7 @@ from flakedb.colour.tolerance import observer_name
 from flakedb.colour.tolerance import reflectance_to_XYZ as reflectance_to_XYZ_under
 from flakedb.colour.tolerance import white_XYZ as white_XYZ_under
 from flakedb.optics.fresnel import fresnel_dielectric
-from flakedb.paint.mapping import DISCRETISATION_ORDER
+from flakedb.solve.resolution import DISCRETISATION_ORDER
 
 #: Illumination zenith angle (degrees) of the multi-angle geometries.
 ILLUMINATION_DEG = 45.0
@@ -322,18 +322,6 @@ def format_report(rep) -> str:
     return "\n".join(lines)
 
 
-
-
-def second_solve_n(n) -> int:
-    """The node count of the report's second solve: 3n/4 rounded to an even count (at least 8).  Closer to n
-    than n/2 (which at n = 32 is pre-asymptotic for flakes: ΔE00(16, 32) was 21× ΔE00(32, 64) for metallic
-    silver), and the factor from ΔE00(n', n) to ΔE00(n, 2n) hardly depends on the order (0.96–1.20 for
-    p = 2 … 1.5, against 0.25–0.35 from n/2); always even (n = 30 used to ask for n/2 = 15 and fail).
-
-    >>> [second_solve_n(n) for n in (16, 30, 32, 48, 100, 128)]
-    [12, 22, 24, 36, 76, 96]
-    """
-    return max(8, 2 * int(round(3 * int(n) / 8)))
 
 
 def discretisation_error(report, report_second, n, n_second):

@@ -87,7 +87,7 @@ from flakedb.match.texture import (
     format_texture_rows,
     predict_texture,
 )
-from flakedb.paint.mapping import resolve_node_count
+from flakedb.solve.resolution import resolve_node_count
 from flakedb.paint.recipe import RecipeError, fmt_path, parse_recipe
 
 #: Forward-difference step: in ln p for log parameters, as a fraction of the range for linear ones.
@@ -273,7 +273,7 @@ class Prediction:
 
 
 def resolution(recipe, n=None) -> int:
-    """The node count used (:func:`flakedb.paint.mapping.resolve_node_count`: ``n``, else the recipe's, else auto)."""
+    """The node count used (:func:`flakedb.solve.resolution.resolve_node_count`: ``n``, else the recipe's, else auto)."""
     return resolve_node_count(recipe, n)[0]
 
 
