@@ -34,10 +34,11 @@ from flakedb.colour.settings import (
     for_target,
 )
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
-from flakedb.compose.store_context import StoreContext
+from flakedb.solve.resolution import resolve_node_count
+from flakedb.solve.store_context import StoreContext
 from flakedb.match import batch
 from flakedb.match.cxf import load_target
-from flakedb.match.fit import compare_texture, predict, resolution
+from flakedb.match.fit import compare_texture, predict
 from flakedb.match.targets import TargetError, write_target
 from flakedb.match.texture import (
     DEFAULT_TEXTURE_OBSERVER,
@@ -82,7 +83,7 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
     order chunks as they are read)."""
     if store is None or not catalog_species(recipe):
         return None
-    ctx = StoreContext.open_for_recipe(str(store), recipe, resolution(recipe, n), raw)
+    ctx = StoreContext.open_for_recipe(str(store), recipe, resolve_node_count(recipe, n)[0], raw)
     if verify:
         ctx.version.verify(ctx.prefixes(recipe))
     return ctx.version

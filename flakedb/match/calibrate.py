@@ -55,6 +55,7 @@ from flakedb.match.targets import Target, TargetError
 from flakedb.paint.catalog import CatalogError, get_species, validate_catalog
 from flakedb.paint.recipe import RecipeError
 from flakedb.paint.species import absorption_factor
+from flakedb.solve.pipeline import settle_node_count
 
 #: Degree D of the Legendre series of ln(absorption factor) (D + 1 coefficients).
 ABSORPTION_DEGREE = 2
@@ -217,6 +218,8 @@ def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=N
         if not uses:
             raise ValueError(f"panel {p.name}: its recipe does not use species {species!r}")
         recipe_from_doc(p.recipe_doc, p.name, catalog)  # valid before any computation
+    # one n per panel for every evaluation (auto checked and refined once, at the base entry, as compose would)
+    n_panel = [settle_node_count(recipe_from_doc(p.recipe_doc, p.name, catalog), n, catalog) for p in panels]
     calls = [0]
     cache = {}
 
@@ -225,8 +228,8 @@ def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=N
         if key not in cache:
             cat = _catalog_with(catalog, species, calibrated_entry(base, params, z))
             out = []
-            for p in panels:  # a recipe holds its species' entries: parse it against the modified catalogue
-                pred = predict(recipe_from_doc(p.recipe_doc, p.name, cat), p.target.geometries, n, cat)
+            for p, n_p in zip(panels, n_panel):  # a recipe holds its species' entries: parse it against the modified catalogue
+                pred = predict(recipe_from_doc(p.recipe_doc, p.name, cat), p.target.geometries, n_p, cat)
                 calls[0] += 1
                 cs = for_target(pred.mode, p.target)  # the target's own conditions (no caller's choice here)
                 out.append((pred, pred.lab(cs.observer, cs.illuminant), cs))

@@ -60,7 +60,7 @@ With an open store version (:func:`build_paint` ``store=``), catalogue flakes be
 (compressed factors, or the raw samples with ``raw``), the rest as above: the loadings, σ_t(μ) and
 σ_s(μ) of flakes (1-D integrals of R(c), T(c): the store has no T), a pigment's ρ <C_ext> and
 <C_sca> (Mie cross-sections, no phase function), and the recipe's α (D(h) is evaluated, not
-stored).  :func:`flakedb.compose.store_context.store_problems` lists what the store lacks for a recipe.  In RGB mode the stored
+stored).  :func:`flakedb.solve.store_context.store_problems` lists what the store lacks for a recipe.  In RGB mode the stored
 spectral R is mapped to linear sRGB coefficient by coefficient (the map is linear).  For pigments the
 direct path's clips are reproduced: C_sca ≤ C_ext scales each channel's kernel, and the phase ≥ 0
 clip is applied to the evaluated kernel (:class:`flakedb.rt.stored.StoredPigmentMedium`
@@ -74,7 +74,7 @@ from the store (compose without a store instead): a pigment whose recipe overrid
 size distribution.
 
 Primer (Lambertian, docs/model.md §4): ``color`` black / gray / white → albedo 0.04 / 0.18 / 0.9
-(:data:`PRIMER_ALBEDO`); or an albedo; or a spectrum (linear in λ).
+(:data:`flakedb.paint.recipe.PRIMER_ALBEDO`); or an albedo; or a spectrum (linear in λ).
 
 Metal base (docs/model.md §4 "metal base"): a :class:`flakedb.rt.stack.RoughConductor` of the recipe's
 Beckmann roughness, with its complex index N = n + ik relative to vacuum (the solver divides it by the
@@ -118,11 +118,9 @@ from flakedb.optics.fresnel import fresnel_conductor
 from flakedb.paint.limits import is_rough_interface
 from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import (
-    PRIMER_ALBEDO,  # noqa: E402,F401  (defined with the recipe's primer colours)
     CatalogParticle,
     CustomFlake,
     CustomMedium,
-    RecipeError,
     Spectrum,
 )
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
@@ -461,7 +459,7 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
 
 def _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored):
     """StoredPigmentMedium: ⟨C_ext⟩, ⟨C_sca⟩, ⟨V⟩ and the phase function's Legendre moments from the
-    store (:meth:`flakedb.compose.store_context.StoreContext.pigment`), the RGB mode's clips as
+    store (:meth:`flakedb.solve.store_context.StoreContext.pigment`), the RGB mode's clips as
     :func:`pigment_tospectra_to_rgb_mode` (the phase ≥ 0 clip on the series, :func:`rgb_phase_moments`)."""
     po = stored.pigment(p.species)  # per recipe band: c_ext_um2, c_sca_um2, mean_volume_um3 (scalar), chi
     c_ext, c_sca, chi = po["c_ext_um2"], po["c_sca_um2"], po["legendre_moments"]
@@ -617,7 +615,7 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
     """The solver inputs of ``recipe`` (a :class:`flakedb.paint.recipe.Recipe`); see the module docstring.
 
     Without ``stored`` every particle's optics is computed directly from the catalogue.  With
-    ``stored`` (a :class:`flakedb.compose.store_context.StoreContext`: an open store version checked
+    ``stored`` (a :class:`flakedb.solve.store_context.StoreContext`: an open store version checked
     against the recipe at the solve's node count), catalogue species take their kernels' R from it.
     """
     mode = recipe.mode

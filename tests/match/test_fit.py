@@ -158,7 +158,7 @@ def test_compare_fails_outside_limits(tmp_path):
 def test_match_composes_through_composes_checks(catalog, monkeypatch):
     """match predicts through compose's own path (issue #21): compose's physical check refuses for it too, and the
     solve gets compose's threads (a second orchestration had skipped both)."""
-    from flakedb.compose import orchestrate
+    from flakedb.solve import pipeline as orchestrate
 
     rec = recipe_from_doc(yaml.safe_load(_text(**TRUE)), catalog=catalog)
     seen = {}

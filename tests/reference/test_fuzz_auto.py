@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 import flakedb.reference.montecarlo as mc
-from flakedb.compose.orchestrate import check_physical, compose
+from flakedb.compose.orchestrate import compose
+from flakedb.solve.pipeline import check_physical
 from flakedb.solve.resolution import AUTO_TARGETS
 from flakedb.paint.recipe import parse_recipe
 from flakedb.rt.quadrature import binder_chain_quadratures, radau_hemisphere
