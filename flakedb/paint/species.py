@@ -184,6 +184,14 @@ def pigment_optics(entry: dict, wavelength_nm, n_binder, mu=None, n_quad=None):
 def describe(name: str, entry: dict) -> str:
     """One paragraph: kind, description and the parameters with units."""
     lines = [f"{name} ({entry['kind']}): {entry['description']}"]
+    rho, _ = species_density_g_cm3(entry)
+    ident = [f"C.I. {entry['colour_index']}"] if entry.get("colour_index") else []
+    ident += [f"density {rho:.4g} g/cm³"] if rho is not None else []
+    if "grade" in entry:
+        ident.append(f"grade {entry['grade']['name']}" + (f", {entry['grade']['surface_treatment']}"
+                                                          if "surface_treatment" in entry["grade"] else ""))
+    if ident:
+        lines.append("; ".join(ident))
     if entry["kind"] == "interference_flake":
         mats, d = film_stack(entry)
         lines.append("film stack (top to bottom): " + " | ".join(f"{m} {x:g} nm" for m, x in zip(mats, d)))
