@@ -25,7 +25,8 @@ from flakedb.paint.materials import material_density_g_cm3, refractive_index
 from flakedb.paint.species import binder_index, pigment_optics, species_density_g_cm3
 
 #: the seven families of issue #35 that this catalogue has, by Colour Index name
-COLOURANTS = {"carbon-black": "PBk7", "iron-oxide-red": "PR101", "titanium-white-r706": "PW6"}
+COLOURANTS = {"carbon-black": "PBk7", "iron-oxide-red": "PR101", "iron-oxide-red-transparent": "PR101",
+              "titanium-white-r706": "PW6"}
 #: 45° illumination, aspecular 45°, 75°, 110° (the done-when geometries)
 DONE_WHEN = [(45.0, 45.0), (45.0, 75.0), (45.0, 110.0)]
 
@@ -177,3 +178,18 @@ class TestCarbonBlack:
             monkeypatch.setattr(species_module, "refractive_index", changed)
             got = lab(masstone_doc("carbon-black", 0.02, 20), cat)
             assert np.max(np.abs(got - ref)) < 0.1, (scale, got - ref)
+
+
+def test_transparent_iron_oxide_hardly_scatters():
+    # the transparent grade's reason to exist (its catalogue source): same hematite, 20 nm instead of
+    # 0.2 µm, so single-scattering albedo 0.05 instead of 0.53 at 550 nm (measured), absorbing more per
+    # volume in the blue (small-particle absorption) and less in the red
+    cat = load_catalog(None)
+    wl = np.array([450.0, 550.0, 650.0])
+    nb = binder_index(cat, wl)
+    t = pigment_optics(cat["particles"]["iron-oxide-red-transparent"], wl, nb)
+    o = pigment_optics(cat["particles"]["iron-oxide-red"], wl, nb)
+    albedo_t, albedo_o = t.c_sca_um2 / t.c_ext_um2, o.c_sca_um2 / o.c_ext_um2
+    assert albedo_t[1] < 0.1 < 0.4 < albedo_o[1]
+    abs_t = (t.c_ext_um2 - t.c_sca_um2) / t.mean_volume_um3
+    assert abs_t[0] > abs_t[1] > abs_t[2]

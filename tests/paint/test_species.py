@@ -46,7 +46,7 @@ PAPER_SIX = {
 }
 #: species the catalogue adds to the paper's six (each with its reason in particles.yaml)
 ADDED = {"pearl-white": "interference_flake", "carbon-black": "pigment", "iron-oxide-red": "pigment",
-         "titanium-white-r706": "pigment"}
+         "iron-oxide-red-transparent": "pigment", "titanium-white-r706": "pigment"}
 
 
 @pytest.fixture(scope="module")
