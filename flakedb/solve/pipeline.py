@@ -228,7 +228,7 @@ def second_report(paint, n, version, colour_settings=None, progress=None):
 
 def discretisation_estimate(solved, report, log=None) -> dict:
     """The estimated ΔE00 of the solve's own discretisation: the report against the second solve at
-    n' = :func:`flakedb.solve.resolution.second_solve_n` (≈ 3n/4; :func:`flakedb.compose.report.discretisation_error`,
+    n' = :func:`flakedb.solve.resolution.second_solve_n` (≈ 3n/4; :func:`flakedb.appearance.report.discretisation_error`,
     docs/resolution.md) that :func:`second_report` made before the solve (``solved.before``), for n ≥ 16 without
     a store (a store holds the species' factors at its own n only)."""
     n, second = solved.n, solved.before

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from flakedb.colour.settings import FLOP_GEOMETRIES
-from flakedb.compose.report import flop_index_standard
+from flakedb.appearance.report import flop_index_standard
 from flakedb.match.fit import predict, recipe_from_doc
 from flakedb.paint.catalog import load_catalog
 from flakedb.resources import CATALOG_DIR, RECIPES_DIR
