@@ -91,12 +91,11 @@ def compare_batch(recipes, targets=(), pairs=None, observer=None, illuminant=Non
         if not mine:
             continue
         if targets:
-            geoms = []
+            union = {}   # insertion-ordered set: linear in the number of points (a set rebuilt per point was quadratic)
             for j in mine:
                 for g in targets[j].geometries:
-                    if _key(g) not in {_key(x) for x in geoms}:
-                        geoms.append(_key(g))
-            geoms = np.asarray(geoms, float)
+                    union.setdefault(_key(g), None)
+            geoms = np.asarray(list(union), float)
         else:
             geoms = np.asarray(GEOMETRY_SETS[resolve(geometry_set=geometry_set).geometry_set], float)
         version = store_for(rec) if store_for is not None else None
