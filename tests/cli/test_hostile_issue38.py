@@ -113,3 +113,145 @@ def test_export_openpbr_name_must_be_a_plain_file_name(tmp_path, name):
     r = run_cli(["export-openpbr", src, "--out", tmp_path / "out", "--name", name])
     _clean(r, "--name")
     assert _files(tmp_path) == ["p.bsdf"]
+
+
+# --- 2/3. calibrate: the strict loader, the safe reader, physical targets, early names --------------
+PANEL = """\
+flakedb: 1
+name: masstone
+spectral: {mode: spectral, range_nm: [400, 700], step_nm: 20}
+resolution: 16
+layers:
+  - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
+  - basecoat:
+      thickness_um: 30
+      ior: 1.5
+      particles:
+        - species: cadmium-yellow
+          volume_fraction: 0.1
+  - primer: {color: black}
+"""
+LADDER = "species: cadmium-yellow\nname: cy-lab\npanels:\n  - {recipe: masstone.yaml, target: masstone.csv}\n"
+
+
+def _spectral_target(value):
+    wl = range(400, 701, 20)
+    head = "illumination_deg,aspecular_deg," + ",".join(f"R_{w}" for w in wl)
+    return head + "\n" + "".join(f"45,{a}," + ",".join([str(value)] * len(wl)) + "\n" for a in (15, 45, 110))
+
+
+@pytest.fixture()
+def ladder(tmp_path):
+    (tmp_path / "masstone.yaml").write_text(PANEL)
+    (tmp_path / "masstone.csv").write_text(_spectral_target(0.3))
+    (tmp_path / "ladder.yaml").write_text(LADDER)
+    return tmp_path
+
+
+def _calibrate(d, ladder_name="ladder.yaml", bound=30):
+    return run_cli(["calibrate", d / ladder_name, "--out-catalog", d / "user.yaml", "--report", d / "fit.json"],
+                   bound=bound)
+
+
+BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"{c}: &{c} [" + ", ".join([f"*{p}"] * 9) + "]\n" for p, c in zip("abcdefgh", "bcdefghi"))
+
+
+@pytest.mark.parametrize("kind", ["fifo", "zero", "bomb", "dupname", "list", "tag"])
+def test_a_hostile_ladder_is_refused_naming_it(ladder, no_work, kind):
+    lad = ladder / "ladder.yaml"
+    lad.unlink()
+    words = {"fifo": "FIFO", "zero": "character device", "bomb": "aliases", "dupname": "duplicate key 'name'",
+             "list": "YAML mapping", "tag": "tag"}[kind]
+    if kind == "fifo":
+        os.mkfifo(lad)
+    elif kind == "zero":
+        os.symlink("/dev/zero", lad)
+    elif kind == "bomb":
+        lad.write_text(LADDER + BOMB.replace("a:", "z:", 1).replace("&a", "&za").replace("*a", "*za"))
+    elif kind == "dupname":
+        lad.write_text(LADDER + "name: other\n")
+    elif kind == "list":
+        lad.write_text("- species: cadmium-yellow\n")
+    elif kind == "tag":
+        lad.write_text(LADDER.replace("name: cy-lab", "name: !!python/object:os.system cy-lab"))
+    out = _clean(_calibrate(ladder, bound=20), words)
+    assert str(lad) in out
+    assert not (ladder / "user.yaml").exists() and not (ladder / "fit.json").exists()
+
+
+@pytest.mark.parametrize("kind,words", [
+    ("dupkey", "duplicate key 'volume_fraction'"),
+    ("list", "a recipe is a YAML mapping"),
+    ("fifo", "FIFO"),
+    ("layers", "layers"),
+])
+def test_a_hostile_panel_recipe_is_refused_naming_it(ladder, no_work, kind, words):
+    rp = ladder / "masstone.yaml"
+    if kind == "dupkey":
+        rp.write_text(PANEL.replace("volume_fraction: 0.1", "volume_fraction: 0.1\n          volume_fraction: 0.4"))
+    elif kind == "list":
+        rp.write_text("- " + PANEL.replace("\n", "\n  "))
+    elif kind == "fifo":
+        rp.unlink()
+        os.mkfifo(rp)
+    elif kind == "layers":
+        rp.write_text(PANEL.replace("  - clearcoat:", "  - - clearcoat:"))
+    out = _clean(_calibrate(ladder, bound=20), words)
+    assert "panels[0]" in out or "masstone" in out
+    assert not (ladder / "user.yaml").exists()
+
+
+def test_a_negative_reflectance_target_is_refused(ladder, no_work):
+    (ladder / "masstone.csv").write_text(_spectral_target(-0.3))
+    out = _clean(_calibrate(ladder), "R_400 = -0.3", "masstone.csv", "45as15")
+    assert not (ladder / "user.yaml").exists()
+
+
+def test_an_invalid_species_name_is_refused_before_any_compose(ladder, no_work):
+    (ladder / "ladder.yaml").write_text(LADDER.replace("name: cy-lab", "name: Cadmium Yellow (lab)"))
+    _clean(_calibrate(ladder), "'Cadmium Yellow (lab)' is not a species name")
+    (ladder / "ladder.yaml").write_text(LADDER.replace("name: cy-lab", "name: " + "x" * 900_000))
+    out = _clean(_calibrate(ladder), "is not a species name", "900,000 characters")
+    assert len(out) < 1000
+
+
+@pytest.mark.parametrize("text,words", [
+    (_spectral_target(-0.3), "R_400 = -0.3"),
+    (_spectral_target(55), "'# reflectance: percent'"),
+    ("illumination_deg,aspecular_deg,L*,a*,b*\n45,15,-271,5,60\n", "L* = -271"),
+])
+def test_compare_refuses_impossible_measurements(paint, no_work, text, words):
+    (paint / "t.csv").write_text(text)
+    _clean(run_cli(["compare", paint / "r.yaml", "--target", paint / "t.csv"]), words, str(paint / "t.csv"))
+
+
+def _cxf(objects, specs):
+    ns = 'xmlns:cc="http://colorexchangeformat.com/CxF3-core"'
+    return (f'<?xml version="1.0"?><cc:CxF {ns}><cc:Resources><cc:ObjectCollection>{objects}</cc:ObjectCollection>'
+            f'<cc:ColorSpecificationCollection>{specs}</cc:ColorSpecificationCollection></cc:Resources></cc:CxF>')
+
+
+def _spec(sid, notation="45as15", asp=15):
+    return (f'<cc:ColorSpecification Id="{sid}"><cc:MeasurementSpec><cc:GeometryChoice><cc:MultiAngle>'
+            f'<cc:BRDFAngle Notation="{notation}"><cc:IlluminationAngle>45</cc:IlluminationAngle>'
+            f'<cc:Aspecular>{asp}</cc:Aspecular></cc:BRDFAngle></cc:MultiAngle></cc:GeometryChoice>'
+            f'<cc:WavelengthRange StartWL="400" Increment="20"/></cc:MeasurementSpec></cc:ColorSpecification>')
+
+
+def _object(name, oid, spec="s1", value=0.4):
+    r = " ".join([str(value)] * 16)
+    return (f'<cc:Object Name="{name}" Id="{oid}"><cc:ColorValues><cc:ReflectanceSpectrum ColorSpecification="{spec}">'
+            f'{r}</cc:ReflectanceSpectrum></cc:ColorValues></cc:Object>')
+
+
+@pytest.mark.parametrize("objects,specs,args,words", [
+    (_object("STD", "1") + _object("STD", "2", value=0.6), _spec("s1"), ["--cxf-object", "STD"],
+     "2 objects are named 'STD'"),
+    (_object("A", "1") + _object("B", "1"), _spec("s1"), ["--cxf-object", "A"], "two Objects have Id '1'"),
+    (_object("A", "1"), _spec("s1") + _spec("s1", "45as45", 45), [], "two ColorSpecifications have Id 's1'"),
+    (_object("A", "1", value=-0.3), _spec("s1"), [], "object 'A' ReflectanceSpectrum geometry 45as15"),
+])
+def test_cxf_ambiguity_and_impossible_values_are_refused(paint, no_work, objects, specs, args, words):
+    (paint / "t.cxf").write_text(_cxf(objects, specs))
+    _clean(run_cli(["compare", paint / "r.yaml", "--target", paint / "t.cxf"] + args), words, str(paint / "t.cxf"))
