@@ -41,14 +41,23 @@ class OutputError(ValueError):
     """An output cannot be written as planned (the command refuses before any work, exit status 2)."""
 
 
-def _host() -> str:
+def temp_host() -> str:
+    """This host's name as temporary entries carry it (letters, digits and '-')."""
     return re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())[:32] or "host"
+
+
+_host = temp_host
 
 
 def temp_prefix(name: str) -> str:
     """The prefix of a temporary entry for the output ``name``: ``.NAME.flakedb-tmp-HOST-PID-``
     (``tempfile`` adds random characters, the caller ``.tmp…``)."""
     return f".{name}.{TEMP_TAG}-{_host()}-{os.getpid()}-"
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` of this host may still run (True when it cannot be told)."""
+    return _pid_alive(pid)
 
 
 def _pid_alive(pid: int) -> bool:

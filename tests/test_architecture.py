@@ -12,7 +12,7 @@ PKG = Path(__file__).resolve().parents[1] / "flakedb"
 
 #: tier of each top-level part of the package (lower number = lower tier)
 TIERS = {
-    "conventions": 0, "optics": 0, "rt": 0, "colour": 0, "reference": 0, "texture": 0,
+    "conventions": 0, "interrupts": 0, "optics": 0, "rt": 0, "colour": 0, "reference": 0, "texture": 0,
     "resources": 1, "atomic": 1, "process": 1, "outputs": 1, "safeio": 1, "paint": 1, "store": 1, "bsdf": 1, "render": 1,
     "compose": 2, "pipelines": 2, "match": 2, "export": 2, "cli": 3, "__main__": 3, "__init__": 3,
 }

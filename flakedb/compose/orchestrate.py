@@ -62,6 +62,7 @@ from flakedb.compose.report import (
 from flakedb.compose.store_context import StoreContext
 from flakedb.conventions import fourier_weight
 from flakedb.outputs import OutputError, OutputPlan, check_output_dir  # noqa: F401  (moved; re-exported)
+from flakedb.process import memory_budget_bytes
 from flakedb.paint.mapping import (
     AUTO_REFINE_STEPS,
     auto_colour_target,
@@ -368,8 +369,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     progress("optics", {"seconds": t["optics"], "channels": paint.n_channels})
     before = None if before_solve is None else before_solve(paint, n_used, version)
     t0 = time.perf_counter()
-    budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
-    stack = solve_paint(paint, n_used, memory_budget_bytes=float(budget) if budget else None,
+    stack = solve_paint(paint, n_used, memory_budget_bytes=memory_budget_bytes(),  # units parsed (flakedb.process)
                         threads=os.cpu_count() or 1, progress=progress)
     t["solve"] = time.perf_counter() - t0
     log(f"solve: n = {n_used} ({reason}), {stack.info.get('orders')} Fourier orders, {t['solve']:.2f} s")
@@ -412,8 +412,7 @@ def second_report(paint, n, version, colour_settings=None, progress=None):
     n2 = second_solve_n(n)
     t0 = time.perf_counter()
     progress("discretisation", {"start": True, "n": n2})
-    budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
-    second = solve_paint(paint, n2, memory_budget_bytes=float(budget) if budget else None, threads=os.cpu_count() or 1)
+    second = solve_paint(paint, n2, memory_budget_bytes=memory_budget_bytes(), threads=os.cpu_count() or 1)
     table = stack_to_table(second.scattered(), paint.channels, paint.eta, None, paint.delta, {})
     x, albedo = second.x, second.albedo(include_delta=False)
     del second  # its R^t, before the report's evaluation
