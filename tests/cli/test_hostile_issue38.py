@@ -255,3 +255,82 @@ def _object(name, oid, spec="s1", value=0.4):
 def test_cxf_ambiguity_and_impossible_values_are_refused(paint, no_work, objects, specs, args, words):
     (paint / "t.cxf").write_text(_cxf(objects, specs))
     _clean(run_cli(["compare", paint / "r.yaml", "--target", paint / "t.cxf"] + args), words, str(paint / "t.cxf"))
+
+
+# --- the materials folder, the --pairs list: the safe reader ------------------------------------------
+METAL = small_mono_recipe("metal").replace("spectral: {mode: mono}", "spectral: {mode: spectral, range_nm: [400, 700], "
+                                           "step_nm: 20}").replace(
+    "        - custom: {kind: medium, albedo: 0.9, phase: isotropic}\n          optical_depth: 1.0",
+    "        - {species: metallic, volume_fraction: 0.05}")
+
+
+@pytest.fixture()
+def materials(tmp_path, monkeypatch):
+    from flakedb.paint import materials as mat
+    from flakedb.resources import MATERIALS_DIR
+
+    d = tmp_path / "materials"
+    d.mkdir()
+    for p in MATERIALS_DIR.iterdir():
+        if p.is_file():
+            (d / p.name).write_bytes(p.read_bytes())
+    monkeypatch.setenv("FLAKEDB_MATERIALS_DIR", str(d))
+    for f in (mat._index, mat.material_table):
+        f.cache_clear()
+    yield d
+    for f in (mat._index, mat.material_table):
+        f.cache_clear()
+
+
+def test_nan_in_a_materials_table_is_refused_naming_the_file_and_line(tmp_path, materials):
+    table = materials / "Al_Rakic1995.csv"
+    lines = table.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln[:1].isdigit())
+    lines[k] = lines[k].split(",")[0] + ",nan," + lines[k].split(",")[2]
+    table.write_text("\n".join(lines) + "\n")
+    (tmp_path / "m.yaml").write_text(METAL)
+    _clean(run_cli(["compose", tmp_path / "m.yaml", "--out", tmp_path / "o"]), str(table), f"line {k + 1}",
+           "finite")
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("kind", ["fifo", "dupkey"])
+def test_a_hostile_materials_index_is_refused(tmp_path, materials, kind):
+    idx = materials / "materials.yaml"
+    if kind == "fifo":
+        idx.unlink()
+        os.mkfifo(idx)
+    else:
+        idx.write_text(idx.read_text() + "\nmaterials: {}\n")
+    (tmp_path / "m.yaml").write_text(METAL)
+    _clean(run_cli(["compose", tmp_path / "m.yaml", "--out", tmp_path / "o"], bound=30), "materials.yaml",
+           "FIFO" if kind == "fifo" else "duplicate key 'materials'")
+
+
+def test_a_fifo_pairs_list_is_refused(paint, no_work):
+    os.mkfifo(paint / "pairs.csv")
+    _clean(run_cli(["compare", "--pairs", paint / "pairs.csv", "--table", paint / "t.out.csv"], bound=30), "FIFO",
+           "pairs.csv")
+
+
+# --- environment variables ---------------------------------------------------------------------------
+@pytest.mark.parametrize("value,ok", [("12GB", True), ("4 GiB", True), ("2e9", True), ("12 parsecs", False),
+                                      ("-1GB", False), ("nan", False), ("1kB", False)])
+def test_memory_budget_is_parsed_with_units_or_refused_before_work(paint, monkeypatch, value, ok):
+    monkeypatch.setenv("FLAKEDB_MEMORY_BUDGET", value)
+    seen = {}
+    real = orch.solve_paint
+
+    def spy(*a, **k):
+        seen["budget"] = k.get("memory_budget_bytes")
+        return real(*a, **k)
+
+    monkeypatch.setattr(orch, "solve_paint", spy)
+    r = run_cli(["compose", paint / "r.yaml", "--out", paint / "o"])
+    if ok:
+        assert r.exit_code == 0, r.output
+        from flakedb.process import parse_bytes
+        assert seen["budget"] == parse_bytes(value, "X") and seen["budget"] >= 1e9
+    else:
+        _clean(r, "FLAKEDB_MEMORY_BUDGET")
+        assert "budget" not in seen and not (paint / "o").exists()
