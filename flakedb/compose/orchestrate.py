@@ -48,6 +48,7 @@ import flakedb.bsdf as bsdf_files  # the module, so a test can replace its write
 from flakedb import __version__
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.bsdf.h5file import preload_h5py
+from flakedb.bsdf.table import ENERGY_SLACK, energy_albedo
 from flakedb.colour import gamut
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.compose.report import (
@@ -394,6 +395,21 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     t0 = time.perf_counter()
     table = stack_to_table(stack, paint.channels, paint.eta, None, paint.delta, md)  # α from the solved stack
     t["table"] = time.perf_counter() - t0
+    # what `flakedb info` checks on the written file (issue 38), for an opaque paint (primer or metal base): a table
+    # with transmission (a research stack without a bottom) holds the unscattered beam as a one-node spike that
+    # the Catmull-Rom integral overshoots (an index-matched HG slab: 1.033 at n = 16 where the quadrature's is 1)
+    written = float(energy_albedo(table).max()) if table.reflection_only else 0.0
+    if written > 1.0 + ENERGY_SLACK:
+        problem = (f"the written table's albedo reaches {written:.4f} > 1 + {ENERGY_SLACK:g} (the Catmull-Rom integral "
+                   f"over its {table.n} nodes that renderers and `flakedb info` use; the solver's own albedo "
+                   f"{float(stack.albedo().max()):.4f}): a lobe narrower than the node spacing (a metal or coat "
+                   f"roughness near 0.01)")
+        if not allow_unphysical:
+            raise UnphysicalResultError(
+                f"recipe {recipe.name}: unphysical result at n = {n_used}: {problem}; nothing written.  Raise the "
+                f"resolution (--n), make the narrowest surface rougher, or rerun with --allow-unphysical to write it "
+                f"anyway.")
+        warnings.append(f"UNPHYSICAL RESULT (written because of --allow-unphysical): {problem}")
     return SolvedRecipe(paint=paint, stack=stack, table=table, n=n_used, n_reason=reason, warnings=warnings,
                         timings_s=t, version=version, store_label=store_label, stored=stored, before=before)
 

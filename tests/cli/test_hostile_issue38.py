@@ -334,3 +334,30 @@ def test_memory_budget_is_parsed_with_units_or_refused_before_work(paint, monkey
     else:
         _clean(r, "FLAKEDB_MEMORY_BUDGET")
         assert "budget" not in seen and not (paint / "o").exists()
+
+
+# --- 4. compose never writes with exit 0 what its own energy check fails ------------------------------
+MIRROR_METAL = """\
+flakedb: 1
+name: mirror-metal
+spectral: {mode: mono}
+resolution: 16
+layers:
+  - clearcoat: {thickness_um: 40, ior: 1.5}
+  - metal: {material: {n: 0.01, k: 100}, roughness: 0.01}
+"""
+
+
+def test_a_table_that_fails_the_energy_check_is_not_written(tmp_path):
+    """A near-perfect conductor (n 0.01, k 100) of roughness 0.01: the solver's albedo is 1.0000, the written
+    table's Catmull-Rom albedo (what renderers and `flakedb info` integrate) 1.1185 at n = 16 (1.0049 at auto's
+    n = 248).  Before: written with exit 0, `info` said ENERGY NOT CONSERVED.  Now refused, nothing written;
+    with --allow-unphysical written with the warning, and `info` agrees with compose."""
+    (tmp_path / "m.yaml").write_text(MIRROR_METAL)
+    out = _clean(run_cli(["compose", tmp_path / "m.yaml", "--out", tmp_path / "o"], bound=120), "albedo reaches 1.1",
+                 "--allow-unphysical")
+    assert "nothing written" in out and not (tmp_path / "o").exists()
+    r = run_cli(["compose", tmp_path / "m.yaml", "--out", tmp_path / "o", "--allow-unphysical"], bound=120)
+    assert r.exit_code == 0 and "UNPHYSICAL RESULT" in r.output, r.output
+    info = run_cli(["info", tmp_path / "o" / "mirror-metal.bsdf"])
+    assert info.exit_code != 0 and "ENERGY NOT CONSERVED" in info.output, info.output
