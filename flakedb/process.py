@@ -317,3 +317,37 @@ def environment_problems(environ=None) -> list[str]:
         if raw is not None and "\0" in raw:
             out.append(f"{v}={_shown(raw)}: a path cannot hold a NUL byte")
     return out
+
+
+# --- warnings ----------------------------------------------------------------------------------------
+
+def format_warning(message, category, filename=None, lineno=None, line=None) -> str:
+    """One line for a library's warning (numpy's RuntimeWarning "divide by zero encountered in log", say):
+    ``flakedb: warning (RuntimeWarning): ...``, without the file and source line Python prints by default, the
+    message cut to 300 characters.
+
+    >>> format_warning(RuntimeWarning("invalid value encountered in divide"), RuntimeWarning, "/x/numpy/_methods.py", 12)
+    'flakedb: warning (RuntimeWarning): invalid value encountered in divide\\n'
+    """
+    text = " ".join(str(message).split())
+    text = text if len(text) <= 300 else text[:297] + "..."
+    return f"flakedb: warning ({getattr(category, '__name__', 'Warning')}): {text}\n"
+
+
+def install_warning_format() -> None:
+    """Print every warning as :func:`format_warning`'s one line, each distinct line once per process, for the
+    command line (issue 38: numpy's RuntimeWarnings came with their source lines, once per call site)."""
+    import warnings  # lazy: only the command line changes how warnings look
+
+    shown = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = format_warning(message, category)
+        if text in shown:
+            return
+        shown.add(text)
+        stream = file if file is not None else sys.stderr
+        with contextlib.suppress(Exception):
+            stream.write(text)
+
+    warnings.showwarning = show

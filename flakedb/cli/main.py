@@ -11,13 +11,14 @@ import click
 
 from flakedb import __version__
 from flakedb.cli.errors import FlakedbError  # noqa: F401  (re-exported for scripts)
-from flakedb.cli.failures import as_failure
+from flakedb.cli.failures import as_failure, shorten_tokens
 from flakedb.process import (
     blas_one_thread,
     environment_problems,
     exit_after_signal,
     fast_exit,
     install_signal_handlers,
+    install_warning_format,
     received_signal,
     signal_exit_status,
     tune_allocator,
@@ -119,7 +120,10 @@ class FlakedbGroup(click.Group):
             raise FlakedbError("; ".join(problems))
         try:
             return super().invoke(ctx)
-        except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort, SystemExit):
+        except click.exceptions.ClickException as exc:
+            exc.message = shorten_tokens(exc.message)   # never a 900 kB name echoed back
+            raise
+        except (click.exceptions.Exit, click.exceptions.Abort, SystemExit):
             raise
         except BaseException as exc:
             # SIGTERM / SIGHUP / SIGINT (flakedb.process.Terminated), also when a compiled kernel reported it as
@@ -149,6 +153,7 @@ def main():
     blas_one_thread()  # before numpy loads: the BLAS's own threads only compete with flakedb's (flakedb.process)
     tune_allocator()  # freed memory kept for reuse: page faults are most of a short solve's overhead
     install_signal_handlers()  # SIGTERM / SIGHUP clean up as SIGINT does (flakedb.process.Terminated)
+    install_warning_format()  # a library's warning as one line, not a source line (flakedb.process)
     try:
         cli(prog_name="flakedb")
     except SystemExit as exc:
