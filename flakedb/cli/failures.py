@@ -96,7 +96,9 @@ def as_failure(exc: BaseException) -> click.ClickException:
     if isinstance(exc, MemoryError):
         return FlakedbFailure("out of memory (hint: memory grows with the node count (--n or the recipe's "
                               "resolution), the number of bands (spectral.step_nm), a pigment's median_diameter_um and "
-                              "gsd, and --res / --size; lower the largest, or set FLAKEDB_MEMORY_BUDGET)")
+                              "gsd, a flake layer's thickness_um times its flakes' volume_fraction (the texture model "
+                              "follows every flake a light path crosses), and --res / --size; lower the largest, or "
+                              "set FLAKEDB_MEMORY_BUDGET, e.g. FLAKEDB_MEMORY_BUDGET=4GiB)")
     if _is_loaded_instance(exc, "flakedb.bsdf.table", "BSDFFileError"):
         err = click.ClickException(_one_line(exc))
         err.exit_code = 2

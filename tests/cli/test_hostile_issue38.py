@@ -443,3 +443,36 @@ def test_export_openpbr_sweeps_what_killed_runs_left(tmp_path):
     with pytest.raises(Exception):   # the file is no BSDF: refused after the plan and the sweep
         registry.export_openpbr(tmp_path / "missing.bsdf", out, name="p", progress=notes.append)
     assert not stray.exists() and any("removed" in n for n in notes)
+
+
+def test_no_sparkle_says_why():
+    """Aligned flakes (α 0.01) lit at 75° and seen at 0°: no flake is tilted to mirror the light, while an
+    aligned flake's peak luminance factor is 1.4e3; the old line said "peak luminance factor 1.43e+03 < 1"."""
+    import numpy as np
+
+    from flakedb.texture import model as tm
+    from flakedb.texture.instruments import PRESETS
+
+    c = np.linspace(0.0, 1.0, 5)
+    f = tm.FlakeLayer("al", 0.0, 10.0, 1e-4, 15.0, 1.3, 0.3, 0.01, c, np.full((1, 5), 0.9), np.zeros((1, 5)))
+    st = tm.TextureStack(1.5, np.array([1.0]), (f,))
+    lit = tm.sparkle_indices(st, PRESETS["byk-mac-like"], 15.0)
+    dark = tm.sparkle_indices(st, PRESETS["byk-mac-like"], 75.0)
+    assert lit["sparkle"] and lit["no_sparkle_reason"] == ""
+    assert not dark["sparkle"] and dark["peak_luminance_factor"] > tm.SPARKLE_MIN_PEAK
+    assert "no flake is tilted" in dark["no_sparkle_reason"] and "< 1" not in dark["no_sparkle_reason"]
+
+
+def test_render_into_a_folder_whose_name_is_not_utf8(tmp_path):
+    (tmp_path / "r.yaml").write_text(RECIPE)
+    assert run_cli(["compose", tmp_path / "r.yaml", "--out", tmp_path]).exit_code == 0
+    out = os.fsdecode(os.fsencode(str(tmp_path)) + b"/bad\xffdir")
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "flakedb", "render", str(tmp_path / "good.bsdf"), "--out", out, "--size",
+                        "16", "--spp", "4"], capture_output=True, env=dict(os.environ, PYTHONPATH=os.pathsep.join(
+                            sys.path)), timeout=120)   # a real process: click's runner encodes its output strictly
+    assert r.returncode == 0, r.stderr
+    from flakedb.render.imageio import read_exr
+    assert read_exr(os.path.join(out, "good.exr")).shape == (16, 16, 3)
