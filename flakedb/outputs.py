@@ -140,10 +140,16 @@ def check_output_dir(out_dir, option="--out") -> Path:
 def check_file_name(name, option, where="--out") -> str:
     """Refuse a value that must be a plain file name in ``where`` but is a path or a special name."""
     s = str(name)
+    shown = repr(s) if len(s) <= 80 else repr(s[:77]) + f"... ({len(s):,} characters)"
     if (not s or s in (".", "..") or "/" in s or (os.sep != "/" and os.sep in s) or (os.altsep and os.altsep in s)
             or "\0" in s):
-        raise OutputError(f"{option} {name!r}: must be a plain file name, written in {where} (no directory part, "
+        raise OutputError(f"{option} {shown}: must be a plain file name, written in {where} (no directory part, "
                           f"not '.' or '..') (hint: give e.g. {option} sheet.png and choose the directory with {where})")
+    if any(ord(c) < 32 or ord(c) == 127 for c in s):
+        raise OutputError(f"{option} {shown}: a file name with a control character (a line break, say) is refused "
+                          f"(hint: rename it)")
+    if len(os.fsencode(s)) > 255:
+        raise OutputError(f"{option} {shown}: a file name is at most 255 bytes (hint: choose a shorter name)")
     return s
 
 
