@@ -41,14 +41,23 @@ class OutputError(ValueError):
     """An output cannot be written as planned (the command refuses before any work, exit status 2)."""
 
 
-def _host() -> str:
+def temp_host() -> str:
+    """This host's name as temporary entries carry it (letters, digits and '-')."""
     return re.sub(r"[^A-Za-z0-9-]", "-", socket.gethostname())[:32] or "host"
+
+
+_host = temp_host
 
 
 def temp_prefix(name: str) -> str:
     """The prefix of a temporary entry for the output ``name``: ``.NAME.flakedb-tmp-HOST-PID-``
     (``tempfile`` adds random characters, the caller ``.tmp…``)."""
     return f".{name}.{TEMP_TAG}-{_host()}-{os.getpid()}-"
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` of this host may still run (True when it cannot be told)."""
+    return _pid_alive(pid)
 
 
 def _pid_alive(pid: int) -> bool:
@@ -131,10 +140,16 @@ def check_output_dir(out_dir, option="--out") -> Path:
 def check_file_name(name, option, where="--out") -> str:
     """Refuse a value that must be a plain file name in ``where`` but is a path or a special name."""
     s = str(name)
+    shown = repr(s) if len(s) <= 80 else repr(s[:77]) + f"... ({len(s):,} characters)"
     if (not s or s in (".", "..") or "/" in s or (os.sep != "/" and os.sep in s) or (os.altsep and os.altsep in s)
             or "\0" in s):
-        raise OutputError(f"{option} {name!r}: must be a plain file name, written in {where} (no directory part, "
+        raise OutputError(f"{option} {shown}: must be a plain file name, written in {where} (no directory part, "
                           f"not '.' or '..') (hint: give e.g. {option} sheet.png and choose the directory with {where})")
+    if any(ord(c) < 32 or ord(c) == 127 for c in s):
+        raise OutputError(f"{option} {shown}: a file name with a control character (a line break, say) is refused "
+                          f"(hint: rename it)")
+    if len(os.fsencode(s)) > 255:
+        raise OutputError(f"{option} {shown}: a file name is at most 255 bytes (hint: choose a shorter name)")
     return s
 
 

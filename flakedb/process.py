@@ -33,6 +33,8 @@ import signal
 import sys
 import threading
 
+from flakedb.interrupts import raise_or_defer
+
 #: glibc's mallopt parameters (malloc.h).
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
@@ -102,32 +104,39 @@ def _libc():
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM or SIGHUP arrived (issue 25): raised in the main thread like Ctrl-C's KeyboardInterrupt,
-    so every ``finally`` / ``except BaseException`` that cleans up after SIGINT (temporary files and
-    directories, half-built outputs) does the same for them.  ``signum`` is the signal's number."""
+    """SIGTERM, SIGHUP or SIGINT arrived (issues 25, 38): raised in the main thread like Ctrl-C's
+    KeyboardInterrupt (a subclass of it), so every ``finally`` / ``except BaseException`` that cleans up
+    (temporary files and directories, half-built outputs) runs for all three, and the command line ends
+    with exit status 128 + ``signum`` (:func:`signal_exit_status`), which a script tells from exit status 1
+    ("target not reached") and 2 (bad input)."""
 
     def __init__(self, signum):
         super().__init__(f"terminated by {signal.Signals(signum).name}")
         self.signum = signum
 
 
+#: The signal numbers received by :func:`_raise_terminated` in this process (first first).
+_RECEIVED = []
+
+
 def _raise_terminated(signum, frame):
-    # one clean-up at a time: a second SIGTERM/SIGHUP during the clean-up is ignored (SIGKILL still works,
-    # and the next run removes what a SIGKILL left: flakedb.outputs.sweep_stale)
+    # one clean-up at a time: a second signal during the clean-up is ignored (SIGKILL still works, and the
+    # next run removes what a SIGKILL left: flakedb.outputs.sweep_stale)
     for s in TERMINATING_SIGNALS:
         with contextlib.suppress(ValueError, OSError):
             signal.signal(s, signal.SIG_IGN)
-    raise Terminated(signum)
+    _RECEIVED.append(signum)
+    raise_or_defer(Terminated(signum))   # held back while the main thread is inside a compiled kernel
 
 
-#: The signals that end a run the way SIGINT does (those that exist on this platform).
-TERMINATING_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+#: The signals that end a run with clean-up (those that exist on this platform).
+TERMINATING_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, n))
 
 
 def install_signal_handlers() -> bool:
-    """Make SIGTERM and SIGHUP raise :class:`Terminated` in the main thread (True when installed; False
-    off the main thread, where Python cannot install handlers).  A signal the parent set to be ignored
-    (``nohup`` ignores SIGHUP) stays ignored."""
+    """Make SIGTERM, SIGHUP and SIGINT raise :class:`Terminated` in the main thread (True when installed;
+    False off the main thread, where Python cannot install handlers).  A signal the parent set to be ignored
+    (``nohup`` ignores SIGHUP; a background job of a non-interactive shell, SIGINT) stays ignored."""
     if threading.current_thread() is not threading.main_thread():
         return False
     for s in TERMINATING_SIGNALS:
@@ -135,6 +144,55 @@ def install_signal_handlers() -> bool:
             continue
         signal.signal(s, _raise_terminated)
     return True
+
+
+def signal_exit_status(exc) -> int | None:
+    """128 + the signal number when ``exc`` is, or was caused by, a signal's :class:`Terminated` (130 for a
+    plain KeyboardInterrupt), else None.
+
+    A signal that arrives while a numba dispatcher runs a compiled kernel (the Mie series) raises
+    :class:`Terminated` inside the dispatcher's C code, which then returns with the exception set: Python
+    reports ``SystemError: CPUDispatcher(...) returned a result with an exception set`` with the
+    Terminated as its cause (2 of 6 SIGTERMs to a running ``match`` ended as "internal error" that way).
+    The chain is followed, so that run ends as the signal's, not as an internal error:
+
+    >>> try:
+    ...     try:
+    ...         raise Terminated(15)
+    ...     except Terminated as t:
+    ...         raise SystemError("CPUDispatcher(_scatter_kernel) returned a result with an exception set") from t
+    ... except SystemError as e:
+    ...     signal_exit_status(e)
+    143
+    >>> signal_exit_status(ValueError("x")) is None
+    True
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, Terminated):
+            return 128 + int(exc.signum)
+        if isinstance(exc, KeyboardInterrupt):
+            return 128 + int(getattr(signal, "SIGINT", 2))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def received_signal() -> int | None:
+    """The first signal :func:`install_signal_handlers`' handler received in this process, or None."""
+    return _RECEIVED[0] if _RECEIVED else None
+
+
+def exit_after_signal(code) -> None:
+    """End the process now with ``code`` after a signal's clean-up has run (the command's ``finally`` blocks:
+    outputs and temporaries are gone): stdout and stderr flushed, then ``os._exit``.  The interpreter's
+    teardown is skipped on purpose: the solver's pool threads may still be inside a compiled kernel, and
+    finalising the interpreter under them crashed (1 of 6 SIGTERMs to a running ``match``: segmentation
+    fault, exit 139)."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(int(code))
 
 
 #: Set by :func:`request_fast_exit`.
@@ -162,3 +220,134 @@ def fast_exit(code) -> None:
         with contextlib.suppress(Exception):
             stream.flush()
     os._exit(0)
+
+
+# --- environment variables ---------------------------------------------------------------------------
+
+class EnvironmentSettingError(ValueError):
+    """An environment variable flakedb reads has a value it cannot use; the message names the variable, the
+    value (cut), what is allowed and an example."""
+
+
+#: Byte units of :func:`parse_bytes`: SI prefixes with B are powers of 1000, IEC (KiB...) and a bare letter
+#: (K, M, G, T, as ``docker --memory`` and Java's ``-Xmx``) powers of 1024.
+_BYTE_UNITS = {"": 1, "b": 1, "kb": 1e3, "mb": 1e6, "gb": 1e9, "tb": 1e12,
+               "kib": 2.0**10, "mib": 2.0**20, "gib": 2.0**30, "tib": 2.0**40,
+               "k": 2.0**10, "m": 2.0**20, "g": 2.0**30, "t": 2.0**40}
+#: The smallest memory budget accepted [bytes]: one channel of a small solve needs a few MiB.
+MIN_MEMORY_BUDGET_BYTES = 16 * 2**20
+
+
+def _shown(value) -> str:
+    v = str(value)
+    return repr(v) if len(v) <= 40 else repr(v[:37]) + f"... ({len(v):,} characters)"
+
+
+def parse_bytes(text, variable) -> float:
+    """Bytes from ``12GB`` (10^9), ``12 GiB`` / ``12G`` (2^30), ``512MB``, ``1e9`` (units case-insensitive);
+    :class:`EnvironmentSettingError` naming ``variable`` for anything else, for a value that is not finite or
+    not > 0.
+
+    >>> parse_bytes("12GB", "FLAKEDB_MEMORY_BUDGET"), parse_bytes("1.5 GiB", "X"), parse_bytes("4e9", "X")
+    (12000000000.0, 1610612736.0, 4000000000.0)
+    >>> parse_bytes("lots", "FLAKEDB_MEMORY_BUDGET")
+    Traceback (most recent call last):
+    ...
+    flakedb.process.EnvironmentSettingError: FLAKEDB_MEMORY_BUDGET='lots': not a size; write bytes with an optional unit (B, kB, MB, GB, TB powers of 1000; KiB, MiB, GiB, TiB or K, M, G, T powers of 1024), e.g. FLAKEDB_MEMORY_BUDGET=12GB
+    """
+    s = str(text).strip()
+    i = len(s)
+    while i and s[i - 1].isalpha():
+        i -= 1
+    num, unit = s[:i].strip(), s[i:].lower()
+    try:
+        value = float(num) * _BYTE_UNITS[unit]
+    except (ValueError, KeyError):
+        raise EnvironmentSettingError(
+            f"{variable}={_shown(text)}: not a size; write bytes with an optional unit (B, kB, MB, GB, TB powers "
+            f"of 1000; KiB, MiB, GiB, TiB or K, M, G, T powers of 1024), e.g. {variable}=12GB") from None
+    if not (value > 0 and value < float("inf")):
+        raise EnvironmentSettingError(f"{variable}={_shown(text)}: a size must be a finite number of bytes > 0, "
+                                      f"e.g. {variable}=12GB")
+    return value
+
+
+def memory_budget_bytes(environ=None) -> float | None:
+    """The solver's memory budget from ``$FLAKEDB_MEMORY_BUDGET`` (:func:`parse_bytes`; at least
+    :data:`MIN_MEMORY_BUDGET_BYTES`), or None when it is unset or empty (the solver's default)."""
+    environ = os.environ if environ is None else environ
+    raw = environ.get("FLAKEDB_MEMORY_BUDGET", "")
+    if not raw.strip():
+        return None
+    value = parse_bytes(raw, "FLAKEDB_MEMORY_BUDGET")
+    if value < MIN_MEMORY_BUDGET_BYTES:
+        raise EnvironmentSettingError(f"FLAKEDB_MEMORY_BUDGET={_shown(raw)}: {value:,.0f} bytes is below the smallest "
+                                      f"budget, 16 MiB (one channel of a small solve); e.g. FLAKEDB_MEMORY_BUDGET=4GiB")
+    return value
+
+
+#: The switches flakedb reads, and their allowed values.
+_SWITCHES = ("FLAKEDB_H5_PROBE", "FLAKEDB_MALLOC_TUNING")
+#: The variables that name a path (an empty value means the default; a value with a NUL byte cannot be a path).
+_PATH_VARIABLES = ("FLAKEDB_CATALOG", "FLAKEDB_MATERIALS_DIR", "FLAKEDB_STORE")
+
+
+def environment_problems(environ=None) -> list[str]:
+    """Every flakedb environment variable whose value cannot be used, one message each (the variable named):
+    checked by the command line before any work (issue 38: ``FLAKEDB_MEMORY_BUDGET=12GB`` failed only inside
+    the solve, as "internal error", without naming the variable).
+
+    >>> environment_problems({"FLAKEDB_MEMORY_BUDGET": "12GB", "FLAKEDB_H5_PROBE": "0"})
+    []
+    >>> environment_problems({"FLAKEDB_H5_PROBE": "no"})
+    ["FLAKEDB_H5_PROBE='no': use 0 (off) or 1 (on)"]
+    """
+    environ = os.environ if environ is None else environ
+    out = []
+    try:
+        memory_budget_bytes(environ)
+    except EnvironmentSettingError as exc:
+        out.append(str(exc))
+    for v in _SWITCHES:
+        raw = environ.get(v)
+        if raw is not None and raw.strip() not in ("", "0", "1"):
+            out.append(f"{v}={_shown(raw)}: use 0 (off) or 1 (on)")
+    for v in _PATH_VARIABLES:
+        raw = environ.get(v)
+        if raw is not None and "\0" in raw:
+            out.append(f"{v}={_shown(raw)}: a path cannot hold a NUL byte")
+    return out
+
+
+# --- warnings ----------------------------------------------------------------------------------------
+
+def format_warning(message, category, filename=None, lineno=None, line=None) -> str:
+    """One line for a library's warning (numpy's RuntimeWarning "divide by zero encountered in log", say):
+    ``flakedb: warning (RuntimeWarning): ...``, without the file and source line Python prints by default, the
+    message cut to 300 characters.
+
+    >>> format_warning(RuntimeWarning("invalid value encountered in divide"), RuntimeWarning, "/x/numpy/_methods.py", 12)
+    'flakedb: warning (RuntimeWarning): invalid value encountered in divide\\n'
+    """
+    text = " ".join(str(message).split())
+    text = text if len(text) <= 300 else text[:297] + "..."
+    return f"flakedb: warning ({getattr(category, '__name__', 'Warning')}): {text}\n"
+
+
+def install_warning_format() -> None:
+    """Print every warning as :func:`format_warning`'s one line, each distinct line once per process, for the
+    command line (issue 38: numpy's RuntimeWarnings came with their source lines, once per call site)."""
+    import warnings  # lazy: only the command line changes how warnings look
+
+    shown = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = format_warning(message, category)
+        if text in shown:
+            return
+        shown.add(text)
+        stream = file if file is not None else sys.stderr
+        with contextlib.suppress(Exception):
+            stream.write(text)
+
+    warnings.showwarning = show

@@ -12,7 +12,7 @@ PKG = Path(__file__).resolve().parents[1] / "flakedb"
 
 #: tier of each top-level part of the package (lower number = lower tier)
 TIERS = {
-    "conventions": 0, "optics": 0, "rt": 0, "colour": 0, "reference": 0, "texture": 0,
+    "conventions": 0, "interrupts": 0, "optics": 0, "rt": 0, "colour": 0, "reference": 0, "texture": 0,
     "resources": 1, "atomic": 1, "process": 1, "outputs": 1, "safeio": 1, "paint": 1, "store": 1, "bsdf": 1, "render": 1,
     "appearance": 2, "solve": 3,
     "compose": 4, "pipelines": 4, "match": 4, "export": 4, "cli": 5, "__main__": 5, "__init__": 5,

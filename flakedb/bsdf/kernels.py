@@ -13,6 +13,8 @@ import types
 
 import numpy as np
 
+from flakedb.interrupts import deferred, deferring
+
 #: name -> extra numba options of the kernels :func:`compiled` compiles (filled by :func:`_kernel`).
 _KERNELS: dict = {}
 
@@ -51,14 +53,16 @@ def compiled() -> types.SimpleNamespace:
     """
     if _COMPILED:
         return _COMPILED[0]
-    with _COMPILE_LOCK:
+    with _COMPILE_LOCK, deferred():   # numba's import, compilation and cache loading with signals held back
         if not _COMPILED:
             import numba  # lazy: numba takes ~0.2 s to import; solving and writing a file need no compiled kernel
 
             g = globals()
             for name, options in _KERNELS.items():
                 g[name] = numba.njit(cache=True, nogil=True, error_model="numpy", **options)(g[name])
-            _COMPILED.append(types.SimpleNamespace(**{name: g[name] for name in _KERNELS}))
+            # called from Python with signals held back (flakedb.interrupts): a handler's exception raised inside
+            # a dispatcher's C code was a SystemError or a crash
+            _COMPILED.append(types.SimpleNamespace(**{name: deferring(g[name]) for name in _KERNELS}))
     return _COMPILED[0]
 
 

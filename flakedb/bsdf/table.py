@@ -9,6 +9,7 @@ import numpy as np
 
 from flakedb.bsdf.metadata import check_delta
 from flakedb.bsdf.spline import catmull_rom_cdf, insert_zero_nodes
+from flakedb.optics.fresnel import fresnel_dielectric
 
 #: The spec's (layerlab's) truncation rule: keep orders until the tail sum is <= this times |a_0|.
 TRUNCATION_DEFAULT = 2e-3
@@ -201,6 +202,22 @@ class BSDFTable:
         v[..., :h] = a0[..., :h]
         v[..., h + 2:] = a0[..., h:]
         return 2.0 * np.pi * catmull_rom_cdf(nodes, v)[..., -1]
+
+
+#: Slack of the table's energy check (:func:`energy_albedo`): the readers' float32 and the Catmull-Rom integral.
+ENERGY_SLACK = 1e-3
+
+
+def energy_albedo(table) -> np.ndarray:
+    """(C, n/2): the albedo a renderer integrates from ``table`` for light from above: the table's Catmull-Rom
+    albedo (:meth:`BSDFTable.albedo`) plus the smooth coat's mirror term F(μ_i) when it has one.  The energy
+    check of ``flakedb info`` and of compose (a file whose maximum exceeds 1 + :data:`ENERGY_SLACK` is not
+    written without ``--allow-unphysical``): one function, so the two never disagree."""
+    h = table.n // 2
+    mu_in = np.asarray(table.mu[h:], float)
+    alb = table.albedo()[:, h:]
+    F = np.zeros(h) if not table.delta else fresnel_dielectric(mu_in, float(table.delta["eta"])).R
+    return alb + F[None, :]
 
 
 def _default_channels(c: int) -> tuple:

@@ -25,7 +25,6 @@ from pathlib import Path
 import click
 import numpy as np
 
-from flakedb.atomic import atomic_write_text
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import check_plan
 from flakedb.cli.options import check_node_count
@@ -74,10 +73,11 @@ def calibrate(ladder, out_catalog, catalog_path, degree, n, max_nfev, report_pat
         click.echo(f"calibrate {species} -> {name}: {len(panels)} panel(s) from {ladder}")
         res = cal.calibrate(species, panels, catalog, free=free, degree=degree, n=n, max_nfev=max_nfev,
                             log=lambda s: click.echo(f"  {s}", err=True))
-        path = cal.write_user_catalog(out_catalog, catalog, name, res.entry,
-                                      note=f"{name}: {species} calibrated from {ladder}")
+        cat_text = cal.format_user_catalog(out_catalog, catalog, name, res.entry,
+                                           note=f"{name}: {species} calibrated from {ladder}")
     except (RecipeError, CatalogError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
+    path = out_catalog
     click.echo(f"{'panel':<24} {'geometries':>10} {'max dE00 catalogue':>19} {'max dE00 calibrated':>20}")
     for p, d0, d1 in zip(res.panels, res.de_start, res.de_fit):
         click.echo(f"{p.name:<24} {len(d0):>10} {d0.max():>19.3f} {d1.max():>20.3f}")
@@ -85,6 +85,7 @@ def calibrate(ladder, out_catalog, catalog_path, degree, n, max_nfev, report_pat
     for p, z, se in zip(res.params, res.z, res.stderr):
         click.echo(f"{p.name:<16} {z:>+9.4f} {se:>10.4f}  {p.description}")
     click.echo(f"rms residual {res.rms_residual:.4g} ({res.n_compose} compose calls; {res.message.strip()})")
+    rec = None
     if report_path:
         rec = {"species": species, "name": name, "parameters": [
             {"name": p.name, "fitted": float(z), "stderr": float(se) if np.isfinite(se) else None,
@@ -93,7 +94,12 @@ def calibrate(ladder, out_catalog, catalog_path, degree, n, max_nfev, report_pat
             "panels": [{"name": p.name, "dE00_catalogue": d0.tolist(), "dE00_calibrated": d1.tolist()}
                        for p, d0, d1 in zip(res.panels, res.de_start, res.de_fit)],
             "rms_residual": res.rms_residual, "compose_calls": res.n_compose, "entry": res.entry}
-        atomic_write_text(Path(report_path), json.dumps(rec, indent=1, allow_nan=False) + "\n")
+    with plan.staged() as stage:   # the catalogue and the report together, or neither
+        stage.path(out_catalog).write_text(cat_text, encoding="utf-8")
+        if rec is not None:
+            stage.path(report_path).write_text(json.dumps(rec, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    if report_path:
+        click.echo(f"wrote {report_path} (the fit record)")
     click.echo(f"wrote {path} (species {name}; use it with --catalog {path})")
     if not np.all(np.isfinite(res.stderr)):
         click.echo("warning: the parameters are not all determined by these panels (singular Jacobian): add "

@@ -23,7 +23,7 @@ import click
 import numpy as np
 
 from flakedb.cli.errors import FlakedbError
-from flakedb.cli.failures import check_plan
+from flakedb.cli.failures import check_plan, remove_created_dirs
 from flakedb.cli.options import check_node_count, prediction_options
 from flakedb.colour.settings import (
     DEFAULT_GEOMETRY_SET,
@@ -39,7 +39,7 @@ from flakedb.solve.store_context import StoreContext
 from flakedb.match import batch
 from flakedb.match.cxf import load_target
 from flakedb.match.fit import compare_texture, predict
-from flakedb.match.targets import TargetError, write_target
+from flakedb.match.targets import TargetError, format_target
 from flakedb.match.texture import (
     DEFAULT_TEXTURE_OBSERVER,
     DEFAULT_TEXTURE_TOLERANCE,
@@ -150,13 +150,14 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         target_files = batch.expand_paths(target_paths, (".csv", ".cxf"))
     except ValueError as exc:
         raise FlakedbError(str(exc)) from exc
-    _check_outputs(recipe_files, target_files, pairs_path, catalog_path, csv_out, table_out)
+    outputs = (recipe_files, target_files, pairs_path, catalog_path, csv_out, table_out, plot_dir)
+    _check_outputs(*outputs)   # at once: the figures' names are known when the recipes and targets are read
     if pairs_path is not None or len(recipe_files) > 1 or len(target_files) > 1:
         if csv_out or mi_illuminant:
             raise FlakedbError("--write-csv and --metamerism take one recipe and one target; a batch writes --table")
         return _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer, illuminant, max_de, limits,
                               geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path,
-                              texture_tol)
+                              texture_tol, outputs)
     recipe = str(recipe_files[0])
     target_path = str(target_files[0]) if target_files else None
 
@@ -167,6 +168,8 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         version = open_store(store, rec, n, raw)
     except (RecipeError, CatalogError, TargetError, StoreError) as exc:
         raise FlakedbError(str(exc)) from exc
+    plan = _check_outputs(*outputs, figures=[(rec.name, None if target is None else _target_label(target))],
+                          plot_format=plot_format)   # every output, before any work
     geoms = target.geometries if target is not None else np.asarray(GEOMETRY_SETS[geometry_set])
     try:
         pred = predict(rec, geoms, n, catalog, version, raw)
@@ -191,17 +194,20 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
                 click.echo(f"note: {', '.join(dropped)} not predicted for {rec.name} (the hiding term cancels the "
                            f"single-flake term, docs/texture.md §4): left out of --write-csv", err=True)
                 tex = {k: v for k, v in tex.items() if v is not None}
-        write_target(csv_out, geoms, lab=None if spectral else lab, reflectance=pred.rf if spectral else None,
-                     wavelength_nm=pred.wavelength_nm if spectral else None, observer=obs, illuminant=ill,
-                     name=rec.name, notes={"generator": f"flakedb compare, n = {pred.n}, mode {pred.mode}"},
-                     texture=tex, texture_observer=DEFAULT_TEXTURE_OBSERVER)
-        click.echo(f"wrote {csv_out} (prediction in the target layout" + (", with texture columns)" if tex else ")"))
+        csv = (csv_out, format_target(geoms, lab=None if spectral else lab, reflectance=pred.rf if spectral else None,
+                                      wavelength_nm=pred.wavelength_nm if spectral else None, observer=obs,
+                                      illuminant=ill, name=rec.name,
+                                      notes={"generator": f"flakedb compare, n = {pred.n}, mode {pred.mode}"},
+                                      texture=tex, texture_observer=DEFAULT_TEXTURE_OBSERVER),
+               "prediction in the target layout" + (", with texture columns" if tex else ""))
+    else:
+        csv = None
     if target is None:
         click.echo(f"{'illum':>6} {'aspec':>6} {'L*':>8} {'a*':>8} {'b*':>8}")
         for g, v in zip(geoms, lab):
             click.echo(f"{g[0]:5g}° {g[1]:5g}° {v[0]:8.2f} {v[1]:8.2f} {v[2]:8.2f}")
         comp = batch.Comparison(rec.name, None, np.asarray(geoms, float), lab, None, obs, ill, None, None, pred)
-        _outputs([comp], table_out, plot_dir, plot_format)
+        _outputs(plan, [comp], table_out, plot_dir, plot_format, csv)
         return
     try:
         lab_t = target.lab_under(obs, ill)
@@ -236,9 +242,9 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         for line in format_texture_rows(tex, sparkle):
             click.echo(line)
     t_fail = sum(not r["passed"] for r in tex)
-    comp = batch.Comparison(rec.name, target.name or target.source, np.asarray(geoms, float), lab, lab_t, obs, ill, ev,
+    comp = batch.Comparison(rec.name, _target_label(target), np.asarray(geoms, float), lab, lab_t, obs, ill, ev,
                             d, pred, target.reflectance, target.wavelength_nm, tex, sparkle)
-    _outputs([comp], table_out, plot_dir, plot_format)
+    _outputs(plan, [comp], table_out, plot_dir, plot_format, csv)
     verdict = "pass" if ev["passed_all"] else f"FAIL at {n_fail} geometr" + ("y" if n_fail == 1 else "ies")
     if tex:
         verdict += "; texture " + ("pass" if not t_fail else f"FAIL at {t_fail} of {len(tex)} indices")
@@ -251,12 +257,29 @@ def _safe(name) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in str(name))[:80] or "x"
 
 
-def _check_outputs(recipe_files, target_files, pairs_path, catalog_path, csv_out, table_out):
+def figure_name(recipe, target, plot_format) -> str:
+    """The --plot file name of a comparison: ``RECIPE--TARGETSTEM.FORMAT`` (``RECIPE.FORMAT`` without a target),
+    every character outside letters, digits and ``-_.`` replaced by ``_`` and each part cut to 80 characters: always
+    a plain file name (two comparisons that get one name are refused by the output plan, before any work).
+
+    >>> figure_name("good", "panels/a b.csv", "png"), figure_name("x", None, "svg")
+    ('good--a_b.png', 'x.svg')
+    """
+    return _safe(recipe) + ("" if target is None else f"--{_safe(Path(str(target)).stem)}") + f".{plot_format}"
+
+
+def _target_label(t):
+    return t.name or t.source
+
+
+def _check_outputs(recipe_files, target_files, pairs_path, catalog_path, csv_out, table_out, plot_dir=None,
+                   figures=(), plot_format="png"):
     """The output plan of compare, checked before any work (:class:`flakedb.outputs.OutputPlan`): --write-csv,
-    --table and the table's texture companion are never a recipe, a target, the --pairs list or a file it
-    names, the catalogue (given or default) or one another."""
-    if csv_out is None and table_out is None:
-        return
+    --table, the table's texture companion and every --plot figure (``figures``: (recipe name, target label or
+    None) per comparison) are never a recipe, a target, the --pairs list or a file it names, the catalogue (given
+    or default) or one another, and --plot is a folder that can be written.  Returns the plan (None: no output)."""
+    if csv_out is None and table_out is None and plot_dir is None:
+        return None
     plan = OutputPlan()
     for path in recipe_files:
         plan.add_input(path, "RECIPE")
@@ -276,34 +299,54 @@ def _check_outputs(recipe_files, target_files, pairs_path, catalog_path, csv_out
     if table_out is not None:
         plan.add_output(table_out, "--table")
         plan.add_output(batch.texture_table_path(table_out), "--table (texture rows)")
-    check_plan(plan)
+    if plot_dir is not None:
+        plan.add_dir(plot_dir, "--plot")
+        for rec, tgt in figures:
+            plan.in_dir(plot_dir, figure_name(rec, tgt, plot_format),
+                        f"--plot figure of {_short(rec)}" + ("" if tgt is None else f" vs {_short(tgt)}"))
+    return check_plan(plan)
 
 
-def _outputs(comparisons, table_out, plot_dir, plot_format):
-    """The --table CSV and the --plot figures of some comparisons."""
-    if table_out:
-        batch.write_table(table_out, comparisons)
-        click.echo(f"wrote {table_out} ({sum(len(c.geometries) for c in comparisons)} rows)")
-        n_tex = len(batch.texture_rows(comparisons))
-        if n_tex:
-            click.echo(f"wrote {batch.texture_table_path(table_out)} ({n_tex} texture rows)")
-    if plot_dir:
-        for c in comparisons:
-            name = _safe(c.recipe) + ("" if c.target is None else f"--{_safe(Path(str(c.target)).stem)}")
-            p = c.prediction
-            spectral = p.mode == "spectral"
-            tr = c.target_reflectance if spectral else None
-            path = plot_multiangle(Path(plot_dir) / f"{name}.{plot_format}", c.geometries, c.lab_pred, c.lab_target,
-                                   p.wavelength_nm if spectral else None, p.rf if spectral else None, tr,
-                                   c.target_wavelength_nm if tr is not None else None,
-                                   title=c.recipe + ("" if c.target is None else f" vs {c.target}"),
-                                   conditions=f"{c.illuminant}/{c.observer}°")
-            click.echo(f"wrote {path}")
+def _short(text, limit=60) -> str:
+    t = str(text)
+    return t if len(t) <= limit else t[:limit - 3] + "..."
+
+
+def _outputs(plan, comparisons, table_out, plot_dir, plot_format, csv=None):
+    """Write the --write-csv prediction (``csv``: (path, text)), the --table CSV and the --plot figures of some
+    comparisons, all together or none (``plan``: :func:`_check_outputs`'s, with every figure in it)."""
+    if plan is None:
+        return
+    wrote = []
+    with remove_created_dirs(plot_dir or "."), plan.staged() as stage:
+        if csv is not None:
+            stage.path(csv[0]).write_text(csv[1], encoding="utf-8")
+            wrote.append(f"wrote {csv[0]} ({csv[2]})")
+        if table_out:
+            batch.write_table(stage.path(table_out), comparisons)
+            wrote.append(f"wrote {table_out} ({sum(len(c.geometries) for c in comparisons)} rows)")
+            n_tex = len(batch.texture_rows(comparisons))
+            if n_tex:
+                wrote.append(f"wrote {batch.texture_table_path(table_out)} ({n_tex} texture rows)")
+        if plot_dir:
+            for c in comparisons:
+                final = Path(plot_dir) / figure_name(c.recipe, c.target, plot_format)
+                p = c.prediction
+                spectral = p.mode == "spectral"
+                tr = c.target_reflectance if spectral else None
+                plot_multiangle(stage.path(final), c.geometries, c.lab_pred, c.lab_target,
+                                p.wavelength_nm if spectral else None, p.rf if spectral else None, tr,
+                                c.target_wavelength_nm if tr is not None else None,
+                                title=_short(c.recipe) + ("" if c.target is None else f" vs {_short(c.target)}"),
+                                conditions=f"{c.illuminant}/{c.observer}°")
+                wrote.append(f"wrote {final}")
+    for line in wrote:
+        click.echo(line)
 
 
 def _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer, illuminant, max_de, limits,
                    geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path,
-                   texture_tol=DEFAULT_TEXTURE_TOLERANCE):
+                   texture_tol=DEFAULT_TEXTURE_TOLERANCE, outputs=None):
     """Every recipe against every target (or the --pairs list): one summary table; exit 1 when any fails."""
     scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))
     try:
@@ -322,7 +365,14 @@ def _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer,
         names = [r.name for r in recs]
         if len(set(names)) != len(names):
             dup = sorted({x for x in names if names.count(x) > 1})
-            raise FlakedbError(f"recipes share a name ({', '.join(dup)}): give each recipe its own name: field")
+            raise FlakedbError(f"recipes share a name ({', '.join(_short(x) for x in dup)}): give each recipe its own "
+                               f"name: field")
+        pair_list = pairs if pairs is not None else (
+            [(i, j) for i in range(len(recs)) for j in range(len(targets))] if targets else
+            [(i, None) for i in range(len(recs))])
+        plan = None if outputs is None else _check_outputs(
+            *outputs, plot_format=plot_format,
+            figures=[(recs[i].name, None if j is None else _target_label(targets[j])) for i, j in pair_list])
         click.echo(f"compare: {len(recs)} recipe(s), {len(targets)} target(s)"
                    + (f", {len(pairs)} listed pair(s)" if pairs is not None else ""))
         comps = batch.compare_batch(recs, targets, pairs, observer, illuminant, scheme, geometry_set, n, catalog,
@@ -336,7 +386,7 @@ def _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer,
         for r in rows:
             click.echo(f"{r['recipe'][:28]:<28} {r['illumination_deg']:5g}° {r['aspecular_deg']:5g}° {r['L']:8.2f} "
                        f"{r['a']:8.2f} {r['b']:8.2f}")
-        _outputs(comps, table_out, plot_dir, plot_format)
+        _outputs(plan, comps, table_out, plot_dir, plot_format)
         return
     summary = batch.summary_rows(comps)
     click.echo(f"{'recipe':<28} {'target':<28} {'max dE00':>9} {'worst':>10} {'failed':>7} {'texture':>8}  ok")
@@ -345,7 +395,7 @@ def _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer,
             else f"{len(c.texture)} ok"
         click.echo(f"{r['recipe'][:28]:<28} {str(r['target'])[:28]:<28} {r['max_dE00']:9.2f} {r['worst_geometry']:>10} "
                    f"{r['failed']:>4}/{r['geometries']:<2} {tx:>8}  {'yes' if r['passed'] else 'NO'}")
-    _outputs(comps, table_out, plot_dir, plot_format)
+    _outputs(plan, comps, table_out, plot_dir, plot_format)
     n_fail = sum(1 for r in summary if not r["passed"])
     click.echo(f"{scheme.name}: {len(summary) - n_fail} of {len(summary)} pair(s) pass")
     if n_fail:

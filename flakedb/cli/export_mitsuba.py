@@ -1,6 +1,6 @@
 """`flakedb export-mitsuba FILE --out PATH`: a Fourier file as a Mitsuba 3 ``measured`` BSDF file.
 
-Thin: the work is in :func:`flakedb.render.mitsuba.export_measured`.
+Thin: the route is :data:`flakedb.export.registry.EXPORT_METHODS`'s ``mitsuba-coated`` / ``mitsuba-measured``.
 
 A file that is not a Fourier BSDF is refused in one line, exit status 2, nothing written:
 
@@ -25,6 +25,7 @@ import click
 from flakedb.bsdf import BSDFFileError
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import check_plan, probe_writable, remove_created_dirs
+from flakedb.export.registry import export
 from flakedb.outputs import OutputPlan
 from flakedb.render import mitsuba as fm
 
@@ -70,10 +71,8 @@ def export_mitsuba(file, out, variant, res, n_theta, coat, as_json):
     probe_writable(Path(out).absolute().parent, "--out directory")
     try:
         with remove_created_dirs(Path(out).absolute().parent):
-            if coat:
-                s = fm.export_coated(file, out, variant=variant, res=res, n_theta=n_theta)
-            else:
-                s = fm.export_measured(file, out, variant=variant, res=res, n_theta=n_theta)
+            s = export(file, out, method="mitsuba-coated" if coat else "mitsuba-measured", variant=variant, res=res,
+                       n_theta=n_theta)
     except (BSDFFileError, fm.MeasuredExportError) as e:
         raise FlakedbError(str(e)) from None
     if as_json:

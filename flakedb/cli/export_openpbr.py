@@ -24,7 +24,7 @@ from flakedb.bsdf import BSDFFileError
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import probe_writable, remove_created_dirs
 from flakedb.outputs import OutputError, check_output_dir
-from flakedb.export.registry import export_openpbr as run_export
+from flakedb.export.registry import export
 
 
 @click.command("export-openpbr")
@@ -47,7 +47,7 @@ def export_openpbr(file, out, name, as_json):
         raise FlakedbError(str(e)) from None
     try:
         with remove_created_dirs(out_dir.absolute()):
-            s = run_export(file, out_dir, name=name,
+            s = export(file, out_dir, method="openpbr", name=name,
                            progress=None if as_json else (lambda m: click.echo(m, err=True)))
     except (BSDFFileError, OutputError) as e:
         raise FlakedbError(str(e)) from None

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import re
 import sys
 import tempfile
 from pathlib import Path
@@ -39,6 +40,23 @@ class FlakedbFailure(click.ClickException):
     """A failure that is not bad input: printed as one line without a traceback, exit status 1."""
 
     exit_code = 1
+
+
+#: Longest run of characters without a space kept in a message (a name, a value, a path); a longer one is cut.
+MAX_TOKEN_CHARS = 200
+
+
+def shorten_tokens(text, limit=MAX_TOKEN_CHARS) -> str:
+    """``text`` with every run of more than ``limit`` characters without white space cut to its start, with how
+    long it was: a message never echoes a 900 kB species name or value.
+
+    >>> shorten_tokens("unknown species 'x" + "y" * 900_000 + "'", limit=10)
+    "unknown species 'xyyyyyyyy... (900,003 characters)"
+    """
+    if len(text) <= limit:
+        return text
+    return re.sub(r"\S{%d,}" % (limit + 1), lambda m: f"{m.group(0)[:limit]}... ({len(m.group(0)):,} characters)",
+                  text)
 
 
 def _one_line(text) -> str:
@@ -78,7 +96,9 @@ def as_failure(exc: BaseException) -> click.ClickException:
     if isinstance(exc, MemoryError):
         return FlakedbFailure("out of memory (hint: memory grows with the node count (--n or the recipe's "
                               "resolution), the number of bands (spectral.step_nm), a pigment's median_diameter_um and "
-                              "gsd, and --res / --size; lower the largest, or set FLAKEDB_MEMORY_BUDGET)")
+                              "gsd, a flake layer's thickness_um times its flakes' volume_fraction (the texture model "
+                              "follows every flake a light path crosses), and --res / --size; lower the largest, or "
+                              "set FLAKEDB_MEMORY_BUDGET, e.g. FLAKEDB_MEMORY_BUDGET=4GiB)")
     if _is_loaded_instance(exc, "flakedb.bsdf.table", "BSDFFileError"):
         err = click.ClickException(_one_line(exc))
         err.exit_code = 2

@@ -5,17 +5,22 @@ below; the user-facing error type is :class:`flakedb.cli.errors.FlakedbError`.
 """
 
 import importlib
+import signal
 
 import click
 
 from flakedb import __version__
 from flakedb.cli.errors import FlakedbError  # noqa: F401  (re-exported for scripts)
-from flakedb.cli.failures import as_failure
+from flakedb.cli.failures import as_failure, shorten_tokens
 from flakedb.process import (
-    Terminated,
     blas_one_thread,
+    environment_problems,
+    exit_after_signal,
     fast_exit,
     install_signal_handlers,
+    install_warning_format,
+    received_signal,
+    signal_exit_status,
     tune_allocator,
 )
 
@@ -110,16 +115,29 @@ class FlakedbGroup(click.Group):
         return getattr(importlib.import_module(module), attr)
 
     def invoke(self, ctx):
+        problems = environment_problems()   # before any command's work (flakedb.process)
+        if problems:
+            raise FlakedbError("; ".join(problems))
         try:
             return super().invoke(ctx)
-        except Terminated as exc:  # SIGTERM / SIGHUP: the command's clean-up has run, as for Ctrl-C
-            click.echo(f"flakedb: {exc}; stopped, temporary files removed, no partial outputs left", err=True)
-            raise SystemExit(128 + exc.signum) from None
-        except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort,
-                KeyboardInterrupt, SystemExit):
+        except click.exceptions.ClickException as exc:
+            exc.message = shorten_tokens(exc.message)   # never a 900 kB name echoed back
             raise
-        except Exception as exc:
-            if ctx.params.get("debug"):
+        except (click.exceptions.Exit, click.exceptions.Abort, SystemExit):
+            raise
+        except BaseException as exc:
+            # SIGTERM / SIGHUP / SIGINT (flakedb.process.Terminated), also when a compiled kernel reported it as
+            # a SystemError: the command's clean-up has run; exit status 128 + the signal's number
+            code = signal_exit_status(exc)
+            if code is not None:
+                try:
+                    name = signal.Signals(code - 128).name
+                except ValueError:
+                    name = f"signal {code - 128}"
+                click.echo(f"flakedb: terminated by {name}; stopped, temporary files removed, no partial outputs "
+                           f"left", err=True)
+                raise SystemExit(code) from None
+            if not isinstance(exc, Exception) or ctx.params.get("debug"):
                 raise
             raise as_failure(exc) from exc
 
@@ -135,9 +153,13 @@ def main():
     blas_one_thread()  # before numpy loads: the BLAS's own threads only compete with flakedb's (flakedb.process)
     tune_allocator()  # freed memory kept for reuse: page faults are most of a short solve's overhead
     install_signal_handlers()  # SIGTERM / SIGHUP clean up as SIGINT does (flakedb.process.Terminated)
+    install_warning_format()  # a library's warning as one line, not a source line (flakedb.process)
     try:
         cli(prog_name="flakedb")
     except SystemExit as exc:
+        signum = received_signal()
+        if signum is not None:   # the clean-up has run; no teardown under running kernels (flakedb.process)
+            exit_after_signal(128 + signum)
         fast_exit(exc.code)  # a finished compose skips the interpreter's teardown (flakedb.process)
         raise
 

@@ -51,6 +51,7 @@ from flakedb.match import fit as cm
 from flakedb.match.cxf import load_target
 from flakedb.match.targets import TargetError, write_target
 from flakedb.match.texture import DEFAULT_TEXTURE_TOLERANCE
+from flakedb.outputs import OutputError, check_file_name
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.recipe import RecipeError, read_recipe_file
 from flakedb.store.versions import StoreError
@@ -108,12 +109,25 @@ def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights
         targets = [load_target(t, observer, illuminant, cxf_object if str(t).lower().endswith(".cxf") else None)
                    for t in files]
         params = cm.find_fit_parameters(doc, base)
+        if not params:   # before any target's work (the fit itself says so only after the first target's outputs)
+            raise RecipeError(base, ["no field to fit: write one or more numeric fields as {fit: [min, max]}"])
         rec0 = cm.recipe_from_doc(cm.substitute(doc, params, [p.start for p in params]), base, catalog)
     except (RecipeError, CatalogError, TargetError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
     stems = [Path(str(f)).stem for f in files]
-    if len(targets) > 1 and len(set(stems)) != len(stems):
-        raise FlakedbError("two targets have the same file name: each fit goes to OUT/<target file name>/")
+    if len(targets) > 1:
+        for f, stem in zip(files, stems):   # OUT/<stem>/ must be a folder in OUT ('..' of '...csv' is OUT's parent)
+            try:
+                check_file_name(stem, f"--target {_short(f)}: its file name's stem", "--out")
+            except OutputError as exc:
+                raise FlakedbError(str(exc).replace("(hint: give e.g.", "(hint: rename the target file; e.g.")) from None
+        seen = {}
+        for f, stem in zip(files, stems):
+            if stem in seen:
+                raise FlakedbError(f"--target {_short(seen[stem])} and {_short(f)} have the same file name stem "
+                                   f"{_short(stem)!s}: each fit goes to OUT/<target file name stem>/, so one would "
+                                   f"overwrite the other (hint: rename one)")
+            seen[stem] = f
     outs = [Path(out_dir)] if len(targets) == 1 else [Path(out_dir) / stem for stem in stems]
     inputs = ([(base, "BASE")] + [(str(f), "--target") for f in files]
               + ([(catalog_path, "--catalog")] if catalog_path else []))
@@ -141,6 +155,11 @@ def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights
     click.echo(f"{len(results) - n_bad} of {len(results)} target(s) reached")
     if n_bad:
         raise SystemExit(1)
+
+
+def _short(text, limit=100) -> str:
+    t = str(text)
+    return t if len(t) <= limit else t[:limit - 3] + "..."
 
 
 def _output_plan(out_dir, name, inputs):

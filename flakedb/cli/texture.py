@@ -49,8 +49,8 @@ def format_texture(rep) -> str:
     for o in rep["observers"]:
         for r in o["directional"]:
             if not r["sparkle"]:
-                lines.append(f"  {o['observer']:<14} {r['light_deg']:>5g}° no sparkle (peak luminance factor "
-                             f"{r['peak_luminance_factor']:.3g} < 1)")
+                why = r.get("no_sparkle_reason") or f"peak luminance factor {r['peak_luminance_factor']:.3g}"
+                lines.append(f"  {o['observer']:<14} {r['light_deg']:>5g}° no sparkle ({why})")
                 continue
             lines.append(f"  {o['observer']:<14} {r['light_deg']:>5g}° {r['glints_per_mm2']:>11.3g} "
                          f"{r['glints_per_spot']:>9.3g} {r['sparkle_area_fraction']:>10.3g} "

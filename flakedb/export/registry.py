@@ -13,7 +13,7 @@ from flakedb.export.gltf import write_gltf
 from flakedb.export.materialx import write_mtlx
 from flakedb.export.openpbr import fit_openpbr
 from flakedb.export.usd import write_usda
-from flakedb.outputs import OutputPlan
+from flakedb.outputs import OutputPlan, check_file_name, sweep_stale
 from flakedb.render.mitsuba import export_coated, export_measured
 from flakedb.render.mitsuba.coated import pbrt_coated_scene
 
@@ -24,14 +24,19 @@ def export_openpbr(src, out_dir, name: str | None = None, progress=None) -> dict
     ``NAME.glb`` (glTF 2.0 sphere) and ``NAME.blender.py`` (Principled BSDF script) in ``out_dir``.
     Returns {"fit": fit dict, "files": {kind: path}}."""
     out_dir = Path(out_dir)
-    name = name or Path(src).name.split(".")[0]
+    option = "--name" if name is not None else "FILE's name (before its first '.'; choose one with --name)"
+    name = Path(src).name.split(".")[0] if name is None else str(name)
     routes = (("materialx", write_mtlx, ".mtlx"), ("usd", write_usda, ".usda"), ("gltf", write_gltf, ".gltf"),
               ("glb", write_gltf, ".glb"), ("blender", write_material_script, ".blender.py"))
     # the output plan before any work (flakedb.outputs): no output is the input (a BSDF named NAME.glb, say)
     plan = OutputPlan()
     plan.add_input(src, "FILE")
+    check_file_name(name, option)   # NAME is a plain file name in --out: never ../escaped or /anywhere
     finals = {kind: plan.in_dir(out_dir, f"{name}{suffix}", kind) for kind, _, suffix in routes}
     plan.check()
+    for p in sweep_stale(out_dir):   # what a killed export left (flakedb.outputs.sweep_stale)
+        if progress:
+            progress(f"note: removed {p}, a temporary entry left by an interrupted flakedb run")
     b = open_bsdf(src)
     if progress:
         progress("fitting OpenPBR parameters (hemisphere + E2194/E2539 geometries)")

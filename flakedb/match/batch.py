@@ -32,6 +32,7 @@ from flakedb.colour.settings import DEFAULT_MAX_DE00, GEOMETRY_SETS, for_target,
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences
 from flakedb.match.fit import Prediction, compare_texture, predict
 from flakedb.match.texture import DEFAULT_TEXTURE_TOLERANCE
+from flakedb.safeio import FileTooLargeError, read_limited
 
 
 @dataclass
@@ -91,12 +92,11 @@ def compare_batch(recipes, targets=(), pairs=None, observer=None, illuminant=Non
         if not mine:
             continue
         if targets:
-            geoms = []
+            union = {}   # insertion-ordered set: linear in the number of points (a set rebuilt per point was quadratic)
             for j in mine:
                 for g in targets[j].geometries:
-                    if _key(g) not in {_key(x) for x in geoms}:
-                        geoms.append(_key(g))
-            geoms = np.asarray(geoms, float)
+                    union.setdefault(_key(g), None)
+            geoms = np.asarray(list(union), float)
         else:
             geoms = np.asarray(GEOMETRY_SETS[resolve(geometry_set=geometry_set).geometry_set], float)
         version = store_for(rec) if store_for is not None else None
@@ -230,14 +230,26 @@ def expand_paths(items, suffixes) -> list:
     return out
 
 
+#: Largest --pairs list read [bytes], and most pairs in it.
+MAX_PAIR_LIST_BYTES = 10_000_000
+MAX_PAIRS = 100_000
+
+
 def read_pair_list(path) -> list:
     """(recipe path, target path, cxf object or None) from a CSV with header ``recipe,target[,cxf_object]``;
     relative paths are relative to the list's folder."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8-sig")
+    try:   # a regular file only (a FIFO blocked forever, /dev/zero never ended), at most MAX_PAIR_LIST_BYTES
+        text = read_limited(p, MAX_PAIR_LIST_BYTES).decode("utf-8-sig")
     except FileNotFoundError:
         raise ValueError(f"{p}: no such file") from None
+    except FileTooLargeError as exc:
+        raise ValueError(f"{p}: {exc.size:,} bytes or more; the limit is {MAX_PAIR_LIST_BYTES:,} bytes for a --pairs "
+                         f"list ({MAX_PAIRS:,} pairs at most)") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{p}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    except OSError as exc:
+        raise ValueError(f"{p}: cannot read the file ({exc.strerror or exc})") from None
     rows = [r for r in csv.reader(io.StringIO(text)) if r and not r[0].lstrip().startswith("#")]
     if not rows or [h.strip() for h in rows[0][:2]] != ["recipe", "target"]:
         raise ValueError(f"{p}: the first line must be the header recipe,target[,cxf_object]")
@@ -249,4 +261,6 @@ def read_pair_list(path) -> list:
         out.append((p.parent / r[0].strip(), p.parent / r[1].strip(), obj))
     if not out:
         raise ValueError(f"{p}: no rows after the header")
+    if len(out) > MAX_PAIRS:
+        raise ValueError(f"{p}: {len(out):,} pairs; the limit is {MAX_PAIRS:,} (each pair is a comparison)")
     return out

@@ -52,7 +52,8 @@ from flakedb.colour.tolerance import ciede2000_residuals, delta_E_2000
 from flakedb.match.cxf import load_target
 from flakedb.match.fit import predict, recipe_from_doc
 from flakedb.match.targets import Target, TargetError
-from flakedb.paint.catalog import CatalogError, get_species, validate_catalog
+from flakedb.paint.catalog import CatalogError, get_species, species_name_problem, validate_catalog
+from flakedb.paint.checks import YamlFileError, load_yaml_file, value_problems
 from flakedb.paint.recipe import RecipeError
 from flakedb.paint.species import absorption_factor
 from flakedb.solve.pipeline import settle_node_count
@@ -213,11 +214,12 @@ def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=N
     base = copy.deepcopy(get_species(species, catalog))
     params = free_parameters(base, free, degree)
     for p in panels:
-        uses = [pt for layer in p.recipe_doc.get("layers", []) for pt in (layer.get("basecoat") or {}).get("particles", [])
-                if pt.get("species") == species]
+        rec = recipe_from_doc(p.recipe_doc, p.name, catalog)  # valid before any computation (and before its layers
+        uses = [c for c in rec.doc.get("layers", [])  # are walked: a list of lists is refused, not a crash)
+                for pt in ((c.get("basecoat") or {}).get("particles") or [] if isinstance(c, dict) else [])
+                if isinstance(pt, dict) and pt.get("species") == species]
         if not uses:
             raise ValueError(f"panel {p.name}: its recipe does not use species {species!r}")
-        recipe_from_doc(p.recipe_doc, p.name, catalog)  # valid before any computation
     # one n per panel for every evaluation (auto checked and refined once, at the base entry, as compose would)
     n_panel = [settle_node_count(recipe_from_doc(p.recipe_doc, p.name, catalog), n, catalog) for p in panels]
     calls = [0]
@@ -290,6 +292,12 @@ def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=N
 # ----------------------------------------------------------------------------------------------
 
 
+#: Largest ladder manifest read [bytes] (a list of panels: a few kB).
+MAX_LADDER_BYTES = 1_000_000
+#: Most panels of a ladder (each is a compose per fit evaluation; a ladder is a masstone and a few let-downs).
+MAX_PANELS = 200
+
+
 def read_ladder(path):
     """``(species, name, free, panels)`` from a ladder manifest YAML (docs/calibration.md)::
 
@@ -300,47 +308,85 @@ def read_ladder(path):
           - {recipe: masstone.yaml, target: masstone.csv}
           - {recipe: letdown-1-4.yaml, target: ladder.cxf, cxf_object: LD-1:4}
 
-    Paths are relative to the manifest.  Raises ValueError naming the field.
+    Paths are relative to the manifest.  The manifest and every panel recipe are read by the one strict
+    loader (:func:`flakedb.paint.checks.load_yaml_file`: a regular file only, at most a limit of bytes,
+    duplicate keys, alias bombs and unknown tags refused); ``name`` is checked as a species name here, before
+    any work.  Raises ValueError naming the file and the field.
     """
     p = Path(path)
     try:
-        doc = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ValueError(f"{p}: no such file") from None
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{p}: YAML syntax error: {exc}") from None
+        _, doc = load_yaml_file(p, "ladder manifest", MAX_LADDER_BYTES)
+    except YamlFileError as exc:
+        raise ValueError(str(exc)) from None
     if not isinstance(doc, dict):
         raise ValueError(f"{p}: a ladder manifest is a YAML mapping (species, name, panels)")
+    problems = value_problems(doc)
+    if problems:
+        raise ValueError(f"{p}: {problems[0]}")
     extra = set(doc) - {"species", "name", "free", "panels", "description"}
     if extra:
-        raise ValueError(f"{p}: unknown key(s) {sorted(extra)} (allowed: species, name, free, panels, description)")
+        raise ValueError(f"{p}: unknown key(s) {_short(sorted(map(str, extra)))} (allowed: species, name, free, "
+                         f"panels, description)")
     for k in ("species", "name", "panels"):
         if k not in doc:
             raise ValueError(f"{p}: '{k}' is missing")
+    for k in ("species", "name"):
+        if not isinstance(doc[k], str):
+            raise ValueError(f"{p}: {k}: a species name (text), not {type(doc[k]).__name__}")
+    problem = species_name_problem(doc["name"])
+    if problem:
+        raise ValueError(f"{p}: name: {problem}; it names the calibrated species in --out-catalog")
+    free = doc.get("free")
+    if free is not None and (not isinstance(free, list) or not all(isinstance(g, str) for g in free)):
+        raise ValueError(f"{p}: free: a list of parameter groups (e.g. [absorption, size])")
     if not isinstance(doc["panels"], list) or not doc["panels"]:
         raise ValueError(f"{p}: panels must be a non-empty list of {{recipe: R.yaml, target: T.csv}}")
+    if len(doc["panels"]) > MAX_PANELS:
+        raise ValueError(f"{p}: panels: {len(doc['panels']):,} panels; the limit is {MAX_PANELS} (each is a compose "
+                         f"in every fit evaluation)")
     panels = []
     for i, e in enumerate(doc["panels"]):
         where = f"{p}: panels[{i}]"
         if not isinstance(e, dict) or "recipe" not in e or "target" not in e:
             raise ValueError(f"{where}: give recipe: R.yaml and target: T.csv (or .cxf)")
-        rp = p.parent / str(e["recipe"])
+        unknown = set(e) - {"recipe", "target", "cxf_object", "name"}
+        if unknown:
+            raise ValueError(f"{where}: unknown key(s) {_short(sorted(map(str, unknown)))} (allowed: recipe, target, "
+                             f"cxf_object, name)")
+        for k in ("recipe", "target"):
+            if not isinstance(e[k], str) or not e[k]:
+                raise ValueError(f"{where}.{k}: a file path (text)")
+        rp = p.parent / e["recipe"]
         try:
-            rdoc = yaml.safe_load(rp.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ValueError(f"{where}.recipe: {rp}: no such file") from None
+            _, rdoc = load_yaml_file(rp, "recipe")
+        except YamlFileError as exc:
+            raise ValueError(f"{where}.recipe: {exc}") from None
+        if not isinstance(rdoc, dict):
+            raise ValueError(f"{where}.recipe: {rp}: a recipe is a YAML mapping (flakedb, name, layers, ...), "
+                             f"not {type(rdoc).__name__}")
         try:
-            tgt = load_target(p.parent / str(e["target"]), object_name=e.get("cxf_object"))
+            tgt = load_target(p.parent / e["target"], object_name=e.get("cxf_object"))
         except TargetError as exc:
             raise ValueError(f"{where}.target: {exc}") from None
-        panels.append(Panel(name=str(e.get("name") or rp.stem), recipe_doc=rdoc, target=tgt,
-                            paths=(rp, p.parent / str(e["target"]))))
-    free = doc.get("free")
-    return str(doc["species"]), str(doc["name"]), (None if free is None else list(free)), panels
+        panels.append(Panel(name=_short(e.get("name") or rp.stem, 60), recipe_doc=rdoc, target=tgt,
+                            paths=(rp, p.parent / e["target"])))
+    return doc["species"], doc["name"], (None if free is None else list(free)), panels
+
+
+def _short(text, limit=100) -> str:
+    t = str(text)
+    return t if len(t) <= limit else t[:limit - 3] + "..."
 
 
 def write_user_catalog(path, base_catalog, name, entry, note="") -> str:
     """Write ``base_catalog`` plus ``name: entry`` to ``path`` (atomically), validated first."""
+    atomic_write_text(Path(path), format_user_catalog(path, base_catalog, name, entry, note))
+    return str(path)
+
+
+def format_user_catalog(path, base_catalog, name, entry, note="") -> str:
+    """The text of the user catalogue ``base_catalog`` plus ``name: entry``, validated (CatalogError naming
+    ``path`` when the result is not a valid catalogue)."""
     cat = copy.deepcopy(base_catalog)
     if name in cat["particles"]:
         raise ValueError(f"a species named {name!r} is already in the base catalogue; choose another name")
@@ -350,9 +396,8 @@ def write_user_catalog(path, base_catalog, name, entry, note="") -> str:
         raise CatalogError(f"{path}: the calibrated catalogue is invalid:\n  " + "\n  ".join(problems))
     text = ("# flakedb user catalogue: the base catalogue plus species calibrated by `flakedb calibrate`"
             + (f"\n# {note}" if note else "") + "\n" + yaml.safe_dump(cat, sort_keys=False, allow_unicode=True))
-    atomic_write_text(Path(path), text)
-    return str(path)
+    return text
 
 
 __all__ = ["ABSORPTION_DEGREE", "CalParam", "CalibrationResult", "Panel", "RecipeError", "calibrate",
-           "calibrated_entry", "free_parameters", "ln_absorption_factor", "read_ladder", "write_user_catalog"]
+           "calibrated_entry", "format_user_catalog", "free_parameters", "ln_absorption_factor", "read_ladder", "write_user_catalog"]

@@ -44,7 +44,7 @@ import numpy as np
 
 from flakedb.colour.settings import DEFAULT_ILLUMINANT, DEFAULT_OBSERVER
 from flakedb.colour.tolerance import illuminant_name, observer_name, reflectance_to_Lab
-from flakedb.match.targets import Target, TargetError, read_target, validate_geometries
+from flakedb.match.targets import Target, TargetError, check_measured, read_target, validate_geometries
 from flakedb.safeio import FileTooLargeError, read_limited
 
 #: The CxF3 core namespace.
@@ -71,6 +71,12 @@ def _float(text, what, where) -> float:
     return v
 
 
+def _short(text, limit=80) -> str:
+    """``repr(text)`` cut to ``limit`` characters (a name in a message, never a 900 kB one)."""
+    r = repr(text)
+    return r if len(r) <= limit else r[:limit - 4] + "...'"
+
+
 def _specifications(root, where) -> dict:
     """Id → {'angles': {notation: (illum, aspec)}, 'start', 'increment', 'observer', 'illuminant'}."""
     specs = {}
@@ -79,6 +85,10 @@ def _specifications(root, where) -> dict:
         if sid is None:
             continue  # a ColorSpecification *reference* element elsewhere has no Id
         w = f"{where}: ColorSpecification {sid}"
+        if sid in specs:
+            raise TargetError(f"{w}: two ColorSpecifications have Id {_short(sid)}; an Id names one "
+                              f"specification (the schema's xs:ID), so a value naming it is ambiguous: give each "
+                              f"its own Id")
         angles = {}
         for b in cs.iter(_q("BRDFAngle")):
             notation = b.get("Notation")
@@ -170,20 +180,31 @@ def read_cxf_target(path_or_bytes, object_name=None, observer=None, illuminant=N
                                         and v.tag in (_q("ReflectanceSpectrum"), _q("ColorCIELab"))]
         if values:
             candidates.append((obj, values))
+    ids = [o.get("Id") for o in root.iter(_q("Object")) if o.get("Id") is not None]
+    seen_ids = set()
+    dup = next((i for i in ids if i in seen_ids or seen_ids.add(i)), None)
+    if dup is not None:
+        raise TargetError(f"{where}: two Objects have Id {_short(dup)}; an Id names one object (the schema's xs:ID): "
+                          f"give each its own Id")
     if not candidates:
         raise TargetError(f"{where}: no object has ReflectanceSpectrum or ColorCIELab values under a multi-angle "
                           f"ColorSpecification (MeasurementSpec/GeometryChoice/MultiAngle)")
     if object_name is None:
         if len(candidates) > 1:
-            names = ", ".join(repr(o.get("Name") or o.get("Id")) for o, _ in candidates[:8])
+            names = ", ".join(_short(o.get("Name") or o.get("Id")) for o, _ in candidates[:8])
             raise TargetError(f"{where}: {len(candidates)} objects have multi-angle values ({names}); choose one "
                               f"with --cxf-object NAME")
         obj, values = candidates[0]
     else:
-        hits = [(o, v) for o, v in candidates if object_name in (o.get("Name"), o.get("Id"))]
+        hits = [(o, v) for o, v in candidates if object_name == o.get("Id")]
+        hits = hits or [(o, v) for o, v in candidates if object_name == o.get("Name")]
         if not hits:
-            names = ", ".join(repr(o.get("Name") or o.get("Id")) for o, _ in candidates[:8])
-            raise TargetError(f"{where}: no object named {object_name!r} with multi-angle values (have: {names})")
+            names = ", ".join(_short(o.get("Name") or o.get("Id")) for o, _ in candidates[:8])
+            raise TargetError(f"{where}: no object named {_short(object_name)} with multi-angle values (have: {names})")
+        if len(hits) > 1:
+            ids_ = ", ".join(_short(o.get("Id")) for o, _ in hits[:8])
+            raise TargetError(f"{where}: {len(hits)} objects are named {_short(object_name)} (Ids {ids_}); "
+                              f"choose one by its Id with --cxf-object ID")
         obj, values = hits[0]
     oname = obj.get("Name") or obj.get("Id") or ""
     w = f"{where}: object {oname!r}"
@@ -262,9 +283,11 @@ def read_cxf_target(path_or_bytes, object_name=None, observer=None, illuminant=N
             reflectance_to_Lab(R[:1], wl, obs, ill)
         except ValueError as exc:
             raise TargetError(f"{w}: reflectance grid: {exc}") from None
+        check_measured(f"{w} ReflectanceSpectrum", g_arr, reflectance=R, wavelength_nm=wl)
         t.reflectance, t.wavelength_nm = R, wl
     else:
         t.lab = np.asarray([labs[g] for g in geoms], float)
+        check_measured(f"{w} ColorCIELab", g_arr, lab=t.lab)
     return t
 
 
@@ -274,4 +297,4 @@ def load_target(path, observer=None, illuminant=None, object_name=None) -> Targe
         return read_cxf_target(path, object_name, observer, illuminant)
     if object_name is not None:
         raise TargetError(f"--cxf-object {object_name}: only a .cxf target has objects ({path} is read as CSV)")
-    return read_target(path, observer, illuminant)
+    return read_target(Path(path), observer, illuminant)   # a Path: never taken for CSV text (a name with a newline)

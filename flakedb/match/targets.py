@@ -97,9 +97,20 @@ MAX_TARGET_BYTES = 2_000_000
 MAX_TARGET_GEOMETRIES = 200
 #: Most R_<nm> columns (1 nm steps from 300 to 1200 nm are 901).
 MAX_TARGET_BANDS = 1000
+#: Measured reflectance factors (fraction) accepted: [REFLECTANCE_MIN, REFLECTANCE_MAX].  Below 0: an instrument's
+#: zero noise on a black panel, at most 2 % of the white standard (a factor of -0.3 is a sign or unit mistake).
+#: Above 1 (the perfect white diffuser): an effect paint near the specular, whose reflectance factor is pi times its
+#: BRDF and reaches 3-5 at 15as15 for bright aluminium (L* 140-180); 20 (L* 300.6) leaves a wide margin for
+#: smoother flakes and still refuses a percent file read as fractions (R = 50, 80, ...).
+REFLECTANCE_MIN, REFLECTANCE_MAX = -0.02, 20.0
+#: L* of a reflectance factor of :data:`REFLECTANCE_MAX` (116 Y^(1/3) - 16); L* below 0 is no colour.
+LSTAR_MAX = 116.0 * REFLECTANCE_MAX ** (1.0 / 3.0) - 16.0
+#: |a*|, |b*| accepted: the most saturated real surface colours reach about 130 (the spectrum locus of a
+#: reflectance of 20 reaches about 500 at the extremes).
+ABSTAR_MAX = 500.0
 
 __all__ = ["E2194_GEOMETRIES", "E2539_EXTRA", "E2539_GEOMETRIES", "GEOMETRY_SETS", "Target", "TargetError",
-           "format_target", "read_target", "validate_geometries", "write_target"]
+           "check_measured", "format_target", "read_target", "validate_geometries", "write_target"]
 
 _LAB_COLUMNS = (("L*", "a*", "b*"), ("L", "a", "b"))
 _R_COLUMN = re.compile(r"^R_(\d+(?:\.\d+)?)$")
@@ -164,6 +175,41 @@ def _validate_geometries(geoms, where):
         if asp == 0.0:
             raise TargetError(f"{where} row {i + 1}: aspecular 0° is the specular direction (the smooth coat's "
                               f"mirror delta): not a colour geometry")
+
+
+def check_measured(where, geometries, lab=None, reflectance=None, wavelength_nm=None) -> None:
+    """Refuse measured values that no panel can have (TargetError naming ``where``, the row or geometry and the
+    column): a reflectance factor outside [:data:`REFLECTANCE_MIN`, :data:`REFLECTANCE_MAX`], L* outside
+    [0, :data:`LSTAR_MAX`], |a*| or |b*| above :data:`ABSTAR_MAX`.
+
+    >>> check_measured("t.csv", [[45, 15]], reflectance=[[0.5, -0.3]], wavelength_nm=[500, 510])
+    Traceback (most recent call last):
+    ...
+    flakedb.match.targets.TargetError: t.csv geometry 45as15 (row 1): R_510 = -0.3 is outside [-0.02, 20] (a reflectance factor, fraction of the perfect white diffuser; a percent file needs '# reflectance: percent')
+    """
+    g = np.asarray(geometries, float).reshape(-1, 2)
+
+    def at(i):
+        return f"{where} geometry {g[i, 0]:g}as{g[i, 1]:g} (row {i + 1})"
+
+    if reflectance is not None:
+        R = np.asarray(reflectance, float)
+        wl = np.asarray(wavelength_nm, float)
+        bad = np.argwhere(~((R >= REFLECTANCE_MIN) & (R <= REFLECTANCE_MAX)))
+        if bad.size:
+            i, j = bad[0]
+            raise TargetError(f"{at(i)}: R_{wl[j]:g} = {R[i, j]:.6g} is outside [{REFLECTANCE_MIN:g}, "
+                              f"{REFLECTANCE_MAX:g}] (a reflectance factor, fraction of the perfect white diffuser; "
+                              f"a percent file needs '# reflectance: percent')")
+    if lab is not None:
+        L = np.asarray(lab, float).reshape(-1, 3)
+        for k, (col, lo, hi) in enumerate((("L*", 0.0, LSTAR_MAX), ("a*", -ABSTAR_MAX, ABSTAR_MAX),
+                                           ("b*", -ABSTAR_MAX, ABSTAR_MAX))):
+            bad = np.flatnonzero(~((L[:, k] >= lo) & (L[:, k] <= hi)))
+            if bad.size:
+                i = bad[0]
+                raise TargetError(f"{at(i)}: {col} = {L[i, k]:.6g} is outside [{lo:g}, {hi:.4g}] (CIELAB of a "
+                                  f"reflectance factor in [0, {REFLECTANCE_MAX:g}])")
 
 
 def validate_geometries(geoms, where) -> None:
@@ -316,6 +362,7 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
                texture=texture, texture_observer=tex_obs)
     if lab_idx is not None:
         t.lab = a[:, [col[i] for i in lab_idx]]
+        check_measured(where, geoms, lab=t.lab)
     if r_cols:
         wl = np.array([w for _, w in r_cols])
         R = a[:, [col[i] for i, _ in r_cols]]
@@ -324,6 +371,7 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
             raise TargetError(f"{where}: '# reflectance: {unit}': use fraction or percent")
         if unit == "percent":
             R = R / 100.0
+        check_measured(where, geoms, reflectance=R, wavelength_nm=wl)
         try:
             reflectance_to_Lab(R[:1], wl, obs, ill)
         except ValueError as exc:

@@ -75,6 +75,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from flakedb.interrupts import deferred
+
 __all__ = [
     "MieEfficiencies",
     "LognormalPigment",
@@ -144,7 +146,7 @@ def _compile_kernels():
     global _compiled
     if _compiled:
         return
-    with _COMPILE_LOCK:
+    with _COMPILE_LOCK, deferred():   # numba's import, compilation and cache loading with signals held back
         if _compiled:
             return
         from numba import njit  # lazy: importing numba takes 0.3-0.5 s; only a Mie evaluation needs it
@@ -342,7 +344,8 @@ def _coefficient_table_kernel(m, x, n_max):  # pragma: no cover - compiled
 def _coefficient_table(m, x, n_max):
     """a_n, b_n and the absorption per order for n = 1..n_max of one sphere (testing helper; compiled kernel)."""
     _compile_kernels()
-    return _coefficient_table_kernel(m, x, n_max)
+    with deferred():   # a signal waits for the compiled call (flakedb.interrupts)
+        return _coefficient_table_kernel(m, x, n_max)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -423,7 +426,8 @@ def _run(m, x, mu, n_terms):
         starts = np.zeros(n_pairs + 1, dtype=np.int64)
         np.cumsum(np.bincount(idx, minlength=n_pairs), out=starts[1:])
     _compile_kernels()
-    eff, s1, s2 = _scatter_kernel(mb, xb, nt, order, starts, mu_flat)
+    with deferred():   # a signal waits for the compiled call (flakedb.interrupts)
+        eff, s1, s2 = _scatter_kernel(mb, xb, nt, order, starts, mu_flat)
     return eff, s1, s2, shape_mx, shape, idx
 
 

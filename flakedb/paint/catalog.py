@@ -98,6 +98,27 @@ def pigment_memory_bytes(median_diameter_um, gsd, wavelength_nm, n_binder) -> fl
 #: A species name (the schema's ``$defs/name``): it also names files, so no separators.
 _NAME_RE = re.compile(r"[a-z0-9][a-z0-9-]*")
 
+#: Longest species name [characters] (a name also names store files).
+MAX_SPECIES_NAME = 64
+
+
+def species_name_problem(name) -> str | None:
+    """None for a valid species name (the schema's ``$defs/name``, at most :data:`MAX_SPECIES_NAME` characters),
+    else why not, with the name cut to 40 characters:
+
+    >>> species_name_problem("cadmium-yellow-lab") is None, species_name_problem("Cadmium Yellow (lab)")
+    (True, "'Cadmium Yellow (lab)' is not a species name: lower-case letters, digits and '-', starting with a letter or digit (e.g. 'cadmium-yellow-lab')")
+    """
+    s = name if isinstance(name, str) else str(name)
+    shown = repr(s) if len(s) <= 40 else repr(s[:37]) + "... (" + f"{len(s):,} characters)"
+    if len(s) > MAX_SPECIES_NAME:
+        return f"{shown} is not a species name: at most {MAX_SPECIES_NAME} characters"
+    if not isinstance(name, str) or not _NAME_RE.fullmatch(s):
+        return (f"{shown} is not a species name: lower-case letters, digits and '-', starting with a letter or "
+                f"digit (e.g. 'cadmium-yellow-lab')")
+    return None
+
+
 #: Most members one sweep may generate (each is a species a build projects: the shipped sweep has 8).
 MAX_SWEEP_MEMBERS = 1000
 

@@ -33,7 +33,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from flakedb.paint.checks import YamlFileError, load_yaml_file
 from flakedb.resources import MATERIALS_DIR
+from flakedb.safeio import FileTooLargeError, read_limited
 
 #: hc in eV·nm (CODATA 2018: h c = 1239.841984 eV nm); converts vacuum wavelength to photon energy.
 HC_EV_NM = 1239.841984
@@ -41,6 +43,9 @@ HC_EV_NM = 1239.841984
 INTERPOLATIONS = ("nk_linear_in_wavelength", "eps_linear_in_energy")
 #: Explicit extrapolation rules of materials.yaml (module docstring).
 EXTRAPOLATIONS = ("formula", "hold_end_value")
+#: Largest materials.yaml and optical-constant table read [bytes] (the shipped ones: 20 kB and < 100 kB).
+MAX_MATERIALS_BYTES = 5_000_000
+MAX_TABLE_BYTES = 50_000_000
 
 
 def materials_dir() -> Path:
@@ -58,8 +63,10 @@ YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 @functools.lru_cache(maxsize=None)
 def _index() -> dict:
     path = materials_dir() / "materials.yaml"
-    with open(path, encoding="utf-8") as f:
-        doc = yaml.load(f, Loader=YAML_LOADER)  # a safe loader: libyaml's or PyYAML's SafeLoader
+    try:   # a regular file only (a FIFO blocked forever), at most MAX_MATERIALS_BYTES, the strict YAML loader
+        _, doc = load_yaml_file(path, "materials index", MAX_MATERIALS_BYTES)
+    except YamlFileError as exc:
+        raise ValueError(f"{exc} (the materials folder: $FLAKEDB_MATERIALS_DIR or the package's)") from None
     mats = doc.get("materials") if isinstance(doc, dict) else None
     if not isinstance(mats, dict) or not mats:
         raise ValueError(f"{path}: expected a top-level 'materials:' mapping")
@@ -82,17 +89,33 @@ def read_table(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Read a ``wavelength_nm,n,k`` CSV with a ``#`` header; returns (wavelength_nm, n, k), sorted."""
     rows = []
     header_seen = False
-    with open(path, encoding="utf-8") as f:
-        for line in f:
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            if not header_seen:
-                if s.replace(" ", "") != "wavelength_nm,n,k":
-                    raise ValueError(f"{path}: expected the column line 'wavelength_nm,n,k', got {s!r}")
-                header_seen = True
-                continue
-            rows.append([float(v) for v in s.split(",")])
+    try:   # a regular file only, at most MAX_TABLE_BYTES (the safe reader)
+        text = read_limited(path, MAX_TABLE_BYTES).decode("utf-8")
+    except FileTooLargeError as exc:
+        raise ValueError(f"{path}: {exc.size:,} bytes or more; the limit is {MAX_TABLE_BYTES:,} bytes for an "
+                         f"optical-constant table") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the optical-constant table ({exc.strerror or exc})") from None
+    for ln, line in enumerate(text.splitlines(), 1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        if not header_seen:
+            if s.replace(" ", "") != "wavelength_nm,n,k":
+                raise ValueError(f"{path}: expected the column line 'wavelength_nm,n,k', got {s[:80]!r}")
+            header_seen = True
+            continue
+        try:
+            row = [float(v) for v in s.split(",")]
+        except ValueError:
+            raise ValueError(f"{path} line {ln}: a value is not a number: {s[:80]!r}") from None
+        if len(row) != 3 or not all(np.isfinite(row)):
+            raise ValueError(f"{path} line {ln}: expected three finite numbers wavelength_nm,n,k; got {s[:80]!r}")
+        if row[0] <= 0 or row[1] <= 0:
+            raise ValueError(f"{path} line {ln}: wavelength_nm and n must be > 0; got {s[:80]!r}")
+        rows.append(row)
     data = np.asarray(rows, dtype=float)
     if data.ndim != 2 or data.shape[1] != 3 or len(data) < 2:
         raise ValueError(f"{path}: expected at least two rows of three numbers")

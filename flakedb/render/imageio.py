@@ -13,6 +13,7 @@ target, so a reader never sees a half-written image and a failed write leaves no
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -45,8 +46,12 @@ def write_exr(path, rgb) -> Path:
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
 
     def write(tmp):
+        # through memory: the binding takes a path only as UTF-8 text, so a folder whose name is not (a byte
+        # 0xff, which the file system allows) failed with "use write(path: str)"; the bytes are written by Python
+        buf = io.BytesIO()
         with OpenEXR.File(header, {"RGB": data}) as f:
-            f.write(str(tmp))
+            f.write(buf)
+        Path(tmp).write_bytes(buf.getvalue())
 
     return _atomic_write(path, write)
 
@@ -66,7 +71,7 @@ def read_exr(path) -> np.ndarray:
     """
     import OpenEXR  # lazy: image codec only where images are written
 
-    with OpenEXR.File(str(path)) as f:
+    with open(path, "rb") as stream, OpenEXR.File(stream) as f:   # a stream: any file name (see write_exr)
         ch = f.channels()
         if "RGB" not in ch:
             raise ValueError(f"{path}: no R, G, B channels (has {sorted(ch)})")

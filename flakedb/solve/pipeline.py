@@ -25,8 +25,10 @@ import numpy as np
 from flakedb import __version__
 from flakedb.appearance.report import colour_report
 from flakedb.bsdf.convert import stack_to_table
+from flakedb.bsdf.table import ENERGY_SLACK, energy_albedo
 from flakedb.conventions import fourier_weight
 from flakedb.paint.mapping import build_paint, catalog_species, solve_paint
+from flakedb.process import memory_budget_bytes
 from flakedb.solve.resolution import (
     AUTO_REFINE_STEPS,
     auto_colour_target,
@@ -173,7 +175,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     progress("optics", {"seconds": t["optics"], "channels": paint.n_channels})
     before = None if before_solve is None else before_solve(paint, n_used, version)
     t0 = time.perf_counter()
-    stack = solve_paint(paint, n_used, memory_budget_bytes=memory_budget_bytes(),
+    stack = solve_paint(paint, n_used, memory_budget_bytes=memory_budget_bytes(),  # units parsed (flakedb.process)
                         threads=os.cpu_count() or 1, progress=progress)
     t["solve"] = time.perf_counter() - t0
     log(f"solve: n = {n_used} ({reason}), {stack.info.get('orders')} Fourier orders, {t['solve']:.2f} s")
@@ -198,6 +200,21 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     t0 = time.perf_counter()
     table = stack_to_table(stack, paint.channels, paint.eta, None, paint.delta, md)  # α from the solved stack
     t["table"] = time.perf_counter() - t0
+    # what `flakedb info` checks on the written file (issue 38), for an opaque paint (primer or metal base): a table
+    # with transmission (a research stack without a bottom) holds the unscattered beam as a one-node spike that
+    # the Catmull-Rom integral overshoots (an index-matched HG slab: 1.033 at n = 16 where the quadrature's is 1)
+    written = float(energy_albedo(table).max()) if table.reflection_only else 0.0
+    if written > 1.0 + ENERGY_SLACK:
+        problem = (f"the written table's albedo reaches {written:.4f} > 1 + {ENERGY_SLACK:g} (the Catmull-Rom integral "
+                   f"over its {table.n} nodes that renderers and `flakedb info` use; the solver's own albedo "
+                   f"{float(stack.albedo().max()):.4f}): a lobe narrower than the node spacing (a metal or coat "
+                   f"roughness near 0.01)")
+        if not allow_unphysical:
+            raise UnphysicalResultError(
+                f"recipe {recipe.name}: unphysical result at n = {n_used}: {problem}; nothing written.  Raise the "
+                f"resolution (--n), make the narrowest surface rougher, or rerun with --allow-unphysical to write it "
+                f"anyway.")
+        warnings.append(f"UNPHYSICAL RESULT (written because of --allow-unphysical): {problem}")
     return SolvedRecipe(paint=paint, stack=stack, table=table, n=n_used, n_reason=reason, warnings=warnings,
                         timings_s=t, version=version, store_label=store_label, stored=stored, before=before)
 
@@ -277,12 +294,6 @@ def solver_warnings(info, n) -> list:
                        f"tolerance {g.get('order_tol', float('nan')):.0e} at the cap of {g.get('orders_available')} "
                        f"orders (n = {n})")
     return out
-
-
-def memory_budget_bytes():
-    """``FLAKEDB_MEMORY_BUDGET`` (bytes) or None (the solver's default)."""
-    budget = os.environ.get("FLAKEDB_MEMORY_BUDGET")
-    return float(budget) if budget else None
 
 
 @dataclass

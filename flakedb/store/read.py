@@ -22,6 +22,7 @@ from flakedb.store.fs import (
     VERSION_RE,
     cat,
     check_version_name,
+    is_local_path,
     open_fs,
     read_json,
     sha256,
@@ -37,7 +38,7 @@ from flakedb.store.plan import (
     res_key,
     schema_problems,
 )
-from flakedb.store.write import all_chunk_keys
+from flakedb.store.write import all_chunk_keys, stray_templates
 
 
 def complete_versions(url) -> list[str]:
@@ -229,6 +230,11 @@ def verify_store(url, all_versions=False) -> list[str]:
         versions = sorted(posixpath.basename(p.rstrip("/")) for p in fs.ls(vdir, detail=False))
         # `.tmp-*`: a template being written, or left by a build killed while writing it; not a version
         versions = [v for v in versions if not v.startswith(".")]
+        if is_local_path(str(url)):   # strays a killed build left (kill -9, a crash; issue 38)
+            for name, stale in stray_templates(vdir):
+                if stale:
+                    problems.append(f"versions/{name}: a stray template left by an interrupted build (its process "
+                                    f"is gone); `flakedb build` removes it, or remove it by hand")
     if latest and latest not in versions:
         versions.insert(0, latest)
     for v in versions:

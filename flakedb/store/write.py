@@ -7,11 +7,14 @@ from __future__ import annotations
 import json
 import os
 import posixpath
+import re
 import shutil
+import time
 import uuid
 
 import numpy as np
 
+from flakedb.outputs import STALE_AGE_S, pid_alive, temp_host
 from flakedb.paint import species as sp
 from flakedb.store.compress import (
     ORDER_CHUNK,
@@ -51,9 +54,15 @@ def write_template(url, plan: BuildPlan):
         # cannot clear or interleave each other's template (the loser's rename fails, it uses the
         # winner's).  A leftover partial template (interrupted before the rename) never exists.
 
-        tmp = posixpath.join(root, "versions", f".tmp-{plan.version[:16]}-{os.getpid()}-{uuid.uuid4().hex[:8]}")
-        os.makedirs(posixpath.dirname(tmp), exist_ok=True)
-        _fill_template(tmp, plan, meta)
+        vdir = posixpath.join(root, "versions")
+        os.makedirs(vdir, exist_ok=True)
+        remove_stale_templates(vdir)   # templates of builds killed before their rename (kill -9, a crash)
+        tmp = posixpath.join(vdir, f".tmp-{plan.version[:16]}-{template_owner()}-{uuid.uuid4().hex[:8]}")
+        try:
+            _fill_template(tmp, plan, meta)
+        except BaseException:   # disk full, a signal: no half template left in versions/
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
         try:
             os.rename(tmp, final)
         except OSError:
@@ -64,6 +73,58 @@ def write_template(url, plan: BuildPlan):
         return True
     _fill_template(version_url(url, plan.version), plan, meta)
     return True
+
+
+#: A private template's name: ``.tmp-<version[:16]>-<host>.<pid>-<8 hex>`` (the host written by builds since
+#: issue 38; a name without it is an older build's, whose owner cannot be told).
+TEMPLATE_RE = re.compile(r"^\.tmp-[0-9a-f]{1,16}-(?:(?P<host>[A-Za-z0-9-]+)\.)?(?P<pid>\d+)-[0-9a-f]{1,8}$")
+
+
+def template_owner() -> str:
+    """``HOST.PID`` of this process, as a private template's name carries it."""
+    return f"{temp_host()}.{os.getpid()}"
+
+
+def stray_templates(versions_dir) -> list[tuple[str, bool]]:
+    """``(name, stale)`` of every private template (``.tmp-…``) in a local ``versions_dir``: stale when it is
+    this host's and its process is gone, or older than :data:`flakedb.outputs.STALE_AGE_S` (another host's,
+    or an older build's name without the host); a template of a build still running is not stale."""
+    try:
+        entries = list(os.scandir(versions_dir))
+    except OSError:
+        return []
+    out = []
+    now = time.time()
+    for e in entries:
+        m = TEMPLATE_RE.match(e.name)
+        if not m:
+            continue
+        try:
+            age = now - e.stat(follow_symlinks=False).st_mtime
+        except OSError:
+            continue
+        if m.group("host") == temp_host():
+            stale = int(m.group("pid")) != os.getpid() and not pid_alive(int(m.group("pid")))
+        else:
+            stale = age > STALE_AGE_S
+        out.append((e.name, stale))
+    return out
+
+
+def remove_stale_templates(versions_dir) -> list[str]:
+    """Remove the stale private templates of :func:`stray_templates` (a symlink as a link); returns their names."""
+    removed = []
+    for name, stale in stray_templates(versions_dir):
+        if not stale:
+            continue
+        p = os.path.join(versions_dir, name)
+        if os.path.islink(p):
+            os.unlink(p)
+        else:
+            shutil.rmtree(p, ignore_errors=True)
+        if not os.path.lexists(p):
+            removed.append(name)
+    return removed
 
 
 def _fill_template(vurl, plan: BuildPlan, meta: dict):

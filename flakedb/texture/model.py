@@ -661,9 +661,18 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
         peak = max(peak, np.pi * g.t_in * g.t_out * R_Y * fm * g.c / (g.mu_l_b * g.mu_v * g.omega_a))
     sparkle = bool(stack.flakes) and bool(peak >= SPARKLE_MIN_PEAK) and bool(n_g > 0)
     intensity = flux / n_g if n_g > 0 else 0.0
+    if sparkle:
+        why = ""
+    elif not stack.flakes:
+        why = "no flakes"
+    elif not n_g > 0:   # checked before the peak: a bright peak with no flake tilted to show it is still no glint
+        why = (f"no flake is tilted to mirror the light at {light_deg:g}° towards the observer at "
+               f"{observer.view_deg:g}° (expected glints 0; the flakes' orientation spread holds no such normal)")
+    else:
+        why = f"peak luminance factor {peak:.3g} < {SPARKLE_MIN_PEAK:g} (no flake outshines a white diffuser)"
     return sparkle_grounded({
         "light_deg": float(light_deg), "view_deg": float(observer.view_deg),
-        "sparkle": sparkle,
+        "sparkle": sparkle, "no_sparkle_reason": why,
         "glints_per_mm2": float(n_g * 1e6) if sparkle else 0.0,
         "glints_per_spot": float(n_g * a_spot) if sparkle else 0.0,
         "sparkle_area_fraction": float(-np.expm1(-mink)) if sparkle else 0.0,

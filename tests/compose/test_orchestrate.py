@@ -85,7 +85,10 @@ def test_falling_binder_index_composes_and_conserves_energy(tmp_path, roughness)
               {"basecoat": {"thickness_um": 8, "ior": 1.45, "particles": [HG, WHITE_FLAKE]}},
               {"basecoat": {"thickness_um": 4, "ior": 1.55, "particles": [HG]}},
               {"primer": {"albedo": 1.0}}]
-    res = compose(recipe(layers, n=16), tmp_path / "fall")
+    # allow_unphysical: a white furnace (primer albedo 1) at n = 16 under the rough 0.1 coat: the written table's
+    # Catmull-Rom albedo, what renderers integrate, is 1.0030 (the solver's 1.0000), which compose now refuses
+    # like `flakedb info` does (issue 38); the stack itself is what this test checks
+    res = compose(recipe(layers, n=16), tmp_path / "fall", allow_unphysical=bool(roughness))
     kinds = [c["kind"] for c in res.paint.components]
     assert kinds.count("inner interface") == 2
     np.testing.assert_allclose(res.stack.albedo(), 1.0, atol=1e-10)

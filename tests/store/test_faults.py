@@ -227,3 +227,25 @@ def test_killing_the_parent_ends_its_workers(tmp_path):
     for a in alive:
         a.kill()
     assert not alive, f"still running after the parent was killed: {[_cmdline(a) for a in alive]}"
+
+
+def test_a_killed_builds_template_is_reported_and_swept(built, tmp_path):
+    """issue 38: a template left by a build killed with SIGKILL (its process gone) made `verify --all` say OK and
+    stayed after a rebuild; verify now reports it, and the next build removes it."""
+    from flakedb.outputs import temp_host
+    from flakedb.store.write import remove_stale_templates
+
+    url = _copy(built, tmp_path)
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stray = Path(url) / "versions" / f".tmp-0123456789abcdef-{temp_host()}.{dead.pid}-deadbeef"
+    (stray / "grid").mkdir(parents=True)
+    mine = Path(url) / "versions" / f".tmp-0123456789abcdef-{temp_host()}.{os.getpid()}-cafef00d"
+    mine.mkdir()                                     # a build still running: never reported or removed
+    problems = st.verify_store(url, all_versions=True)
+    assert len(problems) == 1 and stray.name in problems[0] and "interrupted build" in problems[0], problems
+    r = CliRunner().invoke(cli, ["verify", url, "--all"])
+    assert r.exit_code != 0 and stray.name in r.output, r.output
+    assert remove_stale_templates(str(Path(url) / "versions")) == [stray.name]
+    assert not stray.exists() and mine.exists()
+    assert st.verify_store(url, all_versions=True) == []
