@@ -51,6 +51,11 @@ __all__ = [
     "flake_ndf",
     "flake_ndf_Beckmann",
     "flake_ndf_GGX",
+    "flake_ndf_StudentT",
+    "FLAKE_DISTRIBUTION_FAMILIES",
+    "STUDENT_T_SHAPE_RANGE",
+    "MIXTURE_WEIGHT_RANGE",
+    "MIXTURE_ALPHA_RANGE",
     "projected_area",
     "ndf_halfvector_Ergun",
     "projected_area_Beckmann",
@@ -66,6 +71,7 @@ __all__ = [
     "sample_flake_normal",
     "sample_flake_normal_Beckmann",
     "sample_flake_normal_GGX",
+    "sample_flake_normal_StudentT",
 ]
 
 #: The uniform flake-normal density on the sphere used for pigments (paper eq. 8), 1/(4π) per sr.
@@ -1272,9 +1278,12 @@ def _parse_distribution(key: str) -> "FlakeDistribution":
     make, arity = FLAKE_DISTRIBUTION_FAMILIES[family]
     if len(args) != arity:
         raise ValueError(f"{family}(...) takes {arity} parameter(s), got {len(args)} in {key!r}")
-    if family == "student_t":
-        return make(float(args[0]))
-    return make(args[0], float(args[1]), args[2], float(args[3]))
+    d = make(float(args[0])) if family == "student_t" else make(args[0], float(args[1]), args[2], float(args[3]))
+    return _CANONICAL.setdefault(d.name, d)  # one object per canonical name, however it was spelled
+
+
+#: The parametrised entries built so far, by canonical name (:func:`_parse_distribution`).
+_CANONICAL: dict = {}
 
 
 #: The parametrised families, name → (factory, number of parameters), spelled in a distribution's name
