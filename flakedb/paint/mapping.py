@@ -128,7 +128,7 @@ from flakedb.paint.recipe import (
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, vmf_mean_cosine
-from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun
+from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun, flake_lobe_alpha
 from flakedb.rt.stack import InnerRough, InnerSmooth, Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings, solve_stack
 from flakedb.rt.stored import StoredMixture, StoredPigmentMedium
 
@@ -870,9 +870,9 @@ def auto_resolution(recipe) -> tuple[int, str]:
     for _, p in recipe.particles():
         a = None
         if isinstance(p, CatalogParticle) and p.is_flake:
-            a = float(p.orientation_alpha if p.orientation_alpha is not None else p.entry["orientation_alpha"]["value"])
+            a = flake_lobe_alpha(recipe_alpha(p), recipe_distribution(p))
         elif isinstance(p, CustomFlake):
-            a = float(p.orientation_alpha)
+            a = flake_lobe_alpha(float(p.orientation_alpha), recipe_distribution(p))
         elif isinstance(p, CustomMedium) and isinstance(p.phase, tuple) and p.phase[0] == "hg":
             hh = int(np.ceil(3.0 / max(1e-3, 1.0 - abs(p.phase[1]))))
             need.append((hh, f"HG lobe g = {p.phase[1]:g} ({p.path}): h ≥ 3/(1 − |g|)"))

@@ -52,6 +52,7 @@ __all__ = [
     "flake_ndf_Beckmann",
     "flake_ndf_GGX",
     "flake_ndf_StudentT",
+    "flake_lobe_alpha",
     "FLAKE_DISTRIBUTION_FAMILIES",
     "STUDENT_T_SHAPE_RANGE",
     "MIXTURE_WEIGHT_RANGE",
@@ -1347,6 +1348,24 @@ def flake_distribution(distribution) -> FlakeDistribution:
                          f"{', '.join(FLAKE_DISTRIBUTIONS)}, student_t(gamma) with "
                          f"{STUDENT_T_SHAPE_RANGE[0]:g} <= gamma <= {STUDENT_T_SHAPE_RANGE[1]:g}, and "
                          f"mix(first,weight,second,alpha2)") from None
+
+
+def flake_lobe_alpha(alpha, distribution="beckmann") -> float:
+    """The spread, on the scale of the α of ``beckmann`` and ``ggx``, of the narrowest lobe of
+    ``distribution``'s flake normals: what a node-count rule measured for Beckmann and GGX at α
+    (:func:`flakedb.paint.mapping.auto_resolution`) is applied to.  Beckmann, GGX: α.  Student-t: its core
+    is Gaussian, D ∝ (1 + t²/(α²(γ−1)))^{−γ} ≈ exp(−γ t²/(α²(γ−1))), of width α √((γ−1)/γ); GGX's (γ = 2)
+    is α/√2, so γ < 2 is narrower than GGX by √(2(γ−1)/γ) (0.82 at γ = 1.5) and γ ≥ 2 is taken as α (its
+    core lies between GGX's and Beckmann's, both measured at α).  Mixtures: the narrowest population."""
+    d = flake_distribution(distribution)
+    alpha = float(_check_alpha(alpha))
+    p = dict(d.parameters)
+    if d.family == "student_t":
+        g = p["gamma"]
+        return alpha * min(1.0, float(np.sqrt(2.0 * (g - 1.0) / g)))
+    if d.family == "mix":
+        return min(flake_lobe_alpha(alpha, p["first"]), flake_lobe_alpha(p["alpha2"], p["second"]))
+    return alpha
 
 
 def flake_ndf(cos_theta_m, alpha, distribution="beckmann"):

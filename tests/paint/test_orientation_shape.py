@@ -131,3 +131,23 @@ layers:
     np.testing.assert_allclose(viarecipe.albedo(), direct.albedo(), rtol=1e-6, atol=1e-9)
     L = min(direct.n_orders, viarecipe.n_orders)
     assert np.abs(viarecipe.Rt[:L] - direct.Rt[:L]).max() < 1e-6 * np.abs(direct.Rt).max()
+
+
+def test_auto_resolution_follows_the_narrowest_lobe():
+    """``resolution: auto`` applies the rules measured for Beckmann/GGX at α to the narrowest lobe
+    (:func:`flakedb.rt.microflake.flake_lobe_alpha`): a narrow second population raises n, a Student-t with
+    γ ≥ 2 keeps α's n, and γ = 1.5 (core √(2/3) × GGX's) asks for more."""
+    from flakedb.paint.mapping import auto_resolution
+    from flakedb.rt.microflake import flake_lobe_alpha
+
+    def n_for(extra):
+        return auto_resolution(parse_recipe(_recipe(MET % extra).replace("resolution: 16\n", "")))[0]
+
+    base = n_for(", orientation_alpha: 0.2")  # 48 (h·α ≥ 4.8 for the default colour_error)
+    assert n_for(", orientation_alpha: 0.2, orientation_distribution: ggx") == base
+    assert n_for(", orientation_alpha: 0.2, orientation_distribution: student_t, orientation_shape: 4") == base
+    assert n_for(", orientation_alpha: 0.2, orientation_distribution: student_t, orientation_shape: 1.5") > base
+    assert n_for(", orientation_alpha: 0.3, orientation_mixture: {weight: 0.2, orientation_alpha: 0.1}") == n_for(
+        ", orientation_alpha: 0.1") > base
+    assert flake_lobe_alpha(0.3, "student_t(1.5)") == pytest.approx(0.3 * np.sqrt(2 / 3), rel=1e-15)
+    assert flake_lobe_alpha(0.3, "mix(ggx,0.5,student_t(1.5),0.2)") == pytest.approx(0.2 * np.sqrt(2 / 3), rel=1e-15)
