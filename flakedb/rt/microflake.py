@@ -30,7 +30,12 @@ Flake normals follow a density D from the registry :data:`FLAKE_DISTRIBUTIONS` (
 * ``"ggx"``, Trowbridge–Reitz (Trowbridge & Reitz 1975; Walter et al. 2007 eq. 33 as a microfacet
   density), in the flake convention D(m) = α² / (2π |cos θ_m|³ (α² + tan²θ_m)²) (:func:`flake_ndf_GGX`).
 
-Both are even, D(m) = D(−m), and integrate to 1 over the whole sphere (each hemisphere 1/2): the
+* ``"student_t(γ)"``, Student-t slopes (Ribardière et al. 2017), a tail shape 1.5 ≤ γ ≤ 1000 from heavier
+  than GGX through GGX (γ = 2) to Beckmann (γ → ∞) (:func:`flake_ndf_StudentT`);
+* ``"mix(first,w,second,α₂)"``, two populations: 1 − w of ``first`` at the α of the call, w of ``second``
+  at α₂.
+
+All are even, D(m) = D(−m), and integrate to 1 over the whole sphere (each hemisphere 1/2): the
 microfacet density of that name times |cos θ_m|/2.
 """
 
