@@ -307,3 +307,37 @@ def test_bad_names_and_parameters_raise_with_the_range(name, match):
         flake_distribution(name)
     with pytest.raises(ValueError, match="FlakeMedium.distribution"):
         FlakeMedium(0.2, FlakeOptics.constant(0.5, 0.2), 1.0, name)
+
+
+# ------------------------------------------------------------------------------------------------
+# The entry interface a generic consumer relies on (FlakeDistribution docstring)
+# ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("dist", ["beckmann", "ggx", std(1.5), std(7.0), MIX, "mix(student_t(2.5),0.5,ggx,0.02)"])
+def test_every_entry_honours_the_interface(dist):
+    """What the texture model and other generic consumers may assume of any entry: Φ_0(μ, 1) = ∫ D dm = 1
+    for every μ; Φ_1(μ, 1) is the projected area, → the mean |ω·m| of the entry's own samples; Φ_j grow
+    with the level c; the samples are unit, upper-hemisphere, and follow D (mean cos²θ_m against ∫ D);
+    peak bounds D; the name round-trips."""
+    D = flake_distribution(dist)
+    assert flake_distribution(D.name) is D and D.family in ("beckmann", "ggx", "student_t", "mix")
+    alpha = 0.3
+    mu, lev = np.array([0.0, 0.2, 0.7, 1.0]), np.array([0.05, 0.3, 0.8, 1.0])
+    phi = D.abs_cosine_moments(mu, alpha, lev, 24)
+    assert phi.shape == (3, 4, 4)
+    np.testing.assert_allclose(phi[0, :, -1], 1.0, rtol=1e-12)
+    assert np.all(np.diff(phi, axis=-1) >= -1e-15)
+    rng = np.random.default_rng(10)
+    n = 100_000
+    m = D.sample(rng.random(n), rng.random(n), alpha)
+    assert m.shape == (n, 3) and np.all(m[:, 2] >= 0)
+    np.testing.assert_allclose(np.linalg.norm(m, axis=-1), 1.0, rtol=1e-14)
+    for k, mu_k in enumerate(mu):
+        c = np.abs(m @ direction(mu_k, 0.7))
+        assert abs(c.mean() - phi[1, k, -1]) < 5 * c.std() / np.sqrt(n) + 1e-12
+    th = np.linspace(0, np.pi / 2, 20001)
+    e_cos2 = 4 * np.pi * integrate.simpson(np.cos(th) ** 2 * np.sin(th) * D.ndf(np.cos(th), alpha), x=th)
+    assert abs(np.mean(m[:, 2] ** 2) - e_cos2) < 5 * np.std(m[:, 2] ** 2) / np.sqrt(n)
+    assert D.peak(alpha) >= D.ndf(np.linspace(0, 1, 10001), alpha).max() * (1 - 1e-12)
+    assert D.phi_samples(alpha) >= 8
