@@ -219,19 +219,25 @@ def _population_name(pp, dist, shape, dist_field):
     return [], str(dist)
 
 
-def orientation_name(pp, P, base_distribution=DEFAULT_DISTRIBUTION):
+def orientation_name(pp, P, entry=None):
     """(problems, name or None): the flake-normal distribution a particle's orientation fields
     (``orientation_distribution``, ``orientation_shape``, ``orientation_mixture``) ask for, as the canonical
     name of :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS` (``student_t(γ)``, ``mix(first,w,second,α₂)``);
     None where the particle states none of them (the catalogue's, else Beckmann, applies).
-    ``base_distribution``: the distribution of a particle that states none (the catalogue entry's)."""
+    ``entry``: the catalogue entry whose distribution (and Student-t shape) a field the particle leaves
+    out takes (None: a custom flake, Beckmann)."""
     own = P.get("orientation_distribution")
     mix = P.get("orientation_mixture")
-    if own is None and P.get("orientation_shape") is None and mix is None:
+    shape = P.get("orientation_shape")
+    if own is None and shape is None and mix is None:
         return [], None
+    entry = entry or {}
+    cat_family = entry.get("orientation_distribution", DEFAULT_DISTRIBUTION)
+    family = own if own is not None else cat_family
+    if shape is None and family == "student_t" and cat_family == "student_t" and "orientation_shape" in entry:
+        shape = entry["orientation_shape"]["value"]  # the catalogue's γ where the recipe keeps its family
     field = f"{pp}.orientation_distribution" if own is not None else "the catalogue's orientation_distribution"
-    problems, name = _population_name(pp, own if own is not None else base_distribution, P.get("orientation_shape"),
-                                      field)
+    problems, name = _population_name(pp, family, shape, field)
     if mix is not None:
         mp = f"{pp}.orientation_mixture"
         d2 = mix.get("orientation_distribution", DEFAULT_DISTRIBUTION)
@@ -378,7 +384,7 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
                 problems.append(cost)
     dist = None
     if is_flake:
-        more, dist = orientation_name(pp, P, str(entry.get("orientation_distribution", DEFAULT_DISTRIBUTION)))
+        more, dist = orientation_name(pp, P, entry)
         problems += more
     particle = CatalogParticle(
         name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),

@@ -16,6 +16,7 @@ import jsonschema
 import numpy as np
 
 from flakedb import __version__
+from flakedb.paint.catalog import catalog_distribution
 from flakedb.paint.mapping import FLAKE_C_TOL
 from flakedb.resources import SCHEMAS_DIR
 from flakedb.rt.microflake import flake_distribution
@@ -100,8 +101,7 @@ def _orientations(request, k) -> dict:
             out.setdefault(flake_distribution(d).name, set()).add(float(a))
     if not out:
         entry = request.species[k]
-        out[flake_distribution(entry.get("orientation_distribution", BECKMANN)).name] = {
-            float(entry["orientation_alpha"]["value"])}
+        out[catalog_distribution(entry)] = {float(entry["orientation_alpha"]["value"])}
     return {d: sorted(v) for d, v in sorted(out.items())}
 
 

@@ -151,3 +151,41 @@ def test_auto_resolution_follows_the_narrowest_lobe():
         ", orientation_alpha: 0.1") > base
     assert flake_lobe_alpha(0.3, "student_t(1.5)") == pytest.approx(0.3 * np.sqrt(2 / 3), rel=1e-15)
     assert flake_lobe_alpha(0.3, "mix(ggx,0.5,student_t(1.5),0.2)") == pytest.approx(0.2 * np.sqrt(2 / 3), rel=1e-15)
+
+
+def test_catalogue_entries_can_state_a_shape():
+    """A catalogue flake may be a Student-t (orientation_shape {value, source}); its name is formed in one
+    place (:func:`flakedb.paint.catalog.catalog_distribution`) for recipes, the build request and the plan."""
+    import copy
+    import dataclasses
+
+    from flakedb.paint import catalog as cat
+    from flakedb.pipelines.build import make_request
+    from flakedb.store import versions as st
+
+    doc = copy.deepcopy(cat.load_catalog())
+    e = doc["particles"]["metallic"]
+    e["orientation_distribution"] = "student_t"
+    e["orientation_shape"] = {"value": 2.5, "source": "test"}
+    assert cat.validate_catalog(doc) == [] and cat.catalog_distribution(e) == "student_t(2.5)"
+    bad = copy.deepcopy(doc)
+    del bad["particles"]["metallic"]["orientation_shape"]
+    assert any("particles.metallic.orientation_shape: missing" in p for p in cat.validate_catalog(bad))
+    bad["particles"]["metallic"].update(orientation_distribution="ggx", orientation_shape={"value": 3, "source": "x"})
+    assert any("applies to orientation_distribution student_t only" in p for p in cat.validate_catalog(bad))
+    bad["particles"]["metallic"].update(orientation_distribution="student_t", orientation_shape={"value": 1.2, "source": "x"})
+    assert any("orientation_shape.value" in p and "1.2" in p for p in cat.validate_catalog(bad))
+
+    def name(extra):
+        r = parse_recipe(_recipe(MET % extra), catalog=doc)
+        return recipe_distribution(r.basecoats[0].particles[0])
+
+    assert name("") == "student_t(2.5)"
+    assert name(", orientation_shape: 4") == "student_t(4.0)"  # the recipe's γ, the catalogue's family
+    assert name(", orientation_distribution: student_t") == "student_t(2.5)"  # the catalogue's γ
+    assert name(", orientation_distribution: ggx") == "ggx"
+    assert name(", orientation_mixture: {weight: 0.2, orientation_alpha: 0.4}") == "mix(student_t(2.5),0.2,beckmann,0.4)"
+    req = make_request(species=["metallic"], n=16, wavelength_nm=(500.0, 600.0), alphas={}, distribution_alphas={})
+    req = dataclasses.replace(req, species={"metallic": e}, alphas={}, distribution_alphas={})
+    a = e["orientation_alpha"]["value"]
+    assert [t.prefix for t in st.plan_build(req).tasks] == [f"species/metallic/n16/student_t(2.5)/a{a:g}"]
