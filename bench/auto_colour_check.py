@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from flakedb.colour.colorimetry import delta_E_2000
 from flakedb.compose.orchestrate import compose
-from flakedb.paint.mapping import auto_resolution
+from flakedb.solve.resolution import auto_resolution
 from flakedb.paint.recipe import load_recipe
 from flakedb.resources import RECIPES_DIR
 

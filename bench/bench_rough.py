@@ -96,7 +96,8 @@ def _auto_stack(alpha, slab=True):
     ``resolution: auto`` picks (docs/resolution.md), mono."""
     import yaml
 
-    from flakedb.paint.mapping import auto_resolution, build_paint, solve_paint
+    from flakedb.paint.mapping import build_paint, solve_paint
+    from flakedb.solve.resolution import auto_resolution
     from flakedb.paint.recipe import parse_recipe
 
     layers = [{"clearcoat": {"thickness_um": 40, "ior": 1.5, "roughness": alpha}}]

@@ -3,7 +3,7 @@
 ``python -m figures.figures [--only fig4,fig5,fig6,fig7] [--quick] [--out docs/figures]``
 
 A pipeline at the edge: it drives the core (:func:`flakedb.compose.orchestrate.compose`,
-:func:`flakedb.render.preview.render_sphere`, :func:`flakedb.compose.report.colour_report`,
+:func:`flakedb.render.preview.render_sphere`, :func:`flakedb.appearance.report.colour_report`,
 :func:`flakedb.reference.montecarlo.simulate`, :func:`figures.figure4.figure4`) and only lays out and writes
 what they return.  Every number in ``docs/figures/README.md`` is written by :func:`write_readme`
 from the figure JSON files, which this module writes from the computed results.
@@ -52,7 +52,7 @@ import flakedb.reference.montecarlo as mc
 from flakedb.atomic import atomic_write
 from flakedb.bsdf import open_bsdf
 from flakedb.compose.orchestrate import compose
-from flakedb.compose.report import (
+from flakedb.appearance.report import (
     channels_to_XYZ,
     directional_albedo,
     eval_table,
@@ -211,7 +211,7 @@ def inplane_slice(result, theta_i_deg=45.0, theta_o_deg=None):
 
 def albedo_curve(result, theta_deg=None):
     """(θ_i, total Y, tabulated Y): directional albedo from the solver's nodes
-    (:func:`flakedb.compose.report.directional_albedo`), mirror term included in the total."""
+    (:func:`flakedb.appearance.report.directional_albedo`), mirror term included in the total."""
     th = np.arange(0.0, 86.0, 5.0) if theta_deg is None else np.asarray(theta_deg, float)
     st, paint = result.stack, result.paint
     delta_eta = paint.eta if paint.delta else None

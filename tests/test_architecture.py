@@ -14,7 +14,8 @@ PKG = Path(__file__).resolve().parents[1] / "flakedb"
 TIERS = {
     "conventions": 0, "optics": 0, "rt": 0, "colour": 0, "reference": 0, "texture": 0,
     "resources": 1, "atomic": 1, "process": 1, "outputs": 1, "safeio": 1, "paint": 1, "store": 1, "bsdf": 1, "render": 1,
-    "compose": 2, "pipelines": 2, "match": 2, "export": 2, "cli": 3, "__main__": 3, "__init__": 3,
+    "appearance": 2, "solve": 3,
+    "compose": 4, "pipelines": 4, "match": 4, "export": 4, "cli": 5, "__main__": 5, "__init__": 5,
 }
 #: libraries (and standard modules) a kernel may not import: I/O, environment, orchestration
 KERNEL_FORBIDDEN = {"os", "io", "pathlib", "tempfile", "shutil", "subprocess", "json", "yaml", "h5py", "zarr",

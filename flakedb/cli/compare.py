@@ -31,13 +31,14 @@ from flakedb.colour.settings import (
     DEFAULT_MAX_DE00,
     DEFAULT_OBSERVER,
     GEOMETRY_SETS,
-    resolve,
+    for_target,
 )
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
-from flakedb.compose.store_context import StoreContext
+from flakedb.solve.resolution import resolve_node_count
+from flakedb.solve.store_context import StoreContext
 from flakedb.match import batch
 from flakedb.match.cxf import load_target
-from flakedb.match.fit import compare_texture, predict, resolution
+from flakedb.match.fit import compare_texture, predict
 from flakedb.match.targets import TargetError, write_target
 from flakedb.match.texture import (
     DEFAULT_TEXTURE_OBSERVER,
@@ -82,7 +83,7 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
     order chunks as they are read)."""
     if store is None or not catalog_species(recipe):
         return None
-    ctx = StoreContext.open_for_recipe(str(store), recipe, resolution(recipe, n), raw)
+    ctx = StoreContext.open_for_recipe(str(store), recipe, resolve_node_count(recipe, n)[0], raw)
     if verify:
         ctx.version.verify(ctx.prefixes(recipe))
     return ctx.version
@@ -169,11 +170,7 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
     geoms = target.geometries if target is not None else np.asarray(GEOMETRY_SETS[geometry_set])
     try:
         pred = predict(rec, geoms, n, catalog, version, raw)
-        # the caller's conditions, else the target's, else the defaults (flakedb.colour.settings); a
-        # spectral target can be integrated under an RGB paint's D65/2° when none was asked for
-        free = target is None or (target.spectral and pred.mode == "rgb")
-        cs = resolve(observer or (None if free else target.observer),
-                     illuminant or (None if free else target.illuminant), geometry_set, pred.mode)
+        cs = for_target(pred.mode, target, observer, illuminant, geometry_set)
         obs, ill = cs.observer, cs.illuminant
         lab = pred.lab(obs, ill)
     except (StoreError, ValueError) as exc:

@@ -27,9 +27,10 @@ from flakedb.colour.settings import (
     resolve,
 )
 from flakedb.colour.tolerance import illuminant_name
-from flakedb.compose.orchestrate import UnphysicalResultError, output_plan
+from flakedb.compose.orchestrate import output_plan
+from flakedb.solve.pipeline import UnphysicalResultError
 from flakedb.compose.orchestrate import compose as compose_recipe
-from flakedb.compose.report import format_report
+from flakedb.appearance.report import format_report
 from flakedb.outputs import OutputError
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.mapping import catalog_species

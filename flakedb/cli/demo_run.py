@@ -7,7 +7,7 @@ from pathlib import Path
 from flakedb import __version__
 from flakedb.bsdf import open_bsdf
 from flakedb.compose.orchestrate import compose
-from flakedb.compose.report import format_report
+from flakedb.appearance.report import format_report
 from flakedb.paint.catalog import load_catalog
 from flakedb.paint.recipe import load_recipe
 from flakedb.paint.species import optics_table

@@ -23,7 +23,7 @@ import click
 from flakedb.bsdf import BSDFFileError
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import probe_writable, remove_created_dirs
-from flakedb.compose.orchestrate import OutputError, check_output_dir
+from flakedb.outputs import OutputError, check_output_dir
 from flakedb.export.registry import export_openpbr as run_export
 
 

@@ -6,7 +6,7 @@ a flakedb HDF5 BSDF (``.h5``, the full-precision result) and a Mitsuba 3 ``measu
 Fourier files the checks are stated in words: energy (the directional albedo at every incident
 node, with the smooth coat's mirror term, is ≤ 1), colour (no negative channel in the order-0
 coefficients or the albedo; the RGB working space and its gamut mapping), and, for an ``.h5``, the
-solver's convergence in the same words compose printed (:func:`flakedb.compose.orchestrate.solver_warnings`).
+solver's convergence in the same words compose printed (:func:`flakedb.solve.pipeline.solver_warnings`).
 """
 
 import json
@@ -21,7 +21,7 @@ from flakedb.bsdf import BSDFFileError, open_bsdf
 from flakedb.bsdf.dispatch import file_kind as dispatch_file_kind
 from flakedb.cli.errors import FlakedbError
 from flakedb.colour.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
-from flakedb.compose.orchestrate import solver_warnings
+from flakedb.solve.pipeline import solver_warnings
 from flakedb.export.materialx import read_fit
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.render.mitsuba import read_tensor_file

@@ -10,13 +10,15 @@
 (2, "Error: unknown species 'grey-mirror'; known species: metallic, pearlescent, gray-mirror, ...")
 """
 
+import json
+
 import click
 
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import check_plan
 from flakedb.paint.catalog import CatalogError, expand_sweeps, load_catalog
 from flakedb.outputs import OutputPlan
-from flakedb.paint.species import optics_table
+from flakedb.paint.species import optics_table, species_record
 from flakedb.render.plots import plot_optics
 
 
@@ -28,14 +30,21 @@ def species():
 @species.command("list")
 @click.option("--catalog", "catalog_path", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Catalogue YAML (default: catalog/particles.yaml or $FLAKEDB_CATALOG).")
-def list_(catalog_path):
+@click.option("--json", "as_json", is_flag=True,
+              help="Print a JSON list: name, kind, description, colour_index, density_g_cm3, density_source, "
+                   "source (and a pigment's material, size and grade).")
+def list_(catalog_path, as_json):
     """List the species: catalogue particles and sweep members."""
     try:
         allsp = expand_sweeps(load_catalog(catalog_path))
     except CatalogError as exc:
         raise FlakedbError(str(exc)) from exc
+    if as_json:
+        click.echo(json.dumps([species_record(name, e) for name, e in allsp.items()], indent=2, ensure_ascii=False))
+        return
     for name, e in allsp.items():
-        click.echo(f"{name:28s} {e['kind']:20s} {e['description']}")
+        ci = e.get("colour_index") or "-"
+        click.echo(f"{name:28s} {e['kind']:20s} {ci:8s} {e['description']}")
 
 
 @species.command("show")

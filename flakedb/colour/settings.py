@@ -123,3 +123,25 @@ def resolve(observer=None, illuminant=None, geometry_set=None, mode="spectral") 
                                            f"{DEFAULT_ILLUMINANT}/{DEFAULT_OBSERVER}°")
         return ColourSettings(RGB_MODE_OBSERVER, RGB_MODE_ILLUMINANT, gs, note)
     return ColourSettings(obs or DEFAULT_OBSERVER, ill or DEFAULT_ILLUMINANT, gs)
+
+
+def for_target(mode, target=None, observer=None, illuminant=None, geometry_set=None) -> ColourSettings:
+    """The conditions of a paint in ``mode`` compared with ``target`` (a :class:`flakedb.match.targets.Target`, or
+    None): the caller's choice, else the target's own conditions, else the defaults (:func:`resolve`).  The one
+    home of this rule: compare, batch compare, match and calibrate ask it.
+
+    A spectral target can be integrated under any conditions, so against an RGB-mode paint (D65/2° by
+    construction) its own conditions give way when the caller chose none; an L*a*b*-only target keeps its own
+    (and an RGB paint is then refused unless they are D65/2°).
+
+    >>> class T: observer, illuminant, spectral = "10", "D65", True
+    >>> for_target("spectral", T()).label, for_target("rgb", T()).label, for_target("rgb").label
+    ('D65/10°', 'D65/2°', 'D65/2°')
+    >>> for_target("spectral", T(), observer="2").label
+    'D65/2°'
+    """
+    free = target is None or (bool(getattr(target, "spectral", False)) and mode == "rgb")
+    return resolve(observer if observer is not None else (None if free else target.observer),
+                   illuminant if illuminant is not None else (None if free else target.illuminant),
+                   geometry_set, mode)
+

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from flakedb.atomic import atomic_write_text
-from flakedb.colour.settings import DEFAULT_MAX_DE00, GEOMETRY_SETS, resolve
+from flakedb.colour.settings import DEFAULT_MAX_DE00, GEOMETRY_SETS, for_target, resolve
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences
 from flakedb.match.fit import Prediction, compare_texture, predict
 from flakedb.match.texture import DEFAULT_TEXTURE_TOLERANCE
@@ -110,9 +110,7 @@ def compare_batch(recipes, targets=(), pairs=None, observer=None, illuminant=Non
                 lab = pred.lab(cs.observer, cs.illuminant)
                 out.append(Comparison(rec.name, None, geoms, lab, None, cs.observer, cs.illuminant, None, None, pred))
                 continue
-            free = t.spectral and pred.mode == "rgb"
-            cs = resolve(observer or (None if free else t.observer), illuminant or (None if free else t.illuminant),
-                         None, pred.mode)
+            cs = for_target(pred.mode, t, observer, illuminant)
             rows = [index[_key(g)] for g in t.geometries]
             sub = Prediction(t.geometries, pred.rf[rows], pred.mode, pred.wavelength_nm, pred.n)
             lab = sub.lab(cs.observer, cs.illuminant)

@@ -47,6 +47,7 @@ from numpy.polynomial import legendre
 from scipy.optimize import least_squares
 
 from flakedb.atomic import atomic_write_text
+from flakedb.colour.settings import for_target
 from flakedb.colour.tolerance import ciede2000_residuals, delta_E_2000
 from flakedb.match.cxf import load_target
 from flakedb.match.fit import predict, recipe_from_doc
@@ -54,6 +55,7 @@ from flakedb.match.targets import Target, TargetError
 from flakedb.paint.catalog import CatalogError, get_species, validate_catalog
 from flakedb.paint.recipe import RecipeError
 from flakedb.paint.species import absorption_factor
+from flakedb.solve.pipeline import settle_node_count
 
 #: Degree D of the Legendre series of ln(absorption factor) (D + 1 coefficients).
 ABSORPTION_DEGREE = 2
@@ -190,7 +192,7 @@ def _catalog_with(catalog, species, entry) -> dict:
     return cat
 
 
-def _residuals(pred, target, lab_pred):
+def _residuals(pred, target, lab_pred, cs):
     if target.spectral:
         wl_t = target.wavelength_nm
         wl_p = pred.wavelength_nm
@@ -199,7 +201,7 @@ def _residuals(pred, target, lab_pred):
                              f"recipe covering it")
         R = np.stack([np.interp(wl_t, wl_p, r) for r in pred.rf])
         return 100.0 * (R - target.reflectance)
-    return ciede2000_residuals(target.lab_under(), lab_pred)
+    return ciede2000_residuals(target.lab_under(cs.observer, cs.illuminant), lab_pred)
 
 
 def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=None, log=None,
@@ -216,6 +218,8 @@ def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=N
         if not uses:
             raise ValueError(f"panel {p.name}: its recipe does not use species {species!r}")
         recipe_from_doc(p.recipe_doc, p.name, catalog)  # valid before any computation
+    # one n per panel for every evaluation (auto checked and refined once, at the base entry, as compose would)
+    n_panel = [settle_node_count(recipe_from_doc(p.recipe_doc, p.name, catalog), n, catalog) for p in panels]
     calls = [0]
     cache = {}
 
@@ -224,19 +228,21 @@ def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=N
         if key not in cache:
             cat = _catalog_with(catalog, species, calibrated_entry(base, params, z))
             out = []
-            for p in panels:  # a recipe holds its species' entries: parse it against the modified catalogue
-                pred = predict(recipe_from_doc(p.recipe_doc, p.name, cat), p.target.geometries, n, cat)
+            for p, n_p in zip(panels, n_panel):  # a recipe holds its species' entries: parse it against the modified catalogue
+                pred = predict(recipe_from_doc(p.recipe_doc, p.name, cat), p.target.geometries, n_p, cat)
                 calls[0] += 1
-                lab = pred.lab(p.target.observer, p.target.illuminant)
-                out.append((pred, lab))
+                cs = for_target(pred.mode, p.target)  # the target's own conditions (no caller's choice here)
+                out.append((pred, pred.lab(cs.observer, cs.illuminant), cs))
             cache[key] = out
         return cache[key]
 
     def resid(z):
-        return np.concatenate([_residuals(pr, p.target, lab).ravel() for p, (pr, lab) in zip(panels, evaluate(z))])
+        return np.concatenate([_residuals(pr, p.target, lab, cs).ravel()
+                               for p, (pr, lab, cs) in zip(panels, evaluate(z))])
 
     def de(z):
-        return [delta_E_2000(p.target.lab_under(), lab) for p, (_, lab) in zip(panels, evaluate(z))]
+        return [delta_E_2000(p.target.lab_under(cs.observer, cs.illuminant), lab)
+                for p, (_, lab, cs) in zip(panels, evaluate(z))]
 
     history = []
 

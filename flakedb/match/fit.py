@@ -11,7 +11,7 @@ like any recipe (:func:`flakedb.recipe.parse_recipe`), so ``{fit: …}`` never r
 
 Prediction at the target's geometries
 -------------------------------------
-:func:`compose_table` is the one compose call: compose's own path (:func:`flakedb.compose.orchestrate.solve_recipe`,
+:func:`compose_table` is the one compose call: compose's own path (:func:`flakedb.solve.pipeline.solve_recipe`,
 with its physical check, threads and memory budget): recipe → paint → adding-doubling → the full-precision
 table (:func:`flakedb.export.stack_to_table`), from the store when one is given.  Everything else here
 calls it and nothing else, so a faster compose makes matching faster by itself.
@@ -66,15 +66,15 @@ import yaml
 from scipy.optimize import least_squares
 
 from flakedb.colour.colorimetry import XYZ_to_Lab
-from flakedb.colour.settings import DEFAULT_MAX_DE00, resolve
+from flakedb.colour.settings import DEFAULT_MAX_DE00, for_target, resolve
 from flakedb.colour.tolerance import (
     PerAngleLimits,
     ciede2000_residuals,
     delta_E_2000,
     reflectance_to_Lab,
 )
-from flakedb.compose.orchestrate import solve_recipe
-from flakedb.compose.report import (
+from flakedb.solve.pipeline import settle_node_count, solve_recipe, solve_reported
+from flakedb.appearance.report import (
     channels_to_XYZ,
     eval_table,
     multiangle_geometry,
@@ -87,7 +87,7 @@ from flakedb.match.texture import (
     format_texture_rows,
     predict_texture,
 )
-from flakedb.paint.mapping import resolve_node_count
+from flakedb.solve.resolution import resolve_node_count
 from flakedb.paint.recipe import RecipeError, fmt_path, parse_recipe
 
 #: Forward-difference step: in ln p for log parameters, as a fraction of the range for linear ones.
@@ -214,7 +214,7 @@ def recipe_from_doc(doc, source="<recipe>", catalog=None):
 
 def compose_solved(recipe, n, catalog=None, store=None, raw=False):
     """``recipe`` solved at ``n`` nodes through compose's own path
-    (:func:`flakedb.compose.orchestrate.solve_recipe`: its physical check, threads and memory budget);
+    (:func:`flakedb.solve.pipeline.solve_recipe`: its physical check, threads and memory budget);
     ``store``: an open :class:`flakedb.store.versions.StoreVersion` (verified once by the caller) or None."""
     return solve_recipe(recipe, n, raw=raw, catalog=catalog, store=store, verify=False, generator="flakedb match")
 
@@ -265,22 +265,22 @@ class Prediction:
     mode: str
     wavelength_nm: np.ndarray | None
     n: int
-    #: the smooth BSDF's luminance factors for the texture indices (:func:`flakedb.compose.report.texture_ground`)
+    #: the smooth BSDF's luminance factors for the texture indices (:func:`flakedb.appearance.report.texture_ground`)
     ground: object = None
 
     def lab(self, observer=None, illuminant=None):
         return channels_to_Lab(self.rf, self.mode, self.wavelength_nm, observer, illuminant)
 
 
-def resolution(recipe, n=None) -> int:
-    """The node count used (:func:`flakedb.paint.mapping.resolve_node_count`: ``n``, else the recipe's, else auto)."""
-    return resolve_node_count(recipe, n)[0]
-
-
 def predict(recipe, geometries, n=None, catalog=None, store=None, raw=False) -> Prediction:
-    """Compose ``recipe`` once and evaluate it at ``geometries`` (G, 2)."""
-    n = resolution(recipe, n)
-    solved = compose_solved(recipe, n, catalog, store, raw)
+    """Compose ``recipe`` once and evaluate it at ``geometries`` (G, 2): at ``n`` or the recipe's resolution, else
+    at ``resolution: auto`` checked and refined as compose does (:func:`flakedb.solve.pipeline.solve_reported`), so
+    compare and compose use the same n."""
+    if n is None and recipe.n is None:
+        solved = solve_reported(recipe, None, raw, catalog, store=store, verify=False, generator="flakedb match").solved
+    else:
+        solved = compose_solved(recipe, resolve_node_count(recipe, n)[0], catalog, store, raw)
+    n = solved.n
     paint, table, stack = solved.paint, solved.table, solved.stack
     g = np.asarray(geometries, float).reshape(-1, 2)
     ground = texture_ground(table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
@@ -467,9 +467,9 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
             raise RecipeError(source, [f"with every fit field at its {label}: {p}" for p in exc.problems]) from None
         if label == "start values":
             rec0 = rec
-    n = resolution(rec0, n)
-    obs = target.observer if observer is None else str(observer)
-    ill = target.illuminant if illuminant is None else str(illuminant)
+    n = settle_node_count(rec0, n, catalog, store, raw, log)  # one n for every evaluation of the fit
+    cs = for_target(rec0.mode, target, observer, illuminant)
+    obs, ill = cs.observer, cs.illuminant
     geoms = np.asarray(target.geometries, float)
     G = geoms.shape[0]
     w = np.ones(G) if weights is None else np.asarray(weights, float)

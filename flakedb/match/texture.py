@@ -111,7 +111,7 @@ def columns_from_report(report, names) -> dict:
 
 def predict_texture(recipe, names, preset=DEFAULT_TEXTURE_OBSERVER, ground=None):
     """(values of columns ``names``, the texture report) for ``recipe`` (:func:`columns_from_report`);
-    ``ground``: the smooth BSDF's luminance factors (:func:`flakedb.compose.report.texture_ground`), which
+    ``ground``: the smooth BSDF's luminance factors (:func:`flakedb.appearance.report.texture_ground`), which
     graininess is relative to, as in ``compose``'s report."""
     rep = texture_report(recipe, [texture_observer(names, preset)], ground)
     return columns_from_report(rep, names), rep

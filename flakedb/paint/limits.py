@@ -1,10 +1,10 @@
 """The limits of a paint's numerical settings and the rules derived from them, each stated once (issue #21).
 
 Every path that takes these settings calls the functions here: the recipe checks
-(:mod:`flakedb.paint.recipe`), ``resolution: auto`` (:func:`flakedb.paint.mapping.auto_resolution`),
-compose, match and build (:func:`flakedb.paint.mapping.resolve_node_count`), the command-line options
+(:mod:`flakedb.paint.recipe`), ``resolution: auto`` (:func:`flakedb.solve.resolution.auto_resolution`),
+compose, match and build (:func:`flakedb.solve.resolution.resolve_node_count`), the command-line options
 (:mod:`flakedb.cli.options`, :mod:`flakedb.cli.build`) and the store checks
-(:mod:`flakedb.compose.store_context`).  The recipe schema (schemas/recipe.schema.json) restates the
+(:mod:`flakedb.solve.store_context`).  The recipe schema (schemas/recipe.schema.json) restates the
 numbers for editors and validators; ``tests/paint/test_limits.py`` checks that it agrees.
 
 * **Node count** n (quadrature nodes over both hemispheres, n/2 per hemisphere, docs/model.md §5): even,

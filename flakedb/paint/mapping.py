@@ -60,7 +60,7 @@ With an open store version (:func:`build_paint` ``store=``), catalogue flakes be
 (compressed factors, or the raw samples with ``raw``), the rest as above: the loadings, σ_t(μ) and
 σ_s(μ) of flakes (1-D integrals of R(c), T(c): the store has no T), a pigment's ρ <C_ext> and
 <C_sca> (Mie cross-sections, no phase function), and the recipe's α (D(h) is evaluated, not
-stored).  :func:`flakedb.compose.store_context.store_problems` lists what the store lacks for a recipe.  In RGB mode the stored
+stored).  :func:`flakedb.solve.store_context.store_problems` lists what the store lacks for a recipe.  In RGB mode the stored
 spectral R is mapped to linear sRGB coefficient by coefficient (the map is linear).  For pigments the
 direct path's clips are reproduced: C_sca ≤ C_ext scales each channel's kernel, and the phase ≥ 0
 clip is applied to the evaluated kernel (:class:`flakedb.rt.stored.StoredPigmentMedium`
@@ -74,7 +74,7 @@ from the store (compose without a store instead): a pigment whose recipe overrid
 size distribution.
 
 Primer (Lambertian, docs/model.md §4): ``color`` black / gray / white → albedo 0.04 / 0.18 / 0.9
-(:data:`PRIMER_ALBEDO`); or an albedo; or a spectrum (linear in λ).
+(:data:`flakedb.paint.recipe.PRIMER_ALBEDO`); or an albedo; or a spectrum (linear in λ).
 
 Metal base (docs/model.md §4 "metal base"): a :class:`flakedb.rt.stack.RoughConductor` of the recipe's
 Beckmann roughness, with its complex index N = n + ik relative to vacuum (the solver divides it by the
@@ -102,7 +102,7 @@ Channels
   cross-sections ≥ 0 with C_sca ≤ C_ext; phase ≥ 0) and the largest clip is reported in ``info``.
 * ``mono``: one grey channel; every input is wavelength-independent (checked by the recipe).
 
-Resolution (:func:`auto_resolution`) from accuracy targets and measured error envelopes (docs/resolution.md).
+The node count of a solve is decided in :mod:`flakedb.solve.resolution`.
 """
 
 from __future__ import annotations
@@ -116,20 +116,18 @@ from numpy.polynomial.legendre import leggauss
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.optics.fresnel import fresnel_conductor
 from flakedb.paint.catalog import catalog_distribution
-from flakedb.paint.limits import NODE_COUNT_MAX, check_node_count, is_rough_interface
+from flakedb.paint.limits import is_rough_interface
 from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import (
-    PRIMER_ALBEDO,  # noqa: E402,F401  (defined with the recipe's primer colours)
     CatalogParticle,
     CustomFlake,
     CustomMedium,
-    RecipeError,
     Spectrum,
 )
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, vmf_mean_cosine
-from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun, flake_lobe_alpha
+from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun
 from flakedb.rt.stack import InnerRough, InnerSmooth, Lambertian, Rough, RoughConductor, Slab, Smooth, SolverSettings, solve_stack
 from flakedb.rt.stored import StoredMixture, StoredPigmentMedium
 
@@ -461,7 +459,7 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
 
 def _stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored):
     """StoredPigmentMedium: ⟨C_ext⟩, ⟨C_sca⟩, ⟨V⟩ and the phase function's Legendre moments from the
-    store (:meth:`flakedb.compose.store_context.StoreContext.pigment`), the RGB mode's clips as
+    store (:meth:`flakedb.solve.store_context.StoreContext.pigment`), the RGB mode's clips as
     :func:`pigment_tospectra_to_rgb_mode` (the phase ≥ 0 clip on the series, :func:`rgb_phase_moments`)."""
     po = stored.pigment(p.species)  # per recipe band: c_ext_um2, c_sca_um2, mean_volume_um3 (scalar), chi
     c_ext, c_sca, chi = po["c_ext_um2"], po["c_sca_um2"], po["legendre_moments"]
@@ -585,11 +583,39 @@ def _custom_medium_component(p, layer_um, C, info, mode=None, wl=None):
     return med, rec
 
 
+def recipe_interfaces(recipe) -> tuple:
+    """``(top, inner)``: the recipe's top interface (``Smooth(η)``, ``Rough(η, α)`` or None for η = 1) and, per
+    basecoat, the inner interface above it (``InnerSmooth(η_b/η_a)`` / ``InnerRough(η_b/η_a, α)`` where its binder
+    index differs from the one above, else None) — the one mapping of the recipe's interfaces, read by
+    :func:`build_paint` and by the resolution (:mod:`flakedb.solve.resolution`) without building any optics.
+
+    >>> class C: roughness = 0.1
+    >>> class B:
+    ...     def __init__(self, ior, a): self.ior, self.interface_roughness = ior, a
+    >>> class R: binder_ior, clearcoat, basecoats = 1.5, C(), [B(1.5, 0.0), B(1.6, 0.05)]
+    >>> top, inner = recipe_interfaces(R())
+    >>> type(top).__name__, top.alpha, inner[0], round(inner[1].eta, 6), inner[1].alpha
+    ('Rough', 0.1, None, 1.066667, 0.05)
+    """
+    eta = float(recipe.binder_ior)
+    top_alpha = recipe_top_alpha(recipe)
+    top = None if eta == 1.0 else (Rough(eta, top_alpha) if top_alpha > 0 else Smooth(eta))
+    inner, n_above = [], eta  # the binder index above the next basecoat (the top binder's)
+    for b in recipe.basecoats:
+        if b.ior == n_above:
+            inner.append(None)
+            continue
+        a_in = float(b.interface_roughness)  # a change of the binder index (a rise or a fall)
+        inner.append(InnerRough(b.ior / n_above, a_in) if a_in > 0 else InnerSmooth(b.ior / n_above))
+        n_above = b.ior
+    return top, inner
+
+
 def build_paint(recipe, catalog=None, stored=None) -> Paint:
     """The solver inputs of ``recipe`` (a :class:`flakedb.paint.recipe.Recipe`); see the module docstring.
 
     Without ``stored`` every particle's optics is computed directly from the catalogue.  With
-    ``stored`` (a :class:`flakedb.compose.store_context.StoreContext`: an open store version checked
+    ``stored`` (a :class:`flakedb.solve.store_context.StoreContext`: an open store version checked
     against the recipe at the solve's node count), catalogue species take their kernels' R from it.
     """
     mode = recipe.mode
@@ -607,14 +633,7 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
         info["store"] = stored.record()
     components = []
     cc = recipe.clearcoat
-    top_alpha = recipe_top_alpha(recipe)
-    if eta == 1.0:
-        top = None
-    elif top_alpha > 0:
-        top = Rough(eta, top_alpha)
-    else:
-        top = Smooth(eta)
-
+    top, inner = recipe_interfaces(recipe)
     slabs = []
     if cc is not None and cc.absorption_per_um is not None:
         if mode == "rgb":
@@ -630,14 +649,12 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
                                "absorption_per_um": [float(a_ch.min()), float(a_ch.max())],
                                "optical_depth": [float(a_ch.min() * cc.thickness_um), float(a_ch.max() * cc.thickness_um)]})
 
-    n_above = eta  # the binder index above the next basecoat (the top binder's)
-    for b in recipe.basecoats:
-        if b.ior != n_above:  # a change of the binder index (a rise or a fall): an inner interface
-            a_in = float(b.interface_roughness)
-            slabs.append(InnerRough(b.ior / n_above, a_in) if a_in > 0 else InnerSmooth(b.ior / n_above))
-            components.append({"path": b.path, "kind": "inner interface", "eta_above": n_above, "eta_below": b.ior,
-                               "relative_index": b.ior / n_above, "roughness": a_in})
-            n_above = b.ior
+    for b, interface in zip(recipe.basecoats, inner):
+        if interface is not None:
+            slabs.append(interface)
+            components.append({"path": b.path, "kind": "inner interface", "eta_above": b.ior / interface.eta,
+                               "eta_below": b.ior, "relative_index": interface.eta,
+                               "roughness": float(b.interface_roughness)})
         meds = []
         for p in b.particles:
             if isinstance(p, CatalogParticle) and p.is_flake:
@@ -681,304 +698,6 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
 def catalog_species(recipe) -> list:
     """The catalogue particles of a recipe (those a store can serve), in layer order."""
     return [p for _, p in recipe.particles() if isinstance(p, CatalogParticle)]
-
-
-#: Default accuracy targets of ``resolution: auto`` (a recipe's ``resolution: {albedo_error: …,
-#: lobe_error: …, colour_error: …}`` overrides them); docs/resolution.md.  ``colour_error`` (ΔE00 between n
-#: and 2n at the report geometries) is a default since issue 26: without it coated aluminium's auto (n 48)
-#: was ΔE00 0.66 from 2×auto and 0.81 from n 192; with it every catalogue recipe's auto is within 0.1 of
-#: 2×auto (measured, docs/resolution.md "colour_error").  It raises the n of coated aluminium 48 → 176, of
-#: metallic silver and tri-coat pearl white (flakes α_f 0.2) 32 → 48 and of the flake recipes of α_f 0.25 32 → 40
-#: (their compose times: docs/resolution.md); pigment and HG recipes keep theirs.
-#: A recipe relaxes it with e.g. ``resolution: {colour_error: 10}``.
-AUTO_TARGETS = {"albedo_error": 0.03, "lobe_error": 0.05, "colour_error": 0.1}
-#: The largest n the *default* colour_error may ask for (a recipe's own colour_error goes to
-#: :data:`AUTO_MAX_N`): below the measured metal roughness 0.1 its n scales as 0.1/α (α 0.05 → 288,
-#: α 0.02 → 512), a cost cliff a default must not have; the report's own estimate states the rest.
-AUTO_COLOUR_MAX_N = 192
-#: The largest node count auto may choose: the largest allowed (:data:`flakedb.paint.limits.NODE_COUNT_MAX`).
-AUTO_MAX_N = NODE_COUNT_MAX
-#: Measured envelopes (docs/resolution.md), (h·α, worst error at that h·α or above), h = n/2:
-#: * rough coat lobe: reflection of the interface at normal incidence binned in 5° θ_o bins (Σ |Δ| per bin
-#:   over the reflected total, the Monte Carlo criterion of issue 12) against n = 384, α ∈ {0.02, 0.05,
-#:   0.1, 0.3}, η ∈ {1.3, 1.5, 1.7};
-#: * directional albedo (θ_i ≤ 80°, relative) of coat / flake slab / diffuse primer against n = 192, by the
-#:   flakes' α_f, over coat α ∈ {0.01 … 0.3}, η ∈ {1.3, 1.5, 1.7}, flake α_f ∈ {0.1, 0.2}.
-COAT_LOBE_ERROR = ((1.6, 0.105), (2.4, 0.034), (3.2, 0.019), (4.8, 0.005), (6.4, 0.004), (9.6, 0.0015))
-FLAKE_ALBEDO_ERROR = ((1.6, 0.051), (2.4, 0.033), (3.2, 0.028), (4.8, 0.019), (6.4, 0.012), (9.6, 0.008))
-#: von Mises–Fisher media: the lobe's angular width is ≈ 1/√κ rad, so h ≥ VMF_H_PER_SQRT_KAPPA·√κ.
-#: Measured (coat η 1.5 / vMF slab τ 2, ϖ 0.9 / diffuse 0.5, against n = 256, κ 10–1000): directional
-#: albedo error (θ_i ≤ 80°) ≤ 2.3e-4 (the comparison's floor) for h/√κ ≥ 1.7; 1.4e-3 at 1.1, 3.6e-3 at 0.57.
-VMF_H_PER_SQRT_KAPPA = 1.7
-#: Directional albedo error (θ_i ≤ 80°) without flakes (coat α 0.01–0.3 / HG g 0.7, 0.9 slab / diffuse,
-#: η 1.3–1.7) by n, against n = 192.
-PLAIN_ALBEDO_ERROR = ((32, 0.0061), (48, 0.0026), (64, 0.0014), (96, 0.0007))
-#: Metal base lobe (docs/resolution.md "Metal base"): reflection at normal incidence of a rough conductor
-#: (N = 1.2 + 7i) under a smooth coat of η 1.5 or none, binned in 5° θ_o bins (per bin over the total),
-#: against n = 384, worst over α ∈ {0.05, 0.1, 0.2, 0.3} at that n or above, by n.  The errors do not
-#: collapse on h·α (the smooth coat's Snell-mapped binder grid), hence a table in n.
-METAL_LOBE_ERROR = ((48, 0.048), (96, 0.021), (128, 0.013), (192, 0.0095))
-#: Smallest metal roughness of those measurements; below it n is scaled by METAL_ALPHA_MEASURED / α
-#: (the lobe's width is proportional to α), a stated extrapolation named in the reason.
-METAL_ALPHA_MEASURED = 0.05
-#: ``colour_error`` (docs/resolution.md "colour_error"): measured CIEDE2000, worst over the report geometries.
-#: Metal base, by n, **against the converged answer** (2026-12-03): coated-aluminium (Al α 0.1 under a smooth
-#: 1.5 coat; the 45° aspecular geometry, the far tail of the metal lobe, is the worst) in RGB mode against
-#: n = 512, plus 512's own remainder 0.0092 (a fit c·(n^−p − 512^−p) to n = 144 … 384 gives p = 2.06).  RGB
-#: stands for spectral here: ΔE00(144, 288) is 0.0949 in RGB and 0.095 in 41 bands.  The metal converges so
-#: slowly that ΔE00(n, 2n) (0.095 at 144) understates its error against the limit (0.125 at 144), hence this
-#: table for it; the flake and plain envelopes below are ΔE00(n, 2n) and sit far enough under the default
-#: target (≤ 0.053) that their error against the limit (≤ 1/(1 − 2^−1.7) = 1.45× that) stays under it too.
-METAL_COLOUR_ERROR = ((48, 0.875), (64, 0.530), (96, 0.253), (128, 0.152), (144, 0.125), (160, 0.102),
-                      (176, 0.084), (192, 0.070), (256, 0.038))
-#: Roughness of that measurement: below it n is scaled by METAL_COLOUR_ALPHA / α (the lobe is α wide).
-METAL_COLOUR_ALPHA = 0.1
-#: Flakes, by h·α_f: metallic-silver (α_f 0.2, spectral) h·α_f 3.2 → 0.101, 4.8 → 0.045; at h·α_f 4.0 the worst
-#: measured is fig5-translucent-black in RGB mode at n 32 (α_f 0.25), 0.169 at the −15° geometry (2026-12-03;
-#: metallic silver spectral at n 40: 0.063; the α_f 0.25 recipes in spectral mode at n 32: particle-metallic
-#: 0.063, particle-pearlescent 0.055, particle-gray-mirror 0.061, fig7 100 nm 0.062); tri-coat-pearl-white
-#: (α_f 0.2) at n 32 0.061, research-custom-flake 0.017.
-FLAKE_COLOUR_ERROR = ((3.2, 0.101), (4.0, 0.169), (4.8, 0.045))
-#: Stacks without flakes or a metal base (the fig5 series, pigments, HG and isotropic media, catalogue), by n:
-#: worst 0.053 at n 32 (fig5-translucent-black, the −15° geometry).
-PLAIN_COLOUR_ERROR = ((32, 0.053),)
-
-
-#: Convergence order in n assumed by the report's estimate (:func:`flakedb.compose.report.discretisation_error`)
-#: and by :func:`refine_auto_n`: below every order observed in the measured ΔE00(n, 2n) envelopes
-#: (docs/resolution.md: coated aluminium 1.7–2.1, metallic silver 1.95–2.0), so the estimate's factor
-#: (1 − 2^−p)/(r^p − 1), which falls as p grows, is on the safe side, and so is the n it asks for.
-DISCRETISATION_ORDER = 1.5
-#: ``resolution: auto`` refines its n at most this many times when the report's own estimate misses the colour
-#: target (:func:`refine_auto_n`), each step ×1.5 … ×2.
-AUTO_REFINE_STEPS = 3
-
-
-def auto_colour_target(recipe) -> tuple[float, bool]:
-    """``(colour_error, own)``: the recipe's own ``colour_error`` target (own True) or :data:`AUTO_TARGETS`'s."""
-    own = getattr(recipe, "targets", None) or {}
-    return float(own.get("colour_error", AUTO_TARGETS["colour_error"])), "colour_error" in own
-
-
-def refine_auto_n(recipe, n, estimate_dE00):
-    """``(n', reason)`` when ``resolution: auto`` chose ``n`` but the report's own estimate of ΔE00(n, 2n)
-    (:func:`flakedb.compose.report.discretisation_error`) exceeds the recipe's colour_error target, else
-    ``(None, reason)``: the measured envelopes (:func:`auto_resolution`) do not cover every stack (a rough,
-    nearly index-matched inner interface has a transmitted lobe far narrower than its α; docs/resolution.md,
-    "Closed loop"), so auto checks its result and solves again.  n' = n (estimate/target)^(1/p), p =
-    :data:`DISCRETISATION_ORDER`, kept within ×1.5 … ×2 of n (an estimate from a pre-asymptotic n overshoots),
-    rounded up to a multiple of 8, at most :data:`AUTO_COLOUR_MAX_N` for the default target (the recipe's own
-    colour_error goes to :data:`AUTO_MAX_N`).
-
-    >>> class R: targets = None
-    >>> refine_auto_n(R(), 32, 2.56)[0], refine_auto_n(R(), 64, 0.11)[0], refine_auto_n(R(), 64, 0.09)[0]
-    (64, 96, None)
-    >>> refine_auto_n(R(), 192, 0.5)
-    (None, 'the estimate 0.5 exceeds colour_error 0.1 at n = 192, the largest the default target may take (set colour_error in resolution: to go further)')
-    """
-    target, own = auto_colour_target(recipe)
-    cap = AUTO_MAX_N if own else AUTO_COLOUR_MAX_N
-    if not estimate_dE00 > target:
-        return None, f"the estimate {estimate_dE00:.3g} meets colour_error {target:g}"
-    if n >= cap:
-        return None, (f"the estimate {estimate_dE00:.3g} exceeds colour_error {target:g} at n = {n}, the largest the "
-                      + ("recipe's target may take" if own else
-                         "default target may take (set colour_error in resolution: to go further)"))
-    ratio = min(2.0, max(1.5, (estimate_dE00 / target) ** (1.0 / DISCRETISATION_ORDER)))
-    n_new = min(cap, 8 * int(np.ceil(n * ratio / 8)))
-    return n_new, (f"auto refined n {n} → {n_new}: the report's estimate ΔE00(n, 2n) {estimate_dE00:.3g} exceeded "
-                   f"colour_error {target:g}")
-
-
-def _needed(table, target):
-    """Smallest tabulated abscissa whose measured error is ≤ target, and that error (None if none is)."""
-    for x, e in table:
-        if e <= target:
-            return x, e
-    return None, None
-
-
-def _error_at(table, x):
-    """Measured error envelope at abscissa ``x`` (the last row at or below it; None below the table)."""
-    rows = [e for xx, e in table if xx <= x + 1e-12]
-    return rows[-1] if rows else None
-
-
-def auto_resolution(recipe) -> tuple[int, str]:
-    """Node count n for ``resolution: auto`` from accuracy targets, and the reason (docs/resolution.md).
-
-    Targets (``recipe.targets`` over :data:`AUTO_TARGETS`): ``albedo_error``, the relative error of the
-    directional albedo for θ_i ≤ 80°, and ``lobe_error``, the rough coat's reflection lobe binned in 5°
-    bins (per bin, over the reflected total); ``colour_error``, the CIEDE2000 between n and 2n at
-    the report geometries, for a metal base against the converged answer (:func:`_colour_needs`: metal bases by
-    n, flakes by h·α_f, other stacks by n; compose
-    states the estimate of its own result from a second solve at ≈ 3n/4).  Each rule is a measured envelope, not
-    a guess:
-
-    * rough coat of roughness α: h α ≥ the smallest h α of :data:`COAT_LOBE_ERROR` meeting lobe_error
-      (the flux-cell interface is lossless at every n, so its albedo is not what limits n);
-    * flakes of Beckmann spread α_f: h α_f from :data:`FLAKE_ALBEDO_ERROR` for albedo_error, and at
-      least the ΔE00 rule h ≥ 3/α_f (metallic-silver, RGB: ΔE00 ≈ 0.1 at h ≈ 2/α_f);
-    * HG media: h ≥ 3/(1 − |g|); vMF media: h ≥ 1.7·√κ (:data:`VMF_H_PER_SQRT_KAPPA`); stacks without
-      flakes: n from :data:`PLAIN_ALBEDO_ERROR`;
-    * a metal base: n from :data:`METAL_LOBE_ERROR` for lobe_error (scaled by 0.05/α below α 0.05).
-
-    The binder index enters through the measurements (η ∈ [1.3, 1.7] measured; outside it a warning
-    in the reason).  n = 2h is rounded up to a multiple of 8, at least 32.  Orders: chosen by the
-    solver from the BSDF's own Fourier tail (order_tol), the interfaces' lobes capped at 2n with a
-    positive (Jackson) φ filter.  Raises :class:`flakedb.paint.recipe.RecipeError` naming the
-    target, the n it needs, the largest allowed (:data:`AUTO_MAX_N`) and a suggestion when a target
-    cannot be met.
-    """
-    targets = dict(AUTO_TARGETS)
-    targets.update(getattr(recipe, "targets", None) or {})
-    t_alb, t_lobe = float(targets["albedo_error"]), float(targets["lobe_error"])
-    need = []  # (h, reason, problem-or-None)
-
-    def fail(what, target, table, alpha, label):
-        best = _error_at(table, AUTO_MAX_N // 2 * alpha)
-        raise RecipeError(getattr(recipe, "source", "<recipe>"), [
-            f"resolution: {what} {target:g} for {label} is not reachable: the smallest measured error is "
-            f"{table[-1][1]:g} (at h·α = {table[-1][0]:g}; docs/resolution.md) and n ≤ {AUTO_MAX_N} "
-            f"(hint: set resolution: {AUTO_MAX_N}" + (f", measured {what} ≤ {best:g}" if best is not None else "")
-            + f", or raise {what} to ≥ {table[-1][1]:g})"])
-
-    def add(table, target, alpha, label, what):
-        x, err = _needed(table, target)
-        if x is None:
-            fail(what, target, table, alpha, label)
-        h_real = x / alpha - 1e-9
-        h = int(np.ceil(h_real)) if np.isfinite(h_real) and h_real < AUTO_MAX_N else AUTO_MAX_N
-        if 2 * h > AUTO_MAX_N:
-            best = _error_at(table, AUTO_MAX_N // 2 * alpha)
-            raise RecipeError(getattr(recipe, "source", "<recipe>"), [
-                f"resolution: {what} {target:g} for {label} needs n ≥ {2 * h} (h·α ≥ {x:g}, measured error "
-                f"{err:g}; docs/resolution.md), above the largest allowed n = {AUTO_MAX_N} (hint: set "
-                f"resolution: {AUTO_MAX_N}" + (f" (measured {what} ≤ {best:g})" if best is not None else "")
-                + f", or raise {what})"])
-        need.append((h, f"{label}: h·α ≥ {x:g} for {what} ≤ {target:g} (measured {err:g})"))
-
-    cc = recipe.clearcoat
-    if cc is not None and cc.roughness > 0:
-        add(COAT_LOBE_ERROR, t_lobe, float(cc.roughness), f"rough coat α = {cc.roughness:g}", "lobe_error")
-    for b in recipe.basecoats:  # a rough inner interface: the coat's measured lobe envelope (not measured for it)
-        if b.interface_roughness > 0:
-            add(COAT_LOBE_ERROR, t_lobe, float(b.interface_roughness),
-                f"rough inner interface α = {b.interface_roughness:g} (the rough coat's envelope)", "lobe_error")
-    flakes = False
-    flake_alphas = []
-    for _, p in recipe.particles():
-        a = None
-        if isinstance(p, CatalogParticle) and p.is_flake:
-            a = flake_lobe_alpha(recipe_alpha(p), recipe_distribution(p))
-        elif isinstance(p, CustomFlake):
-            a = flake_lobe_alpha(float(p.orientation_alpha), recipe_distribution(p))
-        elif isinstance(p, CustomMedium) and isinstance(p.phase, tuple) and p.phase[0] == "hg":
-            hh = int(np.ceil(3.0 / max(1e-3, 1.0 - abs(p.phase[1]))))
-            need.append((hh, f"HG lobe g = {p.phase[1]:g} ({p.path}): h ≥ 3/(1 − |g|)"))
-        elif isinstance(p, CustomMedium) and isinstance(p.phase, tuple) and p.phase[0] == "vmf":
-            hh = int(np.ceil(VMF_H_PER_SQRT_KAPPA * np.sqrt(float(p.phase[1]))))
-            need.append((hh, f"vMF lobe κ = {p.phase[1]:g} ({p.path}): h ≥ {VMF_H_PER_SQRT_KAPPA:g}·√κ "
-                             f"(measured albedo error ≤ 2.3e-4)"))
-        if a is not None:
-            flakes = True
-            flake_alphas.append(a)
-            add(FLAKE_ALBEDO_ERROR, t_alb, a, f"flakes α = {a:g} ({p.path})", "albedo_error")
-            need.append((int(np.ceil(min(3.0 / a, AUTO_MAX_N))), f"flakes α = {a:g} ({p.path}): h ≥ 3/α (ΔE00 ≲ 0.1)"))
-    metal = getattr(recipe, "metal", None)
-    if metal is not None:
-        n_m, err = _needed(METAL_LOBE_ERROR, t_lobe)
-        if n_m is None:
-            raise RecipeError(getattr(recipe, "source", "<recipe>"), [
-                f"resolution: lobe_error {t_lobe:g} for a metal base is not reachable: the smallest measured error "
-                f"is {METAL_LOBE_ERROR[-1][1]:g} (at n = {METAL_LOBE_ERROR[-1][0]}; docs/resolution.md) (hint: raise "
-                f"lobe_error to ≥ {METAL_LOBE_ERROR[-1][1]:g}, or set resolution: {AUTO_MAX_N})"])
-        why = f"metal base α = {metal.roughness:g}: n ≥ {n_m} for lobe_error ≤ {t_lobe:g} (measured {err:g})"
-        if metal.roughness < METAL_ALPHA_MEASURED:
-            n_m = int(np.ceil(n_m * METAL_ALPHA_MEASURED / metal.roughness))
-            why += f", scaled by {METAL_ALPHA_MEASURED:g}/α below the measured α ≥ {METAL_ALPHA_MEASURED:g} → n ≥ {n_m}"
-        if n_m > AUTO_MAX_N:
-            raise RecipeError(getattr(recipe, "source", "<recipe>"), [
-                f"resolution: lobe_error {t_lobe:g} for a metal base of roughness {metal.roughness:g} needs n ≥ {n_m} "
-                f"({why}; docs/resolution.md), above the largest allowed n = {AUTO_MAX_N} (hint: set resolution: "
-                f"{AUTO_MAX_N}, raise lobe_error, or raise {metal.path}.roughness)"])
-        need.append((n_m // 2 + n_m % 2, why))
-    t_col = targets.get("colour_error")
-    if t_col is not None:
-        col = _colour_needs(recipe, float(t_col), flake_alphas, metal)
-        if "colour_error" not in (getattr(recipe, "targets", None) or {}):  # the default target: bounded cost
-            h_cap = AUTO_COLOUR_MAX_N // 2
-            col = [(hh, why) if hh <= h_cap else
-                   (h_cap, why + f"; the default colour_error stops at n = {AUTO_COLOUR_MAX_N} (set colour_error "
-                                 "in resolution: to go further; the report states the estimate)") for hh, why in col]
-        need += col
-    if not flakes:
-        n_alb, err = _needed(PLAIN_ALBEDO_ERROR, t_alb)
-        if n_alb is None:
-            fail("albedo_error", t_alb, PLAIN_ALBEDO_ERROR, 1.0, "this stack")
-        need.append((n_alb // 2, f"albedo_error ≤ {t_alb:g} without flakes: n ≥ {n_alb} (measured {err:g})"))
-    h = max(hh for hh, _ in need)
-    n = max(32, 8 * int(np.ceil(2 * h / 8)))
-    if n > AUTO_MAX_N:
-        raise RecipeError(getattr(recipe, "source", "<recipe>"), [
-            f"resolution: auto needs n = {n} ({max(need)[1]}), above the largest allowed n = {AUTO_MAX_N} "
-            f"(hint: set resolution: {AUTO_MAX_N}, or relax the targets)"])
-    binding = [r for hh, r in need if hh == h]
-    eta = float(recipe.binder_ior)
-    note = "" if 1.3 <= eta <= 1.7 or eta == 1.0 else f"; binder index {eta:g} outside the measured 1.3–1.7"
-    return n, "; ".join(binding) + note + f" → n = {n}"
-
-
-def resolve_node_count(recipe, n=None) -> tuple[int, str]:
-    """The node count a solve of ``recipe`` uses and why: ``n`` (the command line's ``--n``), else the recipe's
-    ``resolution``, else :func:`auto_resolution`; checked against :func:`flakedb.paint.limits.check_node_count`.
-    The one place this precedence is decided (compose, match and build call it)."""
-    if n is not None:
-        n_used, reason = n, "--n"
-    elif recipe.n is not None:
-        n_used, reason = recipe.n, "recipe resolution"
-    else:
-        n_used, reason = auto_resolution(recipe)
-    try:
-        return check_node_count(n_used), reason
-    except ValueError as e:
-        raise ValueError(f"{reason} {e}") from None
-
-
-def _colour_needs(recipe, target, flake_alphas, metal):
-    """(h, reason) of the ``colour_error`` target (ΔE00 at the report geometries: against the converged answer for a
-    metal base, between n and 2n otherwise) from the
-    measured envelopes :data:`METAL_COLOUR_ERROR`, :data:`FLAKE_COLOUR_ERROR`, :data:`PLAIN_COLOUR_ERROR`
-    (docs/resolution.md "colour_error"); raises :class:`RecipeError` when no measured n meets it."""
-    def refuse(what, table, unit):
-        raise RecipeError(getattr(recipe, "source", "<recipe>"), [
-            f"resolution: colour_error {target:g} for {what} is not reachable: the smallest measured ΔE00 is "
-            f"{table[-1][1]:g} (at {unit} {table[-1][0]:g}; docs/resolution.md) (hint: raise colour_error to ≥ "
-            f"{table[-1][1]:g}, or set resolution: n)"])
-
-    out = []
-    if metal is not None:
-        n_m, err = _needed(METAL_COLOUR_ERROR, target)
-        if n_m is None:
-            refuse("a metal base", METAL_COLOUR_ERROR, "n =")
-        why = (f"metal base α = {metal.roughness:g}: n ≥ {n_m} for colour_error ≤ {target:g} (measured ΔE00 {err:g} "
-               f"against the converged answer)")
-        if metal.roughness < METAL_COLOUR_ALPHA:
-            n_m = int(np.ceil(n_m * METAL_COLOUR_ALPHA / metal.roughness))
-            why += f", scaled by {METAL_COLOUR_ALPHA:g}/α → n ≥ {n_m}"
-        out.append(((min(n_m, AUTO_MAX_N) + 1) // 2, why))
-    for a in flake_alphas:
-        x, err = _needed(FLAKE_COLOUR_ERROR, target)
-        if x is None:
-            refuse(f"flakes α = {a:g}", FLAKE_COLOUR_ERROR, "h·α =")
-        out.append((min(int(np.ceil(x / a - 1e-9)), AUTO_MAX_N // 2),
-                    f"flakes α = {a:g}: h·α ≥ {x:g} for colour_error ≤ {target:g} (measured ΔE00 {err:g})"))
-    if metal is None and not flake_alphas:
-        n_p, err = _needed(PLAIN_COLOUR_ERROR, target)
-        if n_p is None:
-            refuse("this stack", PLAIN_COLOUR_ERROR, "n =")
-        out.append((n_p // 2, f"colour_error ≤ {target:g}: n ≥ {n_p} (measured ΔE00 {err:g})"))
-    return out
 
 
 def solve_paint(paint: Paint, n: int, **settings):

@@ -13,8 +13,9 @@ Rules, stated once here and in the index:
   0.12 eV steps), as the optical-constants README asks: interpolating in energy / ε follows the
   smooth Drude–Lorentz shape of the dielectric function, whereas linear-in-nm interpolation of a
   metal's n and k between points 40 nm apart is not an approximation of anything physical.
-* Extrapolation only where ``materials.yaml`` names an explicit rule and range (the source's own
-  dispersion formula, refractiveindex.info formula types 1, 2 and 4, with k = 0).  Anything else
+* Extrapolation only where ``materials.yaml`` names an explicit rule and range: ``formula`` (the
+  source's own dispersion formula, refractiveindex.info formula types 1, 2 and 4, with k = 0) or
+  ``hold_end_value`` (n and k of the nearest table end, for flat, sparse data such as soot).  Anything else
   outside a table raises ``ValueError`` naming the material, the wavelength and the table's range.
 * Derived materials (``combine``) mix dielectric functions: ε = Σ w_i ε_i (a randomly oriented
   uniaxial powder: ε = (2 ε_o + ε_e)/3).
@@ -38,6 +39,8 @@ from flakedb.resources import MATERIALS_DIR
 HC_EV_NM = 1239.841984
 
 INTERPOLATIONS = ("nk_linear_in_wavelength", "eps_linear_in_energy")
+#: Explicit extrapolation rules of materials.yaml (module docstring).
+EXTRAPOLATIONS = ("formula", "hold_end_value")
 
 
 def materials_dir() -> Path:
@@ -128,6 +131,13 @@ def material_table(material: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def material_info(material: str) -> dict:
     """The index entry of a material (file, citation, valid range, rules), as a new dict."""
     return copy.deepcopy(_entry(material))
+
+
+def material_density_g_cm3(material: str) -> float | None:
+    """Bulk density of ``material`` in g/cm³ from materials.yaml (``density_g_cm3``), None where the
+    index gives none (cited by ``density_source`` there)."""
+    d = _entry(material).get("density_g_cm3")
+    return None if d is None else float(d)
 
 
 def dispersion_formula_n(formula_type: int, coefficients, wavelength_nm) -> np.ndarray:
@@ -224,8 +234,12 @@ def refractive_index(material: str, wavelength_nm) -> np.ndarray:
                 material, wl_q[bad].flat[0], lo, hi,
                 extra=f" and outside its extrapolation range [{elo:g}, {ehi:g}] nm",
             )
-        if ext["rule"] != "formula":
-            raise ValueError(f"material {material!r}: unknown extrapolation rule {ext['rule']!r}")
-        f = e["formula"]
-        N[ok] = dispersion_formula_n(int(f["type"]), f["coefficients"], wl_q[ok]) + 0j
+        if ext["rule"] == "formula":
+            f = e["formula"]
+            N[ok] = dispersion_formula_n(int(f["type"]), f["coefficients"], wl_q[ok]) + 0j
+        elif ext["rule"] == "hold_end_value":
+            N[ok] = np.where(wl_q[ok] < lo, n[0] + 1j * k[0], n[-1] + 1j * k[-1])
+        else:
+            raise ValueError(f"material {material!r}: unknown extrapolation rule {ext['rule']!r}; "
+                             f"use one of {EXTRAPOLATIONS}")
     return N.real + 1j * np.maximum(N.imag, 0.0)

@@ -178,7 +178,7 @@ class Recipe:
     warnings: list = field(default_factory=list)
     doc: dict = field(default_factory=dict)
     #: accuracy targets of ``resolution: auto`` ({albedo_error, lobe_error}; empty: the defaults of
-    #: :data:`flakedb.paint.mapping.AUTO_TARGETS`)
+    #: :data:`flakedb.solve.resolution.AUTO_TARGETS`)
     targets: dict = field(default_factory=dict)
     #: a metal base in place of the primer (None: the primer, or nothing)
     metal: MetalBase | None = None

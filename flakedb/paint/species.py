@@ -24,7 +24,7 @@ import numpy as np
 from flakedb.optics.mie import default_n_quad, lognormal_pigment
 from flakedb.optics.thinfilm import flake_reflectance_transmittance as tmm_flake
 from flakedb.paint.catalog import get_species, load_catalog
-from flakedb.paint.materials import refractive_index
+from flakedb.paint.materials import material_density_g_cm3, material_info, refractive_index
 
 #: Angles of incidence in the binder (degrees) and wavelengths (nm) of ``species show``'s table.
 SHOW_ANGLES_DEG = (0.0, 30.0, 60.0, 80.0)
@@ -38,6 +38,50 @@ def film_stack(entry: dict) -> tuple[list[str], np.ndarray]:
     outer = [(f["material"], float(f["thickness_nm"]["value"])) for f in entry["coating"]]
     layers = outer + [(entry["substrate"]["material"], float(entry["substrate"]["thickness_nm"]["value"]))] + outer[::-1]
     return [m for m, _ in layers], np.array([d for _, d in layers])
+
+
+def species_density_g_cm3(entry: dict) -> tuple[float | None, str | None]:
+    """(density in g/cm³, its source) of a species; (None, None) where none applies.
+
+    The entry's own ``density_g_cm3`` when it states one (a pigment grade's measured density);
+    otherwise, for an interference flake whose films all have a bulk density in materials.yaml, the
+    thickness-weighted mean over :func:`film_stack` (a platelet's mass per volume; exact for a
+    uniform stack, so a sweep member gets its own).
+
+    >>> rho, src = species_density_g_cm3(get_species("metallic"))   # 0.2 µm MgF2 | 0.3 µm Al | 0.2 µm MgF2
+    >>> round(rho, 4), round((2 * 0.2 * 3.15 + 0.3 * 2.70) / 0.7, 4)
+    (2.9571, 2.9571)
+    """
+    if "density_g_cm3" in entry:
+        return float(entry["density_g_cm3"]["value"]), entry["density_g_cm3"]["source"]
+    if entry["kind"] != "interference_flake":
+        return None, None
+    mats, d_nm = film_stack(entry)
+    rho = [material_density_g_cm3(m) for m in mats]
+    if any(r is None for r in rho):
+        return None, None
+    parts = sorted(set(mats))
+    src = ("thickness-weighted mean over the film stack; " +
+           "; ".join(f"{m}: {material_density_g_cm3(m):g} g/cm³ ({material_info(m)['density_source']})" for m in parts))
+    return float(np.dot(rho, d_nm) / d_nm.sum()), src
+
+
+def species_record(name: str, entry: dict) -> dict:
+    """The ``species list --json`` row of one species: name, kind, description, colour_index (None
+    where no Colour Index name applies), density_g_cm3 and its source (:func:`species_density_g_cm3`),
+    source (the entry's own provenance; for a pigment without one, its material's citation) and, for
+    a pigment, material, number-median diameter, gsd and grade."""
+    rho, rho_src = species_density_g_cm3(entry)
+    src = entry.get("source")
+    if src is None and entry["kind"] == "pigment":
+        src = material_info(entry["material"]).get("citation")
+    row = {"name": name, "kind": entry["kind"], "description": entry["description"],
+           "colour_index": entry.get("colour_index"), "density_g_cm3": rho, "density_source": rho_src,
+           "source": src}
+    if entry["kind"] == "pigment":
+        row.update(material=entry["material"], median_diameter_um=float(entry["median_diameter_um"]["value"]),
+                   gsd=float(entry["gsd"]["value"]), grade=entry.get("grade"))
+    return row
 
 
 def binder_index(catalog: dict, wavelength_nm) -> np.ndarray:
@@ -140,6 +184,14 @@ def pigment_optics(entry: dict, wavelength_nm, n_binder, mu=None, n_quad=None):
 def describe(name: str, entry: dict) -> str:
     """One paragraph: kind, description and the parameters with units."""
     lines = [f"{name} ({entry['kind']}): {entry['description']}"]
+    rho, _ = species_density_g_cm3(entry)
+    ident = [f"C.I. {entry['colour_index']}"] if entry.get("colour_index") else []
+    ident += [f"density {rho:.4g} g/cm³"] if rho is not None else []
+    if "grade" in entry:
+        ident.append(f"grade {entry['grade']['name']}" + (f", {entry['grade']['surface_treatment']}"
+                                                          if "surface_treatment" in entry["grade"] else ""))
+    if ident:
+        lines.append("; ".join(ident))
     if entry["kind"] == "interference_flake":
         mats, d = film_stack(entry)
         lines.append("film stack (top to bottom): " + " | ".join(f"{m} {x:g} nm" for m, x in zip(mats, d)))

@@ -59,7 +59,7 @@ def _spectrum(value, wl):
 def texture_stack(recipe, stored=None) -> tuple[TextureStack, list]:
     """(:class:`flakedb.texture.model.TextureStack`, notes) of ``recipe`` (module docstring).
 
-    ``stored``: the :class:`flakedb.compose.store_context.StoreContext` the solve used, or None: catalogue
+    ``stored``: the :class:`flakedb.solve.store_context.StoreContext` the solve used, or None: catalogue
     pigments' ⟨C_ext⟩ and ⟨V⟩ come from it (at the recipe's bands) instead of a second Mie evaluation,
     exactly where :func:`flakedb.paint.mapping.build_paint` takes them from it.
 

@@ -22,6 +22,8 @@ from flakedb.paint.mapping import (
     recipe_alpha,
     recipe_distribution,
     recipe_top_alpha,
+)
+from flakedb.solve.resolution import (
     resolve_node_count,
 )
 from flakedb.paint.materials import materials_dir

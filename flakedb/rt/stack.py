@@ -52,7 +52,7 @@ from flakedb.rt.medium_projection import (  # noqa: F401
 )
 from flakedb.rt.order_blocks import FIRST_ORDER_BLOCK, OrderBlocks  # noqa: F401
 from flakedb.rt.orders import reflection_over
-from flakedb.rt.parts import SmoothInnerPart, binder_chain, build_parts, layer_orders
+from flakedb.rt.parts import SmoothInnerPart, binder_chain, build_parts, layer_orders, near_matched
 from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere
 from flakedb.rt.specular import pole_index, smoothed_specular, specular_reflection, under_smooth, zero_pole_orders
 from flakedb.rt.stack_bsdf import StackBSDF  # noqa: F401
@@ -185,6 +185,28 @@ class _Top:
             f = under_smooth(self.smooth1, self.q_out.h)
             return lambda R, l0, l1: f(R)
         return lambda R, l0, l1: reflection_over(self.block(l0, l1), R)
+
+
+def inner_interface_verdicts(top, inner, n) -> list:
+    """The solver's own verdict on each inner interface of a stack solved at ``n`` nodes (product settings):
+    for an :class:`InnerRough` solved as a smooth one, :func:`flakedb.rt.parts.near_matched`'s dict, else None
+    (an :class:`InnerSmooth` or None entry gives None).  ``inner``: the inner interfaces top to bottom (None
+    entries skipped; other items of a slab list ignored).  Cheap: only the binder chain's rules are built, so
+    the resolution (:mod:`flakedb.solve.resolution`) asks the very test :func:`flakedb.rt.parts.build_parts`
+    applies.
+
+    >>> inner_interface_verdicts(Smooth(1.5), [InnerRough(1.501 / 1.5, 0.03)], 32)[0]["solved_as"]
+    'smooth (nearly index-matched)'
+    >>> inner_interface_verdicts(Smooth(1.5), [InnerRough(1.6 / 1.5, 0.03), None], 32)
+    [None, None]
+    """
+    items = [it for it in inner if isinstance(it, (InnerSmooth, InnerRough))]
+    top, eta = _resolve_top(top)
+    chain = binder_chain(top, eta, items, radau_hemisphere(n // 2), SolverSettings.product(n))
+    verdicts = [near_matched(float(it.eta), float(it.alpha), chain.rules[b], chain.rules[b + 1])
+                if isinstance(it, InnerRough) else None for b, it in enumerate(items)]
+    it_v = iter(verdicts)
+    return [next(it_v) if isinstance(it, (InnerSmooth, InnerRough)) else None for it in inner]
 
 
 def _resolve_top(top):

@@ -11,6 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 import flakedb.compose.orchestrate as orch
+import flakedb.solve.pipeline as pipeline
 from flakedb.cli.main import cli
 from flakedb.render import mitsuba as fm
 from flakedb.render import preview
@@ -35,7 +36,7 @@ def _no_work(monkeypatch):
     def work(*a, **k):
         raise AssertionError("the work started before the input was refused")
 
-    for mod, name in ((orch, "build_paint"), (orch, "solve_paint"), (preview, "render_sphere"),
+    for mod, name in ((pipeline, "build_paint"), (pipeline, "solve_paint"), (preview, "render_sphere"),
                       (fm, "measured_tensors"), (st, "write_template")):
         monkeypatch.setattr(mod, name, work)
 
@@ -55,7 +56,7 @@ def test_failed_compose_leaves_no_directory_it_created(tmp_path, monkeypatch):
     def broken(*a, **k):
         raise RuntimeError("solver exploded")
 
-    monkeypatch.setattr(orch, "solve_paint", broken)
+    monkeypatch.setattr(pipeline, "solve_paint", broken)
     out = tmp_path / "a" / "b" / "out"
     r = _run(["compose", str(_recipe(tmp_path)), "--out", str(out)])
     _clean(r, 1)
@@ -69,7 +70,7 @@ def test_failed_compose_keeps_an_existing_directory_and_its_files(tmp_path, monk
     out = tmp_path / "out"
     out.mkdir()
     (out / "keep.txt").write_text("x")
-    monkeypatch.setattr(orch, "solve_paint", lambda *a, **k: (_ for _ in ()).throw(MemoryError()))
+    monkeypatch.setattr(pipeline, "solve_paint", lambda *a, **k: (_ for _ in ()).throw(MemoryError()))
     r = _run(["compose", str(_recipe(tmp_path)), "--out", str(out)])
     _clean(r, 1)
     assert "out of memory" in r.output

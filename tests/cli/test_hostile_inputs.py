@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import flakedb.compose.orchestrate as orch
+import flakedb.solve.pipeline as pipeline
 from flakedb.bsdf.fourier_file import write_bsdf
 from flakedb.bsdf.h5file import write_h5
 from flakedb.bsdf.table import BSDFTable
@@ -57,7 +58,7 @@ def no_work(monkeypatch):
     def work(*a, **k):
         raise AssertionError("the work started before the input was refused")
 
-    for mod, name in ((orch, "build_paint"), (orch, "solve_paint"), (preview, "render_sphere"),
+    for mod, name in ((pipeline, "build_paint"), (pipeline, "solve_paint"), (preview, "render_sphere"),
                       (fm, "measured_tensors"), (st, "write_template")):
         monkeypatch.setattr(mod, name, work)
 

@@ -14,6 +14,7 @@ import pytest
 from click.testing import CliRunner
 
 import flakedb.compose.orchestrate as orch
+import flakedb.solve.pipeline as pipeline
 from flakedb import outputs
 from flakedb.bsdf.fourier_file import write_bsdf
 from flakedb.bsdf.h5file import write_h5
@@ -62,7 +63,7 @@ def no_work(monkeypatch):
     def work(*a, **k):
         raise AssertionError("the work started before the output plan was refused")
 
-    for mod, name in ((orch, "build_paint"), (orch, "solve_paint"), (preview, "render_sphere"),
+    for mod, name in ((pipeline, "build_paint"), (pipeline, "solve_paint"), (preview, "render_sphere"),
                       (fm, "measured_tensors"), (fm, "export_measured"), (st, "write_template"),
                       (cm, "match"), (cm, "predict")):
         monkeypatch.setattr(mod, name, work)

@@ -133,7 +133,7 @@ def test_per_angle_limits_and_weighted_lch():
 
 
 def test_geometry_sets():
-    from flakedb.compose.report import ASPECULAR_DEG, ILLUMINATION_DEG
+    from flakedb.appearance.report import ASPECULAR_DEG, ILLUMINATION_DEG
 
     assert E2194_GEOMETRIES == tuple((ILLUMINATION_DEG, a) for a in ASPECULAR_DEG)
     assert len(E2539_GEOMETRIES) == 11

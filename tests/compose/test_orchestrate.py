@@ -25,7 +25,7 @@ from scipy.special import expn
 from flakedb.bsdf import open_bsdf
 from flakedb.cli.main import cli
 from flakedb.compose.orchestrate import compose
-from flakedb.compose.report import eval_table, flop_index, multiangle_geometry
+from flakedb.appearance.report import eval_table, flop_index, multiangle_geometry
 from flakedb.paint.mapping import build_paint, phase_cos_grid
 from flakedb.paint.recipe import parse_recipe
 from tests import tolerances as tol
@@ -309,7 +309,7 @@ def test_check_physical_flags_energy_gain_negative_values_and_unconverged_orders
     stack scaled by 1.01, with a negative coefficient, or flagged unconverged does not."""
     import copy
 
-    from flakedb.compose.orchestrate import check_physical
+    from flakedb.solve.pipeline import check_physical
     from flakedb.rt.stack import Lambertian, Rough, SolverSettings, solve_stack
 
     r = solve_stack(Rough(1.5, 0.1), [], Lambertian(1.0), SolverSettings.product(32))
@@ -329,14 +329,14 @@ def test_check_physical_flags_energy_gain_negative_values_and_unconverged_orders
 def test_compose_refuses_an_unphysical_result_unless_allowed(tmp_path, monkeypatch):
     """A result failing the self-check is an error and writes nothing; --allow-unphysical writes it
     with a loud warning."""
-    import flakedb.compose.orchestrate as orch
+    import flakedb.solve.pipeline as orch
 
     monkeypatch.setattr(orch, "check_physical", lambda stack: ["albedo 1.2 > 1 + 0.001 (injected)"])
     rec = recipe([{"basecoat": {"thickness_um": 5, "ior": 1.0, "particles": [HG]}}], n=16)
     with pytest.raises(orch.UnphysicalResultError, match="unphysical result"):
-        orch.compose(rec, tmp_path / "a", n=16)
+        compose(rec, tmp_path / "a", n=16)
     assert not (tmp_path / "a").exists() or not any((tmp_path / "a").iterdir())
-    res = orch.compose(rec, tmp_path / "b", n=16, allow_unphysical=True)
+    res = compose(rec, tmp_path / "b", n=16, allow_unphysical=True)
     assert any(w.startswith("UNPHYSICAL") for w in res.warnings) and Path(res.paths["bsdf"]).exists()
 
 
@@ -366,7 +366,7 @@ def test_bsdf_range_by_channel_blocks_is_the_whole_arrays():
     last channel block only."""
     import copy
 
-    from flakedb.compose.orchestrate import CHECK_CHANNEL_BLOCK, _bsdf_range
+    from flakedb.solve.pipeline import CHECK_CHANNEL_BLOCK, _bsdf_range
     from flakedb.rt.stack import Lambertian, Rough, SolverSettings, solve_stack
 
     C = 2 * CHECK_CHANNEL_BLOCK + 1
@@ -391,7 +391,7 @@ def test_the_discretisation_solve_runs_first_and_is_freed_before_the_solve(tmp_p
     import gc
     import weakref
 
-    import flakedb.compose.orchestrate as orch
+    import flakedb.solve.pipeline as orch
 
     solve_paint = orch.solve_paint
     calls, alive = [], []

@@ -15,12 +15,9 @@ import pytest
 
 from flakedb.bsdf import open_bsdf
 from flakedb.colour import gamut
-from flakedb.compose.orchestrate import (
-    compose,
-    gamut_safe_file_channels,
-    solver_warnings,
-)
-from flakedb.compose.report import flop_index, flop_index_standard
+from flakedb.compose.orchestrate import compose, gamut_safe_file_channels
+from flakedb.solve.pipeline import solver_warnings
+from flakedb.appearance.report import flop_index, flop_index_standard
 from flakedb.paint.recipe import parse_recipe
 from flakedb.paint.species import load_catalog
 
@@ -65,7 +62,7 @@ def test_saturated_yellow_is_mapped_into_gamut_and_its_cost_recorded(catalog, tm
         reflectance_to_XYZ,
         white_XYZ,
     )
-    from flakedb.compose.report import eval_table, multiangle_geometry
+    from flakedb.appearance.report import eval_table, multiangle_geometry
     wl = res.paint.wavelength_nm
     mi, mo, ph, _ = multiangle_geometry(45.0)
     true_lab = XYZ_to_Lab(reflectance_to_XYZ(np.pi * eval_table(res.table, mi, mo, ph) / abs(mo), wl),
@@ -131,7 +128,7 @@ def test_gamut_mapping_of_a_reflection_only_table_is_that_of_its_dense_copy(cata
     """An opaque paint's table is mapped on its reflection quadrant alone (no dense 4× array): the file
     table, the recorded costs and eval_table are those of the same table given densely, bit for bit."""
     from flakedb.bsdf import BSDFTable
-    from flakedb.compose.report import eval_table, multiangle_geometry
+    from flakedb.appearance.report import eval_table, multiangle_geometry
 
     r = _recipe(RECIPES[[p.stem for p in RECIPES].index("particle-cadmium-yellow")], catalog)
     res = compose(r, tmp_path / "q", n=16, catalog=catalog)

@@ -90,9 +90,31 @@ def test_binned_shader_furnace():
 
 
 def test_figure4_reuses_compress_figure4(tmp_path):
+    """The figure's content, not its presence: the table holds every species and method at every rank, finite,
+    the paper's √R SVD error falls with the rank (rank 12 far below rank 1) and is no worse than the NMF at the
+    largest rank (the SVD is the best rank-r approximation of √R); the PNG is the stated size (6.4 × 4.2 in at 130
+    dpi) and shows one colour per species' curves."""
+    import matplotlib.image as mpimg
+
     data, readme = _run("fig4", tmp_path)
-    assert data["n"] == F.QUICK["fig4"]["n"] and (tmp_path / "figure4.png").exists()
+    assert data["n"] == F.QUICK["fig4"]["n"]
     assert "Figure 4" in readme
+    ranks = data["ranks"]
+    assert ranks == sorted(ranks) and len(ranks) >= 8
+    assert set(data["errors"]) == set(__import__("figures.figure4", fromlist=["x"]).FIGURE4_SPECIES)
+    for name, rows in data["errors"].items():
+        assert set(rows) >= {"sqrt_svd", "svd", "nmf"}, name
+        for meth in ("sqrt_svd", "svd", "nmf"):
+            v = np.asarray(rows[meth], float)
+            assert v.shape == (len(ranks),) and np.all(np.isfinite(v)) and np.all(v >= 0), (name, meth)
+        e = np.asarray(rows["sqrt_svd"])
+        assert e[-1] < 0.5 * e[0] + 1e-12, (name, e)
+    img = mpimg.imread(tmp_path / "figure4.png")
+    assert img.shape[:2] == (round(4.2 * 130), round(6.4 * 130))
+    rgb = img[..., :3].reshape(-1, 3)
+    coloured = rgb[(rgb.max(axis=1) - rgb.min(axis=1)) > 0.3]      # saturated pixels: the curves, not text or axes
+    hues = {tuple(np.round(c, 1)) for c in coloured}
+    assert len(coloured) > 500 and len(hues) >= len(data["errors"])
 
 
 def test_unknown_figure_is_refused():

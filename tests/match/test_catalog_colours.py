@@ -20,7 +20,7 @@ from flakedb.match.fit import predict, recipe_from_doc
 from flakedb.paint.catalog import load_catalog
 from flakedb.resources import CATALOG_DIR, RECIPES_DIR
 
-PIGMENTS = ("titanium-white", "cadmium-yellow", "iron-black")
+PIGMENTS = ("titanium-white", "cadmium-yellow", "iron-black", "carbon-black", "iron-oxide-red", "titanium-white-r706")
 GEOMETRY = [(45.0, 45.0)]          # 45°/0°, the solid-colour geometry of datasheets
 TABLE = CATALOG_DIR / "pigment-colours.md"
 
@@ -43,7 +43,7 @@ def colours(catalog=None):
     for sp in PIGMENTS:
         lab = lambda d: predict(recipe_from_doc(d, catalog=cat), GEOMETRY, catalog=cat).lab("10", "D65")[0]
         row = {"masstone": lab(panel(sp, 0.15)), "masstone_white": lab(panel(sp, 0.15, primer="white"))}
-        if sp != "titanium-white":
+        if not sp.startswith("titanium-white"):    # a white has no tint with white
             row["tint"] = lab(panel(sp, 0.01, 0.10))
         out[sp] = row
     return out

@@ -158,7 +158,7 @@ def test_compare_fails_outside_limits(tmp_path):
 def test_match_composes_through_composes_checks(catalog, monkeypatch):
     """match predicts through compose's own path (issue #21): compose's physical check refuses for it too, and the
     solve gets compose's threads (a second orchestration had skipped both)."""
-    from flakedb.compose import orchestrate
+    from flakedb.solve import pipeline as orchestrate
 
     rec = recipe_from_doc(yaml.safe_load(_text(**TRUE)), catalog=catalog)
     seen = {}
@@ -174,3 +174,24 @@ def test_match_composes_through_composes_checks(catalog, monkeypatch):
     monkeypatch.setattr(orchestrate, "check_physical", lambda stack: ["negative BSDF (planted)"])
     with pytest.raises(orchestrate.UnphysicalResultError, match="planted"):
         predict(rec, E2194_GEOMETRIES, catalog=catalog)
+
+
+def test_rgb_base_against_spectral_target_same_rule_in_compare_and_match(tmp_path):
+    """Issue #34: the colour-condition rule (the caller's, else the target's, else the defaults; a spectral target
+    gives way to an RGB paint's D65/2°) lives once (flakedb.colour.settings.for_target).  compare accepted an
+    RGB-mode recipe against a spectral D65/10° target while match refused the same base ("an RGB-mode paint has
+    colours under D65/2° only")."""
+    (tmp_path / "true.yaml").write_text(_text(**TRUE))
+    target = tmp_path / "target.csv"
+    r = CliRunner().invoke(cli, ["compare", str(tmp_path / "true.yaml"), "--write-csv", str(target)])
+    assert r.exit_code == 0, r.output
+    assert read_target(target).spectral and read_target(target).observer == "10"
+    rgb = _text(**TRUE).replace("{mode: spectral, range_nm: [400, 700], step_nm: 20}", "{mode: rgb}")
+    (tmp_path / "rgb.yaml").write_text(rgb)
+    r = CliRunner().invoke(cli, ["compare", str(tmp_path / "rgb.yaml"), "--target", str(target), "--max-de", "50"])
+    assert r.exit_code == 0 and "2° observer" in r.output, r.output
+    base = rgb.replace("volume_fraction: 0.02", "volume_fraction: {fit: [0.01, 0.04], start: 0.02}")
+    (tmp_path / "base.yaml").write_text(base)
+    r = CliRunner().invoke(cli, ["match", str(tmp_path / "base.yaml"), "--target", str(target),
+                                 "--out", str(tmp_path / "fit"), "--max-de", "50"])
+    assert "D65/2° only" not in r.output and r.exit_code == 0, r.output

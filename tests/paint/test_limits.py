@@ -2,7 +2,7 @@
 
 Guards against the limits drifting apart again (they were stated in eight places with four bounds): the
 schema restates flakedb.paint.limits' numbers, and every path that resolves a node count (compose,
-match, build) goes through flakedb.paint.mapping.resolve_node_count with the same precedence and refusal.
+match, build) goes through flakedb.solve.resolution.resolve_node_count with the same precedence and refusal.
 """
 
 import json
@@ -10,7 +10,8 @@ import json
 import pytest
 
 from flakedb.paint import limits
-from flakedb.paint.mapping import build_paint, recipe_top_alpha, resolve_node_count
+from flakedb.paint.mapping import build_paint, recipe_top_alpha
+from flakedb.solve.resolution import resolve_node_count
 from flakedb.paint.recipe import RecipeError, parse_recipe
 from flakedb.pipelines.build import recipe_top, request_for_recipe
 from flakedb.resources import SCHEMAS_DIR

@@ -14,7 +14,8 @@ from scipy.interpolate import CubicSpline
 import flakedb.reference.montecarlo as mc
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.optics.fresnel import fresnel_conductor
-from flakedb.paint.mapping import auto_resolution, build_paint, metal_index_rgb, solve_paint
+from flakedb.paint.mapping import build_paint, metal_index_rgb, solve_paint
+from flakedb.solve.resolution import auto_resolution
 from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import parse_recipe
 from flakedb.rt import microfacet as mf
@@ -289,3 +290,23 @@ def test_adaptive_flake_optics_keeps_passed_midpoints(species, tol, max_nodes):
         assert np.array_equal(a, b)
     assert got[3] == want[3] and FLAKE_C_START < got[0].size <= max_nodes
     assert sum(calls) < n_old  # fewer evaluations
+
+
+def test_auto_asks_the_solvers_own_near_matched_test():
+    """Issue #34: an inner interface 1.5 → 1.501 at roughness 0.03 got auto n = 160 from the rough-coat envelope,
+    which the solver then solved as a smooth interface (flakedb.rt.parts.near_matched); the same stack without
+    that interface got n = 32.  Auto now asks the solver's own verdict at the n the rest of the stack needs: the
+    n is the smooth stack's, the reason says why, and the solve at that n does solve it smooth."""
+    def rec(ior_below, roughness):
+        return parse_recipe(_inner_recipe(roughness, ior_below=ior_below).text.replace(
+            "clearcoat: {thickness_um: 40, ior: 1.6", "clearcoat: {thickness_um: 40, ior: 1.5"))
+
+    near, plain = rec(1.501, 0.03), rec(1.5, 0.0)
+    n_near, why = auto_resolution(near)
+    assert n_near == auto_resolution(plain)[0], why
+    assert "nearly index-matched" in why
+    st = solve_paint(build_paint(near), n_near)
+    assert st.info["inner_interfaces"][0]["solved_as"].startswith("smooth")
+    # a clearly rough inner interface still takes the rough-coat envelope
+    n_far, why_far = auto_resolution(rec(1.6, 0.03))
+    assert n_far > n_near and "rough coat's envelope" in why_far

@@ -137,7 +137,7 @@ def test_auto_resolution_follows_the_narrowest_lobe():
     """``resolution: auto`` applies the rules measured for Beckmann/GGX at α to the narrowest lobe
     (:func:`flakedb.rt.microflake.flake_lobe_alpha`): a narrow second population raises n, a Student-t with
     γ ≥ 2 keeps α's n, and γ = 1.5 (core √(2/3) × GGX's) asks for more."""
-    from flakedb.paint.mapping import auto_resolution
+    from flakedb.solve.resolution import auto_resolution
     from flakedb.rt.microflake import flake_lobe_alpha
 
     def n_for(extra):

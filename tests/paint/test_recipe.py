@@ -18,7 +18,9 @@ from click.testing import CliRunner
 
 from flakedb.cli.main import cli
 from flakedb.paint import mapping
-from flakedb.paint.mapping import auto_resolution, build_paint, solve_paint
+from flakedb.solve import resolution
+from flakedb.paint.mapping import build_paint, solve_paint
+from flakedb.solve.resolution import auto_resolution
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError, load_recipe, parse_recipe
 from flakedb.rt.stack import InnerSmooth
 
@@ -307,7 +309,7 @@ def test_metal_base_parses_and_is_checked(monkeypatch):
     d["layers"][1]["metal"]["material"] = "Al"
     n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))  # the default colour_error 0.1 binds (issue 26)
     assert n == 176 and "colour_error ≤ 0.1" in why
-    monkeypatch.setattr(mapping, "AUTO_TARGETS", {k: v for k, v in mapping.AUTO_TARGETS.items() if k != "colour_error"})
+    monkeypatch.setattr(resolution, "AUTO_TARGETS", {k: v for k, v in resolution.AUTO_TARGETS.items() if k != "colour_error"})
     n, why = auto_resolution(parse_recipe(yaml.safe_dump(d)))  # the lobe rule alone
     assert n == 48 and "metal base α = 0.1" in why and "measured 0.048" in why
     d["layers"][1]["metal"]["roughness"] = 0.01
@@ -353,7 +355,7 @@ def test_yaml_syntax_error_names_line():
 
 def test_auto_resolution_from_targets():
     """n from the measured envelopes of flakedb.paint.mapping (docs/resolution.md), and refusals."""
-    from flakedb.paint.mapping import auto_resolution
+    from flakedb.solve.resolution import auto_resolution
 
     d = doc()
     d["resolution"] = "auto"

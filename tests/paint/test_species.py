@@ -45,7 +45,8 @@ PAPER_SIX = {
     "iron-black": "pigment",
 }
 #: species the catalogue adds to the paper's six (each with its reason in particles.yaml)
-ADDED = {"pearl-white": "interference_flake"}
+ADDED = {"pearl-white": "interference_flake", "carbon-black": "pigment", "iron-oxide-red": "pigment",
+         "iron-oxide-red-transparent": "pigment", "titanium-white-r706": "pigment"}
 
 
 @pytest.fixture(scope="module")

@@ -19,8 +19,9 @@ import numpy as np
 import pytest
 
 import flakedb.reference.montecarlo as mc
-from flakedb.compose.orchestrate import check_physical, compose
-from flakedb.paint.mapping import AUTO_TARGETS
+from flakedb.compose.orchestrate import compose
+from flakedb.solve.pipeline import check_physical
+from flakedb.solve.resolution import AUTO_TARGETS
 from flakedb.paint.recipe import parse_recipe
 from flakedb.rt.quadrature import binder_chain_quadratures, radau_hemisphere
 
@@ -136,7 +137,7 @@ def test_rough_index_return_composes_and_converges(tmp_path):
     """The same with a rough (α 0.2) interface at the 1.48 binder's top (before: a NaN BSDF at every n; the
     fuzzed recipe had a rough 0.4 coat and a metal base).  The Monte Carlo's rough inner interface is single
     scattering (the solver's is energy-compensated), so the check is convergence: the albedo at auto within
-    the albedo_error target 3 % (flakedb.paint.mapping.AUTO_TARGETS) of n = 2·auto, for θ_i ≤ 80°."""
+    the albedo_error target 3 % (flakedb.solve.resolution.AUTO_TARGETS) of n = 2·auto, for θ_i ≤ 80°."""
     rec = parse_recipe(RETURN_RECIPE.format(name="rough-index-return", extra="      interface_roughness: 0.2\n"))
     res = compose(rec, tmp_path / "auto")
     res2 = compose(rec, tmp_path / "twice", n=2 * res.n)

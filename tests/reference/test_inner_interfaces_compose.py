@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 import flakedb.reference.montecarlo as mc
-from flakedb.compose.orchestrate import check_physical, compose
+from flakedb.compose.orchestrate import compose
+from flakedb.solve.pipeline import check_physical
 from flakedb.paint.recipe import parse_recipe
 
 HEAD = "flakedb: 1\nname: {name}\nspectral: {{mode: mono}}\nresolution: auto\nlayers:\n"

@@ -1,5 +1,5 @@
 """Accuracy in the user's units (issue 26 item 3): ``resolution: {colour_error: ΔE00}`` chooses n from the
-measured ΔE00(n, 2n) envelopes (flakedb/paint/mapping.py, docs/resolution.md "colour_error"), and compose
+measured ΔE00(n, 2n) envelopes (flakedb/solve/resolution.py, docs/resolution.md "colour_error"), and compose
 states the estimated ΔE00 of its own discretisation from a second solve at n/2."""
 
 import numpy as np
@@ -8,8 +8,9 @@ import yaml
 
 from flakedb.colour.colorimetry import delta_E_2000
 from flakedb.compose.orchestrate import compose
-from flakedb.compose.report import DISCRETISATION_ORDER, second_solve_n
-from flakedb.paint.mapping import (
+from flakedb.solve.resolution import (
+    DISCRETISATION_ORDER,
+    second_solve_n,
     AUTO_COLOUR_MAX_N,
     AUTO_TARGETS,
     FLAKE_COLOUR_ERROR,
@@ -149,7 +150,7 @@ layers:
 
 @pytest.mark.slow
 def test_auto_refines_where_its_own_estimate_misses_the_target(tmp_path, monkeypatch):
-    """resolution: auto checks its result (flakedb.paint.mapping.refine_auto_n): the envelopes give n = 32, where
+    """resolution: auto checks its result (flakedb.solve.resolution.refine_auto_n): the envelopes give n = 32, where
     the report's own estimate is ΔE00 2.6; compose solves again (32 → 64 → 96) until the estimate meets 0.1, says
     so in the reason, and the result is within 0.1 of a solve at twice its n (measured, not the estimate).
     The stack's nearly matched rough interface is solved rough here (at n = 32 the product solves it smooth,

@@ -11,7 +11,7 @@ direction has no azimuth (coated aluminium at auto was off by ΔE00 4.7 viewed a
 import numpy as np
 import pytest
 
-from flakedb.compose.orchestrate import NEGATIVE_SLACK
+from flakedb.solve.pipeline import NEGATIVE_SLACK
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.rt.media import PhaseMedium
 from flakedb.rt.pole import zero_pole_orders

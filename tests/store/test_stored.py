@@ -23,7 +23,8 @@ from click.testing import CliRunner
 from flakedb.bsdf import open_bsdf
 from flakedb.cli.main import cli
 from flakedb.colour.colorimetry import delta_E_2000
-from flakedb.compose.orchestrate import UnphysicalResultError, compose
+from flakedb.compose.orchestrate import compose
+from flakedb.solve.pipeline import UnphysicalResultError
 from flakedb.paint import species as sp
 from flakedb.paint.recipe import parse_recipe
 from flakedb.pipelines.build import build, make_request

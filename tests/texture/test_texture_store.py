@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import flakedb
-from flakedb.compose.store_context import StoreContext
+from flakedb.solve.store_context import StoreContext
 from flakedb.paint import texture_inputs
 from flakedb.paint.texture_inputs import texture_report, texture_stack
 from flakedb.pipelines.build import build, request_for_recipe

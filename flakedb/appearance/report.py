@@ -52,7 +52,6 @@ from flakedb.bsdf.spline import cubic_spline_not_a_knot
 from flakedb.colour.colorimetry import (
     XYZ_to_Lab,
     XYZ_to_linear_sRGB,
-    delta_E_2000,
     reflectance_to_XYZ,
     rgb_mode_to_XYZ,
     spectral_grid,
@@ -63,7 +62,6 @@ from flakedb.colour.tolerance import observer_name
 from flakedb.colour.tolerance import reflectance_to_XYZ as reflectance_to_XYZ_under
 from flakedb.colour.tolerance import white_XYZ as white_XYZ_under
 from flakedb.optics.fresnel import fresnel_dielectric
-from flakedb.paint.mapping import DISCRETISATION_ORDER
 
 #: Illumination zenith angle (degrees) of the multi-angle geometries.
 ILLUMINATION_DEG = 45.0
@@ -312,7 +310,7 @@ def format_report(rep) -> str:
     if d and "estimate_dE00" in d:
         conv = d.get("estimate_dE00_converged")
         lines.append(f"discretisation: estimated ΔE00(n, 2n) {d['estimate_dE00']:.3f} at n = {d['n']}"
-                     + (f", at most {conv:.3f} against the converged answer (error order ≥ {DISCRETISATION_ORDER:g} "
+                     + (f", at most {conv:.3f} against the converged answer (error order ≥ {d.get('order_assumed', 1.5):g} "
                         "assumed)" if conv is not None else "")
                      + f" (second solve at n = {d['n_second']}: largest ΔE00 {max(d['dE00_second_vs_n']):.3f}, "
                      f"times {d['factor']:.2f})")
@@ -320,43 +318,3 @@ def format_report(rep) -> str:
     for a in rep["albedo"]:
         lines.append(f"{a['theta_i_deg']:>7g}° {a['albedo_Y']:9.4f} {a['tabulated_Y']:10.4f} {a['mirror']:8.4f}")
     return "\n".join(lines)
-
-
-
-
-def second_solve_n(n) -> int:
-    """The node count of the report's second solve: 3n/4 rounded to an even count (at least 8).  Closer to n
-    than n/2 (which at n = 32 is pre-asymptotic for flakes: ΔE00(16, 32) was 21× ΔE00(32, 64) for metallic
-    silver), and the factor from ΔE00(n', n) to ΔE00(n, 2n) hardly depends on the order (0.96–1.20 for
-    p = 2 … 1.5, against 0.25–0.35 from n/2); always even (n = 30 used to ask for n/2 = 15 and fail).
-
-    >>> [second_solve_n(n) for n in (16, 30, 32, 48, 100, 128)]
-    [12, 22, 24, 36, 76, 96]
-    """
-    return max(8, 2 * int(round(3 * int(n) / 8)))
-
-
-def discretisation_error(report, report_second, n, n_second):
-    """The estimated ΔE00(n, 2n) of a report's own discretisation (and, ``estimate_dE00_converged``, against the
-    converged answer: d/(r^p − 1) = c n^−p), from a second solve at ``n_second`` < n
-    (:func:`second_solve_n`; docs/resolution.md, "colour_error"): d = max over the report geometries of
-    ΔE00(n', n), times (1 − 2^−p)/(r^p − 1), r = n/n', p = :data:`DISCRETISATION_ORDER` (an error c·n^−p:
-    ΔE00(n', n) = c n^−p (r^p − 1) and ΔE00(n, 2n) = c n^−p (1 − 2^−p)).  Measured: coated aluminium n 48 →
-    0.83 (ΔE00(48, 96) 0.657), n 144 → 0.097 (0.095); metallic silver n 32 → 0.18 (0.10).  Returns a JSON-able
-    dict.
-
-    >>> g = lambda L: {"geometries": [{"L": L, "a": 0.0, "b": 0.0}]}
-    >>> round(discretisation_error(g(50.0), g(51.0), 32, 24)["estimate_dE00"], 3)      # ΔE00 1 between them
-    1.197
-    """
-    lab = np.array([[g["L"], g["a"], g["b"]] for g in report["geometries"]])
-    lab_second = np.array([[g["L"], g["a"], g["b"]] for g in report_second["geometries"]])
-    d = delta_E_2000(lab_second, lab)
-    r, p = float(n) / float(n_second), DISCRETISATION_ORDER
-    factor = (1.0 - 2.0**-p) / (r**p - 1.0)
-    return {"method": f"second solve at n = {n_second}: max dE00(n', n) over the report geometries times "
-                      f"(1 - 2^-p)/(r^p - 1) = {factor:.3f} (r = n/n' = {r:.3f}, convergence of order p >= {p:g} "
-                      "assumed), an estimate of dE00(n, 2n); times 1/(1 - 2^-p) against the converged answer",
-            "n": int(n), "n_second": int(n_second), "order_assumed": p, "factor": float(factor),
-            "dE00_second_vs_n": [float(v) for v in d], "estimate_dE00": float(factor * d.max()),
-            "estimate_dE00_converged": float(d.max() / (r**p - 1.0))}
