@@ -14,7 +14,7 @@ import pytest
 from flakedb.bsdf import open_bsdf
 from flakedb.colour.colorimetry import delta_E_2000
 from flakedb.compose.orchestrate import compose
-from flakedb.compose.store_context import store_problems
+from flakedb.solve.store_context import store_problems
 from flakedb.paint.recipe import parse_recipe
 from flakedb.pipelines.build import build, make_request, request_for_recipe
 from flakedb.rt.media import FlakeMedium
