@@ -20,6 +20,7 @@ import numpy as np
 
 from flakedb.optics.mie import default_n_quad
 from flakedb.paint.checks import YamlFileError, load_yaml_file, value_problems
+from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, STUDENT_T_SHAPE_RANGE, flake_distribution
 from flakedb.paint.materials import material_names
 from flakedb.resources import CATALOG_DIR, PACKAGE_DIR, SCHEMAS_DIR
 
@@ -123,6 +124,18 @@ def species_name_problem(name) -> str | None:
 MAX_SWEEP_MEMBERS = 1000
 
 
+def catalog_distribution(entry) -> str:
+    """The flake-normal distribution of a catalogue flake ``entry``, as the canonical name of
+    :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`: its ``orientation_distribution`` (default Beckmann,
+    every entry written before the field), ``student_t`` with its ``orientation_shape`` value γ as
+    ``student_t(γ)``.  The one place a catalogue entry's orientation fields become a name (recipes, the
+    store's plan and the build request read it)."""
+    fam = entry.get("orientation_distribution", DEFAULT_DISTRIBUTION)
+    if fam == "student_t":
+        return flake_distribution(f"student_t({float(entry['orientation_shape']['value'])!r})").name
+    return str(fam)
+
+
 def _semantic_problems(doc) -> list[str]:
     known = set(material_names())
     out = []
@@ -144,7 +157,16 @@ def _semantic_problems(doc) -> list[str]:
                     f"{base}.thickness_um: value {e['thickness_um']['value']} µm differs from the film "
                     f"stack's total {total_um:.6g} µm (2 × coating + substrate); make them agree"
                 )
-        elif e["kind"] == "pigment":
+        if e["kind"] != "pigment":
+            fam, shape = e.get("orientation_distribution", DEFAULT_DISTRIBUTION), e.get("orientation_shape")
+            if fam == "student_t" and shape is None:
+                out.append(f"{base}.orientation_shape: missing; orientation_distribution student_t needs its tail "
+                           f"shape gamma, {STUDENT_T_SHAPE_RANGE[0]:g} ≤ gamma ≤ {STUDENT_T_SHAPE_RANGE[1]:g} "
+                           f"(hint: orientation_shape: {{value: 2.5, source: ...}}; 2 is GGX)")
+            elif fam != "student_t" and shape is not None:
+                out.append(f"{base}.orientation_shape: value {shape['value']:g} applies to orientation_distribution "
+                           f"student_t only, not {fam!r} (hint: set orientation_distribution: student_t or remove it)")
+        if e["kind"] == "pigment":
             check_material(f"{base}.material", e["material"])
             af = e.get("absorption_factor")
             if af is not None and len(af["wavelength_nm"]) != len(af["value"]):

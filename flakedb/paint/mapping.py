@@ -115,6 +115,7 @@ from numpy.polynomial.legendre import leggauss
 
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.optics.fresnel import fresnel_conductor
+from flakedb.paint.catalog import catalog_distribution
 from flakedb.paint.limits import is_rough_interface
 from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import (
@@ -171,8 +172,7 @@ def recipe_distribution(p) -> str:
     own = getattr(p, "orientation_distribution", None)
     if own is not None:
         return str(own)
-    entry = getattr(p, "entry", None) or {}
-    return str(entry.get("orientation_distribution", DEFAULT_DISTRIBUTION))
+    return catalog_distribution(getattr(p, "entry", None) or {})
 
 
 def flake_cos_grid(n=FLAKE_C_START) -> np.ndarray:

@@ -30,6 +30,7 @@ from flakedb.paint.recipe_model import (
 )
 from flakedb.paint.recipe_schema import json_short
 from flakedb.rt.media import vmf_kappa_from_mean_cosine
+from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, STUDENT_T_SHAPE_RANGE, flake_distribution
 
 
 def _spectrum_problems(path, spec, grid, lo_val=None, hi_val=None, what="value"):
@@ -200,6 +201,58 @@ def _clearcoat_checks(base, L, mode, grid):
     return problems, warnings, Clearcoat(float(L["thickness_um"]), float(L["ior"]), rough, ab, base)
 
 
+def _population_name(pp, dist, shape, dist_field):
+    """(problems, name) of one population of flake orientations: ``dist`` (beckmann, ggx, student_t or a
+    catalogue's name) with the Student-t ``shape`` where it applies; ``dist_field`` names where ``dist``
+    came from in the messages."""
+    lo, hi = STUDENT_T_SHAPE_RANGE
+    if dist == "student_t":
+        if shape is None:
+            return [f"{pp}.orientation_shape: missing; {dist_field} student_t needs its tail shape gamma, "
+                    f"{lo:g} ≤ gamma ≤ {hi:g} (hint: orientation_shape: 2 is GGX, larger tends to Beckmann, "
+                    f"1.5-2 has a heavier tail than GGX)"], None
+        return [], f"student_t({float(shape)!r})"
+    if shape is not None:
+        return [f"{pp}.orientation_shape: value {float(shape):g} applies to the student_t distribution only, "
+                f"but {dist_field} is {dist!r} (hint: set {pp}.orientation_distribution to student_t, or remove "
+                f"orientation_shape)"], None
+    return [], str(dist)
+
+
+def orientation_name(pp, P, entry=None):
+    """(problems, name or None): the flake-normal distribution a particle's orientation fields
+    (``orientation_distribution``, ``orientation_shape``, ``orientation_mixture``) ask for, as the canonical
+    name of :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS` (``student_t(γ)``, ``mix(first,w,second,α₂)``);
+    None where the particle states none of them (the catalogue's, else Beckmann, applies).
+    ``entry``: the catalogue entry whose distribution (and Student-t shape) a field the particle leaves
+    out takes (None: a custom flake, Beckmann)."""
+    own = P.get("orientation_distribution")
+    mix = P.get("orientation_mixture")
+    shape = P.get("orientation_shape")
+    if own is None and shape is None and mix is None:
+        return [], None
+    entry = entry or {}
+    cat_family = entry.get("orientation_distribution", DEFAULT_DISTRIBUTION)
+    family = own if own is not None else cat_family
+    if shape is None and family == "student_t" and cat_family == "student_t" and "orientation_shape" in entry:
+        shape = entry["orientation_shape"]["value"]  # the catalogue's γ where the recipe keeps its family
+    field = f"{pp}.orientation_distribution" if own is not None else "the catalogue's orientation_distribution"
+    problems, name = _population_name(pp, family, shape, field)
+    if mix is not None:
+        mp = f"{pp}.orientation_mixture"
+        d2 = mix.get("orientation_distribution", DEFAULT_DISTRIBUTION)
+        more, name2 = _population_name(mp, d2, mix.get("orientation_shape"), f"{mp}.orientation_distribution")
+        problems += more
+        if name is not None and name2 is not None:
+            name = f"mix({name},{float(mix['weight'])!r},{name2},{float(mix['orientation_alpha'])!r})"
+    if problems:
+        return problems, None
+    try:
+        return [], flake_distribution(name).name
+    except ValueError as exc:  # the schema bounds every field; this is a last guard naming the particle
+        return [f"{pp}: {exc}"], None
+
+
 def _custom_flake_checks(pp, C, tau):
     """(problems, CustomFlake): tables well formed, R + T ≤ 1, some extinction."""
     problems = []
@@ -217,8 +270,10 @@ def _custom_flake_checks(pp, C, tau):
         if np.all(np.interp(cc, T.c, T.value) >= 1.0 - 1e-12):
             problems.append(f"{pp}.optical_depth: value {tau:g} cannot be met: a flake with T = 1 "
                             f"at every c has no extinction (hint: T < 1 somewhere)")
+    more, dist = orientation_name(f"{pp}.custom", C)
+    problems += more
     return problems, CustomFlake(R, T, float(C["orientation_alpha"]), tau, C.get("name", "custom-flake"), pp,
-                                 C.get("orientation_distribution", "beckmann"))
+                                 dist or DEFAULT_DISTRIBUTION)
 
 
 def _custom_medium_albedo(pp, C, mode, grid):
@@ -299,7 +354,8 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
         return problems, warnings, None
     entry = allsp[name]
     is_flake = entry["kind"] != "pigment"
-    flake_only = ("orientation_alpha", "orientation_distribution", "diameter_um", "opaque", "diameter_gsd")
+    flake_only = ("orientation_alpha", "orientation_distribution", "orientation_shape", "orientation_mixture",
+                  "diameter_um", "opaque", "diameter_gsd")
     pig_only = ("median_diameter_um", "gsd")
     for key in (pig_only if is_flake else flake_only):
         if key in P:
@@ -326,9 +382,13 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
             cost = _pigment_cost_problem(pp, name, P, entry, grid, ior)
             if cost:
                 problems.append(cost)
+    dist = None
+    if is_flake:
+        more, dist = orientation_name(pp, P, entry)
+        problems += more
     particle = CatalogParticle(
         name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
-        P.get("median_diameter_um"), P.get("gsd"), pp, P.get("orientation_distribution"), P.get("diameter_gsd"))
+        P.get("median_diameter_um"), P.get("gsd"), pp, dist, P.get("diameter_gsd"))
     return problems, warnings, particle
 
 

@@ -110,7 +110,7 @@ def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, cha
         for s in names:
             if allsp[s]["kind"] != "pigment":
                 orient = {d: set(a) for d, a in ship.get(s, {}).items()}
-                orient.setdefault(allsp[s].get("orientation_distribution", "beckmann"), set()).add(
+                orient.setdefault(cat.catalog_distribution(allsp[s]), set()).add(
                     float(allsp[s]["orientation_alpha"]["value"]))
                 for d, a in orient.items():
                     if d == "beckmann":

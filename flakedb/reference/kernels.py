@@ -28,6 +28,7 @@ COMP_TABLE = 2
 COMP_FLAKE = 3
 COMP_VMF = 4
 COMP_FLAKE_GGX = 5  # flakes whose normals follow the GGX (Trowbridge–Reitz) density
+COMP_FLAKE_STUDENT_T = 6  # flakes with Student-t slopes (shape γ in comp_g)
 
 TOP_NONE = 0
 TOP_SMOOTH = 1
@@ -157,6 +158,53 @@ def _sample_ggx_flake_normal(alpha, s):
     sin_t = math.sqrt(x) * cos_t
     phi = _TWO_PI * u2
     return sin_t * math.cos(phi), sin_t * math.sin(phi), cos_t
+
+
+@njit(cache=True)
+def _gamma_variate(k, s):
+    """A Gamma(k, 1) variate (k > 0): Marsaglia & Tsang 2000 (ACM TOMS 26, 363) for k ≥ 1 with a
+    Box–Muller normal; k < 1 by G(k) = G(k + 1) U^{1/k} (their §6)."""
+    boost = k < 1.0
+    kk = k + 1.0 if boost else k
+    d = kk - 1.0 / 3.0
+    c = 1.0 / math.sqrt(9.0 * d)
+    while True:
+        x = math.sqrt(-2.0 * math.log(1.0 - _uniform(s))) * math.cos(_TWO_PI * _uniform(s))
+        v = 1.0 + c * x
+        if v <= 0.0:
+            continue
+        v = v * v * v
+        u = 1.0 - _uniform(s)
+        if math.log(u) < 0.5 * x * x + d - d * v + d * math.log(v):
+            break
+    if boost:
+        return d * v * (1.0 - _uniform(s)) ** (1.0 / k)
+    return d * v
+
+
+@njit(cache=True)
+def _sample_student_t_flake_normal(alpha, shape, s):
+    """Flake normal with Student-t slopes of shape γ (STD, Ribardière et al. 2017) folded onto the
+    upper hemisphere, 2 D(m) = (1 + tan²θ/(α²(γ−1)))^{−γ} / (π α² cos³θ), drawn as a Gamma scale
+    mixture of Beckmann normals (no inverse CDF): given G ~ Gamma(γ − 1, 1), tan²θ = α² (γ − 1) E / G with
+    E ~ Exp(1) (Beckmann of spread α √((γ−1)/G)), whose tail E_G[exp(−G X/(α²(γ−1)))] =
+    (1 + X/(α²(γ−1)))^{1−γ} is the Student-t one.  Returns (mx, my, mz), mz = cos θ > 0."""
+    g = _gamma_variate(shape - 1.0, s)
+    x = alpha * alpha * (shape - 1.0) * (-math.log(1.0 - _uniform(s))) / g
+    cos_t = 1.0 / math.sqrt(1.0 + x)
+    sin_t = math.sqrt(x) * cos_t if x < 1e300 else 1.0
+    phi = _TWO_PI * _uniform(s)
+    return sin_t * math.cos(phi), sin_t * math.sin(phi), cos_t
+
+
+@njit(cache=True)
+def sample_student_t_normals_array(alpha, shape, n, state):
+    """``n`` normals of :func:`_sample_student_t_flake_normal` from the xoshiro ``state`` (uint64[4],
+    advanced in place), (n, 3) (for the sampling test)."""
+    out = np.empty((n, 3))
+    for i in range(n):
+        out[i, 0], out[i, 1], out[i, 2] = _sample_student_t_flake_normal(alpha, shape, state)
+    return out
 
 
 @njit(cache=True)
@@ -692,11 +740,13 @@ def _trace(s, mu_i, top_type, eta, top_alpha, bot_type, bot_albedo, bot_n, bot_k
             j += 1
             acc += comp_sigma[j]
         ctype = comp_type[j]
-        if ctype == COMP_FLAKE or ctype == COMP_FLAKE_GGX:
+        if ctype == COMP_FLAKE or ctype == COMP_FLAKE_GGX or ctype == COMP_FLAKE_STUDENT_T:
             if ctype == COMP_FLAKE:
                 mx, my, mz = _sample_beckmann_normal(comp_alpha[j], s)
-            else:
+            elif ctype == COMP_FLAKE_GGX:
                 mx, my, mz = _sample_ggx_flake_normal(comp_alpha[j], s)
+            else:
+                mx, my, mz = _sample_student_t_flake_normal(comp_alpha[j], comp_g[j], s)
             cdot = dx * mx + dy * my + mu * mz
             c = abs(cdot)
             if _uniform(s) >= c:

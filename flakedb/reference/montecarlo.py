@@ -25,13 +25,16 @@ whose extinctions and kernels add:
 * :class:`FlakeMedium` — translucent micro-flakes (paper eq. 2, docs/model.md §3): normals with the
   Beckmann density D(m) = exp(−tan²θ/α²)/(2π α² |cos θ|³) on the sphere (paper eq. 5), or
   (``distribution="ggx"``) the GGX density D(m) = α²/(2π |cos θ|³ (α² + tan²θ)²), reflectance
-  R(c) and transmittance T(c) of c = |ω·m|.
+  R(c) and transmittance T(c) of c = |ω·m|; or Student-t slopes (``distribution="student_t(γ)"``,
+  D = (1 + tan²θ/(α²(γ−1)))^{−γ}/(2π α² |cos θ|³), Ribardière et al. 2017), or a two-population
+  mixture ``"mix(first,w,second,α₂)"`` (simulated as two flake components with aρ split (1 − w) : w).
 
 How flakes are simulated (without σ_t(μ) quadrature, so independently of the solver)
 --------------------------------------------------------------------------------------
 Delta tracking with the majorant aρ (valid since |ω·m| ≤ 1), added to the other components' σ_t:
 at a tentative collision a flake normal m ~ D is drawn in closed form (Beckmann tan²θ = −α² ln(1−u),
-GGX tan²θ = α² u/(1−u)); the
+GGX tan²θ = α² u/(1−u); Student-t as a Gamma scale mixture of Beckmann normals,
+tan²θ = α²(γ−1) E/G with E ~ Exp(1), G ~ Gamma(γ−1), no inverse CDF); the
 collision is a real encounter with probability |ω·m| (else a null collision); the light then
 passes undeviated with probability T(c), otherwise it is reflected specularly, ω' = ω − 2(ω·m)m,
 **with its weight multiplied by R(c)/(1 − T(c))** (absorption carried by weights, no termination).
@@ -193,7 +196,8 @@ class FlakeMedium:
     """Translucent micro-flakes (paper eq. 2, docs/model.md §3).
 
     ``a_rho_per_um``: flake area × number density aρ (1/µm; scalar or (C,)); ``alpha``: roughness of
-    the flake normals' density ``distribution`` ("beckmann": paper eq. 5; "ggx": :func:`flake_ndf_GGX`);
+    the flake normals' density ``distribution`` ("beckmann": paper eq. 5; "ggx": :func:`flake_ndf_GGX`;
+    "student_t(γ)": Student-t slopes; "mix(first,w,second,α₂)": two populations, :func:`_flake_populations`);
     ``R_table``, ``T_table``: flake reflectance and
     transmittance as functions of c = |ω·m| — without ``c_grid``: constants (scalar or (C,)); with
     ``c_grid`` (n,): tables (n,) or (C, n), or scalars (constant), linearly interpolated in c.  ``c_grid`` must run from 0 to 1; R, T ≥ 0, R + T ≤ 1.
@@ -517,6 +521,42 @@ def _flake_table(m, c, path):
     return grid, R, np.minimum(T, 1.0)
 
 
+def _split_top(text):
+    out, depth, start = [], 0, 0
+    for i, ch in enumerate(text):
+        depth += (ch == "(") - (ch == ")")
+        if ch == "," and depth == 0:
+            out.append(text[start:i])
+            start = i + 1
+    return out + [text[start:]]
+
+
+def _flake_populations(distribution, alpha, path):
+    """The flake populations of a ``distribution`` name, [(component code, weight, α, shape)], parsed here
+    (not by the solver's registry): ``beckmann``, ``ggx``, ``student_t(γ)`` (γ > 1) and
+    ``mix(first, w, second, α₂)`` (weight 1 − w of ``first`` at α, w of ``second`` at α₂)."""
+    name = str(distribution).replace(" ", "").lower()
+    fixed = {"beckmann": _k.COMP_FLAKE, "ggx": _k.COMP_FLAKE_GGX}
+    try:
+        if name in fixed:
+            return [(fixed[name], 1.0, alpha, 0.0)]
+        if name.startswith("student_t(") and name.endswith(")"):
+            g = float(name[len("student_t("):-1])
+            if not g > 1.0 or not math.isfinite(g):
+                raise ValueError(f"the shape must be finite and > 1, got {g}")
+            return [(_k.COMP_FLAKE_STUDENT_T, 1.0, alpha, g)]
+        if name.startswith("mix(") and name.endswith(")"):
+            first, w, second, a2 = _split_top(name[4:-1])
+            w, a2 = float(w), float(a2)
+            if not 0.0 < w < 1.0:
+                raise ValueError(f"the weight must be in (0, 1), got {w}")
+            pops = [(t, (1.0 - w) * q, a, g) for t, q, a, g in _flake_populations(first, alpha, path)]
+            return pops + [(t, w * q, a, g) for t, q, a, g in _flake_populations(second, a2, path)]
+    except ValueError as exc:
+        raise ValueError(f"{path}: {distribution!r}: {exc}") from None
+    raise ValueError(f"{path}: {distribution!r} is not one of beckmann, ggx, student_t(γ), mix(first,w,second,α₂)")
+
+
 def _pack(problem, c):
     """Flatten channel c of the problem into the kernel's arrays."""
     z = [0.0]
@@ -550,17 +590,22 @@ def _pack(problem, c):
                     tab.extend(cdf)
                 a = 0.0
             else:
-                kinds = {"beckmann": _k.COMP_FLAKE, "ggx": _k.COMP_FLAKE_GGX}
-                if m.distribution not in kinds:
-                    raise ValueError(f"{p}.distribution: {m.distribution!r} is not one of {', '.join(kinds)}")
-                t = kinds[m.distribution]
-                sig = float(_pick(m.a_rho_per_um, c, f"{p}.a_rho_per_um"))
-                alb, g, a = 0.0, 0.0, float(m.alpha)
+                sig_all = float(_pick(m.a_rho_per_um, c, f"{p}.a_rho_per_um"))
                 grid, R, T = _flake_table(m, c, p)
                 off, n = len(tab), len(grid)
                 tab.extend(grid)
                 tab.extend(R)
                 tab.extend(T)
+                # one component per population (a mixture's extinctions add: aρ split by the weights)
+                for t, weight, a, g in _flake_populations(m.distribution, float(m.alpha), f"{p}.distribution"):
+                    sig = sig_all * weight
+                    if sig == 0.0:
+                        continue
+                    for lst, val in ((ctype, t), (csig, sig), (calb, 0.0), (cg, g), (calpha, a), (coff, off),
+                                     (cn, n)):
+                        lst.append(val)
+                    sb += sig
+                continue
             if sig == 0.0:
                 continue
             ctype.append(t)
@@ -591,6 +636,15 @@ def sample_vmf_cosines(kappa, n, seed):
     from ``numpy.random.default_rng(seed)`` uniforms (for testing the sampler against the pdf)."""
     u = np.random.default_rng(seed).random(int(n))
     return _k.sample_vmf_cos_array(float(kappa), u)
+
+
+def sample_student_t_flake_normals(alpha, shape, n, seed):
+    """``n`` upper-hemisphere flake normals (n, 3) with Student-t slopes drawn by the tracer's sampler
+    (:func:`flakedb.reference.kernels._sample_student_t_flake_normal`, a Gamma scale mixture), seeded as
+    :func:`simulate` seeds its streams (for testing the sampler against the density)."""
+    state = np.random.SeedSequence(int(seed)).generate_state(4, dtype=np.uint64)
+    state[0] |= np.uint64(1)  # xoshiro state must be non-zero
+    return _k.sample_student_t_normals_array(float(alpha), float(shape), int(n), state)
 
 
 def _edges(edges, hi, name):

@@ -30,7 +30,12 @@ Flake normals follow a density D from the registry :data:`FLAKE_DISTRIBUTIONS` (
 * ``"ggx"``, Trowbridge–Reitz (Trowbridge & Reitz 1975; Walter et al. 2007 eq. 33 as a microfacet
   density), in the flake convention D(m) = α² / (2π |cos θ_m|³ (α² + tan²θ_m)²) (:func:`flake_ndf_GGX`).
 
-Both are even, D(m) = D(−m), and integrate to 1 over the whole sphere (each hemisphere 1/2): the
+* ``"student_t(γ)"``, Student-t slopes (Ribardière et al. 2017), a tail shape 1.5 ≤ γ ≤ 1000 from heavier
+  than GGX through GGX (γ = 2) to Beckmann (γ → ∞) (:func:`flake_ndf_StudentT`);
+* ``"mix(first,w,second,α₂)"``, two populations: 1 − w of ``first`` at the α of the call, w of ``second``
+  at α₂.
+
+All are even, D(m) = D(−m), and integrate to 1 over the whole sphere (each hemisphere 1/2): the
 microfacet density of that name times |cos θ_m|/2.
 """
 
@@ -51,6 +56,12 @@ __all__ = [
     "flake_ndf",
     "flake_ndf_Beckmann",
     "flake_ndf_GGX",
+    "flake_ndf_StudentT",
+    "flake_lobe_alpha",
+    "FLAKE_DISTRIBUTION_FAMILIES",
+    "STUDENT_T_SHAPE_RANGE",
+    "MIXTURE_WEIGHT_RANGE",
+    "MIXTURE_ALPHA_RANGE",
     "projected_area",
     "ndf_halfvector_Ergun",
     "projected_area_Beckmann",
@@ -66,6 +77,7 @@ __all__ = [
     "sample_flake_normal",
     "sample_flake_normal_Beckmann",
     "sample_flake_normal_GGX",
+    "sample_flake_normal_StudentT",
 ]
 
 #: The uniform flake-normal density on the sphere used for pigments (paper eq. 8), 1/(4π) per sr.
@@ -671,6 +683,213 @@ def _kernel_phi_bandwidth_GGX(alpha, mu_i, mu_o, eps=1e-6):
 
 
 # ---------------------------------------------------------------------------------------------
+# Student-t slopes (STD, Ribardière et al. 2017): a shape γ from GGX (γ = 2) to Beckmann (γ → ∞)
+# ---------------------------------------------------------------------------------------------
+
+#: Bounds of the Student-t shape γ.  γ ≥ 1.5: below, D(m) ∝ |cos θ_m|^{2γ−3} is unbounded at
+#: horizontal normals (a singular kernel along μ_o = μ_i that no Fourier projection resolves; also
+#: Ribardière et al.'s bound for a finite Smith Λ).  γ ≤ 1000: the density differs from Beckmann's by
+#: O(x²/γ) in the core (x = tan²θ/α²); beyond, name the limit ``beckmann`` itself.
+STUDENT_T_SHAPE_RANGE = (1.5, 1000.0)
+
+
+def _check_shape(gamma):
+    g = float(gamma)
+    lo, hi = STUDENT_T_SHAPE_RANGE
+    if not (np.isfinite(g) and lo <= g <= hi):
+        raise ValueError(f"the Student-t shape gamma must be in [{lo:g}, {hi:g}] (1.5: heavier tail than GGX, "
+                         f"2: GGX, large: Beckmann), got {gamma!r}")
+    return g
+
+
+def flake_ndf_StudentT(cos_theta_m, alpha, gamma):
+    """Student-t flake-normal density on the sphere (STD, Ribardière et al. 2017), in 1/sr, in the flake
+    convention of :func:`flake_ndf_Beckmann` (even, ∫_{S²} D dm = 1), shape ``gamma`` = γ ≥ 1.5:
+
+        D(m) = (1 + tan²θ_m / (α² (γ − 1)))^{−γ} / (2π α² |cos θ_m|³)
+             = k^γ c^{2γ−3} / (2π α² (k c² + 1 − c²)^γ),   k = α² (γ − 1),  c = |cos θ_m|,
+
+    the microfacet STD, (γ−1)^γ / (π α² cos⁴θ ((γ−1) + tan²θ/α²)^γ), times |cos θ_m|/2.  The slope
+    tan θ_m (cos φ, sin φ) of the upper-hemisphere normal is a bivariate Student t with ν = 2(γ − 1)
+    degrees of freedom and scale α/√2 per component, so P(tan²θ_m > X) = (1 + X/k)^{1−γ} (the
+    normalisation: each hemisphere 1/2).  γ = 2 is GGX exactly (:func:`flake_ndf_GGX`, k = α²);
+    γ → ∞ gives Beckmann ((1 + y/γ)^{−γ} → e^{−y}, :func:`flake_ndf_Beckmann`); 1.5 ≤ γ < 2 has a
+    heavier tail than GGX.  Evaluated as exp(−γ log1p(X/k) − 3 log c) (log1p(X/k) rewritten as
+    log(k c² + s²) − log k − 2 log c where X/k > 1, no overflow at c → 0); c = 0 gives the limit,
+    0 for γ > 1.5 and k^{3/2}/(2π α²) at γ = 1.5.  ``cos_theta_m`` and ``alpha`` broadcast.
+    """
+    alpha = _check_alpha(alpha)
+    g = _check_shape(gamma)
+    c = np.minimum(np.abs(np.asarray(cos_theta_m, dtype=float)), 1.0)
+    k = alpha * alpha * (g - 1.0)
+    s2 = (1.0 - c) * (1.0 + c)
+    pos = c > 0.0
+    cs = np.where(pos, c, 1.0)
+    with np.errstate(over="ignore", under="ignore", divide="ignore"):
+        q = s2 / (k * cs * cs)  # X/k = tan²θ/k (inf for c → 0 is not used)
+        big = q > 1.0
+        l1p = np.where(big, np.log(k * cs * cs + s2) - np.log(k) - 2.0 * np.log(cs), np.log1p(np.where(big, 0.0, q)))
+        d = np.exp(-g * l1p - 3.0 * np.log(cs)) / (_TWO_PI * alpha**2)
+    at0 = (k**1.5 / (_TWO_PI * alpha**2)) if g == 1.5 else 0.0
+    return np.where(pos, d, at0)
+
+
+def _student_t_tan2_of_p(p, alpha, gamma):
+    """tan²θ_m at upper-hemisphere probability ``p`` = P(tan²θ_m ≤ X) of :func:`flake_ndf_StudentT`:
+    X = k ((1 − p)^{−1/(γ−1)} − 1) = k expm1(−log1p(−p)/(γ − 1)), k = α² (γ − 1)."""
+    with np.errstate(over="ignore", divide="ignore"):
+        return alpha * alpha * (gamma - 1.0) * np.expm1(-np.log1p(-np.asarray(p, float)) / (gamma - 1.0))
+
+
+def _student_t_p_of_tan2(x, alpha, gamma):
+    """P(tan²θ_m ≤ x) = 1 − (1 + x/k)^{1−γ} on the upper hemisphere of :func:`flake_ndf_StudentT`."""
+    return -np.expm1((1.0 - gamma) * np.log1p(np.asarray(x, float) / (alpha * alpha * (gamma - 1.0))))
+
+
+def sample_flake_normal_StudentT(u1, u2, alpha, gamma):
+    """Flake normals m distributed as :func:`flake_ndf_StudentT` restricted to the upper hemisphere
+    (density 2 D(m)).  Closed-form inversion of P(tan²θ_m ≤ X) = 1 − (1 + X/k)^{1−γ}:
+    tan²θ_m = k ((1 − u1)^{−1/(γ−1)} − 1), k = α²(γ − 1); φ_m = 2π u2.  Arguments and result as
+    :func:`sample_flake_normal_Beckmann`."""
+    alpha = _check_alpha(alpha)
+    g = _check_shape(gamma)
+    u1, u2 = np.broadcast_arrays(np.asarray(u1, float), np.asarray(u2, float))
+    x = _student_t_tan2_of_p(u1, alpha, g)
+    cos_t = 1.0 / np.sqrt(1.0 + x)
+    sin_t = np.where(np.isfinite(x), np.sqrt(x) * cos_t, 1.0)
+    phi = _TWO_PI * u2
+    return np.stack(np.broadcast_arrays(sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t), axis=-1)
+
+
+def _student_t_peak(alpha, gamma):
+    """max_m D(m) of :func:`flake_ndf_StudentT`: in x = tan²θ, log D = (3/2) log(1 + x) − γ log(1 + x/k)
+    + const has d/dx = 3/(2(1 + x)) − γ/(k + x), zero at x* = (2γ − 3k)/(3 − 2γ) (γ > 1.5:
+    max(0, (3k − 2γ)/(2γ − 3)); γ = 2: 3α² − 4 as GGX); at γ = 1.5 D grows towards horizontal
+    normals when k < 1 and the supremum is the limit at c = 0, k^{3/2}/(2π α²)."""
+    alpha = np.asarray(alpha, dtype=float)
+    g = float(gamma)
+    k = alpha**2 * (g - 1.0)
+    if g == 1.5:
+        return np.maximum(1.0, k**1.5) / (_TWO_PI * alpha**2)
+    x = np.maximum(0.0, (3.0 * k - 2.0 * g) / (2.0 * g - 3.0))
+    return (1.0 + x) ** 1.5 * np.exp(-g * np.log1p(x / k)) / (_TWO_PI * alpha**2)
+
+
+#: Fixed panel splits of the CDF-space polar quadrature (:func:`_abs_cosine_moments_cdf`), in units of
+#: α (tan θ_m = k α): :data:`_GGX_SPLITS` and, for the heavier tails (γ < 2), further out to 16384 α.
+_CDF_SPLITS = np.concatenate([_GGX_SPLITS, [1024.0, 4096.0, 16384.0]])
+
+
+def _abs_cosine_moments_cdf(mu_abs, alpha, levels, n_quad, p_of_tan2, tan2_of_p):
+    """Φ_j(μ, c) = ∫_{S²} 1[|ω·m| < c] |ω·m|^j D(m) dm, j = 0, 1, 2 (as :func:`_abs_cosine_moments_Beckmann`),
+    for an azimuthally symmetric, even D given by its upper-hemisphere CDF in x = tan²θ_m,
+    ``p_of_tan2(x)`` = P(tan²θ_m ≤ x) ∈ [0, 1], and its inverse ``tan2_of_p``.
+
+    The polar integral is done in the probability p (the weight is then exactly uniform:
+    D dm = dp dφ_m / (4π) on each hemisphere), so no density enters the quadrature and heavy tails
+    (D ∝ |cos θ|^{2γ−3} near horizontal normals) cost nothing; panels in p at the azimuthal breakpoints
+    (:func:`_breakpoint_angles`) and at tan θ_m = k α, k in :data:`_CDF_SPLITS`, each with
+    smoothstep-mapped Gauss-Legendre (``n_quad`` nodes), which also regularises θ(p) ∝ √p at p = 0
+    and the algebraic tail at p = 1."""
+    mu_abs = np.asarray(mu_abs, dtype=float)
+    levels = np.asarray(levels, dtype=float)
+    M, K = mu_abs.size, levels.size
+    half_pi = 0.5 * np.pi
+    v, wv = _smoothstep_gauss_legendre(n_quad)
+    fixed_p = p_of_tan2((alpha * _CDF_SPLITS) ** 2)
+    out = np.empty((3, M, K))
+    chunk = max(1, int(2_000_000 // max(1, K * 29 * n_quad)))
+    for m0 in range(0, M, chunk):
+        mu = mu_abs[m0 : m0 + chunk][:, None]  # (m, 1)
+        m = mu.shape[0]
+        th = np.arccos(np.clip(mu, -1.0, 1.0))
+        s = np.sqrt(np.maximum(0.0, 1.0 - mu * mu))
+        lev = levels[None, :]  # (1, K)
+        bp = _breakpoint_angles(th, lev, m, K)
+        inside = (bp > 0.0) & (bp < half_pi)
+        bp = np.where(inside, p_of_tan2(np.tan(np.where(inside, bp, 0.0)) ** 2), 1.0)
+        bp = np.concatenate(
+            [np.zeros((m, K, 1)), bp, np.broadcast_to(fixed_p, (m, K, fixed_p.size)), np.ones((m, K, 1))], axis=-1)
+        bp.sort(axis=-1)
+        n_used = int(np.max(np.sum(bp < 1.0, axis=-1))) + 1
+        bp = bp[..., : n_used + 1]
+        pa, pb = bp[..., :-1, None], bp[..., 1:, None]  # (m, K, P, 1)
+        p = pa + (pb - pa) * v
+        x = tan2_of_p(p)
+        ct = np.where(np.isfinite(x), 1.0 / np.sqrt(1.0 + np.where(np.isfinite(x), x, 0.0)), 0.0)
+        st = np.sqrt(np.maximum(0.0, (1.0 - ct) * (1.0 + ct)))
+        wt = (pb - pa) * wv / (4.0 * np.pi)
+        mu4, s4 = mu[..., None, None], s[..., None, None]
+        _accumulate_azimuth(out, slice(m0, m0 + m), wt, -mu4 * ct, s4 * st, lev)
+    return out
+
+
+def _abs_cosine_moments_StudentT(mu_abs, alpha, levels, n_quad, gamma):
+    """Φ_j of :func:`flake_ndf_StudentT` (:func:`_abs_cosine_moments_cdf` with its closed-form CDF)."""
+    return _abs_cosine_moments_cdf(mu_abs, alpha, levels, n_quad,
+                                   lambda x: _student_t_p_of_tan2(x, alpha, gamma),
+                                   lambda p: _student_t_tan2_of_p(p, alpha, gamma))
+
+
+def _kernel_phi_bandwidth_numeric(ndf, peak, alpha, mu_i, mu_o, eps=1e-6):
+    """The number L of cosine orders in φ_d of D(h(μ_i, μ_o, ·)), by the criterion of
+    :func:`_kernel_phi_bandwidth_Beckmann` (Σ_{l>L} |a_l| ≤ ``eps`` × max_m D), for any density
+    ``ndf(cos θ, α)`` with supremum ``peak(α)``: the cosine coefficients a_l from the FFT of N samples
+    over [0, 2π) (N doubled from 64 until the top quarter of the spectrum is below eps/100 × the peak, at
+    most 2^16).  Used where no closed form of the coefficients is known (Student-t, mixtures); vectorised
+    over the pairs.  Returns an int array of the broadcast shape."""
+    alpha = _check_alpha(alpha)
+    mu_i, mu_o, alpha = np.broadcast_arrays(np.asarray(mu_i, float), np.asarray(mu_o, float), alpha)
+    shape = mu_i.shape
+    mi, mo, al = mu_i.ravel(), mu_o.ravel(), alpha.ravel()
+    L = np.zeros(mi.size, dtype=np.int64)
+    ok = (_sines(mi) * _sines(mo) > 0.0) & (mi != mo)
+    todo = np.flatnonzero(ok)
+    n = 64
+    while todo.size and n <= 2**16:
+        phi = _TWO_PI * np.arange(n) / n
+        dmu, _, two_f = _halfvector_terms(mi[todo, None], mo[todo, None], phi[None, :])
+        good = two_f > 0.0
+        cos_h = np.where(good, dmu / np.sqrt(np.where(good, two_f, 1.0)), 0.0)
+        d = ndf(cos_h, al[todo, None])
+        a = np.abs(np.fft.rfft(d, axis=-1)) / n
+        a[:, 1:] *= 2.0
+        scale = eps * np.asarray(peak(al[todo]), float)[:, None]
+        tail = np.cumsum(a[:, ::-1], axis=-1)[:, ::-1]  # tail[l] = Σ_{l' ≥ l} |a_l'|
+        resolved = a[:, 3 * a.shape[1] // 4 :].max(axis=-1) <= 0.01 * scale[:, 0] / a.shape[1]
+        if n == 2**16:
+            resolved[:] = True
+        below = tail <= scale
+        first = np.where(below.any(axis=-1), np.argmax(below, axis=-1), a.shape[1])  # first l with Σ_{l'≥l} ≤ eps
+        L[todo[resolved]] = np.maximum(first[resolved] - 1, 0)
+        todo = todo[~resolved]
+        n *= 2
+    return L.reshape(shape)
+
+
+def _numeric_peak(ndf, alpha, extra_cos=()):
+    """sup_m D(m) of a density ``ndf(cos θ, α)`` (scalar α): the maximum over 4097 θ_m in [0, π/2] uniform
+    in arctan(tan θ_m / α) (dense where the lobe is) and ``extra_cos``, refined by a bounded Brent search
+    around the best node.  Used for mixtures, whose peak has no closed form."""
+    from scipy.optimize import minimize_scalar  # lazy: scipy.optimize is slow to import; only mixtures need it
+    a = float(alpha)
+    u = np.linspace(0.0, 0.5 * np.pi, 4097)
+    th = np.arctan(a * np.tan(np.minimum(u, 0.5 * np.pi - 1e-12)))
+    th = np.concatenate([th, [0.5 * np.pi], np.arccos(np.clip(np.asarray(extra_cos, float), 0.0, 1.0))])
+    d = ndf(np.cos(th), a)
+    j = int(np.argmax(d))
+    srt = np.sort(th)
+    k = int(np.searchsorted(srt, th[j]))
+    lo, hi = srt[max(k - 1, 0)], srt[min(k + 1, srt.size - 1)]
+    best = float(d[j])
+    if hi > lo:
+        r = minimize_scalar(lambda t: -float(ndf(np.cos(t), a)), bounds=(lo, hi), method="bounded",
+                            options={"xatol": 1e-12})
+        best = max(best, -float(r.fun))
+    return best
+
+
+# ---------------------------------------------------------------------------------------------
 # Pigments as micro-flakes (paper eq. 8)
 # ---------------------------------------------------------------------------------------------
 
@@ -892,15 +1111,25 @@ def _phi_samples_GGX(alpha):
 
 @dataclass(frozen=True)
 class FlakeDistribution:
-    """One flake orientation distribution of :data:`FLAKE_DISTRIBUTIONS` (all on the unit sphere, even,
-    ∫_{S²} D dm = 1, azimuthally symmetric about the surface normal, spread ``alpha`` > 0):
+    """One flake orientation distribution of :data:`FLAKE_DISTRIBUTIONS`: a density D of flake normals
+    on the unit sphere, even (D(m) = D(−m)), normalised (∫_{S²} D dm = 1, each hemisphere 1/2),
+    azimuthally symmetric about the surface normal, with a spread ``alpha`` > 0 passed to every call
+    (the distribution's other parameters, e.g. a Student-t shape or a mixture's second population, are
+    bound in the entry).  The interface a generic consumer (solver, store, texture, references) uses:
 
-    ``ndf(cos_theta_m, alpha)`` the density D in 1/sr; ``peak(alpha)`` max_m D; ``abs_cosine_moments``
-    ``(mu_abs (M,), alpha, levels (K,), n_quad)`` → Φ_j(μ, c) = ∫ 1[|ω·m| < c] |ω·m|^j D dm (3, M, K)
-    (σ_t and σ_s, paper eq. 2); ``kernel_bandwidth(alpha, mu_i, mu_o, eps)`` the cosine orders in φ_d
-    of the kernel (:func:`kernel_phi_bandwidth`); ``phi_samples(alpha)`` the first number of φ
-    intervals of the projection; ``sample(u1, u2, alpha)`` upper-hemisphere normals of density 2 D;
-    ``source`` the citation of the density."""
+    * ``ndf(cos_theta_m, alpha)`` → D in 1/sr, broadcasting (any sign of cos θ_m);
+    * ``sample(u1, u2, alpha)`` → upper-hemisphere normals (..., 3), z up, of density 2 D(m), from
+      uniforms u1, u2 ∈ [0, 1) (the slope tan θ_m = √(1 − z²)/z and φ_m follow); flip the sign with
+      probability 1/2 for the full sphere;
+    * ``abs_cosine_moments(mu_abs (M,), alpha, levels (K,), n_quad)`` → Φ_j(μ, c) =
+      ∫ 1[|ω·m| < c] |ω·m|^j D dm, array (3, M, K), j = 0, 1, 2 (σ_t, σ_s, projected area; paper eq. 2);
+      levels in (0, 1], the top level 1 includes |ω·m| = 1;
+    * ``peak(alpha)`` → sup_m D (the scale of the bandwidth criterion);
+    * ``kernel_bandwidth(alpha, mu_i, mu_o, eps)`` → cosine orders in φ_d of D(h) (:func:`kernel_phi_bandwidth`);
+    * ``phi_samples(alpha)`` → the projection's first number of φ intervals (it refines adaptively);
+    * ``name`` the canonical name (the store's key, the recipe's and the metadata's spelling);
+      ``source`` the citation; ``family`` (``beckmann``, ``ggx``, ``student_t``, ``mix``) and
+      ``parameters`` ((name, value) pairs of the bound parameters)."""
 
     name: str
     ndf: Callable
@@ -910,19 +1139,205 @@ class FlakeDistribution:
     phi_samples: Callable
     sample: Callable
     source: str
+    family: str = ""
+    parameters: tuple = ()
 
 
-#: The flake orientation distributions by name (the recipe's ``orientation_distribution``).
-FLAKE_DISTRIBUTIONS = {
+def _phi_samples_StudentT(alpha, gamma):
+    """First number of φ intervals for projecting a Student-t flake kernel: γ ≥ 2 lies between GGX and
+    Beckmann and takes GGX's guess (:func:`_phi_samples_GGX`); a heavier tail (γ < 2) has the pole of
+    D(h(φ)) of GGX at α√(γ−1) instead of α (:func:`_kernel_phi_bandwidth_GGX`: α² + x = 0 becomes
+    α²(γ − 1) + x = 0), so GGX's guess at α √(γ − 1).  Measured against
+    :func:`_kernel_phi_bandwidth_numeric` in tests/rt/test_flake_shape.py."""
+    return _phi_samples_GGX(alpha * min(1.0, np.sqrt(gamma - 1.0)))
+
+
+def _format_number(x) -> str:
+    """The canonical text of a parameter in a distribution's name: the shortest repr that round-trips
+    the float (so equal parameters give equal names, the store's keys, and different ones differ)."""
+    return repr(float(x))
+
+
+def _student_t(gamma) -> "FlakeDistribution":
+    g = _check_shape(gamma)
+    return FlakeDistribution(
+        f"student_t({_format_number(g)})",
+        functools.partial(_ndf_student_t_bound, gamma=g),
+        functools.partial(_student_t_peak, gamma=g),
+        functools.partial(_abs_cosine_moments_StudentT, gamma=g),
+        functools.partial(_kernel_bandwidth_student_t, gamma=g),
+        functools.partial(_phi_samples_StudentT, gamma=g),
+        functools.partial(_sample_student_t_bound, gamma=g),
+        "Ribardière et al. 2017 (STD: Student's t-distribution of slopes), times |cos θ_m|/2 (flake convention)",
+        family="student_t", parameters=(("gamma", g),))
+
+
+def _ndf_student_t_bound(cos_theta_m, alpha, gamma):
+    return flake_ndf_StudentT(cos_theta_m, alpha, gamma)
+
+
+def _sample_student_t_bound(u1, u2, alpha, gamma):
+    return sample_flake_normal_StudentT(u1, u2, alpha, gamma)
+
+
+def _kernel_bandwidth_student_t(alpha, mu_i, mu_o, eps=1e-6, gamma=2.0):
+    return _kernel_phi_bandwidth_numeric(functools.partial(flake_ndf_StudentT, gamma=gamma),
+                                         functools.partial(_student_t_peak, gamma=gamma), alpha, mu_i, mu_o, eps)
+
+
+#: Bounds of a two-population mixture's weight w of the second population (exclusive: w = 0 or 1 is
+#: one population; name that distribution instead).
+MIXTURE_WEIGHT_RANGE = (0.0, 1.0)
+#: Bounds of the second population's spread α₂ (those of a recipe's ``orientation_alpha``: narrower than
+#: 0.001 no quadrature resolves).
+MIXTURE_ALPHA_RANGE = (0.001, 2.0)
+
+
+@dataclass(frozen=True)
+class _Mixture:
+    """D = (1 − w) D₁(·, α) + w D₂(·, α₂): the first population at the α every function is called with,
+    the second at its own α₂ (bound here).  Every entry point is linear in D, so each is the weighted sum
+    of the components' (moments, D) or a choice of component (sampling)."""
+
+    first: "FlakeDistribution"
+    weight: float
+    second: "FlakeDistribution"
+    alpha2: float
+
+    def ndf(self, cos_theta_m, alpha):
+        return (1.0 - self.weight) * self.first.ndf(cos_theta_m, alpha) + self.weight * self.second.ndf(
+            cos_theta_m, self.alpha2)
+
+    def abs_cosine_moments(self, mu_abs, alpha, levels, n_quad):
+        return ((1.0 - self.weight) * self.first.abs_cosine_moments(mu_abs, alpha, levels, n_quad)
+                + self.weight * self.second.abs_cosine_moments(mu_abs, self.alpha2, levels, n_quad))
+
+    def sample(self, u1, u2, alpha):
+        """u1 < 1 − w picks the first population (u1 rescaled to [0, 1) within it), else the second."""
+        alpha = _check_alpha(alpha)
+        u1, u2 = np.broadcast_arrays(np.asarray(u1, float), np.asarray(u2, float))
+        w1 = 1.0 - self.weight
+        first = u1 < w1
+        m1 = self.first.sample(np.where(first, u1 / w1, 0.0), u2, alpha)
+        m2 = self.second.sample(np.where(first, 0.0, np.minimum((u1 - w1) / self.weight, np.nextafter(1.0, 0.0))),
+                                u2, self.alpha2)
+        return np.where(first[..., None], m1, m2)
+
+    def peak(self, alpha):
+        a = np.asarray(alpha, dtype=float)
+        if a.ndim:
+            return np.array([self.peak(float(x)) for x in a.ravel()]).reshape(a.shape)
+        return _numeric_peak(self.ndf, float(a), extra_cos=[1.0])
+
+    def kernel_bandwidth(self, alpha, mu_i, mu_o, eps=1e-6):
+        return _kernel_phi_bandwidth_numeric(self.ndf, self.peak, alpha, mu_i, mu_o, eps)
+
+    def phi_samples(self, alpha):
+        return max(self.first.phi_samples(alpha), self.second.phi_samples(self.alpha2))
+
+
+def _mixture(first, weight, second, alpha2) -> "FlakeDistribution":
+    w, a2 = float(weight), float(alpha2)
+    lo, hi = MIXTURE_WEIGHT_RANGE
+    if not (np.isfinite(w) and lo < w < hi):
+        raise ValueError(f"a mixture's weight of the second population must be in ({lo:g}, {hi:g}) "
+                         f"(exclusive: 0 or 1 is one population), got {weight!r}")
+    lo, hi = MIXTURE_ALPHA_RANGE
+    if not (np.isfinite(a2) and lo <= a2 <= hi):
+        raise ValueError(f"a mixture's second spread alpha must be in [{lo:g}, {hi:g}], got {alpha2!r}")
+    d1, d2 = flake_distribution(first), flake_distribution(second)
+    if d1.family == "mix" or d2.family == "mix":
+        raise ValueError("a mixture's populations must be single distributions (beckmann, ggx, student_t(γ)), "
+                         "not mixtures")
+    mx = _Mixture(d1, w, d2, a2)
+    return FlakeDistribution(
+        f"mix({d1.name},{_format_number(w)},{d2.name},{_format_number(a2)})",
+        mx.ndf, mx.peak, mx.abs_cosine_moments, mx.kernel_bandwidth, mx.phi_samples, mx.sample,
+        f"two populations: (1 − w) × [{d1.source}] + w × [{d2.source}]",
+        family="mix", parameters=(("first", d1.name), ("weight", w), ("second", d2.name), ("alpha2", a2)))
+
+
+def _split_arguments(text):
+    """'a,b(c,d),e' → ['a', 'b(c,d)', 'e'] (commas at parenthesis depth 0)."""
+    out, depth, start = [], 0, 0
+    for i, ch in enumerate(text):
+        depth += (ch == "(") - (ch == ")")
+        if depth < 0:
+            raise ValueError("unbalanced parentheses")
+        if ch == "," and depth == 0:
+            out.append(text[start:i])
+            start = i + 1
+    if depth:
+        raise ValueError("unbalanced parentheses")
+    return [s.strip() for s in out + [text[start:]]]
+
+
+@functools.lru_cache(maxsize=256)
+def _parse_distribution(key: str) -> "FlakeDistribution":
+    """The parametrised distribution named ``key`` (lower case, no spaces): ``student_t(γ)`` or
+    ``mix(first, w, second, α₂)``; raises ValueError (the caller names the field)."""
+    if "(" not in key or not key.endswith(")"):
+        raise KeyError(key)
+    family, args = key[: key.index("(")], _split_arguments(key[key.index("(") + 1 : -1])
+    if family not in FLAKE_DISTRIBUTION_FAMILIES:
+        raise KeyError(key)
+    make, arity = FLAKE_DISTRIBUTION_FAMILIES[family]
+    if len(args) != arity:
+        raise ValueError(f"{family}(...) takes {arity} parameter(s), got {len(args)} in {key!r}")
+    d = make(float(args[0])) if family == "student_t" else make(args[0], float(args[1]), args[2], float(args[3]))
+    return _CANONICAL.setdefault(d.name, d)  # one object per canonical name, however it was spelled
+
+
+#: The parametrised entries built so far, by canonical name (:func:`_parse_distribution`).
+_CANONICAL: dict = {}
+
+
+#: The parametrised families, name → (factory, number of parameters), spelled in a distribution's name
+#: as ``family(p1,p2,…)`` (see :data:`FLAKE_DISTRIBUTIONS`).
+FLAKE_DISTRIBUTION_FAMILIES = {
+    "student_t": (_student_t, 1),
+    "mix": (_mixture, 4),
+}
+
+
+class _Registry(dict):
+    """:data:`FLAKE_DISTRIBUTIONS`: the fixed entries (``beckmann``, ``ggx``) as dict items, and every
+    parametrised name (``student_t(γ)``, ``mix(…)``) built on lookup (``registry[name]``,
+    ``name in registry``; cached), not listed by iteration (there are infinitely many)."""
+
+    def __missing__(self, key):
+        try:
+            return _parse_distribution(str(key).replace(" ", "").lower())
+        except ValueError as exc:
+            raise ValueError(f"flake orientation distribution {key!r}: {exc}") from None
+
+    def __contains__(self, key):
+        try:
+            self[key]
+        except (KeyError, ValueError):
+            return False
+        return True
+
+
+#: The flake orientation distributions by name (a recipe's orientation fields map to one of these names,
+#: :func:`flakedb.paint.mapping.recipe_distribution`): ``beckmann`` (paper eq. 5), ``ggx``
+#: (Trowbridge–Reitz), ``student_t(γ)`` (Student-t slopes, :func:`flake_ndf_StudentT`, 1.5 ≤ γ ≤ 1000:
+#: γ = 2 is GGX, γ → ∞ Beckmann) and ``mix(first,w,second,α₂)`` (two populations: weight 1 − w of
+#: ``first`` at the α of the call, w of ``second`` at α₂; populations are single distributions).  Names are
+#: case-insensitive and canonicalised (numbers as their shortest round-trip repr, no spaces): the entry's
+#: ``name``.  Iteration lists the fixed entries; parametrised names are built on lookup (``[name]``, ``in``).
+#: Each entry is a :class:`FlakeDistribution` (its docstring lists the interface).
+FLAKE_DISTRIBUTIONS = _Registry({
     "beckmann": FlakeDistribution(
         "beckmann", flake_ndf_Beckmann, _beckmann_peak, _abs_cosine_moments_Beckmann,
         _kernel_phi_bandwidth_Beckmann, _phi_samples_Beckmann, sample_flake_normal_Beckmann,
-        "Ergun et al. 2016 eq. 5 (Beckmann, on the sphere)"),
+        "Ergun et al. 2016 eq. 5 (Beckmann, on the sphere)", family="beckmann"),
     "ggx": FlakeDistribution(
         "ggx", flake_ndf_GGX, _ggx_peak, _abs_cosine_moments_GGX, _kernel_phi_bandwidth_GGX,
         _phi_samples_GGX, sample_flake_normal_GGX,
-        "Trowbridge & Reitz 1975; Walter et al. 2007 eq. 33, times |cos θ_m|/2 (flake convention)"),
-}
+        "Trowbridge & Reitz 1975; Walter et al. 2007 eq. 33, times |cos θ_m|/2 (flake convention)",
+        family="ggx"),
+})
 #: The distribution of a flake that states none (every store and file written before the registry).
 DEFAULT_DISTRIBUTION = "beckmann"
 
@@ -935,7 +1350,27 @@ def flake_distribution(distribution) -> FlakeDistribution:
         return FLAKE_DISTRIBUTIONS[key]
     except KeyError:
         raise ValueError(f"unknown flake orientation distribution {distribution!r}; known: "
-                         f"{', '.join(FLAKE_DISTRIBUTIONS)}") from None
+                         f"{', '.join(FLAKE_DISTRIBUTIONS)}, student_t(gamma) with "
+                         f"{STUDENT_T_SHAPE_RANGE[0]:g} <= gamma <= {STUDENT_T_SHAPE_RANGE[1]:g}, and "
+                         f"mix(first,weight,second,alpha2)") from None
+
+
+def flake_lobe_alpha(alpha, distribution="beckmann") -> float:
+    """The spread, on the scale of the α of ``beckmann`` and ``ggx``, of the narrowest lobe of
+    ``distribution``'s flake normals: what a node-count rule measured for Beckmann and GGX at α
+    (:func:`flakedb.paint.mapping.auto_resolution`) is applied to.  Beckmann, GGX: α.  Student-t: its core
+    is Gaussian, D ∝ (1 + t²/(α²(γ−1)))^{−γ} ≈ exp(−γ t²/(α²(γ−1))), of width α √((γ−1)/γ); GGX's (γ = 2)
+    is α/√2, so γ < 2 is narrower than GGX by √(2(γ−1)/γ) (0.82 at γ = 1.5) and γ ≥ 2 is taken as α (its
+    core lies between GGX's and Beckmann's, both measured at α).  Mixtures: the narrowest population."""
+    d = flake_distribution(distribution)
+    alpha = float(_check_alpha(alpha))
+    p = dict(d.parameters)
+    if d.family == "student_t":
+        g = p["gamma"]
+        return alpha * min(1.0, float(np.sqrt(2.0 * (g - 1.0) / g)))
+    if d.family == "mix":
+        return min(flake_lobe_alpha(alpha, p["first"]), flake_lobe_alpha(p["alpha2"], p["second"]))
+    return alpha
 
 
 def flake_ndf(cos_theta_m, alpha, distribution="beckmann"):

@@ -15,8 +15,9 @@ import numpy as np
 
 from flakedb.colour.colorimetry import delta_E_2000
 from flakedb.paint.limits import NODE_COUNT_MAX, check_node_count
-from flakedb.paint.mapping import recipe_interfaces
+from flakedb.paint.mapping import recipe_alpha, recipe_distribution, recipe_interfaces
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError
+from flakedb.rt.microflake import flake_lobe_alpha
 from flakedb.rt.stack import InnerRough, inner_interface_verdicts
 
 #: Default accuracy targets of ``resolution: auto`` (a recipe's ``resolution: {albedo_error: …,
@@ -201,10 +202,10 @@ def auto_resolution(recipe) -> tuple[int, str]:
     flake_alphas = []
     for _, p in recipe.particles():
         a = None
-        if isinstance(p, CatalogParticle) and p.is_flake:
-            a = float(p.orientation_alpha if p.orientation_alpha is not None else p.entry["orientation_alpha"]["value"])
+        if isinstance(p, CatalogParticle) and p.is_flake:  # the narrowest lobe on the Beckmann/GGX α scale
+            a = flake_lobe_alpha(recipe_alpha(p), recipe_distribution(p))
         elif isinstance(p, CustomFlake):
-            a = float(p.orientation_alpha)
+            a = flake_lobe_alpha(float(p.orientation_alpha), recipe_distribution(p))
         elif isinstance(p, CustomMedium) and isinstance(p.phase, tuple) and p.phase[0] == "hg":
             hh = int(np.ceil(3.0 / max(1e-3, 1.0 - abs(p.phase[1]))))
             need.append((hh, f"HG lobe g = {p.phase[1]:g} ({p.path}): h ≥ 3/(1 − |g|)"))

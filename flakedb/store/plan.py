@@ -16,8 +16,10 @@ import jsonschema
 import numpy as np
 
 from flakedb import __version__
+from flakedb.paint.catalog import catalog_distribution
 from flakedb.paint.mapping import FLAKE_C_TOL
 from flakedb.resources import SCHEMAS_DIR
+from flakedb.rt.microflake import flake_distribution
 from flakedb.rt.stored import RANK_TOL
 from flakedb.store.compress import (
     LEGENDRE_STORE_DEGREE,
@@ -87,17 +89,19 @@ def _flake_key(alpha, distribution=BECKMANN) -> str:
 
 
 def _orientations(request, k) -> dict:
-    """Flake species ``k``'s orientations to project, distribution → sorted α's: the request's Beckmann
-    ``alphas`` and ``distribution_alphas``, else the catalogue's α in the catalogue's distribution."""
+    """Flake species ``k``'s orientations to project, distribution (its canonical name,
+    :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`: parameters included, so factors of different
+    shapes or mixtures get different keys) → sorted α's: the request's Beckmann ``alphas`` and
+    ``distribution_alphas``, else the catalogue's α in the catalogue's distribution."""
     out = {}
     for a in request.alphas.get(k) or []:
         out.setdefault(BECKMANN, set()).add(float(a))
     for d, v in (request.distribution_alphas.get(k) or {}).items():
-        for a in v:
-            out.setdefault(str(d), set()).add(float(a))
+        for a in v:  # the registry's canonical name: the key a recipe's (recipe_distribution) will ask for
+            out.setdefault(flake_distribution(d).name, set()).add(float(a))
     if not out:
         entry = request.species[k]
-        out[entry.get("orientation_distribution", BECKMANN)] = {float(entry["orientation_alpha"]["value"])}
+        out[catalog_distribution(entry)] = {float(entry["orientation_alpha"]["value"])}
     return {d: sorted(v) for d, v in sorted(out.items())}
 
 

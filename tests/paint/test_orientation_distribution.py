@@ -8,6 +8,7 @@ computed with the other distribution's σ_t.
 
 import copy
 import json
+import re
 
 import numpy as np
 import pytest
@@ -17,7 +18,7 @@ from flakedb.paint.mapping import build_paint, recipe_distribution
 from flakedb.paint.recipe import RecipeError, parse_recipe
 from flakedb.resources import SCHEMAS_DIR
 from flakedb.rt.media import FlakeMedium
-from flakedb.rt.microflake import FLAKE_DISTRIBUTIONS, extinction_Ergun
+from flakedb.rt.microflake import FLAKE_DISTRIBUTION_FAMILIES, FLAKE_DISTRIBUTIONS, extinction_Ergun, flake_distribution
 
 
 def _recipe(particle):
@@ -52,11 +53,19 @@ def _enums(node, out):
 
 
 def test_schemas_name_the_registry():
-    for name in ("recipe", "catalog"):
+    # the recipe and the catalogue name the registry's fixed entries and its shape family (student_t, with
+    # orientation_shape; the mix family is the recipe's orientation_mixture object)
+    for name, extra in (("recipe", ["student_t"]), ("catalog", ["student_t"])):
         found = _enums(json.loads((SCHEMAS_DIR / f"{name}.schema.json").read_text()), [])
-        assert found and all(sorted(f["enum"]) == sorted(FLAKE_DISTRIBUTIONS) for f in found), name
+        assert found and all(sorted(f["enum"]) == sorted([*FLAKE_DISTRIBUTIONS, *extra]) for f in found), name
+    assert set(FLAKE_DISTRIBUTION_FAMILIES) == {"student_t", "mix"}
     store = _enums(json.loads((SCHEMAS_DIR / "store.schema.json").read_text()), [])
-    assert sorted(store[0]["additionalProperties"]["propertyNames"]["enum"]) == sorted(set(FLAKE_DISTRIBUTIONS) - {"beckmann"})
+    names = store[0]["additionalProperties"]["propertyNames"]["anyOf"]
+    assert sorted(names[0]["enum"]) == sorted(set(FLAKE_DISTRIBUTIONS) - {"beckmann"})
+    # every canonical parametrised name is a valid store key, and a misspelt one is not
+    for d in ("student_t(2.5)", "student_t(1000)", "mix(ggx,0.25,student_t(1.5),0.05)", "mix(beckmann,0.5,ggx,2)"):
+        assert any(re.search(a["pattern"], flake_distribution(d).name) for a in names[1:]), d
+    assert not any(re.search(a["pattern"], "student_t(2.5") for a in names[1:])
 
 
 def test_bad_values_are_refused_with_the_field_named():
