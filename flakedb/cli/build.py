@@ -12,6 +12,7 @@ from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.limits import node_count_problem
 from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.pipelines.build import DEFAULT_N, make_request, request_for_recipe
+from flakedb.rt.microflake import FLAKE_ALPHA_RANGE
 from flakedb.pipelines.build import build as run_build
 from flakedb.store import versions as st
 
@@ -128,8 +129,9 @@ def build(store, recipe_path, workers, processes, scheduler, dry_run, n, species
                 v = float(val)
             except ValueError:
                 raise FlakedbError(f"--alpha {a}: give SPECIES=ALPHA with ALPHA a number > 0, e.g. metallic=0.2") from None
-            if not (math.isfinite(v) and 0.001 <= v <= 2.0):
-                raise FlakedbError(f"--alpha {a}: the flake orientation spread must be in 0.001 ≤ α ≤ 2 (the recipe's "
+            if not (math.isfinite(v) and FLAKE_ALPHA_RANGE[0] <= v <= FLAKE_ALPHA_RANGE[1]):
+                raise FlakedbError(f"--alpha {a}: the flake orientation spread must be in {FLAKE_ALPHA_RANGE[0]:g} ≤ α ≤ "
+                                   f"{FLAKE_ALPHA_RANGE[1]:g} (the recipe's "
                                    f"orientation_alpha range: a narrower lobe than any quadrature resolves)")
             alphas.setdefault(name.strip(), []).append(v)
     try:

@@ -62,6 +62,7 @@ __all__ = [
     "STUDENT_T_SHAPE_RANGE",
     "MIXTURE_WEIGHT_RANGE",
     "MIXTURE_ALPHA_RANGE",
+    "FLAKE_ALPHA_RANGE",
     "projected_area",
     "ndf_halfvector_Ergun",
     "projected_area_Beckmann",
@@ -1188,9 +1189,11 @@ def _kernel_bandwidth_student_t(alpha, mu_i, mu_o, eps=1e-6, gamma=2.0):
 #: Bounds of a two-population mixture's weight w of the second population (exclusive: w = 0 or 1 is
 #: one population; name that distribution instead).
 MIXTURE_WEIGHT_RANGE = (0.0, 1.0)
-#: Bounds of the second population's spread α₂ (those of a recipe's ``orientation_alpha``: narrower than
-#: 0.001 no quadrature resolves).
-MIXTURE_ALPHA_RANGE = (0.001, 2.0)
+#: Bounds of a flake distribution's spread α (a recipe's ``orientation_alpha``, a mixture's α₂, ``build --alpha``;
+#: the schemas restate them, tests/paint/test_limits.py checks): narrower than 0.001 no quadrature resolves.
+FLAKE_ALPHA_RANGE = (0.001, 2.0)
+#: Bounds of the second population's spread α₂: those of every flake spread.
+MIXTURE_ALPHA_RANGE = FLAKE_ALPHA_RANGE
 
 
 @dataclass(frozen=True)

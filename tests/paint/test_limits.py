@@ -9,6 +9,9 @@ import json
 
 import pytest
 
+from click.testing import CliRunner
+
+from flakedb.cli.main import cli
 from flakedb.paint import limits
 from flakedb.paint.mapping import build_paint, recipe_top_alpha
 from flakedb.solve.resolution import resolve_node_count
@@ -40,6 +43,35 @@ def test_schema_states_the_same_limits():
     assert (n["minimum"], n["maximum"], n["multipleOf"]) == (limits.NODE_COUNT_MIN, limits.NODE_COUNT_MAX, 2)
     text = json.dumps(schema)
     assert f'"minimum": {limits.ROUGHNESS_MIN}' in text and f'"maximum": {limits.ROUGHNESS_MAX:g}' in text
+
+
+def test_flake_spread_bounds_stated_once_and_restated_alike():
+    """Issue #34: the flake α bounds lived in two schemas and cli/build.py; the solver's
+    flakedb.rt.microflake.FLAKE_ALPHA_RANGE is their home and every restatement agrees with it."""
+    from flakedb.rt.microflake import FLAKE_ALPHA_RANGE
+    from flakedb.rt.params import ALPHA_MAX, ALPHA_MIN
+
+    assert (limits.ROUGHNESS_MIN, limits.ROUGHNESS_MAX) == (ALPHA_MIN, ALPHA_MAX)
+    lo, hi = FLAKE_ALPHA_RANGE
+    found = []
+
+    def walk(node, path):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                if k == "orientation_alpha" and isinstance(v, dict) and "minimum" in v:
+                    found.append((path, v["minimum"], v["maximum"]))
+                if k == "flake_alpha" and isinstance(v, dict):   # the catalogue's {value, source}
+                    found.append((path, v["properties"]["value"]["minimum"], v["properties"]["value"]["maximum"]))
+                walk(v, path + "/" + str(k))
+        elif isinstance(node, list):
+            for i, v in enumerate(node):
+                walk(v, f"{path}/{i}")
+
+    for name in ("recipe.schema.json", "catalog.schema.json"):
+        walk(json.loads((SCHEMAS_DIR / name).read_text()), name)
+    assert found and all((mn, mx) == (lo, hi) for _, mn, mx in found), found
+    r = CliRunner().invoke(cli, ["build", "--dry-run", "--alpha", f"metallic={hi * 1.5:g}"])
+    assert r.exit_code != 0 and f"{lo:g} ≤ α ≤ {hi:g}" in r.output, r.output
 
 
 @pytest.mark.parametrize("n", [6, 7, 9, 514, 1024, 64.0, True])
