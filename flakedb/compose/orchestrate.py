@@ -131,12 +131,17 @@ def table_to_file_channels(table, mode, wavelength_nm=None):
         channels = ("R", "G", "B")
     else:
         channels = ("mono",)
-    if c.shape[0] > 1:
-        scale = max(np.abs(c).max(), 1e-300)
-        if all(np.abs(c[k] - c[0]).max() <= 1e-12 * scale for k in range(1, c.shape[0])):
-            c = c[:1]
-            channels = ("mono",)
+    if c.shape[0] > 1 and (c.strides[0] == 0 or _channels_equal(c)):  # stride 0: one channel for all
+        c = c[:1]
+        channels = ("mono",)
     return table.replace(stored=np.ascontiguousarray(c), channels=channels)
+
+
+def _channels_equal(c, rtol=1e-12):
+    """Whether every channel of ``c`` (C, ...) equals the first to ``rtol`` of the largest |value|, one
+    channel at a time (no temporary of the whole array)."""
+    scale = max(abs(float(c.max())), abs(float(c.min())), 1e-300)
+    return all(np.abs(c[k] - c[0]).max() <= rtol * scale for k in range(1, c.shape[0]))
 
 
 def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
@@ -162,14 +167,23 @@ def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
     # pair (desaturation_factors' symmetrisation stays inside the quadrant)
     c = table.stored
     wl = np.asarray(wavelength_nm, float)
-    if mode == "spectral":
-        c = np.einsum("bk,b...->k...", gamut.spectra_to_space_matrix(wl, space), c)
-    else:
-        c = np.einsum("jk,j...->k...", gamut.rgb_mode_to_space_matrix(wl, space), c)
+    M = gamut.spectra_to_space_matrix(wl, space) if mode == "spectral" else gamut.rgb_mode_to_space_matrix(wl, space)
     w = gamut.luminance_weights(wl, space)
-    mapped, s = gamut.desaturate_to_gamut(c, w)
+    m = M.sum(axis=0)  # a grey value v maps to v m_k in channel k
+    if c.shape[0] > 1 and c.strides[0] == 0 and np.all(m > 0) and np.ptp(m) <= 1e-12 * m.max():
+        # a grey table (one channel for all, stride 0: a grey stack solved once) maps to the grey v m_0 in every
+        # channel (white-normalised spaces: m = 1 to rounding; the einsum below gives v m_k to rounding, equal
+        # channels to 1e-12, which table_to_file_channels makes mono): every channel has the sign of its
+        # luminance, so (G1) leaves it unchanged (s = 1); one channel mapped instead of C, nothing desaturated
+        v = c[:1] if m[0] == 1.0 else c[:1] * m[0]
+        c = mapped = np.broadcast_to(v, (3,) + c.shape[1:])
+        s = np.ones(c.shape[1:3])
+    else:
+        c = np.einsum("jk,j...->k...", M, c)
+        mapped, s = gamut.desaturate_to_gamut(c, w)
     before = table.replace(stored=c, channels=("R", "G", "B"))
-    after = table.replace(stored=np.ascontiguousarray(mapped), channels=("R", "G", "B"))
+    after = table.replace(stored=mapped if mapped.strides[0] == 0 else np.ascontiguousarray(mapped),
+                          channels=("R", "G", "B"))
     h = table.n // 2
     if not table.reflection_only:  # light from above, reflected: the same quadrant of the full table
         c, mapped, s = c[:, h:, :h], mapped[:, h:, :h], s[h:, :h]
@@ -265,7 +279,7 @@ def check_physical(stack, n_phi=37):
     """
     problems = []
     A = stack.albedo()
-    if not np.all(np.isfinite(A)) or not np.all(np.isfinite(stack.Rt)):
+    if not np.all(np.isfinite(A)) or not np.all(np.isfinite(_solved_channels(stack.Rt))):
         return ["the BSDF has non-finite values (solver failure)"]
     amax = float(A.max())
     if amax > 1.0 + ALBEDO_SLACK:
@@ -287,17 +301,24 @@ def check_physical(stack, n_phi=37):
 CHECK_CHANNEL_BLOCK = 4
 
 
+def _solved_channels(Rt):
+    """``Rt`` (L, C, h, h) with a channel axis solved once (broadcast, stride 0) cut to one channel."""
+    return Rt[:, :1] if Rt.shape[1] > 1 and Rt.strides[1] == 0 else Rt
+
+
 def _bsdf_range(stack, phi):
     """(max, min) of the cosine-weighted BSDF f μ_i μ_o of reflection over the node pairs and azimuths ``phi``,
-    a few channels at a time (:data:`CHECK_CHANNEL_BLOCK`), so no copy of the whole coefficient array is made."""
-    Rt, x, w = stack.Rt, stack.x, stack.w
-    cos = np.cos(np.arange(Rt.shape[0])[:, None] * phi[None, :])  # (L, P)
-    # f_l μ_i μ_o = S_l μ_o / (c_l w_i) (conventions; StackBSDF.f_coefficients times μ_i μ_o)
-    scale = (x[:, None] / w[None, :])[None, None] / fourier_weight(np.arange(Rt.shape[0]))[:, None, None, None]
+    a few channels at a time (:data:`CHECK_CHANNEL_BLOCK`), so no copy of the coefficient array is made."""
+    Rt, x, w = _solved_channels(stack.Rt), stack.x, stack.w
+    L, C, h = Rt.shape[0], Rt.shape[1], Rt.shape[2]
+    # f_l μ_i μ_o = S_l μ_o / (c_l w_i) (conventions; StackBSDF.f_coefficients times μ_i μ_o): the series
+    # Σ_l S_l cos(l φ) / c_l as one product over the orders, then the node pair's factor μ_o / w_i
+    cos = np.cos(np.arange(L)[:, None] * phi[None, :]) / fourier_weight(np.arange(L))[:, None]  # (L, P)
+    pair = (x[:, None] / w[None, :])[None, :, :, None]
     gmax, gmin = -np.inf, np.inf
-    C = 1 if Rt.shape[1] > 1 and Rt.strides[1] == 0 else Rt.shape[1]  # channels solved once: one is enough
     for c0 in range(0, C, CHECK_CHANNEL_BLOCK):
-        g = np.matmul(np.moveaxis(Rt[:, c0:c0 + CHECK_CHANNEL_BLOCK] * scale, 0, -1), cos)  # (c, o, i, P)
+        blk = Rt[:, c0:c0 + CHECK_CHANNEL_BLOCK]
+        g = (blk.reshape(L, -1).T @ cos).reshape(blk.shape[1:] + (phi.size,)) * pair  # (c, o, i, P)
         gmax, gmin = max(gmax, float(g.max())), min(gmin, float(g.min()))
     return gmax, gmin
 
