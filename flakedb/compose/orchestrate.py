@@ -179,7 +179,8 @@ def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
         c = mapped = np.broadcast_to(v, (3,) + c.shape[1:])
         s = np.ones(c.shape[1:3])
     else:
-        c = np.einsum("jk,j...->k...", M, c)
+        # the identity (RGB mode to sRGB) as the einsum gives it: c + 0.0 (-0.0 to +0.0), bit for bit, in one pass
+        c = c + 0.0 if M.shape == (3, 3) and np.array_equal(M, np.eye(3)) else np.einsum("jk,j...->k...", M, c)
         mapped, s = gamut.desaturate_to_gamut(c, w)
     before = table.replace(stored=c, channels=("R", "G", "B"))
     after = table.replace(stored=mapped if mapped.strides[0] == 0 else np.ascontiguousarray(mapped),

@@ -184,3 +184,18 @@ def test_grey_table_is_mapped_once_as_its_materialised_copy(mode, space):
                 assert ig[k] == pytest.approx(v, rel=1e-13, abs=1e-12), k
             elif k != "dE00_geometries":
                 assert ig[k] == v, k
+
+
+def test_an_rgb_mode_table_in_srgb_is_written_as_it_is():
+    """RGB mode's channels are white-normalised linear sRGB: the sRGB file holds the same values (the identity map,
+    applied as c + 0.0), an in-gamut table nothing desaturated, and the recorded costs zero."""
+    from flakedb.bsdf.convert import stack_to_table
+    from flakedb.colour.colorimetry import spectral_grid
+    from flakedb.rt.media import PhaseMedium
+    from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+
+    slab = Slab(1.0, PhaseMedium(sigma_t_per_um=[1.0] * 3, albedo=[0.95, 0.8, 0.6], phase=("hg", 0.7)))
+    table = stack_to_table(solve_stack(Rough(1.5, 0.2), [slab], Lambertian([0.5, 0.4, 0.3]), SolverSettings.product(16)))
+    ft, info = gamut_safe_file_channels(table, "rgb", spectral_grid(), "srgb")
+    assert ft.channels == ("R", "G", "B") and info["pairs_mapped"] == 0 and info["max_dE00"] == 0.0
+    np.testing.assert_array_equal(ft.stored, table.stored)
