@@ -710,3 +710,29 @@ def test_reflection_only_evaluator_is_the_dense_one_without_the_dense_array(tmp_
     back = read_h5(tmp_path / "q.h5").to_table()
     assert back.reflection_only
     np.testing.assert_array_equal(back.stored, q)
+
+
+@pytest.mark.parametrize("truncation", [0.0, 2e-3])
+def test_truncation_orders_follow_their_definition(truncation):
+    """The order count K of every entry (flakedb.bsdf.fourier_file._truncation_orders; truncation 0 found from the
+    last non-zero order directly) against its definition entry by entry: per channel the smallest j ≥ 1 with
+    Σ_{k≥j} |a_k| ≤ truncation·|a_0|, the largest over channels, 0 where every coefficient is 0."""
+    from flakedb.bsdf.fourier_file import _truncation_orders
+
+    rng = np.random.default_rng(4)
+    c = rng.standard_normal((3, 5, 6, 9)) * (rng.random((3, 5, 6, 9)) < 0.4)
+    c[..., 0] += 4.0 * (rng.random((3, 5, 6)) < 0.7)
+    c[:, 0, 0] = 0.0                                   # an entry with nothing
+    c[:, 0, 1] = -0.0
+    c[:, 1, 1, 1:] = 0.0                               # only a_0
+    c[1, 2, 2, 8] = 1e-300                             # a tail of one tiny coefficient
+    want = np.zeros(c.shape[1:3], dtype=int)
+    for i in range(c.shape[1]):
+        for o in range(c.shape[2]):
+            if not np.any(c[:, i, o]):
+                continue
+            ks = []
+            for a in c[:, i, o]:
+                ks.append(next(j for j in range(1, a.size + 1) if np.abs(a[j:]).sum() <= truncation * abs(a[0])))
+            want[i, o] = max(ks)
+    np.testing.assert_array_equal(_truncation_orders(c, truncation), want)
