@@ -144,6 +144,12 @@ def _channels_equal(c, rtol=1e-12):
     return all(np.abs(c[k] - c[0]).max() <= rtol * scale for k in range(1, c.shape[0]))
 
 
+def _plus_zero(c):
+    """``c + 0.0`` (every -0.0 made +0.0, all else bit for bit): what the channel map's einsum gives for the identity
+    (RGB mode to sRGB), without a copy of ``c`` when it holds no -0.0 (the usual case)."""
+    return c + 0.0 if np.any(c.view(np.int64) == np.iinfo(np.int64).min) else c
+
+
 def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
     """The ``.bsdf`` version of a full table, gamut-safe: ``(file_table, gamut_info)``.
 
@@ -179,8 +185,7 @@ def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
         c = mapped = np.broadcast_to(v, (3,) + c.shape[1:])
         s = np.ones(c.shape[1:3])
     else:
-        # the identity (RGB mode to sRGB) as the einsum gives it: c + 0.0 (-0.0 to +0.0), bit for bit, in one pass
-        c = c + 0.0 if M.shape == (3, 3) and np.array_equal(M, np.eye(3)) else np.einsum("jk,j...->k...", M, c)
+        c = _plus_zero(c) if M.shape == (3, 3) and np.array_equal(M, np.eye(3)) else np.einsum("jk,j...->k...", M, c)
         mapped, s = gamut.desaturate_to_gamut(c, w)
     before = table.replace(stored=c, channels=("R", "G", "B"))
     after = table.replace(stored=mapped if mapped.strides[0] == 0 else np.ascontiguousarray(mapped),

@@ -199,3 +199,10 @@ def test_an_rgb_mode_table_in_srgb_is_written_as_it_is():
     ft, info = gamut_safe_file_channels(table, "rgb", spectral_grid(), "srgb")
     assert ft.channels == ("R", "G", "B") and info["pairs_mapped"] == 0 and info["max_dE00"] == 0.0
     np.testing.assert_array_equal(ft.stored, table.stored)
+    # the general map (an einsum over the channels) makes -0.0 +0.0: so does the identity, bit for bit
+    c = np.array(table.stored)
+    c[1, 2, 3, -3:] = -0.0
+    ft2, _ = gamut_safe_file_channels(table.replace(stored=c), "rgb", spectral_grid(), "srgb")
+    want = np.einsum("jk,j...->k...", np.eye(3), c)
+    assert not np.signbit(ft2.stored[1, 2, 3, -3:]).any()
+    np.testing.assert_array_equal(ft2.stored.view(np.int64), want.view(np.int64))
