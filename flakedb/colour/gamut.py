@@ -172,7 +172,8 @@ def desaturation_factors(coeffs, w, n_phi: int = N_PHI_DEFAULT, rows: int = 16) 
 
 def desaturate_to_gamut(coeffs, w, n_phi: int = N_PHI_DEFAULT):
     """Apply (G1): returns (mapped coeffs (3, n, n, L), s (n, n)).  The luminance Σ w_k c_k of every
-    coefficient is unchanged; pairs already in gamut (s = 1) are returned unchanged."""
+    coefficient is unchanged; pairs already in gamut (s = 1) are returned unchanged (``coeffs`` itself when
+    every pair is)."""
     c = np.asarray(coeffs, dtype=float)
     if np.array_equal(c[0], c[1]) and np.array_equal(c[0], c[2]):
         # a grey table: every channel equals Y / Σw with Σw = 1 > 0, so none is negative where Y > 0

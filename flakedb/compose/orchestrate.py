@@ -177,10 +177,9 @@ def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
     w = gamut.luminance_weights(wl, space)
     m = M.sum(axis=0)  # a grey value v maps to v m_k in channel k
     if c.shape[0] > 1 and c.strides[0] == 0 and np.all(m > 0) and np.ptp(m) <= 1e-12 * m.max():
-        # a grey table (one channel for all, stride 0: a grey stack solved once) maps to the grey v m_0 in every
-        # channel (white-normalised spaces: m = 1 to rounding; the einsum below gives v m_k to rounding, equal
-        # channels to 1e-12, which table_to_file_channels makes mono): every channel has the sign of its
-        # luminance, so (G1) leaves it unchanged (s = 1); one channel mapped instead of C, nothing desaturated
+        # a grey table (one channel for all, stride 0: a grey stack solved once) maps to the grey v m_0 (the einsum
+        # below gives v m_k, equal to 1e-12: table_to_file_channels makes it mono); every channel has the sign of
+        # its luminance, so (G1) leaves it as it is (s = 1): one channel mapped, nothing to desaturate
         v = c[:1] if m[0] == 1.0 else c[:1] * m[0]
         c = mapped = np.broadcast_to(v, (3,) + c.shape[1:])
         s = np.ones(c.shape[1:3])
@@ -316,7 +315,7 @@ def _bsdf_range(stack, phi):
     """(max, min) of the cosine-weighted BSDF f μ_i μ_o of reflection over the node pairs and azimuths ``phi``,
     a few channels at a time (:data:`CHECK_CHANNEL_BLOCK`), so no copy of the coefficient array is made."""
     Rt, x, w = _solved_channels(stack.Rt), stack.x, stack.w
-    L, C, h = Rt.shape[0], Rt.shape[1], Rt.shape[2]
+    L, C = Rt.shape[0], Rt.shape[1]
     # f_l μ_i μ_o = S_l μ_o / (c_l w_i) (conventions; StackBSDF.f_coefficients times μ_i μ_o): the series
     # Σ_l S_l cos(l φ) / c_l as one product over the orders, then the node pair's factor μ_o / w_i
     cos = np.cos(np.arange(L)[:, None] * phi[None, :]) / fourier_weight(np.arange(L))[:, None]  # (L, P)
