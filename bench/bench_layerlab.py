@@ -21,7 +21,10 @@ its median reported, so a drift of the shared machine's speed cancels):
 * ``layerlab: rough 0.1/HG/Lambertian RGB n=200 [channels differ]``: A = bench/stack_rough_hg_lambertian.py
   at n = 200 (solve + ``.bsdf``), B = layerlab on the same stack, same n, the same number of orders, the same
   channels (grey: both solve one channel and write three; ``channels differ``: both solve three).  Target
-  B / A ≥ 3.
+  B / A ≥ 3.  The grey row also times D = ``flakedb compose bench/recipes/rough-hg-lambertian-rgb.yaml`` (the
+  same stack as a recipe, RGB mode, n = 200: solve, the discretisation's second solve at 3n/4, the checks, the
+  colour report and the ``.bsdf`` / ``.h5`` / ``.json``): ``layerlab_over_compose`` = B / D, issue #34 item 8's
+  target ≥ 3 (docs/compose-overhead.md).
 
 Agreement (setup, untimed, in-process): the directional albedo of the two solvers' stacks at 0, 10, 30,
 45, 60, 75 and 85° (each interpolated from its own nodes by a cubic spline in μ), with flakedb's
@@ -50,6 +53,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 RECIPE = HERE / "recipes" / "three-species-16.yaml"
+#: bench/stack_rough_hg_lambertian.py's stack as a recipe (RGB mode, n = 200), for the compose column of the RGB row
+COMPOSE_RECIPE = HERE / "recipes" / "rough-hg-lambertian-rgb.yaml"
 PAIRS = 5
 ALPHA = 0.1
 ANGLES_DEG = (0.0, 10.0, 30.0, 45.0, 60.0, 75.0, 85.0)
@@ -222,18 +227,23 @@ def _rgb_row(colour):
         cmds = {"flakedb": flake + (["colour"] if colour else []),
                 "layerlab": [sys.executable, str(HERE / "layerlab_stack.py"), str(n), str(agree["orders"]),
                              str(ALPHA), mode, _bsdf_out(mode)]}
+        if not colour:  # the same stack composed from its recipe, end to end (issue #34 item 8)
+            cmds["flakedb_compose"] = [sys.executable, "-m", "flakedb", "compose", str(COMPOSE_RECIPE), "--quiet",
+                                       "--out", tempfile.mkdtemp(prefix="flakedb-bench-layerlab-compose-")]
         return cmds, agree
 
     def run(arg):
         cmds, agree = arg
         walls = _paired(cmds)
-        return {"layerlab_over_flakedb": _ratio(walls, "layerlab", "flakedb"), **_medians(walls),
+        compose = {"layerlab_over_compose": _ratio(walls, "layerlab", "flakedb_compose")} if "flakedb_compose" in walls else {}
+        return {"layerlab_over_flakedb": _ratio(walls, "layerlab", "flakedb"), **compose, **_medians(walls),
                 "layerlab_orders": agree["orders"], "agreement": agree}
 
     return (NAMES[2 if colour else 1], setup, run,
             {"n": n, "channels": 3, "distinct_channels": 3 if colour else 1, "pairs": PAIRS,
              "what": "whole processes in turn (solve + .bsdf); ratio = median over rounds of layerlab / flakedb",
-             "target": "layerlab_over_flakedb >= 3 (issue #26)"})
+             "target": "layerlab_over_flakedb >= 3 (issue #26)"
+                       + ("" if colour else "; layerlab_over_compose >= 3 (issue #34 item 8)")})
 
 
 _MISSING = _layerlab_missing()

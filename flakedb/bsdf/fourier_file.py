@@ -43,8 +43,14 @@ def _truncation_orders(c: np.ndarray, truncation: float) -> np.ndarray:
 
     Per channel: the smallest j >= 1 with ``Σ_{k>=j} |a_k| <= truncation·|a_0|``; max over
     channels; entries whose coefficients are all exactly 0 get K = 0.  ``truncation = 0`` keeps
-    everything up to the last non-zero coefficient.
+    everything up to the last non-zero coefficient: K = 1 + the last order ≥ 1 that is non-zero in any
+    channel (1 when only a_0 is), found directly (a tail of |a_k| ≥ 0 is > 0 exactly when one of its terms is).
     """
+    if truncation == 0:
+        nz = np.any(c != 0, axis=0)                                  # (..., L): non-zero in some channel
+        L = nz.shape[-1]
+        last = np.where(nz[..., 1:].any(axis=-1), L - 1 - np.argmax(nz[..., :0:-1], axis=-1), 0) if L > 1 else 0
+        return np.where(nz.any(axis=-1), 1 + last, 0)
     # rev[..., L − 1 − j] = tail[j] = Σ_{k>=j} |a_k|: the sums from the highest order down, accumulated in
     # place in one reversed copy (one array, no second pass of |a|)
     rev = np.abs(c[..., ::-1])

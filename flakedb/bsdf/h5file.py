@@ -105,8 +105,10 @@ def h5_filters(coeffs: np.ndarray) -> dict:
     >>> h5_filters(np.zeros(10)), h5_filters(np.ones(10))
     ({'shuffle': True, 'compression': 'gzip', 'compression_opts': 1}, {})
     """
-    zeros = coeffs.size - np.count_nonzero(coeffs)
-    if coeffs.size and zeros >= COMPRESS_ZERO_FRACTION * coeffs.size:
+    c = np.asarray(coeffs)
+    c = c[tuple(slice(0, 1) if st == 0 else slice(None) for st in c.strides)]  # a broadcast axis counted once
+    zeros = c.size - np.count_nonzero(c)
+    if c.size and zeros >= COMPRESS_ZERO_FRACTION * c.size:
         return {"shuffle": True, "compression": "gzip", "compression_opts": 1}
     return {}
 
@@ -115,11 +117,18 @@ def h5_filters(coeffs: np.ndarray) -> dict:
 H5_CHUNK_BATCH = 256
 
 
+#: zlib's strategy for the coefficient chunks: run-length matches only (``Z_RLE``).  The stream is ordinary
+#: deflate (HDF5's filter and any inflater read it); after the shuffle a chunk is byte planes whose runs are the
+#: zero tails of orders past each pair's own count, which the full match search (``Z_DEFAULT_STRATEGY``) finds no
+#: better, in less time for a few per cent more bytes (docs/compose-overhead.md).
+DEFLATE_STRATEGY = zlib.Z_RLE
+
+
 def shuffle_deflate(chunk) -> bytes:
     """One chunk through the filters :func:`h5_filters` declares, as HDF5 applies them on write: the shuffle
     filter (the k-th byte of every float64 element together: the (N, 8) bytes transposed) then deflate at
-    level 1 (zlib's stream, which HDF5's deflate filter reads).  ``zlib.compress`` releases the interpreter,
-    so chunks encode on several threads at once.
+    level 1 (zlib's stream, which HDF5's deflate filter reads; strategy :data:`DEFLATE_STRATEGY`).  zlib releases
+    the interpreter, so chunks encode on several threads at once.
 
     >>> import zlib
     >>> x = np.array([1.0, 2.0])
@@ -128,7 +137,8 @@ def shuffle_deflate(chunk) -> bytes:
     (True, 16)
     """
     b = np.ascontiguousarray(np.asarray(chunk, dtype="<f8")).view(np.uint8).reshape(-1, 8)
-    return zlib.compress(np.ascontiguousarray(b.T), 1)
+    z = zlib.compressobj(1, zlib.DEFLATED, zlib.MAX_WBITS, 8, DEFLATE_STRATEGY)
+    return z.compress(np.ascontiguousarray(b.T)) + z.flush()
 
 
 def write_chunks_deflated(dataset, data, row0=0) -> None:
@@ -137,16 +147,20 @@ def write_chunks_deflated(dataset, data, row0=0) -> None:
     :func:`shuffle_deflate` on the process's threads (``flakedb-h5``, one per core) and written as it is stored
     (``write_direct_chunk``), in batches of :data:`H5_CHUNK_BATCH`.  h5py's own write ran the filters on one core:
     the cadmium yellow / rough 0.1 coat table at n = 200 (41 bands, 1.15 GB, 72 % zeros) took most of the
-    compose's write.  The file is the same HDF5 (same filters declared; h5py and any HDF5 reader decode it)."""
+    compose's write.  The file is the same HDF5 (same filters declared; h5py and any HDF5 reader decode it).
+    Channels that are one array (a broadcast channel axis, stride 0: a grey paint solved once) are encoded once
+    and their bytes written for every channel (the encoding is a function of the chunk's values)."""
     C, a, b, L = data.shape
     h = dataset.chunks[2]
-    keys = [(c, i, j) for c in range(C) for i in range(a) for j in range(0, b, h)]
+    same = C > 1 and data.strides[0] == 0
+    keys = [(c, i, j) for c in range(1 if same else C) for i in range(a) for j in range(0, b, h)]
     pool = thread_pool(os.cpu_count() or 1, "flakedb-h5")
     for k0 in range(0, len(keys), H5_CHUNK_BATCH):
         batch = keys[k0:k0 + H5_CHUNK_BATCH]
         encoded = pool.map(lambda key: shuffle_deflate(data[key[0], key[1], key[2]:key[2] + h]), batch)
         for (c, i, j), buf in zip(batch, encoded):
-            dataset.id.write_direct_chunk((c, row0 + i, j, 0), buf)
+            for cc in (range(C) if same else (c,)):
+                dataset.id.write_direct_chunk((cc, row0 + i, j, 0), buf)
 
 
 def _inflate_unshuffle(buf, shape):

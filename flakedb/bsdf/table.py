@@ -193,11 +193,15 @@ class BSDFTable:
         written ``.bsdf`` this is ``2π·cdf[i][N-1]``."""
         nodes = insert_zero_nodes(self.mu)
         h = self.n // 2
-        if self.reflection_only:
-            a0 = np.zeros((self.n_channels, self.n, self.n))
-            a0[:, h:, :h] = self._reflection[..., 0]
-        else:
-            a0 = self._coeffs[..., 0]                                # (C, n_i, n_o)
+        if self.reflection_only:  # rows h… alone (the others are 0), a broadcast channel axis once
+            r = self._reflection[..., 0]                             # (C, h_i, h_o)
+            one = r.shape[0] > 1 and r.strides[0] == 0
+            v = np.zeros((1 if one else r.shape[0], h, nodes.size))
+            v[..., :h] = r[:1] if one else r
+            out = np.zeros((self.n_channels, self.n))
+            out[:, h:] = 2.0 * np.pi * catmull_rom_cdf(nodes, v)[..., -1]
+            return out
+        a0 = self._coeffs[..., 0]                                    # (C, n_i, n_o)
         v = np.zeros(a0.shape[:2] + (nodes.size,))
         v[..., :h] = a0[..., :h]
         v[..., h + 2:] = a0[..., h:]

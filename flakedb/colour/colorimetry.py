@@ -374,11 +374,17 @@ def rgb_mode_to_XYZ(rgb, wavelength_nm, illuminant: str = "D65") -> np.ndarray:
 
 def spectra_to_rgb_mode(values, wavelength_nm, illuminant: str = "D65") -> np.ndarray:
     """The paper's RGB mode: spectra (..., W) → white-normalised linear sRGB (..., 3), by
-    :func:`spectra_to_rgb_matrix`.  A flat spectrum c maps to (c, c, c) exactly; see the module
-    docstring for why and what it costs.
+    :func:`spectra_to_rgb_matrix`.  A flat spectrum c maps to (c, c, c) exactly (``c Σ_b M_bk`` is 1 to rounding
+    only, and channels that differ in the last place are solved apart instead of once); see the module docstring
+    for why and what it costs.
+
+    >>> wl = spectral_grid()
+    >>> spectra_to_rgb_mode(np.full(wl.size, 0.5), wl).tolist()
+    [0.5, 0.5, 0.5]
     """
     v = np.asarray(values, dtype=float)
     M = spectra_to_rgb_matrix(wavelength_nm, illuminant)
     if v.shape[-1:] != (M.shape[0],):
         raise ValueError(f"values' last axis has {v.shape[-1:]} samples, the grid {M.shape[0]}")
-    return v @ M
+    flat = np.all(v == v[..., :1], axis=-1, keepdims=True)
+    return np.where(flat, v[..., :1], v @ M)

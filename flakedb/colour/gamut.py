@@ -151,10 +151,15 @@ def desaturation_factors(coeffs, w, n_phi: int = N_PHI_DEFAULT, rows: int = 16) 
     if c.ndim != 4 or c.shape[0] != 3 or c.shape[1] != c.shape[2]:
         raise ValueError(f"coeffs must have shape (3, n, n, L), got {c.shape}")
     w = np.asarray(w, dtype=float)
-    n = c.shape[1]
+    n, L = c.shape[1], c.shape[3]
     s = np.ones((n, n))
+    margin = 4.0 * L * np.finfo(float).eps  # the rounding of Σ_l a_l cos(l φ) and of the tail sum below
     for r0 in range(0, n, rows):
-        v = _pair_values(c[:, r0:r0 + rows], n_phi)                 # (3, r, n, P)
+        blk = c[:, r0:r0 + rows]
+        a0, tail = blk[..., 0], np.abs(blk[..., 1:]).sum(axis=-1)
+        if np.all(a0 - tail > margin * (a0 + tail)):
+            continue  # a_0 > Σ_{l≥1} |a_l| in every channel: no value is negative at any φ, s = 1 (as evaluated)
+        v = _pair_values(blk, n_phi)                                # (3, r, n, P)
         Y = np.einsum("k,k...->...", w, v)                          # (r, n, P)
         neg = (v < 0) & (Y > 0)[None]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -167,17 +172,21 @@ def desaturation_factors(coeffs, w, n_phi: int = N_PHI_DEFAULT, rows: int = 16) 
 
 def desaturate_to_gamut(coeffs, w, n_phi: int = N_PHI_DEFAULT):
     """Apply (G1): returns (mapped coeffs (3, n, n, L), s (n, n)).  The luminance Σ w_k c_k of every
-    coefficient is unchanged; pairs already in gamut (s = 1) are returned unchanged."""
+    coefficient is unchanged; pairs already in gamut (s = 1) are returned unchanged (``coeffs`` itself when
+    every pair is)."""
     c = np.asarray(coeffs, dtype=float)
     if np.array_equal(c[0], c[1]) and np.array_equal(c[0], c[2]):
         # a grey table: every channel equals Y / Σw with Σw = 1 > 0, so none is negative where Y > 0
         return c, np.ones(c.shape[1:3])
     s = desaturation_factors(c, w, n_phi)
-    Y = np.einsum("k,k...->...", np.asarray(w, float), c)            # (n, n, L)
-    out = Y[None] + s[None, :, :, None] * (c - Y[None])
-    # in-gamut pairs bit for bit (Y + (c - Y) may differ from c in the last place)
-    keep = s >= 1.0
-    out[:, keep] = c[:, keep]
+    # in-gamut pairs bit for bit (Y + (c - Y) may differ from c in the last place); (G1) on the others only
+    mapped = s < 1.0
+    if not mapped.any():
+        return c, s
+    out = c.copy()
+    cm = c[:, mapped]                                                # (3, m, L)
+    Y = np.einsum("k,k...->...", np.asarray(w, float), cm)           # (m, L)
+    out[:, mapped] = Y[None] + s[mapped][None, :, None] * (cm - Y[None])
     return out, s
 
 

@@ -108,12 +108,23 @@ def table_to_file_channels(table, mode, wavelength_nm=None):
         channels = ("R", "G", "B")
     else:
         channels = ("mono",)
-    if c.shape[0] > 1:
-        scale = max(np.abs(c).max(), 1e-300)
-        if all(np.abs(c[k] - c[0]).max() <= 1e-12 * scale for k in range(1, c.shape[0])):
-            c = c[:1]
-            channels = ("mono",)
+    if c.shape[0] > 1 and (c.strides[0] == 0 or _channels_equal(c)):  # stride 0: one channel for all
+        c = c[:1]
+        channels = ("mono",)
     return table.replace(stored=np.ascontiguousarray(c), channels=channels)
+
+
+def _channels_equal(c, rtol=1e-12):
+    """Whether every channel of ``c`` (C, ...) equals the first to ``rtol`` of the largest |value|, one
+    channel at a time (no temporary of the whole array)."""
+    scale = max(abs(float(c.max())), abs(float(c.min())), 1e-300)
+    return all(np.abs(c[k] - c[0]).max() <= rtol * scale for k in range(1, c.shape[0]))
+
+
+def _plus_zero(c):
+    """``c + 0.0`` (every -0.0 made +0.0, all else bit for bit): what the channel map's einsum gives for the identity
+    (RGB mode to sRGB), without a copy of ``c`` when it holds no -0.0 (the usual case)."""
+    return c + 0.0 if np.any(c.view(np.int64) == np.iinfo(np.int64).min) else c
 
 
 def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
@@ -139,14 +150,22 @@ def gamut_safe_file_channels(table, mode, wavelength_nm=None, space="srgb"):
     # pair (desaturation_factors' symmetrisation stays inside the quadrant)
     c = table.stored
     wl = np.asarray(wavelength_nm, float)
-    if mode == "spectral":
-        c = np.einsum("bk,b...->k...", gamut.spectra_to_space_matrix(wl, space), c)
-    else:
-        c = np.einsum("jk,j...->k...", gamut.rgb_mode_to_space_matrix(wl, space), c)
+    M = gamut.spectra_to_space_matrix(wl, space) if mode == "spectral" else gamut.rgb_mode_to_space_matrix(wl, space)
     w = gamut.luminance_weights(wl, space)
-    mapped, s = gamut.desaturate_to_gamut(c, w)
+    m = M.sum(axis=0)  # a grey value v maps to v m_k in channel k
+    if c.shape[0] > 1 and c.strides[0] == 0 and np.all(m > 0) and np.ptp(m) <= 1e-12 * m.max():
+        # a grey table (one channel for all, stride 0: a grey stack solved once) maps to the grey v m_0 (the einsum
+        # below gives v m_k, equal to 1e-12: table_to_file_channels makes it mono); every channel has the sign of
+        # its luminance, so (G1) leaves it as it is (s = 1): one channel mapped, nothing to desaturate
+        v = c[:1] if m[0] == 1.0 else c[:1] * m[0]
+        c = mapped = np.broadcast_to(v, (3,) + c.shape[1:])
+        s = np.ones(c.shape[1:3])
+    else:
+        c = _plus_zero(c) if M.shape == (3, 3) and np.array_equal(M, np.eye(3)) else np.einsum("jk,j...->k...", M, c)
+        mapped, s = gamut.desaturate_to_gamut(c, w)
     before = table.replace(stored=c, channels=("R", "G", "B"))
-    after = table.replace(stored=np.ascontiguousarray(mapped), channels=("R", "G", "B"))
+    after = table.replace(stored=mapped if mapped.strides[0] == 0 else np.ascontiguousarray(mapped),
+                          channels=("R", "G", "B"))
     h = table.n // 2
     if not table.reflection_only:  # light from above, reflected: the same quadrant of the full table
         c, mapped, s = c[:, h:, :h], mapped[:, h:, :h], s[h:, :h]

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,7 +73,7 @@ def check_physical(stack, n_phi=37):
     """
     problems = []
     A = stack.albedo()
-    if not np.all(np.isfinite(A)) or not np.all(np.isfinite(stack.Rt)):
+    if not np.all(np.isfinite(A)) or not np.all(np.isfinite(_solved_channels(stack.Rt))):
         return ["the BSDF has non-finite values (solver failure)"]
     amax = float(A.max())
     if amax > 1.0 + ALBEDO_SLACK:
@@ -94,17 +95,24 @@ def check_physical(stack, n_phi=37):
 CHECK_CHANNEL_BLOCK = 4
 
 
+def _solved_channels(Rt):
+    """``Rt`` (L, C, h, h) with a channel axis solved once (broadcast, stride 0) cut to one channel."""
+    return Rt[:, :1] if Rt.shape[1] > 1 and Rt.strides[1] == 0 else Rt
+
+
 def _bsdf_range(stack, phi):
     """(max, min) of the cosine-weighted BSDF f μ_i μ_o of reflection over the node pairs and azimuths ``phi``,
-    a few channels at a time (:data:`CHECK_CHANNEL_BLOCK`), so no copy of the whole coefficient array is made."""
-    Rt, x, w = stack.Rt, stack.x, stack.w
-    cos = np.cos(np.arange(Rt.shape[0])[:, None] * phi[None, :])  # (L, P)
-    # f_l μ_i μ_o = S_l μ_o / (c_l w_i) (conventions; StackBSDF.f_coefficients times μ_i μ_o)
-    scale = (x[:, None] / w[None, :])[None, None] / fourier_weight(np.arange(Rt.shape[0]))[:, None, None, None]
+    a few channels at a time (:data:`CHECK_CHANNEL_BLOCK`), so no copy of the coefficient array is made."""
+    Rt, x, w = _solved_channels(stack.Rt), stack.x, stack.w
+    L, C = Rt.shape[0], Rt.shape[1]
+    # f_l μ_i μ_o = S_l μ_o / (c_l w_i) (conventions; StackBSDF.f_coefficients times μ_i μ_o): the series
+    # Σ_l S_l cos(l φ) / c_l as one product over the orders, then the node pair's factor μ_o / w_i
+    cos = np.cos(np.arange(L)[:, None] * phi[None, :]) / fourier_weight(np.arange(L))[:, None]  # (L, P)
+    pair = (x[:, None] / w[None, :])[None, :, :, None]
     gmax, gmin = -np.inf, np.inf
-    C = 1 if Rt.shape[1] > 1 and Rt.strides[1] == 0 else Rt.shape[1]  # channels solved once: one is enough
     for c0 in range(0, C, CHECK_CHANNEL_BLOCK):
-        g = np.matmul(np.moveaxis(Rt[:, c0:c0 + CHECK_CHANNEL_BLOCK] * scale, 0, -1), cos)  # (c, o, i, P)
+        blk = Rt[:, c0:c0 + CHECK_CHANNEL_BLOCK]
+        g = (blk.reshape(L, -1).T @ cos).reshape(blk.shape[1:] + (phi.size,)) * pair  # (c, o, i, P)
         gmax, gmin = max(gmax, float(g.max())), min(gmin, float(g.min()))
     return gmax, gmin
 
@@ -249,6 +257,8 @@ def discretisation_estimate(solved, report, log=None) -> dict:
     docs/resolution.md) that :func:`second_report` made before the solve (``solved.before``), for n ≥ 16 without
     a store (a store holds the species' factors at its own n only)."""
     n, second = solved.n, solved.before
+    if isinstance(second, Future):  # made beside the solve (:data:`CONCURRENT_SECOND_BYTES`)
+        second = second.result()
     if isinstance(second, dict):
         return second
     n2, report_second = second
@@ -322,6 +332,15 @@ def report_of(solved, colour_settings=None, name=""):
                          paint.eta if paint.delta else None, name, settings=colour_settings)
 
 
+#: The discretisation's second solve (at ≈ 3n/4) runs beside the main solve when the main solve's R^t, about
+#: 4·C·n³ bytes (2n orders × C channels × (n/2)² float64), is at most this; above it, before the main solve, so
+#: that the two never hold their arrays at once (cadmium yellow under a rough 0.1 coat, 41 bands, n = 200: a
+#: 1.3 GB R^t; made after the solve, the second solve had set the peak at 3.95 GB, made before it 2.97 GB).
+#: The solve itself keeps about one of two cores busy (docs/compose-overhead.md), so beside it the estimate's
+#: time is mostly hidden.
+CONCURRENT_SECOND_BYTES = 256e6
+
+
 def solve_reported(recipe, n=None, raw=False, catalog=None, log=None, store=None, verify=True, progress=None,
                    allow_unphysical=False, colour_settings=None, on_stored=None,
                    generator="flakedb compose") -> Reported:
@@ -330,14 +349,27 @@ def solve_reported(recipe, n=None, raw=False, catalog=None, log=None, store=None
     :func:`flakedb.solve.resolution.refine_auto_n`'s n while the estimate misses the colour target, at most
     :data:`flakedb.solve.resolution.AUTO_REFINE_STEPS` times.  Timings: the last solve's, its ``report`` time,
     ``discretisation`` (its second solve) and ``refinement`` (every earlier solve)."""
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="flakedb-second-solve") as pool:
+        return _solve_reported(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical,
+                               colour_settings, on_stored, generator, pool)
+
+
+def _solve_reported(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical, colour_settings,
+                    on_stored, generator, pool) -> Reported:
+    """:func:`solve_reported`'s body; ``pool`` runs the discretisation's second solve beside the main one."""
     second_s = []
 
-    def second(paint, n_solve, version):  # the discretisation's second solve, before the solve at n_solve
+    def timed(paint, n_solve, version):
         t0 = time.perf_counter()
         try:
             return second_report(paint, n_solve, version, colour_settings, progress)
         finally:
             second_s.append(time.perf_counter() - t0)
+
+    def second(paint, n_solve, version):  # the discretisation's second solve, beside or before the solve at n_solve
+        if version is None and 4.0 * paint.n_channels * float(n_solve) ** 3 <= CONCURRENT_SECOND_BYTES:
+            return pool.submit(timed, paint, n_solve, version)
+        return timed(paint, n_solve, version)
 
     solved = solve_recipe(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical,
                           generator=generator, on_stored=on_stored, before_solve=second)

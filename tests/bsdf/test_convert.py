@@ -6,6 +6,7 @@ with and one without the η² factor on transmission) and against node-ordering 
 import tempfile
 
 import numpy as np
+import pytest
 
 from flakedb.bsdf import BSDFTable, table_evaluator, write_bsdf
 from flakedb.bsdf.convert import stack_to_table
@@ -72,14 +73,17 @@ layers:
     np.testing.assert_array_equal(got.mu, want.mu)
 
 
-def test_an_opaque_paints_table_is_its_reflection_quadrant(tmp_path):
+@pytest.mark.parametrize("grey", [False, True])
+def test_an_opaque_paints_table_is_its_reflection_quadrant(tmp_path, grey):
     """An opaque stack's table holds only reflection from above (reflection_only): its dense
     coefficients are that quadrant and zeros, and the .bsdf file and the albedo made from the quadrant
-    alone are those of the dense table (byte for byte, to the last bit)."""
-    s = solve_stack(Smooth(1.5), [Slab(1.0, PhaseMedium([1.0, 1.0, 1.0], [0.9, 0.5, 0.2], ("hg", 0.5)))],
-                    Lambertian([0.5, 0.3, 0.1]), SolverSettings(n=12))
+    alone are those of the dense table (byte for byte, to the last bit); a grey stack's (channels solved
+    once, one array for all) too."""
+    albedo, primer = ([0.9] * 3, [0.5] * 3) if grey else ([0.9, 0.5, 0.2], [0.5, 0.3, 0.1])
+    s = solve_stack(Smooth(1.5), [Slab(1.0, PhaseMedium([1.0, 1.0, 1.0], albedo, ("hg", 0.5)))],
+                    Lambertian(primer), SolverSettings(n=12))
     t = stack_to_table(s)
-    assert t.reflection_only
+    assert t.reflection_only and (t.stored.strides[0] == 0) == grey
     a_quadrant = t.albedo()
     write_bsdf(tmp_path / "q.bsdf", t)
     assert t.reflection_only                                 # neither call built the dense array

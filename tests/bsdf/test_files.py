@@ -665,6 +665,32 @@ def test_h5_compressed_chunks_read_back_exactly(tmp_path, reflection_only):
     np.testing.assert_array_equal(read_h5(tmp_path / "c.h5").to_table().coeffs, table.coeffs)
 
 
+def test_h5_of_a_grey_table_holds_every_channel_as_its_written_out_copy(tmp_path):
+    """A grey table's channels as one array (stride 0: a grey stack solved once) are deflated once and stored for
+    every channel (flakedb.bsdf.h5file.write_chunks_deflated): the file's datasets are those of the same table with
+    its channels written out, bit for bit, and HDF5's own filters decode every channel's chunks."""
+    import h5py
+
+    base = synthetic_table(h=6, L=40, channels=1)
+    coeffs = np.array(base.coeffs)
+    ell = np.arange(coeffs.shape[-1])
+    counts = np.random.default_rng(5).integers(1, 12, size=coeffs.shape[1:3])
+    coeffs[..., ell[None, None, :] >= counts[..., None]] = 0.0
+    h = coeffs.shape[1] // 2
+    q = np.ascontiguousarray(coeffs[:, h:, :h])
+    grey = BSDFTable(base.mu, reflection=np.broadcast_to(q, (3,) + q.shape[1:]), eta=1.5)
+    written = BSDFTable(base.mu, reflection=np.repeat(q, 3, axis=0), eta=1.5)
+    assert h5_filters(grey.stored) == h5_filters(written.stored) != {}
+    write_h5(tmp_path / "grey.h5", grey)
+    write_h5(tmp_path / "written.h5", written)
+    with h5py.File(tmp_path / "grey.h5", "r") as f, h5py.File(tmp_path / "written.h5", "r") as g:
+        assert set(f) == set(g)
+        for k in f:
+            np.testing.assert_array_equal(f[k][...], g[k][...])
+        assert f["coeffs"].id.get_num_chunks() == g["coeffs"].id.get_num_chunks() == 3 * h
+    np.testing.assert_array_equal(read_h5(tmp_path / "grey.h5").to_table().coeffs, written.coeffs)
+
+
 def test_reflection_only_evaluator_is_the_dense_one_without_the_dense_array(tmp_path):
     """flakedb.bsdf.evaluator.table_evaluator builds a reflection-only table's sparse layout from its quadrant
     (the full (n + 2)² × C × L array was 4x the table: a rough coat's 41-band table at n = 200 read as 4.3 GiB,
@@ -684,3 +710,29 @@ def test_reflection_only_evaluator_is_the_dense_one_without_the_dense_array(tmp_
     back = read_h5(tmp_path / "q.h5").to_table()
     assert back.reflection_only
     np.testing.assert_array_equal(back.stored, q)
+
+
+@pytest.mark.parametrize("truncation", [0.0, 2e-3])
+def test_truncation_orders_follow_their_definition(truncation):
+    """The order count K of every entry (flakedb.bsdf.fourier_file._truncation_orders; truncation 0 found from the
+    last non-zero order directly) against its definition entry by entry: per channel the smallest j ≥ 1 with
+    Σ_{k≥j} |a_k| ≤ truncation·|a_0|, the largest over channels, 0 where every coefficient is 0."""
+    from flakedb.bsdf.fourier_file import _truncation_orders
+
+    rng = np.random.default_rng(4)
+    c = rng.standard_normal((3, 5, 6, 9)) * (rng.random((3, 5, 6, 9)) < 0.4)
+    c[..., 0] += 4.0 * (rng.random((3, 5, 6)) < 0.7)
+    c[:, 0, 0] = 0.0                                   # an entry with nothing
+    c[:, 0, 1] = -0.0
+    c[:, 1, 1, 1:] = 0.0                               # only a_0
+    c[1, 2, 2, 8] = 1e-300                             # a tail of one tiny coefficient
+    want = np.zeros(c.shape[1:3], dtype=int)
+    for i in range(c.shape[1]):
+        for o in range(c.shape[2]):
+            if not np.any(c[:, i, o]):
+                continue
+            ks = []
+            for a in c[:, i, o]:
+                ks.append(next(j for j in range(1, a.size + 1) if np.abs(a[j:]).sum() <= truncation * abs(a[0])))
+            want[i, o] = max(ks)
+    np.testing.assert_array_equal(_truncation_orders(c, truncation), want)

@@ -190,6 +190,16 @@ class TestRGBMode:
         for c in (0.0, 0.3, 1.0):
             assert_within(spectra_to_rgb_mode(np.full(wl.size, c), wl), [c, c, c], sum_tol(wl.size + 4, c * (np.abs(tristimulus_weights(wl)) @ np.abs(XYZ_to_linear_sRGB(np.eye(3))) / np.abs(XYZ_to_linear_sRGB(white_XYZ(wl)))).sum(0)))  # Σ_i M_ij = 1: W A, Σ W, A, ÷
 
+    def test_flat_spectrum_maps_to_exactly_equal_channels(self):
+        # the docstring's "exactly": c Σ_b M_bk is 1 only to rounding (0.5 gave 0.5000000000000001, 0.49999999999999994,
+        # 0.49999999999999967), and a grey RGB paint's channels then differ and are solved three times instead of once
+        wl = spectral_grid()
+        for c in (0.0, 0.3, 0.5, 0.95, 1.0):
+            assert spectra_to_rgb_mode(np.full(wl.size, c), wl).tolist() == [c, c, c]
+        two = spectra_to_rgb_mode(np.stack([np.full(wl.size, 0.5), np.linspace(0.2, 0.8, wl.size)]), wl)
+        assert two[0].tolist() == [0.5] * 3  # a flat row in a batch too; a sloped one is the matrix product
+        np.testing.assert_allclose(two[1], np.linspace(0.2, 0.8, wl.size) @ spectra_to_rgb_matrix(wl), rtol=1e-14)
+
     def test_R_plus_T_equal_one_is_conserved(self):
         wl = spectral_grid()
         rng = np.random.default_rng(1)

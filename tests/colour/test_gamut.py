@@ -87,3 +87,41 @@ def test_a_grey_table_is_in_gamut_as_it_is():
     assert np.all(gamut.desaturation_factors(c, w) == 1.0)
     mapped, s = gamut.desaturate_to_gamut(c, w)
     assert np.all(s == 1.0) and np.array_equal(mapped, c)
+
+
+def _factors_every_block(c, w, n_phi, rows):
+    """desaturation_factors without its screen: every block of rows evaluated at n_phi azimuths (the reference)."""
+    n = c.shape[1]
+    s = np.ones((n, n))
+    for r0 in range(0, n, rows):
+        v = gamut._pair_values(c[:, r0:r0 + rows], n_phi)
+        Y = np.einsum("k,k...->...", w, v)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound = np.where((v < 0) & (Y > 0)[None], (1.0 - 1e-9) * Y[None] / (Y[None] - v), 1.0)
+        s[r0:r0 + rows] = np.clip(bound.min(axis=(0, 3)), 0.0, 1.0)
+    return np.minimum(s, s[::-1, ::-1].T)
+
+
+def test_screened_factors_and_mapping_are_those_of_every_pair_evaluated():
+    """desaturation_factors skips a block of rows whose every channel has a_0 > Σ_{l≥1} |a_l| (no value can be
+    negative at any azimuth) and desaturate_to_gamut applies (G1) to the mapped pairs alone: the factors and the
+    mapped table are those of evaluating and mapping every pair, bit for bit, for a table whose rows are partly
+    in gamut by that bound, partly in gamut only at the sampled azimuths, partly out of gamut."""
+    rng = np.random.default_rng(7)
+    mu, c, _ = _reciprocal_table(rng, n=24)
+    c[:, :8] = np.abs(c[:, :8]) * np.array([1.0] + [0.01] * 4)  # rows 0-7: a dominant a_0, screened out
+    c[:, :8, :, 0] += 0.05
+    w = gamut.luminance_weights(WL, "srgb")
+    s = gamut.desaturation_factors(c, w, n_phi=16, rows=4)
+    want = _factors_every_block(c, w, 16, 4)
+    np.testing.assert_array_equal(s, want)
+    a0, tail = c[..., 0], np.abs(c[..., 1:]).sum(-1)
+    assert (s < 1).any() and (a0 > 2 * tail)[:, :8].all() and not (a0 > tail)[:, 8:].all()  # some blocks skipped
+    mapped, s2 = gamut.desaturate_to_gamut(c, w, n_phi=gamut.N_PHI_DEFAULT)
+    s_all = _factors_every_block(c, w, gamut.N_PHI_DEFAULT, 16)
+    np.testing.assert_array_equal(s2, s_all)
+    Y = np.einsum("k,k...->...", w, c)
+    out = Y[None] + s_all[None, :, :, None] * (c - Y[None])
+    keep = s_all >= 1.0
+    out[:, keep] = c[:, keep]
+    np.testing.assert_array_equal(mapped, out)

@@ -329,6 +329,29 @@ def test_check_physical_flags_energy_gain_negative_values_and_unconverged_orders
     assert any("converge" in p for p in check_physical(unc))
 
 
+@pytest.mark.parametrize("grey", [True, False])
+def test_check_physical_range_is_the_bsdf_evaluated_at_the_nodes(grey):
+    """check_physical's negativity range (one product over the orders, the node pair's factor after) is the max and
+    min of f μ_i μ_o from StackBSDF.eval_nodes (the coefficient array times cos(l φ), summed), to rounding; a
+    grey stack solved once (channels broadcast, stride 0) is read as one channel."""
+    from flakedb.solve.pipeline import _bsdf_range
+    from flakedb.rt.media import PhaseMedium
+    from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+
+    albedo, primer = ([0.9] * 3, [0.5] * 3) if grey else ([0.95, 0.6, 0.3], [0.5, 0.2, 0.7])
+    slab = Slab(1.0, PhaseMedium(sigma_t_per_um=[1.0] * 3, albedo=albedo, phase=("hg", 0.7)))
+    st = solve_stack(Rough(1.5, 0.2), [slab], Lambertian(primer), SolverSettings.product(16))
+    assert (st.Rt.strides[1] == 0) == grey
+    if not grey:
+        st.Rt = st.Rt.copy()
+        st.Rt[1] -= 0.3 * np.abs(st.Rt[0]).max()  # negative values somewhere, for the min
+    phi = np.linspace(0.0, np.pi, 37)
+    g = st.eval_nodes(phi) * (st.x[:, None] * st.x[None, :])[None, :, :, None]
+    gmax, gmin = _bsdf_range(st, phi)
+    scale = np.abs(g).max()
+    assert abs(gmax - g.max()) <= 1e-12 * scale and abs(gmin - g.min()) <= 1e-12 * scale
+
+
 def test_compose_refuses_an_unphysical_result_unless_allowed(tmp_path, monkeypatch):
     """A result failing the self-check is an error and writes nothing; --allow-unphysical writes it
     with a loud warning."""
@@ -388,9 +411,11 @@ def test_bsdf_range_by_channel_blocks_is_the_whole_arrays():
 
 
 def test_the_discretisation_solve_runs_first_and_is_freed_before_the_solve(tmp_path, monkeypatch):
-    """The report's second solve (n' = 3n/4) is made before the solve at n, and nothing of it is alive when the
-    solve at n runs: made after, while n's R^t and table were held, it set the peak (cadmium yellow under a rough
-    0.1 coat, 41 bands, n = 200: 3.95 GB, 2.97 GB with it first).  Auto's refinement keeps the order at every n."""
+    """For a paint above flakedb.solve.pipeline.CONCURRENT_SECOND_BYTES, the report's second solve (n' = 3n/4) is
+    made before the solve at n, and nothing of it is alive when the solve at n runs: made after, while n's R^t and
+    table were held, it set the peak (cadmium yellow under a rough 0.1 coat, 41 bands, n = 200: 3.95 GB, 2.97 GB
+    with it first).  Auto's refinement keeps the order at every n.  (Small paints run it beside the solve:
+    tests/solve/test_one_home.py.)"""
     import gc
     import weakref
 
@@ -406,6 +431,7 @@ def test_the_discretisation_solve_runs_first_and_is_freed_before_the_solve(tmp_p
         return st
 
     monkeypatch.setattr(orch, "solve_paint", recording)
+    monkeypatch.setattr(orch, "CONCURRENT_SECOND_BYTES", 0.0)  # this small paint takes the large paints' path
     gc.disable()  # only reference counting frees them: what the compose itself holds
     try:
         rec = parse_recipe(textwrap.dedent("""\

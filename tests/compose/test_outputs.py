@@ -145,3 +145,61 @@ def test_gamut_mapping_of_a_reflection_only_table_is_that_of_its_dense_copy(cata
     mi, mo, ph, _ = multiangle_geometry(45.0)
     pts = (np.array([mi, 0.3, 0.9]), np.array([mo, -0.2, -0.95]), np.array([ph, 1.0, 2.5]))
     np.testing.assert_array_equal(eval_table(quad, *pts), eval_table(dense, *pts))
+
+
+@pytest.mark.parametrize("mode, space", [("rgb", "srgb"), ("rgb", "rec2020"), ("spectral", "srgb"), ("spectral", "acescg")])
+def test_grey_table_is_mapped_once_as_its_materialised_copy(mode, space):
+    """A grey stack solved once gives a table whose channels are one array (stride 0): gamut_safe_file_channels maps
+    that one channel (no C-channel copy, nothing to desaturate) and gives the file table and the recorded costs of
+    the same table with its channels written out (the general path: the C × 3 map, then desaturation, then mono),
+    to the rounding of the map's column sums (exactly for RGB mode in sRGB, whose map is the identity)."""
+    from flakedb.bsdf.convert import stack_to_table
+    from flakedb.colour.colorimetry import spectral_grid
+    from flakedb.rt.media import PhaseMedium
+    from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+
+    wl = spectral_grid()  # RGB mode: the grid its white is integrated on
+    C = wl.size if mode == "spectral" else 3
+    slab = Slab(1.0, PhaseMedium(sigma_t_per_um=[1.0] * C, albedo=[0.9] * C, phase=("hg", 0.7)))
+    st = solve_stack(Rough(1.5, 0.2), [slab], Lambertian([0.5] * C), SolverSettings.product(16))
+    grey = stack_to_table(st)
+    assert grey.stored.shape[0] == C and grey.stored.strides[0] == 0
+    written = grey.replace(stored=np.array(grey.stored))
+    fg, ig = gamut_safe_file_channels(grey, mode, wl, space)
+    fw, iw = gamut_safe_file_channels(written, mode, wl, space)
+    assert fg.channels == fw.channels == ("mono",) and ig["pairs_mapped"] == iw["pairs_mapped"] == 0
+    exact = mode == "rgb" and space == "srgb"
+    if exact:
+        assert np.shares_memory(fg.stored, grey.stored)  # the solver's one channel, not a mapped copy
+        np.testing.assert_array_equal(fg.stored, fw.stored)
+        assert ig == iw
+    else:
+        np.testing.assert_allclose(fg.stored, fw.stored, rtol=1e-14, atol=1e-14 * np.abs(fw.stored).max())
+        assert ig.keys() == iw.keys()
+        for k, v in iw.items():
+            if isinstance(v, float):
+                assert ig[k] == pytest.approx(v, rel=1e-13, abs=1e-12), k
+            elif k != "dE00_geometries":
+                assert ig[k] == v, k
+
+
+def test_an_rgb_mode_table_in_srgb_is_written_as_it_is():
+    """RGB mode's channels are white-normalised linear sRGB: the sRGB file holds the same values (the identity map,
+    applied as c + 0.0), an in-gamut table nothing desaturated, and the recorded costs zero."""
+    from flakedb.bsdf.convert import stack_to_table
+    from flakedb.colour.colorimetry import spectral_grid
+    from flakedb.rt.media import PhaseMedium
+    from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+
+    slab = Slab(1.0, PhaseMedium(sigma_t_per_um=[1.0] * 3, albedo=[0.95, 0.8, 0.6], phase=("hg", 0.7)))
+    table = stack_to_table(solve_stack(Rough(1.5, 0.2), [slab], Lambertian([0.5, 0.4, 0.3]), SolverSettings.product(16)))
+    ft, info = gamut_safe_file_channels(table, "rgb", spectral_grid(), "srgb")
+    assert ft.channels == ("R", "G", "B") and info["pairs_mapped"] == 0 and info["max_dE00"] == 0.0
+    np.testing.assert_array_equal(ft.stored, table.stored)
+    # the general map (an einsum over the channels) makes -0.0 +0.0: so does the identity, bit for bit
+    c = np.array(table.stored)
+    c[1, 2, 3, -3:] = -0.0
+    ft2, _ = gamut_safe_file_channels(table.replace(stored=c), "rgb", spectral_grid(), "srgb")
+    want = np.einsum("jk,j...->k...", np.eye(3), c)
+    assert not np.signbit(ft2.stored[1, 2, 3, -3:]).any()
+    np.testing.assert_array_equal(ft2.stored.view(np.int64), want.view(np.int64))

@@ -98,3 +98,15 @@ def test_no_room_outside_solve_decides_n():
         if used:
             bad.append(f"{p.relative_to(PKG)} calls {sorted(used)}")
     assert not bad, bad
+
+
+def test_second_solve_beside_the_main_one_gives_the_same_estimate(tmp_path, monkeypatch):
+    """The discretisation's second solve runs beside the main solve for small paints
+    (flakedb.solve.pipeline.CONCURRENT_SECOND_BYTES) and before it for large ones: the estimate is the same, bit
+    for bit, either way (the two solves share no state)."""
+    rec = parse_recipe(RECIPE.replace("resolution: auto", "resolution: 40"))
+    beside = pipeline.solve_reported(rec)
+    monkeypatch.setattr(pipeline, "CONCURRENT_SECOND_BYTES", 0.0)
+    before = pipeline.solve_reported(rec)
+    assert beside.report["discretisation"] == before.report["discretisation"]
+    assert beside.report["discretisation"]["n_second"] == resolution.second_solve_n(40)
