@@ -85,9 +85,12 @@ def test_graininess_agrees_with_the_simulation(runs, name):
 @pytest.mark.slow
 def test_a_perturbed_orientation_term_is_caught(runs, monkeypatch):
     """The same comparison with the flake-normal density's α scaled by 1.3 in the model fails."""
-    from flakedb.rt.microflake import flake_ndf_Beckmann
+    import dataclasses
 
-    monkeypatch.setattr(tm, "flake_ndf_Beckmann", lambda c, a: flake_ndf_Beckmann(c, 1.3 * a))
+    from flakedb.rt.microflake import FLAKE_DISTRIBUTIONS
+
+    beck = FLAKE_DISTRIBUTIONS["beckmann"]
+    monkeypatch.setitem(FLAKE_DISTRIBUTIONS, "beckmann", dataclasses.replace(beck, ndf=lambda c, a: beck.ndf(c, 1.3 * a)))
     failures = 0
     for name in CASES:
         st, res = runs[name]
