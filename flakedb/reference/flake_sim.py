@@ -22,8 +22,9 @@ statistics, and traces them.
   (computed by the same sampling).  Lit spots: pixels of the observer's spot size overlapped by a
   glint's disc.
 * Uniform sky: every flake mirrors the sky direction 2(v'·m)m − v' (0 if it points down or is
-  totally internally reflected at the coat), b = T_in T_out R_Y(|v'·m|) w; its area is deposited
-  into the pixel grid by stratified points on its disc; graininess = std/mean of the pixel values.
+  totally internally reflected at the coat), b = T_in T_out R_Y(|v'·m|) w; its footprint (points on its
+  tilted disc carried up along v' to the surface: an ellipse of area A |v'·m|/v'_z) is deposited into
+  the pixel grid; graininess = std/mean of the pixel values.
 
 Every function takes plain arrays; :func:`simulate` returns a dict.  numba compiles the loops
 (cached).  Statistical errors: Poisson √N on counts; the standard error of the relative standard
@@ -255,17 +256,35 @@ def _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, nc
 
 
 @numba.njit(cache=True)
-def _deposit(X, Y, RAD, val, p, npx, L, disc):
-    """Pixel map (npx, npx) of Σ val × (area of the flake's disc in the pixel)/p², periodic."""
+def _deposit(X, Y, Z, NX, NY, NZ, RAD, val, p, npx, L, disc, bvx, bvy, bvz):
+    """Pixel map (npx, npx) of Σ val × (area of the flake's footprint in the pixel)/p², periodic: each point of
+    the flake's tilted disc (normal m, points of ``disc`` on it) carried up along the view v' = (bvx, bvy, bvz)
+    (binder, up) to the surface, so the footprint is the ellipse of area A |m·v'|/v'_z."""
     img = np.zeros((npx, npx))
     Q = disc.shape[0]
+    sx, sy = bvx / bvz, bvy / bvz
     for i in range(X.shape[0]):
         if val[i] == 0.0:
             continue
-        w = val[i] * np.pi * RAD[i] * RAD[i] / (Q * p * p)
+        mx, my, mz = NX[i], NY[i], NZ[i]
+        # an orthonormal basis (e1, e2) of the flake's plane
+        if abs(mz) < 0.9:
+            ax, ay, az = 0.0, 0.0, 1.0
+        else:
+            ax, ay, az = 1.0, 0.0, 0.0
+        e1x, e1y, e1z = ay * mz - az * my, az * mx - ax * mz, ax * my - ay * mx
+        n1 = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+        e1x, e1y, e1z = e1x / n1, e1y / n1, e1z / n1
+        e2x, e2y, e2z = my * e1z - mz * e1y, mz * e1x - mx * e1z, mx * e1y - my * e1x
+        area = np.pi * RAD[i] * RAD[i] * abs(mx * bvx + my * bvy + mz * bvz) / bvz
+        w = val[i] * area / (Q * p * p)
         for q in range(Q):
-            x = (X[i] + RAD[i] * disc[q, 0]) % L
-            yy = (Y[i] + RAD[i] * disc[q, 1]) % L
+            dx = RAD[i] * (disc[q, 0] * e1x + disc[q, 1] * e2x)
+            dy = RAD[i] * (disc[q, 0] * e1y + disc[q, 1] * e2y)
+            dz = RAD[i] * (disc[q, 0] * e1z + disc[q, 1] * e2z)  # up
+            depth = Z[i] - dz
+            x = (X[i] + dx + depth * sx) % L
+            yy = (Y[i] + dy + depth * sy) % L
             img[min(int(x / p), npx - 1), min(int(yy / p), npx - 1)] += w
     return img
 
@@ -403,7 +422,9 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
     if diffuse:
         b = _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
                  absz, absd, abss, eta, vx, vy, vz, t_out)
-        img = _deposit(X, Y, RAD, b, p, npx, L_um, _disc_points(64))
+        bvx, bvy = vx / eta, vy / eta
+        img = _deposit(X, Y, Z, NX, NY, NZ, RAD, b, p, npx, L_um, _disc_points(64), bvx, bvy,
+                       np.sqrt(1.0 - bvx * bvx - bvy * bvy))
         v = img.ravel()
         m, sd = v.mean(), v.std(ddof=1)
         kurt = np.mean((v - m) ** 4) / max(sd**4, 1e-300)

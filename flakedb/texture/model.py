@@ -29,7 +29,7 @@ from numpy.polynomial.hermite_e import hermegauss as _hermegauss
 from numpy.polynomial.legendre import leggauss as _leggauss
 
 from flakedb.optics.fresnel import fresnel_dielectric
-from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, flake_distribution, projected_area
+from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun, flake_distribution, projected_area
 from flakedb.texture.instruments import DIFFRACTION_WAVELENGTH_NM
 
 
@@ -64,6 +64,20 @@ N_DIAMETER, N_DEPTH, N_OFFSET = 12, 16, 129
 N_TILT, N_AZIMUTH = 12, 12
 #: Depth nodes of the graininess integrals.
 N_DEPTH_SKY = 16
+#: Whether a flake crossed by both the light's and the view's path hides the two together (docs/texture.md
+#: eq. S4, the opposition effect of hiding) or, as in the solver's radiative transfer (paper eq. 2: extinction
+#: independent along each path), twice.  False: the texture is the BSDF's single-flake term split into flakes,
+#: so the glints' mean is that term (previews and exports keep the mean).  True raised metallic silver's glint
+#: flux to 1.66× the BSDF's single-flake term at 15° (1.57× at 45°) and its sky mean to 1.61× (docs/texture.md §3.3).
+CORRELATED_PATHS = False
+
+
+def _both_paths(stack, z, gap, lam_l, lam_v):
+    """λ_b: the expected number of flakes crossed by both paths of a flake at depths ``z`` (nz,) (eq. S4 when
+    :data:`CORRELATED_PATHS`, else 0: independent paths), at most either path's own count."""
+    if not CORRELATED_PATHS:
+        return np.zeros(np.size(z))
+    return np.minimum(_shared(stack, z, gap), np.minimum(lam_l, lam_v))
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,6 +114,18 @@ class FlakeLayer:
 
     def transmittance(self, c):
         return _interp_rows(self.c, self.T, c)
+
+    def mean_crossed_transmittance(self, mu, projected=None):
+        """T̄(μ) per channel (C, *mu.shape): the mean transmittance of the flakes a path at cosine μ crosses,
+        1 − σ_t(μ)/(aρ P(μ)) with the solver's σ_t per unit loading and P (``projected``, if already known)."""
+        mu = np.asarray(mu, float)
+        if not np.any(self.T):
+            return np.zeros((np.atleast_2d(self.T).shape[0],) + mu.shape)
+        if projected is None:
+            projected = projected_area(mu, self.alpha, distribution=self.distribution)
+        optics = FlakeOptics(np.asarray(self.c, float), np.atleast_2d(self.R), np.atleast_2d(self.T))
+        st = extinction_Ergun(mu, self.alpha, optics, 1.0, distribution=self.distribution)
+        return np.clip(1.0 - st / np.asarray(projected, float), 0.0, 1.0)
 
     def diameters(self, n=N_DIAMETER):
         """(D nodes µm, number fractions) of the log-normal: Gauss–Hermite in ln D (exact for the
@@ -278,7 +304,11 @@ def _depth_nodes(layer, n=N_DEPTH):
 def _path(stack, z, mu):
     """Along a path from depth z (nz,) to the surface at cosine μ (scalar or (nz,)): absorber optical
     depth per channel (C, nz), the expected number of flakes crossed (nz,) and the crossing-rate-
-    weighted flake transmittance per channel (C, nz) at c = μ (flakes near the surface's normal)."""
+    weighted flake transmittance per channel (C, nz).  A path crosses flakes of normal m at the rate
+    ρ⟨A⟩ |ω·m| D(m)/μ, so the crossed flakes' mean transmittance is at their true angles,
+    T̄(μ) = ∫ T(|ω·m|) |ω·m| D dm / ∫ |ω·m| D dm = 1 − σ_t(μ)/(aρ P(μ)): the solver's own extinction
+    (:func:`flakedb.rt.microflake.extinction_Ergun`, paper eq. 2) over its projected area, so a path's mean
+    attenuation e^{−λ(1 − T̄)} is the RT's e^{−σ_t s} exactly (T at c = μ was 4 % low on 5 % pearlescent)."""
     z = np.asarray(z, float)
     # one cosine for all depths: the flakes' crossing rate and transmittance evaluated once
     mu_f = np.asarray(mu, float).reshape(1) if np.ndim(mu) == 0 else np.broadcast_to(np.asarray(mu, float), z.shape)
@@ -292,11 +322,10 @@ def _path(stack, z, mu):
     lamT = np.zeros((C, z.size))
     for f in stack.flakes:
         seg = np.clip(z - f.z_top_um, 0.0, f.thickness_um)
-        rate = (f.number_density_per_um3 * f.mean_area_um2()
-                * projected_area(mu_f, f.alpha, distribution=f.distribution) / mu_f)
-        lam_f = rate * seg
+        P = projected_area(mu_f, f.alpha, distribution=f.distribution)
+        lam_f = f.number_density_per_um3 * f.mean_area_um2() * P / mu_f * seg
         lam += lam_f
-        lamT += lam_f * f.transmittance(mu_f)
+        lamT += lam_f * f.mean_crossed_transmittance(mu_f, P)
     with np.errstate(invalid="ignore", divide="ignore"):
         T = np.where(lam > 0, lamT / np.where(lam > 0, lam, 1.0), 0.0)
     return tau, lam, T
@@ -565,7 +594,7 @@ def _glint_paths(stack, f, g):
         shape = z.shape
         tau_l, lam_l, T_l = _path(stack, z.ravel(), g.mu_l_b)
         tau_v, lam_v, T_v = _path(stack, z.ravel(), g.mu_v_b)
-        lam_b = np.minimum(_shared(stack, z.ravel(), np.full(z.size, gap)), np.minimum(lam_l, lam_v))
+        lam_b = _both_paths(stack, z.ravel(), np.full(z.size, gap), lam_l, lam_v)
         cs = (C,) + shape
         inputs = (np.exp(-(tau_l + tau_v)).reshape(cs), (lam_l - lam_b).reshape(shape), (lam_v - lam_b).reshape(shape),
                   lam_b.reshape(shape), T_l.reshape(cs), T_v.reshape(cs))
@@ -902,7 +931,7 @@ def _sky_terms(stack, f, view_deg):
     C = y.size
     tau_l, lam_l, T_l = tau_l.reshape(C, M, nz), lam_l.reshape(M, nz), T_l.reshape(C, M, nz)
     gap = np.repeat(_gap(np.where(ok[:, None], lm, vb[None, :]), vb)[:, None], nz, axis=1).ravel()
-    lam_b = np.minimum(_shared(stack, zz, gap), np.minimum(lam_l.ravel(), np.repeat(lam_v[None, :], M, 0).ravel()))
+    lam_b = _both_paths(stack, zz, gap, lam_l.ravel(), np.repeat(lam_v[None, :], M, 0).ravel())
     lam_b = lam_b.reshape(M, nz)
     lo_l, lo_v = lam_l - lam_b, lam_v[None, :] - lam_b  # one path only
     # per channel: amp = T_in T_out R e^{−τ}; Poisson crossings average exactly (docs/texture.md eq. G3):
