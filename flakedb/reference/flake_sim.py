@@ -14,10 +14,13 @@ statistics, and traces them.
 * Directional light: for flakes near the mirror orientation, the fraction f of the flake's
   reflected beam that enters the aperture is integrated by stratified sampling of the source
   disc (in air, refracted exactly by Snell's law in vector form), exact mirror reflection about the
-  flake's normal, a diffraction offset drawn uniformly in a disc of radius 2λ'/(πD) in the binder,
-  exact refraction back into air (total internal reflection loses the sample) and an exact test
-  against the aperture cone in air.  A flake's luminance factor is
-  β = π T_in T_out R_Y w f c/(μ_l' μ_v Ω_a); a glint is a flake with β ≥ β_peak/2, β_peak the
+  flake's normal, a wavelength channel drawn with probability ∝ y R(c) (the flake's own colour) and a
+  diffraction offset drawn from the Fraunhofer (Airy) pattern of the flake's projection seen along the
+  reflected ray (radius by inverting the encircled energy 1 − J0² − J1² at that channel's λ' = λ/η,
+  stretched by 1/|o·m| along the flake's tilt), exact refraction back into air (total internal
+  reflection loses the sample) and an exact test against the aperture cone in air; each sample weighs
+  its channel's path transmission.  A flake's luminance factor is
+  β = π T_in T_out R_Y f c/(μ_l' μ_v Ω_a) (f: the transmission-weighted collected fraction); a glint is a flake with β ≥ β_peak/2, β_peak the
   same quantity for a flake of that diameter at the exact mirror orientation, unattenuated
   (computed by the same sampling).  Lit spots: pixels of the observer's spot size overlapped by a
   glint's disc.
@@ -127,18 +130,34 @@ def _refract_up_to_air(ox, oy, oz, eta):
     return tx, ty, np.sqrt(1.0 - t2), True
 
 
+#: Airy radii x = π D θ/λ tabulated for sampling (encircled energy 1 − J0²(x) − J1²(x), Rayleigh); offsets
+#: beyond the last (0.3 % of the energy) leave the aperture.
+_AIRY_X = np.linspace(0.0, 200.0, 200001)
+
+
+def _airy_cdf():
+    from scipy.special import j0, j1  # the one closed form the simulation takes from a library
+
+    return 1.0 - j0(_AIRY_X) ** 2 - j1(_AIRY_X) ** 2
+
+
 @numba.njit(cache=True)
-def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud, rot1, rot2):
-    """Fraction of a flake's reflected beam (normal m) entering the aperture (module docstring)."""
-    # orthonormal frame around the light direction in air
+def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, p_ch, wt_ch, us, ud, uc,
+                        rot1, rot2, airy_cdf, airy_x):
+    """Mean over the source, the flake's diffraction and its colours of (weight of the sampled channel) × (the
+    ray enters the aperture), for a flake of normal m: each sample draws a point of the source disc (air),
+    refracts it, mirrors it about m, draws a wavelength channel with probability ``p_ch`` and an offset from
+    the Fraunhofer pattern of the flake's projection seen along the reflected ray (a disc of diameter D
+    foreshortened to D |o·m| along the tilt: Airy radius x = π D θ/λ' by inverting the encircled energy,
+    stretched by 1/|o·m| along the tilt), refracts back to air and tests the aperture cone."""
     ex, ey, ez = lz, 0.0, -lx  # light is in the x-z plane
     nrm = np.sqrt(ex * ex + ey * ey + ez * ez)
     ex, ey, ez = ex / nrm, ey / nrm, ez / nrm
     fx, fy, fz = ly * ez - lz * ey, lz * ex - lx * ez, lx * ey - ly * ex
-    r_d = 2.0 * lam_b / (np.pi * D)
     cos_a = np.cos(r_a)
     K = us.shape[0]
-    hits = 0
+    C = p_ch.shape[0]
+    acc = 0.0
     for k in range(K):
         # source point: uniform in the cone of half-angle r_s (small-angle disc on the unit sphere)
         u1 = (us[k, 0] + rot1) % 1.0
@@ -155,35 +174,56 @@ def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, la
         # mirror about m
         dm = bx * mx + by * my + bz * mz
         ox, oy, oz = 2.0 * dm * mx - bx, 2.0 * dm * my - by, 2.0 * dm * mz - bz
-        # diffraction offset uniform in a disc of radius r_d (tangent plane of o)
+        # the wavelength channel
+        uch = (uc[k] + rot1 + rot2) % 1.0
+        ch = 0
+        cum = p_ch[0]
+        while uch > cum and ch < C - 1:
+            ch += 1
+            cum += p_ch[ch]
+        # Airy offset: radius from the encircled energy, direction uniform
         w1 = (ud[k, 0] + rot2) % 1.0
         w2 = (ud[k, 1] + rot1) % 1.0
-        rr = r_d * np.sqrt(w1)
+        j = np.searchsorted(airy_cdf, w1)
+        if j >= airy_cdf.shape[0]:
+            continue  # beyond the tabulated pattern: lost
+        x = airy_x[j]
+        if j > 0 and airy_cdf[j] > airy_cdf[j - 1]:
+            x = airy_x[j - 1] + (w1 - airy_cdf[j - 1]) / (airy_cdf[j] - airy_cdf[j - 1]) * (airy_x[j] - airy_x[j - 1])
+        rr = x * lam_ch[ch] / (np.pi * D)
         ps = 2.0 * np.pi * w2
-        # frame around o
-        if abs(oz) < 0.9:
-            gx, gy, gz = -oy, ox, 0.0
-        else:
-            gx, gy, gz = 0.0, -oz, oy
-        gn = np.sqrt(gx * gx + gy * gy + gz * gz)
-        gx, gy, gz = gx / gn, gy / gn, gz / gn
-        kx, ky, kz = oy * gz - oz * gy, oz * gx - ox * gz, ox * gy - oy * gx
-        ox2 = ox + rr * (np.cos(ps) * gx + np.sin(ps) * kx)
-        oy2 = oy + rr * (np.cos(ps) * gy + np.sin(ps) * ky)
-        oz2 = oz + rr * (np.cos(ps) * gz + np.sin(ps) * kz)
+        # frame around o: t along the flake's tilt as seen from o (where the projection is foreshortened)
+        tx, ty, tz = mx - dm * ox, my - dm * oy, mz - dm * oz
+        tn = np.sqrt(tx * tx + ty * ty + tz * tz)
+        if tn < 1e-12:
+            if abs(oz) < 0.9:
+                tx, ty, tz = -oy, ox, 0.0
+            else:
+                tx, ty, tz = 0.0, -oz, oy
+            tn = np.sqrt(tx * tx + ty * ty + tz * tz)
+        tx, ty, tz = tx / tn, ty / tn, tz / tn
+        kx, ky, kz = oy * tz - oz * ty, oz * tx - ox * tz, ox * ty - oy * tx
+        a_t = rr * np.cos(ps) / max(abs(dm), 1e-6)
+        a_k = rr * np.sin(ps)
+        ox2 = ox + a_t * tx + a_k * kx
+        oy2 = oy + a_t * ty + a_k * ky
+        oz2 = oz + a_t * tz + a_k * kz
         on = np.sqrt(ox2 * ox2 + oy2 * oy2 + oz2 * oz2)
         ax, ay, az, ok = _refract_up_to_air(ox2 / on, oy2 / on, oz2 / on, eta)
         if ok and ax * vx + ay * vy + az * vz >= cos_a:
-            hits += 1
-    return hits / K
+            acc += wt_ch[ch]
+    return acc / K
 
 
 @numba.njit(cache=True)
 def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, ncell, cell, rmax,
-                 absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud, rots,
-                 cos_cut, t_in, t_out, mu_lb, mu_v, om_a):
-    """Per flake: β (luminance factor), β_peak of its diameter, and whether it was examined."""
+                 absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, us, ud, uc, rots,
+                 cos_cut, t_in, t_out, mu_lb, mu_v, om_a, airy_cdf, airy_x):
+    """Per flake: β (luminance factor), β_peak of its diameter, and whether it was examined.  Each flake's
+    colours: channels drawn with probability ∝ y R(c) and weighted by their path transmissions, so the
+    luminance Σ y R T_l T_v f is estimated per channel, each with its own wavelength's pattern."""
     N = X.shape[0]
+    C = y.shape[0]
     beta = np.zeros(N)
     peak = np.zeros(N)
     # binder directions of the source and view centres (toward them, going up)
@@ -195,31 +235,32 @@ def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_i
     hn = np.sqrt(hx * hx + hy * hy + hz * hz)
     hx, hy, hz = hx / hn, hy / hn, hz / hn
     c_h = blx * hx + bly * hy + blz * hz
+    ones = np.ones(C)
     for i in range(N):
         D = 2.0 * RAD[i]
         if NX[i] * hx + NY[i] * hy + NZ[i] * hz < cos_cut[i]:
             continue
-        f = _collected_fraction(NX[i], NY[i], NZ[i], D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud,
-                                rots[i, 0], rots[i, 1])
-        f0 = _collected_fraction(hx, hy, hz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud,
-                                 rots[i, 0], rots[i, 1])
         Rh = _lookup(Rtab[SP[i]], c_h)
-        RYh = 0.0
-        for ch in range(y.shape[0]):
-            RYh += y[ch] * Rh[ch]
-        peak[i] = np.pi * t_in * t_out * RYh * f0 * c_h / (mu_lb * mu_v * om_a)
-        if f <= 0.0:
+        yRh = y * Rh
+        RYh = yRh.sum()
+        if RYh <= 0.0:
             continue
+        f0 = _collected_fraction(hx, hy, hz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, yRh / RYh, ones,
+                                 us, ud, uc, rots[i, 0], rots[i, 1], airy_cdf, airy_x)
+        peak[i] = np.pi * t_in * t_out * RYh * f0 * c_h / (mu_lb * mu_v * om_a)
         c = abs(blx * NX[i] + bly * NY[i] + blz * NZ[i])
         R = _lookup(Rtab[SP[i]], c)
+        yR = y * R
+        RY = yR.sum()
+        if RY <= 0.0:
+            continue
         tl = _path_transmission(X[i], Y[i], Z[i], blx, bly, blz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
                                 cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
         tv = _path_transmission(X[i], Y[i], Z[i], bvx, bvy, bvz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
                                 cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
-        num = 0.0
-        for ch in range(y.shape[0]):
-            num += y[ch] * R[ch] * tl[ch] * tv[ch]
-        beta[i] = np.pi * t_in * t_out * num * f * c / (mu_lb * mu_v * om_a)
+        f = _collected_fraction(NX[i], NY[i], NZ[i], D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, yR / RY,
+                                tl * tv, us, ud, uc, rots[i, 0], rots[i, 1], airy_cdf, airy_x)
+        beta[i] = np.pi * t_in * t_out * RY * f * c / (mu_lb * mu_v * om_a)
     return beta, peak
 
 
@@ -387,10 +428,14 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
     t_out = 1.0 - float(_fresnel_unpolarised(mu_v, 1.0, eta))
     om_a = 2.0 * np.pi * (1.0 - np.cos(aperture_half_angle_rad))
     r_s = np.radians(source_half_angle_deg)
-    lam_b = wavelength_nm * 1e-3 / eta
+    lam_b = float(np.max(wavelength_nm)) * 1e-3 / eta  # the widest pattern (the candidates' reach)
+    lam_ch = np.broadcast_to(np.asarray(wavelength_nm, float), y.shape) * 1e-3 / eta  # per channel, binder
+    airy_cdf = _airy_cdf()
     area_mm2 = (L_um * 1e-3) ** 2
     out = {"flakes": int(X.size), "area_mm2": area_mm2, "pixels": npx * npx, "directional": []}
     us, ud = _stratified(n_samples, rng), _stratified(n_samples, rng)
+    uc = (np.arange(n_samples) + rng.random(n_samples)) / n_samples
+    uc = uc[rng.permutation(n_samples)]
     for a in light_deg:
         th = np.radians(a)
         lx, ly, lz = np.sin(th), 0.0, np.cos(th)
@@ -398,12 +443,12 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
         t_in = 1.0 - float(_fresnel_unpolarised(np.cos(th), 1.0, eta))
         # candidates: normals within a generous cone of h' (3× the reach of beam + aperture, in normal angle)
         r_sb = r_s / eta
-        reach = 3.0 * (r_sb + 2.0 * lam_b / (np.pi * 2.0 * RAD) + aperture_half_angle_rad / eta) + 1e-3
+        reach = 3.0 * (r_sb + 3.0 * lam_b / (2.0 * RAD) + aperture_half_angle_rad / eta) + 1e-3
         cos_cut = np.cos(np.minimum(reach, np.pi / 2))
         rots = rng.random((X.size, 2))
         beta, peak = _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
                                   absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, aperture_half_angle_rad,
-                                  lam_b, us, ud, rots, cos_cut, t_in, t_out, mu_lb, mu_v, om_a)
+                                  lam_ch, us, ud, uc, rots, cos_cut, t_in, t_out, mu_lb, mu_v, om_a, airy_cdf, _AIRY_X)
         glint = (peak > 0) & (beta >= 0.5 * peak)
         n = int(glint.sum())
         A = np.pi * RAD**2

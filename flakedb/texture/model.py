@@ -27,6 +27,7 @@ from functools import lru_cache
 import numpy as np
 from numpy.polynomial.hermite_e import hermegauss as _hermegauss
 from numpy.polynomial.legendre import leggauss as _leggauss
+from scipy.special import j1
 
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun, flake_distribution, projected_area
@@ -58,8 +59,8 @@ GLINT_FRACTION = 0.5
 #: Sparkle exists only where a perfectly aligned surface flake is brighter than a perfect white
 #: diffuser under the same light (luminance factor 1; docs/texture.md §3.5).
 SPARKLE_MIN_PEAK = 1.0
-#: Quadrature sizes: diameters (Gauss–Hermite in ln D), depths (Gauss–Legendre per layer), offsets.
-N_DIAMETER, N_DEPTH, N_OFFSET = 12, 16, 129
+#: Quadrature sizes: diameters (Gauss–Hermite in ln D), depths (Gauss–Legendre per layer).
+N_DIAMETER, N_DEPTH = 12, 16
 #: Flake normals under the sky: Gauss–Laguerre in tan²θ/α² × uniform azimuths.
 N_TILT, N_AZIMUTH = 12, 12
 #: Depth nodes of the graininess integrals.
@@ -278,7 +279,8 @@ def _lens_area_sq(d, d2, r1, r2, equal=False):
 
 def diffraction_radius(diameter_um, eta, wavelength_nm=DIFFRACTION_WAVELENGTH_NM):
     """Angular radius (rad, in the binder) of the uniform cone with the peak radiant intensity of a
-    disc's Airy pattern: Ω = λ²/A (A = πD²/4, λ in the binder), r = 2λ/(πD) (docs/texture.md §3.2)."""
+    disc's Airy pattern: Ω = λ²/A (A = πD²/4, λ in the binder), r = 2λ/(πD).  The Mitsuba route's lobe width
+    (flakedb.render.mitsuba_sparkle); the indices use the Airy pattern itself (:func:`beam_collected`)."""
     lam_um = float(wavelength_nm) * 1e-3 / float(eta)
     return 2.0 * lam_um / (np.pi * np.asarray(diameter_um, float))
 
@@ -387,6 +389,12 @@ class Geometry:
     omega_a: float
     r_s: float
     r_a: float
+    #: semi-axes (rad, binder) of the refracted source and aperture cones in the plane of incidence (∥) and
+    #: across it (⊥): an air cone of radius r becomes the ellipse r μ/(η μ') × r/η (Snell, small cones)
+    s_par: float = 0.0
+    s_perp: float = 0.0
+    a_par: float = 0.0
+    a_perp: float = 0.0
 
 
 def directional_geometry(eta, light_deg, view_deg, source_half_angle_deg, aperture_half_angle_rad) -> Geometry:
@@ -403,97 +411,148 @@ def directional_geometry(eta, light_deg, view_deg, source_half_angle_deg, apertu
     om_a = float(cone_solid_angle(aperture_half_angle_rad))
     om_sb = om_s * mu_l / (eta * eta * mu_lb)
     om_ab = om_a * mu_v / (eta * eta * mu_vb)
+    r_s, r_a = float(np.radians(source_half_angle_deg)), float(aperture_half_angle_rad)
     return Geometry(float(mu_l), float(mu_v), mu_lb, mu_vb, float(h[2]), float(lb @ h),
                     float(coat_transmittance(mu_l, eta)), float(coat_transmittance(mu_v, eta)),
-                    om_s, om_a, float(np.sqrt(om_sb / np.pi)), float(np.sqrt(om_ab / np.pi)))
+                    om_s, om_a, float(np.sqrt(om_sb / np.pi)), float(np.sqrt(om_ab / np.pi)),
+                    r_s * float(mu_l) / (eta * mu_lb), r_s / eta, r_a * float(mu_v) / (eta * mu_vb), r_a / eta)
 
 
-#: Offsets per block in :func:`_offset_tables` (× 144 aperture nodes: ~8000 elements at a time).
-_OFFSET_ROWS = 56
+#: Side (cells) of the grid on which a flake's beam is collected by the aperture (:func:`_beam_levels`), and
+#: the luminance levels at which the regions above a threshold are tabulated.
+BEAM_GRID, BEAM_LEVELS = 384, 4096
+#: Airy core radii (λ'/D of the longest wavelength) the beam grid reaches beyond the source and aperture.
+BEAM_AIRY_REACH = 6.0
+#: Most wavelength groups of a flake's spectral diffraction pattern (bands merged, weights kept).
+N_DIFFRACTION_BANDS = 8
 
 
-def _offset_tables(r_s, r_d, r_a, n=N_OFFSET, n_r=12, n_t=24):
-    """The fraction of a flake's beam that the aperture collects, against the offset d of the beam's
-    centre from the aperture's centre (ω_o space, docs/texture.md eq. S1b): the beam is the source
-    disc (radius r_s) convolved with the diffraction disc (r_d), density lens(|y|; r_s, r_d)/(π r_s² π r_d²),
-    integrated over the aperture disc (r_a) by Gauss–Legendre in radius × midpoint in angle (``n_t``
-    even: the angles θ and 2π − θ give the same distance, so half of them are evaluated, twice weighted).
-    ``r_d``: a scalar or (nD,) diffraction radii, one table each.
-    Returns d on [0, r_s + r_d + r_a], f(d), and I(d) = ∫_0^d f 2πx dx / f(0) (φ = f/f(0)), each with
-    the shape of ``r_d`` followed by (n,) (f(0): the shape of ``r_d``)."""
-    r_d = np.asarray(r_d, float)
-    rd = r_d.reshape(-1)
-    d = np.linspace(0.0, 1.0, n)[None, :] * (r_s + rd[:, None] + r_a)  # (nD, n)
-    x, wx = leggauss(n_r)
-    rr = 0.5 * r_a * (x + 1.0)
-    wr = 0.5 * r_a * wx * rr
-    half = n_t // 2
-    th = (np.arange(half) + 0.5) * 2.0 * np.pi / n_t  # (0, π); the mirror angles 2π − θ are alike
-    ax = (rr[:, None] * np.cos(th)[None, :]).ravel()
-    ay = (rr[:, None] * np.sin(th)[None, :]).ravel()
-    ay2 = ay * ay
-    wa = np.repeat(wr, half) * (2.0 * 2.0 * np.pi / n_t)
-    f = np.zeros(d.shape)
-    pos = rd > 0
-    norm = np.pi * r_s * r_s * np.pi * rd * rd
-    # offsets whose whole aperture lies inside the larger disc's lens plateau (|a − d| ≤ r_big − r_small at
-    # every node: f = π r_small² Σ w / norm) or beyond the beam (|a − d| ≥ r_s + r_d: f = 0) need no
-    # lens evaluation; the margins keep every node of a skipped offset strictly in its case
-    small, big = np.minimum(r_s, rd), np.maximum(r_s, rd)
-    inside = (d + rr.max() <= (big - small)[:, None] * (1.0 - 1e-9)) & pos[:, None]
-    f[inside] = np.broadcast_to((np.pi * small * small / np.where(pos, norm, 1.0) * wa.sum())[:, None], d.shape)[inside]
-    mid = ~inside & (d - rr.max() < (r_s + rd)[:, None] * (1.0 + 1e-9)) & pos[:, None]
-    for i in np.flatnonzero(mid.any(axis=1)):  # one diffraction radius at a time (scalar radii: fast loops)
-        jj = np.flatnonzero(mid[i])
-        for lo in range(0, jj.size, _OFFSET_ROWS):  # blocks of offsets × the aperture's nodes
-            j = jj[lo:lo + _OFFSET_ROWS]
-            d2 = (ax - d[i, j][:, None]) ** 2 + ay2  # (rows, n_r·n_t/2)
-            f[i, j] = (_lens_area_sq(np.sqrt(d2), d2, r_s, float(rd[i]), equal=bool(rd[i] == r_s)) @ wa) / norm[i]
-    for i in np.flatnonzero(~pos):  # no diffraction: the source disc alone
-        dist = np.sqrt((ax[None, :] - d[i][:, None]) ** 2 + ay2)
-        f[i] = ((dist <= r_s) / (np.pi * r_s * r_s)) @ wa
-    f = np.minimum.accumulate(f, axis=-1)  # non-increasing in d (removes quadrature ripples)
-    phi = f / f[:, :1]
-    g = phi * 2.0 * np.pi * d
-    I = np.concatenate([np.zeros((d.shape[0], 1)), np.cumsum(0.5 * (g[:, 1:] + g[:, :-1]) * np.diff(d, axis=-1), axis=-1)],
-                       axis=-1)
-    shape = r_d.shape
-    return (d.reshape(shape + (n,)), phi.reshape(shape + (n,)), I.reshape(shape + (n,)),
-            f[:, 0].reshape(shape) if shape else float(f[0, 0]))
+#: Spacing and reach of the tabulated 2 J1(r)/r (:func:`_jinc`): linear interpolation errs < 2e-6.
+_JINC_STEP, _JINC_MAX = 0.004, 2048.0
 
 
-def _threshold_offset(q, d, phi):
-    """d_q with φ(d_q) = q for thresholds q (…) (0 for q > 1; φ is non-increasing from 1 to 0)."""
-    q = np.asarray(q, float)
-    dq = np.interp(q, phi[::-1], d[::-1], left=d[-1], right=0.0)
-    return np.where(q > 1.0, 0.0, dq)
+@lru_cache(maxsize=1)
+def _jinc_table():
+    r = np.arange(0.0, _JINC_MAX + 2 * _JINC_STEP, _JINC_STEP)
+    t = np.ones_like(r)
+    t[1:] = 2.0 * j1(r[1:]) / r[1:]
+    t.setflags(write=False)
+    return t
 
 
-def _cumtrapz(y, x):
-    """Cumulative trapezoid integral along the last axis (0 at the first node)."""
-    seg = 0.5 * (y[..., 1:] + y[..., :-1]) * np.diff(x, axis=-1)
-    return np.concatenate([np.zeros(seg.shape[:-1] + (1,)), np.cumsum(seg, axis=-1)], axis=-1)
+def _jinc(r):
+    """2 J1(r)/r (→ 1 at r = 0): the Fourier transform of the uniform unit-area disc in ρ = 2π a |ν|; from a
+    table (:data:`_JINC_STEP`) up to :data:`_JINC_MAX`, the Bessel function itself beyond."""
+    r = np.asarray(r, float)
+    t = _jinc_table()
+    x = r / _JINC_STEP
+    i = np.minimum(x.astype(np.int64), t.size - 2)
+    out = t[i] + (x - i) * (t[i + 1] - t[i])
+    far = r > _JINC_MAX
+    if np.any(far):
+        out[far] = 2.0 * j1(r[far]) / r[far]
+    return out
 
 
-def _ring_density(g, alpha, d, n_angle=16, distribution=DEFAULT_DISTRIBUTION):
-    """The upper-hemisphere flake-normal density p(m) = 2 D(m) (D of ``distribution``, a key of
-    :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`; Beckmann: paper eq. 5) averaged over the circle
-    of normals whose beams land at offset d from the aperture's centre (docs/texture.md eq. S2b):
-    a beam offset (δ∥, δ⊥) in ω_o space is a normal offset (δ∥/2, δ⊥/(2c)) around h' (the half-vector
-    map, area Jacobian 1/(4c)).  ``d``: any shape.  Returns d's shape, 1/sr; → p(h') as d → 0.
-    With h' = (sin θ, 0, cos θ), e∥ = (cos θ, 0, −sin θ), e⊥ = (0, 1, 0) orthonormal, the normal
-    h' + a e∥ + b e⊥ has |·|² = 1 + a² + b² and z-component cos θ − a sin θ; the angles ψ and 2π − ψ of
-    the ``n_angle`` (even) midpoint angles give the same (a, b²), so half of them are evaluated."""
+def airy_otf(s):
+    """The optical transfer function of a circular aperture, the Fourier transform of its unit-integral Airy
+    pattern: (2/π)(arccos s − s √(1 − s²)) at the frequency s = |ν| λ/D ≤ 1, 0 beyond (Goodman, *Introduction
+    to Fourier Optics*, eq. 7-34)."""
+    s = np.clip(np.asarray(s, float), 0.0, 1.0)
+    return (2.0 / np.pi) * (np.arccos(s) - s * np.sqrt(1.0 - s * s))
+
+
+def airy_pattern(theta_rad, diameter_um, wavelength_um):
+    """The Fraunhofer pattern of a disc of diameter D (a flake) at wavelength λ (both in the medium), as a
+    density over solid angle with unit integral (1/sr): (A/λ²) [2 J1(x)/x]², x = π D θ/λ, A = π D²/4; its half
+    maximum lies at θ = 0.514 λ/D (x = 1.6163) and its first zero at 1.22 λ/D (Born & Wolf §8.5.2)."""
+    D = float(diameter_um)
+    lam = float(wavelength_um)
+    x = np.atleast_1d(np.pi * D * np.asarray(theta_rad, float) / lam)
+    xs = np.where(x > 0, x, 1.0)
+    jinc = np.where(x > 0, 2.0 * j1(xs) / xs, 1.0)
+    out = 0.25 * np.pi * D * D / lam**2 * jinc**2
+    return out.reshape(np.shape(theta_rad)) if np.ndim(theta_rad) else float(out[0])
+
+
+def _diffraction_bands(stack, yR):
+    """(λ' µm (k,), weights (k,), Σ = 1): the wavelengths in the binder at which a flake's Airy patterns are
+    mixed, weighted by its luminance-weighted mirror reflectance yR (C,) per channel; contiguous channels merged
+    into at most :data:`N_DIFFRACTION_BANDS` groups (each at its weighted mean wavelength: the mixture's
+    transfer function is smooth in λ).  Grey channels (no wavelengths): :data:`DIFFRACTION_WAVELENGTH_NM`."""
+    yR = np.clip(np.asarray(yR, float), 0.0, None)
+    if stack.wavelength_nm is None or yR.sum() <= 0.0:
+        return np.array([DIFFRACTION_WAVELENGTH_NM * 1e-3 / float(stack.eta)]), np.ones(1)
+    wl = np.asarray(stack.wavelength_nm, float)
+    groups = np.array_split(np.arange(wl.size), min(N_DIFFRACTION_BANDS, wl.size))
+    w = np.array([yR[gi].sum() for gi in groups])
+    lam = np.array([(yR[gi] @ wl[gi]) / max(yR[gi].sum(), 1e-300) for gi in groups])
+    keep = w > 0
+    return lam[keep] * 1e-3 / float(stack.eta), w[keep] / w[keep].sum()
+
+
+def beam_collected(g, diameter_um, lam_um, lam_w, n=BEAM_GRID):
+    """f(δ): the fraction of a flake's reflected beam that the aperture collects when the beam's centre is
+    offset by δ from the aperture's centre (ω_o space in the binder, rad; axis 0 in the plane of incidence),
+    on the n × n grid of :func:`_beam_levels`.  The beam is the refracted source (the ellipse ``g.s_par`` ×
+    ``g.s_perp``, unit integral) ⊛ the Airy pattern of the flake's projection (D c × D) at the wavelengths
+    ``lam_um`` (binder, µm) mixed with weights ``lam_w``; f = beam ⊛ aperture (the ellipse ``g.a_par`` ×
+    ``g.a_perp``).  Returns (x (n,) the grid's offsets along either axis, rad, in FFT order: x[0] = 0;
+    f (n, n))."""
+    lam_um, lam_w = np.atleast_1d(np.asarray(lam_um, float)), np.atleast_1d(np.asarray(lam_w, float))
+    D, c = float(diameter_um), float(g.c)
+    reach = BEAM_AIRY_REACH * float(lam_um.max()) / (D * c)
+    E = 1.25 * (max(g.s_par, g.s_perp) + max(g.a_par, g.a_perp)) + reach  # grid half-width, rad
+    h = 2.0 * E / n
+    nu_x = np.fft.fftfreq(n, h)[:, None]
+    nu_y = np.fft.rfftfreq(n, h)[None, :]
+    F = _jinc(2.0 * np.pi * np.sqrt((g.s_par * nu_x) ** 2 + (g.s_perp * nu_y) ** 2))
+    F *= (np.pi * g.a_par * g.a_perp) * _jinc(2.0 * np.pi * np.sqrt((g.a_par * nu_x) ** 2 + (g.a_perp * nu_y) ** 2))
+    otf = np.zeros(F.shape)
+    for lam, w in zip(lam_um, lam_w):
+        otf += w * airy_otf(lam * np.sqrt((nu_x / (D * c)) ** 2 + (nu_y / D) ** 2))
+    f = np.fft.irfft2(F * otf, s=(n, n)) / (h * h)
+    return np.fft.fftfreq(n, 1.0 / n) * h, f
+
+
+def _beam_levels(g, diameters_um, lam_um, lam_w, alpha, distribution=DEFAULT_DISTRIBUTION, n=BEAM_GRID,
+                 n_levels=BEAM_LEVELS):
+    """The collected fraction of a flake's beam against the offset of its centre, and the normal density over
+    the offsets above each level (docs/texture.md eq. S1b, S2).
+
+    In ω_o space (binder; tangent plane at the aperture's centre, axis 0 in the plane of incidence) the beam
+    of a flake of diameter D is the refracted source (the ellipse ``g.s_par`` × ``g.s_perp``, unit integral)
+    convolved with the flake's Fraunhofer pattern (:func:`airy_pattern` of its projection, D c × D, mixed over
+    the wavelengths ``lam_um`` with weights ``lam_w``); the aperture (the ellipse ``g.a_par`` × ``g.a_perp``)
+    collects f(δ) = (beam ⊛ aperture)(δ) of a beam centred at δ.  All three have closed-form Fourier
+    transforms (:func:`_jinc`, :func:`airy_otf`), and the Airy factor is band-limited (|ν| ≤ D/λ'), so one
+    inverse FFT on an n × n grid of spacing h < λ'/(2D) gives f exactly at the grid points, up to the
+    periodic wrap of its far tails (which keeps Σ f h² = the aperture's area exactly).
+
+    A beam offset δ = (δ∥, δ⊥) belongs to the flake normal h' + (δ∥/2) e∥ + (δ⊥/(2c)) e⊥ (the half-vector
+    map, dω_o = 4c dm), of density p = 2 D(m) (``distribution``).  Returns (S, I, f_max): with φ = f/f_max,
+    S[i, k] = ∫_{φ ≥ k/n_levels} p dδ and I[i, k] = ∫_{φ ≥ k/n_levels} p φ dδ (levels 0 … n_levels; the
+    integrals over a level set, binned), per diameter (nD, n_levels + 1), and f_max = f(0) (nD,)."""
+    D_all = np.atleast_1d(np.asarray(diameters_um, float))
+    ndf = flake_distribution(distribution).ndf
     th = np.arccos(np.clip(g.cos_h, -1.0, 1.0))
-    ang = (np.arange(n_angle // 2) + 0.5) * 2.0 * np.pi / n_angle  # (0, π)
-    d = np.asarray(d, float)[..., None]
-    a = d * (0.5 * np.cos(ang))
-    q = (d * d) * (0.25 * (np.cos(ang) ** 2 + (np.sin(ang) / g.c) ** 2))  # a² + b²
-    q += 1.0
-    np.sqrt(q, out=q)
-    mz = np.cos(th) - a * np.sin(th)
-    mz /= q
-    return 2.0 * flake_distribution(distribution).ndf(mz, alpha).mean(axis=-1)
+    S = np.zeros((D_all.size, n_levels + 1))
+    I = np.zeros_like(S)
+    f_max = np.zeros(D_all.size)
+    for i, D in enumerate(D_all):
+        x, f = beam_collected(g, D, lam_um, lam_w, n)
+        h = x[1] - x[0]
+        fm = float(f[0, 0])
+        a = 0.5 * x[:, None]
+        b = 0.5 * x[None, :] / g.c
+        mz = (np.cos(th) - a * np.sin(th)) / np.sqrt(1.0 + a * a + b * b)
+        p = 2.0 * ndf(mz, alpha) * (h * h)
+        phi = f / fm
+        k = np.clip((phi * n_levels).astype(np.int64), 0, n_levels - 1).ravel()
+        S[i, :-1] = np.cumsum(np.bincount(k, p.ravel(), n_levels)[::-1])[::-1]
+        I[i, :-1] = np.cumsum(np.bincount(k, (p * phi).ravel(), n_levels)[::-1])[::-1]
+        f_max[i] = fm
+    return S, I, f_max
 
 
 class TextureModelLimit(ValueError):
@@ -674,29 +733,29 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
         (wz_all, w_all, P_all), (wz, w, P), R_Y = paths
         Dn, Dw = f.diameters()
         Nz = f.number_density_per_um3 * f.thickness_um  # flakes per µm² in the layer
-        # one offset table per diameter node (the diffraction disc depends on D), all at once
-        d, phi, _, f_max = _offset_tables(g.r_s, diffraction_radius(Dn, stack.eta), g.r_a)  # (nD, n) …, (nD,)
-        ring = _ring_density(g, f.alpha, d, distribution=f.distribution)  # p(m) averaged on circles of offset d, 1/sr
-        x2 = 2.0 * np.pi * d
-        S_P = _cumtrapz(ring * x2, d)  # ∫_0^d p dS
-        I_P = _cumtrapz(ring * phi * x2, d)  # ∫_0^d p φ dS
-        b_peak = np.pi * g.t_in * g.t_out * R_Y * f_max * g.c / (g.mu_l_b * g.mu_v * g.omega_a)  # (nD,)
+        # the beam of each diameter node (its Airy pattern at the flake's own colours), and the median's for the peak
+        R_h = f.reflectance(np.array([g.c]))[:, 0]
+        lam_um, lam_w = _diffraction_bands(stack, np.asarray(stack.y_weights, float) * R_h)
+        S_P, I_P, f_max = _beam_levels(g, np.append(Dn, f.diameter_median_um), lam_um, lam_w, f.alpha,
+                                       f.distribution)
+        levels = np.linspace(0.0, 1.0, S_P.shape[1])
+        b_all = np.pi * g.t_in * g.t_out * R_Y * f_max * g.c / (g.mu_l_b * g.mu_v * g.omega_a)
+        b_peak = b_all[:-1]  # (nD,)
         A = 0.25 * np.pi * Dn * Dn
         q = GLINT_FRACTION / np.maximum(w, 1e-300)
         S_q = np.empty((Dn.size,) + q.shape)
         I_q = np.empty_like(S_q)
         for i in range(Dn.size):  # np.interp is one-dimensional: one call per diameter node
-            dq = _threshold_offset(q, d[i], phi[i])
-            S_q[i], I_q[i] = np.interp(dq, d[i], S_P[i]), np.interp(dq, d[i], I_P[i])
+            S_q[i] = np.interp(q, levels, S_P[i], right=0.0)
+            I_q[i] = np.interp(q, levels, I_P[i], right=0.0)
         dens = Nz * Dw / (4.0 * g.c)  # flakes per µm² per unit ω_o-space area and unit density
         wP = wz * P
         cnt = dens * np.einsum("zk,dzk->d", wP, S_q)
         n_g += float(cnt.sum())
         flux += float(np.sum(dens * b_peak * np.minimum(A, a_spot) / a_spot * np.einsum("zk,dzk->d", wP * w, I_q)))
-        mean_all += float(np.sum(dens * b_peak * A * float(np.sum(wz_all[:, None] * P_all * w_all)) * I_P[:, -1]))
+        mean_all += float(np.sum(dens * b_peak * A * float(np.sum(wz_all[:, None] * P_all * w_all)) * I_P[:-1, 0]))
         mink += float(np.sum(cnt * (a_spot + 2.0 * p * Dn + 0.25 * np.pi * Dn * Dn)))
-        fm = _offset_tables(g.r_s, float(diffraction_radius(f.diameter_median_um, stack.eta)), g.r_a, n=2)[3]
-        peak = max(peak, np.pi * g.t_in * g.t_out * R_Y * fm * g.c / (g.mu_l_b * g.mu_v * g.omega_a))
+        peak = max(peak, float(b_all[-1]))
     sparkle = bool(stack.flakes) and bool(peak >= SPARKLE_MIN_PEAK) and bool(n_g > 0)
     intensity = flux / n_g if n_g > 0 else 0.0
     return sparkle_grounded({

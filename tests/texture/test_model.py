@@ -59,12 +59,13 @@ NARROW = Observer("narrow", 20.0, float(np.radians(0.1)), 0.2, (15.0, 30.0, 45.0
 def test_glints_carry_the_single_flake_reflection_of_the_bsdf(species, light, monkeypatch):
     """Σ over all flakes of eq. S1 = π f_ss of the solver's kernel (eq. S3), with a pigment absorbing:
     the model attenuates the in and out paths independently, as the RT does, and agrees to the
-    quadratures (T at c = μ instead of the exact average over the flakes' tilts: ≤ 1.2e-3 measured).
+    quadratures.  Flakes of 200 µm: their Airy pattern (λ'/D ≈ 2 mrad) leaves the lobe as it is; at 20 µm its
+    tails blur the lobe by −0.4 % at 15° (a physical effect the RT has not; the catalogue test below allows it).
     With the paths' shared flakes (eq. S4, :data:`CORRELATED_PATHS`) the glints are brighter, by at most e^{λ}."""
-    st = stack_of(species=species, vf=0.002, alpha=0.2, D=20.0, pigment="iron-black", pv=0.002)
+    st = stack_of(species=species, vf=0.002, alpha=0.2, D=200.0, pigment="iron-black", pv=0.002)
     ref = _f_ss(st, light, 0.0)
     got = tm.sparkle_indices(st, NARROW, light)["flake_luminance_factor"]
-    assert got == pytest.approx(ref, rel=2e-3)  # measured: 3e-4 (metallic), 1.2e-3 (pearlescent)
+    assert got == pytest.approx(ref, rel=2e-3)
     monkeypatch.setattr(tm, "CORRELATED_PATHS", True)
     with_shared = tm.sparkle_indices(st, NARROW, light)["flake_luminance_factor"]
     lam = 0.002 / st.flakes[0].flake_thickness_um * st.flakes[0].thickness_um
@@ -109,7 +110,7 @@ def test_every_orientation_family_carries_its_own_bsdf_lobe(distribution, light,
     """Issue #34/#36: the texture reads D(m) through the registry, so every family's glints carry that
     family's single-flake BSDF term (the solver's kernel of the same ``distribution``), and a GGX paint's
     texture is not the Beckmann one."""
-    st = _with_distribution(stack_of(species="metallic", vf=0.002, alpha=0.2, D=20.0), distribution)
+    st = _with_distribution(stack_of(species="metallic", vf=0.002, alpha=0.2, D=200.0), distribution)  # no blur
     got = tm.sparkle_indices(st, NARROW, light)["flake_luminance_factor"]
     assert got == pytest.approx(_f_ss(st, light, 0.0), rel=2e-3)
 
@@ -237,7 +238,7 @@ def test_lens_area_sq_is_lens_area():
         tangent = np.array([abs(r1 - r2) or 1e-3, r1 + r2])
         got = tm._lens_area_sq(tangent, tangent**2, r1, r2, equal=r1 == r2)
         assert np.max(np.abs(got - tm.lens_area(tangent, r1, r2))) <= 1e-7 * np.pi * max(r1, r2) ** 2, (r1, r2)
-    # radii that broadcast: one row per second radius, as _pair_moments and _offset_tables call it
+    # radii that broadcast: one row per second radius, as _pair_moments calls it
     r2 = np.array([[0.5], [2.0], [7.0]])
     d = rng.uniform(1e-6, 10.0, (3, 500))
     want = np.stack([tm.lens_area(d[i], 3.0, r2[i, 0]) for i in range(3)])
@@ -399,7 +400,9 @@ def test_glint_depth_integral_converges_through_the_threshold(light, monkeypatch
     GLINT_FRACTION, and the count jumps to 0 there (a flat-topped beam): integrated over the whole layer
     by one Gauss rule the count converged as 1/N (the 3-species benchmark paint's glints at 75°: 11 % off
     with 24 nodes).  With the rule cut at that depth (flakedb.texture.model._glint_paths), 16 and 64 depth
-    nodes give the same indices to 1e-4, for a strongly absorbing paint (cadmium yellow 10 % beside the flakes)."""
+    nodes give the same indices to 2e-3, for a strongly absorbing paint (cadmium yellow 10 % beside the flakes):
+    1e-4 with a smooth beam; the beam's level sets now come from a grid (flakedb.texture.model.BEAM_GRID), so the
+    region above a threshold grows by whole cells (measured 8.7e-4)."""
     s = stack_of(species="metallic", vf=0.04, D=40.0, pigment="cadmium-yellow", pv=0.10, d=20.0)
     obs = PRESETS["byk-mac-like"]
 
@@ -411,4 +414,4 @@ def test_glint_depth_integral_converges_through_the_threshold(light, monkeypatch
     a, b = at(16), at(64)
     assert a["glints_per_mm2"] > 0
     for k in ("glints_per_mm2", "sparkle_area_fraction", "sparkle_intensity", "flake_luminance_factor"):
-        assert a[k] == pytest.approx(b[k], rel=1e-4), k
+        assert a[k] == pytest.approx(b[k], rel=2e-3), k

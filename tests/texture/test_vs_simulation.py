@@ -45,7 +45,8 @@ def runs():
         st = stack_of(**kw)
         sp, ab = sim_inputs(st)
         res = simulate(st.eta, st.y_weights, sp, ab, o.spot_um, o.aperture_half_angle_rad, o.source_half_angle_deg,
-                       o.view_deg, o.light_deg, L_um=L, seed=11, diffuse=sky)
+                       o.view_deg, o.light_deg, L_um=L, seed=11, diffuse=sky,
+                       wavelength_nm=st.wavelength_nm)
         out[name] = (st, res)
     return out
 
