@@ -53,8 +53,8 @@ def format_texture(rep) -> str:
         lines.append(f"  {f['species']}: median diameter {f['diameter_median_um']:g} µm, σg {f['diameter_gsd']:g}, "
                      f"α {f['orientation_alpha']:g}, {f['flakes_per_mm2']:.0f} flakes/mm² at depth "
                      f"{f['depth_um'][0]:g}–{f['depth_um'][1]:g} µm")
-    head = (f"  {'observer':<14} {'light':>6} {'glints/mm²':>11} {'per spot':>9} {'area frac':>10} "
-            f"{'intensity':>10} {'contrast':>9} {'peak β':>8}")
+    head = (f"  {'observer':<14} {'light':>6} {'glints/mm²':>11} {'above β_t':>10} {'per spot':>9} {'area frac':>10} "
+            f"{'intensity':>10} {'contrast':>9} {'peak β':>8} {'β_t':>7}")
     lines.append(head)
     for o in rep["observers"]:
         for r in o["directional"]:
@@ -63,18 +63,22 @@ def format_texture(rep) -> str:
                              f"{r['peak_luminance_factor']:.3g} < 1)")
                 continue
             lines.append(f"  {o['observer']:<14} {r['light_deg']:>5g}° {r['glints_per_mm2']:>11.3g} "
+                         f"{r['glints_per_mm2_above_threshold']:>10.3g} "
                          f"{r['glints_per_spot']:>9.3g} {r['sparkle_area_fraction']:>10.3g} "
                          f"{r['sparkle_intensity']:>10.3g} {r['sparkle_contrast']:>9.3g} "
-                         f"{r['peak_luminance_factor']:>8.3g}")
+                         f"{r['peak_luminance_factor']:>8.3g} {r['glint_threshold_luminance_factor']:>7.3g}")
         d = o["diffuse"]
         if d["graininess"] is None:
             lines.append(f"  {o['observer']:<14} {'sky':>6} {d['note']}")
             continue
         lines.append(f"  {o['observer']:<14} {'sky':>6} graininess {d['graininess']:.3g} "
                      f"(spot {o['spot_um']:.3g} µm; relative to the {'BSDF' if d['ground'] == 'bsdf' else 'flakes'}' mean)")
-    lines.append("  glints/mm²: flakes at least half as bright as an aligned surface flake; per spot: in one resolved "
-                 "spot; area frac: spots holding a glint; intensity: a lit spot's excess luminance factor; contrast: "
-                 "intensity / the mean (the flakes' own without a BSDF: an upper bound); peak β: an aligned surface flake.")
+    lines.append("  glints/mm²: flakes at least half as bright as an aligned surface flake of their own size; above β_t: "
+                 "flakes brighter than the fixed luminance factor β_t (half an aligned R = 1 surface flake of 16 µm: what "
+                 "a person or a camera counts); per spot: in one resolved spot; area frac: spots holding a glint; "
+                 "intensity: the brightest spot's excess luminance factor (the share of the spot a glint fills); contrast: "
+                 "intensity / the mean (the flakes' own with --flakes-only: an upper bound); peak β: an aligned surface "
+                 "flake.")
     return "\n".join(lines)
 
 

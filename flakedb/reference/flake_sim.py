@@ -22,8 +22,9 @@ statistics, and traces them.
   its channel's path transmission.  A flake's luminance factor is
   β = π T_in T_out R_Y f c/(μ_l' μ_v Ω_a) (f: the transmission-weighted collected fraction); a glint is a flake with β ≥ β_peak/2, β_peak the
   same quantity for a flake of that diameter at the exact mirror orientation, unattenuated
-  (computed by the same sampling).  Lit spots: pixels of the observer's spot size overlapped by a
-  glint's disc.
+  (computed by the same sampling); a glint above the fixed threshold, a flake with β ≥ half the peak of
+  an aligned, unattenuated R = 1 flake of 16 µm at 555 nm.  Lit spots: pixels of the observer's spot size
+  overlapped by a glint's disc; a glint's intensity: β × the largest fraction of one pixel its disc covers.
 * Uniform sky: every flake mirrors the sky direction 2(v'·m)m − v' (0 if it points down or is
   totally internally reflected at the coat), b = T_in T_out R_Y(|v'·m|) w; its footprint (points on its
   tilted disc carried up along v' to the surface: an ellipse of area A |v'·m|/v'_z) is deposited into
@@ -331,6 +332,26 @@ def _deposit(X, Y, Z, NX, NY, NZ, RAD, val, p, npx, L, disc, bvx, bvy, bvz):
 
 
 @numba.njit(cache=True)
+def _brightest_fill(X, Y, RAD, glint, p, disc):
+    """Per glint: the largest fraction of one p × p pixel its disc covers (its points binned into pixels)."""
+    out = np.zeros(X.shape[0])
+    Q = disc.shape[0]
+    for i in range(X.shape[0]):
+        if not glint[i]:
+            continue
+        r = RAD[i]
+        i0, j0 = int(np.floor((X[i] - r) / p)), int(np.floor((Y[i] - r) / p))
+        n = int(np.ceil(2.0 * r / p)) + 2
+        counts = np.zeros((n, n))
+        for q in range(Q):
+            a = int(np.floor((X[i] + r * disc[q, 0]) / p)) - i0
+            b = int(np.floor((Y[i] + r * disc[q, 1]) / p)) - j0
+            counts[min(max(a, 0), n - 1), min(max(b, 0), n - 1)] += 1.0
+        out[i] = min(counts.max() / Q * np.pi * r * r / (p * p), 1.0)
+    return out
+
+
+@numba.njit(cache=True)
 def _lit(X, Y, RAD, glint, p, npx, L):
     """Pixels (npx, npx) overlapped by a glint's disc (closest-point test), periodic."""
     img = np.zeros((npx, npx), dtype=np.bool_)
@@ -452,10 +473,23 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
         glint = (peak > 0) & (beta >= 0.5 * peak)
         n = int(glint.sum())
         A = np.pi * RAD**2
-        bpx = beta[glint] * np.minimum(A[glint], p * p) / (p * p)
+        bpx = beta[glint] * _brightest_fill(X, Y, RAD, glint, p, _disc_points(1024))[glint]
+        # the fixed threshold: half the peak of an aligned, unattenuated R = 1 flake of 16 µm at 555 nm
+        blz = np.sqrt(1.0 - (lx / eta) ** 2)
+        hx, hz = lx / eta + vx / eta, blz + np.sqrt(1.0 - (vx / eta) ** 2)
+        hn = np.hypot(hx, hz)
+        c_h = (lx / eta * hx + blz * hz) / hn
+        f_ref = _collected_fraction(hx / hn, 0.0, hz / hn, 16.0, eta, lx, ly, lz, vx, vy, vz, r_s,
+                                    aperture_half_angle_rad, np.array([0.555 / eta]), np.ones(1), np.ones(1),
+                                    us, ud, uc, 0.0, 0.0, airy_cdf, _AIRY_X)
+        beta_ref = np.pi * t_in * t_out * f_ref * c_h / (mu_lb * mu_v * om_a)
+        n_fixed = int(np.sum(beta >= 0.5 * beta_ref))
         lit = _lit(X, Y, RAD, glint, p, npx, L_um)
         out["directional"].append({
             "light_deg": float(a), "glints": n, "glints_per_mm2": n / area_mm2,
+            "glints_per_mm2_above_threshold": n_fixed / area_mm2,
+            "sigma_glints_per_mm2_above_threshold": np.sqrt(max(n_fixed, 1)) / area_mm2,
+            "glint_threshold_luminance_factor": float(0.5 * beta_ref),
             "sigma_glints_per_mm2": np.sqrt(max(n, 1)) / area_mm2,
             "sparkle_area_fraction": float(lit.mean()),
             "sparkle_intensity": float(bpx.mean()) if n else 0.0,

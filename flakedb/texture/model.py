@@ -56,6 +56,10 @@ def hermegauss(n):
 #: A glint is a flake at least this fraction as bright as the brightest flake of its kind could be
 #: (aligned, unattenuated, at the surface): a full-width-at-half-maximum count (docs/texture.md §3.3).
 GLINT_FRACTION = 0.5
+#: The fixed-luminance glint count's threshold: :data:`GLINT_FRACTION` of the peak of an aligned, unattenuated,
+#: perfectly reflecting (R = 1) surface flake of this diameter (µm) at 555 nm, for the observer and geometry:
+#: one luminance for every paint and flake size, as an instrument's or a person's threshold is.
+GLINT_REFERENCE_DIAMETER_UM = 16.0
 #: Sparkle exists only where a perfectly aligned surface flake is brighter than a perfect white
 #: diffuser under the same light (luminance factor 1; docs/texture.md §3.5).
 SPARKLE_MIN_PEAK = 1.0
@@ -395,6 +399,7 @@ class Geometry:
     s_perp: float = 0.0
     a_par: float = 0.0
     a_perp: float = 0.0
+    eta: float = 1.0
 
 
 def directional_geometry(eta, light_deg, view_deg, source_half_angle_deg, aperture_half_angle_rad) -> Geometry:
@@ -415,7 +420,7 @@ def directional_geometry(eta, light_deg, view_deg, source_half_angle_deg, apertu
     return Geometry(float(mu_l), float(mu_v), mu_lb, mu_vb, float(h[2]), float(lb @ h),
                     float(coat_transmittance(mu_l, eta)), float(coat_transmittance(mu_v, eta)),
                     om_s, om_a, float(np.sqrt(om_sb / np.pi)), float(np.sqrt(om_ab / np.pi)),
-                    r_s * float(mu_l) / (eta * mu_lb), r_s / eta, r_a * float(mu_v) / (eta * mu_vb), r_a / eta)
+                    r_s * float(mu_l) / (eta * mu_lb), r_s / eta, r_a * float(mu_v) / (eta * mu_vb), r_a / eta, eta)
 
 
 #: Side (cells) of the grid on which a flake's beam is collected by the aperture (:func:`_beam_levels`), and
@@ -684,6 +689,45 @@ def _glint_paths(stack, f, g):
     return (wz, w, P), (wzg, wg, Pg), R_Y
 
 
+def reference_peak(g) -> float:
+    """β_peak of an aligned, unattenuated, perfectly reflecting (R = 1) surface flake of
+    :data:`GLINT_REFERENCE_DIAMETER_UM` at 555 nm in the geometry ``g`` (eq. S1 with w = 1, d = 0): the
+    luminance factor against which the fixed-threshold glint count is taken."""
+    lam = DIFFRACTION_WAVELENGTH_NM * 1e-3 / g.eta
+    x, f = beam_collected(g, GLINT_REFERENCE_DIAMETER_UM, [lam], [1.0])
+    return float(np.pi * g.t_in * g.t_out * f[0, 0] * g.c / (g.mu_l_b * g.mu_v * g.omega_a))
+
+
+#: Disc points per flake and centre positions per spot side of :func:`spot_fill`.
+_FILL_POINTS, _FILL_OFFSETS = 1024, 16
+
+
+def spot_fill(diameter_um, spot_um):
+    """The mean, over a flake disc's position relative to a grid of p × p spots, of the largest fraction of one
+    spot the disc covers (0 … 1): the part of a glint's luminance the brightest spot of a panel image holds
+    (→ A/p² for flakes much smaller than the spot, → 1 for much larger ones).  Disc points on Vogel's
+    spiral (:data:`_FILL_POINTS`) binned into spots for :data:`_FILL_OFFSETS`² centre positions in one spot.
+    ``diameter_um``: any shape."""
+    D = np.atleast_1d(np.asarray(diameter_um, float))
+    p = float(spot_um)
+    k = np.arange(_FILL_POINTS) + 0.5
+    r = np.sqrt(k / _FILL_POINTS)
+    t = k * np.pi * (3.0 - np.sqrt(5.0))
+    pts = np.stack([r * np.cos(t), r * np.sin(t)], -1)  # unit disc, equal areas
+    u = (np.arange(_FILL_OFFSETS) + 0.5) / _FILL_OFFSETS * p
+    cx, cy = np.meshgrid(u, u, indexing="ij")
+    out = np.empty(D.size)
+    for i, d in enumerate(D.ravel()):
+        x = np.floor((cx.reshape(-1, 1) + 0.5 * d * pts[None, :, 0]) / p).astype(np.int64)
+        y = np.floor((cy.reshape(-1, 1) + 0.5 * d * pts[None, :, 1]) / p).astype(np.int64)
+        span = int(np.ceil(d / p)) + 3
+        cell = (x + span) * (2 * span + 1) + (y + span) + np.arange(x.shape[0])[:, None] * (2 * span + 1) ** 2
+        counts = np.bincount(cell.ravel(), minlength=x.shape[0] * (2 * span + 1) ** 2).reshape(x.shape[0], -1)
+        frac = counts.max(axis=1) / _FILL_POINTS * (0.25 * np.pi * d * d) / (p * p)
+        out[i] = min(float(frac.mean()), 1.0)
+    return out.reshape(np.shape(diameter_um)) if np.ndim(diameter_um) else float(out[0])
+
+
 def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_factor=None, memo=None) -> dict:
     """The glint statistics of docs/texture.md §3 for one directional geometry.
 
@@ -716,6 +760,8 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
     a_spot = float(observer.spot_um) ** 2
     p = float(observer.spot_um)
     n_g = 0.0
+    n_fixed = 0.0
+    b_ref = GLINT_FRACTION * reference_peak(g)
     flux = 0.0  # Σ over glints of β_px (per µm²)
     mean_all = 0.0
     mink = 0.0
@@ -752,7 +798,11 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
         wP = wz * P
         cnt = dens * np.einsum("zk,dzk->d", wP, S_q)
         n_g += float(cnt.sum())
-        flux += float(np.sum(dens * b_peak * np.minimum(A, a_spot) / a_spot * np.einsum("zk,dzk->d", wP * w, I_q)))
+        flux += float(np.sum(dens * b_peak * spot_fill(Dn, p) * np.einsum("zk,dzk->d", wP * w, I_q)))
+        # above the fixed luminance β_ref: the layer's own depth rule (the cut depth differs per diameter)
+        S_f = np.stack([np.interp(b_ref / np.maximum(b_peak[i] * w_all, 1e-300), levels, S_P[i], right=0.0)
+                        for i in range(Dn.size)])
+        n_fixed += float(np.sum(dens * np.einsum("zk,dzk->d", wz_all[:, None] * P_all, S_f)))
         mean_all += float(np.sum(dens * b_peak * A * float(np.sum(wz_all[:, None] * P_all * w_all)) * I_P[:-1, 0]))
         mink += float(np.sum(cnt * (a_spot + 2.0 * p * Dn + 0.25 * np.pi * Dn * Dn)))
         peak = max(peak, float(b_all[-1]))
@@ -762,6 +812,8 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
         "light_deg": float(light_deg), "view_deg": float(observer.view_deg),
         "sparkle": sparkle,
         "glints_per_mm2": float(n_g * 1e6) if sparkle else 0.0,
+        "glints_per_mm2_above_threshold": float(n_fixed * 1e6) if sparkle else 0.0,
+        "glint_threshold_luminance_factor": float(b_ref),
         "glints_per_spot": float(n_g * a_spot) if sparkle else 0.0,
         "sparkle_area_fraction": float(-np.expm1(-mink)) if sparkle else 0.0,
         "sparkle_intensity": float(intensity) if sparkle else 0.0,

@@ -107,3 +107,59 @@ def test_a_flake_diffracts_at_its_own_colours():
         xs, ps = x[order], prof[order]
         widths.append(np.interp(-0.5, -ps[xs >= 0], xs[xs >= 0]))
     assert widths[1] / widths[0] == pytest.approx(mean_r / mean_b, rel=0.03)
+
+
+# ----------------------------------------------------------------------------------------------
+# Glints a person and an instrument share (issue #36 item 2)
+# ----------------------------------------------------------------------------------------------
+
+
+def _surface_layer(R, D=16.0, gsd=1.0, rho=1e-7):
+    """A thin layer of identical flakes at the surface (no attenuation to speak of), grey R."""
+    c = np.linspace(0.0, 1.0, 5)
+    f = tm.FlakeLayer("f", 0.0, 1.0, rho, D, gsd, 0.3, 0.2, c, np.full((1, 5), R), np.zeros((1, 5)))
+    return tm.TextureStack(1.5, np.array([1.0]), (f,))
+
+
+def test_the_reference_flake_meets_the_fixed_threshold_at_half_its_peak():
+    """Flakes that are the threshold's own reference (R = 1, 16 µm, 555 nm, unattenuated): the fixed-luminance
+    count is the half-peak count, and the threshold is half their peak."""
+    from tests.texture.cases import TEST_OBSERVER
+
+    r = tm.sparkle_indices(_surface_layer(1.0), TEST_OBSERVER, 15.0)
+    assert r["glint_threshold_luminance_factor"] == pytest.approx(0.5 * r["peak_luminance_factor"], rel=1e-12)
+    assert r["glints_per_mm2_above_threshold"] == pytest.approx(r["glints_per_mm2"], rel=5e-3)
+
+
+def test_the_fixed_threshold_sees_brightness_the_half_peak_count_does_not():
+    """Halving every flake's reflectance leaves the half-peak count as it is (each flake against its own
+    peak) but lowers the count above the fixed luminance; bigger flakes, brighter peaks: the fixed count of
+    20 µm flakes exceeds the half-peak one, of 8 µm flakes falls below it."""
+    from tests.texture.cases import TEST_OBSERVER
+
+    a, b = (tm.sparkle_indices(_surface_layer(R), TEST_OBSERVER, 15.0) for R in (1.0, 0.5))
+    assert b["glints_per_mm2"] == pytest.approx(a["glints_per_mm2"], rel=1e-9)
+    assert b["glints_per_mm2_above_threshold"] < 0.8 * a["glints_per_mm2_above_threshold"]
+    big, small = (tm.sparkle_indices(_surface_layer(1.0, D=D), TEST_OBSERVER, 15.0) for D in (20.0, 8.0))
+    assert big["glints_per_mm2_above_threshold"] > big["glints_per_mm2"]
+    assert small["glints_per_mm2_above_threshold"] < small["glints_per_mm2"]
+
+
+@pytest.mark.parametrize("ratio", [0.3, 1.0, 3.0])
+def test_spot_fill_against_random_placements(ratio):
+    """spot_fill (the brightest spot's share of a glint) against random disc positions rasterised on a fine
+    sub-grid, independently: limits A/p² (small flakes, less where they straddle a border) and 1."""
+    p = 15.0
+    D = ratio * p
+    rng = np.random.default_rng(1)
+    sub = 120  # sub-cells per spot side
+    u = (np.arange(-2 * sub, 3 * sub) + 0.5) / sub * p  # sample points over 5 × 5 spots
+    X, Y = np.meshgrid(u, u, indexing="ij")
+    fills = []
+    for _ in range(200):
+        cx, cy = rng.random(2) * p + 0.0
+        inside = (X - cx) ** 2 + (Y - cy) ** 2 <= (D / 2) ** 2
+        cells = np.floor(X[inside] / p).astype(int) * 100 + np.floor(Y[inside] / p).astype(int)
+        fills.append(np.bincount(cells - cells.min()).max() / sub**2)
+    assert tm.spot_fill(D, p) == pytest.approx(np.mean(fills), abs=3 * np.std(fills) / np.sqrt(200) + 0.01)
+    assert tm.spot_fill(D, p) <= min(1.0, np.pi * D * D / 4 / p**2) + 1e-12

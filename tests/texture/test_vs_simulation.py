@@ -1,6 +1,6 @@
 """The texture model against the independent discrete-flake simulation (flakedb/reference/flake_sim.py,
-which shares no code with the model): glints per mm², the sparkle area fraction, the sparkle
-intensity, the flakes' mean luminance factor under a directional source, and the graininess and
+which shares no code with the model): glints per mm² (half their own peak, and above the fixed
+threshold, itself compared), the sparkle area fraction, the sparkle intensity (the brightest pixel), the flakes' mean luminance factor under a directional source, and the graininess and
 mean under a uniform sky, for recipes that vary the loading (×4), the median diameter (10–40 µm),
 α (0.05–0.3), the flake (metallic, pearlescent) and a hiding pigment.  Agreement: within
 3σ + 10 % (σ the simulation's statistical error).  A perturbed orientation term must fail.
@@ -75,6 +75,10 @@ def test_glints_agree_with_the_simulation(runs, name):
              r["sparkle_area_fraction"] / np.sqrt(n) + 1.0 / res["pixels"]),
             ("flake_luminance_factor", m["flake_luminance_factor"], r["flake_luminance_factor"],
              r["sigma_flake_luminance_factor"]),
+            ("glints_per_mm2_above_threshold", m["glints_per_mm2_above_threshold"],
+             r["glints_per_mm2_above_threshold"], r["sigma_glints_per_mm2_above_threshold"]),
+            ("glint_threshold_luminance_factor", m["glint_threshold_luminance_factor"],
+             r["glint_threshold_luminance_factor"], 0.0),
         ]
         if r["glints"] >= 10:
             checks.append(("sparkle_intensity", m["sparkle_intensity"], r["sparkle_intensity"], r["sigma_sparkle_intensity"]))
