@@ -16,12 +16,17 @@ import click
 
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import check_plan, remove_created_dirs
+from flakedb.cli.options import check_node_count
+from flakedb.compose.orchestrate import UnphysicalResultError
+from flakedb.compose.orchestrate import compose as compose_recipe
+from flakedb.compose.report import texture_ground
 from flakedb.outputs import OutputPlan
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.paint.texture_inputs import texture_report, texture_report_grounded, texture_stack
 from flakedb.render.imageio import write_exr
 from flakedb.render.mitsuba_sparkle import FILES, material_xml, mitsuba_route
+from flakedb.store.versions import StoreError
 from flakedb.texture.instruments import PRESETS, Observer
 
 #: The Mitsuba route's texture: texels (µm; the observer's spot when smaller) and texels per side.
@@ -88,9 +93,6 @@ def composed_texture(rec, obs, n=None, store=None, catalog=None) -> tuple[dict, 
     directory) makes the solve and its report's ``texture`` section; that section's entries are returned
     as they are (one number per paint), and observers it does not hold (custom ones) are computed here and
     grounded on the same BSDF (:func:`flakedb.compose.report.texture_ground`, as compose grounds its own)."""
-    from flakedb.compose.orchestrate import compose as compose_recipe  # lazy: CLI start-up
-    from flakedb.compose.report import texture_ground
-
     with tempfile.TemporaryDirectory(prefix="flakedb-texture-") as d:
         res = compose_recipe(rec, Path(d) / "out", n=n, store=store, catalog=catalog)
     paint, stack = res.paint, res.stack
@@ -167,8 +169,6 @@ def texture(recipe, observers, spot_um, aperture_deg, source_deg, light_deg, vie
     relative to the composed paint (compose's report section, identical), or with --flakes-only to the flakes."""
     import numpy as np  # lazy: CLI start-up
 
-    from flakedb.cli.options import check_node_count  # lazy: CLI start-up
-
     check_node_count(n)
     if mitsuba_ground is not None and not (0.0 < mitsuba_ground < 1e3):
         raise FlakedbError(f"--mitsuba-ground {mitsuba_ground}: give the paint's luminance factor π f_r, a number in "
@@ -189,9 +189,6 @@ def texture(recipe, observers, spot_um, aperture_deg, source_deg, light_deg, vie
     if flakes_only:
         rep = texture_report(rec, obs)
     else:
-        from flakedb.compose.orchestrate import UnphysicalResultError  # lazy: CLI start-up
-        from flakedb.store.versions import StoreError
-
         try:
             rep, grounds = composed_texture(rec, obs, n=n, store=store, catalog=catalog)
         except (StoreError, UnphysicalResultError, RecipeError) as exc:

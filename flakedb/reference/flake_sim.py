@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from scipy.special import j0, j1
 
 _FINE_C = 2001  # uniform c grid the per-band R, T tables are resampled to
 
@@ -137,8 +138,7 @@ _AIRY_X = np.linspace(0.0, 200.0, 200001)
 
 
 def _airy_cdf():
-    from scipy.special import j0, j1  # the one closed form the simulation takes from a library
-
+    """The Airy pattern's encircled energy at :data:`_AIRY_X` (Bessel functions: scipy.special)."""
     return 1.0 - j0(_AIRY_X) ** 2 - j1(_AIRY_X) ** 2
 
 
@@ -457,6 +457,10 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
     us, ud = _stratified(n_samples, rng), _stratified(n_samples, rng)
     uc = (np.arange(n_samples) + rng.random(n_samples)) / n_samples
     uc = uc[rng.permutation(n_samples)]
+    # the fixed threshold's reference flake, once per light: 64× the samples (its estimate sets every count)
+    n_ref = 64 * n_samples
+    us_ref, ud_ref = _stratified(n_ref, rng), _stratified(n_ref, rng)
+    uc_ref = (np.arange(n_ref) + rng.random(n_ref)) / n_ref
     for a in light_deg:
         th = np.radians(a)
         lx, ly, lz = np.sin(th), 0.0, np.cos(th)
@@ -481,7 +485,7 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
         c_h = (lx / eta * hx + blz * hz) / hn
         f_ref = _collected_fraction(hx / hn, 0.0, hz / hn, 16.0, eta, lx, ly, lz, vx, vy, vz, r_s,
                                     aperture_half_angle_rad, np.array([0.555 / eta]), np.ones(1), np.ones(1),
-                                    us, ud, uc, 0.0, 0.0, airy_cdf, _AIRY_X)
+                                    us_ref, ud_ref, uc_ref, 0.0, 0.0, airy_cdf, _AIRY_X)
         beta_ref = np.pi * t_in * t_out * f_ref * c_h / (mu_lb * mu_v * om_a)
         n_fixed = int(np.sum(beta >= 0.5 * beta_ref))
         lit = _lit(X, Y, RAD, glint, p, npx, L_um)
