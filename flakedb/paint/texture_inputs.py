@@ -4,8 +4,10 @@ the extinction of everything else, from the same catalogue optics the solver use
 * Flakes (catalogue interference and mirror flakes): number density ρ = φ / (⟨A⟩ t) with
   ⟨A⟩ = π D_m² exp(2 s²)/4 the mean area of the log-normal number distribution of diameters
   (median ``diameter_um`` of the recipe or the catalogue, s = ln ``diameter_gsd``, default
-  :data:`DEFAULT_DIAMETER_GSD`), thickness and α as :mod:`flakedb.paint.mapping` (so ρ⟨A⟩ = φ/t =
-  the solver's aρ); R(c, λ), T(c, λ) from :func:`flakedb.paint.species.flake_reflectance_transmittance`
+  :data:`DEFAULT_DIAMETER_GSD`); thickness, orientation distribution and spread α, diameter and the
+  loading aρ = ρ⟨A⟩ from the solver's own mapping (:mod:`flakedb.paint.mapping`: ``recipe_alpha``,
+  ``recipe_distribution``, ``flake_a_rho_from_volume_fraction``), so the texture and the BSDF read one
+  recipe one way; R(c, λ), T(c, λ) from :func:`flakedb.paint.species.flake_reflectance_transmittance`
   on the adaptive c grid of :func:`flakedb.paint.mapping.adaptive_flake_optics`; ``opaque`` sets T = 0.
 * Pigments: σ_t = ρ⟨C_ext⟩ per band (:func:`flakedb.paint.species.pigment_optics`, Mie, Du 2004, or
   with ``stored`` the store's cross-sections, as the solver takes them:
@@ -29,8 +31,10 @@ import numpy as np
 from flakedb.colour.colorimetry import tristimulus_weights
 from flakedb.paint.mapping import (
     adaptive_flake_optics,
+    flake_a_rho_from_volume_fraction,
     pigment_number_density,
     recipe_alpha,
+    recipe_distribution,
 )
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, Spectrum
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
@@ -120,8 +124,9 @@ def texture_stack(recipe, stored=None) -> tuple[TextureStack, list]:
                 gsd = float(p.diameter_gsd if p.diameter_gsd is not None else DEFAULT_DIAMETER_GSD)
                 t = float(p.entry["thickness_um"]["value"])
                 mean_area = 0.25 * np.pi * Dm * Dm * np.exp(2.0 * np.log(gsd) ** 2)
-                rho = p.volume_fraction / (mean_area * t)
-                flakes.append(FlakeLayer(p.species, z, b.thickness_um, rho, Dm, gsd, t, recipe_alpha(p), c, R, T))
+                rho = flake_a_rho_from_volume_fraction(p.volume_fraction, t) / mean_area  # the solver's aρ = ρ⟨A⟩
+                flakes.append(FlakeLayer(p.species, z, b.thickness_um, rho, Dm, gsd, t, recipe_alpha(p), c, R, T,
+                                         distribution=recipe_distribution(p)))
             elif isinstance(p, CatalogParticle) and stored is not None and wl is not None:
                 po = stored.pigment(p.species)  # the solver's own cross-sections (mapping._stored_pigment_component)
                 absorbers.append(Absorber(z, b.thickness_um,
@@ -156,7 +161,8 @@ def texture_report(recipe, observers, ground=None, stored=None) -> dict:
     stack, notes = texture_stack(recipe, stored)
     out = {"recipe": recipe.name, "model": "docs/texture.md", "notes": notes,
            "flakes": [{"species": f.name, "diameter_median_um": f.diameter_median_um, "diameter_gsd": f.diameter_gsd,
-                       "orientation_alpha": f.alpha, "flakes_per_mm2": f.areal_density_per_um2 * 1e6,
+                       "orientation_alpha": f.alpha, "orientation_distribution": f.distribution,
+                       "flakes_per_mm2": f.areal_density_per_um2 * 1e6,
                        "depth_um": [f.z_top_um, f.z_top_um + f.thickness_um]} for f in stack.flakes]}
     if not stack.flakes:
         out["sparkle"] = False

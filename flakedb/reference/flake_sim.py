@@ -14,16 +14,21 @@ statistics, and traces them.
 * Directional light: for flakes near the mirror orientation, the fraction f of the flake's
   reflected beam that enters the aperture is integrated by stratified sampling of the source
   disc (in air, refracted exactly by Snell's law in vector form), exact mirror reflection about the
-  flake's normal, a diffraction offset drawn uniformly in a disc of radius 2λ'/(πD) in the binder,
-  exact refraction back into air (total internal reflection loses the sample) and an exact test
-  against the aperture cone in air.  A flake's luminance factor is
-  β = π T_in T_out R_Y w f c/(μ_l' μ_v Ω_a); a glint is a flake with β ≥ β_peak/2, β_peak the
+  flake's normal, a wavelength channel drawn with probability ∝ y R(c) (the flake's own colour) and a
+  diffraction offset drawn from the Fraunhofer (Airy) pattern of the flake's projection seen along the
+  reflected ray (radius by inverting the encircled energy 1 − J0² − J1² at that channel's λ' = λ/η,
+  stretched by 1/|o·m| along the flake's tilt), exact refraction back into air (total internal
+  reflection loses the sample) and an exact test against the aperture cone in air; each sample weighs
+  its channel's path transmission.  A flake's luminance factor is
+  β = π T_in T_out R_Y f c/(μ_l' μ_v Ω_a) (f: the transmission-weighted collected fraction); a glint is a flake with β ≥ β_peak/2, β_peak the
   same quantity for a flake of that diameter at the exact mirror orientation, unattenuated
-  (computed by the same sampling).  Lit spots: pixels of the observer's spot size overlapped by a
-  glint's disc.
+  (computed by the same sampling); a glint above the fixed threshold, a flake with β ≥ half the peak of
+  an aligned, unattenuated R = 1 flake of 16 µm at 555 nm.  Lit spots: pixels of the observer's spot size
+  overlapped by a glint's disc; a glint's intensity: β × the largest fraction of one pixel its disc covers.
 * Uniform sky: every flake mirrors the sky direction 2(v'·m)m − v' (0 if it points down or is
-  totally internally reflected at the coat), b = T_in T_out R_Y(|v'·m|) w; its area is deposited
-  into the pixel grid by stratified points on its disc; graininess = std/mean of the pixel values.
+  totally internally reflected at the coat), b = T_in T_out R_Y(|v'·m|) w; its footprint (points on its
+  tilted disc carried up along v' to the surface: an ellipse of area A |v'·m|/v'_z) is deposited into
+  the pixel grid; graininess = std/mean of the pixel values.
 
 Every function takes plain arrays; :func:`simulate` returns a dict.  numba compiles the loops
 (cached).  Statistical errors: Poisson √N on counts; the standard error of the relative standard
@@ -34,6 +39,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from scipy.special import j0, j1
 
 _FINE_C = 2001  # uniform c grid the per-band R, T tables are resampled to
 
@@ -126,18 +132,33 @@ def _refract_up_to_air(ox, oy, oz, eta):
     return tx, ty, np.sqrt(1.0 - t2), True
 
 
+#: Airy radii x = π D θ/λ tabulated for sampling (encircled energy 1 − J0²(x) − J1²(x), Rayleigh); offsets
+#: beyond the last (0.3 % of the energy) leave the aperture.
+_AIRY_X = np.linspace(0.0, 200.0, 200001)
+
+
+def _airy_cdf():
+    """The Airy pattern's encircled energy at :data:`_AIRY_X` (Bessel functions: scipy.special)."""
+    return 1.0 - j0(_AIRY_X) ** 2 - j1(_AIRY_X) ** 2
+
+
 @numba.njit(cache=True)
-def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud, rot1, rot2):
-    """Fraction of a flake's reflected beam (normal m) entering the aperture (module docstring)."""
-    # orthonormal frame around the light direction in air
+def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, p_ch, wt_ch, us, ud, uc,
+                        rot1, rot2, airy_cdf, airy_x):
+    """Mean over the source, the flake's diffraction and its colours of (weight of the sampled channel) × (the
+    ray enters the aperture), for a flake of normal m: each sample draws a point of the source disc (air),
+    refracts it, mirrors it about m, draws a wavelength channel with probability ``p_ch`` and an offset from
+    the Fraunhofer pattern of the flake's projection seen along the reflected ray (a disc of diameter D
+    foreshortened to D |o·m| along the tilt: Airy radius x = π D θ/λ' by inverting the encircled energy,
+    stretched by 1/|o·m| along the tilt), refracts back to air and tests the aperture cone."""
     ex, ey, ez = lz, 0.0, -lx  # light is in the x-z plane
     nrm = np.sqrt(ex * ex + ey * ey + ez * ez)
     ex, ey, ez = ex / nrm, ey / nrm, ez / nrm
     fx, fy, fz = ly * ez - lz * ey, lz * ex - lx * ez, lx * ey - ly * ex
-    r_d = 2.0 * lam_b / (np.pi * D)
     cos_a = np.cos(r_a)
     K = us.shape[0]
-    hits = 0
+    C = p_ch.shape[0]
+    acc = 0.0
     for k in range(K):
         # source point: uniform in the cone of half-angle r_s (small-angle disc on the unit sphere)
         u1 = (us[k, 0] + rot1) % 1.0
@@ -154,35 +175,56 @@ def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, la
         # mirror about m
         dm = bx * mx + by * my + bz * mz
         ox, oy, oz = 2.0 * dm * mx - bx, 2.0 * dm * my - by, 2.0 * dm * mz - bz
-        # diffraction offset uniform in a disc of radius r_d (tangent plane of o)
+        # the wavelength channel
+        uch = (uc[k] + rot1 + rot2) % 1.0
+        ch = 0
+        cum = p_ch[0]
+        while uch > cum and ch < C - 1:
+            ch += 1
+            cum += p_ch[ch]
+        # Airy offset: radius from the encircled energy, direction uniform
         w1 = (ud[k, 0] + rot2) % 1.0
         w2 = (ud[k, 1] + rot1) % 1.0
-        rr = r_d * np.sqrt(w1)
+        j = np.searchsorted(airy_cdf, w1)
+        if j >= airy_cdf.shape[0]:
+            continue  # beyond the tabulated pattern: lost
+        x = airy_x[j]
+        if j > 0 and airy_cdf[j] > airy_cdf[j - 1]:
+            x = airy_x[j - 1] + (w1 - airy_cdf[j - 1]) / (airy_cdf[j] - airy_cdf[j - 1]) * (airy_x[j] - airy_x[j - 1])
+        rr = x * lam_ch[ch] / (np.pi * D)
         ps = 2.0 * np.pi * w2
-        # frame around o
-        if abs(oz) < 0.9:
-            gx, gy, gz = -oy, ox, 0.0
-        else:
-            gx, gy, gz = 0.0, -oz, oy
-        gn = np.sqrt(gx * gx + gy * gy + gz * gz)
-        gx, gy, gz = gx / gn, gy / gn, gz / gn
-        kx, ky, kz = oy * gz - oz * gy, oz * gx - ox * gz, ox * gy - oy * gx
-        ox2 = ox + rr * (np.cos(ps) * gx + np.sin(ps) * kx)
-        oy2 = oy + rr * (np.cos(ps) * gy + np.sin(ps) * ky)
-        oz2 = oz + rr * (np.cos(ps) * gz + np.sin(ps) * kz)
+        # frame around o: t along the flake's tilt as seen from o (where the projection is foreshortened)
+        tx, ty, tz = mx - dm * ox, my - dm * oy, mz - dm * oz
+        tn = np.sqrt(tx * tx + ty * ty + tz * tz)
+        if tn < 1e-12:
+            if abs(oz) < 0.9:
+                tx, ty, tz = -oy, ox, 0.0
+            else:
+                tx, ty, tz = 0.0, -oz, oy
+            tn = np.sqrt(tx * tx + ty * ty + tz * tz)
+        tx, ty, tz = tx / tn, ty / tn, tz / tn
+        kx, ky, kz = oy * tz - oz * ty, oz * tx - ox * tz, ox * ty - oy * tx
+        a_t = rr * np.cos(ps) / max(abs(dm), 1e-6)
+        a_k = rr * np.sin(ps)
+        ox2 = ox + a_t * tx + a_k * kx
+        oy2 = oy + a_t * ty + a_k * ky
+        oz2 = oz + a_t * tz + a_k * kz
         on = np.sqrt(ox2 * ox2 + oy2 * oy2 + oz2 * oz2)
         ax, ay, az, ok = _refract_up_to_air(ox2 / on, oy2 / on, oz2 / on, eta)
         if ok and ax * vx + ay * vy + az * vz >= cos_a:
-            hits += 1
-    return hits / K
+            acc += wt_ch[ch]
+    return acc / K
 
 
 @numba.njit(cache=True)
 def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, ncell, cell, rmax,
-                 absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud, rots,
-                 cos_cut, t_in, t_out, mu_lb, mu_v, om_a):
-    """Per flake: β (luminance factor), β_peak of its diameter, and whether it was examined."""
+                 absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, us, ud, uc, rots,
+                 cos_cut, t_in, t_out, mu_lb, mu_v, om_a, airy_cdf, airy_x):
+    """Per flake: β (luminance factor), β_peak of its diameter, and whether it was examined.  Each flake's
+    colours: channels drawn with probability ∝ y R(c) and weighted by their path transmissions, so the
+    luminance Σ y R T_l T_v f is estimated per channel, each with its own wavelength's pattern."""
     N = X.shape[0]
+    C = y.shape[0]
     beta = np.zeros(N)
     peak = np.zeros(N)
     # binder directions of the source and view centres (toward them, going up)
@@ -194,31 +236,32 @@ def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_i
     hn = np.sqrt(hx * hx + hy * hy + hz * hz)
     hx, hy, hz = hx / hn, hy / hn, hz / hn
     c_h = blx * hx + bly * hy + blz * hz
+    ones = np.ones(C)
     for i in range(N):
         D = 2.0 * RAD[i]
         if NX[i] * hx + NY[i] * hy + NZ[i] * hz < cos_cut[i]:
             continue
-        f = _collected_fraction(NX[i], NY[i], NZ[i], D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud,
-                                rots[i, 0], rots[i, 1])
-        f0 = _collected_fraction(hx, hy, hz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_b, us, ud,
-                                 rots[i, 0], rots[i, 1])
         Rh = _lookup(Rtab[SP[i]], c_h)
-        RYh = 0.0
-        for ch in range(y.shape[0]):
-            RYh += y[ch] * Rh[ch]
-        peak[i] = np.pi * t_in * t_out * RYh * f0 * c_h / (mu_lb * mu_v * om_a)
-        if f <= 0.0:
+        yRh = y * Rh
+        RYh = yRh.sum()
+        if RYh <= 0.0:
             continue
+        f0 = _collected_fraction(hx, hy, hz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, yRh / RYh, ones,
+                                 us, ud, uc, rots[i, 0], rots[i, 1], airy_cdf, airy_x)
+        peak[i] = np.pi * t_in * t_out * RYh * f0 * c_h / (mu_lb * mu_v * om_a)
         c = abs(blx * NX[i] + bly * NY[i] + blz * NZ[i])
         R = _lookup(Rtab[SP[i]], c)
+        yR = y * R
+        RY = yR.sum()
+        if RY <= 0.0:
+            continue
         tl = _path_transmission(X[i], Y[i], Z[i], blx, bly, blz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
                                 cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
         tv = _path_transmission(X[i], Y[i], Z[i], bvx, bvy, bvz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
                                 cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
-        num = 0.0
-        for ch in range(y.shape[0]):
-            num += y[ch] * R[ch] * tl[ch] * tv[ch]
-        beta[i] = np.pi * t_in * t_out * num * f * c / (mu_lb * mu_v * om_a)
+        f = _collected_fraction(NX[i], NY[i], NZ[i], D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, yR / RY,
+                                tl * tv, us, ud, uc, rots[i, 0], rots[i, 1], airy_cdf, airy_x)
+        beta[i] = np.pi * t_in * t_out * RY * f * c / (mu_lb * mu_v * om_a)
     return beta, peak
 
 
@@ -255,19 +298,57 @@ def _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, nc
 
 
 @numba.njit(cache=True)
-def _deposit(X, Y, RAD, val, p, npx, L, disc):
-    """Pixel map (npx, npx) of Σ val × (area of the flake's disc in the pixel)/p², periodic."""
+def _deposit(X, Y, Z, NX, NY, NZ, RAD, val, p, npx, L, disc, bvx, bvy, bvz):
+    """Pixel map (npx, npx) of Σ val × (area of the flake's footprint in the pixel)/p², periodic: each point of
+    the flake's tilted disc (normal m, points of ``disc`` on it) carried up along the view v' = (bvx, bvy, bvz)
+    (binder, up) to the surface, so the footprint is the ellipse of area A |m·v'|/v'_z."""
     img = np.zeros((npx, npx))
     Q = disc.shape[0]
+    sx, sy = bvx / bvz, bvy / bvz
     for i in range(X.shape[0]):
         if val[i] == 0.0:
             continue
-        w = val[i] * np.pi * RAD[i] * RAD[i] / (Q * p * p)
+        mx, my, mz = NX[i], NY[i], NZ[i]
+        # an orthonormal basis (e1, e2) of the flake's plane
+        if abs(mz) < 0.9:
+            ax, ay, az = 0.0, 0.0, 1.0
+        else:
+            ax, ay, az = 1.0, 0.0, 0.0
+        e1x, e1y, e1z = ay * mz - az * my, az * mx - ax * mz, ax * my - ay * mx
+        n1 = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+        e1x, e1y, e1z = e1x / n1, e1y / n1, e1z / n1
+        e2x, e2y, e2z = my * e1z - mz * e1y, mz * e1x - mx * e1z, mx * e1y - my * e1x
+        area = np.pi * RAD[i] * RAD[i] * abs(mx * bvx + my * bvy + mz * bvz) / bvz
+        w = val[i] * area / (Q * p * p)
         for q in range(Q):
-            x = (X[i] + RAD[i] * disc[q, 0]) % L
-            yy = (Y[i] + RAD[i] * disc[q, 1]) % L
+            dx = RAD[i] * (disc[q, 0] * e1x + disc[q, 1] * e2x)
+            dy = RAD[i] * (disc[q, 0] * e1y + disc[q, 1] * e2y)
+            dz = RAD[i] * (disc[q, 0] * e1z + disc[q, 1] * e2z)  # up
+            depth = Z[i] - dz
+            x = (X[i] + dx + depth * sx) % L
+            yy = (Y[i] + dy + depth * sy) % L
             img[min(int(x / p), npx - 1), min(int(yy / p), npx - 1)] += w
     return img
+
+
+@numba.njit(cache=True)
+def _brightest_fill(X, Y, RAD, glint, p, disc):
+    """Per glint: the largest fraction of one p × p pixel its disc covers (its points binned into pixels)."""
+    out = np.zeros(X.shape[0])
+    Q = disc.shape[0]
+    for i in range(X.shape[0]):
+        if not glint[i]:
+            continue
+        r = RAD[i]
+        i0, j0 = int(np.floor((X[i] - r) / p)), int(np.floor((Y[i] - r) / p))
+        n = int(np.ceil(2.0 * r / p)) + 2
+        counts = np.zeros((n, n))
+        for q in range(Q):
+            a = int(np.floor((X[i] + r * disc[q, 0]) / p)) - i0
+            b = int(np.floor((Y[i] + r * disc[q, 1]) / p)) - j0
+            counts[min(max(a, 0), n - 1), min(max(b, 0), n - 1)] += 1.0
+        out[i] = min(counts.max() / Q * np.pi * r * r / (p * p), 1.0)
+    return out
 
 
 @numba.njit(cache=True)
@@ -368,10 +449,18 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
     t_out = 1.0 - float(_fresnel_unpolarised(mu_v, 1.0, eta))
     om_a = 2.0 * np.pi * (1.0 - np.cos(aperture_half_angle_rad))
     r_s = np.radians(source_half_angle_deg)
-    lam_b = wavelength_nm * 1e-3 / eta
+    lam_b = float(np.max(wavelength_nm)) * 1e-3 / eta  # the widest pattern (the candidates' reach)
+    lam_ch = np.broadcast_to(np.asarray(wavelength_nm, float), y.shape) * 1e-3 / eta  # per channel, binder
+    airy_cdf = _airy_cdf()
     area_mm2 = (L_um * 1e-3) ** 2
     out = {"flakes": int(X.size), "area_mm2": area_mm2, "pixels": npx * npx, "directional": []}
     us, ud = _stratified(n_samples, rng), _stratified(n_samples, rng)
+    uc = (np.arange(n_samples) + rng.random(n_samples)) / n_samples
+    uc = uc[rng.permutation(n_samples)]
+    # the fixed threshold's reference flake, once per light: 64× the samples (its estimate sets every count)
+    n_ref = 64 * n_samples
+    us_ref, ud_ref = _stratified(n_ref, rng), _stratified(n_ref, rng)
+    uc_ref = (np.arange(n_ref) + rng.random(n_ref)) / n_ref
     for a in light_deg:
         th = np.radians(a)
         lx, ly, lz = np.sin(th), 0.0, np.cos(th)
@@ -379,19 +468,32 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
         t_in = 1.0 - float(_fresnel_unpolarised(np.cos(th), 1.0, eta))
         # candidates: normals within a generous cone of h' (3× the reach of beam + aperture, in normal angle)
         r_sb = r_s / eta
-        reach = 3.0 * (r_sb + 2.0 * lam_b / (np.pi * 2.0 * RAD) + aperture_half_angle_rad / eta) + 1e-3
+        reach = 3.0 * (r_sb + 3.0 * lam_b / (2.0 * RAD) + aperture_half_angle_rad / eta) + 1e-3
         cos_cut = np.cos(np.minimum(reach, np.pi / 2))
         rots = rng.random((X.size, 2))
         beta, peak = _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
                                   absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, aperture_half_angle_rad,
-                                  lam_b, us, ud, rots, cos_cut, t_in, t_out, mu_lb, mu_v, om_a)
+                                  lam_ch, us, ud, uc, rots, cos_cut, t_in, t_out, mu_lb, mu_v, om_a, airy_cdf, _AIRY_X)
         glint = (peak > 0) & (beta >= 0.5 * peak)
         n = int(glint.sum())
         A = np.pi * RAD**2
-        bpx = beta[glint] * np.minimum(A[glint], p * p) / (p * p)
+        bpx = beta[glint] * _brightest_fill(X, Y, RAD, glint, p, _disc_points(1024))[glint]
+        # the fixed threshold: half the peak of an aligned, unattenuated R = 1 flake of 16 µm at 555 nm
+        blz = np.sqrt(1.0 - (lx / eta) ** 2)
+        hx, hz = lx / eta + vx / eta, blz + np.sqrt(1.0 - (vx / eta) ** 2)
+        hn = np.hypot(hx, hz)
+        c_h = (lx / eta * hx + blz * hz) / hn
+        f_ref = _collected_fraction(hx / hn, 0.0, hz / hn, 16.0, eta, lx, ly, lz, vx, vy, vz, r_s,
+                                    aperture_half_angle_rad, np.array([0.555 / eta]), np.ones(1), np.ones(1),
+                                    us_ref, ud_ref, uc_ref, 0.0, 0.0, airy_cdf, _AIRY_X)
+        beta_ref = np.pi * t_in * t_out * f_ref * c_h / (mu_lb * mu_v * om_a)
+        n_fixed = int(np.sum(beta >= 0.5 * beta_ref))
         lit = _lit(X, Y, RAD, glint, p, npx, L_um)
         out["directional"].append({
             "light_deg": float(a), "glints": n, "glints_per_mm2": n / area_mm2,
+            "glints_per_mm2_above_threshold": n_fixed / area_mm2,
+            "sigma_glints_per_mm2_above_threshold": np.sqrt(max(n_fixed, 1)) / area_mm2,
+            "glint_threshold_luminance_factor": float(0.5 * beta_ref),
             "sigma_glints_per_mm2": np.sqrt(max(n, 1)) / area_mm2,
             "sparkle_area_fraction": float(lit.mean()),
             "sparkle_intensity": float(bpx.mean()) if n else 0.0,
@@ -403,7 +505,9 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
     if diffuse:
         b = _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
                  absz, absd, abss, eta, vx, vy, vz, t_out)
-        img = _deposit(X, Y, RAD, b, p, npx, L_um, _disc_points(64))
+        bvx, bvy = vx / eta, vy / eta
+        img = _deposit(X, Y, Z, NX, NY, NZ, RAD, b, p, npx, L_um, _disc_points(64), bvx, bvy,
+                       np.sqrt(1.0 - bvx * bvx - bvy * bvy))
         v = img.ravel()
         m, sd = v.mean(), v.std(ddof=1)
         kurt = np.mean((v - m) ** 4) / max(sd**4, 1e-300)

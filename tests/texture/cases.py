@@ -25,9 +25,12 @@ layers:
 PIGMENT = "        - {{species: {p}, volume_fraction: {pv}}}\n"
 
 
-def recipe(name="case", species="metallic", vf=0.02, alpha=0.2, D=20.0, gsd=1.3, d=15.0, pigment=None, pv=0.05):
+def recipe(name="case", species="metallic", vf=0.02, alpha=0.2, D=20.0, gsd=1.3, d=15.0, pigment=None, pv=0.05,
+           distribution=None):
     pig = PIGMENT.format(p=pigment, pv=pv) if pigment else ""
     text = RECIPE.format(name=name, species=species, vf=vf, alpha=alpha, D=D, gsd=gsd, d=d, pigment=pig)
+    if distribution:
+        text = text.replace(f"diameter_gsd: {gsd}}}", f"diameter_gsd: {gsd}, orientation_distribution: {distribution}}}")
     return parse_recipe(text, source=name)
 
 

@@ -297,7 +297,9 @@ def test_cli_mitsuba_ground_is_checked_and_the_fallback_weight_says_so(tmp_path)
                                    "--mitsuba-ground", "-1"])
     assert res.exit_code != 0 and "--mitsuba-ground -1" in res.output and "Traceback" not in res.output
     assert not (tmp_path / "m").exists()
-    res = CliRunner().invoke(cli, ["texture", str(rec), "--observer", "byk-mac-like", "--mitsuba", str(tmp_path / "m")])
+    # --flakes-only: no composed BSDF, so no ground: the fallback weight (without it the BSDF grounds the blend)
+    res = CliRunner().invoke(cli, ["texture", str(rec), "--observer", "byk-mac-like", "--mitsuba", str(tmp_path / "m"),
+                                   "--flakes-only"])
     assert res.exit_code == 0, res.output
     p = json.loads((tmp_path / "m" / FILES["params"].format(name=NAME)).read_text())["mitsuba"]
     assert p["weight_basis"].startswith("covered fraction") and 0 < p["blend_weight"] < 1

@@ -11,34 +11,44 @@ import numpy as np
 import pytest
 
 from flakedb.paint.recipe import load_recipe
-from flakedb.paint.texture_inputs import texture_report
-from flakedb.resources import PACKAGE_DIR
-from flakedb.rt.microflake import FlakeOptics, extinction_Ergun, kernel_Ergun
+from flakedb.paint.texture_inputs import texture_report, texture_stack
+from flakedb.resources import PACKAGE_DIR, RECIPES_DIR
+from flakedb.rt.microflake import FLAKE_DISTRIBUTIONS, FlakeOptics, extinction_Ergun, kernel_Ergun
 from flakedb.texture import model as tm
 from flakedb.texture.instruments import PRESETS, Observer
 from tests.texture.cases import TEST_OBSERVER, recipe, stack_of
 
 
-def _f_ss(stack, light_deg, view_deg):
-    """π f_ss of docs/texture.md eq. S3 from the solver's own kernel (paper eq. 2) and extinction,
-    depth integral in closed form (one flake layer, uniform absorbers in it)."""
+def _f_ss(stack, light_deg, view_deg, phi_d=0.0):
+    """π f_ss of docs/texture.md eq. S3 from the solver's own kernel (paper eq. 2, the flake layer's
+    orientation distribution) and extinction, depth integral in closed form (one flake layer, uniform
+    absorbers in it).  ``light_deg`` a scalar or an array (→ its shape), ``phi_d`` broadcasting with it
+    (0: light and view in one plane on opposite sides of the normal)."""
     f = stack.flakes[0]
     eta = stack.eta
-    g = tm.directional_geometry(eta, light_deg, view_deg, 1.0, 0.01)
+    shape = np.broadcast_shapes(np.shape(light_deg), np.shape(phi_d))
+    th = np.broadcast_to(np.asarray(light_deg, float), shape).ravel()
+    ph = np.broadcast_to(np.asarray(phi_d, float), shape).ravel()
+    mu_l, mu_v = np.cos(np.radians(th)), np.cos(np.radians(view_deg))
+    mu_lb, mu_vb = tm.binder_cosine(th, eta), float(tm.binder_cosine(view_deg, eta))
+    t_in, t_out = tm.coat_transmittance(mu_l, eta), float(tm.coat_transmittance(mu_v, eta))
     optics = FlakeOptics(np.asarray(f.c), np.asarray(f.R), np.asarray(f.T))
     a_rho = f.number_density_per_um3 * f.mean_area_um2()
+    dist = f.distribution
     # propagation directions (conventions): in travels down along −l', out travels up along v'
     # light from +x travelling down (μ_i = μ_l', φ_i = π), view toward −x travelling up (μ_o = −μ_v',
     # φ_o = π): φ_d = 0
-    k = kernel_Ergun(g.mu_l_b, -g.mu_v_b, 0.0, f.alpha, optics, a_rho)  # (C,)
+    k = np.reshape(kernel_Ergun(mu_lb, -mu_vb, ph, f.alpha, optics, a_rho, distribution=dist), (-1, th.size))
     sig = sum(np.asarray(a.sigma_per_um) for a in stack.absorbers) if stack.absorbers else 0.0
-    st_l = extinction_Ergun(np.array([g.mu_l_b]), f.alpha, optics, a_rho)[:, 0] + sig
-    st_v = extinction_Ergun(np.array([g.mu_v_b]), f.alpha, optics, a_rho)[:, 0] + sig
-    q = st_l / g.mu_l_b + st_v / g.mu_v_b
+    sig = np.reshape(sig, (-1, 1))
+    st_l = extinction_Ergun(mu_lb, f.alpha, optics, a_rho, distribution=dist) + sig  # (C, n)
+    st_v = extinction_Ergun(np.array([mu_vb]), f.alpha, optics, a_rho, distribution=dist) + sig  # (C, 1)
+    q = st_l / mu_lb + st_v / mu_vb
     d = f.thickness_um
     depth = -np.expm1(-q * d) / q  # ∫ over the layer of e^{-q (z - z0)} dz (the clear coat does not absorb)
-    fss = g.t_in * g.t_out * np.ravel(k) * depth / (eta**2 * g.mu_l_b * g.mu_v_b)
-    return float(np.pi * np.asarray(stack.y_weights) @ fss)
+    fss = t_in * t_out * k * depth / (eta**2 * mu_lb * mu_vb)
+    out = np.pi * np.asarray(stack.y_weights) @ fss
+    return float(out[0]) if not shape else out.reshape(shape)
 
 
 #: Small cones: the flake-normal density is constant over them, as the RT's point source and aperture assume.
@@ -47,27 +57,98 @@ NARROW = Observer("narrow", 20.0, float(np.radians(0.1)), 0.2, (15.0, 30.0, 45.0
 
 @pytest.mark.parametrize("species,light", [("metallic", 15.0), ("metallic", 45.0), ("pearlescent", 30.0)])
 def test_glints_carry_the_single_flake_reflection_of_the_bsdf(species, light, monkeypatch):
-    """Σ over all flakes of eq. S1 = π f_ss of the solver's kernel (eq. S3), with a pigment absorbing.
-    The RT treats the in and out paths as independent; with the model's shared-path hiding (eq. S4)
-    switched off the two agree to the quadratures (T at c = μ instead of the exact average over the
-    flakes' tilts: ≤ 1.2e-3 measured); with it the glints are brighter by at most e^{λ}."""
-    st = stack_of(species=species, vf=0.002, alpha=0.2, D=20.0, pigment="iron-black", pv=0.002)
+    """Σ over all flakes of eq. S1 = π f_ss of the solver's kernel (eq. S3), with a pigment absorbing:
+    the model attenuates the in and out paths independently, as the RT does, and agrees to the
+    quadratures.  Flakes of 200 µm: their Airy pattern (λ'/D ≈ 2 mrad) leaves the lobe as it is; at 20 µm its
+    tails blur the lobe by −0.4 % at 15° (a physical effect the RT has not; the catalogue test below allows it).
+    With the paths' shared flakes (eq. S4, :data:`CORRELATED_PATHS`) the glints are brighter, by at most e^{λ}."""
+    st = stack_of(species=species, vf=0.002, alpha=0.2, D=200.0, pigment="iron-black", pv=0.002)
     ref = _f_ss(st, light, 0.0)
+    got = tm.sparkle_indices(st, NARROW, light)["flake_luminance_factor"]
+    assert got == pytest.approx(ref, rel=2e-3)
+    monkeypatch.setattr(tm, "CORRELATED_PATHS", True)
     with_shared = tm.sparkle_indices(st, NARROW, light)["flake_luminance_factor"]
     lam = 0.002 / st.flakes[0].flake_thickness_um * st.flakes[0].thickness_um
     assert 1.0 < with_shared / ref < np.exp(lam)
-    monkeypatch.setattr(tm, "_shared", lambda stack, z, gap, n=16: np.zeros(np.size(z)))
-    got = tm.sparkle_indices(st, NARROW, light)["flake_luminance_factor"]
-    assert got == pytest.approx(ref, rel=2e-3)  # measured: 3e-4 (metallic), 1.2e-3 (pearlescent)
+
+
+@pytest.mark.parametrize("name", ["metallic-silver", "particle-metallic", "particle-pearlescent"])
+def test_sparkle_lobe_is_the_bsdf_single_flake_part_near_the_specular(name, monkeypatch):
+    """Issue #36 item 4: the glints' flake lobe (the mean of all flakes' mirror reflections seen by the
+    BYK-mac-like camera: its 1° source and 0.5° aperture) equals the BSDF's single-flake part (the
+    solver's kernel and extinction, eq. S3) within 2 % near the specular, at the catalogue's own loadings
+    (coverage λ = 1.1–1.7 crossed flakes per path), so previews and exports that split the BSDF into glints
+    keep its mean.  Measured ≤ 0.2 %.  With the paths' shared flakes (eq. S4) metallic silver was 1.66× at
+    15° (the preview's dark hole), the 5 % pearlescent 1.08×: that must fail here."""
+    st, _ = texture_stack(load_recipe(RECIPES_DIR / f"{name}.yaml"))
+    for light in (15.0, 45.0):
+        ref = _f_ss(st, light, 0.0)
+        got = tm.sparkle_indices(st, PRESETS["byk-mac-like"], light)["flake_luminance_factor"]
+        assert got == pytest.approx(ref, rel=0.02)
+    monkeypatch.setattr(tm, "CORRELATED_PATHS", True)
+    assert tm.sparkle_indices(st, PRESETS["byk-mac-like"], 15.0)["flake_luminance_factor"] > 1.05 * _f_ss(st, 15.0, 0.0)
 
 
 def test_energy_check_bites_on_the_orientation_density(monkeypatch):
     st = stack_of(species="metallic", vf=0.0005, alpha=0.2, D=20.0)
     ref = _f_ss(st, 15.0, 0.0)
-    monkeypatch.setattr(tm, "flake_ndf_Beckmann", lambda c, a: 1.05 * np.asarray(
-        __import__("flakedb.rt.microflake", fromlist=["x"]).flake_ndf_Beckmann(c, a)))
+    beck = FLAKE_DISTRIBUTIONS["beckmann"]
+    monkeypatch.setitem(FLAKE_DISTRIBUTIONS, "beckmann", dataclasses.replace(
+        beck, ndf=lambda c, a: 1.05 * np.asarray(beck.ndf(c, a))))
     got = tm.sparkle_indices(st, NARROW, 15.0)["flake_luminance_factor"]
     assert abs(got / ref - 1) > 0.04
+
+
+def _with_distribution(stack, distribution):
+    return dataclasses.replace(stack, flakes=tuple(dataclasses.replace(f, distribution=distribution)
+                                                   for f in stack.flakes))
+
+
+@pytest.mark.parametrize("distribution", sorted(FLAKE_DISTRIBUTIONS))
+@pytest.mark.parametrize("light", [15.0, 45.0])
+def test_every_orientation_family_carries_its_own_bsdf_lobe(distribution, light, monkeypatch):
+    """Issue #34/#36: the texture reads D(m) through the registry, so every family's glints carry that
+    family's single-flake BSDF term (the solver's kernel of the same ``distribution``), and a GGX paint's
+    texture is not the Beckmann one."""
+    st = _with_distribution(stack_of(species="metallic", vf=0.002, alpha=0.2, D=200.0), distribution)  # no blur
+    got = tm.sparkle_indices(st, NARROW, light)["flake_luminance_factor"]
+    assert got == pytest.approx(_f_ss(st, light, 0.0), rel=2e-3)
+
+
+def test_a_ggx_paint_has_not_the_beckmann_texture():
+    """The same recipe with GGX flakes: GGX's D(h) at the half-vector differs from Beckmann's, and its
+    heavy tail mirrors more of the sky at large tilts; both show in the indices."""
+    base = recipe(species="metallic", vf=0.02, alpha=0.2, D=20.0)
+    ggx = recipe(species="metallic", vf=0.02, alpha=0.2, D=20.0, distribution="ggx")
+    rb, rg = (texture_report(r, [TEST_OBSERVER]) for r in (base, ggx))
+    assert [f["orientation_distribution"] for f in rg["flakes"]] == ["ggx"]
+    for a, b in zip(rb["observers"][0]["directional"], rg["observers"][0]["directional"]):
+        assert abs(b["glints_per_mm2"] / a["glints_per_mm2"] - 1) > 0.05
+    gb, gg = rb["observers"][0]["diffuse"], rg["observers"][0]["diffuse"]
+    assert abs(gg["flake_luminance_factor"] / gb["flake_luminance_factor"] - 1) > 0.05
+
+
+@pytest.mark.parametrize("distribution", sorted(FLAKE_DISTRIBUTIONS))
+@pytest.mark.parametrize("alpha", [0.05, 0.3, 0.5, 0.7])
+@pytest.mark.parametrize("species,rel", [("metallic", 1e-3), ("pearlescent", 5e-3)])
+def test_sky_mean_is_the_bsdf_lobe_integrated_over_the_sky(distribution, alpha, species, rel, monkeypatch):
+    """The flakes' mean luminance factor under a uniform sky = ∫ π f_ss(l, v) μ_l dω_l / π over the sky
+    in air (the solver's kernel, Gauss–Legendre in μ_l × midpoints in φ_d): an integral over light
+    directions, independent of the model's quadrature over flake normals.  Guards the cut of the
+    normals that mirror no sky (total internal reflection at the coat): over the whole tilt range a
+    rule stepped across that jump, and the α ≥ 0.3 sky mean was off (−33 % at α 0.5, pearlescent)), and
+    the flake's foreshortened footprint |v'·m|/μ_v' (without it: +1.5…+3 % at α 0.2–0.7).  Measured:
+    ≤ 7e-4 for opaque flakes; ≤ 4.4e-3 for pearlescent ones, whose crossing transmittance the model takes
+    at c = μ instead of the average over the crossed flakes' tilts."""
+    st = _with_distribution(stack_of(species=species, vf=0.002, alpha=alpha, D=20.0), distribution)
+    got = tm.graininess_indices(st, NARROW)["flake_luminance_factor"]
+    x, w = np.polynomial.legendre.leggauss(96)
+    mu = 0.5 * (x + 1.0)
+    n_phi = 128
+    phi = (np.arange(n_phi) + 0.5) * 2.0 * np.pi / n_phi
+    pf = _f_ss(st, np.degrees(np.arccos(mu))[:, None], 0.0, phi[None, :])  # (μ, φ)
+    ref = float((0.5 * w * mu) @ pf.sum(axis=1) * (2.0 * np.pi / n_phi) / np.pi)
+    assert got == pytest.approx(ref, rel=rel)
 
 
 def test_glints_scale_with_loading_at_low_coverage():
@@ -157,7 +238,7 @@ def test_lens_area_sq_is_lens_area():
         tangent = np.array([abs(r1 - r2) or 1e-3, r1 + r2])
         got = tm._lens_area_sq(tangent, tangent**2, r1, r2, equal=r1 == r2)
         assert np.max(np.abs(got - tm.lens_area(tangent, r1, r2))) <= 1e-7 * np.pi * max(r1, r2) ** 2, (r1, r2)
-    # radii that broadcast: one row per second radius, as _pair_moments and _offset_tables call it
+    # radii that broadcast: one row per second radius, as _pair_moments calls it
     r2 = np.array([[0.5], [2.0], [7.0]])
     d = rng.uniform(1e-6, 10.0, (3, 500))
     want = np.stack([tm.lens_area(d[i], 3.0, r2[i, 0]) for i in range(3)])
@@ -250,7 +331,8 @@ def test_sky_terms_at_the_normal_view_need_the_tilts_only(monkeypatch):
     f = st.flakes[0]
     tilts = tm._sky_terms(st, f, 0.0)
     full_normals = tm._sky_normals
-    monkeypatch.setattr(tm, "_sky_normals", lambda alpha, n_t=tm.N_TILT, n_p=tm.N_AZIMUTH: full_normals(alpha, n_t, tm.N_AZIMUTH))
+    monkeypatch.setattr(tm, "_sky_normals", lambda alpha, vb, eta, n_t=tm.N_TILT, n_p=tm.N_AZIMUTH, distribution="beckmann":
+                        full_normals(alpha, vb, eta, n_t, tm.N_AZIMUTH, distribution))
     full = tm._sky_terms(st, f, 0.0)
     for a, b in zip(tilts, full):
         assert np.allclose(a, b, rtol=1e-13, atol=0)
@@ -318,7 +400,9 @@ def test_glint_depth_integral_converges_through_the_threshold(light, monkeypatch
     GLINT_FRACTION, and the count jumps to 0 there (a flat-topped beam): integrated over the whole layer
     by one Gauss rule the count converged as 1/N (the 3-species benchmark paint's glints at 75°: 11 % off
     with 24 nodes).  With the rule cut at that depth (flakedb.texture.model._glint_paths), 16 and 64 depth
-    nodes give the same indices to 1e-4, for a strongly absorbing paint (cadmium yellow 10 % beside the flakes)."""
+    nodes give the same indices to 2e-3, for a strongly absorbing paint (cadmium yellow 10 % beside the flakes):
+    1e-4 with a smooth beam; the beam's level sets now come from a grid (flakedb.texture.model.BEAM_GRID), so the
+    region above a threshold grows by whole cells (measured 8.7e-4)."""
     s = stack_of(species="metallic", vf=0.04, D=40.0, pigment="cadmium-yellow", pv=0.10, d=20.0)
     obs = PRESETS["byk-mac-like"]
 
@@ -330,4 +414,4 @@ def test_glint_depth_integral_converges_through_the_threshold(light, monkeypatch
     a, b = at(16), at(64)
     assert a["glints_per_mm2"] > 0
     for k in ("glints_per_mm2", "sparkle_area_fraction", "sparkle_intensity", "flake_luminance_factor"):
-        assert a[k] == pytest.approx(b[k], rel=1e-4), k
+        assert a[k] == pytest.approx(b[k], rel=2e-3), k
