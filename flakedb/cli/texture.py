@@ -17,9 +17,9 @@ import click
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import check_plan, remove_created_dirs
 from flakedb.cli.options import check_node_count
-from flakedb.compose.orchestrate import UnphysicalResultError
+from flakedb.solve.pipeline import UnphysicalResultError
 from flakedb.compose.orchestrate import compose as compose_recipe
-from flakedb.compose.report import texture_ground
+from flakedb.appearance.report import texture_ground
 from flakedb.outputs import OutputPlan
 from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.recipe import RecipeError, load_recipe
@@ -92,7 +92,7 @@ def composed_texture(rec, obs, n=None, store=None, catalog=None) -> tuple[dict, 
     composed BSDF: :func:`flakedb.compose.orchestrate.compose` (the one orchestration, into a temporary
     directory) makes the solve and its report's ``texture`` section; that section's entries are returned
     as they are (one number per paint), and observers it does not hold (custom ones) are computed here and
-    grounded on the same BSDF (:func:`flakedb.compose.report.texture_ground`, as compose grounds its own)."""
+    grounded on the same BSDF (:func:`flakedb.appearance.report.texture_ground`, as compose grounds its own)."""
     with tempfile.TemporaryDirectory(prefix="flakedb-texture-") as d:
         res = compose_recipe(rec, Path(d) / "out", n=n, store=store, catalog=catalog)
     paint, stack = res.paint, res.stack
