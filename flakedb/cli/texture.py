@@ -76,8 +76,9 @@ def format_texture(rep) -> str:
         if d["graininess"] is None:
             lines.append(f"  {o['observer']:<14} {'sky':>6} {d['note']}")
             continue
+        ground = "paint's (BSDF)" if d["ground"] == "bsdf" else "flakes' own"
         lines.append(f"  {o['observer']:<14} {'sky':>6} graininess {d['graininess']:.3g} "
-                     f"(spot {o['spot_um']:.3g} µm; relative to the {'BSDF' if d['ground'] == 'bsdf' else 'flakes'}' mean)")
+                     f"(spot {o['spot_um']:.3g} µm; relative to the {ground} mean)")
     lines.append("  glints/mm²: flakes at least half as bright as an aligned surface flake of their own size; above β_t: "
                  "flakes brighter than the fixed luminance factor β_t (half an aligned R = 1 surface flake of 16 µm: what "
                  "a person or a camera counts); per spot: in one resolved spot; area frac: spots holding a glint; "

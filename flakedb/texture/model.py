@@ -69,18 +69,22 @@ N_DIAMETER, N_DEPTH = 12, 16
 N_TILT, N_AZIMUTH = 12, 12
 #: Depth nodes of the graininess integrals.
 N_DEPTH_SKY = 16
-#: Whether a flake crossed by both the light's and the view's path hides the two together (docs/texture.md
-#: eq. S4, the opposition effect of hiding) or, as in the solver's radiative transfer (paper eq. 2: extinction
-#: independent along each path), twice.  False: the texture is the BSDF's single-flake term split into flakes,
-#: so the glints' mean is that term (previews and exports keep the mean).  True raised metallic silver's glint
-#: flux to 1.66× the BSDF's single-flake term at 15° (1.57× at 45°) and its sky mean to 1.61× (docs/texture.md §3.3).
+#: Whether, for the glints under a directional source, a flake crossed by both the light's and the view's path
+#: hides the two together (docs/texture.md eq. S4, the opposition effect of hiding) or, as in the solver's
+#: radiative transfer (paper eq. 2: extinction independent along each path), twice.  False: the glints are the
+#: BSDF's single-flake term split into flakes, so their mean is that term (previews and exports keep the mean).
+#: True raised metallic silver's glint flux to 1.66× the BSDF's single-flake term at 15° (1.57× at 45°).
 CORRELATED_PATHS = False
+#: The same for the flakes under the uniform sky (graininess).  True: the graininess is a ratio to the paint's
+#: mean, which the composed BSDF gives, and no preview draws it, so it keeps the geometry of discs (the
+#: independent paths put metallic 8 % graininess at 0.17 against the simulation's 0.51; docs/texture.md §4).
+CORRELATED_SKY_PATHS = True
 
 
-def _both_paths(stack, z, gap, lam_l, lam_v):
+def _both_paths(stack, z, gap, lam_l, lam_v, correlated):
     """λ_b: the expected number of flakes crossed by both paths of a flake at depths ``z`` (nz,) (eq. S4 when
-    :data:`CORRELATED_PATHS`, else 0: independent paths), at most either path's own count."""
-    if not CORRELATED_PATHS:
+    ``correlated``, else 0: independent paths), at most either path's own count."""
+    if not correlated:
         return np.zeros(np.size(z))
     return np.minimum(_shared(stack, z, gap), np.minimum(lam_l, lam_v))
 
@@ -428,6 +432,9 @@ def directional_geometry(eta, light_deg, view_deg, source_half_angle_deg, apertu
 BEAM_GRID, BEAM_LEVELS = 384, 4096
 #: Airy core radii (λ'/D of the longest wavelength) the beam grid reaches beyond the source and aperture.
 BEAM_AIRY_REACH = 6.0
+#: Nodes of the tabulated transfer-function mixture in :func:`beam_collected` (linear interpolation: the
+#: OTF's curvature is largest at s → 1, where it falls as (1 − s)^{3/2}; 4097 nodes err < 1e-5).
+_OTF_TABLE = 4097
 #: Most wavelength groups of a flake's spectral diffraction pattern (bands merged, weights kept).
 N_DIFFRACTION_BANDS = 8
 
@@ -513,9 +520,11 @@ def beam_collected(g, diameter_um, lam_um, lam_w, n=BEAM_GRID):
     nu_y = np.fft.rfftfreq(n, h)[None, :]
     F = _jinc(2.0 * np.pi * np.sqrt((g.s_par * nu_x) ** 2 + (g.s_perp * nu_y) ** 2))
     F *= (np.pi * g.a_par * g.a_perp) * _jinc(2.0 * np.pi * np.sqrt((g.a_par * nu_x) ** 2 + (g.a_perp * nu_y) ** 2))
-    otf = np.zeros(F.shape)
-    for lam, w in zip(lam_um, lam_w):
-        otf += w * airy_otf(lam * np.sqrt((nu_x / (D * c)) ** 2 + (nu_y / D) ** 2))
+    # the mixture Σ_k w_k OTF(λ_k u) of the elliptical frequency u = |(ν_x/c, ν_y)|/D, tabulated in u (1-D)
+    u = np.sqrt((nu_x / c) ** 2 + nu_y**2) / D
+    u_tab = np.linspace(0.0, 1.0 / float(lam_um.min()), _OTF_TABLE)
+    mix = sum(w * airy_otf(lam * u_tab) for lam, w in zip(lam_um, lam_w))
+    otf = np.interp(u, u_tab, mix, right=0.0)
     f = np.fft.irfft2(F * otf, s=(n, n)) / (h * h)
     return np.fft.fftfreq(n, 1.0 / n) * h, f
 
@@ -658,7 +667,7 @@ def _glint_paths(stack, f, g):
         shape = z.shape
         tau_l, lam_l, T_l = _path(stack, z.ravel(), g.mu_l_b)
         tau_v, lam_v, T_v = _path(stack, z.ravel(), g.mu_v_b)
-        lam_b = _both_paths(stack, z.ravel(), np.full(z.size, gap), lam_l, lam_v)
+        lam_b = _both_paths(stack, z.ravel(), np.full(z.size, gap), lam_l, lam_v, CORRELATED_PATHS)
         cs = (C,) + shape
         inputs = (np.exp(-(tau_l + tau_v)).reshape(cs), (lam_l - lam_b).reshape(shape), (lam_v - lam_b).reshape(shape),
                   lam_b.reshape(shape), T_l.reshape(cs), T_v.reshape(cs))
@@ -709,23 +718,25 @@ def spot_fill(diameter_um, spot_um):
     spiral (:data:`_FILL_POINTS`) binned into spots for :data:`_FILL_OFFSETS`² centre positions in one spot.
     ``diameter_um``: any shape."""
     D = np.atleast_1d(np.asarray(diameter_um, float))
-    p = float(spot_um)
+    out = np.array([_spot_fill_one(float(d), float(spot_um)) for d in D.ravel()])
+    return out.reshape(np.shape(diameter_um)) if np.ndim(diameter_um) else float(out[0])
+
+
+@lru_cache(maxsize=4096)
+def _spot_fill_one(d, p):
     k = np.arange(_FILL_POINTS) + 0.5
     r = np.sqrt(k / _FILL_POINTS)
     t = k * np.pi * (3.0 - np.sqrt(5.0))
     pts = np.stack([r * np.cos(t), r * np.sin(t)], -1)  # unit disc, equal areas
     u = (np.arange(_FILL_OFFSETS) + 0.5) / _FILL_OFFSETS * p
     cx, cy = np.meshgrid(u, u, indexing="ij")
-    out = np.empty(D.size)
-    for i, d in enumerate(D.ravel()):
-        x = np.floor((cx.reshape(-1, 1) + 0.5 * d * pts[None, :, 0]) / p).astype(np.int64)
-        y = np.floor((cy.reshape(-1, 1) + 0.5 * d * pts[None, :, 1]) / p).astype(np.int64)
-        span = int(np.ceil(d / p)) + 3
-        cell = (x + span) * (2 * span + 1) + (y + span) + np.arange(x.shape[0])[:, None] * (2 * span + 1) ** 2
-        counts = np.bincount(cell.ravel(), minlength=x.shape[0] * (2 * span + 1) ** 2).reshape(x.shape[0], -1)
-        frac = counts.max(axis=1) / _FILL_POINTS * (0.25 * np.pi * d * d) / (p * p)
-        out[i] = min(float(frac.mean()), 1.0)
-    return out.reshape(np.shape(diameter_um)) if np.ndim(diameter_um) else float(out[0])
+    x = np.floor((cx.reshape(-1, 1) + 0.5 * d * pts[None, :, 0]) / p).astype(np.int64)
+    y = np.floor((cy.reshape(-1, 1) + 0.5 * d * pts[None, :, 1]) / p).astype(np.int64)
+    span = int(np.ceil(d / p)) + 3
+    cell = (x + span) * (2 * span + 1) + (y + span) + np.arange(x.shape[0])[:, None] * (2 * span + 1) ** 2
+    counts = np.bincount(cell.ravel(), minlength=x.shape[0] * (2 * span + 1) ** 2).reshape(x.shape[0], -1)
+    frac = counts.max(axis=1) / _FILL_POINTS * (0.25 * np.pi * d * d) / (p * p)
+    return min(float(frac.mean()), 1.0)
 
 
 def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_factor=None, memo=None) -> dict:
@@ -1051,7 +1062,7 @@ def _sky_terms(stack, f, view_deg):
     C = y.size
     tau_l, lam_l, T_l = tau_l.reshape(C, M, nz), lam_l.reshape(M, nz), T_l.reshape(C, M, nz)
     gap = np.repeat(_gap(np.where(ok[:, None], lm, vb[None, :]), vb)[:, None], nz, axis=1).ravel()
-    lam_b = _both_paths(stack, zz, gap, lam_l.ravel(), np.repeat(lam_v[None, :], M, 0).ravel())
+    lam_b = _both_paths(stack, zz, gap, lam_l.ravel(), np.repeat(lam_v[None, :], M, 0).ravel(), CORRELATED_SKY_PATHS)
     lam_b = lam_b.reshape(M, nz)
     lo_l, lo_v = lam_l - lam_b, lam_v[None, :] - lam_b  # one path only
     # per channel: amp = T_in T_out R e^{−τ}; Poisson crossings average exactly (docs/texture.md eq. G3):

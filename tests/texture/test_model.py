@@ -140,6 +140,7 @@ def test_sky_mean_is_the_bsdf_lobe_integrated_over_the_sky(distribution, alpha, 
     the flake's foreshortened footprint |v'·m|/μ_v' (without it: +1.5…+3 % at α 0.2–0.7).  Measured:
     ≤ 7e-4 for opaque flakes; ≤ 4.4e-3 for pearlescent ones, whose crossing transmittance the model takes
     at c = μ instead of the average over the crossed flakes' tilts."""
+    monkeypatch.setattr(tm, "CORRELATED_SKY_PATHS", False)  # the RT's independent paths
     st = _with_distribution(stack_of(species=species, vf=0.002, alpha=alpha, D=20.0), distribution)
     got = tm.graininess_indices(st, NARROW)["flake_luminance_factor"]
     x, w = np.polynomial.legendre.leggauss(96)

@@ -5,9 +5,10 @@ mean under a uniform sky, for recipes that vary the loading (×4), the median di
 α (0.05–0.3), the flake (metallic, pearlescent) and a hiding pigment.  Agreement: within
 3σ + 10 % (σ the simulation's statistical error).  A perturbed orientation term must fail.
 
-The simulation traces discs, so a flake above a glinting one hides both of its paths together: the model
-is compared in its geometric variant (``CORRELATED_PATHS``, eq. S4), not in the product's default, which
-attenuates the paths independently as the solver's RT does (docs/texture.md §3.3)."""
+The simulation traces discs, so a flake above a glinting one hides both of its paths together: the model's
+glints are compared in their geometric variant (``CORRELATED_PATHS``, eq. S4), not in the product's default,
+which attenuates the paths independently as the solver's RT does (docs/texture.md §3.3); the graininess is
+geometric in the product too (``CORRELATED_SKY_PATHS``)."""
 
 import numpy as np
 import pytest
@@ -31,6 +32,7 @@ CASES = {
 @pytest.fixture(autouse=True)
 def _geometric_hiding(monkeypatch):
     monkeypatch.setattr(tm, "CORRELATED_PATHS", True)
+    monkeypatch.setattr(tm, "CORRELATED_SKY_PATHS", True)
 
 
 def _close(model, sim, sigma, rel=0.10):
