@@ -23,7 +23,6 @@ RuntimeError: a signal's exception
 from __future__ import annotations
 
 import contextlib
-import functools
 import threading
 
 #: depth of nested :func:`deferred` blocks in the main thread, and the exception held back (if any)
@@ -60,12 +59,3 @@ def deferred():
         if _STATE["depth"] == 0 and _STATE["pending"] is not None:
             exc, _STATE["pending"] = _STATE["pending"], None
             raise exc
-
-
-def deferring(fn):
-    """``fn`` (a compiled kernel) called inside :func:`deferred`."""
-    @functools.wraps(fn)
-    def call(*args, **kwargs):
-        with deferred():
-            return fn(*args, **kwargs)
-    return call

@@ -301,6 +301,8 @@ def environment_problems(environ=None) -> list[str]:
     []
     >>> environment_problems({"FLAKEDB_H5_PROBE": "no"})
     ["FLAKEDB_H5_PROBE='no': use 0 (off) or 1 (on)"]
+    >>> environment_problems({"FLAKEDB_CATALOG": "/nonexistent/particles.yaml"})[0].split(":")[0]
+    "FLAKEDB_CATALOG='/nonexistent/particles.yaml'"
     """
     environ = os.environ if environ is None else environ
     out = []
@@ -316,6 +318,14 @@ def environment_problems(environ=None) -> list[str]:
         raw = environ.get(v)
         if raw is not None and "\0" in raw:
             out.append(f"{v}={_shown(raw)}: a path cannot hold a NUL byte")
+    cat = environ.get("FLAKEDB_CATALOG", "")
+    if cat.strip() and "\0" not in cat and not os.path.exists(cat):
+        out.append(f"FLAKEDB_CATALOG={_shown(cat)}: no such file (it names the particle catalogue YAML; unset it "
+                   f"for the package's catalog/particles.yaml)")
+    mat = environ.get("FLAKEDB_MATERIALS_DIR", "")
+    if mat.strip() and "\0" not in mat and not os.path.lexists(os.path.join(mat, "materials.yaml")):
+        out.append(f"FLAKEDB_MATERIALS_DIR={_shown(mat)}: not a folder holding materials.yaml (the optical-constant "
+                   f"index); unset it for the package's catalog/materials")
     return out
 
 

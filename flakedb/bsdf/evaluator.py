@@ -12,6 +12,7 @@ import numpy as np
 from flakedb.bsdf.kernels import compiled as compiled_kernels
 from flakedb.bsdf.spline import catmull_rom_cdf, catmull_rom_weights, insert_zero_nodes
 from flakedb.bsdf.table import RGB_TO_Y, BSDFTable
+from flakedb.interrupts import deferred
 
 # Bound on the number of floats of one evaluation chunk's blended coefficient block.
 _CHUNK_FLOATS = 1 << 21
@@ -219,7 +220,9 @@ class FourierBSDF:
         vals = np.zeros((mi.size, cd))
         a0 = np.zeros((mi.size, cd))
         if method == "numba":
-            compiled_kernels().series_kernel(self.nodes, flat, start, self.order, cd, mi, mo, ph, vals, a0)
+            kernel = compiled_kernels().series_kernel
+            with deferred():   # a signal waits for the compiled call (flakedb.interrupts)
+                kernel(self.nodes, flat, start, self.order, cd, mi, mo, ph, vals, a0)
             return vals, a0
         if method != "numpy":
             raise ValueError("method must be 'numba' or 'numpy'")
@@ -331,9 +334,10 @@ class FourierBSDF:
         phi = np.zeros(p)
         pdf = np.zeros(p)
         weight = np.zeros((p, self._mix.shape[1]))
-        compiled_kernels().sample_kernel(self.nodes, self.cdf, self._a0s, self._sflat, self._sstart, self._flat,
-                       self._start, self.order, self.n_channels, self._mix, mi, a1, a2,
-                       mu_o, phi, weight, pdf)
+        kernel = compiled_kernels().sample_kernel
+        with deferred():   # a signal waits for the compiled call (flakedb.interrupts)
+            kernel(self.nodes, self.cdf, self._a0s, self._sflat, self._sstart, self._flat, self._start, self.order,
+                   self.n_channels, self._mix, mi, a1, a2, mu_o, phi, weight, pdf)
         return (mu_o.reshape(shape), phi.reshape(shape), weight.reshape(shape + (weight.shape[1],)),
                 pdf.reshape(shape))
 

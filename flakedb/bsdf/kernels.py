@@ -13,7 +13,7 @@ import types
 
 import numpy as np
 
-from flakedb.interrupts import deferred, deferring
+from flakedb.interrupts import deferred
 
 #: name -> extra numba options of the kernels :func:`compiled` compiles (filled by :func:`_kernel`).
 _KERNELS: dict = {}
@@ -60,9 +60,9 @@ def compiled() -> types.SimpleNamespace:
             g = globals()
             for name, options in _KERNELS.items():
                 g[name] = numba.njit(cache=True, nogil=True, error_model="numpy", **options)(g[name])
-            # called from Python with signals held back (flakedb.interrupts): a handler's exception raised inside
-            # a dispatcher's C code was a SystemError or a crash
-            _COMPILED.append(types.SimpleNamespace(**{name: deferring(g[name]) for name in _KERNELS}))
+            # the dispatchers themselves (the Mitsuba plugin's own compiled kernels call them); Python callers hold
+            # signals back around a call (flakedb.interrupts.deferred, as FourierBSDF does)
+            _COMPILED.append(types.SimpleNamespace(**{name: g[name] for name in _KERNELS}))
     return _COMPILED[0]
 
 

@@ -114,6 +114,10 @@ def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights
         rec0 = cm.recipe_from_doc(cm.substitute(doc, params, [p.start for p in params]), base, catalog)
     except (RecipeError, CatalogError, TargetError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
+    for t in targets:   # every target's --weight geometries before the first fit (not after target 1's outputs)
+        for il, asp in weight_items:
+            if not any(g[0] == il and g[1] == asp for g in t.geometries):
+                raise FlakedbError(f"--weight {il:g}/{asp:g}: the target {_short(t.source)} has no such geometry")
     stems = [Path(str(f)).stem for f in files]
     if len(targets) > 1:
         for f, stem in zip(files, stems):   # OUT/<stem>/ must be a folder in OUT ('..' of '...csv' is OUT's parent)

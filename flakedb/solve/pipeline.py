@@ -216,7 +216,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
         problem = (f"the written table's albedo reaches {written:.4f} > 1 + {ENERGY_SLACK:g} (the Catmull-Rom integral "
                    f"over its {table.n} nodes that renderers and `flakedb info` use; the solver's own albedo "
                    f"{float(stack.albedo().max()):.4f}): a lobe narrower than the node spacing (a metal or coat "
-                   f"roughness near 0.01)")
+                   f"roughness near 0.01, aligned flakes)")
         if not allow_unphysical:
             raise UnphysicalResultError(
                 f"recipe {recipe.name}: unphysical result at n = {n_used}: {problem}; nothing written.  Raise the "

@@ -476,3 +476,13 @@ def test_render_into_a_folder_whose_name_is_not_utf8(tmp_path):
     assert r.returncode == 0, r.stderr
     from flakedb.render.imageio import read_exr
     assert read_exr(os.path.join(out, "good.exr")).shape == (16, 16, 3)
+
+
+@pytest.mark.parametrize("var,value,words", [
+    ("FLAKEDB_CATALOG", "/nonexistent/particles.yaml", "no such file"),
+    ("FLAKEDB_MATERIALS_DIR", "/nonexistent", "materials.yaml"),
+    ("FLAKEDB_H5_PROBE", "yes", "use 0 (off) or 1 (on)"),
+])
+def test_path_and_switch_variables_are_named_before_work(paint, monkeypatch, no_work, var, value, words):
+    monkeypatch.setenv(var, value)
+    _clean(run_cli(["compose", paint / "r.yaml", "--out", paint / "o"]), var, words)

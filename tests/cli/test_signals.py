@@ -3,6 +3,7 @@ SIGHUP clean up as SIGINT does: no temporary entry and no partial output is left
 that were there are unchanged, and the exit status says which signal ended the run."""
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -176,6 +177,7 @@ def test_twenty_sigterms_at_random_moments_during_match(tmp_path):
     (tmp_path / "t.csv").write_text(MATCH_TARGET)
     rng = random.Random(20261207)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    codes = []
     for k in range(20):
         out = tmp_path / f"out{k}"
         proc = subprocess.Popen([sys.executable, "-c", "import signal, sys; "
@@ -187,9 +189,60 @@ def test_twenty_sigterms_at_random_moments_during_match(tmp_path):
         time.sleep(rng.uniform(1.0, 3.5))
         proc.send_signal(signal.SIGTERM)
         text, _ = proc.communicate(timeout=120)
+        codes.append(proc.returncode)
         left = sorted(p.name for p in out.iterdir()) if out.exists() else []
         if proc.returncode == 143:
             assert left == [], (k, left, text)
             assert "Traceback" not in text and "internal error" not in text, text
         else:   # finished before the signal: the whole set, and the fit's own exit status
             assert proc.returncode in (0, 1) and left == MATCH_OUTPUTS, (k, proc.returncode, left, text[-2000:])
+    assert codes.count(143) >= 15, codes   # the signals did land during the work
+
+
+CAL_LADDER = "species: cadmium-yellow\nname: cy-lab\npanels:\n  - {recipe: base.yaml, target: t.csv}\n"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", ["calibrate", "compare-batch"])
+def test_sigterm_during_calibrate_and_a_batch_compare(tmp_path, command):
+    """issue 38: calibrate and batch compare end like match under SIGTERM: exit 143, nothing written, no
+    temporary entry; or, when the signal came after the work, their complete outputs."""
+    import random
+
+    base = MATCH_BASE.replace("{fit: [0.01, 0.2]}", "0.1")
+    (tmp_path / "base.yaml").write_text(base)
+    (tmp_path / "b2.yaml").write_text(base.replace("name: sig-match", "name: sig-two"))
+    (tmp_path / "t.csv").write_text(MATCH_TARGET)
+    (tmp_path / "t2.csv").write_text(MATCH_TARGET)
+    (tmp_path / "ladder.yaml").write_text(CAL_LADDER)
+    out = tmp_path / "out"
+    out.mkdir()
+    if command == "calibrate":
+        args = ["calibrate", str(tmp_path / "ladder.yaml"), "--out-catalog", str(out / "user.yaml"), "--report",
+                str(out / "fit.json"), "--max-evaluations", "3"]
+        complete = ["fit.json", "user.yaml"]
+    else:
+        args = ["compare", str(tmp_path / "base.yaml"), str(tmp_path / "b2.yaml"), "--target", str(tmp_path / "t.csv"),
+                "--target", str(tmp_path / "t2.csv"), "--table", str(out / "table.csv"), "--plot", str(out / "figs")]
+        complete = ["figs", "table.csv"]
+    rng = random.Random(38 + len(command))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    codes = []
+    for _ in range(3):
+        for p in out.iterdir():
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
+        proc = subprocess.Popen([sys.executable, "-c", "import signal, sys; "
+                                 "[signal.signal(s, signal.SIG_DFL) for s in (signal.SIGTERM, signal.SIGHUP)]; "
+                                 "from flakedb.cli.main import main; sys.argv[0] = 'flakedb'; main()"] + args,
+                                env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        time.sleep(rng.uniform(1.5, 4.0))
+        proc.send_signal(signal.SIGTERM)
+        text, _ = proc.communicate(timeout=120)
+        codes.append(proc.returncode)
+        left = sorted(p.name for p in out.iterdir())
+        if proc.returncode == 143:
+            assert left == [], (left, text)
+            assert "internal error" not in text and "Traceback" not in text, text
+        else:
+            assert proc.returncode in (0, 1) and left == complete, (proc.returncode, left, text[-2000:])
+    assert 143 in codes, codes

@@ -249,3 +249,22 @@ def test_a_killed_builds_template_is_reported_and_swept(built, tmp_path):
     assert remove_stale_templates(str(Path(url) / "versions")) == [stray.name]
     assert not stray.exists() and mine.exists()
     assert st.verify_store(url, all_versions=True) == []
+
+
+def test_a_template_whose_writing_fails_is_removed(tmp_path, monkeypatch):
+    """issue 38: a disk-full error while the private template was written left versions/.tmp-… behind."""
+    from flakedb.store import write as sw
+
+    real = sw._fill_template
+
+    def full(vurl, plan, meta):
+        real(vurl, plan, meta)
+        raise OSError(errno.ENOSPC, "No space left on device", vurl)
+
+    monkeypatch.setattr(sw, "_fill_template", full)
+    url = str(tmp_path / "store")
+    args = ["build", "--store", url, "--n", "8", "--species", "cadmium-yellow", "--range-nm", "450", "650",
+            "--step-nm", "100", "--workers", "1"]
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 1 and "No space left on device" in r.output, r.output
+    assert [p.name for p in (Path(url) / "versions").iterdir()] == []
