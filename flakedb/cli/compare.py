@@ -38,6 +38,7 @@ from flakedb.solve.resolution import resolve_node_count
 from flakedb.solve.store_context import StoreContext
 from flakedb.match import batch
 from flakedb.match.cxf import load_target
+from flakedb.match.cxf_write import format_cxf
 from flakedb.match.fit import compare_texture, predict
 from flakedb.match.targets import TargetError, format_target
 from flakedb.match.texture import (
@@ -124,6 +125,9 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
 @click.option("--geometries", "geometry_set", default=DEFAULT_GEOMETRY_SET, show_default=True,
               type=click.Choice(list(GEOMETRY_SETS)),
               help="Without --target: the geometries to predict (E2194: 45° illumination; E2539 adds 15°).")
+@click.option("--write-cxf", "cxf_out", default=None, type=click.Path(dir_okay=False),
+              help="Write the prediction (multi-angle spectra and CIELAB under the comparison's conditions) as a "
+                   "CxF3 file that flakedb and QC software read as a target; one recipe.")
 @click.option("--write-csv", "csv_out", default=None, type=click.Path(dir_okay=False),
               help="Write the prediction in the target CSV layout (so it can serve as a target); one recipe.")
 @click.option("--table", "table_out", default=None, type=click.Path(dir_okay=False),
@@ -142,7 +146,7 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
 @prediction_options
 def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant, mi_illuminant, formula_text, max_de,
             limits,
-            geometry_set, csv_out, table_out, plot_dir, plot_format, texture_tol, with_texture, n, store, raw,
+            geometry_set, cxf_out, csv_out, table_out, plot_dir, plot_format, texture_tol, with_texture, n, store, raw,
             catalog_path):
     """Predict each RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, ΔE, pass/fail.
 
@@ -150,8 +154,9 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
     check_node_count(n)
     if not recipes and pairs_path is None:
         raise FlakedbError("give a RECIPE (or a folder of recipes, or --pairs LIST.csv)")
-    if not target_paths and csv_out is None and pairs_path is None and table_out is None:
-        raise FlakedbError("give --target T.csv (compare) and/or --write-csv P.csv / --table T.csv (write the prediction)")
+    if not target_paths and csv_out is None and cxf_out is None and pairs_path is None and table_out is None:
+        raise FlakedbError("give --target T.csv (compare) and/or --write-csv P.csv / --write-cxf P.cxf / --table T.csv "
+                           "(write the prediction)")
     if not (math.isfinite(max_de) and max_de >= 0):
         raise FlakedbError(f"--max-de {max_de}: a ΔE00 limit is a finite number ≥ 0 (e.g. --max-de 1)")
     if not (math.isfinite(texture_tol) and texture_tol > 0):
@@ -166,10 +171,11 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
     except ValueError as exc:
         raise FlakedbError(str(exc)) from exc
     outputs = (recipe_files, target_files, pairs_path, catalog_path, csv_out, table_out, plot_dir)
-    _check_outputs(*outputs)   # at once: the figures' names are known when the recipes and targets are read
+    _check_outputs(*outputs, cxf_out=cxf_out)   # at once: the figures' names are known when the recipes and targets are read
     if pairs_path is not None or len(recipe_files) > 1 or len(target_files) > 1:
-        if csv_out or mi_illuminant:
-            raise FlakedbError("--write-csv and --metamerism take one recipe and one target; a batch writes --table")
+        if csv_out or cxf_out or mi_illuminant:
+            raise FlakedbError("--write-csv, --write-cxf and --metamerism take one recipe and one target; a batch "
+                               "writes --table")
         return _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer, illuminant, scheme,
                               geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path,
                               texture_tol, outputs)
@@ -184,7 +190,7 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
     except (RecipeError, CatalogError, TargetError, StoreError) as exc:
         raise FlakedbError(str(exc)) from exc
     plan = _check_outputs(*outputs, figures=[(rec.name, None if target is None else _target_label(target))],
-                          plot_format=plot_format)   # every output, before any work
+                          plot_format=plot_format, cxf_out=cxf_out)   # every output, before any work
     geoms = target.geometries if target is not None else np.asarray(GEOMETRY_SETS[geometry_set])
     try:
         pred = predict(rec, geoms, n, catalog, version, raw)
@@ -193,6 +199,15 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         lab = pred.lab(obs, ill)
     except (StoreError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
+    cxf = None
+    if cxf_out is not None:   # formatted before any file is written: what CxF3 cannot hold writes nothing
+        sp = pred.mode == "spectral"
+        try:
+            cxf = (cxf_out, format_cxf(geoms, lab, pred.rf if sp else None, pred.wavelength_nm if sp else None, obs,
+                                       ill, rec.name, f"flakedb compare prediction, n = {pred.n}, mode {pred.mode}"),
+                   f"prediction as CxF3: {len(geoms)} geometries, " + ("spectra and CIELab" if sp else "CIELab"))
+        except ValueError as exc:
+            raise FlakedbError(f"--write-cxf {cxf_out}: {exc}") from None
     if cs.note:
         click.echo(f"note: {cs.note}", err=True)
     click.echo(f"compare {rec.name} ({pred.mode}, n = {pred.n}; {obs}° observer, {ill})"
@@ -222,7 +237,7 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         for g, v in zip(geoms, lab):
             click.echo(f"{g[0]:5g}° {g[1]:5g}° {v[0]:8.2f} {v[1]:8.2f} {v[2]:8.2f}")
         comp = batch.Comparison(rec.name, None, np.asarray(geoms, float), lab, None, obs, ill, None, None, pred)
-        _outputs(plan, [comp], table_out, plot_dir, plot_format, csv)
+        _outputs(plan, [comp], table_out, plot_dir, plot_format, csv, cxf)
         return
     try:
         lab_t = target.lab_under(obs, ill)
@@ -261,7 +276,7 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
     t_fail = sum(not r["passed"] for r in tex)
     comp = batch.Comparison(rec.name, _target_label(target), np.asarray(geoms, float), lab, lab_t, obs, ill, ev,
                             d, pred, target.reflectance, target.wavelength_nm, tex, sparkle)
-    _outputs(plan, [comp], table_out, plot_dir, plot_format, csv)
+    _outputs(plan, [comp], table_out, plot_dir, plot_format, csv, cxf)
     verdict = "pass" if ev["passed_all"] else f"FAIL at {n_fail} geometr" + ("y" if n_fail == 1 else "ies")
     if tex:
         verdict += "; texture " + ("pass" if not t_fail else f"FAIL at {t_fail} of {len(tex)} indices")
@@ -290,12 +305,12 @@ def _target_label(t):
 
 
 def _check_outputs(recipe_files, target_files, pairs_path, catalog_path, csv_out, table_out, plot_dir=None,
-                   figures=(), plot_format="png"):
+                   figures=(), plot_format="png", cxf_out=None):
     """The output plan of compare, checked before any work (:class:`flakedb.outputs.OutputPlan`): --write-csv,
     --table, the table's texture companion and every --plot figure (``figures``: (recipe name, target label or
     None) per comparison) are never a recipe, a target, the --pairs list or a file it names, the catalogue (given
     or default) or one another, and --plot is a folder that can be written.  Returns the plan (None: no output)."""
-    if csv_out is None and table_out is None and plot_dir is None:
+    if csv_out is None and table_out is None and plot_dir is None and cxf_out is None:
         return None
     plan = OutputPlan()
     for path in recipe_files:
@@ -313,6 +328,8 @@ def _check_outputs(recipe_files, target_files, pairs_path, catalog_path, csv_out
             raise FlakedbError(str(exc)) from exc
     if csv_out is not None:
         plan.add_output(csv_out, "--write-csv")
+    if cxf_out is not None:
+        plan.add_output(cxf_out, "--write-cxf")
     if table_out is not None:
         plan.add_output(table_out, "--table")
         plan.add_output(batch.texture_table_path(table_out), "--table (texture rows)")
@@ -329,8 +346,9 @@ def _short(text, limit=60) -> str:
     return t if len(t) <= limit else t[:limit - 3] + "..."
 
 
-def _outputs(plan, comparisons, table_out, plot_dir, plot_format, csv=None):
-    """Write the --write-csv prediction (``csv``: (path, text)), the --table CSV and the --plot figures of some
+def _outputs(plan, comparisons, table_out, plot_dir, plot_format, csv=None, cxf=None):
+    """Write the --write-csv prediction (``csv``: (path, text, what)), the --write-cxf one (``cxf``: (path, bytes,
+    what)), the --table CSV and the --plot figures of some
     comparisons, all together or none (``plan``: :func:`_check_outputs`'s, with every figure in it)."""
     if plan is None:
         return
@@ -339,6 +357,9 @@ def _outputs(plan, comparisons, table_out, plot_dir, plot_format, csv=None):
         if csv is not None:
             stage.path(csv[0]).write_text(csv[1], encoding="utf-8")
             wrote.append(f"wrote {csv[0]} ({csv[2]})")
+        if cxf is not None:
+            stage.path(cxf[0]).write_bytes(cxf[1])
+            wrote.append(f"wrote {cxf[0]} ({cxf[2]})")
         if table_out:
             batch.write_table(stage.path(table_out), comparisons)
             wrote.append(f"wrote {table_out} ({sum(len(c.geometries) for c in comparisons)} rows)")
