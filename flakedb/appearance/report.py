@@ -282,6 +282,24 @@ def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=N
     return rep
 
 
+def format_formulation(layers) -> list:
+    """Lines of the report's ``formulation`` (per basecoat: each particle's volume and weight fraction,
+    the PVC and the CPVC estimate; docs/formulation.md)."""
+    lines = []
+    for f in layers:
+        cpvc = (f"CPVC estimate {f['cpvc_estimate']:.3f}" if f.get("cpvc_estimate") is not None
+                else f"CPVC {f.get('cpvc_basis') or 'not estimated'}")
+        rho = f.get("film_density_g_cm3")
+        lines.append(f"formulation {f['layer']}: PVC {f['pvc']:.4f}; {cpvc}"
+                     + (f"; dry film {rho:.3f} g/cm³ (binder {f['binder_density_g_cm3']:g})" if rho is not None else ""))
+        for p in f["particles"]:
+            wf = "-" if p["weight_fraction"] is None else f"{p['weight_fraction']:.4f}"
+            lines.append(f"  {p['species']:<24} volume {p['volume_fraction']:.4f}  weight {wf}"
+                         + ("" if p["density_g_cm3"] is None else f"  ({p['density_g_cm3']:g} g/cm³)")
+                         + f"  given by {p['given'].split('_')[0]}")
+    return lines
+
+
 def format_report(rep) -> str:
     """The colour report as the text table ``flakedb compose`` prints."""
     cond = f"{rep.get('illuminant', 'D65')}/{rep.get('observer', '2')}°"
@@ -295,6 +313,7 @@ def format_report(rep) -> str:
         lines.append(f"{r.get('illumination_deg', ILLUMINATION_DEG):>5g}° {r['aspecular_deg']:>9g}° {view:>12} "
                      f"{r['L']:8.2f} {r['a']:8.2f} {r['b']:8.2f}"
                      + (f" {r['C']:8.2f} {r['h_deg']:6.1f}" if "C" in r else ""))
+    lines += format_formulation(rep.get("formulation") or [])
     fi = rep["flop_index"]
     if fi is None:
         lines.append("flop index (X-Rite): undefined (L*45 = 0)")
