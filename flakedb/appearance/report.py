@@ -58,7 +58,7 @@ from flakedb.colour.colorimetry import (
     white_XYZ,
 )
 from flakedb.colour.settings import FLOP_GEOMETRIES, ColourSettings, resolve
-from flakedb.colour.tolerance import observer_name
+from flakedb.colour.tolerance import lch, observer_name
 from flakedb.colour.tolerance import reflectance_to_XYZ as reflectance_to_XYZ_under
 from flakedb.colour.tolerance import white_XYZ as white_XYZ_under
 from flakedb.optics.fresnel import fresnel_dielectric
@@ -234,6 +234,7 @@ def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=N
             "side": "specular" if tv > 0 else ("normal" if tv == 0 else "illuminator"),
             "mu_i": float(mu_i), "mu_o": float(mu_o), "phi_d": float(phi_d),
             "L": float(lab[0]), "a": float(lab[1]), "b": float(lab[2]),
+            "C": float(lch(lab)[1]), "h_deg": float(lch(lab)[2]),
             "XYZ": [float(v) for v in XYZ], "linear_sRGB": [float(v) for v in rgb],
             "reflectance_factor": [float(v) for v in rf],
         })
@@ -281,18 +282,38 @@ def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=N
     return rep
 
 
+def format_formulation(layers) -> list:
+    """Lines of the report's ``formulation`` (per basecoat: each particle's volume and weight fraction,
+    the PVC and the CPVC estimate; docs/formulation.md)."""
+    lines = []
+    for f in layers:
+        cpvc = (f"CPVC estimate {f['cpvc_estimate']:.3f}" if f.get("cpvc_estimate") is not None
+                else f"CPVC {f.get('cpvc_basis') or 'not estimated'}")
+        rho = f.get("film_density_g_cm3")
+        lines.append(f"formulation {f['layer']}: PVC {f['pvc']:.4f}; {cpvc}"
+                     + (f"; dry film {rho:.3f} g/cm³ (binder {f['binder_density_g_cm3']:g})" if rho is not None else ""))
+        for p in f["particles"]:
+            wf = "-" if p["weight_fraction"] is None else f"{p['weight_fraction']:.4f}"
+            lines.append(f"  {p['species']:<24} volume {p['volume_fraction']:.4f}  weight {wf}"
+                         + ("" if p["density_g_cm3"] is None else f"  ({p['density_g_cm3']:g} g/cm³)")
+                         + f"  given by {p['given'].split('_')[0]}")
+    return lines
+
+
 def format_report(rep) -> str:
     """The colour report as the text table ``flakedb compose`` prints."""
     cond = f"{rep.get('illuminant', 'D65')}/{rep.get('observer', '2')}°"
     lines = [f"colour report: {rep['name']} ({rep['mode']} mode; CIELAB {cond}, geometries "
              f"{rep.get('geometry_set', 'e2194').upper()})",
-             f"{'illum':>6} {'aspecular':>10} {'view':>12} {'L*':>8} {'a*':>8} {'b*':>8}"]
+             f"{'illum':>6} {'aspecular':>10} {'view':>12} {'L*':>8} {'a*':>8} {'b*':>8} {'C*':>8} {'h°':>6}"]
     if rep.get("colour_note"):
         lines.insert(1, f"note: {rep['colour_note']}")
     for r in rep["geometries"]:
         view = f"{r['theta_view_deg']:g}° {r['side'][:5]}"
         lines.append(f"{r.get('illumination_deg', ILLUMINATION_DEG):>5g}° {r['aspecular_deg']:>9g}° {view:>12} "
-                     f"{r['L']:8.2f} {r['a']:8.2f} {r['b']:8.2f}")
+                     f"{r['L']:8.2f} {r['a']:8.2f} {r['b']:8.2f}"
+                     + (f" {r['C']:8.2f} {r['h_deg']:6.1f}" if "C" in r else ""))
+    lines += format_formulation(rep.get("formulation") or [])
     fi = rep["flop_index"]
     if fi is None:
         lines.append("flop index (X-Rite): undefined (L*45 = 0)")

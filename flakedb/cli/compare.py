@@ -33,11 +33,12 @@ from flakedb.colour.settings import (
     GEOMETRY_SETS,
     for_target,
 )
-from flakedb.colour.tolerance import PerAngleLimits, lab_differences, metamerism_index
+from flakedb.colour.tolerance import PerAngleLimits, lab_differences, lch, metamerism_index, parse_formula, shade_words
 from flakedb.solve.resolution import resolve_node_count
 from flakedb.solve.store_context import StoreContext
 from flakedb.match import batch
 from flakedb.match.cxf import load_target
+from flakedb.match.cxf_write import format_cxf
 from flakedb.match.fit import compare_texture, predict
 from flakedb.match.targets import TargetError, format_target
 from flakedb.match.texture import (
@@ -76,6 +77,14 @@ def parse_limits(items, option="--limit"):
     return out
 
 
+def formula(text):
+    """The --formula's :class:`flakedb.colour.tolerance.Formula`; a FlakedbError naming the forms otherwise."""
+    try:
+        return parse_formula(text)
+    except ValueError as exc:
+        raise FlakedbError(f"--formula: {exc}") from None
+
+
 def open_store(store, recipe, n=None, raw=False, verify=True):
     """The store version serving ``recipe`` at its node count (``n`` or the recipe's own) when ``store``
     is given and the recipe has catalogue species, else None: the newest complete version that serves
@@ -104,17 +113,26 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
 @click.option("--metamerism", "mi_illuminant", default=None,
               help="Also report the metamerism index (CIEDE2000) for a change from --illuminant to this one "
                    "(needs a spectral target and a spectral recipe).")
+@click.option("--formula", "formula_text", default="de00", show_default=True,
+              help="Colour-difference formula of --max-de / --limit: de00 (de00:kL:kC:kH, e.g. de00:2:1:1), de94 "
+                   "(de94:textiles), cmc (= cmc:2:1; cmc:l:c), din99 (din99:textiles) or deab "
+                   "(docs/colour-tolerances.md).")
 @click.option("--max-de", "max_de", default=DEFAULT_MAX_DE00, show_default=True, type=float,
-              help="dE00 limit at every geometry (a policy you choose; not a standard's number).")
+              help="ΔE limit (in --formula) at every geometry (a policy you choose; not a standard's number).")
 @click.option("--limit", "limits", multiple=True,
-              help="Per-geometry dE00 limit, ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
+              help="Per-geometry ΔE limit (in --formula), ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; "
+                   "repeatable.")
 @click.option("--geometries", "geometry_set", default=DEFAULT_GEOMETRY_SET, show_default=True,
               type=click.Choice(list(GEOMETRY_SETS)),
               help="Without --target: the geometries to predict (E2194: 45° illumination; E2539 adds 15°).")
+@click.option("--write-cxf", "cxf_out", default=None, type=click.Path(dir_okay=False),
+              help="Write the prediction (multi-angle spectra and CIELAB under the comparison's conditions) as a "
+                   "CxF3 file that flakedb and QC software read as a target; one recipe.")
 @click.option("--write-csv", "csv_out", default=None, type=click.Path(dir_okay=False),
               help="Write the prediction in the target CSV layout (so it can serve as a target); one recipe.")
 @click.option("--table", "table_out", default=None, type=click.Path(dir_okay=False),
-              help="Write the per-geometry table (recipe, target, geometry, L*a*b*, dL*, dC*, dH*, dE00, pass) as CSV.")
+              help="Write the per-geometry table (recipe, target, geometry, L*a*b*, dL*, dC*, dH*, dE00, pass, C*, h°, "
+                   "the --formula's ΔE, shade words) as CSV.")
 @click.option("--plot", "plot_dir", default=None, type=click.Path(file_okay=False),
               help="Write a figure per comparison into this folder: L*, a*, b* vs aspecular angle with the target, "
                    "a*b* travel, reflectance curves.")
@@ -126,17 +144,19 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
               help=f"With --write-csv: also write the predicted texture columns ({DEFAULT_TEXTURE_OBSERVER} "
                    f"observer, light at 15/45/75°, and graininess).")
 @prediction_options
-def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant, mi_illuminant, max_de, limits,
-            geometry_set, csv_out, table_out, plot_dir, plot_format, texture_tol, with_texture, n, store, raw,
+def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant, mi_illuminant, formula_text, max_de,
+            limits,
+            geometry_set, cxf_out, csv_out, table_out, plot_dir, plot_format, texture_tol, with_texture, n, store, raw,
             catalog_path):
-    """Predict each RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, dE00, pass/fail.
+    """Predict each RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, ΔE, pass/fail.
 
     RECIPES: recipe YAML files or folders of them.  Exit status 1 when a geometry fails its limit."""
     check_node_count(n)
     if not recipes and pairs_path is None:
         raise FlakedbError("give a RECIPE (or a folder of recipes, or --pairs LIST.csv)")
-    if not target_paths and csv_out is None and pairs_path is None and table_out is None:
-        raise FlakedbError("give --target T.csv (compare) and/or --write-csv P.csv / --table T.csv (write the prediction)")
+    if not target_paths and csv_out is None and cxf_out is None and pairs_path is None and table_out is None:
+        raise FlakedbError("give --target T.csv (compare) and/or --write-csv P.csv / --write-cxf P.cxf / --table T.csv "
+                           "(write the prediction)")
     if not (math.isfinite(max_de) and max_de >= 0):
         raise FlakedbError(f"--max-de {max_de}: a ΔE00 limit is a finite number ≥ 0 (e.g. --max-de 1)")
     if not (math.isfinite(texture_tol) and texture_tol > 0):
@@ -144,18 +164,19 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
                            f"(e.g. 0.1 for 10 %)")
     if with_texture and csv_out is None:
         raise FlakedbError("--with-texture adds texture columns to --write-csv P.csv: give --write-csv")
-    scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))  # before any work
+    scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits), formula=formula(formula_text))  # before work
     try:
         recipe_files = batch.expand_paths(recipes, (".yaml", ".yml"))
         target_files = batch.expand_paths(target_paths, (".csv", ".cxf"))
     except ValueError as exc:
         raise FlakedbError(str(exc)) from exc
     outputs = (recipe_files, target_files, pairs_path, catalog_path, csv_out, table_out, plot_dir)
-    _check_outputs(*outputs)   # at once: the figures' names are known when the recipes and targets are read
+    _check_outputs(*outputs, cxf_out=cxf_out)   # at once: the figures' names are known when the recipes and targets are read
     if pairs_path is not None or len(recipe_files) > 1 or len(target_files) > 1:
-        if csv_out or mi_illuminant:
-            raise FlakedbError("--write-csv and --metamerism take one recipe and one target; a batch writes --table")
-        return _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer, illuminant, max_de, limits,
+        if csv_out or cxf_out or mi_illuminant:
+            raise FlakedbError("--write-csv, --write-cxf and --metamerism take one recipe and one target; a batch "
+                               "writes --table")
+        return _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer, illuminant, scheme,
                               geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path,
                               texture_tol, outputs)
     recipe = str(recipe_files[0])
@@ -169,7 +190,7 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
     except (RecipeError, CatalogError, TargetError, StoreError) as exc:
         raise FlakedbError(str(exc)) from exc
     plan = _check_outputs(*outputs, figures=[(rec.name, None if target is None else _target_label(target))],
-                          plot_format=plot_format)   # every output, before any work
+                          plot_format=plot_format, cxf_out=cxf_out)   # every output, before any work
     geoms = target.geometries if target is not None else np.asarray(GEOMETRY_SETS[geometry_set])
     try:
         pred = predict(rec, geoms, n, catalog, version, raw)
@@ -178,6 +199,15 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         lab = pred.lab(obs, ill)
     except (StoreError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
+    cxf = None
+    if cxf_out is not None:   # formatted before any file is written: what CxF3 cannot hold writes nothing
+        sp = pred.mode == "spectral"
+        try:
+            cxf = (cxf_out, format_cxf(geoms, lab, pred.rf if sp else None, pred.wavelength_nm if sp else None, obs,
+                                       ill, rec.name, f"flakedb compare prediction, n = {pred.n}, mode {pred.mode}"),
+                   f"prediction as CxF3: {len(geoms)} geometries, " + ("spectra and CIELab" if sp else "CIELab"))
+        except ValueError as exc:
+            raise FlakedbError(f"--write-cxf {cxf_out}: {exc}") from None
     if cs.note:
         click.echo(f"note: {cs.note}", err=True)
     click.echo(f"compare {rec.name} ({pred.mode}, n = {pred.n}; {obs}° observer, {ill})"
@@ -207,7 +237,7 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         for g, v in zip(geoms, lab):
             click.echo(f"{g[0]:5g}° {g[1]:5g}° {v[0]:8.2f} {v[1]:8.2f} {v[2]:8.2f}")
         comp = batch.Comparison(rec.name, None, np.asarray(geoms, float), lab, None, obs, ill, None, None, pred)
-        _outputs(plan, [comp], table_out, plot_dir, plot_format, csv)
+        _outputs(plan, [comp], table_out, plot_dir, plot_format, csv, cxf)
         return
     try:
         lab_t = target.lab_under(obs, ill)
@@ -226,14 +256,16 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
                                f"do not cover the target's grid {target.wavelength_nm[0]:g}-"
                                f"{target.wavelength_nm[-1]:g} nm")
         mi = metamerism_index(target.reflectance, R_pred, target.wavelength_nm, obs, ill, mi_illuminant)
-    click.echo(f"{'illum':>6} {'aspec':>6} | {'target L*  a*  b*':>22} | {'recipe L*  a*  b*':>22} | {'dL*':>6} "
-               f"{'dC*':>6} {'dH*':>6} {'dE00':>6} {'limit':>6}  ok" + (f"  MI({ill}->{mi_illuminant})" if mi is not None else ""))
+    lch_t, lch_s, words = lch(lab_t), lch(lab), shade_words(lab_t, lab)
+    click.echo(f"{'illum':>6} {'aspec':>6} | {'target L*  a*  b*  C*  h°':>36} | {'recipe L*  a*  b*  C*  h°':>36} | "
+               f"{'dL*':>6} {'dC*':>6} {'dH*':>6} {ev['formula']:>7} {'limit':>6}  ok  shade"
+               + (f"  MI({ill}->{mi_illuminant})" if mi is not None else ""))
     for i, g in enumerate(geoms):
         lt, ls = lab_t[i], lab[i]
-        click.echo(f"{g[0]:5g}° {g[1]:5g}° | {lt[0]:6.2f} {lt[1]:7.2f} {lt[2]:7.2f} | {ls[0]:6.2f} {ls[1]:7.2f} "
-                   f"{ls[2]:7.2f} | {d['dL'][i]:+6.2f} {d['dC'][i]:+6.2f} {d['dH'][i]:+6.2f} {ev['value'][i]:6.2f} "
-                   f"{ev['limit'][i]:6.2f}  {'yes' if ev['passed'][i] else 'NO'}"
-                   + (f"  {mi[i]:.3f}" if mi is not None else ""))
+        click.echo(f"{g[0]:5g}° {g[1]:5g}° | {lt[0]:6.2f} {lt[1]:7.2f} {lt[2]:7.2f} {lch_t[i, 1]:6.2f} {lch_t[i, 2]:6.1f} | "
+                   f"{ls[0]:6.2f} {ls[1]:7.2f} {ls[2]:7.2f} {lch_s[i, 1]:6.2f} {lch_s[i, 2]:6.1f} | {d['dL'][i]:+6.2f} "
+                   f"{d['dC'][i]:+6.2f} {d['dH'][i]:+6.2f} {ev['value'][i]:7.2f} {ev['limit'][i]:6.2f}  "
+                   f"{'yes' if ev['passed'][i] else 'NO '}  {words[i]}" + (f"  {mi[i]:.3f}" if mi is not None else ""))
     n_fail = int(np.sum(~ev["passed"]))
     tex, sparkle = compare_texture(rec, pred, target, texture_tol)
     if tex:
@@ -244,7 +276,7 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
     t_fail = sum(not r["passed"] for r in tex)
     comp = batch.Comparison(rec.name, _target_label(target), np.asarray(geoms, float), lab, lab_t, obs, ill, ev,
                             d, pred, target.reflectance, target.wavelength_nm, tex, sparkle)
-    _outputs(plan, [comp], table_out, plot_dir, plot_format, csv)
+    _outputs(plan, [comp], table_out, plot_dir, plot_format, csv, cxf)
     verdict = "pass" if ev["passed_all"] else f"FAIL at {n_fail} geometr" + ("y" if n_fail == 1 else "ies")
     if tex:
         verdict += "; texture " + ("pass" if not t_fail else f"FAIL at {t_fail} of {len(tex)} indices")
@@ -273,12 +305,12 @@ def _target_label(t):
 
 
 def _check_outputs(recipe_files, target_files, pairs_path, catalog_path, csv_out, table_out, plot_dir=None,
-                   figures=(), plot_format="png"):
+                   figures=(), plot_format="png", cxf_out=None):
     """The output plan of compare, checked before any work (:class:`flakedb.outputs.OutputPlan`): --write-csv,
     --table, the table's texture companion and every --plot figure (``figures``: (recipe name, target label or
     None) per comparison) are never a recipe, a target, the --pairs list or a file it names, the catalogue (given
     or default) or one another, and --plot is a folder that can be written.  Returns the plan (None: no output)."""
-    if csv_out is None and table_out is None and plot_dir is None:
+    if csv_out is None and table_out is None and plot_dir is None and cxf_out is None:
         return None
     plan = OutputPlan()
     for path in recipe_files:
@@ -296,6 +328,8 @@ def _check_outputs(recipe_files, target_files, pairs_path, catalog_path, csv_out
             raise FlakedbError(str(exc)) from exc
     if csv_out is not None:
         plan.add_output(csv_out, "--write-csv")
+    if cxf_out is not None:
+        plan.add_output(cxf_out, "--write-cxf")
     if table_out is not None:
         plan.add_output(table_out, "--table")
         plan.add_output(batch.texture_table_path(table_out), "--table (texture rows)")
@@ -312,8 +346,9 @@ def _short(text, limit=60) -> str:
     return t if len(t) <= limit else t[:limit - 3] + "..."
 
 
-def _outputs(plan, comparisons, table_out, plot_dir, plot_format, csv=None):
-    """Write the --write-csv prediction (``csv``: (path, text)), the --table CSV and the --plot figures of some
+def _outputs(plan, comparisons, table_out, plot_dir, plot_format, csv=None, cxf=None):
+    """Write the --write-csv prediction (``csv``: (path, text, what)), the --write-cxf one (``cxf``: (path, bytes,
+    what)), the --table CSV and the --plot figures of some
     comparisons, all together or none (``plan``: :func:`_check_outputs`'s, with every figure in it)."""
     if plan is None:
         return
@@ -322,6 +357,9 @@ def _outputs(plan, comparisons, table_out, plot_dir, plot_format, csv=None):
         if csv is not None:
             stage.path(csv[0]).write_text(csv[1], encoding="utf-8")
             wrote.append(f"wrote {csv[0]} ({csv[2]})")
+        if cxf is not None:
+            stage.path(cxf[0]).write_bytes(cxf[1])
+            wrote.append(f"wrote {cxf[0]} ({cxf[2]})")
         if table_out:
             batch.write_table(stage.path(table_out), comparisons)
             wrote.append(f"wrote {table_out} ({sum(len(c.geometries) for c in comparisons)} rows)")
@@ -344,11 +382,10 @@ def _outputs(plan, comparisons, table_out, plot_dir, plot_format, csv=None):
         click.echo(line)
 
 
-def _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer, illuminant, max_de, limits,
+def _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer, illuminant, scheme,
                    geometry_set, table_out, plot_dir, plot_format, n, store, raw, catalog_path,
                    texture_tol=DEFAULT_TEXTURE_TOLERANCE, outputs=None):
     """Every recipe against every target (or the --pairs list): one summary table; exit 1 when any fails."""
-    scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))
     try:
         catalog = load_catalog(catalog_path)
         if pairs_path is not None:
@@ -389,11 +426,13 @@ def _compare_batch(recipe_files, target_files, pairs_path, cxf_object, observer,
         _outputs(plan, comps, table_out, plot_dir, plot_format)
         return
     summary = batch.summary_rows(comps)
-    click.echo(f"{'recipe':<28} {'target':<28} {'max dE00':>9} {'worst':>10} {'failed':>7} {'texture':>8}  ok")
+    click.echo(f"{'recipe':<28} {'target':<28} {'max dE00':>9} {'max ' + scheme.formula.label:>14} {'worst':>10} "
+               f"{'failed':>7} {'texture':>8}  ok")
     for r, c in zip(summary, [c for c in comps if c.differences is not None]):
         tx = "-" if r["texture_failed"] is None else f"{r['texture_failed']}/{len(c.texture)} NO" if r["texture_failed"] \
             else f"{len(c.texture)} ok"
-        click.echo(f"{r['recipe'][:28]:<28} {str(r['target'])[:28]:<28} {r['max_dE00']:9.2f} {r['worst_geometry']:>10} "
+        click.echo(f"{r['recipe'][:28]:<28} {str(r['target'])[:28]:<28} {r['max_dE00']:9.2f} {r['max_dE']:14.2f} "
+                   f"{r['worst_geometry']:>10} "
                    f"{r['failed']:>4}/{r['geometries']:<2} {tx:>8}  {'yes' if r['passed'] else 'NO'}")
     _outputs(plan, comps, table_out, plot_dir, plot_format)
     n_fail = sum(1 for r in summary if not r["passed"])

@@ -38,7 +38,7 @@ import click
 import numpy as np
 import yaml
 
-from flakedb.cli.compare import open_store, parse_limits
+from flakedb.cli.compare import formula, open_store, parse_limits
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import check_plan, remove_created_dirs
 from flakedb.cli.options import check_node_count, prediction_options
@@ -73,19 +73,22 @@ FITTED_SUFFIX = "-fitted.yaml"
 @click.option("--illuminant", default=None, help="D65, A, F11, ... (default: the target's).")
 @click.option("--weight", "weights", multiple=True,
               help="Weight of a geometry in the fit, ASPECULAR=W or ILLUM/ASPECULAR=W (default 1); repeatable.")
+@click.option("--formula", "formula_text", default="de00", show_default=True,
+              help="Colour-difference formula of the tolerance and of the fit's residual: de00 (de00:kL:kC:kH), "
+                   "de94 (de94:textiles), cmc (= cmc:2:1; cmc:l:c), din99 (din99:textiles) or deab.")
 @click.option("--max-de", "max_de", default=DEFAULT_MAX_DE00, show_default=True, type=float,
-              help="The target's tolerance: dE00 limit at every geometry (a policy; exit status 1 when the fit "
+              help="The target's tolerance: ΔE (in --formula) limit at every geometry (a policy; exit status 1 when the fit "
                    "does not get within it).")
 @click.option("--limit", "limits", multiple=True,
-              help="Per-geometry dE00 limit, ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
+              help="Per-geometry ΔE limit (in --formula), ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
 @click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=click.IntRange(1, 10_000),
               help="Most residual evaluations of the least-squares solver.")
 @click.option("--texture-tolerance", "texture_tol", default=DEFAULT_TEXTURE_TOLERANCE, show_default=True, type=float,
               help="Relative tolerance of a target's texture columns, with a floor per index (docs/texture.md §9); "
                    "an index at it weighs in the fit as one geometry at the --max-de limit.")
 @prediction_options
-def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights, max_de, limits, max_nfev, texture_tol,
-          n, store, raw, catalog_path):
+def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights, formula_text, max_de, limits, max_nfev,
+          texture_tol, n, store, raw, catalog_path):
     """Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target.
 
     Exit status 0 when every geometry ends within the tolerance (--max-de / --limit), 1 when not (the
@@ -93,11 +96,11 @@ def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights
     bound), 2 for an error."""
     check_node_count(n)
     if not (math.isfinite(max_de) and max_de > 0):
-        raise FlakedbError(f"--max-de {max_de}: a ΔE00 tolerance is a finite number > 0 (e.g. --max-de 1)")
+        raise FlakedbError(f"--max-de {max_de}: a ΔE tolerance is a finite number > 0 (e.g. --max-de 1)")
     if not (math.isfinite(texture_tol) and texture_tol > 0):
         raise FlakedbError(f"--texture-tolerance {texture_tol}: a relative tolerance is a finite number > 0 "
                            f"(e.g. 0.1 for 10 %)")
-    scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits))
+    scheme = PerAngleLimits(default=max_de, limits=parse_limits(limits), formula=formula(formula_text))
     weight_items = parse_limits(weights, "--weight")
 
     try:

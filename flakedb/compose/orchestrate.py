@@ -301,6 +301,7 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
     }
     report["store"] = solved.store_label
     report["rgb_file"] = gamut_info
+    report["formulation"] = [dict(b.formulation, layer=b.path) for b in recipe.basecoats if b.formulation]  # PVC, w/v
     report["warnings"] = list(warnings)
     report["texture"] = texture_report_grounded(texture[0].result(), observers, texture_ground(  # docs/texture.md
         table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False), paint.eta if paint.delta else None))

@@ -29,7 +29,7 @@ import numpy as np
 
 from flakedb.atomic import atomic_write_text
 from flakedb.colour.settings import DEFAULT_MAX_DE00, GEOMETRY_SETS, for_target, resolve
-from flakedb.colour.tolerance import PerAngleLimits, lab_differences
+from flakedb.colour.tolerance import PerAngleLimits, lab_differences, lch, shade_words
 from flakedb.match.fit import Prediction, compare_texture, predict
 from flakedb.match.texture import DEFAULT_TEXTURE_TOLERANCE
 from flakedb.safeio import FileTooLargeError, read_limited
@@ -123,8 +123,10 @@ def compare_batch(recipes, targets=(), pairs=None, observer=None, illuminant=Non
 
 
 LONG_COLUMNS = ("recipe", "target", "illumination_deg", "aspecular_deg", "observer", "illuminant",
-                "L_target", "a_target", "b_target", "L", "a", "b", "dL", "dC", "dH", "dE00", "limit", "passed")
-SUMMARY_COLUMNS = ("recipe", "target", "geometries", "max_dE00", "worst_geometry", "failed", "texture_failed", "passed")
+                "L_target", "a_target", "b_target", "L", "a", "b", "dL", "dC", "dH", "dE00", "limit", "passed",
+                "C_target", "h_target", "C", "h", "formula", "dE", "shade")
+SUMMARY_COLUMNS = ("recipe", "target", "geometries", "max_dE00", "worst_geometry", "failed", "texture_failed", "passed",
+                   "formula", "max_dE")
 TEXTURE_COLUMNS = ("recipe", "target", "index", "unit", "predicted", "target_value", "difference", "tolerance",
                    "passed")
 
@@ -136,13 +138,16 @@ def long_rows(comparisons) -> list:
         for k, g in enumerate(c.geometries):
             r = {"recipe": c.recipe, "target": c.target, "illumination_deg": float(g[0]), "aspecular_deg": float(g[1]),
                  "observer": c.observer, "illuminant": c.illuminant,
-                 "L": float(c.lab_pred[k, 0]), "a": float(c.lab_pred[k, 1]), "b": float(c.lab_pred[k, 2])}
+                 "L": float(c.lab_pred[k, 0]), "a": float(c.lab_pred[k, 1]), "b": float(c.lab_pred[k, 2]),
+                 "C": float(lch(c.lab_pred[k])[1]), "h": float(lch(c.lab_pred[k])[2])}
             if c.lab_target is not None:
                 d, ev = c.differences, c.evaluation
                 r.update({"L_target": float(c.lab_target[k, 0]), "a_target": float(c.lab_target[k, 1]),
                           "b_target": float(c.lab_target[k, 2]), "dL": float(d["dL"][k]), "dC": float(d["dC"][k]),
                           "dH": float(d["dH"][k]), "dE00": float(d["dE00"][k]), "limit": float(ev["limit"][k]),
-                          "passed": bool(ev["passed"][k])})
+                          "passed": bool(ev["passed"][k]), "C_target": float(lch(c.lab_target[k])[1]),
+                          "h_target": float(lch(c.lab_target[k])[2]), "formula": ev.get("formula", "dE00"),
+                          "dE": float(ev["value"][k]), "shade": shade_words(c.lab_target[k], c.lab_pred[k])[0]})
             rows.append({col: r.get(col) for col in LONG_COLUMNS})
     return rows
 
@@ -159,7 +164,8 @@ def summary_rows(comparisons) -> list:
                      "worst_geometry": f"{c.geometries[w][0]:g}as{c.geometries[w][1]:g}",
                      "failed": int(np.sum(~c.evaluation["passed"])),
                      "texture_failed": sum(not r["passed"] for r in c.texture) if c.texture else None,
-                     "passed": c.passed})
+                     "passed": c.passed, "formula": c.evaluation.get("formula", "dE00"),
+                     "max_dE": float(np.max(c.evaluation["value"]))})
     return rows
 
 

@@ -71,7 +71,9 @@ from flakedb.colour.tolerance import (
     PerAngleLimits,
     ciede2000_residuals,
     delta_E_2000,
+    lch,
     reflectance_to_Lab,
+    shade_words,
 )
 from flakedb.solve.pipeline import settle_node_count, solve_recipe, solve_reported
 from flakedb.appearance.report import (
@@ -486,8 +488,11 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
     z0 = np.clip(np.array([p.to_z(p.start) for p in params]), lb, ub)
     history = []
 
+    residuals = getattr(scheme, "residuals", ciede2000_residuals)  # the scheme's formula (--formula), else ΔE00
+    de_label = getattr(getattr(scheme, "formula", None), "label", "dE00")
+
     def resid(z):
-        colour = (sw[:, None] * ciede2000_residuals(lab_t, ev.lab(to_p(z)))).ravel()
+        colour = (sw[:, None] * residuals(lab_t, ev.lab(to_p(z)))).ravel()
         return np.concatenate([colour, unit * ev.texture_residuals(to_p(z))])
 
     def jac(z):
@@ -498,14 +503,14 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
             zj = z.copy()
             zj[j] += h[j]
             J[:, j] = (resid(zj) - r0) / h[j]
-        de = delta_E_2000(lab_t, ev.lab(to_p(z)))
+        de = np.linalg.norm(residuals(lab_t, ev.lab(to_p(z))), axis=-1)
         rt = np.abs(ev.texture_residuals(to_p(z)))
-        line = (f"iteration {len(history)}: {'cost (colour + texture)' if rt.size else 'sum w*dE00^2'} = "
-                f"{float(r0 @ r0):.4g}, max dE00 = {de.max():.3f}"
+        line = (f"iteration {len(history)}: {'cost (colour + texture)' if rt.size else f'sum w*{de_label}^2'} = "
+                f"{float(r0 @ r0):.4g}, max {de_label} = {de.max():.3f}"
                 + (f", max |texture difference|/tolerance = {rt.max():.3f}" if rt.size else "") + "; "
                 + ", ".join(f"{p.name} = {v:.6g}" for p, v in zip(params, to_p(z)))
                 + f"  [{ev.calls} compose calls, {ev.seconds / max(ev.calls, 1):.2f} s/call]")
-        history.append({"values": to_p(z).tolist(), "cost": float(r0 @ r0), "max_dE00": float(de.max())}
+        history.append({"values": to_p(z).tolist(), "cost": float(r0 @ r0), "max_dE00": float(delta_E_2000(lab_t, ev.lab(to_p(z))).max())}
                        | ({"max_texture_residual": float(rt.max())} if rt.size else {}))
         log(line)
         if de_tol and de.max() <= de_tol and np.all(unit * rt <= de_tol):
@@ -519,7 +524,7 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
         z_fit, nfev, status, message = sol.x, int(sol.nfev), int(sol.status), str(sol.message)
     except _Converged as c:
         z_fit, nfev, status = c.z, len(history), 5
-        message = f"every dE00 <= {de_tol:g}" + (" and every texture index within 1 % of its tolerance"
+        message = f"every {de_label} <= {de_tol:g}" + (" and every texture index within 1 % of its tolerance"
                                                    if target.texture else "")
     p_fit = to_p(z_fit)
     pred = ev.prediction(p_fit)
@@ -568,10 +573,16 @@ def format_match(res: MatchResult) -> str:
              f"{'parameter':<48} {'start':>11} {'fitted':>11} {'bounds':>22}"]
     for p, s, v in zip(res.params, res.start, res.values):
         lines.append(f"{p.name:<48} {s:11.5g} {v:11.5g} {f'[{p.lo:g}, {p.hi:g}]':>22}")
-    lines.append(f"{'illum':>6} {'aspec':>6} {'dE00 start':>11} {'dE00 fit':>9}   L*a*b* target -> fitted")
-    for g, d0, d1, lt, lf in zip(res.geometries, res.de_start, res.de_fit, res.lab_target, res.lab_fit):
-        lines.append(f"{g[0]:5g}° {g[1]:5g}° {d0:11.3f} {d1:9.3f}   ({lt[0]:6.2f} {lt[1]:6.2f} {lt[2]:6.2f}) -> "
-                     f"({lf[0]:6.2f} {lf[1]:6.2f} {lf[2]:6.2f})")
+    tol = res.tolerance
+    lines.append(f"{'illum':>6} {'aspec':>6} {'dE00 start':>11} {'dE00 fit':>9}"
+                 + (f" {tol['formula'] + ' fit':>12}" if tol and "formula" in tol else "")
+                 + "   L*a*b* C* h° target -> fitted; shade of the fit")
+    for i, (g, d0, d1, lt, lf) in enumerate(zip(res.geometries, res.de_start, res.de_fit, res.lab_target, res.lab_fit)):
+        ct, cf = lch(lt), lch(lf)
+        lines.append(f"{g[0]:5g}° {g[1]:5g}° {d0:11.3f} {d1:9.3f}"
+                     + (f" {tol['value'][i]:12.3f}" if tol and "formula" in tol else "")
+                     + f"   ({lt[0]:6.2f} {lt[1]:6.2f} {lt[2]:6.2f} {ct[1]:6.2f} {ct[2]:5.1f}) -> "
+                     f"({lf[0]:6.2f} {lf[1]:6.2f} {lf[2]:6.2f} {cf[1]:6.2f} {cf[2]:5.1f}); {shade_words(lt, lf)[0]}")
     lines.append("sensitivities at the fit: d(L*, a*, b*) for a +1 % change of each parameter "
                  "(= p * dLab/dp / 100)")
     for j, (p, v) in enumerate(zip(res.params, res.values)):
@@ -607,6 +618,9 @@ def match_report(res: MatchResult) -> dict:
         "geometries": [{"illumination_deg": float(g[0]), "aspecular_deg": float(g[1]), "weight": float(wt),
                         "lab_target": lt.tolist(), "lab_start": ls.tolist(), "lab_fit": lf.tolist(),
                         "dE00_start": float(d0), "dE00_fit": float(d1),
+                        "LCh_target": lch(lt).tolist(), "LCh_fit": lch(lf).tolist(),
+                        "shade_fit": shade_words(lt, lf)[0],
+                        "dE_fit": None if res.tolerance is None else float(res.tolerance["value"][i]),
                         "dLab_dp": {p.name: res.sensitivities[i, :, j].tolist() for j, p in enumerate(res.params)}}
                        for i, (g, wt, lt, ls, lf, d0, d1) in enumerate(zip(res.geometries, res.weights, res.lab_target,
                                                                              res.lab_start, res.lab_fit, res.de_start,
@@ -615,6 +629,7 @@ def match_report(res: MatchResult) -> dict:
         "nfev": res.nfev, "status": res.status, "message": res.message, "history": res.history,
         "reached": res.reached, "outcome": res.outcome if res.tolerance is not None else None,
         "tolerance": None if res.tolerance is None else res.tolerance["scheme"],
+        "formula": None if res.tolerance is None else res.tolerance.get("formula"),
         "passed": None if res.tolerance is None else [bool(v) for v in res.tolerance["passed"]],
         "at_bound": [{"path": n, "side": side, "bound": v} for n, side, v in res.at_bound],
         "undetermined": list(res.undetermined),

@@ -120,6 +120,16 @@ def species_name_problem(name) -> str | None:
     return None
 
 
+#: Catalogue fields that are formulation data (weight ↔ volume fractions, the CPVC estimate), not optics:
+#: a store is built from, and named by, the entry without them (:func:`optical_entry`).
+FORMULATION_FIELDS = ("density_g_cm3", "oil_absorption_g_100g")
+
+
+def optical_entry(entry: dict) -> dict:
+    """``entry`` (a species or the binder) without :data:`FORMULATION_FIELDS`: what its optics depend on."""
+    return {k: v for k, v in entry.items() if k not in FORMULATION_FIELDS}
+
+
 #: Most members one sweep may generate (each is a species a build projects: the shipped sweep has 8).
 MAX_SWEEP_MEMBERS = 1000
 
@@ -267,6 +277,7 @@ def expand_sweeps(catalog: dict) -> dict:
             film = e["coating"][int(m.group(1))] if m else e["substrate"]
             film["thickness_nm"] = {"value": value, "source": src}
             e["thickness_um"] = {"value": _stack_total_um(e), "source": "total of the film stack"}
+            e.pop("density_g_cm3", None)   # the base's density is its own stack's, not this member's
             e["description"] = f"{base['description']}; {s['parameter']} = {value} nm"
             out[s["name_format"].format(value=value)] = e
     return out

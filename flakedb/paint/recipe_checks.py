@@ -11,6 +11,7 @@ import numpy as np
 
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint.catalog import MAX_PIGMENT_BYTES, expand_sweeps, load_catalog, pigment_memory_bytes
+from flakedb.paint.formulation import cpvc_oil_absorption, film_density_g_cm3, volume_fractions, weight_fractions
 from flakedb.paint.limits import roughness_problem
 from flakedb.paint.materials import material_names, refractive_index
 from flakedb.paint.recipe_model import (
@@ -29,6 +30,7 @@ from flakedb.paint.recipe_model import (
     Spectrum,
 )
 from flakedb.paint.recipe_schema import json_short
+from flakedb.paint.species import species_density_g_cm3
 from flakedb.rt.media import vmf_kappa_from_mean_cosine
 from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, STUDENT_T_SHAPE_RANGE, flake_distribution
 
@@ -410,13 +412,111 @@ def _packing_checks(base, particles):
     return problems, warnings
 
 
-def _basecoat_checks(base, L, mode, grid, allsp):
-    """(problems, warnings, Basecoat): every particle checked, then the packing of the layer."""
+def _density(entry):
+    """A species' density (g/cm³; :func:`flakedb.paint.species.species_density_g_cm3`: its own, or a flake's
+    film-stack mean), NaN where none applies."""
+    rho = species_density_g_cm3(entry)[0] if entry is not None else None
+    return np.nan if rho is None else float(rho)
+
+
+def _binder_density(binder):
+    d = (binder or {}).get("density_g_cm3")
+    return np.nan if d is None else float(d["value"])
+
+
+def _loadings(base, particles, allsp, binder):
+    """(problems, {j: volume fraction}) of a basecoat's catalogue particles: each given by
+    ``volume_fraction`` or ``weight_fraction`` (converted, :func:`flakedb.paint.formulation.volume_fractions`)."""
+    problems, cat = [], []
+    for j, P in enumerate(particles):
+        if "custom" in P:
+            continue
+        pp = f"{base}.particles[{j}]"
+        given = [k for k in ("volume_fraction", "weight_fraction") if k in P]
+        if len(given) != 1:
+            problems.append(f"{pp}: give the loading as volume_fraction or as weight_fraction, exactly one (got "
+                            f"{' and '.join(given) or 'neither'})")
+            continue
+        cat.append((j, pp, P))
+    by_w = [(j, pp, P) for j, pp, P in cat if "weight_fraction" in P]
+    if not by_w:
+        return problems, {j: float(P["volume_fraction"]) for j, _, P in cat}
+    if any("custom" in P for P in particles):
+        problems.append(f"{base}.particles: weight_fraction needs the volume of every particle in the layer; a custom "
+                        f"particle (optical_depth) has none (hint: give this layer's loadings as volume_fraction)")
+    rho_b = _binder_density(binder)
+    if np.isnan(rho_b):
+        problems.append(f"{base}.particles: weight_fraction needs the binder's density: the catalogue's binder has no "
+                        f"density_g_cm3 (hint: add density_g_cm3: {{value, source}} to its binder, or give "
+                        f"volume_fraction)")
+    for j, pp, P in cat:
+        entry = allsp.get(P["species"])
+        if entry is not None and np.isnan(_density(entry)):
+            field = "weight_fraction" if "weight_fraction" in P else "species"
+            problems.append(f"{pp}.{field}: species {P['species']!r} has no density_g_cm3 in the catalogue, which "
+                            f"a layer with weight fractions needs for every particle (hint: give this layer's "
+                            f"loadings as volume_fraction, or add density_g_cm3 {{value, source}} to the species)")
+    if problems or any(P["species"] not in allsp for _, _, P in cat):
+        return problems, {j: float(P.get("volume_fraction", np.nan)) for j, _, P in cat}
+    phi = volume_fractions([float(P.get("volume_fraction", np.nan)) for _, _, P in cat],
+                           [float(P.get("weight_fraction", np.nan)) for _, _, P in cat],
+                           [_density(allsp[P["species"]]) for _, _, P in cat], rho_b) \
+        if sum(float(P["weight_fraction"]) for _, _, P in by_w) < 1.0 else None
+    if phi is None:
+        problems.append(f"{base}.particles: the weight fractions add up to "
+                        f"{sum(float(P['weight_fraction']) for _, _, P in by_w):.4g}; they must stay below 1 "
+                        f"(the binder is the rest of the dry film) (hint: lower them)")
+        return problems, {}
+    return problems, {j: float(v) for (j, _, _), v in zip(cat, phi)}
+
+
+def formulation_record(base, particles, binder):
+    """(problems, record) of a basecoat's catalogue particles (:class:`flakedb.paint.recipe_model.CatalogParticle`):
+    per particle the volume and weight fractions and density (weight fractions None where a density is
+    missing), the PVC, the film density and the CPVC estimate from oil absorption when every species has
+    one (:mod:`flakedb.paint.formulation`, docs/formulation.md); a PVC above that estimate is a problem."""
+    rho_b = _binder_density(binder)
+    rho = np.array([_density(p.entry) for p in particles])
+    phi = np.array([p.volume_fraction for p in particles])
+    known = bool(particles) and not np.isnan(rho_b) and not np.any(np.isnan(rho))
+    w = weight_fractions(phi, rho, rho_b) if known else [None] * len(particles)
+    oa = [(p.entry.get("oil_absorption_g_100g") or {}).get("value") for p in particles]
+    pvc = float(phi.sum())
+    cpvc = basis = None
+    if particles and not np.any(np.isnan(rho)) and all(v is not None for v in oa):
+        cpvc = cpvc_oil_absorption(phi, rho, oa)
+        basis = ("Asbeck & Van Loo (1949) from oil absorption, 1 / (1 + Σφ ρ OA / (93.5 Σφ)): "
+                 + ", ".join(f"{p.species} {v:g} g/100 g at {r:g} g/cm³" for p, v, r in zip(particles, oa, rho)))
+    missing = sorted({p.species for p, v in zip(particles, oa) if v is None})
+    rec = {"binder_density_g_cm3": None if np.isnan(rho_b) else rho_b, "pvc": pvc,
+           "film_density_g_cm3": float(film_density_g_cm3(phi, rho, rho_b)) if known else None,
+           "cpvc_estimate": cpvc, "cpvc_basis": basis or (
+               f"not estimated: no cited oil absorption for {', '.join(missing)}" if missing else None),
+           "particles": [{"path": p.path, "species": p.species,
+                          "given": "weight_fraction" if p.weight_fraction is not None else "volume_fraction",
+                          "volume_fraction": float(f), "weight_fraction": None if x is None else float(x),
+                          "density_g_cm3": None if np.isnan(r) else float(r)}
+                         for p, f, x, r in zip(particles, phi, w, rho)]}
+    problems = []
+    if cpvc is not None and pvc > cpvc:
+        problems.append(f"{base}.particles: the pigment volume concentration PVC = {pvc:.4g} (Σ volume fractions) is "
+                        f"above this mix's critical PVC, estimated {cpvc:.4g} ({basis}): above the CPVC there is "
+                        f"not enough binder to fill the voids between the particles, the film holds air, and the "
+                        f"model (particles in binder) does not describe it (allowed range: PVC ≤ {cpvc:.4g}) "
+                        f"(hint: lower the loadings)")
+    return problems, rec
+
+
+def _basecoat_checks(base, L, mode, grid, allsp, binder=None):
+    """(problems, warnings, Basecoat): loadings resolved (by volume or by weight), every particle checked,
+    then the packing of the layer and its formulation (PVC against the CPVC estimate)."""
     problems, warnings = [], []
     bc = Basecoat(float(L["thickness_um"]), float(L["ior"]), [], base, float(L.get("interface_roughness", 0.0)))
     problem = roughness_problem(bc.interface_roughness)
     if problem:
         problems.append(f"{base}.interface_roughness: {problem}")
+    p, phi = _loadings(base, L["particles"], allsp, binder)
+    problems += p
     catalogued = []
     for j, P in enumerate(L["particles"]):
         pp = f"{base}.particles[{j}]"
@@ -428,14 +528,21 @@ def _basecoat_checks(base, L, mode, grid, allsp):
                 p, particle = _custom_medium_checks(pp, C, tau, mode, grid)
             problems += p
         else:
+            if j not in phi:
+                continue   # its loading is refused above (NaN: converted only once every problem is fixed)
+            given_w = P.get("weight_fraction")
+            P = {k: v for k, v in P.items() if k != "weight_fraction"} | {"volume_fraction": phi[j]}
             p, w, particle = _catalog_particle_checks(pp, base, P, bc.thickness_um, mode, grid, allsp, bc.ior)
             problems += p
             warnings += w
             if particle is None:
                 continue
+            particle.weight_fraction = None if given_w is None else float(given_w)
             catalogued.append(particle)
         bc.particles.append(particle)
     p, w = _packing_checks(base, catalogued)
+    if not p:
+        p, bc.formulation = formulation_record(base, catalogued, binder)
     return problems + p, warnings + w, bc
 
 
@@ -536,7 +643,7 @@ def semantic_problems(doc, catalog=None) -> tuple[list[str], list[str], dict]:
         if k == "clearcoat":
             p, w, clear = _clearcoat_checks(base, L, mode, grid)
         elif k == "basecoat":
-            p, w, bc = _basecoat_checks(base, L, mode, grid, allsp)
+            p, w, bc = _basecoat_checks(base, L, mode, grid, allsp, catalog.get("binder"))
             basecoats.append(bc)
         elif k == "metal":
             p, w, metal = _metal_checks(base, L, mode, grid)

@@ -84,6 +84,9 @@ class CatalogParticle:
     orientation_distribution: str | None = None
     #: flakes: geometric standard deviation of the log-normal diameter distribution (texture only)
     diameter_gsd: float | None = None
+    #: the recipe's weight_fraction when the loading was given by weight (volume_fraction is then
+    #: converted from it: flakedb.paint.formulation); None when given by volume
+    weight_fraction: float | None = None
 
     @property
     def kind(self):
@@ -135,6 +138,8 @@ class Basecoat:
     path: str = ""
     #: Beckmann α of the inner interface at this basecoat's top (0: smooth; only where the ior changes)
     interface_roughness: float = 0.0
+    #: volume and weight fractions, PVC and the CPVC estimate of the layer (recipe_checks.formulation_record)
+    formulation: dict | None = None
 
 
 @dataclass

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
+from flakedb.paint.catalog import optical_entry
 from flakedb.paint.mapping import catalog_species, recipe_alpha, recipe_distribution, recipe_top_alpha
 from flakedb.rt.stored import StoredFlakeMedium
 from flakedb.store import versions as st
@@ -17,7 +18,7 @@ from flakedb.store.versions import StoreError
 
 
 def _same_entry(a, b) -> bool:
-    norm = lambda e: json.loads(json.dumps(e, sort_keys=True, default=float))
+    norm = lambda e: json.loads(json.dumps(optical_entry(e), sort_keys=True, default=float))
     return norm(a) == norm(b)
 
 

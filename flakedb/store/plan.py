@@ -16,7 +16,7 @@ import jsonschema
 import numpy as np
 
 from flakedb import __version__
-from flakedb.paint.catalog import catalog_distribution
+from flakedb.paint.catalog import catalog_distribution, optical_entry
 from flakedb.paint.mapping import FLAKE_C_TOL
 from flakedb.resources import SCHEMAS_DIR
 from flakedb.rt.microflake import flake_distribution
@@ -157,8 +157,8 @@ class BuildRequest:
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
             "flakedb_version": __version__,
-            "species": {k: self.species[k] for k in sorted(self.species)},
-            "binder": self.binder,
+            "species": {k: optical_entry(self.species[k]) for k in sorted(self.species)},   # hashes kept
+            "binder": optical_entry(self.binder),
             "material_checksums": dict(sorted(self.material_checksums.items())),
             "resolutions": sorted({int(n) for n in self.resolutions}),
             "wavelength_nm": [float(w) for w in self.wavelength_nm],
