@@ -195,3 +195,13 @@ def test_measured_file_to_match_round_trip(tmp_path):
     res = match(base, target, n=16)
     assert abs(res.values[0] / 0.06 - 1) < 0.02
     assert res.de_fit.max() < 0.1 < res.de_start.max()
+
+
+def test_validation_tool_names_what_it_cannot_attempt(tmp_path):
+    # a kind with no colourant in the catalogue is reported with its reason, not fitted with a stand-in
+    write_merl(tmp_path / "blue-metallic-paint.binary", np.full((3, *DIMS), 0.1))
+    r = subprocess.run([sys.executable, "tools/validate_measured.py", str(tmp_path / "o"),
+                        str(tmp_path / "blue-metallic-paint.binary")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "not attempted: no blue colourant" in r.stdout
+    assert not (tmp_path / "o" / "blue-metallic-paint.csv").exists()
