@@ -7,8 +7,10 @@ sRGB primaries' CIELAB); a file whose size disagrees with its header read as dat
 not read back through flakedb.match.targets.
 """
 
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,6 +30,13 @@ from flakedb.match.merl import (
 from flakedb.match.targets import E2539_GEOMETRIES, read_target
 
 G = np.asarray(E2539_GEOMETRIES, float)
+ROOT = Path(__file__).resolve().parents[2]
+ENV = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+
+
+def _tool(*args):
+    return subprocess.run([sys.executable, str(ROOT / "tools" / args[0]), *map(str, args[1:])],
+                          capture_output=True, text=True, cwd=ROOT, env=ENV)
 DIMS = (29, 31, 61)   # small synthetic tables (no geometry on a bin edge); the bin rules take the header's sizes
 
 
@@ -140,15 +149,13 @@ def test_truncated_file_refused(tmp_path):
 def test_tool_writes_a_target_that_reads_back(tmp_path):
     table, _ = _table(lambda T, D, P: np.stack([0.4 + 0 * T, 0.3 + 0.1 * np.cos(T), 0.2 + 0 * D]))
     write_merl(tmp_path / "paint.binary", table)
-    r = subprocess.run([sys.executable, "tools/merl_target.py", str(tmp_path / "out"), str(tmp_path / "paint.binary")],
-                       capture_output=True, text=True)
+    r = _tool("merl_target.py", tmp_path / "out", tmp_path / "paint.binary")
     assert r.returncode == 0, r.stderr
     t = read_target(tmp_path / "out" / "paint.csv")
     assert t.name == "paint" and np.allclose(t.geometries, G)
     _, lab = merl_target(table, G)
     assert np.allclose(t.lab_under(observer="2", illuminant="D65"), lab, atol=1e-5)
-    bad = subprocess.run([sys.executable, "tools/merl_target.py", str(tmp_path / "out"), str(tmp_path / "nothere")],
-                         capture_output=True, text=True)
+    bad = _tool("merl_target.py", tmp_path / "out", tmp_path / "nothere")
     assert bad.returncode == 2 and "nothere" in bad.stderr and "Traceback" not in bad.stderr
 
 
@@ -181,7 +188,7 @@ def test_measured_file_to_match_round_trip(tmp_path):
     from flakedb.match.fit import match
     from flakedb.match.targets import write_target
 
-    doc = yaml.safe_load(open("tools/validation/silver.yaml", encoding="utf-8"))
+    doc = yaml.safe_load(open(ROOT / "tools" / "validation" / "silver.yaml", encoding="utf-8"))
     p = doc["layers"][1]["basecoat"]["particles"][0]
     truth = dict(p, volume_fraction=0.06, orientation_alpha=0.12, orientation_shape=4.0)
     doc["layers"][1]["basecoat"]["particles"][0] = truth
@@ -200,8 +207,7 @@ def test_measured_file_to_match_round_trip(tmp_path):
 def test_validation_tool_names_what_it_cannot_attempt(tmp_path):
     # a kind with no colourant in the catalogue is reported with its reason, not fitted with a stand-in
     write_merl(tmp_path / "blue-metallic-paint.binary", np.full((3, *DIMS), 0.1))
-    r = subprocess.run([sys.executable, "tools/validate_measured.py", str(tmp_path / "o"),
-                        str(tmp_path / "blue-metallic-paint.binary")], capture_output=True, text=True)
+    r = _tool("validate_measured.py", tmp_path / "o", tmp_path / "blue-metallic-paint.binary")
     assert r.returncode == 0, r.stderr
     assert "not attempted: no blue colourant" in r.stdout
     assert not (tmp_path / "o" / "blue-metallic-paint.csv").exists()
