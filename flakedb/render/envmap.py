@@ -18,7 +18,8 @@ A cell's value is the **mean radiance over the cell** (:func:`cell_average`: ``s
 weighted by their exact solid angle), so that ``Σ Ω_r E[r, c]`` is the environment's integral to the
 sub-cell quadrature's accuracy; a sun disk, much smaller than a smooth environment's features, is added
 by :func:`splat_sun`: ``n_points`` equal-solid-angle directions of the disk each deposit ``L Ω_sun /
-n_points`` into the cell they fall in, so the grid carries the sun's power exactly.
+n_points`` of power, shared bilinearly between the four nearest cell centres (so the power's centroid in
+(θ, φ) stays where the point is), and the grid carries the sun's power exactly.
 """
 
 from __future__ import annotations
@@ -122,10 +123,19 @@ def splat_sun(grid, sun, frame: PolarFrame, n_points: int = 4096) -> np.ndarray:
         return out
     n_theta, n_phi = out.shape[:2]
     theta, phi = grid_coordinates(sun_directions(sun, n_points), frame)
-    r = np.minimum((theta / np.pi * n_theta).astype(np.int64), n_theta - 1)
-    c = np.minimum((phi / (2.0 * np.pi) * n_phi).astype(np.int64), n_phi - 1)
+    # bilinear splat between the four nearest cell centres: the power's centroid stays at each point
+    y = np.clip(theta / np.pi * n_theta - 0.5, 0.0, n_theta - 1.0)
+    x = phi / (2.0 * np.pi) * n_phi - 0.5
+    r0 = np.minimum(np.floor(y).astype(np.int64), max(n_theta - 2, 0))
+    ty = y - r0
+    x0f = np.floor(x)
+    tx = x - x0f
+    c0 = np.mod(x0f.astype(np.int64), n_phi)
+    c1 = np.mod(c0 + 1, n_phi)
     count = np.zeros((n_theta, n_phi))
-    np.add.at(count, (r, c), 1.0)
+    for r, c, w in ((r0, c0, (1 - ty) * (1 - tx)), (r0, c1, (1 - ty) * tx), (r0 + 1, c0, ty * (1 - tx)),
+                    (r0 + 1, c1, ty * tx)):
+        np.add.at(count, (np.minimum(r, n_theta - 1), c), w)
     omega = cell_solid_angles(n_theta, n_phi)
     out += (count * (sun.solid_angle / n_points) / omega[:, None])[..., None] * np.asarray(sun.radiance)
     return out

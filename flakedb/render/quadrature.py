@@ -25,9 +25,10 @@ The reflected radiance at a point of normal ``n`` seen from ``v = +z`` is
    +z, so its sum is the circular cross-correlation along φ of that kernel with E, summed over rows: one
    FFT per θ_g gives the smooth radiance ``S[θ_g, φ_s]`` at every grid azimuth.
 4. **Pixels.**  Each pixel takes ``ss × ss`` fixed sub-pixel positions (no jitter): the smooth part by
-   bilinear interpolation of ``S`` in (θ_n, φ_n), the smooth coat's delta reflection exactly
-   (``F(mu_i; η) · [L_env(r) + L_sun(r)]``, as the Monte Carlo renderer), the background from the
-   environment, and the pixel is their mean (anti-aliased silhouette and highlights).
+   bilinear interpolation of ``S`` in (θ_n, φ_n), the smooth coat's delta reflection of the environment
+   exactly (``F(mu_i; η) · L_env(r)``), the background from the environment, and the pixel is their mean
+   (anti-aliased silhouette and highlights).  The sun's mirror image, too small for sub-pixel samples, is
+   added by its area (:func:`_mirrored_sun`).
 
 Under a constant environment ``L`` the smooth part is ``L Σ_cells f·|mu_o| Ω`` → ``L · albedo_R(mu_i)``
 (the furnace); the measured differences from the Monte Carlo renderer are in docs/preview.md.
@@ -42,7 +43,8 @@ import time
 import numpy as np
 
 from flakedb.optics.fresnel import fresnel_dielectric
-from flakedb.render.envmap import PolarFrame, cell_average, cell_directions, cell_solid_angles, splat_sun
+from flakedb.render.envmap import (LatLongEnvironment, PolarFrame, cell_average, cell_directions, cell_solid_angles,
+                                  splat_sun, sun_directions)
 from flakedb.render.preview import (CAMERA_DIR, DEFAULT_EXTENT, VIEW_DIR, RenderResult, check_renderable,
                                     studio_environment)
 
@@ -61,6 +63,8 @@ SUN_POINTS = 4096
 N_NORMAL = 65
 #: |mu_o| values at which the file's series is interpolated.
 N_MU = 129
+#: Equal-solid-angle points of the sun disk in its mirror image on the coat.
+MIRROR_SUN_POINTS = 16384
 #: Sub-pixel positions per pixel and axis.
 PIXEL_SS = 2
 #: phi_d grid: at least this many points on [0, π], and enough that (order · step) <= PHI_STEP_ORDERS.
@@ -127,6 +131,34 @@ def smooth_radiance_table(bsdf, E, *, n_normal: int = N_NORMAL, n_mu: int = N_MU
     return S
 
 
+def _mirrored_sun(sun, eta: float, size: int, extent: float, n_points: int = MIRROR_SUN_POINTS) -> np.ndarray:
+    """The smooth coat's mirror image of ``sun`` (size, size, 3), each pixel's mean over its area.
+
+    On an orthographic sphere the mirror image of a solid angle dω has image area dω/4 (the half vector
+    h = (d + v)/|d + v| has dω_h = dω / (4 h·v), and the image area is h·v dω_h), so ``n_points``
+    equal-solid-angle points of the disk each add ``F(h·v; η) L_sun (Ω_sun / n_points) / 4`` of radiance ×
+    area to the pixel they land in: exact in the limit, with no sub-pixel sampling of the small disk."""
+    d = sun_directions(sun, n_points)
+    h = d + VIEW_DIR
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    pix = 2.0 * extent / size
+    col = np.floor((h[:, 0] + extent) / pix).astype(np.int64)
+    row = np.floor((extent - h[:, 1]) / pix).astype(np.int64)
+    ok = (h[:, 2] > 0) & (col >= 0) & (col < size) & (row >= 0) & (row < size)
+    w = fresnel_dielectric(h[ok, 2], eta).R * (sun.solid_angle / n_points / 4.0 / (pix * pix))
+    out = np.zeros((size, size))
+    np.add.at(out, (row[ok], col[ok]), w)
+    return out[..., None] * np.asarray(sun.radiance)
+
+
+def _env_sub_cells(env, n_phi: int) -> int:
+    """Sub-cells per grid cell and axis: ENV_SS, or for a lat-long image about one sample per image pixel
+    (at most 8), so that a small bright feature of the image (a sun) keeps its power."""
+    if isinstance(env, LatLongEnvironment):
+        return int(min(8, max(ENV_SS, math.ceil(env.image.shape[1] / n_phi))))
+    return ENV_SS
+
+
 def _sub_pixel_points(size: int, extent: float, ss: int):
     """(x, y) of the ss×ss fixed sub-pixel positions of every pixel: (size, size, ss·ss) each."""
     pix = 2.0 * extent / size
@@ -155,7 +187,8 @@ def render_sphere_quadrature(bsdf, env=None, sun=None, *, size: int = 256, exten
     env = studio_environment() if env is None else env
     delta_eta, _ = check_renderable(bsdf)
     t0 = time.perf_counter()
-    E = splat_sun(cell_average(env, n_theta, n_phi, VIEW_FRAME, ENV_SS), sun, VIEW_FRAME, SUN_POINTS)
+    E = splat_sun(cell_average(env, n_theta, n_phi, VIEW_FRAME, _env_sub_cells(env, n_phi)), sun, VIEW_FRAME,
+                  SUN_POINTS)
     S = smooth_radiance_table(bsdf, E, n_normal=n_normal)
     image = np.empty((size, size, 3))
     coverage = np.empty((size, size))
@@ -184,15 +217,14 @@ def render_sphere_quadrature(bsdf, env=None, sun=None, *, size: int = 256, exten
             n = np.stack([x[hit], y[hit], nz], axis=-1)
             F = fresnel_dielectric(nz, delta_eta).R
             r = 2.0 * nz[:, None] * n - VIEW_DIR
-            radiance = np.asarray(env(r), dtype=np.float64)
-            if sun is not None:
-                radiance = radiance + sun.radiance_at(r)
-            smooth = smooth + F[:, None] * radiance
+            smooth = smooth + F[:, None] * np.asarray(env(r), dtype=np.float64)   # the sun: _mirrored_sun
         val[hit] = smooth
         image[r0:r0 + rows] = val.mean(axis=2)
         coverage[r0:r0 + rows] = hit.mean(axis=2)
         if progress is not None:
             progress(min(rows, size - r0))
+    if delta_eta is not None and sun is not None:
+        image += _mirrored_sun(sun, delta_eta, size, extent)
     seconds = time.perf_counter() - t0
     env_settings = env.settings() if hasattr(env, "settings") else (
         dataclasses.asdict(env) if dataclasses.is_dataclass(env) else repr(env))
