@@ -111,7 +111,8 @@ def smooth_radiance_table(bsdf, E, *, n_normal: int = N_NORMAL, n_mu: int = N_MU
         if idx.size == 0 or not A[g].any():
             continue
         mo, dzi = mu_o[idx], dz[idx]
-        table = np.einsum("jom,mp->jpo", A[g], cos_m).reshape(n_mu * n_pd, -1)      # (J·P, C)
+        table = (A[g].reshape(-1, A.shape[-1]) @ cos_m).reshape(n_mu, -1, n_pd)     # (J, C, P): one BLAS product
+        table = np.ascontiguousarray(table.transpose(0, 2, 1)).reshape(n_mu * n_pd, -1)  # (J·P, C)
         den = st * np.sqrt(np.maximum(1.0 - mo * mo, 0.0))
         ok = den > 1e-12
         cphi = np.ones_like(mo)
