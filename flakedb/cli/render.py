@@ -76,9 +76,9 @@ def _sparkle_stacks(recipes, n_files, sun):
         except RecipeError as exc:
             raise FlakedbError(str(exc)) from None
         st, _ = texture_stack(rec)
-        if not st.flakes:
+        if not st.flakes and len(recipes) == 1:   # one recipe for every file: nothing at all to draw
             raise FlakedbError(f"--sparkle {path}: the recipe has no flakes the texture model can use: no sparkle to draw")
-        out.append((rec.name, st))
+        out.append((rec.name, st))               # in a sheet a flake-free paint is drawn smooth (no glints)
     return out
 
 
@@ -246,7 +246,10 @@ def render(files, out_dir, size, method, spp, env_file, write_environment, env_k
                                           progress=bar.update)
             else:
                 r = quadrature.render_sphere_quadrature(b, lights[kind], sun_light, size=size, progress=bar.update)
-        if st is not None:
+        if st is not None and not st[1].flakes:
+            click.echo(f"{Path(f).name}: sparkle of {st[0]}: the recipe has no flakes: no glints (drawn smooth)")
+            f = str(Path(f).with_name(Path(f).stem + f"-{st[0]}" + Path(f).suffix))
+        elif st is not None:
             r, info = add_sparkle(r, st[1], preview.studio_sun(), seed, sphere_mm)
             click.echo(f"{Path(f).name}: sparkle of {st[0]}: {info['glints']} glints drawn (expected "
                        f"{info['sum_lambda']:.0f}), pixel {info['pixel_mm']:.3g} mm on a {sphere_mm:g} mm sphere")
