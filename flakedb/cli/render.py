@@ -17,7 +17,7 @@ from flakedb.render import look, preview, quadrature
 from flakedb.render.envmap import LatLongEnvironment, rasterise_latlong
 from flakedb.render.imageio import read_exr, write_exr, write_png
 from flakedb.render.mitsuba import channel_wavelengths
-from flakedb.render.sparkle import sparkle_layer
+from flakedb.render.sparkle import sparkle_image
 from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.paint.texture_inputs import texture_stack
 
@@ -82,13 +82,12 @@ def _sparkle_stacks(recipes, n_files, sun):
     return out
 
 
-def add_sparkle(result, stack, sun, seed, sphere_mm):
-    """The render with the sun's glints added (:func:`flakedb.render.sparkle.sparkle_layer`), clipped at 0."""
-    layer, info = sparkle_layer(stack, sun, result.image.shape[0], result.settings["extent"],
-                                sphere_diameter_mm=sphere_mm, seed=seed)
-    img = result.image.astype(np.float64) + layer
-    info["clipped"] = float(np.mean(img < 0))
-    result.image = np.maximum(img, 0.0).astype(np.float32)
+def add_sparkle(result, stack, sun, seed, sphere_mm, reference=None):
+    """The render with the sun's glints, energy-consistent (:func:`flakedb.render.sparkle.sparkle_image`;
+    ``reference``: the deterministic render that bounds what the glints take, for a Monte Carlo one)."""
+    img, info = sparkle_image(result.image, stack, sun, result.settings["extent"], sphere_diameter_mm=sphere_mm,
+                              seed=seed, reference=reference)
+    result.image = img.astype(np.float32)
     result.settings["sparkle"] = info
     return result, info
 
@@ -250,7 +249,9 @@ def render(files, out_dir, size, method, spp, env_file, write_environment, env_k
             click.echo(f"{Path(f).name}: sparkle of {st[0]}: the recipe has no flakes: no glints (drawn smooth)")
             f = str(Path(f).with_name(Path(f).stem + f"-{st[0]}" + Path(f).suffix))
         elif st is not None:
-            r, info = add_sparkle(r, st[1], preview.studio_sun(), seed, sphere_mm)
+            ref = (None if method == "quadrature" else quadrature.render_sphere_quadrature(
+                b, lights[kind], sun_light, size=size, extent=r.settings["extent"]).image)
+            r, info = add_sparkle(r, st[1], preview.studio_sun(), seed, sphere_mm, ref)
             click.echo(f"{Path(f).name}: sparkle of {st[0]}: {info['glints']} glints drawn (expected "
                        f"{info['sum_lambda']:.0f}), pixel {info['pixel_mm']:.3g} mm on a {sphere_mm:g} mm sphere")
             f = str(Path(f).with_name(Path(f).stem + f"-{st[0]}" + Path(f).suffix))
