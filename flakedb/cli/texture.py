@@ -5,6 +5,8 @@ from pathlib import Path
 
 import click
 
+from flakedb.bsdf.dispatch import FILE_KINDS, file_kind
+from flakedb.bsdf.table import BSDFFileError
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import check_plan, remove_created_dirs
 from flakedb.outputs import OutputPlan
@@ -94,9 +96,6 @@ def _write_mitsuba(rec, obs, out_dir, ground=None):
 def _refuse_bsdf(path):
     """A FlakedbError when ``path`` is a file flakedb knows by its first bytes (a composed .bsdf / .h5, a
     Mitsuba tensor, a MaterialX document) rather than a recipe: the texture model needs the recipe."""
-    from flakedb.bsdf.dispatch import FILE_KINDS, file_kind  # lazy: CLI start-up
-    from flakedb.bsdf.table import BSDFFileError
-
     try:
         kind = file_kind(path)
     except BSDFFileError:

@@ -31,7 +31,7 @@ The reflected radiance at a point of normal ``n`` seen from ``v = +z`` is
    added by its area (:func:`_mirrored_sun`).
 
 Under a constant environment ``L`` the smooth part is ``L Σ_cells f·|mu_o| Ω`` → ``L · albedo_R(mu_i)``
-(the furnace); the measured differences from the Monte Carlo renderer are in docs/preview.md.
+(the furnace); the measured differences from the Monte Carlo renderer are in docs/previews.md.
 """
 
 from __future__ import annotations
