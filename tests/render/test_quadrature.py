@@ -280,3 +280,28 @@ def test_cli_refusals(args, words, tmp_path):
     for w in words:
         assert w in r.output, r.output
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_mono_file_and_transmission(tmp_path):
+    """A mono HDF5 table (one output channel) lights in RGB: the furnace in every channel; a table that only
+    transmits (mu_o > 0 entries) leaves the sphere black under any light."""
+    from flakedb.bsdf import BSDFTable, write_h5
+
+    from tests.render.test_preview import _nodes
+
+    write_h5(tmp_path / "m.h5", _reflection_table(lambda m: np.full((1, 1), 0.3 / np.pi) * m, channels=1,
+                                                  delta={"kind": "fresnel", "eta": 1.5}))
+    b = open_bsdf(tmp_path / "m.h5")
+    assert b.kernel_arrays().mix.shape == (1, 1)
+    r = quadrature.render_sphere_quadrature(b, preview.constant_environment(ENV_L), None, size=32, pixel_ss=1)
+    mask, n = _pixel_centres(32)
+    want = _furnace_expected(b, n[..., 2][mask])
+    assert r.image.shape == (32, 32, 3)
+    np.testing.assert_allclose(r.image[mask], np.repeat(want, 3, axis=1), rtol=4 * H * H)
+    mu = _nodes(16)
+    c = np.zeros((3, 32, 32, 1))
+    c[:, 16:, 16:, 0] = 0.9 / np.pi * mu[16:]
+    write_bsdf(tmp_path / "t.bsdf", BSDFTable(mu=mu, coeffs=c))
+    r = quadrature.render_sphere_quadrature(open_bsdf(tmp_path / "t.bsdf"), preview.constant_environment(ENV_L),
+                                            preview.studio_sun(), size=16)
+    assert np.all(r.image[r.coverage >= 1] == 0) and np.all(r.image[r.coverage == 0] == np.float32(ENV_L))
