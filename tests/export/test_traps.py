@@ -74,3 +74,19 @@ def test_info_reads_what_flakedb_exports(suffix, tmp_path):
     (tmp_path / "x.json").write_text('{"not": "gltf"}')
     r = CliRunner().invoke(cli, ["info", str(tmp_path / "x.json")])
     assert r.exit_code != 0 and "Traceback" not in r.output and "glTF 2.0" in r.output
+
+
+def test_usd_sphere_has_texture_coordinates(tmp_path):
+    """USD reads the layer with primvars:st on every vertex (USD's t up: the top of the sphere at t = 1)."""
+    pxr = pytest.importorskip("pxr")
+    from pxr import Usd, UsdGeom
+
+    path = write_usda(tmp_path / "s.usda", FIT, "s")
+    stage = Usd.Stage.Open(str(path))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/s/sphere"))
+    st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st")
+    assert st and st.GetInterpolation() == "vertex"
+    v, p = np.array(st.Get()), np.array(mesh.GetPointsAttr().Get())
+    assert v.shape == (len(p), 2)
+    top = p[:, 1] > 0.999
+    assert np.allclose(v[top, 1], 1.0) and np.all((v >= 0) & (v <= 1)) and pxr is not None
