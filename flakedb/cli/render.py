@@ -28,6 +28,8 @@ MAX_EXPOSURE_STOPS = 40.0
 #: Width of the lat-long EXR of --write-environment [pixels] (0.35° per pixel: the 2° sun is 11 across).
 ENV_EXR_WIDTH = 1024
 METHODS = ("quadrature", "montecarlo")
+#: Largest --environment file read [bytes] (an 8192 x 4096 half-float RGB EXR is ~200 MiB uncompressed).
+ENV_MAX_BYTES = 512 << 20
 
 
 def renderable(path):
@@ -95,6 +97,11 @@ def add_sparkle(result, stack, sun, seed, sphere_mm, reference=None):
 def load_environment(path):
     """The :class:`LatLongEnvironment` of a lat-long RGB OpenEXR file (Mitsuba 3 ``envmap`` layout,
     docs/previews.md), or a FlakedbError naming the file and what is wrong."""
+    size = Path(path).stat().st_size
+    if size > ENV_MAX_BYTES:
+        raise FlakedbError(f"--environment {path}: {size / 2**20:.0f} MiB, more than the {ENV_MAX_BYTES >> 20} MiB a "
+                           f"preview light needs (the preview samples it on 1.4° cells): downsample it, e.g. to "
+                           f"2048 x 1024")
     try:
         image = read_exr(path)
     except Exception as exc:   # OpenEXR raises plain exceptions for what is not an EXR

@@ -267,6 +267,7 @@ def test_written_environment_renders_as_the_studio(tmp_path):
     (["--method", "quadrature", "--spp", "4"], ["--spp 4", "montecarlo"]),
     (["--environment", "ENV", "--env", "studio"], ["--environment", "--env", "give one"]),
     (["--environment", "BAD"], ["not a readable", "lat-long"]),
+    (["--environment", "NAN"], ["--environment", "finite radiance"]),
 ])
 def test_cli_refusals(args, words, tmp_path):
     from flakedb.cli.main import cli
@@ -274,7 +275,11 @@ def test_cli_refusals(args, words, tmp_path):
     _lambertian(tmp_path / "l.bsdf")
     write_exr(tmp_path / "env.exr", np.full((4, 8, 3), 1.0, np.float32))
     (tmp_path / "bad.exr").write_bytes(b"not an exr")
-    args = [{"ENV": str(tmp_path / "env.exr"), "BAD": str(tmp_path / "bad.exr")}.get(a, a) for a in args]
+    nan = np.full((4, 8, 3), 1.0, np.float32)
+    nan[1, 2, 0] = np.nan
+    write_exr(tmp_path / "nan.exr", nan)
+    args = [{"ENV": str(tmp_path / "env.exr"), "BAD": str(tmp_path / "bad.exr"), "NAN": str(tmp_path / "nan.exr")}.get(a, a)
+            for a in args]
     r = CliRunner().invoke(cli, ["render", str(tmp_path / "l.bsdf"), "--out", str(tmp_path / "o")] + args)
     assert r.exit_code != 0 and "Traceback" not in r.output
     for w in words:
