@@ -152,7 +152,7 @@ def environment(kind):
                    f"{ENV_CONSTANT_RADIANCE} everywhere (the white-furnace check).  Repeat for a sheet of one "
                    "paint under several lights.")
 @click.option("--sun/--no-sun", default=None,
-              help="Add the key light (a 2° disk, sampled directly). Default: on with --env studio only.")
+              help="Add the key light (a 2° disk). Default: on with --env studio only.")
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(0, 2 ** 63 - 1), help="Random seed (≥ 0).")
 @click.option("--exposure", default=None, type=float,
               help="PNG exposure [stops] relative to the automatic one (default: automatic, Reinhard 2002 key "
@@ -164,7 +164,7 @@ def environment(kind):
               help="File name of the side-by-side PNG in --out (default: sheet.png when there are several "
                    "images).")
 @click.option("--threads", default=None, type=click.IntRange(1, 1024),
-              help="Worker threads (default: the CPUs available).")
+              help="Worker threads of --method montecarlo (default: the CPUs available); the quadrature runs on one.")
 @click.option("--sparkle", "sparkle_recipes", multiple=True, type=click.Path(dir_okay=False, exists=True),
               help="Draw the sun's glints from this recipe's flake statistics (docs/texture.md §6); one for all "
                    "FILES or one per file, in order (the same .bsdf twice with two recipes: two flake sizes side "

@@ -233,6 +233,7 @@ def test_constant_environment_file_gives_the_furnace(tmp_path):
     np.testing.assert_allclose(img[inside], want, rtol=4 * H * H, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_written_environment_renders_as_the_studio(tmp_path):
     """--write-environment then --environment: the same light.  The sphere's mean under the exported
     studio (with its sun) is within 0.2 % of the analytic studio's (measured 0.03 %)."""
