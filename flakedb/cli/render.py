@@ -189,6 +189,10 @@ def render(files, out_dir, size, method, spp, env_file, write_environment, env_k
     method = method or ("montecarlo" if spp is not None else "quadrature")
     if env_file is not None and env_kinds:
         raise FlakedbError(f"--environment {env_file} and --env {env_kinds[0]} both set the light: give one")
+    if env_file is not None and sparkle_recipes and sun is not True:
+        raise FlakedbError(f"--sparkle draws the glints of flakedb's key light, which --environment {env_file} does not "
+                           f"have (the file's own sun is not known to the texture model): add --sun to light the "
+                           f"spheres with the file plus the key light, or drop --environment")
     env_kinds = env_kinds or ("softbox",)
     lights = {}
     if env_file is not None:

@@ -269,6 +269,7 @@ def test_written_environment_renders_as_the_studio(tmp_path):
     (["--environment", "ENV", "--env", "studio"], ["--environment", "--env", "give one"]),
     (["--environment", "BAD"], ["not a readable", "lat-long"]),
     (["--environment", "NAN"], ["--environment", "finite radiance"]),
+    (["--environment", "ENV", "--sparkle", "SILVER"], ["--sparkle", "--sun", "--environment"]),
 ])
 def test_cli_refusals(args, words, tmp_path):
     from flakedb.cli.main import cli
@@ -279,8 +280,11 @@ def test_cli_refusals(args, words, tmp_path):
     nan = np.full((4, 8, 3), 1.0, np.float32)
     nan[1, 2, 0] = np.nan
     write_exr(tmp_path / "nan.exr", nan)
-    args = [{"ENV": str(tmp_path / "env.exr"), "BAD": str(tmp_path / "bad.exr"), "NAN": str(tmp_path / "nan.exr")}.get(a, a)
-            for a in args]
+    from flakedb.resources import RECIPES_DIR
+
+    names = {"ENV": tmp_path / "env.exr", "BAD": tmp_path / "bad.exr", "NAN": tmp_path / "nan.exr",
+             "SILVER": RECIPES_DIR / "metallic-silver.yaml"}
+    args = [str(names.get(a, a)) for a in args]
     r = CliRunner().invoke(cli, ["render", str(tmp_path / "l.bsdf"), "--out", str(tmp_path / "o")] + args)
     assert r.exit_code != 0 and "Traceback" not in r.output
     for w in words:
