@@ -62,7 +62,10 @@ SCENE_MAX_BYTES = 64 << 20
 def _scene_kind(path):
     """'gltf' (a glTF 2.0 JSON or GLB) or 'usda' (a USD text layer) by the first bytes, else None: the files
     ``flakedb export-openpbr`` writes beside its MaterialX (:mod:`flakedb.export.gltf`, :mod:`flakedb.export.usd`)."""
-    head = read_head(path, 64)
+    try:
+        head = read_head(path, 64)
+    except OSError:          # missing, a directory, a FIFO: the registry's own message stands
+        return None
     if head.startswith(b"glTF") or head.lstrip().startswith(b"{"):
         return "gltf"
     if head.startswith(b"#usda"):
@@ -70,8 +73,15 @@ def _scene_kind(path):
     return None
 
 
+def _read_scene(p: Path) -> bytes:
+    try:
+        return read_limited(p, SCENE_MAX_BYTES)
+    except (OSError, ValueError) as e:       # too large (FileTooLargeError), vanished, unreadable
+        raise BSDFFileError(f"{p}: cannot be read as a scene file ({e})") from None
+
+
 def _gltf_json(p: Path) -> dict:
-    data = read_limited(p, SCENE_MAX_BYTES)
+    data = _read_scene(p)
     try:
         if data.startswith(b"glTF"):
             n_json, kind = struct.unpack("<I4s", data[12:20])
@@ -117,7 +127,7 @@ def describe_usda(path):
     with their inputs, and the fit flakedb stored in ``customLayerData``."""
     p = Path(path)
     try:
-        text = read_limited(p, SCENE_MAX_BYTES).decode("utf-8")
+        text = _read_scene(p).decode("utf-8")
     except UnicodeDecodeError as e:
         raise BSDFFileError(f"{p}: a .usda that is not UTF-8 text (byte {e.start})") from None
     prim = re.search(r'defaultPrim\s*=\s*"([^"]*)"', text)
