@@ -10,6 +10,7 @@ solver's convergence in the same words compose printed (:func:`flakedb.solve.pip
 """
 
 import json
+import re
 import struct
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -25,6 +26,7 @@ from flakedb.colour.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
 from flakedb.solve.pipeline import solver_warnings
 from flakedb.export.materialx import read_fit
 from flakedb.render.mitsuba import read_tensor_file
+from flakedb.safeio import read_head, read_limited
 
 #: Incident zenith angles [deg] (light arriving from above) at which the albedo is listed.
 INFO_THETA_DEG = (0.0, 30.0, 45.0, 60.0, 75.0, 85.0)
@@ -42,8 +44,131 @@ def file_kind(path) -> str:
     >>> file_kind(path)
     'fourier'
     """
-    kind = dispatch_file_kind(path)
+    try:
+        kind = dispatch_file_kind(path)
+    except BSDFFileError:
+        kind = _scene_kind(path)     # the exporters' scene files (not BSDF kinds of the registry)
+        if kind is None:
+            raise
+        return kind
     return kind if kind in ("tensor", "materialx") else "fourier"
+
+
+#: Largest scene file ``flakedb info`` reads whole (a flakedb sphere export is ~0.3-1 MB).
+SCENE_MAX_BYTES = 64 << 20
+
+
+def _scene_kind(path):
+    """'gltf' (a glTF 2.0 JSON or GLB) or 'usda' (a USD text layer) by the first bytes, else None: the files
+    ``flakedb export-openpbr`` writes beside its MaterialX (:mod:`flakedb.export.gltf`, :mod:`flakedb.export.usd`)."""
+    try:
+        head = read_head(path, 64)
+    except OSError:          # missing, a directory, a FIFO: the registry's own message stands
+        return None
+    if head.startswith(b"glTF") or head.lstrip().startswith(b"{"):
+        return "gltf"
+    if head.startswith(b"#usda"):
+        return "usda"
+    return None
+
+
+def _read_scene(p: Path) -> bytes:
+    try:
+        return read_limited(p, SCENE_MAX_BYTES)
+    except (OSError, ValueError) as e:       # too large (FileTooLargeError), vanished, unreadable
+        raise BSDFFileError(f"{p}: cannot be read as a scene file ({e})") from None
+
+
+def _gltf_json(p: Path) -> dict:
+    data = _read_scene(p)
+    try:
+        if data.startswith(b"glTF"):
+            n_json, kind = struct.unpack("<I4s", data[12:20])
+            if kind != b"JSON":
+                raise ValueError("the first GLB chunk is not JSON")
+            doc = json.loads(data[20:20 + n_json])
+        else:
+            doc = json.loads(data)
+    except (ValueError, struct.error) as e:
+        raise BSDFFileError(f"{p}: not a readable glTF 2.0 file ({e})") from None
+    if not isinstance(doc, dict) or str(doc.get("asset", {}).get("version", "")) != "2.0":
+        raise BSDFFileError(f"{p}: JSON but not a glTF 2.0 document (no asset.version 2.0)")
+    return doc
+
+
+def describe_gltf(path):
+    """A JSON-able summary of a glTF 2.0 file (``.gltf`` / ``.glb``): its materials (the fitted
+    metallic-roughness parameters and extensions, the fit's error from ``extras.flakedb_fit``) and its
+    meshes' vertex attributes, with a check that the mesh carries UVs and tangents (what a normal- or
+    flake-map needs)."""
+    p = Path(path)
+    doc = _gltf_json(p)
+    mats = []
+    for m in doc.get("materials", []):
+        pbr = m.get("pbrMetallicRoughness", {})
+        mats.append({"name": m.get("name"), "baseColorFactor": pbr.get("baseColorFactor"),
+                     "metallicFactor": pbr.get("metallicFactor"), "roughnessFactor": pbr.get("roughnessFactor"),
+                     "extensions": sorted(m.get("extensions", {})),
+                     "fit_error": (m.get("extras", {}).get("flakedb_fit") or {}).get("error")})
+    attrs = [sorted(prim.get("attributes", {})) for mesh in doc.get("meshes", []) for prim in mesh.get("primitives", [])]
+    uv_ok = bool(attrs) and all("TEXCOORD_0" in a and "TANGENT" in a for a in attrs)
+    return {"kind": "gltf", "file": str(p), "size_bytes": p.stat().st_size,
+            "format": f"glTF 2.0 {'binary (.glb)' if read_head(p, 4) == b'glTF' else 'JSON (.gltf)'}",
+            "generator": doc.get("asset", {}).get("generator"), "extensionsUsed": doc.get("extensionsUsed", []),
+            "materials": mats, "primitive_attributes": attrs,
+            "checks": [{"check": "uv", "ok": uv_ok,
+                        "text": ("every primitive has TEXCOORD_0 and TANGENT" if uv_ok else
+                                 "a primitive without TEXCOORD_0 / TANGENT: no texture or normal map can be placed")}]}
+
+
+def describe_usda(path):
+    """A JSON-able summary of a USD text layer (``.usda``): its default prim, the shaders (``info:id``)
+    with their inputs, and the fit flakedb stored in ``customLayerData``."""
+    p = Path(path)
+    try:
+        text = _read_scene(p).decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise BSDFFileError(f"{p}: a .usda that is not UTF-8 text (byte {e.start})") from None
+    prim = re.search(r'defaultPrim\s*=\s*"([^"]*)"', text)
+    shaders = []
+    for block in re.split(r"\bdef Shader\b", text)[1:]:
+        sid = re.search(r'info:id\s*=\s*"([^"]*)"', block)
+        inputs = dict(re.findall(r"\binputs:(\w+)\s*=\s*([^\n]+)", block.split("def ", 1)[0]))
+        shaders.append({"id": sid.group(1) if sid else None, "inputs": inputs})
+    fit = None
+    line = next((ln for ln in text.splitlines() if "string flakedb_fit = " in ln), None)
+    if line is not None:
+        try:
+            fit = json.loads(json.loads(line.split(" = ", 1)[1]))
+        except ValueError:
+            fit = None
+    return {"kind": "usda", "file": str(p), "size_bytes": p.stat().st_size, "format": "USD text layer (.usda)",
+            "default_prim": prim.group(1) if prim else None, "shaders": shaders,
+            "fit_error": (fit or {}).get("error"), "checks": []}
+
+
+def _print_scene(d):
+    echo = click.echo
+    echo(f"file:          {d['file']} ({d['size_bytes'] / 1e3:.1f} kB): {d['format']}")
+    if d["kind"] == "gltf":
+        echo(f"generator:     {d.get('generator')}; extensions {', '.join(d['extensionsUsed']) or 'none'}")
+        for m in d["materials"]:
+            echo(f"material:      {m['name']}: baseColor {m['baseColorFactor']}, metallic {m['metallicFactor']}, "
+                 f"roughness {m['roughnessFactor']}; {', '.join(m['extensions'])}")
+        for a in d["primitive_attributes"]:
+            echo(f"mesh:          attributes {', '.join(a)}")
+    else:
+        echo(f"default prim:  {d['default_prim']}")
+        for sh in d["shaders"]:
+            echo(f"shader:        {sh['id']}: " + ", ".join(f"{k} = {v.strip()}" for k, v in sh["inputs"].items()))
+    err = d.get("fit_error") or next((m["fit_error"] for m in d.get("materials", []) if m.get("fit_error")), None)
+    if err:
+        echo(f"fit error:     worst ΔE00 {err.get('worst_dE00_E2194', float('nan')):.2f} at the E2194 geometries "
+             "(the fit's own error against the exact BSDF, not what a renderer makes of it)")
+    if d["checks"]:
+        echo("checks:")
+        for c in d["checks"]:
+            echo(f"  [{'ok  ' if c['ok'] else 'FAIL'}] {c['text']}")
 
 
 def _short(v):
@@ -99,6 +224,10 @@ def describe(path):
     kind = file_kind(path)
     if kind == "tensor":
         return describe_tensor(path)
+    if kind == "gltf":
+        return describe_gltf(path)
+    if kind == "usda":
+        return describe_usda(path)
     if kind == "materialx":
         return describe_fit(path)
     b = open_bsdf(path)
@@ -180,6 +309,7 @@ def describe_tensor(path):
     if data_key is None:
         d["checks"] = [{"check": "data", "ok": False, "text": "no rgb or spectra field: not a measured BSDF"}]
         return d
+    d.update(_tensor_use(p, desc))
     data = np.asarray(f[data_key], float)
     th = np.degrees(np.asarray(f.get("theta_i", []), float))
     d["theta_i_deg"] = [float(th.min()), float(th.max()), int(th.size)] if th.size else None
@@ -195,6 +325,25 @@ def describe_tensor(path):
          "text": "front-side reflection only; a smooth coat's mirror term is not in this format (see the description)"},
     ]
     return d
+
+
+def _tensor_use(p: Path, desc: str) -> dict:
+    """How to use a ``measured`` tensor: ``scale`` (the factor its values carry: 2 for the coated route's
+    half of a ``blendbsdf``, :mod:`flakedb.render.mitsuba.coated`, read from the description it writes) and
+    ``use`` (the Mitsuba 3 BSDF to load: the tensor alone only at scale 1)."""
+    m = re.search(r"coated-route export .*? at scale ([0-9.eE+-]+)", desc)
+    scale = float(m.group(1)) if m else 1.0
+    if scale == 1.0:
+        return {"scale": 1.0, "use": {"type": "measured", "filename": str(p.resolve())}}
+    side = p.with_name(p.name + ".json")
+    use = {"bsdf_json": str(side.resolve()), "bsdf_xml": str(p.with_name(p.name + ".xml").resolve()),
+           "json_present": side.exists()}
+    return {"scale": scale, "use": use,
+            "use_text": (f"the values are the paint's table x{scale:g} (one half of the coated route's blendbsdf): "
+                         f"alone it renders {scale:g} times too bright.  Use the BSDF in {side} (mi.load_dict) or "
+                         f"its .xml, which blend it with the coat's mirror at weight 1/{scale:g}"
+                         + ("" if side.exists() else "; that file is missing here: re-run `flakedb export-mitsuba` "
+                            "(it writes all three), or `--no-coat` for a tensor at x1 without the coat"))}
 
 
 def describe_fit(path):
@@ -284,7 +433,11 @@ def _print_fourier(d):
 def _print_tensor(d):
     echo = click.echo
     echo(f"file:          {d['file']} ({d['size_bytes'] / 1e6:.2f} MB): {d['format']}")
-    echo(f"variant:       {d['variant']} (use {{\"type\": \"measured\", \"filename\": \"{d['file']}\"}} in Mitsuba 3)")
+    echo(f"variant:       {d['variant']}")
+    if d.get("scale", 1.0) == 1.0:
+        echo(f"use:           {json.dumps(d['use'])} in Mitsuba 3 (the values at x1)")
+    else:
+        echo(f"use:           NOT alone: {d['use_text']}")
     if d.get("theta_i_deg"):
         lo, hi, k = d["theta_i_deg"]
         echo(f"incidence:     {k} elevations {lo:.0f}-{hi:.0f} deg; half-vector grid {d['resolution'][0]} x {d['resolution'][1]}")
@@ -294,7 +447,7 @@ def _print_tensor(d):
     echo(f"description:   {d['description']}")
     echo("checks:")
     for c in d["checks"]:
-        echo(f"  [{'ok  ' if c['ok'] else 'FAIL'}] {c['text']}")
+        echo(f"  [{ {True: 'ok  ', False: 'FAIL', None: 'note'}[c['ok']] }] {c['text']}")
 
 
 @click.command()
@@ -308,14 +461,17 @@ def info(file, as_json):
     try:
         d = describe(file)
     except BSDFFileError as e:
-        raise FlakedbError(f"{e}\nflakedb info reads Fourier .bsdf files (SCATFUN), flakedb HDF5 BSDF files and "
-                           f"Mitsuba 3 `measured` tensor files.") from None
+        raise FlakedbError(f"{e}\nflakedb info reads Fourier .bsdf files (SCATFUN), flakedb HDF5 BSDF files, "
+                           f"Mitsuba 3 `measured` tensor files and the MaterialX, glTF and USD files flakedb "
+                           f"exports.") from None
     if as_json:
         click.echo(json.dumps(d, indent=2, default=str))
     elif d["kind"] == "mitsuba-measured":
         _print_tensor(d)
     elif d["kind"] == "materialx-fit":
         _print_fit(d)
+    elif d["kind"] in ("gltf", "usda"):
+        _print_scene(d)
     else:
         _print_fourier(d)
     failed = [c["check"] for c in d.get("checks", []) if c["ok"] is False and c["check"] != "solver"]

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import click
 
+from flakedb.bsdf.dispatch import FILE_KINDS, file_kind
+from flakedb.bsdf.table import BSDFFileError
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import check_plan, remove_created_dirs
 from flakedb.cli.options import check_node_count
@@ -131,6 +133,18 @@ def _write_mitsuba(rec, obs, out_dir, ground=None):
                f"{m['blend_weight']:.4g} ({m['weight_basis']})", err=True)
 
 
+def _refuse_bsdf(path):
+    """A FlakedbError when ``path`` is a file flakedb knows by its first bytes (a composed .bsdf / .h5, a
+    Mitsuba tensor, a MaterialX document) rather than a recipe: the texture model needs the recipe."""
+    try:
+        kind = file_kind(path)
+    except BSDFFileError:
+        return                                   # not a known binary kind: read it as a recipe
+    raise FlakedbError(f"{path}: a {FILE_KINDS[kind][1]} file, not a recipe.  flakedb texture predicts sparkle from "
+                       f"what is in the paint: give the recipe (YAML) it was composed from, e.g. "
+                       f"flakedb/catalog/recipes/metallic-silver.yaml (`flakedb info {path}` names the recipe)")
+
+
 @click.command()
 @click.argument("recipe", type=click.Path(dir_okay=False))
 @click.option("--observer", "observers", multiple=True, type=click.Choice(sorted(PRESETS)),
@@ -174,6 +188,7 @@ def texture(recipe, observers, spot_um, aperture_deg, source_deg, light_deg, vie
     if mitsuba_ground is not None and not (0.0 < mitsuba_ground < 1e3):
         raise FlakedbError(f"--mitsuba-ground {mitsuba_ground}: give the paint's luminance factor π f_r, a number in "
                            f"(0, 1000)")
+    _refuse_bsdf(recipe)
     try:
         catalog = load_catalog(catalog_path)
         rec = load_recipe(recipe, catalog)

@@ -53,10 +53,28 @@ def uv_sphere(segments: int = 48, rings: int = 24):
     return pos, pos.copy(), np.asarray(idx, dtype=np.uint32)
 
 
+def uv_sphere_texcoords(segments: int = 48, rings: int = 24):
+    """(uv (V, 2) float32, tangents (V, 4) float32) of :func:`uv_sphere`'s vertices (same order).
+
+    ``u = φ / 2π`` (around +y, one seam column duplicated), ``v = θ / π`` (0 at the top, +y: glTF's UV
+    origin is the image's top left); the tangent is the unit ``∂P/∂u`` direction ``(−sin φ, 0, cos φ)``
+    (defined at the poles too) with ``w = +1``: glTF's bitangent ``cross(N, T) · w`` is then the unit
+    ``∂P/∂v`` direction ``(cos θ cos φ, −sin θ, cos θ sin φ)`` (glTF 2.0 §3.7.2.1), so a map in (u, v)
+    is placed consistently with its tangent frame."""
+    th = np.linspace(0.0, np.pi, rings + 1)
+    ph = np.linspace(0.0, 2 * np.pi, segments + 1)
+    T, P = np.meshgrid(th, ph, indexing="ij")
+    uv = np.stack([P / (2 * np.pi), T / np.pi], axis=-1).reshape(-1, 2)
+    tan = np.stack([-np.sin(P), np.zeros_like(P), np.cos(P), np.ones_like(P)], axis=-1).reshape(-1, 4)
+    return uv.astype(np.float32), tan.astype(np.float32)
+
+
 def gltf_document(fit: OpenPBRFit, name: str):
-    """(glTF JSON dict, binary buffer bytes) of the sphere with the fitted material."""
+    """(glTF JSON dict, binary buffer bytes) of the sphere (positions, normals, UVs, tangents) with the
+    fitted material."""
     pos, nrm, idx = uv_sphere()
-    blob = pos.tobytes() + nrm.tobytes() + idx.tobytes()
+    uv, tan = uv_sphere_texcoords()
+    blob = pos.tobytes() + nrm.tobytes() + idx.tobytes() + uv.tobytes() + tan.tobytes()
     c = [float(x) for x in fit.base_color]
     mat = {
         "name": str(name),
@@ -85,19 +103,25 @@ def gltf_document(fit: OpenPBRFit, name: str):
         "extensionsUsed": used,
         "scene": 0, "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": str(name)}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1}, "indices": 2, "material": 0}]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1, "TEXCOORD_0": 3, "TANGENT": 4},
+                                    "indices": 2, "material": 0}]}],
         "materials": [mat],
         "buffers": [{"byteLength": len(blob)}],
         "bufferViews": [
             {"buffer": 0, "byteOffset": 0, "byteLength": n_pos, "target": 34962},
             {"buffer": 0, "byteOffset": n_pos, "byteLength": nrm.nbytes, "target": 34962},
             {"buffer": 0, "byteOffset": 2 * n_pos, "byteLength": idx.nbytes, "target": 34963},
+            {"buffer": 0, "byteOffset": 2 * n_pos + idx.nbytes, "byteLength": uv.nbytes, "target": 34962},
+            {"buffer": 0, "byteOffset": 2 * n_pos + idx.nbytes + uv.nbytes, "byteLength": tan.nbytes,
+             "target": 34962},
         ],
         "accessors": [
             {"bufferView": 0, "componentType": 5126, "count": len(pos), "type": "VEC3",
              "min": pos.min(axis=0).tolist(), "max": pos.max(axis=0).tolist()},
             {"bufferView": 1, "componentType": 5126, "count": len(nrm), "type": "VEC3"},
             {"bufferView": 2, "componentType": 5125, "count": len(idx), "type": "SCALAR"},
+            {"bufferView": 3, "componentType": 5126, "count": len(uv), "type": "VEC2"},
+            {"bufferView": 4, "componentType": 5126, "count": len(tan), "type": "VEC4"},
         ],
     }
     return doc, blob

@@ -4,7 +4,7 @@ write); the tests open it with ``usd-core`` (``pxr.Usd``) and render it through 
 in Cycles (:mod:`flakedb.export.usd_render`, ``tests/export/test_usd_cycles.py``).
 
 The sphere is a ``Mesh`` (the 48 x 24 UV sphere of :func:`flakedb.export.gltf.uv_sphere`, exact
-vertex normals, ``subdivisionScheme = "none"``), not a ``Sphere`` gprim: Blender 5.0.1's USD importer
+vertex normals, texture coordinates ``primvars:st`` = glTF's (u, 1 − v): USD's t runs up), not a ``Sphere`` gprim: Blender 5.0.1's USD importer
 tessellates a ``Sphere`` into 92 vertices and **drops its material binding** (its shape reader assigns
 no material; the mesh reader does), so a ``Sphere`` rendered in Blender without the fitted material,
 coat and all.
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from flakedb.atomic import atomic_path
-from flakedb.export.gltf import uv_sphere
+from flakedb.export.gltf import uv_sphere, uv_sphere_texcoords
 from flakedb.export.materialx import safe_name
 from flakedb.export.openpbr import OpenPBRFit
 
@@ -36,6 +36,11 @@ from flakedb.export.openpbr import OpenPBRFit
 def _vec3_array(a: np.ndarray) -> str:
     """A USD ``point3f[]`` / ``normal3f[]`` value: ``[(x, y, z), ...]`` at float32's 7 digits."""
     return "[" + ", ".join(f"({x:.7g}, {y:.7g}, {z:.7g})" for x, y, z in np.asarray(a, float)) + "]"
+
+
+def _vec2_array(a: np.ndarray) -> str:
+    """A USD ``texCoord2f[]`` value: ``[(s, t), ...]``."""
+    return "[" + ", ".join(f"({x:.7g}, {y:.7g})" for x, y in np.asarray(a, float)) + "]"
 
 
 def usd_ior(fit: OpenPBRFit) -> float:
@@ -47,6 +52,8 @@ def usd_ior(fit: OpenPBRFit) -> float:
 def usda_text(fit: OpenPBRFit, name: str) -> str:
     n = safe_name(name)
     pos, nrm, idx = uv_sphere()
+    uv, _ = uv_sphere_texcoords()
+    uv = uv * np.array([1.0, -1.0]) + np.array([0.0, 1.0])     # USD's st has its origin at the bottom left
     counts = "[" + ", ".join(["3"] * (len(idx) // 3)) + "]"
     indices = "[" + ", ".join(str(int(i)) for i in idx) + "]"
     c = fit.base_color
@@ -72,6 +79,9 @@ def Xform "{n}"
         int[] faceVertexIndices = {indices}
         point3f[] points = {_vec3_array(pos)}
         normal3f[] normals = {_vec3_array(nrm)} (
+            interpolation = "vertex"
+        )
+        texCoord2f[] primvars:st = {_vec2_array(uv)} (
             interpolation = "vertex"
         )
         uniform token subdivisionScheme = "none"

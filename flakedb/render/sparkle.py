@@ -6,9 +6,11 @@ reflection term, π f_ss, docs/texture.md eq. S3).  Per sphere pixel this module
 expected glint count λ = N_g · (pixel footprint on the panel) and that mean luminance factor β_ss at
 the pixel's local light/view geometry, draws a Poisson number K of glints from a generator seeded by
 (seed, row) alone — so the glints do not depend on the sample count, the tiles or the threads — and
-adds (K/λ − 1) · β_ss · E_sun/π to the smooth render: the smooth BSDF minus the part the glints carry
-plus the glints.  E[K/λ] = 1, so the image's mean over a large area equals the smooth render's
-(Poisson error 1/√Σλ; measured in tests/texture/test_render.py).
+replaces the mean flake radiance L_ss = β_ss · E_sun/π by K glints of energy L_ss/λ each: the smooth BSDF
+minus the part the glints carry plus the glints (:func:`sparkle_image`, which also bounds L_ss by what
+the render holds and draws each glint as a small normalised spot; :func:`sparkle_layer` is the plain
+additive (K/λ − 1) · L_ss).  E[K/λ] = 1, so the image's mean over a large area equals the smooth render's
+(Poisson error 1/√Σλ; measured in tests/texture/test_render.py and tests/render/test_sparkle_image.py).
 
 Scale: the sphere's diameter in mm (``sphere_diameter_mm``) gives each pixel a footprint; the camera
 is an :class:`flakedb.texture.instruments.Observer` with that spot and an aperture (a 3 mm pupil at
@@ -95,7 +97,62 @@ def sparkle_layer(stack, sun, size, extent, *, sphere_diameter_mm=100.0, viewing
     """The additive glint image (size, size, 3) [the preview's radiance units] of the unit sphere of
     :func:`flakedb.render.preview.render_sphere` (orthographic, view +z) under ``sun``, and a dict of
     statistics (Σλ, glints drawn).  ``stack``: :class:`flakedb.texture.model.TextureStack` (with
-    ``wavelength_nm`` attached for the glint colour)."""
+    ``wavelength_nm`` attached for the glint colour).  Adding it to a render can go below zero where the
+    model's β_ss exceeds what the render holds; :func:`sparkle_image` does not."""
+    K, lam, L_ss, info = glint_field(stack, sun, size, extent, sphere_diameter_mm=sphere_diameter_mm,
+                                     viewing_distance_m=viewing_distance_m, pupil_mm=pupil_mm, seed=seed)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(lam > 0, K / np.where(lam > 0, lam, 1.0), 1.0)
+    return (ratio - 1.0)[..., None] * L_ss, info
+
+
+#: The spot a glint is drawn as: a normalised 3 × 3 binomial kernel (its energy kept, ~2 pixels across),
+#: so that one glint reads as a sparkle and not as one hot pixel.
+GLINT_KERNEL = np.outer([1.0, 2.0, 1.0], [1.0, 2.0, 1.0]) / 16.0
+
+
+def sparkle_image(smooth, stack, sun, extent, *, sphere_diameter_mm=100.0, seed=0, kernel=GLINT_KERNEL,
+                  reference=None, **kw):
+    """The render ``smooth`` (size, size, 3) with the sun's glints, energy-consistent (docs/texture.md §6):
+
+        image = smooth − s·L_ss + spread(K/λ · s·L_ss),   s = min(1, min_c smooth_c / L_ss_c) per pixel
+
+    ``L_ss`` is the model's mean flake radiance at the pixel (:func:`glint_field`); ``s`` lowers it, with
+    its colour kept, where the render holds less than that (so nothing is taken that is not there: no
+    negative pixel, no clipping, no colour cast from clipping one channel); ``K`` glints of energy
+    ``s·L_ss/λ`` each are drawn as ``kernel`` (normalised).  ``E[K/λ] = 1`` so the mean of every region is
+    the render's, within the Poisson error √Σ(s L_ss)²/λ.  ``reference``: the image ``s`` is computed from
+    (default ``smooth``; a Monte Carlo ``smooth`` passes the deterministic render, so that the glints do not
+    change with its noise).  Returns (image, info) with ``info["capped"]``: the fraction of the glints'
+    mean that the cap removed."""
+    smooth = np.asarray(smooth, dtype=np.float64)
+    size = smooth.shape[0]
+    K, lam, L_ss, info = glint_field(stack, sun, size, extent, sphere_diameter_mm=sphere_diameter_mm, seed=seed, **kw)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ref = smooth if reference is None else np.asarray(reference, dtype=np.float64)
+        room = np.where(L_ss > 0, np.maximum(ref, 0.0) / np.where(L_ss > 0, L_ss, 1.0), np.inf)
+    scale = np.minimum(1.0, room.min(axis=-1))
+    L_cap = L_ss * scale[..., None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_glint = np.where(lam[..., None] > 0, L_cap / np.where(lam > 0, lam, 1.0)[..., None], 0.0)
+    G = K[..., None] * per_glint
+    k = np.asarray(kernel, dtype=np.float64)
+    k = k / k.sum()
+    r = k.shape[0] // 2
+    pad = np.pad(G, ((r, r), (r, r), (0, 0)))
+    spread = sum(k[i, j] * pad[i:i + size, j:j + size] for i in range(k.shape[0]) for j in range(k.shape[1]))
+    image = np.maximum(smooth - L_cap + spread, 0.0)   # max: the cap's rounding (~1e-17), or a Monte Carlo smooth's noise
+    total = float(L_ss.sum())
+    info = dict(info, capped=(1.0 - float(L_cap.sum()) / total) if total > 0 else 0.0,
+                sigma_image_sum=float(np.sqrt(np.sum(np.where(lam > 0, L_cap.sum(-1) ** 2 / np.where(lam > 0, lam, 1.0), 0.0)))))
+    return image, info
+
+
+def glint_field(stack, sun, size, extent, *, sphere_diameter_mm=100.0, viewing_distance_m=1.0,
+                pupil_mm=3.0, seed=0):
+    """Per pixel of the preview's sphere: the glint count ``K`` drawn (size, size), its expectation ``λ``
+    (size, size), the flakes' mean radiance ``L_ss`` (size, size, 3) and a dict of statistics
+    (module docstring)."""
     pix_mm = 2.0 * extent / size * 0.5 * sphere_diameter_mm
     spot_um = pix_mm * 1e3
     aperture = float(np.arctan(0.5e-3 * pupil_mm / viewing_distance_m))
@@ -131,12 +188,9 @@ def sparkle_layer(stack, sun, size, extent, *, sphere_diameter_mm=100.0, viewing
     for row in range(size):  # one generator per row: independent of spp, tiles and threads
         rng = np.random.default_rng([int(seed), 0x5A, row])
         K[row] = rng.poisson(lam[row])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = np.where(lam > 0, K / np.where(lam > 0, lam, 1.0), 1.0)
-    layer = (ratio - 1.0)[..., None] * L_ss
     live = lam > 0
     Ls = L_ss.sum(axis=-1)
-    return layer, {"sum_lambda": float(lam.sum()), "glints": int(K.sum()), "pixel_mm": pix_mm,
+    return K, lam, L_ss, {"sum_lambda": float(lam.sum()), "glints": int(K.sum()), "pixel_mm": pix_mm,
                    "glint_radiance_sum": float(Ls.sum()),  # Σ over pixels and channels of β_ss E cos/π
                    "sigma_layer_sum": float(np.sqrt(np.sum(Ls[live] ** 2 / lam[live]))),  # Poisson σ of Σ layer
                    "aperture_rad": aperture, "sphere_diameter_mm": sphere_diameter_mm}

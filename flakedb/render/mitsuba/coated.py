@@ -105,7 +105,9 @@ def export_coated(src, out, variant: str = "rgb", res: int = RES_DEFAULT, n_thet
     at scale 2 when there is a mirror term), ``out`` + ``.json`` (the BSDF dict for ``mi.load_dict``)
     and ``out`` + ``.xml`` (the same as a Mitsuba 3 XML element).  Returns the export summary of
     :func:`flakedb.render.mitsuba.measured.export_measured` with ``bsdf`` (the dict), ``json``,
-    ``xml`` and ``kept`` added; nothing is ``dropped`` but transmission."""
+    ``xml`` and ``kept`` added; nothing is ``dropped`` but transmission.  The .json and .xml name the
+    tensor by its absolute path (they load from any working directory; move the three files together
+    and re-export, or edit the path)."""
     b = open_bsdf(src)
     scale = COAT_BLEND_SCALE if b.delta is not None else 1.0
     desc = (f"flakedb coated-route export of {Path(src).name}: front-side reflection of the table at scale "
@@ -114,7 +116,9 @@ def export_coated(src, out, variant: str = "rgb", res: int = RES_DEFAULT, n_thet
     s = export_measured(src, out, variant=variant, res=res, n_theta=n_theta, floor=floor, scale=scale,
                         description=desc)
     out = Path(out)
-    d = coated_bsdf_dict(out.name, b.delta)
+    # the tensor by its absolute path: Mitsuba resolves a relative one against the working directory
+    # (mi.load_dict) or the scene file's folder, so a bare name loads from the tensor's folder only
+    d = coated_bsdf_dict(str(out.resolve()), b.delta)
     p_json, p_xml = out.with_name(out.name + ".json"), out.with_name(out.name + ".xml")
     with atomic_path(p_json, suffix="") as tmp:
         Path(tmp).write_text(json.dumps(d, indent=2) + "\n", encoding="utf-8")
