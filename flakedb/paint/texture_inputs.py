@@ -33,7 +33,7 @@ from flakedb.paint.mapping import (
     recipe_alpha,
 )
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, Spectrum
-from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
+from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics, tinter_coefficients
 from flakedb.texture.model import (
     Absorber,
     FlakeLayer,
@@ -122,6 +122,9 @@ def texture_stack(recipe, stored=None) -> tuple[TextureStack, list]:
                 mean_area = 0.25 * np.pi * Dm * Dm * np.exp(2.0 * np.log(gsd) ** 2)
                 rho = p.volume_fraction / (mean_area * t)
                 flakes.append(FlakeLayer(p.species, z, b.thickness_um, rho, Dm, gsd, t, recipe_alpha(p), c, R, T))
+            elif isinstance(p, CatalogParticle) and p.kind == "tinter":  # σ_t = φ (σ_a/φ + σ_s/φ), as the solver's
+                a, s = tinter_coefficients(p.entry, wl)
+                absorbers.append(Absorber(z, b.thickness_um, float(p.volume_fraction) * (a + s)))
             elif isinstance(p, CatalogParticle) and stored is not None and wl is not None:
                 po = stored.pigment(p.species)  # the solver's own cross-sections (mapping._stored_pigment_component)
                 absorbers.append(Absorber(z, b.thickness_um,
