@@ -79,6 +79,9 @@ def calibrate(ladder, out_catalog, catalog_path, degree, n, max_nfev, report_pat
         if species not in catalog["particles"]:
             raise ValueError(f"{ladder}: species {species!r} is not in the base catalogue "
                              f"({', '.join(catalog['particles'])})")
+        if catalog["particles"][species]["kind"] == "tinter":
+            raise ValueError(f"{ladder}: species {species!r} is a tinter: refit it from its drawdowns with "
+                             f"`flakedb calibrate --tinter` (docs/calibration.md, 'Tinters from drawdowns')")
         click.echo(f"calibrate {species} -> {name}: {len(panels)} panel(s) from {ladder}")
         res = cal.calibrate(species, panels, catalog, free=free, degree=degree, n=n, max_nfev=max_nfev,
                             log=lambda s: click.echo(f"  {s}", err=True))
