@@ -20,6 +20,7 @@ A ladder that names no panels is refused before any work, with one line and exit
 """
 
 import json
+import re
 from pathlib import Path
 
 import click
@@ -30,6 +31,7 @@ from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import check_plan
 from flakedb.cli.options import check_node_count
 from flakedb.match import calibrate as cal
+from flakedb.match import tinter as tn
 from flakedb.outputs import OutputPlan
 from flakedb.paint.catalog import CatalogError, default_catalog_path, load_catalog
 from flakedb.paint.recipe import RecipeError
@@ -114,10 +116,6 @@ def calibrate(ladder, out_catalog, catalog_path, degree, n, max_nfev, report_pat
 def _calibrate_tinter(ladder, out_catalog, catalog_path, degree, n, max_nfev, report_path):
     """``--tinter``: fit a new tinter to the ladder's panels (:func:`flakedb.match.tinter.fit_tinter`), or write
     its Kubelka–Munk seed as it is when the ladder has no panels; the user catalogue written atomically."""
-    import re
-
-    from flakedb.match import tinter as tn  # lazy: only --tinter needs it
-
     degree = tn.TINTER_DEGREE if degree is None else degree
     try:
         catalog = load_catalog(catalog_path)

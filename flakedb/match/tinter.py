@@ -94,7 +94,11 @@ STAGE_FTOL = 1e-3
 
 
 def legendre_x(wavelength_nm, span_nm) -> np.ndarray:
-    """x = 2 (λ − λ_lo)/(λ_hi − λ_lo) − 1 ∈ [−1, 1] over ``span_nm`` = (λ_lo, λ_hi)."""
+    """x = 2 (λ − λ_lo)/(λ_hi − λ_lo) − 1 ∈ [−1, 1] over ``span_nm`` = (λ_lo, λ_hi).
+
+    >>> legendre_x([400.0, 550.0, 700.0], (400.0, 700.0)).tolist()
+    [-1.0, 0.0, 1.0]
+    """
     lo, hi = span_nm
     return 2.0 * (np.asarray(wavelength_nm, float) - lo) / (hi - lo) - 1.0
 
@@ -137,7 +141,16 @@ class TinterParams:
 
 def params_from_curves(wavelength_nm, sigma_a_per_phi, sigma_s_per_phi, g, span_nm, degree) -> TinterParams:
     """The least-squares Legendre series of degree ``degree`` of ln σ_a/φ and ln σ_s′/φ = ln(σ_s/φ (1 − g))
-    sampled at ``wavelength_nm``: how a seed (e.g. Kubelka–Munk data, :func:`seed_from_km`) starts the fit."""
+    sampled at ``wavelength_nm``: how a seed (e.g. Kubelka–Munk data, :func:`seed_from_km`) starts the fit.
+
+    Curves that are such series come back exactly:
+
+    >>> p = TinterParams(np.array([0.5, -1.0]), np.array([0.2, 0.3]), 0.4)
+    >>> wl = np.arange(400.0, 701.0, 20.0)
+    >>> q = params_from_curves(wl, *p.coefficients(wl, (400.0, 700.0)), 0.4, (400.0, 700.0), 1)
+    >>> np.round(q.a, 12).tolist(), np.round(q.b, 12).tolist(), q.g
+    ([0.5, -1.0], [0.2, 0.3], 0.4)
+    """
     P = legendre_basis(wavelength_nm, span_nm, degree)
     la = np.log(np.maximum(np.asarray(sigma_a_per_phi, float), 1e-6))
     lb = np.log(np.maximum(np.asarray(sigma_s_per_phi, float) * (1.0 - g), 1e-6))
