@@ -6,6 +6,10 @@ on stderr, then the panels' ΔE00 before and after and the fitted parameters wit
 errors, and writes USER.yaml: the base catalogue plus the calibrated species (atomically; nothing
 is written when the fit fails).  Recipes use it with ``--catalog USER.yaml``.
 
+``--tinter``: LADDER is a tinter ladder (``tinter: NAME``, optional Kubelka–Munk ``seed``, panels whose
+recipes name NAME) and a new colourant is created instead (:func:`flakedb.match.tinter.fit_tinter`;
+docs/calibration.md, "Tinters from drawdowns").
+
 A ladder that names no panels is refused before any work, with one line and exit status 2:
 
 >>> import tempfile

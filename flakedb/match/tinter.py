@@ -28,7 +28,8 @@ The fit
 Residuals 100 (R_pred − R_meas) per band, geometry and panel (spectral targets only: three CIELAB
 numbers cannot separate K from S), the prediction linearly interpolated onto the target's bands.
 Bounded trust-region least squares (scipy ``least_squares(method="trf")``), in stages of increasing
-degree (0, then :data:`DEGREE_STEPS`, up to D), each started from the last.
+degree (:data:`DEGREE_STEPS`, then D), each started from the last; from a seed (Kubelka–Munk data,
+:func:`seed_from_km`, its curves projected at degree D) in one stage at D.
 
 Cheap derivatives: the bands of a solve are independent (one adding-doubling solve per channel), so
 one solve with ln σ_a/φ raised by h in *every* band gives ∂R_λ/∂ln σ_a(λ) for every band λ at once;
@@ -324,7 +325,11 @@ def fit_tinter(name, panels, catalog, meta=None, seed=None, degree=TINTER_DEGREE
         wl_s, sa_s, ss_s, g_s = seed
         if wl_s[0] > span[0] + 1e-9 or wl_s[-1] < span[1] - 1e-9:
             raise ValueError(f"the seed covers {wl_s[0]:g}-{wl_s[-1]:g} nm; the panels need {span[0]:g}-{span[1]:g} nm")
-        start = params_from_curves(wl_s, sa_s, ss_s, g_s if fix_g is None else fix_g, span, 0)
+        # the seed's curves (linear in λ between its samples, as a catalogue table) inside the span, projected
+        # at the full degree: a good seed needs no continuation stages
+        wl_g = np.linspace(span[0], span[1], 61)
+        start = params_from_curves(wl_g, np.interp(wl_g, wl_s, sa_s), np.interp(wl_g, wl_s, ss_s),
+                                   g_s if fix_g is None else fix_g, span, degree)
     else:
         start = TinterParams(np.array([DEFAULT_START[0]]), np.array([DEFAULT_START[1]]),
                              DEFAULT_START[2] if fix_g is None else float(fix_g))
@@ -394,7 +399,7 @@ def fit_tinter(name, panels, catalog, meta=None, seed=None, degree=TINTER_DEGREE
         return J
 
     par = start
-    degrees = [d for d in DEGREE_STEPS if d < degree] + [int(degree)]
+    degrees = ([d for d in DEGREE_STEPS if d < degree] if seed is None else []) + [int(degree)]
     sol = None
     for D in degrees:
         par = par.raised(D)

@@ -188,3 +188,25 @@ def test_command_refuses_bad_ladders(catalog, tmp_path):
     (tmp_path / "ladder.yaml").write_text("tinter: new-one\nspecies: x\npanels: []\n")
     r = CliRunner().invoke(cli, ["calibrate", "--tinter", str(tmp_path / "ladder.yaml"), "--out-catalog", str(out)])
     assert r.exit_code != 0 and "unknown key(s) ['species']" in r.output and not out.exists()
+
+
+@pytest.mark.slow
+def test_fit_from_a_kubelka_munk_seed(catalog):
+    """A seed from KM data (a scattering tinter's K, S by the Star 1988 relation, at a wrong g = 0.2): KM
+    keeps σ_s′, so the seeded curves are the truth's and only g is off; the fit, in one stage at the seed's
+    degree, finds the true g and keeps the curves (two panels, 20 nm bands)."""
+    from flakedb.optics.kubelka_munk import rt_to_km
+
+    truth = tn.TinterParams(np.array([0.0, 0.8, -0.5]), np.array([1.2, -0.3, 0.1]), 0.45)
+    design = [("mass-white", 0.05, 0.0, "white"), ("tint5-black", 0.02, 0.10, "black")]
+    panels = synthetic_panels(catalog, design=design, params=truth)
+    wl = np.arange(400.0, 701.0, 10.0)
+    K, S = rt_to_km(*truth.coefficients(wl, SPAN), truth.g)
+    assert np.all(S > 0)  # inside the relation's range (σ_s′ > σ_a / 3)
+    res = tn.fit_tinter("my-tinter", panels, catalog, seed=tn.seed_from_km(wl, K, S, 0.2), degree=2)
+    assert [h["degree"] for h in res.history] == [2] * len(res.history)
+    assert res.history[0]["z"][-1] == pytest.approx(0.2)
+    np.testing.assert_allclose(res.history[0]["z"][:6], np.concatenate([truth.a, truth.b]), atol=1e-3)
+    assert res.params.g == pytest.approx(truth.g, abs=1e-4)
+    np.testing.assert_allclose(res.params.a, truth.a, atol=1e-4)
+    np.testing.assert_allclose(res.params.b, truth.b, atol=1e-4)
