@@ -27,9 +27,9 @@ The fit
 -------
 Residuals 100 (R_pred − R_meas) per band, geometry and panel (spectral targets only: three CIELAB
 numbers cannot separate K from S), the prediction linearly interpolated onto the target's bands.
-Bounded trust-region least squares (scipy ``least_squares(method="trf")``), in stages of increasing
-degree (:data:`DEGREE_STEPS`, then D), each started from the last; from a seed (Kubelka–Munk data,
-:func:`seed_from_km`, its curves projected at degree D) in one stage at D.
+Bounded trust-region least squares (scipy ``least_squares(method="trf")``) at degree D, from
+:data:`DEFAULT_START` or from a seed (Kubelka–Munk data, :func:`seed_from_km`, its curves projected at
+degree D); optional continuation stages of lower degree first (:data:`DEGREE_STEPS`).
 
 Cheap derivatives: the bands of a solve are independent (one adding-doubling solve per channel), so
 one solve with ln σ_a/φ raised by h in *every* band gives ∂R_λ/∂ln σ_a(λ) for every band λ at once;
@@ -74,8 +74,10 @@ from flakedb.solve.pipeline import memory_budget_bytes, settle_node_count
 
 #: Default Legendre degree D of ln σ_a/φ and of ln σ_s′/φ (D + 1 coefficients each).
 TINTER_DEGREE = 6
-#: The degrees of the continuation stages below D (each stage starts from the previous one's fit).
-DEGREE_STEPS = (0, 2)
+#: Degrees of continuation stages fitted before D, each started from the previous one's fit.  None by
+#: default: on four synthetic tinters (docs/calibration.md) a flat start at the full degree reached the
+#: same fit in 156–204 solves, against 410–460 with stages (0, 2).
+DEGREE_STEPS = ()
 #: Bounds of a_0, b_0 (the mean level of ln σ/φ, σ in 1/µm): 1e-4 … 1e4 per µm per unit volume fraction.
 LN_LEVEL_BOUNDS = (math.log(1e-4), math.log(1e4))
 #: Bound of |a_j|, |b_j|, j ≥ 1 (a factor e^12 across the range: more than any pigment's contrast).

@@ -105,6 +105,17 @@ def test_recovers_a_known_tinter_exactly(catalog):
 
 
 @pytest.mark.slow
+def test_recovers_a_transparent_yellow_from_a_flat_start(catalog):
+    """A weakly scattering yellow (σ_s′/φ ≈ 0.1 /µm, absorbing below 500 nm), far from the flat start
+    (σ/φ = 1 /µm): recovered exactly (no continuation stages needed)."""
+    truth = tn.TinterParams(np.array([0.5, -2.5, 0.5, 0.5, -0.3]), np.array([-2.0, -0.5, 0.0, 0.0, 0.0]), 0.2)
+    res = tn.fit_tinter("my-tinter", synthetic_panels(catalog, params=truth), catalog, degree=4)
+    np.testing.assert_allclose(res.params.a, truth.a, atol=1e-4)
+    np.testing.assert_allclose(res.params.b, truth.b, atol=1e-4)
+    assert res.params.g == pytest.approx(truth.g, abs=1e-4)
+
+
+@pytest.mark.slow
 def test_recovers_a_tinter_from_a_noisy_ladder(catalog):
     """0.2 % reflectance noise (σ = 0.002 in every reading), fitted at the default degree 6 (two more than
     the truth): ln σ_a/φ within 0.02 and 3 standard errors in every band, ln σ_s′/φ within 3 standard
