@@ -70,6 +70,7 @@ from flakedb.paint.catalog import validate_catalog
 from flakedb.paint.checks import YamlFileError, load_yaml_file
 from flakedb.paint.mapping import build_paint, solve_paint, tinter_medium, with_media
 from flakedb.paint.recipe import CatalogParticle
+from flakedb.safeio import FileTooLargeError, read_text_limited
 from flakedb.solve.pipeline import memory_budget_bytes, settle_node_count
 
 #: Default Legendre degree D of ln σ_a/φ and of ln σ_s′/φ (D + 1 coefficients each).
@@ -88,6 +89,8 @@ G_BOUNDS = (-0.5, 0.9)
 DEFAULT_START = (0.0, 0.0, 0.3)
 #: Derivative steps: in ln σ (all bands at once) and in g.
 FD_STEP_LN, FD_STEP_G = 1e-4, 1e-4
+#: Largest Kubelka–Munk CSV read [bytes].
+MAX_KM_CSV_BYTES = 1_000_000
 #: Step of the written tables (nm); the fitted range's ends are always samples.
 TABLE_STEP_NM = 5.0
 #: Solver stops of the last stage (as :mod:`flakedb.match.calibrate`), and of the continuation stages before
@@ -194,10 +197,14 @@ def read_km_csv(path):
     """(wavelength_nm, K, S) from a CSV with a header ``wavelength_nm,K,S`` (specific K and S: per unit
     volume fraction, in 1/µm).  Raises ValueError naming the line."""
     p = Path(path)
-    try:
-        rows = list(csv.reader(p.read_text(encoding="utf-8").splitlines()))
+    try:  # a regular file, size-limited (flakedb.safeio), as every file a user names
+        rows = list(csv.reader(read_text_limited(p, MAX_KM_CSV_BYTES).splitlines()))
     except FileNotFoundError:
         raise ValueError(f"{p}: no such file") from None
+    except FileTooLargeError:
+        raise ValueError(f"{p}: larger than {MAX_KM_CSV_BYTES:,} bytes (a K, S table is a few kB)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{p}: cannot read it as UTF-8 text ({exc})") from None
     if not rows or [c.strip() for c in rows[0]] != ["wavelength_nm", "K", "S"]:
         raise ValueError(f"{p}: the first line must be the header wavelength_nm,K,S (K and S per unit volume "
                          f"fraction, 1/µm)")

@@ -221,3 +221,18 @@ def test_fit_from_a_kubelka_munk_seed(catalog):
     assert res.params.g == pytest.approx(truth.g, abs=1e-4)
     np.testing.assert_allclose(res.params.a, truth.a, atol=1e-4)
     np.testing.assert_allclose(res.params.b, truth.b, atol=1e-4)
+
+
+def test_command_refuses_bad_kubelka_munk_files(tmp_path):
+    out = tmp_path / "user.yaml"
+    (tmp_path / "ladder.yaml").write_text("tinter: km-x\nseed: {km: km.csv}\npanels: []\n")
+    for text, why in [("wavelength,K,S\n400,1,2\n700,1,1\n", "the first line must be the header wavelength_nm,K,S"),
+                      ("wavelength_nm,K,S\n400,-1,2\n700,1,1\n", "line 2: wavelength > 0 and K, S >= 0"),
+                      ("wavelength_nm,K,S\n400,1,2\n", "at least two rows"),
+                      ("wavelength_nm,K,S\n400,1,x\n700,1,1\n", "line 2: three numbers")]:
+        (tmp_path / "km.csv").write_text(text)
+        r = CliRunner().invoke(cli, ["calibrate", "--tinter", str(tmp_path / "ladder.yaml"), "--out-catalog", str(out)])
+        assert r.exit_code != 0 and why in r.output and "Traceback" not in r.output and not out.exists(), r.output
+    (tmp_path / "km.csv").unlink()
+    r = CliRunner().invoke(cli, ["calibrate", "--tinter", str(tmp_path / "ladder.yaml"), "--out-catalog", str(out)])
+    assert r.exit_code != 0 and "km.csv: no such file" in r.output
