@@ -87,7 +87,7 @@ def test_bands_are_independent(catalog):
         r_one = m.rf(one, ss, TRUTH.g)
         np.testing.assert_allclose(r_all[:, b], r_one[:, b], rtol=1e-9, atol=1e-13)
         others = np.delete(np.arange(m.wl.size), b)
-        np.testing.assert_array_equal(r_one[:, others], r0[:, others])
+        np.testing.assert_allclose(r_one[:, others], r0[:, others], rtol=1e-12, atol=1e-15)  # untouched bands
     assert np.abs(r_all - r0).max() > 1e-6  # and it does move the colour
 
 
