@@ -75,6 +75,13 @@ def validate_catalog(doc) -> list[str]:
     return problems
 
 
+#: Kinds whose optics the precomputed store holds (flakedb build projects them).  A ``tinter`` (optics per
+#: unit volume fraction, no Mie, no thin film: docs/calibration.md) is always computed directly.
+STORED_KINDS = ("interference_flake", "mirror_flake", "pigment")
+#: The coefficient tables of a tinter entry (σ_a/φ, σ_s/φ in 1/µm; schemas/catalog.schema.json).
+TINTER_TABLES = ("specific_absorption_per_um", "specific_scattering_per_um")
+
+
 #: Largest memory the Mie size average of one pigment may ask for [bytes] (8 GiB), checked before any work.
 MAX_PIGMENT_BYTES = 8 * 1024 ** 3
 #: Bytes per (band, size node, phase angle) of that average: the amplitudes S1, S2 (complex) and their
@@ -190,6 +197,13 @@ def _semantic_problems(doc) -> list[str]:
                            f"{e['gsd']['value']:g}: its Mie size average needs about {need / 2**30:,.0f} GiB over "
                            f"380-780 nm; the limit is {MAX_PIGMENT_BYTES / 2**30:.0f} GiB (hint: a smaller median "
                            f"diameter or gsd: pigments are 0.05-5 µm with gsd 1.2-2)")
+        elif e["kind"] == "tinter":
+            for key in TINTER_TABLES:
+                wl, val = e[key]["wavelength_nm"], e[key]["value"]
+                if len(wl) != len(val):
+                    out.append(f"{base}.{key}: wavelength_nm has {len(wl)} entries, value {len(val)} (make them equal)")
+                elif np.any(np.diff(wl) <= 0):
+                    out.append(f"{base}.{key}.wavelength_nm: must be strictly increasing")
         elif e["kind"] == "mirror_flake" and "wavelength_nm" in e["albedo"]:
             wl, val = e["albedo"]["wavelength_nm"], e["albedo"]["value"]
             if len(wl) != len(val):

@@ -39,6 +39,14 @@ Particles (docs/model.md §3 "the anisotropic medium", §6 "particle optics")
   :func:`phase_cos_grid` (from :func:`flakedb.paint.species.pigment_optics`, Du 2004, relative index
   m = N/n_binder, size parameter x = π d n_binder / λ).
 
+* **Tinters** (a colourant known by its optics per unit volume fraction φ, made by ``flakedb calibrate``
+  from drawdowns or from Kubelka–Munk K and S; docs/calibration.md): a :class:`flakedb.rt.media.PhaseMedium`
+  with ``σ_a = φ · σ_a/φ``, ``σ_s = φ · σ_s/φ`` (the entry's tables at the band centres,
+  :func:`flakedb.paint.species.tinter_coefficients`) and the Henyey–Greenstein phase function of the
+  entry's g (:func:`tinter_medium`).  Linear in φ: the dilute, independent-scattering assumption every
+  species here makes.  In RGB mode σ_t and σ_s are mapped as a pigment's cross-sections.  Never from
+  the store (cheap to compute directly).
+
 * **Custom species** (research stacks), loaded by optical depth τ in a layer of thickness d:
 
   - a flake with constant or tabulated (vs c) grey R and T: ``aρ = τ / (d · s_t(1))`` with
@@ -109,13 +117,14 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
+from dataclasses import replace as replace_dataclass
 
 import numpy as np
 from numpy.polynomial.legendre import leggauss
 
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.optics.fresnel import fresnel_conductor
-from flakedb.paint.catalog import catalog_distribution
+from flakedb.paint.catalog import STORED_KINDS, catalog_distribution
 from flakedb.paint.limits import is_rough_interface
 from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import (
@@ -124,7 +133,7 @@ from flakedb.paint.recipe import (
     CustomMedium,
     Spectrum,
 )
-from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
+from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics, tinter_coefficients
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, vmf_mean_cosine
 from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun
@@ -377,6 +386,8 @@ class Paint:
     components: list = field(default_factory=list)
     info: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    #: each particle's medium as built, by its recipe path (what :func:`with_media` replaces)
+    media: dict = field(default_factory=dict)
 
     @property
     def n_channels(self):
@@ -539,6 +550,44 @@ def _pigment_component(p, recipe, layer_um, n_binder, wl, info, stored=None):
     return med, rec
 
 
+def tinter_medium(sigma_a_per_phi_um, sigma_s_per_phi_um, g, volume_fraction) -> PhaseMedium:
+    """The medium of a tinter at ``volume_fraction`` φ (module docstring, "Tinters"): σ_t = φ (σ_a/φ + σ_s/φ),
+    albedo σ_s/σ_t (0 where σ_t = 0), Henyey–Greenstein g.  ``sigma_*_per_phi_um`` (C,) in 1/µm per unit
+    volume fraction; ``g`` scalar or (C,).
+
+    >>> m = tinter_medium([3.0, 0.0], [1.0, 0.0], 0.4, 0.02)
+    >>> m.sigma_t_per_um.tolist(), m.albedo.tolist(), m.phase
+    ([0.08, 0.0], [0.25, 0.0], ('hg', 0.4))
+    """
+    a = np.asarray(sigma_a_per_phi_um, float)
+    s = np.asarray(sigma_s_per_phi_um, float)
+    t = float(volume_fraction) * (a + s)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        albedo = np.where(a + s > 0, s / np.where(a + s > 0, a + s, 1.0), 0.0)
+    return PhaseMedium(t, albedo, ("hg", g))
+
+
+def _tinter_component(p, recipe, layer_um, wl, info):
+    """The PhaseMedium of a catalogue tinter (:func:`tinter_medium`) and its record."""
+    a, s = tinter_coefficients(p.entry, wl)
+    if recipe.mode == "rgb":  # as a pigment's <C_ext>, <C_sca> (pigment_tospectra_to_rgb_mode)
+        e, sc = spectra_to_rgb_mode(a + s, wl), spectra_to_rgb_mode(s, wl)
+        ec = np.maximum(e, 0.0)
+        scc = np.clip(sc, 0.0, ec)
+        info.setdefault("rgb_clip", {})[p.path] = float(max(np.abs(ec - e).max() / max(np.abs(e).max(), 1e-300),
+                                                            np.abs(scc - sc).max() / max(np.abs(sc).max(), 1e-300)))
+        a, s = ec - scc, scc
+    g = float(p.entry["asymmetry_g"]["value"])
+    med = tinter_medium(a, s, g, p.volume_fraction)
+    st = np.asarray(med.sigma_t_per_um)
+    rec = {"path": p.path, "species": p.species, "kind": "tinter", "volume_fraction": p.volume_fraction,
+           "sigma_t_per_um": [float(st.min()), float(st.max())],
+           "albedo": [float(np.min(med.albedo)), float(np.max(med.albedo))], "phase": ["hg", g],
+           "optical_depth": [float(st.min() * layer_um), float(st.max() * layer_um)],
+           "loading": "sigma = volume_fraction x the tinter's sigma per unit volume fraction"}
+    return med, rec
+
+
 def custom_medium_albedo(albedo, mode, wl, C):
     """A custom medium's single-scattering albedo per channel (C,), and the RGB mode's clip.
 
@@ -629,6 +678,7 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
     C = len(channels)
     eta = float(recipe.binder_ior)
     info: dict = {}
+    media: dict = {}
     if stored is not None:
         info["store"] = stored.record()
     components = []
@@ -659,6 +709,8 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
         for p in b.particles:
             if isinstance(p, CatalogParticle) and p.is_flake:
                 med, rec = _flake_component(p, recipe, b.thickness_um, b.ior, wl, C, info, stored)
+            elif isinstance(p, CatalogParticle) and p.kind == "tinter":
+                med, rec = _tinter_component(p, recipe, b.thickness_um, wl, info)
             elif isinstance(p, CatalogParticle):
                 med, rec = _pigment_component(p, recipe, b.thickness_um, b.ior, wl, info, stored)
             elif isinstance(p, CustomFlake):
@@ -669,6 +721,7 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
                 raise TypeError(f"unknown particle {p!r}")
             meds.append(med)
             components.append(rec)
+            media[p.path] = med
         if meds:
             mix = StoredMixture if any(hasattr(m, "projected_kernel") for m in meds) else Mixture
             slabs.append(Slab(b.thickness_um, meds[0] if len(meds) == 1 else mix(meds)))
@@ -692,12 +745,30 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
 
     return Paint(top=top, slabs=slabs, bottom=bottom, channels=channels, mode=mode,
                  wavelength_nm=None if wl is None else np.asarray(wl),
-                 components=components, info=info, warnings=list(recipe.warnings))
+                 components=components, info=info, warnings=list(recipe.warnings), media=media)
 
 
 def catalog_species(recipe) -> list:
-    """The catalogue particles of a recipe (those a store can serve), in layer order."""
-    return [p for _, p in recipe.particles() if isinstance(p, CatalogParticle)]
+    """The catalogue particles of a recipe that a store can serve (:data:`flakedb.paint.catalog.STORED_KINDS`:
+    not tinters, which are always computed directly), in layer order."""
+    return [p for _, p in recipe.particles() if isinstance(p, CatalogParticle) and p.kind in STORED_KINDS]
+
+
+def with_media(paint: Paint, replace: dict) -> Paint:
+    """A copy of ``paint`` with the media of some particles replaced, ``replace``: recipe path → new medium
+    (each in the slab, alone or in its layer's mixture, where :attr:`Paint.media` has the old one).  What
+    a fit that moves one species uses (:mod:`flakedb.match.tinter`): the other species' optics are kept."""
+    swap = {id(paint.media[path]): med for path, med in replace.items()}
+    slabs = []
+    for s in paint.slabs:
+        if isinstance(s, Slab):
+            m = s.medium
+            if isinstance(m, (Mixture, StoredMixture)):
+                s = Slab(s.thickness_um, type(m)([swap.get(id(c), c) for c in m.components]))
+            elif id(m) in swap:
+                s = Slab(s.thickness_um, swap[id(m)])
+        slabs.append(s)
+    return replace_dataclass(paint, slabs=slabs, media={**paint.media, **replace})
 
 
 def solve_paint(paint: Paint, n: int, **settings):

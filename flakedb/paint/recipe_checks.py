@@ -10,7 +10,13 @@ import difflib
 import numpy as np
 
 from flakedb.colour.colorimetry import spectral_grid
-from flakedb.paint.catalog import MAX_PIGMENT_BYTES, expand_sweeps, load_catalog, pigment_memory_bytes
+from flakedb.paint.catalog import (
+    MAX_PIGMENT_BYTES,
+    TINTER_TABLES,
+    expand_sweeps,
+    load_catalog,
+    pigment_memory_bytes,
+)
 from flakedb.paint.formulation import cpvc_oil_absorption, film_density_g_cm3, volume_fractions, weight_fractions
 from flakedb.paint.limits import roughness_problem
 from flakedb.paint.materials import material_names, refractive_index
@@ -119,6 +125,12 @@ def _material_coverage_problems(path, entry, grid):
             refractive_index(m, np.array([grid[0], grid[-1]]))
         except ValueError as exc:
             out.append(f"{path}: {exc} (hint: narrow spectral.range_nm)")
+    if entry["kind"] == "tinter":
+        for key in TINTER_TABLES:
+            wl = entry[key]["wavelength_nm"]
+            if grid[0] < wl[0] - 1e-9 or grid[-1] > wl[-1] + 1e-9:
+                out.append(f"{path}: the tinter's {key} covers {wl[0]:g}-{wl[-1]:g} nm, the grid "
+                           f"{grid[0]:g}-{grid[-1]:g} nm (hint: narrow spectral.range_nm)")
     if entry["kind"] == "mirror_flake" and "wavelength_nm" in entry["albedo"]:
         wl = entry["albedo"]["wavelength_nm"]
         if grid[0] < wl[0] or grid[-1] > wl[-1]:
@@ -355,14 +367,16 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
                           "with `custom:` and an optical_depth)")
         return problems, warnings, None
     entry = allsp[name]
-    is_flake = entry["kind"] != "pigment"
+    is_flake = entry["kind"] not in ("pigment", "tinter")
     flake_only = ("orientation_alpha", "orientation_distribution", "orientation_shape", "orientation_mixture",
                   "diameter_um", "opaque", "diameter_gsd")
     pig_only = ("median_diameter_um", "gsd")
-    for key in (pig_only if is_flake else flake_only):
+    for key in (pig_only if is_flake else flake_only + (pig_only if entry["kind"] == "tinter" else ())):
         if key in P:
             problems.append(f"{pp}.{key}: {name!r} is a {entry['kind']}; {key} applies to "
-                            f"{'pigments' if key in pig_only else 'flakes'} only (hint: remove it)")
+                            f"{'pigments' if key in pig_only else 'flakes'} only (hint: remove it"
+                            + ("; a tinter has no particle size: its optics are per unit volume fraction)"
+                               if entry["kind"] == "tinter" else ")"))
     if mode == "mono":
         problems.append(f"{pp}.species: catalogue species have spectral optics; mono mode takes "
                         f"wavelength-independent inputs only (hint: set spectral.mode to spectral or rgb)")
@@ -375,7 +389,7 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
                             f"(hint: a layer must be thicker than its flakes)")
         if P.get("opaque") and entry["kind"] == "mirror_flake":
             warnings.append(f"{pp}.opaque: a mirror flake is opaque already (T = 0)")
-    else:
+    elif entry["kind"] == "pigment":
         dm = float(P.get("median_diameter_um", entry["median_diameter_um"]["value"]))
         if dm > d:
             problems.append(f"{pp}: median particle diameter {dm:g} µm exceeds {base}.thickness_um = {d:g} µm "

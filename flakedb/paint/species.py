@@ -11,6 +11,10 @@ A *species* is one entry of the catalogue, or one member of a sweep (``expand_sw
 * ``pigment``: spheres with a log-normal number distribution of diameters; Mie optics per particle
   from :func:`flakedb.optics.mie.lognormal_pigment` (Du 2004), relative index m = N / n_binder
   (conventions).
+* ``tinter``: a colourant known by its optics per unit volume fraction, not by a material and a size
+  (made by ``flakedb calibrate`` from drawdowns, or from published Kubelka–Munk K and S,
+  :mod:`flakedb.optics.kubelka_munk`): σ_a/φ and σ_s/φ spectra [1/µm] (:func:`tinter_coefficients`)
+  and a Henyey–Greenstein mean cosine g.
 
 The catalogue file itself (reading, validation, sweeps) is :mod:`flakedb.paint.catalog`; the plot
 behind ``flakedb species show`` is :func:`flakedb.render.plots.plot_optics`.  This module also holds
@@ -23,7 +27,7 @@ import numpy as np
 
 from flakedb.optics.mie import default_n_quad, lognormal_pigment
 from flakedb.optics.thinfilm import flake_reflectance_transmittance as tmm_flake
-from flakedb.paint.catalog import get_species, load_catalog
+from flakedb.paint.catalog import TINTER_TABLES, get_species, load_catalog
 from flakedb.paint.materials import material_density_g_cm3, material_info, refractive_index
 
 #: Angles of incidence in the binder (degrees) and wavelengths (nm) of ``species show``'s table.
@@ -112,7 +116,7 @@ def flake_reflectance_transmittance(entry: dict, wavelength_nm, cos_theta, n_bin
     A lossless pearlescent flake (TiO2 on mica) reflects or transmits all light; the aluminium core of
     the metallic flake transmits none:
 
-    >>> from flakedb.paint.catalog import get_species, load_catalog
+    >>> from flakedb.paint.catalog import TINTER_TABLES, get_species, load_catalog
     >>> catalog = load_catalog()
     >>> wl, c = np.array([450.0, 550.0, 650.0]), np.array([0.2, 0.6, 1.0])
     >>> R, T = flake_reflectance_transmittance(get_species("pearlescent", catalog), wl, c, binder_index(catalog, wl))
@@ -152,6 +156,27 @@ def absorption_factor(spec: dict, wavelength_nm) -> np.ndarray:
     if wl_s.shape != v.shape or np.any(np.diff(wl_s) <= 0) or np.any(v <= 0):
         raise ValueError("absorption_factor: wavelength_nm must increase and match value in length; values > 0")
     return np.interp(np.asarray(wavelength_nm, float), wl_s, v)
+
+
+def tinter_coefficients(entry: dict, wavelength_nm) -> tuple[np.ndarray, np.ndarray]:
+    """(σ_a/φ, σ_s/φ) of a tinter at ``wavelength_nm`` (W,) each, in 1/µm per unit volume fraction: its
+    tables linear in wavelength; a wavelength outside a table raises ValueError (nothing is extrapolated).
+
+    >>> e = {"kind": "tinter", "specific_absorption_per_um": {"wavelength_nm": [400, 700], "value": [2.0, 0.5]},
+    ...      "specific_scattering_per_um": {"wavelength_nm": [400, 700], "value": [1.0, 1.0]}}
+    >>> [a.tolist() for a in tinter_coefficients(e, [400.0, 550.0])]
+    [[2.0, 1.25], [1.0, 1.0]]
+    """
+    if entry["kind"] != "tinter":
+        raise ValueError(f"a {entry['kind']} is not a tinter")
+    wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
+    out = []
+    for key in TINTER_TABLES:
+        x, y = np.asarray(entry[key]["wavelength_nm"], float), np.asarray(entry[key]["value"], float)
+        if wl.min() < x[0] - 1e-9 or wl.max() > x[-1] + 1e-9:
+            raise ValueError(f"{key} covers {x[0]:g}-{x[-1]:g} nm; asked {wl.min():g}-{wl.max():g} nm")
+        out.append(np.interp(wl, x, y))
+    return out[0], out[1]
 
 
 def pigment_optics(entry: dict, wavelength_nm, n_binder, mu=None, n_quad=None):
@@ -198,7 +223,10 @@ def describe(name: str, entry: dict) -> str:
     if entry["kind"] == "mirror_flake":
         a = entry["albedo"]
         lines.append("albedo: " + (f"{a['value']:g} (constant)" if "wavelength_nm" not in a else "spectrum"))
-    if entry["kind"] == "pigment":
+    if entry["kind"] == "tinter":
+        lines.append(f"optics per unit volume fraction (no Mie), Henyey-Greenstein g {entry['asymmetry_g']['value']:g}; "
+                     f"source: {entry['source']}")
+    elif entry["kind"] == "pigment":
         lines.append(
             f"material {entry['material']}, number-median diameter {entry['median_diameter_um']['value']:g} µm, "
             f"gsd {entry['gsd']['value']:g}"
@@ -220,6 +248,14 @@ def optics_table(name: str, catalog: dict | None = None, wavelengths_nm=SHOW_WAV
     nb = binder_index(catalog, wl)
     out = [describe(name, entry), f"binder: {catalog['binder']['material']} (n = " +
            ", ".join(f"{n:.4f} at {w:g} nm" for n, w in zip(nb, wl)) + ")"]
+    if entry["kind"] == "tinter":
+        a, s = tinter_coefficients(entry, wl)
+        out.append("per unit volume fraction (sigma / phi), Henyey-Greenstein phase function:")
+        out.append(f"{'wavelength_nm':>13} {'sigma_a_um':>12} {'sigma_s_um':>12} {'albedo':>10} {'g':>10}")
+        for i, w in enumerate(wl):
+            out.append(f"{w:13g} {a[i]:12.6f} {s[i]:12.6f} {s[i] / max(a[i] + s[i], 1e-300):10.6f} "
+                       f"{entry['asymmetry_g']['value']:10.6f}")
+        return "\n".join(out)
     if entry["kind"] == "pigment":
         p = pigment_optics(entry, wl, nb)
         out.append("per particle, log-normal ensemble (Mie, Du 2004):")

@@ -37,7 +37,7 @@ from flakedb.paint.mapping import (
     recipe_distribution,
 )
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, Spectrum
-from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics
+from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics, tinter_coefficients
 from flakedb.texture.model import (
     Absorber,
     FlakeLayer,
@@ -127,6 +127,9 @@ def texture_stack(recipe, stored=None) -> tuple[TextureStack, list]:
                 rho = flake_a_rho_from_volume_fraction(p.volume_fraction, t) / mean_area  # the solver's aρ = ρ⟨A⟩
                 flakes.append(FlakeLayer(p.species, z, b.thickness_um, rho, Dm, gsd, t, recipe_alpha(p), c, R, T,
                                          distribution=recipe_distribution(p)))
+            elif isinstance(p, CatalogParticle) and p.kind == "tinter":  # σ_t = φ (σ_a/φ + σ_s/φ), as the solver's
+                a, s = tinter_coefficients(p.entry, wl)
+                absorbers.append(Absorber(z, b.thickness_um, float(p.volume_fraction) * (a + s)))
             elif isinstance(p, CatalogParticle) and stored is not None and wl is not None:
                 po = stored.pigment(p.species)  # the solver's own cross-sections (mapping._stored_pigment_component)
                 absorbers.append(Absorber(z, b.thickness_um,

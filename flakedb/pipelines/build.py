@@ -98,10 +98,14 @@ def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, cha
     """
     catalog = cat.load_catalog(catalog_path)
     allsp = cat.expand_sweeps(catalog)
-    names = list(allsp) if not species else list(species)
+    names = [s for s in allsp if allsp[s]["kind"] in cat.STORED_KINDS] if not species else list(species)
     unknown = [s for s in names if s not in allsp]
     if unknown:
         raise ValueError(f"unknown species {', '.join(unknown)}; known: {', '.join(allsp)}")
+    direct = [s for s in names if allsp[s]["kind"] not in cat.STORED_KINDS]
+    if direct:
+        raise ValueError(f"species {', '.join(direct)}: a {allsp[direct[0]]['kind']} is computed directly by compose "
+                         f"(its optics are tabulated, nothing to project); leave it out of the build")
     ns = (int(n),) if isinstance(n, int) else tuple(int(x) for x in n)
     wl = spectral_grid(DEFAULT_RANGE_NM, DEFAULT_STEP_NM) if wavelength_nm is None else wavelength_nm
     if alphas is None and distribution_alphas is None:

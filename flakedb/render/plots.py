@@ -8,8 +8,14 @@ import numpy as np
 
 from flakedb.atomic import atomic_path
 from flakedb.colour.colorimetry import spectra_to_rgb_mode, spectral_grid
-from flakedb.paint.catalog import get_species, load_catalog
-from flakedb.paint.species import SHOW_ANGLES_DEG, binder_index, flake_reflectance_transmittance, pigment_optics
+from flakedb.paint.catalog import TINTER_TABLES, get_species, load_catalog
+from flakedb.paint.species import (
+    SHOW_ANGLES_DEG,
+    binder_index,
+    flake_reflectance_transmittance,
+    pigment_optics,
+    tinter_coefficients,
+)
 
 
 def plot_optics(name: str, out_dir, catalog: dict | None = None) -> Path:
@@ -44,6 +50,20 @@ def plot_optics(name: str, out_dir, catalog: dict | None = None) -> Path:
         ax1.legend()
         ax2.plot(wl, p.c_sca_um2 / p.c_ext_um2, label="albedo C_sca/C_ext")
         ax2.plot(wl, p.g, label="asymmetry g")
+        ax2.set(xlabel="wavelength (nm)", ylim=(-0.05, 1.05), title="single scattering")
+        ax2.legend()
+    elif entry["kind"] == "tinter":
+        lo = max(entry[k]["wavelength_nm"][0] for k in TINTER_TABLES)
+        hi = min(entry[k]["wavelength_nm"][-1] for k in TINTER_TABLES)
+        wt = wl[(wl >= lo) & (wl <= hi)]
+        a, s = tinter_coefficients(entry, wt)
+        ax1, ax2 = fig.subplots(1, 2)
+        ax1.semilogy(wt, a, label="σ_a / φ")
+        ax1.semilogy(wt, s, label="σ_s / φ")
+        ax1.set(xlabel="wavelength (nm)", ylabel="per unit volume fraction (1/µm)", title=f"{name}: tinter")
+        ax1.legend()
+        ax2.plot(wt, s / np.maximum(a + s, 1e-300), label="albedo σ_s/σ_t")
+        ax2.axhline(entry["asymmetry_g"]["value"], color="C1", label="HG g")
         ax2.set(xlabel="wavelength (nm)", ylim=(-0.05, 1.05), title="single scattering")
         ax2.legend()
     else:

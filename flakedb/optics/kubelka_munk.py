@@ -1,0 +1,115 @@
+"""Kubelka–Munk (K, S) ↔ radiative-transfer (σ_a, σ_s, g) coefficients, and the KM reflectances.
+
+Usage card::
+
+    sigma_a, sigma_s = km_to_rt(K, S, g)          # 1/µm in, 1/µm out (any consistent length unit)
+    K, S = rt_to_km(sigma_a, sigma_s, g)
+    R_inf = km_reflectance_infinite(K, S)          # hemispherical reflectance of an opaque layer
+    R = km_reflectance(K, S, thickness, R_g)       # a layer of thickness over a substrate of reflectance R_g
+
+All four broadcast over arrays (bands, concentrations).  Per unit concentration in, per unit
+concentration out: the relations are linear in (σ_a, σ_s) ↔ (K, S), so published *specific* K and S
+(per unit volume fraction) convert to a tinter's σ_a/φ and σ_s/φ (:mod:`flakedb.match.tinter`).
+
+The conversion (``method="Star1988"``)
+---------------------------------------
+    K = 2 σ_a,        S = ¾ σ_s (1 − g) − ¼ σ_a
+
+(Star, Marijnissen & van Gemert 1988, Phys. Med. Biol. 33, 437, eq. 9–10; the same as Gate 1974, Appl.
+Opt. 13, 236, and Thennadil 2008, JOSA A 25, 1480, for diffuse illumination.)  Derivation: in a
+diffuse light field the mean path per unit depth is 2 (Kubelka's "average path length" of a
+Lambertian field), so K = 2 σ_a; and KM's attenuation exponent in depth, √(K (K + 2S)), equals the
+diffusion-theory one, √(3 σ_a (σ_a + σ_s (1 − g))), when S = ¾ σ_s′ − ¼ σ_a (σ_s′ = σ_s (1 − g), the
+reduced scattering coefficient).  Inverse: σ_a = K/2, σ_s = (S + K/8) · 4 / (3 (1 − g)).
+
+Assumptions: a diffuse (Lambertian) light field inside the layer (far from the illuminated surface
+and from collimated light), scattering much stronger than absorption (the diffusion limit), no
+interfaces (index-matched; for a coated paint apply Saunderson's correction to measured data first),
+and g known separately (KM sees only σ_s (1 − g): any g with the same reduced scattering gives nearly
+the same diffuse reflectance, so g is a choice, not a result, when seeding from KM data).  The error
+of the relation against the adding-doubling solver (diffuse albedo of an index-matched slab) is
+measured in docs/calibration.md ("Kubelka–Munk data") and asserted in tests/optics/test_kubelka_munk.py.
+
+The KM reflectances (Kubelka 1948, JOSA 38, 448, eq. 5 and 15; a = 1 + K/S, b = √(a² − 1))
+    R∞ = a − b,
+    R(X; R_g) = (1 − R_g (a − b coth(bSX))) / (a − R_g + b coth(bSX)).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: The conversions :func:`km_to_rt` / :func:`rt_to_km` know (the registry the ``method=`` argument names).
+KM_RT_METHODS = ("Star1988",)
+
+
+def _check_method(method):
+    if method not in KM_RT_METHODS:
+        raise ValueError(f"unknown Kubelka-Munk conversion {method!r}; choose one of {', '.join(KM_RT_METHODS)}")
+
+
+def rt_to_km(sigma_a, sigma_s, g=0.0, method="Star1988"):
+    """(K, S) of a medium with absorption σ_a, scattering σ_s (1/length) and mean cosine g (module
+    docstring: K = 2 σ_a, S = ¾ σ_s (1 − g) − ¼ σ_a).  S < 0 where σ_s (1 − g) < σ_a / 3: the relation
+    is then outside its range (an absorber, not a diffuser) and the value says so.
+
+    >>> K, S = rt_to_km(0.5, 10.0, 0.6)
+    >>> float(K), float(S)
+    (1.0, 2.875)
+    """
+    _check_method(method)
+    sa, ss, g = (np.asarray(v, dtype=float) for v in (sigma_a, sigma_s, g))
+    return 2.0 * sa, 0.75 * ss * (1.0 - g) - 0.25 * sa
+
+
+def km_to_rt(K, S, g=0.0, method="Star1988"):
+    """(σ_a, σ_s) from KM (K, S) (1/length) for a chosen mean cosine g < 1: σ_a = K/2,
+    σ_s = (S + K/8) · 4 / (3 (1 − g)) (the inverse of :func:`rt_to_km`).
+
+    >>> sa, ss = km_to_rt(*rt_to_km(0.3, 4.0, 0.5), 0.5)
+    >>> round(float(sa), 12), round(float(ss), 12)
+    (0.3, 4.0)
+    """
+    _check_method(method)
+    K, S, g = (np.asarray(v, dtype=float) for v in (K, S, g))
+    if np.any(g >= 1.0) or np.any(g <= -1.0):
+        raise ValueError(f"km_to_rt: the mean cosine g must lie in (-1, 1), got {g!r}")
+    if np.any(K < 0) or np.any(S < 0):
+        raise ValueError("km_to_rt: K and S must be >= 0 (absorption and scattering coefficients)")
+    return 0.5 * K, (S + 0.125 * K) * 4.0 / (3.0 * (1.0 - g))
+
+
+def km_reflectance_infinite(K, S):
+    """R∞ = 1 + K/S − √((K/S)² + 2 K/S) (Kubelka 1948 eq. 5), the hemispherical reflectance of an
+    opaque layer; 1 for K = 0, 0 for S = 0.
+
+    >>> round(float(km_reflectance_infinite(1.0, 4.5)), 6)
+    0.519494
+    """
+    K, S = np.asarray(K, dtype=float), np.asarray(S, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = np.where(S > 0, K / np.where(S > 0, S, 1.0), np.inf)
+        r = np.where(np.isfinite(q), 1.0 + q - np.sqrt(q * q + 2.0 * q), 0.0)
+    return r
+
+
+def km_reflectance(K, S, thickness, R_g):
+    """Hemispherical reflectance of a KM layer of ``thickness`` (the unit of 1/K) over a substrate of
+    reflectance ``R_g`` (Kubelka 1948 eq. 15; module docstring).  S > 0 required.
+
+    Thick layers tend to R∞; a clear layer (K = 0) over a black substrate reflects S X / (1 + S X):
+
+    >>> round(float(km_reflectance(1.0, 4.5, 1e3, 0.0)), 6), round(float(km_reflectance(1e-12, 2.0, 0.5, 0.0)), 6)
+    (0.519494, 0.5)
+    """
+    K, S, X, Rg = (np.asarray(v, dtype=float) for v in (K, S, thickness, R_g))
+    a = 1.0 + K / S
+    b = np.sqrt(np.maximum(a * a - 1.0, 0.0))
+    bsx = b * S * X
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        # b coth(bSX), and its K → 0 limit 1/(SX)
+        bcoth = np.where(bsx > 1e-8, b / np.tanh(np.maximum(bsx, 1e-300)), 1.0 / (S * X))
+    return (1.0 - Rg * (a - bcoth)) / (a - Rg + bcoth)
+
+
+__all__ = ["KM_RT_METHODS", "km_reflectance", "km_reflectance_infinite", "km_to_rt", "rt_to_km"]
