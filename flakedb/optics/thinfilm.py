@@ -340,29 +340,39 @@ def lognormal_thickness_nodes(rel_sd, n_nodes):
         raise ValueError(f"rel_sd must be a finite relative standard deviation >= 0, got {rel_sd!r}")
     if rel_sd == 0:
         return np.ones(1), np.ones(1)
+    z, w = _z_nodes(n_nodes)
+    return _lognormal_factor(rel_sd, z), w
+
+
+def _z_nodes(n_nodes):
+    """Equally spaced z on [−THICKNESS_Z_MAX, THICKNESS_Z_MAX] and normalised weights ∝ exp(−z²/2)."""
     n_nodes = int(n_nodes)
     if n_nodes < 3:
         raise ValueError(f"n_nodes must be >= 3, got {n_nodes}")
     z = np.linspace(-THICKNESS_Z_MAX, THICKNESS_Z_MAX, n_nodes)
     w = np.exp(-0.5 * z * z)
-    sigma2 = np.log1p(rel_sd * rel_sd)
-    return np.exp(np.sqrt(sigma2) * z - 0.5 * sigma2), w / w.sum()
+    return z, w / w.sum()
+
+
+def _lognormal_factor(rel_sd, z):
+    """f = exp(σ z − σ²/2), σ² = ln(1 + rel_sd²), broadcast over rel_sd and z."""
+    sigma2 = np.log1p(np.asarray(rel_sd, float) ** 2)
+    return np.exp(np.sqrt(sigma2) * z - 0.5 * sigma2)
 
 
 def thickness_nodes_needed(n_real, d_mean_nm, rel_sd, wavelength_min_nm) -> int:
-    """Trapezoid node count for one log-normal thickness variable (module constants above).
+    """Trapezoid node count for one thickness variable z shared by some films (module constants above).
 
-    ``a = 4π Σ n d · σ / λ`` is how fast the round-trip phase ``2 k0 n d`` of the films the variable
-    scales changes per unit of z at normal incidence (oblique rays have ``n cos θ < n``), at the mean
-    thickness and the shortest wavelength (``n_real``, ``d_mean_nm`` scalars or arrays over those films).
-    0 spread: 1 node.
+    ``a = 4π Σ_j n_j d_j σ_j / λ`` is how fast the round-trip phase ``Σ 2 k0 n_j d_j`` of the films
+    that z scales changes per unit of z at normal incidence (oblique rays have ``n cos θ < n``), at the
+    mean thicknesses and the shortest wavelength; ``n_real``, ``d_mean_nm``, ``rel_sd`` scalars or arrays
+    over those films.  No spread: 1 node.
     """
-    if float(rel_sd) == 0:
+    sigma = np.sqrt(np.log1p(np.asarray(rel_sd, float) ** 2))
+    if not np.any(sigma > 0):
         return 1
-    sigma = np.sqrt(np.log1p(float(rel_sd) ** 2))
-    nd = float(np.sum(np.asarray(n_real, float) * np.asarray(d_mean_nm, float)))
-    a = 4.0 * np.pi * nd * sigma / float(wavelength_min_nm)
-    h = min(THICKNESS_STEP_MAX, 1.0 / max(a * np.exp(3.0 * sigma), 1e-300))
+    a = 4.0 * np.pi * float(np.sum(np.asarray(n_real, float) * np.asarray(d_mean_nm, float) * sigma)) / float(wavelength_min_nm)
+    h = min(THICKNESS_STEP_MAX, 1.0 / max(a * np.exp(3.0 * float(np.max(sigma))), 1e-300))
     return int(min(THICKNESS_NODES_MAX, 2 * np.ceil(THICKNESS_Z_MAX / h) + 1))
 
 
@@ -372,40 +382,43 @@ def thin_film_thickness_average(n_films, d_films_nm, rel_sd, wavelength_nm, cos_
 
     An ensemble of flakes whose films vary from flake to flake: each reflects coherently
     (:func:`thin_film_transfer_matrix`), the ensemble incoherently, so the powers average:
-    ``E[R(d)] = ∫ R(d) p(d) dd``.  Film ``j``'s thickness is ``d_films_nm[j] · f_{groups[j]}``: films of
-    one group scale together (the two coatings of a symmetric flake are deposited together), groups are
-    independent, each factor log-normal of mean 1 and relative standard deviation ``rel_sd[g]``
-    (:func:`lognormal_thickness_nodes`).  The expectation is a tensor product of one rule per group
-    (trapezoidal in z, ``n_nodes[g]`` nodes; default :func:`thickness_nodes_needed`), evaluated for all nodes, angles and
-    wavelengths at once in blocks of :data:`THICKNESS_BLOCK_CELLS`.
+    ``E[R(d)] = ∫ R(d) p(d) dd``.  Film ``j``'s thickness is ``d_films_nm[j] · exp(σ_j z_g − σ_j²/2)``
+    with ``g = groups[j]``, ``σ_j² = ln(1 + rel_sd[j]²)``: log-normal of mean ``d_films_nm[j]`` and
+    relative standard deviation ``rel_sd[j]``; films of one group share their ``z_g ~ N(0, 1)`` (they are
+    thicker or thinner together: the two copies of a coating on a symmetric flake, the layers deposited
+    on one flake), groups are independent.  The expectation is a tensor product of one trapezoidal rule
+    in z per group (``n_nodes[g]`` nodes; default :func:`thickness_nodes_needed`), evaluated for all
+    nodes, angles and wavelengths at once in blocks of :data:`THICKNESS_BLOCK_CELLS`.
 
     Parameters are those of :func:`thin_film_transfer_matrix`, with ``d_films_nm`` (F,) the *mean*
-    thicknesses; ``rel_sd`` (G,) ≥ 0; ``groups`` (F,) integers in [0, G) (default ``arange(F)``: every
-    film its own variable, G = F); ``n_nodes`` an int or (G,).  Returns :class:`ThinFilmRT` of the
-    averages (each (W, A)); ``R + T + A = 1`` holds for the average as for each member.
+    thicknesses; ``rel_sd`` (F,) ≥ 0; ``groups`` (F,) integers ≥ 0 (default ``arange(F)``: every film
+    its own variable); ``n_nodes`` an int or one per group.  Returns :class:`ThinFilmRT` of the averages
+    (each (W, A)); ``R + T + A = 1`` holds for the average as for each member.
     """
     n, d, wl, cos, n_a, n_e = _prepare(n_films, d_films_nm, wavelength_nm, cos_theta, n_ambient, n_exit)
     F = d.shape[0]
     groups = np.arange(F) if groups is None else np.asarray(groups)
-    sd = np.atleast_1d(np.asarray(rel_sd, dtype=float))
-    if groups.shape != (F,) or not np.issubdtype(groups.dtype, np.integer) or (F and (groups.min() < 0 or groups.max() >= sd.size)):
-        raise ValueError(f"groups must be (F,) = ({F},) integers indexing rel_sd (G = {sd.size}), got {groups!r}")
-    if sd.ndim != 1 or np.any(~np.isfinite(sd)) or np.any(sd < 0):
-        raise ValueError(f"rel_sd must be a 1-D array of finite relative standard deviations >= 0, got {rel_sd!r}")
-    G = sd.size
+    sd = np.broadcast_to(np.asarray(rel_sd, dtype=float), (F,))
+    if groups.shape != (F,) or not np.issubdtype(groups.dtype, np.integer) or (F and groups.min() < 0):
+        raise ValueError(f"groups must be (F,) = ({F},) integers >= 0, got {groups!r}")
+    if np.any(~np.isfinite(sd)) or np.any(sd < 0):
+        raise ValueError(f"rel_sd must be finite relative standard deviations >= 0, got {rel_sd!r}")
+    labels = [g for g in np.unique(groups) if np.any(sd[groups == g] > 0)]  # the groups that vary
     if n_nodes is None:
-        nn = [thickness_nodes_needed(n.real[:, groups == g].max(axis=0) if np.any(groups == g) else 0.0,
-                                     d[groups == g], sd[g], wl.min()) for g in range(G)]
+        nn = [thickness_nodes_needed(n.real[:, groups == g].max(axis=0), d[groups == g], sd[groups == g], wl.min())
+              for g in labels]
     else:
-        nn = list(np.broadcast_to(np.asarray(n_nodes, int), (G,)))
-    rules = [lognormal_thickness_nodes(sd[g], nn[g]) for g in range(G)]
-    # tensor product: factors (G, K), weights (K,)
-    grids = np.meshgrid(*[r[0] for r in rules], indexing="ij")
-    wgrids = np.meshgrid(*[r[1] for r in rules], indexing="ij")
-    fac = np.stack([g_.ravel() for g_ in grids]) if G else np.ones((0, 1))
-    wts = np.prod(np.stack([g_.ravel() for g_ in wgrids]), axis=0) if G else np.ones(1)
-    D = d[:, None] * fac[groups]  # (F, K)
-    K, W, A = wts.size, wl.size, cos.size
+        nn = [int(n_nodes)] * len(labels) if np.ndim(n_nodes) == 0 else [int(n_nodes[g]) for g in labels]
+    rules = [_z_nodes(m) for m in nn]
+    K = int(np.prod(nn)) if labels else 1
+    zs = np.meshgrid(*[r[0] for r in rules], indexing="ij")
+    ws = np.meshgrid(*[r[1] for r in rules], indexing="ij")
+    wts = np.prod(np.stack([w_.ravel() for w_ in ws]), axis=0) if labels else np.ones(1)
+    Z = np.zeros((F, K))  # each film's z at each node of the product rule
+    for i, g in enumerate(labels):
+        Z[groups == g] = zs[i].ravel()
+    D = d[:, None] * _lognormal_factor(sd[:, None], Z)  # (F, K)
+    W, A = wl.size, cos.size
     per_block = max(1, THICKNESS_BLOCK_CELLS // max(1, W * A))
     acc = None
     for k0 in range(0, K, per_block):  # blocks bound the memory; each block is one vectorised product

@@ -84,6 +84,9 @@ class CatalogParticle:
     orientation_distribution: str | None = None
     #: flakes: geometric standard deviation of the log-normal diameter distribution (texture only)
     diameter_gsd: float | None = None
+    #: interference flakes: the recipe's film overrides (coating_thickness_nm, coating_thickness_rel_sd,
+    #: substrate_thickness_nm, substrate_thickness_rel_sd), already applied to ``entry``; empty: none
+    film_overrides: dict = field(default_factory=dict)
 
     @property
     def kind(self):
