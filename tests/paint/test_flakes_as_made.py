@@ -12,7 +12,7 @@ from flakedb.paint.recipe_checks import flake_entry_with_films
 from flakedb.paint.species import binder_index, film_spreads, film_stack, flake_reflectance_transmittance
 
 NEW = ("aluminium-cornflake", "aluminium-silver-dollar", "aluminium-vmp", "aluminium-silica", "mica-tio2-pearl",
-       "alumina-tio2")
+       "alumina-tio2", "aluminium-tio2")
 WL = np.arange(380.0, 781.0, 20.0)
 
 
@@ -55,6 +55,21 @@ def test_oxide_thickness_is_the_stack_the_transfer_matrix_sees(catalog):
         np.testing.assert_allclose(R, direct, rtol=0, atol=1e-14)
         Rs.append(R)
     assert np.abs(Rs[1] - Rs[0]).max() > 0.01
+
+
+def test_tio2_on_aluminium_is_the_warm_silver(catalog):
+    # the specular colour of the flake itself (normal incidence in the binder, D65 / 2°): the MgF2 flake and the
+    # native-oxide cornflake are slightly blue, 15 nm of TiO2 warm (b* +2.0 measured), 25 nm warmer
+    from flakedb.colour.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
+    wl = np.arange(380.0, 781.0, 10.0)
+    nb = binder_index(catalog, wl)
+    def b_star(e):
+        R, _ = flake_reflectance_transmittance(e, wl, [1.0], nb)
+        return XYZ_to_Lab(reflectance_to_XYZ(R[:, 0], wl), white=white_XYZ(wl))[2]
+    warm = get_species("aluminium-tio2", catalog)
+    assert b_star(get_species("metallic", catalog)) < 0 and b_star(get_species("aluminium-cornflake", catalog)) < 0
+    assert 1.0 < b_star(warm) < 3.0
+    assert b_star(flake_entry_with_films(warm, {"coating_thickness_nm": [25.0]})) > b_star(warm) + 1.0
 
 
 def _recipe(particle, mode="rgb"):

@@ -49,7 +49,7 @@ ADDED = {"pearl-white": "interference_flake"}
 #: issue #35 item 4, flakes as they are made (tests/paint/test_flakes_as_made.py)
 ADDED = ADDED | {n: "interference_flake" for n in (
     "aluminium-cornflake", "aluminium-silver-dollar", "aluminium-vmp", "aluminium-silica", "mica-tio2-pearl",
-    "synthetic-mica-tio2-interference", "alumina-tio2", "glass-flake-tio2")}
+    "synthetic-mica-tio2-interference", "alumina-tio2", "glass-flake-tio2", "aluminium-tio2")}
 
 
 @pytest.fixture(scope="module")
