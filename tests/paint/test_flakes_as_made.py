@@ -115,3 +115,37 @@ def test_composed_paint_with_new_species_is_physical_and_sees_the_oxide(catalog)
         out.append(np.asarray(s.table.stored))
     m = min(out[0].shape[-1], out[1].shape[-1])  # Fourier orders kept may differ; order 0 carries the albedo
     assert np.all(np.isfinite(out[0])) and np.abs(out[1][..., :m] - out[0][..., :m]).max() > 1e-3
+
+
+def test_match_recovers_the_tio2_thickness_on_aluminium(tmp_path):
+    """`match` varies a coating thickness ({fit: [min, max]} inside the coating_thickness_nm list): a target
+    made by flakedb from 20 nm of TiO2 on the aluminium flake, the fit started at 12 nm."""
+    import yaml
+    from click.testing import CliRunner
+
+    from flakedb.cli.main import cli
+    text = textwrap.dedent("""\
+        flakedb: 1
+        name: warm-silver
+        spectral: {mode: spectral, range_nm: [400, 700], step_nm: 20}
+        resolution: 16
+        layers:
+          - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
+          - basecoat:
+              thickness_um: 15
+              ior: 1.5
+              particles:
+                - {species: aluminium-tio2, volume_fraction: 0.05, coating_thickness_nm: [THICK]}
+          - primer: {color: gray}
+        """)
+    (tmp_path / "true.yaml").write_text(text.replace("THICK", "20"))
+    target = tmp_path / "target.csv"
+    r = CliRunner().invoke(cli, ["compare", str(tmp_path / "true.yaml"), "--write-csv", str(target),
+                                 "--geometries", "e2194"])
+    assert r.exit_code == 0, r.output
+    (tmp_path / "base.yaml").write_text(text.replace("THICK", "{fit: [5, 30], start: 12}"))
+    out = tmp_path / "out"
+    r = CliRunner().invoke(cli, ["match", str(tmp_path / "base.yaml"), "--target", str(target), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    fitted = yaml.safe_load((out / "warm-silver-fitted.yaml").read_text())
+    assert fitted["layers"][1]["basecoat"]["particles"][0]["coating_thickness_nm"][0] == pytest.approx(20.0, rel=0.02)
