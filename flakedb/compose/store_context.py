@@ -86,7 +86,7 @@ def store_problems(version, recipe, n, raw=False) -> list[str]:
         if p.species not in have:
             probs.append(f"species {p.species!r} ({p.path}) is not in the store")
             continue
-        if not _same_entry(stored_inputs[p.species], p.entry):
+        if not getattr(p, "film_overrides", None) and not _same_entry(stored_inputs[p.species], p.entry):
             probs.append(f"species {p.species!r}: the store was built from a different catalogue entry "
                          f"(the catalogue changed since): rebuild")
         if p.is_flake:

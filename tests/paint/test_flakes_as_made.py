@@ -149,3 +149,24 @@ def test_match_recovers_the_tio2_thickness_on_aluminium(tmp_path):
     assert r.exit_code == 0, r.output
     fitted = yaml.safe_load((out / "warm-silver-fitted.yaml").read_text())
     assert fitted["layers"][1]["basecoat"]["particles"][0]["coating_thickness_nm"][0] == pytest.approx(20.0, rel=0.02)
+
+
+def test_store_serves_a_spread_flake_and_refuses_recipe_films(tmp_path):
+    """A catalogue flake with a thickness spread is built into a store and composed from it; a recipe that
+    sets its films is refused by name (the store holds the catalogue's stack), not as a changed catalogue."""
+    from click.testing import CliRunner
+
+    from flakedb.cli.main import cli
+    store = tmp_path / "S"
+    r = CliRunner().invoke(cli, ["build", "--store", str(store), "--species", "aluminium-tio2", "--n", "16",
+                                 "--step-nm", "20", "--workers", "1"])
+    assert r.exit_code == 0, r.output
+    plain = _recipe("{species: aluminium-tio2, volume_fraction: 0.05}", mode="spectral").replace(
+        "{mode: spectral}", "{mode: spectral, range_nm: [380, 780], step_nm: 20}")
+    (tmp_path / "a.yaml").write_text(plain)
+    r = CliRunner().invoke(cli, ["compose", str(tmp_path / "a.yaml"), "--store", str(store), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 0, r.output
+    (tmp_path / "b.yaml").write_text(plain.replace("volume_fraction: 0.05}", "volume_fraction: 0.05, coating_thickness_nm: [20]}"))
+    r = CliRunner().invoke(cli, ["compose", str(tmp_path / "b.yaml"), "--store", str(store), "--out", str(tmp_path / "o2")])
+    assert r.exit_code != 0
+    assert "sets the flake's films (coating_thickness_nm)" in r.output and "catalogue changed" not in r.output
