@@ -158,26 +158,32 @@ def _prepare(n_films, d_films_nm, wavelength_nm, cos_theta, n_ambient, n_exit):
 def _stack(n, d, wl, cos, n_a, n_e):
     """Scaled characteristic-matrix product and the ambient/exit admittances.
 
-    ``d`` is (F,) (one thickness per film) or (F, A) (a thickness per film and column, the column's
-    cosine ``cos[a]``: :func:`thin_film_thickness_average` evaluates many thicknesses at once).
+    ``d`` is (F,) (one thickness per film) or (F, K) (K thicknesses per film: the nodes of
+    :func:`thin_film_thickness_average`, a K axis between the wavelength and angle axes).
 
     Returns ``B, C, p_a, p_e, phase`` with a leading polarisation axis (0: s, 1: p) on B, C, p_a,
-    p_e (shape (2, W, A)) and ``phase = Σ δ_j`` (shape (W, A)), see the module docstring.
+    p_e (shape (2, W, A), or (2, W, K, A)) and ``phase = Σ δ_j`` (shape (W, A) or (W, K, A)), see the
+    module docstring.
     """
     W, A = wl.shape[0], cos.shape[0]
-    k0 = (2.0 * np.pi / wl)[:, None]  # 1/nm, (W, 1)
-    cos_c = cos[None, :]
-    shape = (2, W, A)
+    extra = d.shape[1:]  # () or (K,)
+    one = (1,) * len(extra)
+    k0 = (2.0 * np.pi / wl).reshape((W,) + one + (1,))  # 1/nm
+    cos_c = cos.reshape((1,) + one + (A,))
+    n_a = n_a.reshape((W,) + one + (1,))
+    n_e = n_e.reshape((W,) + one + (1,))
+    shape = (2, W) + extra + (A,)
     m11 = np.ones(shape, complex)
     m12 = np.zeros(shape, complex)
     m21 = np.zeros(shape, complex)
     m22 = np.ones(shape, complex)
-    phase = np.zeros((W, A), complex)
+    phase = np.zeros(shape[1:], complex)
     for j in range(d.shape[0]):  # a loop over the few films; everything inside is vectorised
-        N = n[:, j][:, None]  # (W, 1)
+        N = n[:, j].reshape((W,) + one + (1,))
         N2 = N * N
-        q = normal_wavevector(N, n_a, cos_c)  # (W, A), Im q >= 0
-        delta = k0 * d[j] * q
+        q = normal_wavevector(N, n_a, cos_c)  # (W, 1.., A), Im q >= 0: independent of the thickness
+        kd = k0 * d[j].reshape(extra + (1,))  # (W, K.., 1)
+        delta = kd * q
         phase = phase + delta
         z = 2j * delta  # Re z <= 0
         ex = np.expm1(z)
@@ -186,10 +192,10 @@ def _stack(n, d, wl, cos, n_a, n_e):
         E = np.where(small, 1.0 + z * (0.5 + z / 6.0), ex / z_safe)
         a = 1.0 + 0.5 * ex  # e^{iδ} cos δ
         g = np.stack([q, q / N2])  # admittances p_j for s, p
-        b = -1j * k0 * d[j] * E * np.stack([np.ones_like(N2), N2])  # e^{iδ}(-i sin δ / p_j)
+        b = -1j * kd * E * np.stack([np.ones_like(N2), N2])  # e^{iδ}(-i sin δ / p_j)
         c = -0.5 * g * ex  # e^{iδ}(-i p_j sin δ)
         m11, m12, m21, m22 = (m11 * a + m12 * c, m11 * b + m12 * a, m21 * a + m22 * c, m21 * b + m22 * a)
-    p_a_s = n_a.real * cos_c  # (W, A) real
+    p_a_s = n_a.real * cos_c  # real
     p_a = np.stack([p_a_s, cos_c / n_a.real])
     q_e = normal_wavevector(n_e, n_a, cos_c)
     p_e = np.stack([q_e, q_e / (n_e * n_e)])
@@ -208,7 +214,7 @@ def _solve(B, C, p_a):
 
 
 def _power(n, d, wl, cos, n_a, n_e):
-    """:class:`ThinFilmRT` of validated inputs (:func:`_prepare`); ``d`` (F,) or (F, A): per-column thicknesses."""
+    """:class:`ThinFilmRT` of validated inputs (:func:`_prepare`); ``d`` (F,) or (F, K) (then each array is (W, K, A))."""
     B, C, p_a, p_e, phase = _stack(n, d, wl, cos, n_a, n_e)
     r, D, invisible = _solve(B, C, p_a)
     R_pol = np.abs(r) ** 2
@@ -424,7 +430,7 @@ def thin_film_thickness_average(n_films, d_films_nm, rel_sd, wavelength_nm, cos_
     for k0 in range(0, K, per_block):  # blocks bound the memory; each block is one vectorised product
         kb = slice(k0, min(K, k0 + per_block))
         nk = kb.stop - kb.start
-        rt = _power(n, np.repeat(D[:, kb], A, axis=1), wl, np.tile(cos, nk), n_a, n_e)
-        part = [np.einsum("wka,k->wa", x.reshape(W, nk, A), wts[kb]) for x in rt]
+        rt = _power(n, D[:, kb], wl, cos, n_a, n_e)  # each (W, nk, A)
+        part = [np.einsum("wka,k->wa", np.broadcast_to(x, (W, nk, A)), wts[kb]) for x in rt]
         acc = part if acc is None else [p + q for p, q in zip(acc, part)]
     return ThinFilmRT(*acc)
