@@ -338,6 +338,8 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
                             f"(hint: remove it, or choose an interference flake such as an aluminium grade)")
         films = {}
     nc = len(entry["coating"]) if entry["kind"] == "interference_flake" else 0
+    if isinstance(films.get("coating_thickness_nm"), (int, float)):  # one number: a one-film coating
+        films["coating_thickness_nm"] = [films["coating_thickness_nm"]]
     if "coating_thickness_nm" in films and len(films["coating_thickness_nm"]) != nc:
         problems.append(f"{pp}.coating_thickness_nm: {len(films['coating_thickness_nm'])} value(s) but {name!r} has "
                         f"{nc} coating film(s) ({', '.join(f['material'] for f in entry['coating'])}, outside in) "

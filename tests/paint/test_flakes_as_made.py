@@ -93,11 +93,15 @@ def test_recipe_sets_the_oxide_and_the_flake_thickness_follows(catalog):
     assert p.entry["coating"][0]["thickness_rel_sd"]["value"] == 0.1
     assert p.entry["thickness_um"]["value"] == pytest.approx(0.38)
     assert get_species("aluminium-cornflake", catalog)["coating"][0]["thickness_nm"]["value"] == 5  # catalogue untouched
+    r = parse_recipe(_recipe("{species: aluminium-cornflake, volume_fraction: 0.05, coating_thickness_nm: 40}"),
+                     catalog=catalog)  # one number for a one-film coating
+    assert next(q for L in r.basecoats for q in L.particles).entry["coating"][0]["thickness_nm"]["value"] == 40.0
 
 
 @pytest.mark.parametrize("particle, needle", [
     ("{species: aluminium-cornflake, volume_fraction: 0.05, coating_thickness_nm: [40, 5]}", "coating_thickness_nm: 2 value"),
     ("{species: gray-mirror, volume_fraction: 0.05, coating_thickness_nm: [40]}", "interference flakes only"),
+    ("{species: synthetic-mica-tio2-interference, volume_fraction: 0.05, coating_thickness_nm: 40}", "1 value"),
     ("{species: aluminium-cornflake, volume_fraction: 0.05, coating_thickness_rel_sd: 0.9}", "coating_thickness_rel_sd"),
 ])
 def test_recipe_film_errors_name_the_field(catalog, particle, needle):
@@ -118,7 +122,7 @@ def test_composed_paint_with_new_species_is_physical_and_sees_the_oxide(catalog)
 
 
 def test_match_recovers_the_tio2_thickness_on_aluminium(tmp_path):
-    """`match` varies a coating thickness ({fit: [min, max]} inside the coating_thickness_nm list): a target
+    """`match` varies a coating thickness (coating_thickness_nm: {fit: [min, max]}, a one-film coating): a target
     made by flakedb from 20 nm of TiO2 on the aluminium flake, the fit started at 12 nm."""
     import yaml
     from click.testing import CliRunner
@@ -143,12 +147,12 @@ def test_match_recovers_the_tio2_thickness_on_aluminium(tmp_path):
     r = CliRunner().invoke(cli, ["compare", str(tmp_path / "true.yaml"), "--write-csv", str(target),
                                  "--geometries", "e2194"])
     assert r.exit_code == 0, r.output
-    (tmp_path / "base.yaml").write_text(text.replace("THICK", "{fit: [5, 30], start: 12}"))
+    (tmp_path / "base.yaml").write_text(text.replace("[THICK]", "{fit: [5, 30], start: 12}"))
     out = tmp_path / "out"
     r = CliRunner().invoke(cli, ["match", str(tmp_path / "base.yaml"), "--target", str(target), "--out", str(out)])
     assert r.exit_code == 0, r.output
     fitted = yaml.safe_load((out / "warm-silver-fitted.yaml").read_text())
-    assert fitted["layers"][1]["basecoat"]["particles"][0]["coating_thickness_nm"][0] == pytest.approx(20.0, rel=0.02)
+    assert fitted["layers"][1]["basecoat"]["particles"][0]["coating_thickness_nm"] == pytest.approx(20.0, rel=0.02)
 
 
 def test_store_serves_a_spread_flake_and_refuses_recipe_films(tmp_path):
