@@ -165,13 +165,19 @@ def _stack(n, d, wl, cos, n_a, n_e):
     p_e (shape (2, W, A), or (2, W, K, A)) and ``phase = Σ δ_j`` (shape (W, A) or (W, K, A)), see the
     module docstring.
     """
+    m, phase = _product(n, d, wl, cos, n_a)
+    return _close(m, wl, cos, n_a, n_e, d.ndim - 1) + (phase,)
+
+
+def _product(n, d, wl, cos, n_a):
+    """The scaled matrices ``(m11, m12, m21, m22)`` of the films' product ``M_1 … M_F``, each (2, W, [K,] A),
+    and ``Σ δ_j`` (W, [K,] A); ``d`` (F,) or (F, K) as :func:`_stack`.  F = 0 gives the identity."""
     W, A = wl.shape[0], cos.shape[0]
     extra = d.shape[1:]  # () or (K,)
     one = (1,) * len(extra)
     k0 = (2.0 * np.pi / wl).reshape((W,) + one + (1,))  # 1/nm
     cos_c = cos.reshape((1,) + one + (A,))
     n_a = n_a.reshape((W,) + one + (1,))
-    n_e = n_e.reshape((W,) + one + (1,))
     shape = (2, W) + extra + (A,)
     m11 = np.ones(shape, complex)
     m12 = np.zeros(shape, complex)
@@ -194,14 +200,30 @@ def _stack(n, d, wl, cos, n_a, n_e):
         g = np.stack([q, q / N2])  # admittances p_j for s, p
         b = -1j * kd * E * np.stack([np.ones_like(N2), N2])  # e^{iδ}(-i sin δ / p_j)
         c = -0.5 * g * ex  # e^{iδ}(-i p_j sin δ)
-        m11, m12, m21, m22 = (m11 * a + m12 * c, m11 * b + m12 * a, m21 * a + m22 * c, m21 * b + m22 * a)
+        m11, m12, m21, m22 = _matmul((m11, m12, m21, m22), (a, b, c, a))
+    return (m11, m12, m21, m22), phase
+
+
+def _matmul(m, f):
+    """The 2×2 product ``m f`` of matrices given as (11, 12, 21, 22) element arrays (broadcast)."""
+    m11, m12, m21, m22 = m
+    f11, f12, f21, f22 = f
+    return m11 * f11 + m12 * f21, m11 * f12 + m12 * f22, m21 * f11 + m22 * f21, m21 * f12 + m22 * f22
+
+
+def _close(m, wl, cos, n_a, n_e, n_extra):
+    """``B, C, p_a, p_e`` (B&W §1.6.3) of a product ``m`` (:func:`_product`) with ``n_extra`` node axes."""
+    W, A = wl.shape[0], cos.shape[0]
+    one = (1,) * n_extra
+    cos_c = cos.reshape((1,) + one + (A,))
+    n_a = n_a.reshape((W,) + one + (1,))
+    n_e = n_e.reshape((W,) + one + (1,))
     p_a_s = n_a.real * cos_c  # real
     p_a = np.stack([p_a_s, cos_c / n_a.real])
     q_e = normal_wavevector(n_e, n_a, cos_c)
     p_e = np.stack([q_e, q_e / (n_e * n_e)])
-    B = m11 + m12 * p_e
-    C = m21 + m22 * p_e
-    return B, C, p_a, p_e, phase
+    m11, m12, m21, m22 = m
+    return m11 + m12 * p_e, m21 + m22 * p_e, p_a, p_e
 
 
 def _solve(B, C, p_a):
@@ -215,7 +237,11 @@ def _solve(B, C, p_a):
 
 def _power(n, d, wl, cos, n_a, n_e):
     """:class:`ThinFilmRT` of validated inputs (:func:`_prepare`); ``d`` (F,) or (F, K) (then each array is (W, K, A))."""
-    B, C, p_a, p_e, phase = _stack(n, d, wl, cos, n_a, n_e)
+    return _power_of(*_stack(n, d, wl, cos, n_a, n_e))
+
+
+def _power_of(B, C, p_a, p_e, phase):
+    """:class:`ThinFilmRT` from :func:`_stack`'s ``B, C, p_a, p_e, phase``."""
     r, D, invisible = _solve(B, C, p_a)
     R_pol = np.abs(r) ** 2
     # T = |2 p_a e^{iΣδ} / D|² Re(p_e) / p_a, written without dividing by p_a (0 at grazing).
@@ -416,21 +442,43 @@ def thin_film_thickness_average(n_films, d_films_nm, rel_sd, wavelength_nm, cos_
     else:
         nn = [int(n_nodes)] * len(labels) if np.ndim(n_nodes) == 0 else [int(n_nodes[g]) for g in labels]
     rules = [_z_nodes(m) for m in nn]
-    K = int(np.prod(nn)) if labels else 1
-    zs = np.meshgrid(*[r[0] for r in rules], indexing="ij")
-    ws = np.meshgrid(*[r[1] for r in rules], indexing="ij")
-    wts = np.prod(np.stack([w_.ravel() for w_ in ws]), axis=0) if labels else np.ones(1)
-    Z = np.zeros((F, K))  # each film's z at each node of the product rule
-    for i, g in enumerate(labels):
-        Z[groups == g] = zs[i].ravel()
-    D = d[:, None] * _lognormal_factor(sd[:, None], Z)  # (F, K)
+    # Segments: runs of consecutive films of one group.  A segment's matrix product depends on its group's
+    # z only, so it is formed once per node of that group; a node of the tensor product multiplies the
+    # segments' products (gathered), instead of re-forming every film at every product node.
+    slot = {g: i for i, g in enumerate(labels)}
+    cuts = [0] + [j for j in range(1, F) if groups[j] != groups[j - 1]] + [F]
+    segments = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        g = int(groups[a]) if F else 0
+        z = rules[slot[g]][0] if g in slot else np.zeros(1)
+        segments.append((a, b, slot.get(g), d[a:b, None] * _lognormal_factor(sd[a:b, None], z[None, :])))
+    shape = tuple(nn)
+    K = int(np.prod(shape)) if labels else 1
+    wts = np.ones(1)
+    for r in rules:  # the product weights in C order of the node multi-index
+        wts = np.multiply.outer(wts, r[1]).ravel()
     W, A = wl.size, cos.size
-    per_block = max(1, THICKNESS_BLOCK_CELLS // max(1, W * A))
     acc = None
-    for k0 in range(0, K, per_block):  # blocks bound the memory; each block is one vectorised product
-        kb = slice(k0, min(K, k0 + per_block))
-        nk = kb.stop - kb.start
-        rt = _power(n, D[:, kb], wl, cos, n_a, n_e)  # each (W, nk, A)
-        part = [np.einsum("wka,k->wa", np.broadcast_to(x, (W, nk, A)), wts[kb]) for x in rt]
-        acc = part if acc is None else [p + q for p, q in zip(acc, part)]
+    a_block = max(1, THICKNESS_BLOCK_CELLS // max(1, W * max([1] + nn)))
+    for a0 in range(0, A, a_block):  # angle blocks bound the segments' memory
+        ca = cos[a0:a0 + a_block]
+        Ab = ca.size
+        seg_m = [_product(n[:, a:b], D, wl, ca, n_a) for a, b, _, D in segments]  # each (2, W, N_g, Ab)
+        per_block = max(1, THICKNESS_BLOCK_CELLS // max(1, W * Ab))
+        part_a = None
+        for k0 in range(0, K, per_block):  # product-node blocks
+            kk = np.arange(k0, min(K, k0 + per_block))
+            idx = np.unravel_index(kk, shape) if labels else ()
+            m, phase = None, 0.0
+            for (a, b, sl, _), (sm, sp) in zip(segments, seg_m):
+                take = np.zeros(kk.size, int) if sl is None else idx[sl]
+                f = tuple(x[:, :, take] for x in sm)
+                m = f if m is None else _matmul(m, f)
+                phase = phase + sp[:, take]
+            if m is None:  # no films
+                m, phase = _product(n, np.zeros((0, kk.size)), wl, ca, n_a)
+            rt = _power_of(*_close(m, wl, ca, n_a, n_e, 1), phase)  # each (W, nk, Ab)
+            part = [np.einsum("wka,k->wa", np.broadcast_to(x, (W, kk.size, Ab)), wts[kk]) for x in rt]
+            part_a = part if part_a is None else [p + q for p, q in zip(part_a, part)]
+        acc = part_a if acc is None else [np.concatenate([p, q], axis=1) for p, q in zip(acc, part_a)]
     return ThinFilmRT(*acc)
