@@ -447,6 +447,9 @@ def _flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
                "a_rho_per_um": a_rho, "opaque": p.opaque,
                "diameter_um": float(p.diameter_um if p.diameter_um is not None else p.entry["diameter_um"]["value"]),
                "loading": "volume_fraction / flake thickness (docs/model.md §3)"}
+        if p.film_overrides:
+            rec["film_overrides"] = {k: (list(map(float, v)) if isinstance(v, list) else float(v))
+                                     for k, v in p.film_overrides.items()}
     else:
         c = np.union1d(p.R.c, p.T.c)
         R = np.interp(c, p.R.c, p.R.value)

@@ -5,6 +5,7 @@ naming the field path, the value and the allowed range.  :func:`semantic_problem
 
 from __future__ import annotations
 
+import copy
 import difflib
 
 import numpy as np
@@ -353,6 +354,31 @@ def _pigment_cost_problem(pp, name, P, entry, grid, ior):
             f"this)")
 
 
+#: A recipe's overrides of an interference flake's films (applied by :func:`flake_entry_with_films`).
+FILM_OVERRIDES = ("coating_thickness_nm", "coating_thickness_rel_sd", "substrate_thickness_nm",
+                  "substrate_thickness_rel_sd")
+
+
+def flake_entry_with_films(entry: dict, overrides: dict, source: str = "recipe") -> dict:
+    """A copy of interference-flake ``entry`` with a recipe's :data:`FILM_OVERRIDES` set (mean thicknesses
+    in nm, relative standard deviations) and ``thickness_um`` recomputed from the stack (the loading
+    aρ = volume fraction / thickness follows it).  ``overrides['coating_thickness_nm']`` has one value per
+    coating film (checked by the caller)."""
+    e = copy.deepcopy(entry)
+    for i, t in enumerate(overrides.get("coating_thickness_nm", ())):
+        e["coating"][i]["thickness_nm"] = {"value": float(t), "source": source}
+    if "coating_thickness_rel_sd" in overrides:
+        for film in e["coating"]:
+            film["thickness_rel_sd"] = {"value": float(overrides["coating_thickness_rel_sd"]), "source": source}
+    if "substrate_thickness_nm" in overrides:
+        e["substrate"]["thickness_nm"] = {"value": float(overrides["substrate_thickness_nm"]), "source": source}
+    if "substrate_thickness_rel_sd" in overrides:
+        e["substrate"]["thickness_rel_sd"] = {"value": float(overrides["substrate_thickness_rel_sd"]), "source": source}
+    total_nm = 2 * sum(f["thickness_nm"]["value"] for f in e["coating"]) + e["substrate"]["thickness_nm"]["value"]
+    e["thickness_um"] = {"value": total_nm / 1000.0, "source": "total of the film stack"}
+    return e
+
+
 def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
     """(problems, warnings, CatalogParticle or None): species known, overrides of its kind, grid
     covered, particle thinner than the layer ``d`` [µm]."""
@@ -377,6 +403,22 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
                             f"{'pigments' if key in pig_only else 'flakes'} only (hint: remove it"
                             + ("; a tinter has no particle size: its optics are per unit volume fraction)"
                                if entry["kind"] == "tinter" else ")"))
+    films = {k: P[k] for k in FILM_OVERRIDES if k in P}
+    if films and entry["kind"] != "interference_flake":
+        for k in films:
+            problems.append(f"{pp}.{k}: {name!r} is a {entry['kind']}; {k} applies to interference flakes only "
+                            f"(hint: remove it, or choose an interference flake such as an aluminium grade)")
+        films = {}
+    nc = len(entry["coating"]) if entry["kind"] == "interference_flake" else 0
+    if isinstance(films.get("coating_thickness_nm"), (int, float)):  # one number: a one-film coating
+        films["coating_thickness_nm"] = [films["coating_thickness_nm"]]
+    if "coating_thickness_nm" in films and len(films["coating_thickness_nm"]) != nc:
+        problems.append(f"{pp}.coating_thickness_nm: {len(films['coating_thickness_nm'])} value(s) but {name!r} has "
+                        f"{nc} coating film(s) ({', '.join(f['material'] for f in entry['coating'])}, outside in) "
+                        f"(hint: give one thickness per film)")
+        films.pop("coating_thickness_nm")
+    if films:
+        entry = flake_entry_with_films(entry, films, source=f"recipe {pp}")
     if mode == "mono":
         problems.append(f"{pp}.species: catalogue species have spectral optics; mono mode takes "
                         f"wavelength-independent inputs only (hint: set spectral.mode to spectral or rgb)")
@@ -404,7 +446,7 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
         problems += more
     particle = CatalogParticle(
         name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
-        P.get("median_diameter_um"), P.get("gsd"), pp, dist, P.get("diameter_gsd"))
+        P.get("median_diameter_um"), P.get("gsd"), pp, dist, P.get("diameter_gsd"), film_overrides=films)
     return problems, warnings, particle
 
 

@@ -87,6 +87,9 @@ class CatalogParticle:
     #: the recipe's weight_fraction when the loading was given by weight (volume_fraction is then
     #: converted from it: flakedb.paint.formulation); None when given by volume
     weight_fraction: float | None = None
+    #: interference flakes: the recipe's film overrides (coating_thickness_nm, coating_thickness_rel_sd,
+    #: substrate_thickness_nm, substrate_thickness_rel_sd), already applied to ``entry``; empty: none
+    film_overrides: dict = field(default_factory=dict)
 
     @property
     def kind(self):

@@ -6,6 +6,8 @@ A *species* is one entry of the catalogue, or one member of a sweep (``expand_sw
   + ``coating`` reversed, embedded in the binder.  R(c, λ) and T(c, λ) come from the transfer-matrix
   method (:func:`flakedb.optics.thinfilm.flake_reflectance_transmittance`, Born & Wolf §1.6),
   unpolarised, with c = |ω·m| the cosine between the light and the flake normal *in the binder*.
+  A film may carry ``thickness_rel_sd``: its thickness varies from flake to flake (log-normal, that
+  relative standard deviation), and R, T are the ensemble's averages (:func:`film_spreads`).
 * ``mirror_flake``: R = albedo (constant or a spectrum, linearly interpolated in λ), T = 0
   (docs/model.md §3, Jakob et al. 2010's opaque flakes).
 * ``pigment``: spheres with a log-normal number distribution of diameters; Mie optics per particle
@@ -27,6 +29,7 @@ import numpy as np
 
 from flakedb.optics.mie import default_n_quad, lognormal_pigment
 from flakedb.optics.thinfilm import flake_reflectance_transmittance as tmm_flake
+from flakedb.optics.thinfilm import thin_film_thickness_average
 from flakedb.paint.catalog import TINTER_TABLES, get_species, load_catalog
 from flakedb.paint.materials import material_density_g_cm3, material_info, refractive_index
 
@@ -86,6 +89,20 @@ def species_record(name: str, entry: dict) -> dict:
         row.update(material=entry["material"], median_diameter_um=float(entry["median_diameter_um"]["value"]),
                    gsd=float(entry["gsd"]["value"]), grade=entry.get("grade"))
     return row
+def film_spreads(entry: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The thickness distribution of an interference flake's films, per film of :func:`film_stack`:
+    ``(groups (F,), rel_sd (F,))`` for :func:`flakedb.optics.thinfilm.thin_film_thickness_average`.
+
+    ``rel_sd`` is each film's ``thickness_rel_sd`` (0 when absent: every flake alike).  Two variables:
+    every coating film of a flake shares one (group 0: both faces and all layers of a flake's coating
+    are thicker or thinner together, as a flake's share of a batch deposition is; an assumption, which
+    keeps a multilayer's average one-dimensional), the substrate has its own (group 1).
+    """
+    nc = len(entry["coating"])
+    groups = np.array([0] * nc + [1] + [0] * nc)
+    sd = [float(f.get("thickness_rel_sd", {"value": 0.0})["value"]) for f in entry["coating"]]
+    sub = float(entry["substrate"].get("thickness_rel_sd", {"value": 0.0})["value"])
+    return groups, np.array(sd + [sub] + sd[::-1])
 
 
 def binder_index(catalog: dict, wavelength_nm) -> np.ndarray:
@@ -111,7 +128,9 @@ def flake_reflectance_transmittance(entry: dict, wavelength_nm, cos_theta, n_bin
 
     ``wavelength_nm`` (W,) vacuum wavelengths in nm; ``cos_theta`` (A,) the cosine between the light
     and the flake normal in the binder; ``n_binder`` scalar or (W,), real.  Interference flakes:
-    transfer-matrix method on :func:`film_stack`; mirror flakes: R = albedo, T = 0.
+    transfer-matrix method on :func:`film_stack`, averaged over the films' thickness distributions where the
+    entry has them (:func:`film_spreads`, :func:`flakedb.optics.thinfilm.thin_film_thickness_average`);
+    mirror flakes: R = albedo, T = 0.
 
     A lossless pearlescent flake (TiO2 on mica) reflects or transmits all light; the aluminium core of
     the metallic flake transmits none:
@@ -131,7 +150,11 @@ def flake_reflectance_transmittance(entry: dict, wavelength_nm, cos_theta, n_bin
     if entry["kind"] == "interference_flake":
         mats, d_nm = film_stack(entry)
         n_films = np.stack([refractive_index(m, wl) for m in mats], axis=1)  # (W, F)
-        rt = tmm_flake(n_films, d_nm, wl, cos, n_binder)
+        groups, sd = film_spreads(entry)
+        if np.any(sd > 0):  # an ensemble of flakes whose films vary: the powers average
+            rt = thin_film_thickness_average(n_films, d_nm, sd, wl, cos, n_binder, None, groups=groups)
+        else:
+            rt = tmm_flake(n_films, d_nm, wl, cos, n_binder)
         return rt.R, rt.T
     if entry["kind"] == "mirror_flake":
         R = np.broadcast_to(albedo_spectrum(entry, wl)[:, None], (wl.size, cos.size)).copy()
@@ -220,6 +243,11 @@ def describe(name: str, entry: dict) -> str:
     if entry["kind"] == "interference_flake":
         mats, d = film_stack(entry)
         lines.append("film stack (top to bottom): " + " | ".join(f"{m} {x:g} nm" for m, x in zip(mats, d)))
+        groups, sd = film_spreads(entry)
+        if np.any(sd > 0):
+            lines.append("thickness spread (relative SD, log-normal across flakes): " + ", ".join(
+                f"{name} {v:g}" for name, v in zip([f"coating[{i}]" for i in range(len(entry['coating']))]
+                                                   + ["substrate"], sd[:len(entry["coating"]) + 1]) if v > 0))
     if entry["kind"] == "mirror_flake":
         a = entry["albedo"]
         lines.append("albedo: " + (f"{a['value']:g} (constant)" if "wavelength_nm" not in a else "spectrum"))

@@ -87,7 +87,7 @@ def store_problems(version, recipe, n, raw=False) -> list[str]:
         if p.species not in have:
             probs.append(f"species {p.species!r} ({p.path}) is not in the store")
             continue
-        if not _same_entry(stored_inputs[p.species], p.entry):
+        if not getattr(p, "film_overrides", None) and not _same_entry(stored_inputs[p.species], p.entry):
             probs.append(f"species {p.species!r}: the store was built from a different catalogue entry "
                          f"(the catalogue changed since): rebuild")
         if p.is_flake:
@@ -103,6 +103,9 @@ def store_problems(version, recipe, n, raw=False) -> list[str]:
                              f"{version.alphas(p.species, d)} for {p.species!r}"
                              f"{'' if d == 'beckmann' else f' ({d})'}); the kernel depends on α through D(h): "
                              f"add it as a new version with the command below (projected once, not per compose)")
+        if getattr(p, "film_overrides", None):
+            probs.append(f"{p.path}: the recipe sets the flake's films ({', '.join(sorted(p.film_overrides))}); the "
+                         f"store holds the catalogue's film stack: compose without --store")
         if p.kind == "pigment" and (p.median_diameter_um is not None or p.gsd is not None):
             probs.append(f"{p.path}: the recipe overrides the pigment's size distribution; the store holds the "
                          f"catalogue's: compose without --store")

@@ -47,6 +47,10 @@ PAPER_SIX = {
 #: species the catalogue adds to the paper's six (each with its reason in particles.yaml)
 ADDED = {"pearl-white": "interference_flake", "carbon-black": "pigment", "iron-oxide-red": "pigment",
          "iron-oxide-red-transparent": "pigment", "titanium-white-r706": "pigment"}
+#: issue #35 item 4, flakes as they are made (tests/paint/test_flakes_as_made.py)
+ADDED = ADDED | {n: "interference_flake" for n in (
+    "aluminium-cornflake", "aluminium-silver-dollar", "aluminium-vmp", "aluminium-silica", "mica-tio2-pearl",
+    "synthetic-mica-tio2-interference", "alumina-tio2", "glass-flake-tio2", "aluminium-tio2")}
 
 
 @pytest.fixture(scope="module")
