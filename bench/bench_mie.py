@@ -7,7 +7,7 @@
 - log-normal pigments on 41 bands (400-800 nm, binder n = 1.5, gsd 1.4): magnetite (Fe3O4, strongly
   absorbing, catalogue 'iron-black', d_med 0.32 µm) and rutile (TiO2, lossless in most of the visible,
   'titanium-white', d_med 0.25 µm), efficiencies only and with the phase function at 361 angles
-  (the 0.5° grid of flakedb.paint.mapping.phase_cos_grid).  Default quadrature (flakedb.optics.mie.default_n_quad).
+  (the 0.5° grid of flakedb.paint.components.phase_cos_grid).  Default quadrature (flakedb.optics.mie.default_n_quad).
 """
 
 import numpy as np

@@ -56,7 +56,10 @@ def test_built_wheel_carries_its_data_and_composes(tmp_path):
 # --------------------------------------------------------------------------------------------
 
 #: Modules without an example for now, each with its reason.  Remove an entry when its module has one.
-DOCTEST_EXEMPT: dict = {}
+DOCTEST_EXEMPT: dict = {
+    "flakedb.render.quadrature": "its one entry point needs a BSDF file; tests/render/test_quadrature.py checks it "
+                                 "against closed forms (furnace, Lambertian under a sun) and a Monte Carlo render",
+}
 
 
 def public_modules():
@@ -85,18 +88,24 @@ def test_public_modules_are_found():
     assert set(DOCTEST_EXEMPT) <= set(mods), set(DOCTEST_EXEMPT) - set(mods)   # no stale exemption
 
 
-@pytest.mark.parametrize("name", public_modules())
-def test_public_module_has_a_doctest(name):
+def test_every_public_module_has_a_doctest():
+    """One policy check (not one presence test per module: issue #34 counted 126 of those): every public
+    module has at least one doctested example, whose output is not a process-dependent numpy repr.  The
+    examples themselves run as doctests (``pytest flakedb``), which is where their content is checked."""
     import importlib
 
-    if name in DOCTEST_EXEMPT:
-        pytest.skip(f"exempt: {DOCTEST_EXEMPT[name]}")
-    module = importlib.import_module(name)            # an import error is a failure, not a skip
-    tests = doctest.DocTestFinder(exclude_empty=True).find(module, name)
-    examples = [e for t in tests for e in t.examples]
-    assert examples, f"{name} has no doctested example (add one to a public function's docstring)"
-    # numpy's repr of arrays and scalars depends on the process: colour-science switches numpy to its
-    # legacy 1.13 printing when imported (" 100." instead of "100.", 17-digit scalars), so whether an
-    # example's output matches would depend on which test ran first in the worker.  Print lists.
-    reprs = [e.want.strip() for e in examples if "array(" in e.want or "np.float64(" in e.want]
-    assert not reprs, f"{name}: an example's output is a numpy repr (print .tolist() or float(...)): {reprs[0]!r}"
+    missing, reprs = [], []
+    for name in public_modules():
+        if name in DOCTEST_EXEMPT:
+            continue
+        module = importlib.import_module(name)            # an import error is a failure, not a skip
+        tests = doctest.DocTestFinder(exclude_empty=True).find(module, name)
+        examples = [e for t in tests for e in t.examples]
+        if not examples:
+            missing.append(name)
+        # numpy's repr of arrays and scalars depends on the process: colour-science switches numpy to its
+        # legacy 1.13 printing when imported (" 100." instead of "100.", 17-digit scalars), so whether an
+        # example's output matches would depend on which test ran first in the worker.  Print lists.
+        reprs += [f"{name}: {e.want.strip()!r}" for e in examples if "array(" in e.want or "np.float64(" in e.want]
+    assert not missing, f"modules without a doctested example (add one to a public function's docstring): {missing}"
+    assert not reprs, f"an example's output is a numpy repr (print .tolist() or float(...)): {reprs[:3]}"

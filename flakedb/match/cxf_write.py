@@ -54,7 +54,11 @@ def _q(tag: str) -> str:
 
 
 def notation(geometry) -> str:
-    """``45as15``, ``15as-45`` (the multi-angle notation of the reader and the CSV layout)."""
+    """``45as15``, ``15as-45`` (the multi-angle notation of the reader and the CSV layout).
+
+    >>> notation((45.0, 15.0)), notation((15, -45)), notation((45.0, 110.0))
+    ('45as15', '15as-45', '45as110')
+    """
     return f"{float(geometry[0]):g}as{float(geometry[1]):g}"
 
 

@@ -114,7 +114,13 @@ def merl_lookup(table, wi, wo):
 def merl_rgb_to_lab(rgb):
     """CIELAB (D65, CIE 1931 2°) of reflectance factors read as linear sRGB (..., 3) (module docstring):
     XYZ = M · rgb with the unrounded normalised primary matrix of IEC 61966-2-1's primaries and D65 white
-    (white rgb = 1 → Y = 1, exactly D65, so r = g = b is a* = b* = 0), then CIE 15 L*a*b*."""
+    (white rgb = 1 → Y = 1, exactly D65, so r = g = b is a* = b* = 0), then CIE 15 L*a*b*.
+
+    >>> [round(float(v), 6) + 0.0 for v in merl_rgb_to_lab([1.0, 1.0, 1.0])]     # the white point
+    [100.0, 0.0, 0.0]
+    >>> [round(float(v), 1) + 0.0 for v in merl_rgb_to_lab([0.18, 0.18, 0.18])]  # a neutral grey (CIE 15 L*)
+    [49.5, 0.0, 0.0]
+    """
     M = normalised_primary_matrix(SRGB_PRIMARIES_XY, SRGB_WHITE_XY)
     xyz = np.einsum("ij,...j->...i", M, np.asarray(rgb, dtype=float))
     return XYZ_to_Lab(xyz, white="D65")

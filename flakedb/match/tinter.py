@@ -68,7 +68,8 @@ from flakedb.match.targets import TargetError
 from flakedb.optics.kubelka_munk import km_to_rt
 from flakedb.paint.catalog import validate_catalog
 from flakedb.paint.checks import YamlFileError, load_yaml_file
-from flakedb.paint.mapping import build_paint, solve_paint, tinter_medium, with_media
+from flakedb.paint.mapping import build_paint, solve_paint, with_media
+from flakedb.paint.components import tinter_medium
 from flakedb.paint.recipe import CatalogParticle
 from flakedb.safeio import FileTooLargeError, read_text_limited
 from flakedb.solve.pipeline import memory_budget_bytes, settle_node_count

@@ -88,7 +88,7 @@ MAX_PIGMENT_BYTES = 8 * 1024 ** 3
 #: temporaries.  Measured (cadmium yellow, 81 bands, 361 angles): d_med 0.3 µm / gsd 1.5 (1133 nodes)
 #: peaks at 1.99 GB RSS, estimate 1.97 GiB; 0.6 µm (2265 nodes) 3.76 GB, estimate 3.95 GiB.
 PIGMENT_BYTES_PER_POINT = 64
-#: Phase angles of a pigment's table (flakedb.paint.mapping.phase_cos_grid: 0.5° steps).
+#: Phase angles of a pigment's table (flakedb.paint.components.phase_cos_grid: 0.5° steps).
 PIGMENT_PHASE_ANGLES = 361
 #: The grid a catalogue pigment is checked on (the default build grid, 380-780 nm in 5 nm steps).
 DEFAULT_GRID_NM = np.arange(380.0, 781.0, 5.0)

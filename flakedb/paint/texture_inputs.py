@@ -8,7 +8,7 @@ the extinction of everything else, from the same catalogue optics the solver use
   loading aρ = ρ⟨A⟩ from the solver's own mapping (:mod:`flakedb.paint.mapping`: ``recipe_alpha``,
   ``recipe_distribution``, ``flake_a_rho_from_volume_fraction``), so the texture and the BSDF read one
   recipe one way; R(c, λ), T(c, λ) from :func:`flakedb.paint.species.flake_reflectance_transmittance`
-  on the adaptive c grid of :func:`flakedb.paint.mapping.adaptive_flake_optics`; ``opaque`` sets T = 0.
+  on the adaptive c grid of :func:`flakedb.paint.components.adaptive_flake_optics`; ``opaque`` sets T = 0.
 * Pigments: σ_t = ρ⟨C_ext⟩ per band (:func:`flakedb.paint.species.pigment_optics`, Mie, Du 2004, or
   with ``stored`` the store's cross-sections, as the solver takes them:
   :func:`flakedb.paint.mapping.build_paint`): the extinction of the direct beam (scattered light joins
@@ -29,13 +29,7 @@ import copy
 import numpy as np
 
 from flakedb.colour.colorimetry import tristimulus_weights
-from flakedb.paint.mapping import (
-    adaptive_flake_optics,
-    flake_a_rho_from_volume_fraction,
-    pigment_number_density,
-    recipe_alpha,
-    recipe_distribution,
-)
+from flakedb.paint.components import adaptive_flake_optics, flake_a_rho_from_volume_fraction, pigment_number_density, recipe_alpha, recipe_distribution
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, Spectrum
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics, tinter_coefficients
 from flakedb.texture.model import (
@@ -131,7 +125,7 @@ def texture_stack(recipe, stored=None) -> tuple[TextureStack, list]:
                 a, s = tinter_coefficients(p.entry, wl)
                 absorbers.append(Absorber(z, b.thickness_um, float(p.volume_fraction) * (a + s)))
             elif isinstance(p, CatalogParticle) and stored is not None and wl is not None:
-                po = stored.pigment(p.species)  # the solver's own cross-sections (mapping._stored_pigment_component)
+                po = stored.pigment(p.species)  # the solver's own cross-sections (flakedb.paint.components.stored_pigment_component)
                 absorbers.append(Absorber(z, b.thickness_um,
                                           pigment_number_density(p.volume_fraction, po["mean_volume_um3"]) * np.asarray(po["c_ext_um2"])))
             elif isinstance(p, CatalogParticle):

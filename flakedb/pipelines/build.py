@@ -17,12 +17,8 @@ from pathlib import Path
 from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint import catalog as cat
 from flakedb.paint import species as sp
-from flakedb.paint.mapping import (
-    catalog_species,
-    recipe_alpha,
-    recipe_distribution,
-    recipe_top_alpha,
-)
+from flakedb.paint.mapping import catalog_species
+from flakedb.paint.components import recipe_alpha, recipe_distribution, recipe_top_alpha
 from flakedb.solve.resolution import (
     resolve_node_count,
 )
@@ -51,7 +47,7 @@ def material_checksums() -> dict:
 
 def recipe_orientations(recipes) -> dict:
     """Flake species → {orientation distribution: sorted α's} the catalogue flakes of ``recipes`` use
-    (:func:`flakedb.paint.mapping.recipe_distribution`, :func:`flakedb.paint.mapping.recipe_alpha`)."""
+    (:func:`flakedb.paint.components.recipe_distribution`, :func:`flakedb.paint.components.recipe_alpha`)."""
     out = {}
     for rec in recipes:
         for p in catalog_species(rec):

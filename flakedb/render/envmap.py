@@ -51,7 +51,13 @@ LATLONG = PolarFrame(pole=(0.0, 1.0, 0.0), ref=(0.0, 0.0, -1.0), side=(1.0, 0.0,
 
 
 def cell_solid_angles(n_theta: int, n_phi: int) -> np.ndarray:
-    """Ω_r [sr] of one cell of row r (n_theta,): ``(2π/n_phi)(cos θ_r − cos θ_{r+1})``."""
+    """Ω_r [sr] of one cell of row r (n_theta,): ``(2π/n_phi)(cos θ_r − cos θ_{r+1})``.  The cells tile the
+    sphere: n_phi Σ_r Ω_r = 4π, and rows mirrored about the equator have equal cells.
+
+    >>> om = cell_solid_angles(64, 128)
+    >>> bool(abs(128 * om.sum() - 4 * np.pi) < 1e-12), bool(np.allclose(om, om[::-1]))
+    (True, True)
+    """
     edges = np.linspace(0.0, np.pi, n_theta + 1)
     return (2.0 * np.pi / n_phi) * (np.cos(edges[:-1]) - np.cos(edges[1:]))
 

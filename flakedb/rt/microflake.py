@@ -1323,7 +1323,7 @@ class _Registry(dict):
 
 
 #: The flake orientation distributions by name (a recipe's orientation fields map to one of these names,
-#: :func:`flakedb.paint.mapping.recipe_distribution`): ``beckmann`` (paper eq. 5), ``ggx``
+#: :func:`flakedb.paint.components.recipe_distribution`): ``beckmann`` (paper eq. 5), ``ggx``
 #: (Trowbridge–Reitz), ``student_t(γ)`` (Student-t slopes, :func:`flake_ndf_StudentT`, 1.5 ≤ γ ≤ 1000:
 #: γ = 2 is GGX, γ → ∞ Beckmann) and ``mix(first,w,second,α₂)`` (two populations: weight 1 − w of
 #: ``first`` at the α of the call, w of ``second`` at α₂; populations are single distributions).  Names are

@@ -410,7 +410,13 @@ def _solve_reported(recipe, n, raw, catalog, log, store, verify, progress, allow
 def settle_node_count(recipe, n=None, catalog=None, store=None, raw=False, log=None) -> int:
     """The node count every solve of a fit (match, calibrate) uses, so that the objective does not jump with n:
     ``n`` or the recipe's own resolution, else ``resolution: auto`` checked and refined on ``recipe`` (the fit's
-    start) by :func:`solve_reported`, as compose would."""
+    start) by :func:`solve_reported`, as compose would.
+
+    >>> class Fixed:
+    ...     n, name = 48, "fixed"
+    >>> settle_node_count(Fixed()), settle_node_count(Fixed(), 32)     # the recipe's own n; --n wins
+    (48, 32)
+    """
     if n is not None or recipe.n is not None:
         return resolve_node_count(recipe, n)[0]
     return solve_reported(recipe, None, raw, catalog, log, store, verify=False, generator="flakedb match").n

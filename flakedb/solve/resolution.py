@@ -15,7 +15,8 @@ import numpy as np
 
 from flakedb.colour.colorimetry import delta_E_2000
 from flakedb.paint.limits import NODE_COUNT_MAX, check_node_count
-from flakedb.paint.mapping import recipe_alpha, recipe_distribution, recipe_interfaces
+from flakedb.paint.mapping import recipe_interfaces
+from flakedb.paint.components import recipe_alpha, recipe_distribution
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError
 from flakedb.rt.microflake import flake_lobe_alpha
 from flakedb.rt.stack import InnerRough, inner_interface_verdicts

@@ -11,7 +11,8 @@ import numpy as np
 
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.paint.catalog import optical_entry
-from flakedb.paint.mapping import catalog_species, recipe_alpha, recipe_distribution, recipe_top_alpha
+from flakedb.paint.mapping import catalog_species
+from flakedb.paint.components import recipe_alpha, recipe_distribution, recipe_top_alpha
 from flakedb.rt.stored import StoredFlakeMedium
 from flakedb.store import versions as st
 from flakedb.store.versions import StoreError

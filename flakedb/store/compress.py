@@ -58,7 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flakedb.paint import species as sp
-from flakedb.paint.mapping import adaptive_flake_optics
+from flakedb.paint.components import adaptive_flake_optics
 from flakedb.rt.fourier import cosine_coefficients, phi_samples
 from flakedb.rt.legendre import legendre_moments_gauss
 from flakedb.rt.quadrature import (
@@ -397,7 +397,7 @@ def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, proj
                distribution="beckmann"):
     """A flake species' stored factors at (n, η, α, orientation ``distribution``) over ``wavelength_nm``
     (the whole spectrum): R(c),
-    T(c) tabulated on the adaptive c grid of the direct path (:func:`flakedb.paint.mapping.adaptive_flake_optics`),
+    T(c) tabulated on the adaptive c grid of the direct path (:func:`flakedb.paint.components.adaptive_flake_optics`),
     then :func:`flakedb.rt.stored.flake_factors` (spectral SVD, projection of the basis kernels, σ's).
     Returns ``U`` float64, ``V`` float32 (r, L, 2, h, h), ``V_last_order`` = V[:, L − 1] (r, 2, h, h) (the order
     the Jackson filter's test reads, :func:`flakedb.rt.medium_projection.damp_if_capped`, without the 16-order

@@ -17,7 +17,7 @@ import numpy as np
 
 from flakedb import __version__
 from flakedb.paint.catalog import catalog_distribution, optical_entry
-from flakedb.paint.mapping import FLAKE_C_TOL
+from flakedb.paint.components import FLAKE_C_TOL
 from flakedb.resources import SCHEMAS_DIR
 from flakedb.rt.microflake import flake_distribution
 from flakedb.rt.stored import RANK_TOL

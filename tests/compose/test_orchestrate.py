@@ -26,7 +26,8 @@ from flakedb.bsdf import open_bsdf
 from flakedb.cli.main import cli
 from flakedb.compose.orchestrate import compose
 from flakedb.appearance.report import eval_table, flop_index, multiangle_geometry
-from flakedb.paint.mapping import build_paint, phase_cos_grid
+from flakedb.paint.mapping import build_paint
+from flakedb.paint.components import phase_cos_grid
 from flakedb.paint.recipe import parse_recipe
 from tests import tolerances as tol
 
@@ -153,7 +154,7 @@ def test_catalogue_mapping_flake_and_pigment():
 def test_flake_grid_resolves_thin_film_fringes():
     """Linear interpolation on the adaptive c grid against a fine grid: ≤ 1e-3 (catalogue pearl)."""
     from flakedb.paint.catalog import get_species
-    from flakedb.paint.mapping import adaptive_flake_optics
+    from flakedb.paint.components import adaptive_flake_optics
     from flakedb.paint.species import flake_reflectance_transmittance
 
     e = get_species("pearlescent")

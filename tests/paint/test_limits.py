@@ -13,7 +13,8 @@ from click.testing import CliRunner
 
 from flakedb.cli.main import cli
 from flakedb.paint import limits
-from flakedb.paint.mapping import build_paint, recipe_top_alpha
+from flakedb.paint.mapping import build_paint
+from flakedb.paint.components import recipe_top_alpha
 from flakedb.solve.resolution import resolve_node_count
 from flakedb.paint.recipe import RecipeError, parse_recipe
 from flakedb.pipelines.build import recipe_top, request_for_recipe

@@ -14,7 +14,8 @@ from scipy.interpolate import CubicSpline
 import flakedb.reference.montecarlo as mc
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
 from flakedb.optics.fresnel import fresnel_conductor
-from flakedb.paint.mapping import build_paint, metal_index_rgb, solve_paint
+from flakedb.paint.mapping import build_paint, solve_paint
+from flakedb.paint.components import metal_index_rgb
 from flakedb.solve.resolution import auto_resolution
 from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import parse_recipe
@@ -252,7 +253,7 @@ def test_recipe_interface_roughness_checks():
 
 def _adaptive_reevaluating_every_midpoint(fn, tol, n_start, max_nodes):
     """The refinement before midpoints were kept: every pass evaluates fn at every interval's midpoint."""
-    from flakedb.paint.mapping import flake_cos_grid
+    from flakedb.paint.components import flake_cos_grid
 
     c = flake_cos_grid(n_start)
     R, T = fn(c)
@@ -275,7 +276,7 @@ def test_adaptive_flake_optics_keeps_passed_midpoints(species, tol, max_nodes):
     interval keeps its midpoint and error): the grid, the tables and the reported error are, bit for bit, those
     of re-evaluating every midpoint each pass (fn acts on each c alone), the node cap included (100 nodes)."""
     from flakedb.paint.catalog import get_species
-    from flakedb.paint.mapping import FLAKE_C_START, adaptive_flake_optics
+    from flakedb.paint.components import FLAKE_C_START, adaptive_flake_optics
     from flakedb.paint.species import flake_reflectance_transmittance
 
     e = get_species(species)

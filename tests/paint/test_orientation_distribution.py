@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from flakedb.paint import catalog as cat
-from flakedb.paint.mapping import build_paint, recipe_distribution
+from flakedb.paint.mapping import build_paint
+from flakedb.paint.components import recipe_distribution
 from flakedb.paint.recipe import RecipeError, parse_recipe
 from flakedb.resources import SCHEMAS_DIR
 from flakedb.rt.media import FlakeMedium

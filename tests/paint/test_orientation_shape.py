@@ -13,7 +13,8 @@ validates against the Monte Carlo reference.
 import numpy as np
 import pytest
 
-from flakedb.paint.mapping import build_paint, recipe_distribution, solve_paint
+from flakedb.paint.mapping import build_paint, solve_paint
+from flakedb.paint.components import recipe_distribution
 from flakedb.paint.recipe import RecipeError, parse_recipe
 from flakedb.rt.microflake import FlakeOptics, extinction_Ergun
 from flakedb.rt.stack import SolverSettings, solve_stack

@@ -1,4 +1,4 @@
-"""The ``tinter`` catalogue kind (optics per unit volume fraction; flakedb.paint.mapping.tinter_medium).
+"""The ``tinter`` catalogue kind (optics per unit volume fraction; flakedb.paint.components.tinter_medium).
 
 Guards against: a tinter that does not reach the solver as σ = φ · σ/φ with its HG g (checked against
 a custom medium of the same optical depth, albedo and g, which the solver must answer identically); its
@@ -20,7 +20,8 @@ from flakedb.cli.main import cli
 from flakedb.match.fit import predict, recipe_from_doc
 from flakedb.match.targets import E2194_GEOMETRIES
 from flakedb.paint.catalog import load_catalog, validate_catalog
-from flakedb.paint.mapping import build_paint, catalog_species, tinter_medium, with_media
+from flakedb.paint.mapping import build_paint, catalog_species, with_media
+from flakedb.paint.components import tinter_medium
 from flakedb.paint.recipe import RecipeError
 from flakedb.pipelines.build import make_request
 from flakedb.rt.media import Mixture, PhaseMedium

@@ -95,7 +95,7 @@ def test_grid_is_the_solvers_inside_node_set(tiny):
 
 def _same_table_optics(entry):
     """The flake's R(c), T(c) on the adaptive c grid the store tabulates (flakedb.paint.mapping)."""
-    from flakedb.paint.mapping import adaptive_flake_optics
+    from flakedb.paint.components import adaptive_flake_optics
 
     c, R, T, _ = adaptive_flake_optics(lambda cc: sp.flake_reflectance_transmittance(
         entry, np.array(WL), cc, np.full(len(WL), ETA)))
@@ -219,7 +219,7 @@ def tiny_visible(tmp_path_factory):
 def test_rgb_mode_pigment_store_compose_matches_direct(tiny_visible, tmp_path, monkeypatch):
     """RGB mode: the direct path (flakedb.paint.mapping.pigment_to_rgb) clips the pigment's RGB phase function
     at 0 (the sRGB map's negative lobes) and C_sca at C_ext; the store path maps the stored spectral
-    series linearly and must apply the same constraints (flakedb.paint.mapping.rgb_phase_moments: the
+    series linearly and must apply the same constraints (flakedb.paint.components.rgb_phase_moments: the
     series clipped at 0 and re-projected).  Adapted (issue #11): the store holds Legendre moments, the
     clip is switched off through rgb_phase_moments instead of the gone StoredPigmentMedium.kernel."""
     from flakedb.paint import mapping as Mp

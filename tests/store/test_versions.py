@@ -69,7 +69,7 @@ def test_reader_values(serial):
     np.testing.assert_array_equal(x, store_nodes(8)[0])
     f = v.flake_factors("pearlescent", 8, 0.25)
     assert f.U.shape[0] == 3 and np.all(np.isfinite(f.sigma_t))
-    from flakedb.paint.mapping import adaptive_flake_optics
+    from flakedb.paint.components import adaptive_flake_optics
     e = req.species["pearlescent"]
     nb = sp.binder_index({"binder": req.binder}, np.array([450.0, 550.0, 650.0]))
     c, R, T, _ = adaptive_flake_optics(lambda cc: sp.flake_reflectance_transmittance(e, np.array([450.0, 550.0, 650.0]), cc, nb))
