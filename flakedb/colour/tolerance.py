@@ -2,8 +2,8 @@
 
 What is computed (docs/colour-tolerances.md states the sources and the formulas once)
 ------------------------------------------------------------------------------------
-* **Colorimetry with a selectable observer and illuminant.**  ``observer`` "2" (CIE 1931 2°) or
-  "10" (CIE 1964 10°), ``illuminant`` "D65", "A", "F11" (colour-science's ``FL11``) or any other
+* **Colorimetry with a stated observer and illuminant** (always passed: no default here, the product's
+  defaults live in :mod:`flakedb.colour.settings`).  ``observer`` "2" (CIE 1931 2°) or "10" (CIE 1964 10°), ``illuminant`` "D65", "A", "F11" (colour-science's ``FL11``) or any other
   name in ``colour.SDS_ILLUMINANTS``.  The weights are built exactly as
   :func:`flakedb.colorimetry.tristimulus_weights` builds its D65 / 2° ones (CIE 15:2004 §7 weighted
   sum on ≤ 1 nm nodes, the spectrum carried there by Sprague interpolation, Y = 1 for the perfect
@@ -73,12 +73,12 @@ def illuminant_name(illuminant) -> str:
     return name
 
 
-def tristimulus_weights(wavelength_nm, observer="2", illuminant="D65") -> np.ndarray:
+def tristimulus_weights(wavelength_nm, observer, illuminant) -> np.ndarray:
     """Weights (W, 3): XYZ = Σ_j ρ_j W[j], Y column summing to 1 (module docstring).  Read-only, cached."""
     return colorimetry.tristimulus_weights(wavelength_nm, illuminant_name(illuminant), observer_name(observer))
 
 
-def reflectance_to_XYZ(values, wavelength_nm, observer="2", illuminant="D65") -> np.ndarray:
+def reflectance_to_XYZ(values, wavelength_nm, observer, illuminant) -> np.ndarray:
     """XYZ (..., 3), Y = 1 for the perfect white, of reflectance factors (..., W) on ``wavelength_nm`` (W,) nm."""
     v = np.asarray(values, float)
     W = tristimulus_weights(wavelength_nm, observer, illuminant)
@@ -87,12 +87,12 @@ def reflectance_to_XYZ(values, wavelength_nm, observer="2", illuminant="D65") ->
     return v @ W
 
 
-def white_XYZ(wavelength_nm, observer="2", illuminant="D65") -> np.ndarray:
+def white_XYZ(wavelength_nm, observer, illuminant) -> np.ndarray:
     """XYZ of the perfect white diffuser integrated on this grid (Y = 1)."""
     return tristimulus_weights(wavelength_nm, observer, illuminant).sum(axis=0)
 
 
-def reflectance_to_Lab(values, wavelength_nm, observer="2", illuminant="D65") -> np.ndarray:
+def reflectance_to_Lab(values, wavelength_nm, observer, illuminant) -> np.ndarray:
     """CIELAB (..., 3) of reflectance factors (..., W), relative to the white on the same grid."""
     return XYZ_to_Lab(reflectance_to_XYZ(values, wavelength_nm, observer, illuminant),
                       white=white_XYZ(wavelength_nm, observer, illuminant))
@@ -141,7 +141,7 @@ def delta_E_2000(lab_ref, lab_sample) -> np.ndarray:
     return np.sqrt(np.sum(e * e, axis=-1))
 
 
-def metamerism_index(reflectance_ref, reflectance_sample, wavelength_nm, observer="2", reference_illuminant="D65",
+def metamerism_index(reflectance_ref, reflectance_sample, wavelength_nm, observer, reference_illuminant,
                      test_illuminant="A") -> np.ndarray:
     """Special metamerism index, change in illuminant (CIE 15:2004), as ΔE00 (...,).
 
@@ -155,7 +155,7 @@ def metamerism_index(reflectance_ref, reflectance_sample, wavelength_nm, observe
     >>> wl = np.arange(380.0, 781.0, 10.0)
     >>> (np.round(reflectance_to_Lab(np.ones(wl.size), wl, observer="10", illuminant="A"), 10) + 0.0).tolist()
     [100.0, 0.0, 0.0]
-    >>> float(metamerism_index(np.full(wl.size, 0.5), np.full(wl.size, 0.5), wl))
+    >>> float(metamerism_index(np.full(wl.size, 0.5), np.full(wl.size, 0.5), wl, "2", "D65"))
     0.0
     """
     R1 = np.asarray(reflectance_ref, float)

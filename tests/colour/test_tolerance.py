@@ -101,14 +101,14 @@ def test_metamerism_index():
     wl = spectral_grid((400, 700), 10)
     rng = np.random.default_rng(3)
     R1 = np.clip(0.4 + 0.2 * np.sin(wl / 37.0), 0, 1)
-    assert metamerism_index(R1, R1, wl) == pytest.approx(0.0, abs=1e-12)
-    assert metamerism_index(R1, 0.8 * R1, wl) == pytest.approx(0.0, abs=1e-9)  # scale: corrected away
+    assert metamerism_index(R1, R1, wl, "2", "D65") == pytest.approx(0.0, abs=1e-12)
+    assert metamerism_index(R1, 0.8 * R1, wl, "2", "D65") == pytest.approx(0.0, abs=1e-9)  # scale: corrected away
     # a metameric pair under D65 / 2°: add a "metameric black" (orthogonal to the D65 weights)
     W = tristimulus_weights(wl, "2", "D65")
     v = rng.normal(size=wl.size)
     black = v - W @ np.linalg.lstsq(W, v, rcond=None)[0]
     R2 = R1 + 0.1 * black / np.abs(black).max()
-    assert delta_E_2000(reflectance_to_Lab(R1, wl), reflectance_to_Lab(R2, wl)) < 1e-9
+    assert delta_E_2000(reflectance_to_Lab(R1, wl, "2", "D65"), reflectance_to_Lab(R2, wl, "2", "D65")) < 1e-9
     mi = metamerism_index(R1, R2, wl, "2", "D65", "A")
     plain = delta_E_2000(reflectance_to_Lab(R1, wl, "2", "A"), reflectance_to_Lab(R2, wl, "2", "A"))
     assert mi > 0.1 and mi == pytest.approx(plain, rel=1e-6)
@@ -182,8 +182,25 @@ def test_csv_inconsistent_lab_and_spectra_refused():
     wl = spectral_grid((400, 700), 20)
     R = np.full((1, wl.size), 0.5)
     text = format_target([(45.0, 15.0)], reflectance=R, wavelength_nm=wl)
-    lab = reflectance_to_Lab(R, wl)[0]
+    lab = reflectance_to_Lab(R, wl, "10", "D65")[0]   # format_target's default conditions
     bad = text.replace(f"{lab[0]:.6f}", f"{lab[0] + 1:.6f}")
     assert bad != text
     with pytest.raises(TargetError, match="disagree"):
         read_target(bad)
+
+
+def test_observer_conditions_are_always_stated():
+    """Issue #34: the observer-aware functions here defaulted to the 2° observer while the product's default is
+    10° (flakedb.colour.settings.DEFAULT_OBSERVER), under names that colorimetry's 2°-only functions also use: a
+    call that forgot its conditions was silently 2°.  They now take the observer and illuminant explicitly."""
+    import inspect
+
+    from flakedb.colour import tolerance
+
+    for fn in (tolerance.tristimulus_weights, tolerance.reflectance_to_XYZ, tolerance.white_XYZ,
+               tolerance.reflectance_to_Lab, tolerance.metamerism_index):
+        params = inspect.signature(fn).parameters
+        for name in ("observer", "illuminant", "reference_illuminant"):
+            if name in params:
+                assert params[name].default is inspect.Parameter.empty, (fn.__name__, name)
+
