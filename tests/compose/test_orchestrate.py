@@ -375,7 +375,7 @@ def test_compose_and_its_report_do_not_import_colour_science(tmp_path):
     code = textwrap.dedent(f"""
         import sys
         from flakedb.cli.main import cli
-        cli(["compose", {str(root / "catalog" / "recipes" / "particle-cadmium-yellow.yaml")!r}, "--n", "16",
+        cli(["compose", {str(root / "flakedb" / "catalog" / "recipes" / "particle-cadmium-yellow.yaml")!r}, "--n", "16",
              "--quiet", "--out", {str(tmp_path)!r}], standalone_mode=False)
         heavy = sorted(m for m in sys.modules if m.split(".")[0] in ("colour", "matplotlib"))
         print("HEAVY", len(heavy), heavy[:3])

@@ -24,7 +24,7 @@ from flakedb.solve.resolution import auto_resolution
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError, load_recipe, parse_recipe
 from flakedb.rt.stack import InnerSmooth
 
-RECIPES = sorted((Path(__file__).resolve().parents[2] / "catalog" / "recipes").glob("*.yaml"))
+RECIPES = sorted((Path(__file__).resolve().parents[2] / "flakedb" / "catalog" / "recipes").glob("*.yaml"))
 
 BASE = textwrap.dedent("""\
     flakedb: 1
@@ -86,7 +86,7 @@ def test_typed_structure():
 
 
 def test_custom_species_parse():
-    r = load_recipe(Path(__file__).resolve().parents[2] / "catalog" / "recipes" / "research-custom-flake.yaml")
+    r = load_recipe(Path(__file__).resolve().parents[2] / "flakedb" / "catalog" / "recipes" / "research-custom-flake.yaml")
     fl, med = r.basecoats[0].particles
     assert isinstance(fl, CustomFlake) and fl.optical_depth == 2.0 and fl.T.value.tolist() == [0.3, 0.3]
     assert isinstance(med, CustomMedium) and med.phase[0] == "table" and med.albedo == 0.9
