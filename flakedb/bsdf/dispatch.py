@@ -2,9 +2,9 @@
 
 :data:`FILE_KINDS` maps a kind to its magic bytes and what it is; :func:`file_kind` names the kind
 of a file, :func:`open_bsdf` opens the two Fourier kinds.  ``flakedb info``, ``flakedb render`` and
-the exporters all go through here (the Mitsuba tensor and the MaterialX document are read by their
-own modules, :mod:`flakedb.render.mitsuba.tensor` and :mod:`flakedb.export.materialx`).  A new kind
-is one entry here (colour-science's ``method=`` registries are the model).
+the exporters all go through here (the Mitsuba tensor, the MaterialX document and the glTF / USD scenes
+are read by their own modules).  A new kind is one entry here and one describer in ``flakedb info``'s
+route table (:data:`flakedb.cli.info.INFO_ROUTES`, which a test holds to this registry).
 """
 
 from __future__ import annotations
@@ -23,6 +23,9 @@ FILE_KINDS = {
     "h5": (MAGIC_H5, "flakedb HDF5 BSDF"),
     "tensor": (b"tensor_file\0", "Mitsuba 3 `measured` tensor file (RGL)"),
     "materialx": (b"<?xml", "MaterialX document (flakedb export-openpbr)"),
+    "glb": (b"glTF", "glTF 2.0 binary (flakedb export-openpbr)"),
+    "usda": (b"#usda", "USD text layer (flakedb export-openpbr)"),
+    "gltf": (b"{", "glTF 2.0 JSON (flakedb export-openpbr)"),
 }
 #: Kinds :func:`open_bsdf` opens (Fourier tables).
 FOURIER_KINDS = {"bsdf": read_bsdf, "h5": read_h5}

@@ -34,8 +34,8 @@ INFO_THETA_DEG = (0.0, 30.0, 45.0, 60.0, 75.0, 85.0)
 
 
 def file_kind(path) -> str:
-    """'tensor', 'materialx' or 'fourier', from the one file-kind registry
-    (:data:`flakedb.bsdf.dispatch.FILE_KINDS`; unknown kinds raise BSDFFileError there).
+    """'fourier' (a .bsdf or .h5), 'tensor', 'materialx', 'gltf' (JSON or binary) or 'usda', from the one
+    file-kind registry (:data:`flakedb.bsdf.dispatch.FILE_KINDS`; unknown kinds raise BSDFFileError there).
 
     >>> import tempfile
     >>> from pathlib import Path
@@ -44,32 +44,11 @@ def file_kind(path) -> str:
     >>> file_kind(path)
     'fourier'
     """
-    try:
-        kind = dispatch_file_kind(path)
-    except BSDFFileError:
-        kind = _scene_kind(path)     # the exporters' scene files (not BSDF kinds of the registry)
-        if kind is None:
-            raise
-        return kind
-    return kind if kind in ("tensor", "materialx") else "fourier"
+    return {"bsdf": "fourier", "h5": "fourier", "glb": "gltf"}.get(dispatch_file_kind(path), dispatch_file_kind(path))
 
 
 #: Largest scene file ``flakedb info`` reads whole (a flakedb sphere export is ~0.3-1 MB).
 SCENE_MAX_BYTES = 64 << 20
-
-
-def _scene_kind(path):
-    """'gltf' (a glTF 2.0 JSON or GLB) or 'usda' (a USD text layer) by the first bytes, else None: the files
-    ``flakedb export-openpbr`` writes beside its MaterialX (:mod:`flakedb.export.gltf`, :mod:`flakedb.export.usd`)."""
-    try:
-        head = read_head(path, 64)
-    except OSError:          # missing, a directory, a FIFO: the registry's own message stands
-        return None
-    if head.startswith(b"glTF") or head.lstrip().startswith(b"{"):
-        return "gltf"
-    if head.startswith(b"#usda"):
-        return "usda"
-    return None
 
 
 def _read_scene(p: Path) -> bytes:
@@ -220,16 +199,13 @@ def _checks(b):
 
 
 def describe(path):
-    """A JSON-able summary of the file at ``path`` (raises BSDFFileError when unreadable)."""
-    kind = file_kind(path)
-    if kind == "tensor":
-        return describe_tensor(path)
-    if kind == "gltf":
-        return describe_gltf(path)
-    if kind == "usda":
-        return describe_usda(path)
-    if kind == "materialx":
-        return describe_fit(path)
+    """A JSON-able summary of the file at ``path`` by its kind (:data:`INFO_ROUTES`; raises BSDFFileError when
+    unreadable or of no known kind)."""
+    return INFO_ROUTES[dispatch_file_kind(path)][0](path)
+
+
+def describe_fourier(path):
+    """The summary of a Fourier .bsdf or a flakedb .h5: format, paint, channels, the mirror term, checks."""
     b = open_bsdf(path)
     size = b.path.stat().st_size
     mu = np.cos(np.radians(INFO_THETA_DEG))
@@ -466,15 +442,23 @@ def info(file, as_json):
                            f"exports.") from None
     if as_json:
         click.echo(json.dumps(d, indent=2, default=str))
-    elif d["kind"] == "mitsuba-measured":
-        _print_tensor(d)
-    elif d["kind"] == "materialx-fit":
-        _print_fit(d)
-    elif d["kind"] in ("gltf", "usda"):
-        _print_scene(d)
     else:
-        _print_fourier(d)
+        INFO_ROUTES[dispatch_file_kind(file)][1](d)
     failed = [c["check"] for c in d.get("checks", []) if c["ok"] is False and c["check"] != "solver"]
     if failed:  # a FAIL is an exit status, not only a word (issue 25); solver warnings stay warnings
         click.echo(f"flakedb info: {file}: check(s) failed: {', '.join(failed)}", err=True)
         raise SystemExit(1)
+
+
+#: file kind (a key of :data:`flakedb.bsdf.dispatch.FILE_KINDS`) -> (describe(path) -> dict, print(dict)): the
+#: one dispatch of ``flakedb info``; every kind of the registry has a route (tests/cli/test_info_render.py).
+INFO_ROUTES = {
+    "bsdf": (describe_fourier, _print_fourier),
+    "h5": (describe_fourier, _print_fourier),
+    "tensor": (describe_tensor, _print_tensor),
+    "materialx": (describe_fit, _print_fit),
+    "glb": (describe_gltf, _print_scene),
+    "gltf": (describe_gltf, _print_scene),
+    "usda": (describe_usda, _print_scene),
+}
+

@@ -141,3 +141,24 @@ def test_demo_paint_render_at_defaults_clips_under_one_percent(tmp_path):
     clipped = np.any(png[inside] == 255, axis=-1).mean()
     assert clipped < 0.01
     assert read_exr(tmp_path / "tri-coat-pearl-white.exr").shape == (size, size, 3)
+
+
+def test_info_dispatches_every_file_kind_of_the_registry(tmp_path):
+    """Issue #34: the file-kind registry held magic bytes only and `flakedb info` dispatched kinds again (the
+    glTF and USD files flakedb writes were recognised inside info, outside the registry).  Every kind of
+    flakedb.bsdf.dispatch.FILE_KINDS has exactly one info route, and a file is described by its kind's route."""
+    from flakedb.bsdf.dispatch import FILE_KINDS, file_kind
+    from flakedb.cli import info as info_mod
+    from flakedb.export import openpbr as op
+    from flakedb.export.gltf import write_gltf
+    from flakedb.export.usd import write_usda
+
+    assert set(info_mod.INFO_ROUTES) == set(FILE_KINDS)
+    fit = op.OpenPBRFit((0.5, 0.5, 0.5), 0.0, 0.5, 1.5, 0.0)
+    write_usda(tmp_path / "x.usda", fit, "x")
+    write_gltf(tmp_path / "x.glb", fit, "x")
+    write_gltf(tmp_path / "x.gltf", fit, "x")
+    for name, kind in (("x.usda", "usda"), ("x.glb", "glb"), ("x.gltf", "gltf")):
+        assert file_kind(tmp_path / name) == kind
+        d = info_mod.describe(tmp_path / name)
+        assert d["kind"] in ("gltf", "usda"), d
