@@ -22,13 +22,7 @@ from flakedb.rt.microflake import flake_lobe_alpha
 from flakedb.rt.stack import InnerRough, inner_interface_verdicts
 
 #: Default accuracy targets of ``resolution: auto`` (a recipe's ``resolution: {albedo_error: …,
-#: lobe_error: …, colour_error: …}`` overrides them); docs/resolution.md.  ``colour_error`` (ΔE00 between n
-#: and 2n at the report geometries) is a default since issue 26: without it coated aluminium's auto (n 48)
-#: was ΔE00 0.66 from 2×auto and 0.81 from n 192; with it every catalogue recipe's auto is within 0.1 of
-#: 2×auto (measured, docs/resolution.md "colour_error").  It raises the n of coated aluminium 48 → 176, of
-#: metallic silver and tri-coat pearl white (flakes α_f 0.2) 32 → 48 and of the flake recipes of α_f 0.25 32 → 40
-#: (their compose times: docs/resolution.md); pigment and HG recipes keep theirs.
-#: A recipe relaxes it with e.g. ``resolution: {colour_error: 10}``.
+#: lobe_error: …, colour_error: …}`` overrides them; why these values: docs/resolution.md "colour_error").
 AUTO_TARGETS = {"albedo_error": 0.03, "lobe_error": 0.05, "colour_error": 0.1}
 #: The largest n the *default* colour_error may ask for (a recipe's own colour_error goes to
 #: :data:`AUTO_MAX_N`): below the measured metal roughness 0.1 its n scales as 0.1/α (α 0.05 → 288,
@@ -59,26 +53,15 @@ METAL_LOBE_ERROR = ((48, 0.048), (96, 0.021), (128, 0.013), (192, 0.0095))
 #: Smallest metal roughness of those measurements; below it n is scaled by METAL_ALPHA_MEASURED / α
 #: (the lobe's width is proportional to α), a stated extrapolation named in the reason.
 METAL_ALPHA_MEASURED = 0.05
-#: ``colour_error`` (docs/resolution.md "colour_error"): measured CIEDE2000, worst over the report geometries.
-#: Metal base, by n, **against the converged answer** (2026-12-03): coated-aluminium (Al α 0.1 under a smooth
-#: 1.5 coat; the 45° aspecular geometry, the far tail of the metal lobe, is the worst) in RGB mode against
-#: n = 512, plus 512's own remainder 0.0092 (a fit c·(n^−p − 512^−p) to n = 144 … 384 gives p = 2.06).  RGB
-#: stands for spectral here: ΔE00(144, 288) is 0.0949 in RGB and 0.095 in 41 bands.  The metal converges so
-#: slowly that ΔE00(n, 2n) (0.095 at 144) understates its error against the limit (0.125 at 144), hence this
-#: table for it; the flake and plain envelopes below are ΔE00(n, 2n) and sit far enough under the default
-#: target (≤ 0.053) that their error against the limit (≤ 1/(1 − 2^−1.7) = 1.45× that) stays under it too.
+#: ``colour_error`` envelopes, CIEDE2000 worst over the report geometries (how each was measured:
+#: docs/resolution.md "colour_error").  Metal base, by n, against the converged answer.
 METAL_COLOUR_ERROR = ((48, 0.875), (64, 0.530), (96, 0.253), (128, 0.152), (144, 0.125), (160, 0.102),
                       (176, 0.084), (192, 0.070), (256, 0.038))
 #: Roughness of that measurement: below it n is scaled by METAL_COLOUR_ALPHA / α (the lobe is α wide).
 METAL_COLOUR_ALPHA = 0.1
-#: Flakes, by h·α_f: metallic-silver (α_f 0.2, spectral) h·α_f 3.2 → 0.101, 4.8 → 0.045; at h·α_f 4.0 the worst
-#: measured is fig5-translucent-black in RGB mode at n 32 (α_f 0.25), 0.169 at the −15° geometry (2026-12-03;
-#: metallic silver spectral at n 40: 0.063; the α_f 0.25 recipes in spectral mode at n 32: particle-metallic
-#: 0.063, particle-pearlescent 0.055, particle-gray-mirror 0.061, fig7 100 nm 0.062); tri-coat-pearl-white
-#: (α_f 0.2) at n 32 0.061, research-custom-flake 0.017.
+#: Flakes, ΔE00(n, 2n) by h·α_f.
 FLAKE_COLOUR_ERROR = ((3.2, 0.101), (4.0, 0.169), (4.8, 0.045))
-#: Stacks without flakes or a metal base (the fig5 series, pigments, HG and isotropic media, catalogue), by n:
-#: worst 0.053 at n 32 (fig5-translucent-black, the −15° geometry).
+#: Stacks without flakes or a metal base, ΔE00(n, 2n) by n.
 PLAIN_COLOUR_ERROR = ((32, 0.053),)
 
 
