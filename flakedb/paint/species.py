@@ -73,6 +73,19 @@ def species_density_g_cm3(entry: dict) -> tuple[float | None, str | None]:
     return float(np.dot(rho, d_nm) / d_nm.sum()), src
 
 
+def _field_sources(node, path=""):
+    """``(field path, source)`` of every ``{value, source}`` field of a catalogue entry, films included."""
+    if isinstance(node, dict):
+        if "value" in node and "source" in node:
+            yield path, node["source"]
+            return
+        for k, v in node.items():
+            yield from _field_sources(v, f"{path}.{k}" if path else k)
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            yield from _field_sources(v, f"{path}[{i}]")
+
+
 def species_record(name: str, entry: dict) -> dict:
     """The ``species list --json`` row of one species: name, kind, description, colour_index (None
     where no Colour Index name applies), density_g_cm3 and its source (:func:`species_density_g_cm3`),
@@ -82,6 +95,8 @@ def species_record(name: str, entry: dict) -> dict:
     src = entry.get("source")
     if src is None and entry["kind"] == "pigment":
         src = material_info(entry["material"]).get("citation")
+    if src is None:  # an entry whose provenance is stated field by field ({value, source}): those sources
+        src = "; ".join(f"{k}: {' '.join(str(v).split())}" for k, v in _field_sources(entry)) or None
     row = {"name": name, "kind": entry["kind"], "description": entry["description"],
            "colour_index": entry.get("colour_index"), "density_g_cm3": rho, "density_source": rho_src,
            "source": src}
