@@ -207,8 +207,8 @@ def advise(res, catalog=None, store=None, raw=False, candidates=None, log=None) 
     r_perp = unreachable_part(residual, S[:, :, free])
     r_all = unreachable_part(residual, S)
     direction = _directions(res.lab_fit, r_perp, res.geometries, residual)
-    reachable_by_bounded = bool(direction) and bool(bounded) and (
-        np.linalg.norm(r_all) < UNREACHABLE_FRACTION * np.linalg.norm(r_perp))
+    reachable_by_bounded = bool(direction and bounded
+                                and np.linalg.norm(r_all) < UNREACHABLE_FRACTION * np.linalg.norm(r_perp))
     adv = Advice(r_perp=r_perp, reachable_by_bounded=reachable_by_bounded, direction=direction)
     if not direction or reachable_by_bounded:
         return adv

@@ -74,8 +74,14 @@ class QCPage:
         return int(np.argmax(ratio))
 
     def summary(self) -> str:
-        """The verdict line: e.g. ``FAIL: 2 of 6 geometries outside dE00 limits; worst 45as15: dE00 1.83 >
-        1.00 (lighter, less yellow)``."""
+        """The verdict line.
+
+        >>> g = np.array([[45.0, 15.0], [45.0, 110.0]])
+        >>> page = QCPage("silver", "A-17", g, np.zeros((2, 3)), np.zeros((2, 3)), "dE00", np.array([0.4, 2.5]),
+        ...               np.array([1.0, 2.0]), np.array([True, False]), np.zeros((2, 3, 2)), ["same", "darker"])
+        >>> page.summary()
+        'FAIL: 1 of 2 geometries outside their dE00 limits; worst 45as110: dE00 2.50 > 2.00 (darker)'
+        """
         w = self.worst
         g = self.geometries[w]
         n_fail = int(np.sum(~np.asarray(self.passed, bool)))
