@@ -141,8 +141,9 @@ def place_labels(ax, xy, texts, fontsize=6, color="0.15") -> list:
     label and a marker overlap, as the renderer measures them; returns the annotations.
 
     Greedy: each label takes the first offset of :data:`LABEL_RADII_PT` × :data:`LABEL_DIRECTIONS_DEG`
-    whose text box (``get_window_extent`` with the figure's renderer) overlaps no label already placed and
-    no point's marker box (:data:`LABEL_MARKER_PT`); when none is free, the least-overlapping one.  The
+    whose text box (``get_window_extent`` with the figure's renderer) overlaps no label already placed, no
+    point's marker box (:data:`LABEL_MARKER_PT`) and neither the axes' legend nor its title; when none is free, the
+    least-overlapping one.  The
     layout must be final: call it after the figure's layout is drawn and frozen (:func:`freeze_layout`),
     since the offsets are in points from data positions that a later layout would move."""
     from matplotlib.transforms import Bbox  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
@@ -151,6 +152,10 @@ def place_labels(ax, xy, texts, fontsize=6, color="0.15") -> list:
     pts = ax.transData.transform(np.asarray(xy, float).reshape(-1, 2))
     m = LABEL_MARKER_PT * ax.figure.dpi / 72.0
     taken = [Bbox.from_extents(x - m, y - m, x + m, y + m) for x, y in pts]
+    if ax.get_legend() is not None:   # the legend is drawn over the axes: keep the labels off it too
+        taken.append(ax.get_legend().get_window_extent(renderer))
+    if ax.get_title():
+        taken.append(ax.title.get_window_extent(renderer))
     out = []
     for (x, y), text, p in zip(np.asarray(xy, float).reshape(-1, 2), texts, pts):
         best = None

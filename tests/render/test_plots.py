@@ -86,6 +86,7 @@ def test_travel_labels_do_not_overlap():
     texts = [t.get_text() for t in ax.texts]
     assert sorted(texts) == sorted([f"{i:g}as{a:g}" for i, a in G] * 2)
     assert not _overlaps(_boxes(ax))
+    assert not _overlaps(_boxes(ax) + [ax.get_legend().get_window_extent(fig.canvas.get_renderer())])
     for t in list(ax.texts):
         t.remove()
     for (a, b), (il, asp) in zip(lab[:, 1:], G):
