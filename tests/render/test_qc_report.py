@@ -144,3 +144,19 @@ def test_report_outputs_all_or_none(paint, tmp_path):
     r = CliRunner().invoke(cli, ["report", str(paint / "r.yaml"), "--target", str(paint / "lab" / "panels" / "A-17.csv"),
                                  "--out", str(tmp_path / "f")])
     assert r.exit_code == 2 and "is a file" in r.output, r.output
+
+
+def test_report_failing_midway_leaves_nothing(paint, tmp_path, monkeypatch):
+    """The PDF written, then the PNG fails: neither file appears and no temporary entry is left (staged outputs)."""
+    import flakedb.cli.report as report_cli
+
+    def half(page, pdf_path, png_path):
+        pdf_path.write_bytes(b"%PDF-1.4 half")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(report_cli, "write_qc_report", half)
+    out = tmp_path / "qc"
+    r = CliRunner().invoke(cli, ["report", str(paint / "r.yaml"), "--target", str(paint / "lab" / "panels" / "A-17.csv"),
+                                 "--out", str(out)])
+    assert r.exit_code != 0 and "No space left on device" in r.output, r.output
+    assert not out.exists() or not any(out.iterdir())
