@@ -301,7 +301,7 @@ def figure_name(recipe, target, plot_format) -> str:
 
 
 def _target_label(t):
-    return t.name or t.source
+    return t.label
 
 
 def _check_outputs(recipe_files, target_files, pairs_path, catalog_path, csv_out, table_out, plot_dir=None,
@@ -376,7 +376,7 @@ def _outputs(plan, comparisons, table_out, plot_dir, plot_format, csv=None, cxf=
                                 p.wavelength_nm if spectral else None, p.rf if spectral else None, tr,
                                 c.target_wavelength_nm if tr is not None else None,
                                 title=_short(c.recipe) + ("" if c.target is None else f" vs {_short(c.target)}"),
-                                conditions=f"{c.illuminant}/{c.observer}°")
+                                conditions=f"{c.illuminant}/{c.observer}°", target_name=_short(c.target or "target"))
                 wrote.append(f"wrote {final}")
     for line in wrote:
         click.echo(line)

@@ -39,6 +39,7 @@ COMMANDS = {
     "info": "flakedb.cli.info:info",
     "match": "flakedb.cli.match:match",
     "render": "flakedb.cli.render:render",
+    "report": "flakedb.cli.report:report",
     "species": "flakedb.cli.species:species",
     "texture": "flakedb.cli.texture:texture",
     "verify": "flakedb.cli.build:verify",
@@ -51,7 +52,7 @@ COMMANDS = {
 SHORT_HELP = {
     'build': 'Build (or reuse) the projected-kernel store and point `latest` at it.',
     'calibrate': 'Calibrate a catalogue species from a masstone / let-down ladder (LADDER: a manifest YAML).',
-    'compare': "Predict each RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, dE00, pass/fail.",
+    'compare': "Predict each RECIPE's colour at the target's geometries and compare: dL*, dC*, dH*, ΔE, pass/fail.",
     'compose': 'Compose the paint of RECIPE (YAML, schemas/recipe.schema.json) into a BSDF and a colour report.',
     'demo': 'Run the end-to-end demo with what flakedb can do today.',
     'export-mitsuba': "Export a Fourier .bsdf / flakedb .h5 FILE to Mitsuba 3's `measured` format (front-side reflection only).",
@@ -59,8 +60,9 @@ SHORT_HELP = {
     'info': "Describe a Fourier .bsdf, a flakedb .h5 or a Mitsuba 3 `measured` export: what paint, which channels and colour space, the smooth coat's mirror term, energy / colour / convergence checks in words, and the albedo at a few incident angles.",
     'match': 'Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target.',
     'render': 'Render unit spheres of the BSDFs in FILES (.bsdf, or a flakedb .h5 — a spectral one is converted to linear sRGB by the colour module) under a studio.',
+    'report': 'Write a one-page QC report of RECIPE against the target: a PDF and a PNG of the same page.',
     'species': "The particle catalogue (catalog/particles.yaml) and each species' optics.",
-    'texture': 'Predicted sparkle (glints per mm², area fraction, intensity, contrast) and graininess of RECIPE.',
+    'texture': "Predicted sparkle (glints per mm², area fraction, intensity, contrast) and graininess of RECIPE, relative to the composed paint (compose's report section, identical), or with --flakes-only to the flakes.",
     'verify': "Check a store: completeness, schema, every chunk's sha256.",
 }
 

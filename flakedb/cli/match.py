@@ -5,7 +5,8 @@ Thin: the fit is :func:`flakedb.colour.match.match` (docs/colour-matching.md).  
 DIR/NAME-prediction.csv (target layout) and DIR/NAME-match.json (the fit record), all six together
 or none (:class:`flakedb.outputs.OutputPlan`, planned for every target before any work).  Progress lines go
 to stderr, one per iteration.  The last line says whether the target's tolerance was reached; exit
-status 1 when it was not.  Several targets (repeated --target, or a folder): one fit per target into
+status 1 when it was not, after advice (:mod:`flakedb.match.advice`): the colour direction no free parameter
+moves, at which geometries, and the catalogue colourants that move it.  Several targets (repeated --target, or a folder): one fit per target into
 DIR/<target file name>/, then a summary table; exit status 1 when any target is not reached.
 
 A target with texture columns (sparkle_area_<deg>, sparkle_intensity_<deg>, glints_per_mm2_<deg>,
@@ -48,6 +49,7 @@ from flakedb.compose.orchestrate import OUTPUT_SUFFIXES, output_plan
 from flakedb.compose.orchestrate import compose as compose_recipe
 from flakedb.match import batch
 from flakedb.match import fit as cm
+from flakedb.match.advice import advise
 from flakedb.match.cxf import load_target
 from flakedb.match.targets import TargetError, write_target
 from flakedb.match.texture import DEFAULT_TEXTURE_TOLERANCE
@@ -198,6 +200,15 @@ def _fit_one(doc, base, params, target, out, planned, observer, illuminant, weig
     except (RecipeError, StoreError, TargetError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
     click.echo(cm.format_match(res))
+    record = cm.match_report(res)
+    if not res.reached and res.tolerance is not None:   # which direction no free parameter moves, and who moves it
+        try:
+            adv = advise(res, catalog, version, raw, log=lambda s: click.echo(f"  {s}", err=True))
+        except StoreError as exc:
+            raise FlakedbError(str(exc)) from exc
+        for line in adv.lines():
+            click.echo(line)
+        record["advice"] = adv.record()
     name = res.fitted_doc["name"]
     text = (f"# fitted by flakedb match to {target.source} ({res.observer}° / {res.illuminant}); "
             f"max dE00 {res.de_fit.max():.3f}\n" + yaml.safe_dump(res.fitted_doc, sort_keys=False, allow_unicode=True))
@@ -218,7 +229,7 @@ def _fit_one(doc, base, params, target, out, planned, observer, illuminant, weig
                      notes={"generator": f"flakedb match, n = {res.n}, mode {p.mode}"},
                      texture={r["index"]: r["predicted"] for r in res.texture_fit} or None,
                      texture_observer=target.texture_observer)
-        stage.path(paths["json"]).write_text(json.dumps(cm.match_report(res), indent=1) + "\n", encoding="utf-8")
+        stage.path(paths["json"]).write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
     final = [out / f"{name}{suffix}" for suffix in OUTPUT_SUFFIXES]
     click.echo(f"wrote {paths['yaml']} (fitted recipe), {final[0]}, {final[1]}, {final[2]}, {paths['csv']} and "
                f"{paths['json']}")

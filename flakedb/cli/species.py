@@ -62,7 +62,8 @@ def show(name, out_dir, catalog_path):
         raise FlakedbError(str(exc)) from exc
     known = list(expand_sweeps(catalog))
     if name not in known:
-        raise FlakedbError(f"unknown species {name!r}; known species: {', '.join(known)}")
+        raise FlakedbError(f"unknown species {name!r}; known species: {', '.join(known)} (a species of your own "
+                           f"catalogue: --catalog FILE.yaml or $FLAKEDB_CATALOG)")
     plan = OutputPlan()
     plan.add_dir(out_dir)
     plan.add_input(catalog_path, "--catalog")

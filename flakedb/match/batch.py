@@ -116,7 +116,7 @@ def compare_batch(recipes, targets=(), pairs=None, observer=None, illuminant=Non
             lab = sub.lab(cs.observer, cs.illuminant)
             lab_t = t.lab_under(cs.observer, cs.illuminant)
             tex, sparkle = compare_texture(rec, pred, t, texture_tolerance)
-            out.append(Comparison(rec.name, t.name or t.source, np.asarray(t.geometries, float), lab, lab_t,
+            out.append(Comparison(rec.name, t.label, np.asarray(t.geometries, float), lab, lab_t,
                                   cs.observer, cs.illuminant, scheme.evaluate(t.geometries, lab_t, lab),
                                   lab_differences(lab_t, lab), sub, t.reflectance, t.wavelength_nm, tex, sparkle))
     return out

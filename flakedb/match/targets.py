@@ -146,6 +146,18 @@ class Target:
     def spectral(self) -> bool:
         return self.reflectance is not None
 
+    @property
+    def label(self) -> str:
+        """What tables and figures call the target: its ``# name:``, else its file's stem (never the
+        folder path it was read from), else "target".
+
+        >>> Target(np.zeros((1, 2)), source="/lab/2026/panels/A-17.csv").label, Target(np.zeros((1, 2)), name="A").label
+        ('A-17', 'A')
+        """
+        if self.name:
+            return self.name
+        return Path(str(self.source)).stem if self.source else "target"
+
     def lab_under(self, observer=None, illuminant=None) -> np.ndarray:
         """L*a*b* (G, 3) under ``observer`` / ``illuminant`` (default: the target's own).
 

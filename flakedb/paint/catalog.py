@@ -315,5 +315,6 @@ def get_species(name: str, catalog: dict | None = None) -> dict:
     """
     allsp = expand_sweeps(catalog if catalog is not None else load_catalog())
     if name not in allsp:
-        raise ValueError(f"unknown species {name!r}; known species: {', '.join(allsp)}")
+        raise ValueError(f"unknown species {name!r}; known species: {', '.join(allsp)} (a species of your own "
+                         f"catalogue: --catalog FILE.yaml or $FLAKEDB_CATALOG)")
     return allsp[name]

@@ -389,7 +389,8 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
         close = difflib.get_close_matches(name, list(allsp), n=3)
         problems.append(f"{pp}.species: unknown species {name!r}"
                         + (f" (did you mean {', '.join(map(repr, close))}?)" if close else "")
-                        + " (hint: `flakedb species list` shows the catalogue; or describe it inline "
+                        + " (hint: `flakedb species list` shows the catalogue; a species of your own "
+                          "catalogue needs --catalog FILE.yaml (or $FLAKEDB_CATALOG); or describe it inline "
                           "with `custom:` and an optical_depth)")
         return problems, warnings, None
     entry = allsp[name]

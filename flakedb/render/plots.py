@@ -96,28 +96,109 @@ def plot_optics(name: str, out_dir, catalog: dict | None = None) -> Path:
 
 #: Formats :func:`plot_multiangle` writes, by the path's suffix.
 PLOT_FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg"}
+#: Curve colours of :func:`geometry_colours`: CIELAB lightness of even / odd entries, chroma, first hue [°].
+CURVE_LIGHTNESS = (48.0, 66.0)
+CURVE_CHROMA = 55.0
+CURVE_HUE0_DEG = 20.0
 
 
-def plot_multiangle(path, geometries, lab, lab_target=None, wavelength_nm=None, reflectance=None,
-                    target_reflectance=None, target_wavelength_nm=None, title="", conditions="") -> Path:
-    """A colour engineer's figure of one paint (and its target) at multi-angle geometries, written
-    atomically to ``path`` (PNG, PDF or SVG by its suffix); returns the path.
+def geometry_colours(count) -> np.ndarray:
+    """``count`` distinct curve colours (count, 3), sRGB in [0, 1]: hues evenly spaced around CIELAB's hue
+    circle at chroma :data:`CURVE_CHROMA`, lightness alternating between :data:`CURVE_LIGHTNESS` (so
+    neighbours differ in lightness too), clipped to the sRGB gamut.  One colour per geometry, never the
+    cycle of ten that gave 45as-15 and 15as80 the same blue (tests: every pair ≥ 10 ΔE00 apart for up
+    to 12 geometries)."""
+    import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
 
-    Panels: L*, a*, b* against the aspecular angle, one line per illumination angle, the target as
-    open markers; the a*b* colour travel (the points joined in aspecular order, the first marked);
-    and, when ``reflectance`` (G, W) on ``wavelength_nm`` is given, the reflectance factor curves per
-    geometry (target dashed).  ``geometries`` (G, 2): (illumination_deg, aspecular_deg); ``lab`` /
-    ``lab_target`` (G, 3).
-    """
+    k = np.arange(int(count))
+    h = np.radians(CURVE_HUE0_DEG + 360.0 * k / max(int(count), 1))
+    L = np.where(k % 2 == 0, *CURVE_LIGHTNESS)
+    lab = np.stack([L, CURVE_CHROMA * np.cos(h), CURVE_CHROMA * np.sin(h)], axis=-1)
+    return np.clip(colour.XYZ_to_sRGB(colour.Lab_to_XYZ(lab)), 0.0, 1.0).reshape(-1, 3)
+
+
+def geometry_label(geometry) -> str:
+    """``45as15``: the instrument's name of an in-plane geometry (illumination, aspecular) in degrees."""
+    return f"{geometry[0]:g}as{geometry[1]:g}"
+
+
+#: Candidate label offsets of :func:`place_labels` [points]: radii, and directions (counter-clockwise from +x).
+LABEL_RADII_PT = (4.0, 9.0, 15.0, 22.0, 30.0)
+LABEL_DIRECTIONS_DEG = (45.0, -45.0, 135.0, -135.0, 0.0, 180.0, 90.0, -90.0)
+#: Half-size of the box kept free around every labelled point [points] (its marker).
+LABEL_MARKER_PT = 3.0
+
+
+def _overlap(a, b) -> float:
+    """Overlap area of two matplotlib Bboxes (display units); 0 when they only touch or are apart."""
+    w = min(a.x1, b.x1) - max(a.x0, b.x0)
+    h = min(a.y1, b.y1) - max(a.y0, b.y0)
+    return w * h if w > 0 and h > 0 else 0.0
+
+
+def place_labels(ax, xy, texts, fontsize=6, color="0.15") -> list:
+    """Annotate the points ``xy`` (N, 2, data units) of ``ax`` with ``texts`` so that no two labels and no
+    label and a marker overlap, as the renderer measures them; returns the annotations.
+
+    Greedy: each label takes the first offset of :data:`LABEL_RADII_PT` × :data:`LABEL_DIRECTIONS_DEG`
+    whose text box (``get_window_extent`` with the figure's renderer) overlaps no label already placed, no
+    point's marker box (:data:`LABEL_MARKER_PT`) and neither the axes' legend nor its title; when none is free, the
+    least-overlapping one.  The
+    layout must be final: call it after the figure's layout is drawn and frozen (:func:`freeze_layout`),
+    since the offsets are in points from data positions that a later layout would move."""
+    from matplotlib.transforms import Bbox  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
+
+    renderer = ax.figure.canvas.get_renderer()
+    pts = ax.transData.transform(np.asarray(xy, float).reshape(-1, 2))
+    m = LABEL_MARKER_PT * ax.figure.dpi / 72.0
+    taken = [Bbox.from_extents(x - m, y - m, x + m, y + m) for x, y in pts]
+    if ax.get_legend() is not None:   # the legend is drawn over the axes: keep the labels off it too
+        taken.append(ax.get_legend().get_window_extent(renderer))
+    if ax.get_title():
+        taken.append(ax.title.get_window_extent(renderer))
+    out = []
+    for (x, y), text, p in zip(np.asarray(xy, float).reshape(-1, 2), texts, pts):
+        best = None
+        for r in LABEL_RADII_PT:
+            for d in LABEL_DIRECTIONS_DEG:
+                dx, dy = r * np.cos(np.radians(d)), r * np.sin(np.radians(d))
+                ha = "left" if dx > 0.5 else "right" if dx < -0.5 else "center"
+                va = "bottom" if dy > 0.5 else "top" if dy < -0.5 else "center"
+                ann = ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset points", fontsize=fontsize,
+                                  ha=ha, va=va, color=color, annotation_clip=False)
+                box = ann.get_window_extent(renderer)
+                cost = sum(_overlap(box, t) for t in taken)
+                if best is None or cost < best[0]:
+                    if best is not None:
+                        best[1].remove()
+                    best = (cost, ann, box)
+                else:
+                    ann.remove()
+                if cost == 0.0:
+                    break
+            if best[0] == 0.0:
+                break
+        taken.append(best[2])
+        out.append(best[1])
+    return out
+
+
+def freeze_layout(fig) -> None:
+    """Draw ``fig`` once so its layout engine places the axes, then switch the engine off: positions stay
+    as drawn (what :func:`place_labels` needs before it measures)."""
+    fig.draw_without_rendering()
+    fig.set_layout_engine("none")
+
+
+def multiangle_figure(geometries, lab, lab_target=None, wavelength_nm=None, reflectance=None,
+                      target_reflectance=None, target_wavelength_nm=None, title="", conditions="",
+                      target_name="target"):
+    """The figure of :func:`plot_multiangle` (a matplotlib Figure on an Agg canvas, not written)."""
     from matplotlib.backends.backend_agg import (
         FigureCanvasAgg,  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
     )
     from matplotlib.figure import Figure  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
 
-    path = Path(path)
-    fmt = PLOT_FORMATS.get(path.suffix.lower())
-    if fmt is None:
-        raise ValueError(f"{path}: a plot is written as {', '.join(PLOT_FORMATS)} (by the file's suffix)")
     g = np.asarray(geometries, float).reshape(-1, 2)
     lab = np.asarray(lab, float)
     lt = None if lab_target is None else np.asarray(lab_target, float)
@@ -129,14 +210,15 @@ def plot_multiangle(path, geometries, lab, lab_target=None, wavelength_nm=None, 
     axes = fig.subplots(2 if spectra else 1, 4, squeeze=False)
     illums = sorted(set(g[:, 0].tolist()), reverse=True)
     colours = {il: f"C{k}" for k, il in enumerate(illums)}
+    tname = target_name or "target"
     for c, (name, ax) in enumerate(zip(("L*", "a*", "b*"), axes[0, :3])):
         for il in illums:
             sel = np.flatnonzero(g[:, 0] == il)
             sel = sel[np.argsort(g[sel, 1])]
             ax.plot(g[sel, 1], lab[sel, c], "-o", ms=4, color=colours[il], label=f"predicted, {il:g}° illum.")
             if lt is not None:
-                ax.plot(g[sel, 1], lt[sel, c], "s", ms=7, mfc="none", color=colours[il],
-                        label=f"target, {il:g}° illum.")
+                ax.plot(g[sel, 1], lt[sel, c], "--s", ms=7, mfc="none", lw=1.0, color=colours[il],
+                        label=f"{tname}, {il:g}° illum.")
         ax.set(xlabel="aspecular angle (°)", ylabel=name, title=f"{name} vs aspecular angle")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7)
@@ -147,9 +229,8 @@ def plot_multiangle(path, geometries, lab, lab_target=None, wavelength_nm=None, 
         ax.plot(lab[sel, 1], lab[sel, 2], "-o", ms=4, color=colours[il], label=f"predicted, {il:g}°")
         ax.plot(lab[sel[0], 1], lab[sel[0], 2], "*", ms=12, color=colours[il])
         if lt is not None:
-            ax.plot(lt[sel, 1], lt[sel, 2], "s", ms=7, mfc="none", color=colours[il], label=f"target, {il:g}°")
-        for k in sel:
-            ax.annotate(f"{g[k, 1]:g}", (lab[k, 1], lab[k, 2]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+            ax.plot(lt[sel, 1], lt[sel, 2], "--s", ms=7, mfc="none", lw=1.0, color=colours[il],
+                    label=f"{tname}, {il:g}°")
     ax.axhline(0, color="0.7", lw=0.8)
     ax.axvline(0, color="0.7", lw=0.8)
     ax.set(xlabel="a*", ylabel="b*", title="colour travel (★ = smallest aspecular)")
@@ -162,16 +243,57 @@ def plot_multiangle(path, geometries, lab, lab_target=None, wavelength_nm=None, 
         for a in axes[1, :]:
             a.remove()
         ax = fig.add_subplot(gs[1, :])
+        cols = geometry_colours(g.shape[0])
         for k in range(g.shape[0]):
-            line = ax.plot(wl, R[k], label=f"{g[k, 0]:g}as{g[k, 1]:g}")[0]
+            ax.plot(wl, R[k], color=cols[k], label=geometry_label(g[k]))
             if target_reflectance is not None:
                 twl = wl if target_wavelength_nm is None else np.asarray(target_wavelength_nm, float)
-                ax.plot(twl, np.asarray(target_reflectance, float)[k], "--", color=line.get_color())
+                ax.plot(twl, np.asarray(target_reflectance, float)[k], "--", color=cols[k])
         ax.set(xlabel="wavelength (nm)", ylabel="reflectance factor",
-               title="reflectance factor per geometry" + (" (target dashed)" if target_reflectance is not None else ""))
+               title="reflectance factor per geometry" + (f" ({tname} dashed)" if target_reflectance is not None
+                                                          else ""))
         ax.grid(alpha=0.3)
         ax.legend(ncol=6, fontsize=7)
     fig.suptitle(title + (f"  ({conditions})" if conditions else ""))
+    freeze_layout(fig)
+    label_travel(axes[0, 3], g, lab, lt)
+    return fig
+
+
+def label_travel(ax, geometries, lab, lab_target=None) -> list:
+    """The geometry labels of an a*b* travel panel (:func:`place_labels`): each predicted point by its
+    aspecular angle (``45as15`` when there are several illumination angles), and the target's points by
+    the same names (the legend names the target); returns the annotations."""
+    g = np.asarray(geometries, float).reshape(-1, 2)
+    several = len(set(g[:, 0].tolist())) > 1
+    names = [geometry_label(x) if several else f"{x[1]:g}°" for x in g]
+    xy = [np.asarray(lab, float)[:, 1:]]
+    texts = list(names)
+    if lab_target is not None:
+        xy.append(np.asarray(lab_target, float)[:, 1:])
+        texts += names
+    return place_labels(ax, np.concatenate(xy), texts)
+
+
+def plot_multiangle(path, geometries, lab, lab_target=None, wavelength_nm=None, reflectance=None,
+                    target_reflectance=None, target_wavelength_nm=None, title="", conditions="",
+                    target_name="target") -> Path:
+    """A colour engineer's figure of one paint (and its target) at multi-angle geometries, written
+    atomically to ``path`` (PNG, PDF or SVG by its suffix); returns the path.
+
+    Panels: L*, a*, b* against the aspecular angle, one line per illumination angle, the target
+    (``target_name``, in the legends) as open markers joined by a dashed line; the a*b* colour travel (the
+    points joined in aspecular order, the first marked, every point labelled with its geometry without
+    overlap: :func:`place_labels`); and, when ``reflectance`` (G, W) on ``wavelength_nm`` is given, the
+    reflectance factor curves per geometry, each its own colour (:func:`geometry_colours`; target dashed).
+    ``geometries`` (G, 2): (illumination_deg, aspecular_deg); ``lab`` / ``lab_target`` (G, 3).
+    """
+    path = Path(path)
+    fmt = PLOT_FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise ValueError(f"{path}: a plot is written as {', '.join(PLOT_FORMATS)} (by the file's suffix)")
+    fig = multiangle_figure(geometries, lab, lab_target, wavelength_nm, reflectance, target_reflectance,
+                            target_wavelength_nm, title, conditions, target_name)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             fig.savefig(f, format=fmt, dpi=110)
