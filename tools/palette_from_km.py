@@ -32,7 +32,7 @@ def main():
                f"end: last band held (palette.yaml)")
         out += [f"  {name}:", "    kind: tinter", f"    description: >-\n      {sp['description'].strip()}",
                 f"    colour_index: {sp['colour_index']}",
-                "    source: >-\n      Okumura 2005 / Berns, RIT Artist Paint Spectral Database (two-constant KM of "
+                "    source: >-\n      RIT Artist Paint Spectral Database (two-constant KM of "
                 "Golden Heavy Body acrylics), as redistributed in Unicolour (MIT), catalog/tinters/README.md; "
                 "converted by flakedb/paint/km_palette.py with catalog/tinters/palette.yaml"]
         if "density_g_cm3" in sp:
