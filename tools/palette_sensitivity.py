@@ -65,7 +65,8 @@ def main():
         cat = variant(base, pal, **kw)
         for n in SPECIES:
             v = panels(cat, n)
-            print(f"{label:10s} {n:22s} " + "  ".join(f"{k} {float(delta_E_2000(ref[n][k], v[k])):5.2f}" for k in ref[n]))
+            print(f"{label:10s} {n:22s} "
+                  + "  ".join(f"{k} {float(delta_E_2000(ref[n][k], v[k])):5.2f}" for k in ref[n]))
     for n in SPECIES:
         print(n, {k: np.round(v, 1).tolist() for k, v in ref[n].items()})
 

@@ -6,6 +6,7 @@ Usage card::
     K, S = rt_to_km(sigma_a, sigma_s, g)
     R_inf = km_reflectance_infinite(K, S)          # hemispherical reflectance of an opaque layer
     R = km_reflectance(K, S, thickness, R_g)       # a layer of thickness over a substrate of reflectance R_g
+    a_phi, s_phi = relative_km_to_specific(K_rel, S_rel, S_ref, phi, g)   # database K, S relative to a white's S
 
 All four broadcast over arrays (bands, concentrations).  Per unit concentration in, per unit
 concentration out: the relations are linear in (σ_a, σ_s) ↔ (K, S), so published *specific* K and S
@@ -138,4 +139,5 @@ def relative_km_to_specific(K_rel, S_rel, S_ref, phi_pigment, g=0.0, method="Sta
     return sa / phi, ss / phi
 
 
-__all__ = ["KM_RT_METHODS", "km_reflectance", "km_reflectance_infinite", "km_to_rt", "relative_km_to_specific", "rt_to_km"]
+__all__ = ["KM_RT_METHODS", "km_reflectance", "km_reflectance_infinite", "km_to_rt", "relative_km_to_specific",
+           "rt_to_km"]

@@ -43,7 +43,8 @@ def read_km_table(path: Path) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, n
     return cols["wavelength_nm"], {p: (cols[f"K_{p}"], cols[f"S_{p}"]) for p in paints}
 
 
-def reference_scattering_km(catalog: dict, species: str, volume_fraction: float, wavelength_nm) -> np.ndarray:
+def reference_scattering_km(catalog: dict, species: str, volume_fraction: float,
+                            wavelength_nm) -> np.ndarray:
     """Absolute KM S [1/µm] of a paint of the catalogue pigment ``species`` at ``volume_fraction``:
     S = ¾ σ_s (1 − g) − ¼ σ_a with σ = φ · C / v̄ from its Mie optics (Star 1988; flakedb.optics.kubelka_munk)."""
     wl = np.asarray(wavelength_nm, dtype=float)

@@ -145,7 +145,8 @@ def test_masstone_hue_in_the_published_range(name, catalog):
 def test_held_end_band_is_invisible():
     # palette.yaml's claim: ȳ · D65 above 750 nm is < 0.05 % of its 380–780 nm sum (CIE 1964 10°)
     wl = np.arange(380, 781, 10)
-    w = CMFS.copy().align(colour.SpectralShape(380, 780, 10)).values[:, 1] * D65.copy().align(colour.SpectralShape(380, 780, 10)).values
+    shape = colour.SpectralShape(380, 780, 10)
+    w = CMFS.copy().align(shape).values[:, 1] * D65.copy().align(shape).values
     assert w[wl > 750].sum() / w.sum() < 5e-4
 
 
