@@ -86,7 +86,7 @@ def test_relative_km_closed_form():
 
 
 def test_reference_white_is_a_white(catalog):
-    # the anchor: the catalogue white at the reference fraction has S of order 1/µm (measured 0.92-1.23
+    # the anchor: the catalogue white at the reference fraction has S of order 1/µm (measured 0.92-1.24
     # over 380-750 nm: a 30 µm film is ~30 scattering lengths) and, sub-micron rutile, scatters more
     # towards the blue above its ~480 nm peak; computed independently from its Mie optics here
     from flakedb.paint.species import binder_index, pigment_optics
