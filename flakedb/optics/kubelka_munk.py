@@ -6,6 +6,7 @@ Usage card::
     K, S = rt_to_km(sigma_a, sigma_s, g)
     R_inf = km_reflectance_infinite(K, S)          # hemispherical reflectance of an opaque layer
     R = km_reflectance(K, S, thickness, R_g)       # a layer of thickness over a substrate of reflectance R_g
+    a_phi, s_phi = relative_km_to_specific(K_rel, S_rel, S_ref, phi, g)   # database K, S relative to a white's S
 
 All four broadcast over arrays (bands, concentrations).  Per unit concentration in, per unit
 concentration out: the relations are linear in (σ_a, σ_s) ↔ (K, S), so published *specific* K and S
@@ -112,4 +113,31 @@ def km_reflectance(K, S, thickness, R_g):
     return (1.0 - Rg * (a - bcoth)) / (a - Rg + bcoth)
 
 
-__all__ = ["KM_RT_METHODS", "km_reflectance", "km_reflectance_infinite", "km_to_rt", "rt_to_km"]
+
+
+def relative_km_to_specific(K_rel, S_rel, S_ref, phi_pigment, g=0.0, method="Star1988"):
+    """(σ_a/φ, σ_s/φ) per unit pigment volume fraction (the unit of ``S_ref``, e.g. 1/µm) of a paint
+    whose KM K and S are given *relative* to a reference paint's S (the reference's S is 1 at every
+    band, as in two-constant databases normalised to their white), its pigment at volume fraction
+    ``phi_pigment``:
+
+        K = K_rel · S_ref,  S = S_rel · S_ref   (absolute, per band; S_ref the reference's absolute S)
+        (σ_a, σ_s) = km_to_rt(K, S, g) / φ      (:func:`km_to_rt`, Star 1988)
+
+    Linear in (K_rel, S_rel) and S_ref, inverse in φ: an error in the reference's S or the pigment
+    fraction scales both coefficients alike (K/S, hence the opaque masstone, is unchanged).
+
+    >>> a, s = relative_km_to_specific(2.0, 0.5, 4.0, 0.1, 0.0)
+    >>> round(float(a), 12), round(float(s), 12)      # K = 8, S = 2: σ_a = 4, σ_s = (2 + 1) · 4/3 = 4
+    (40.0, 40.0)
+    """
+    phi = np.asarray(phi_pigment, dtype=float)
+    if np.any(phi <= 0) or np.any(phi > 1):
+        raise ValueError(f"relative_km_to_specific: the pigment volume fraction must lie in (0, 1], got {phi!r}")
+    S_ref = np.asarray(S_ref, dtype=float)
+    sa, ss = km_to_rt(np.asarray(K_rel, float) * S_ref, np.asarray(S_rel, float) * S_ref, g, method=method)
+    return sa / phi, ss / phi
+
+
+__all__ = ["KM_RT_METHODS", "km_reflectance", "km_reflectance_infinite", "km_to_rt", "relative_km_to_specific",
+           "rt_to_km"]
