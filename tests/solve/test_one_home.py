@@ -110,3 +110,24 @@ def test_second_solve_beside_the_main_one_gives_the_same_estimate(tmp_path, monk
     before = pipeline.solve_reported(rec)
     assert beside.report["discretisation"] == before.report["discretisation"]
     assert beside.report["discretisation"]["n_second"] == resolution.second_solve_n(40)
+
+
+def test_colour_conditions_are_chosen_in_one_place():
+    """The rule "the caller's conditions, else the target's, else the defaults" lives in
+    flakedb.colour.settings.for_target (issue #34: it was coded four times, and match refused an RGB paint
+    against a spectral target that compare accepted).  No module reads a target's observer or illuminant to
+    choose conditions itself, and every entry point that compares with a target asks for_target."""
+    offenders, askers = [], set()
+    for p in PKG.rglob("*.py"):
+        rel = str(p.relative_to(PKG))
+        tree = ast.parse(p.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and node.attr in ("observer", "illuminant")
+                    and isinstance(node.value, (ast.Name, ast.Attribute))
+                    and (getattr(node.value, "id", None) or getattr(node.value, "attr", None)) in ("target", "t", "tgt")
+                    and rel not in ("colour/settings.py", "match/targets.py")):
+                offenders.append(f"{rel}:{node.lineno}")
+        if "for_target" in set(_calls(tree)):
+            askers.add(rel)
+    assert not offenders, offenders
+    assert {"cli/compare.py", "match/batch.py", "match/fit.py", "match/calibrate.py"} <= askers, askers
