@@ -12,7 +12,7 @@ from flakedb.paint.catalog import load_catalog
 from flakedb.paint.recipe import load_recipe
 from flakedb.paint.species import optics_table
 from flakedb.pipelines.build import build, request_for_recipe
-from flakedb.render import look, preview
+from flakedb.render import look, quadrature
 from flakedb.render.imageio import write_exr, write_png
 from flakedb.render.plots import plot_optics
 from flakedb.resources import RECIPES_DIR
@@ -88,8 +88,7 @@ def _build_demo_store(out_dir, catalog):
 
 def _render_demo(bsdf_path, out_dir):
     bsdf = open_bsdf(bsdf_path)
-    result = preview.render_sphere(bsdf, look.softbox_studio(), None, size=DEMO_PREVIEW_PX,
-                                   spp=preview.DEFAULT_SPP)
+    result = quadrature.render_sphere_quadrature(bsdf, look.softbox_studio(), None, size=DEMO_PREVIEW_PX)
     stem = Path(bsdf_path).stem
     exr = write_exr(Path(out_dir) / f"{stem}.exr", result.image)
     scale = look.auto_exposure(result.image, result.coverage >= 1.0)
