@@ -77,6 +77,8 @@ ALPHA_GRID = (0.03, 0.06, 0.11, 0.18, 0.28, 0.42, 0.65)
 #: Hemisphere sample set of the fit: Gauss-Legendre nodes in μ_v and μ_l, midpoints in φ_d.
 N_MU_FIT = 16
 N_PHI_FIT = 24
+#: Exponent p of the hemisphere's perceptual weight R^(-p) (4/3: CIELAB's cube root linearised).
+PERCEPTUAL_EXPONENT = 4.0 / 3.0
 #: Reflectance factor below which the perceptual weight R^(-4/3) stops growing.
 R_FLOOR = 0.01
 #: The colour geometries' total weight relative to the hemisphere's.
@@ -292,7 +294,7 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
     wl_nm = colour_grid(b)
     lab_g = channels_to_Lab(np.pi * y_g, "rgb", wl_nm)
     R_h = np.maximum(np.pi * y_h.mean(axis=1), R_FLOOR)
-    W_h = wq * mi * np.abs(mo) * R_h ** (-4.0 / 3.0)
+    W_h = wq * mi * np.abs(mo) * R_h ** (-PERCEPTUAL_EXPONENT)
     W_h = W_h / W_h.sum()
     R_g = np.maximum(np.pi * y_g.mean(axis=1), R_FLOOR)
     W_g0 = R_g ** (-4.0 / 3.0)

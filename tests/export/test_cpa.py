@@ -171,8 +171,8 @@ def _lab(img, mask):
 #: plus the 128 x 64 facets' normals (a few 1e-3 near the limb): 1 %.
 CYCLES_SUM_RTOL = 0.01
 #: What the angle-indexed route reaches in Cycles (median ΔE00 over the compared pixels against the
-#: exact paint; docs/renderers.md): metallic silver 3.0, particle pearlescent 6.6 measured at n = 32.
-CPA_MEDIAN_BOUND = {"metallic-silver": 3.5, "particle-pearlescent": 7.5}
+#: exact paint; docs/renderers.md): metallic silver 3.0 (single lobe 5.6), particle pearlescent 7.5 (8.2), measured at n = 32.
+CPA_MEDIAN_BOUND = {"metallic-silver": 3.5, "particle-pearlescent": 8.0}
 
 
 @pytest.mark.slow
