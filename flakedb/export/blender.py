@@ -688,3 +688,58 @@ def render_cycles_cpa_sphere(table, alphas, coat_ior: float, *, size: int = 32, 
     args["cpa"] = cpa_inputs(table, alphas, coat_ior)
     out = run_bpy_script(_CPA_RENDER, args, python=python, timeout=timeout)
     return {"image": out["image"], "blender": out["blender"]}
+
+
+#: A large plane whose normal makes the E2194-style in-plane geometry with the camera (+z, orthographic)
+#: and a sun: for a view at x = aspecular - illumination from the normal (x > 0 on the light's side), the
+#: plane is turned by -x about y (normal (-sin x, 0, cos x)) and the sun sits at illumination - x from the
+#: camera axis in the x-z plane; every pixel then sees the same (ω_v, ω_l).  One render per geometry, the
+#: image mean per channel out.
+_GEOMETRY_SCRIPT = '''
+bpy.ops.mesh.primitive_plane_add(size=40.0)
+ob = bpy.context.object
+if "cpa" in a:
+    ob.data.materials.append(build_cpa_material(bpy, "flakedb_cpa", a["cpa"], "{}"))
+else:
+    ob.data.materials.append(build_material(bpy, "flakedb_fit", {k: (tuple(v) if isinstance(v, list) else v)
+                                                                 for k, v in a["inputs"].items()}, "{}"))
+cam = bpy.data.cameras.new("cam"); cam.type = "ORTHO"; cam.ortho_scale = 0.5
+co = bpy.data.objects.new("cam", cam); sc.collection.objects.link(co); co.location = (0.0, 0.0, 4.0); sc.camera = co
+ld = bpy.data.lights.new("sun", "SUN"); ld.energy = 1.0; ld.angle = 2.0 * math.radians(a["half_angle_deg"])
+lo = bpy.data.objects.new("sun", ld); sc.collection.objects.link(lo)
+sc.render.image_settings.file_format = "OPEN_EXR"
+sc.render.image_settings.color_depth = "32"
+means = []
+for illum, x in a["geometries"]:
+    ob.rotation_euler = (0.0, -math.radians(x), 0.0)
+    t = math.radians(illum - x)
+    lo.rotation_euler = Vector((math.sin(t), 0.0, math.cos(t))).to_track_quat("Z", "Y").to_euler()
+    sc.render.filepath = a["exr"]
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(a["exr"], check_existing=False)
+    px = list(img.pixels)
+    n = len(px) // 4
+    means.append([sum(px[c::4]) / n for c in range(3)])
+    bpy.data.images.remove(img)
+open(a["out"], "w").write(json.dumps({"pixels": [], "blender": bpy.app.version_string, "info": {"means": means}}))
+'''
+
+
+def render_cycles_geometries(geometries, *, inputs: dict | None = None, cpa: dict | None = None, size: int = 8,
+                             samples: int = 256, half_angle_deg: float = 0.5, threads: int = 1, seed: int = 1,
+                             python: str | None = None, timeout: float = 600.0) -> np.ndarray:
+    """Reflectance factors π f (G, 3) that Cycles renders at in-plane ``geometries`` (G, 2) =
+    (illumination°, aspecular°) (ASTM E2194's convention, :func:`flakedb.match.fit.geometry_directions`):
+    a plane seen orthographically under a sun of irradiance 1 (:data:`_GEOMETRY_SCRIPT`), the image mean
+    L = f μ_l divided by μ_l = cos(illumination), times π.  The material is the Principled BSDF of
+    ``inputs`` (:func:`principled_inputs`) or the node group of ``cpa`` (:func:`cpa_inputs`)."""
+    g = np.asarray(geometries, float).reshape(-1, 2)
+    args = render_args(size=size, samples=samples, direction=(0, 0, 1), irradiance=1.0, half_angle_deg=half_angle_deg,
+                       extent=1.0, threads=threads, seed=seed, filter_width_px=1.0, adaptive_sampling=False)
+    args["geometries"] = [[float(i), float(asp - i)] for i, asp in g]
+    if cpa is not None:
+        args["cpa"] = cpa
+    else:
+        args["inputs"] = {k: list(v) if isinstance(v, tuple) else v for k, v in inputs.items()}
+    out = run_bpy_script(_BUILD + _CPA_BUILD + SCENE_SETUP_SCRIPT + _GEOMETRY_SCRIPT, args, python=python, timeout=timeout)
+    return np.pi * np.asarray(out["info"]["means"], float) / np.cos(np.radians(g[:, :1]))
