@@ -173,7 +173,7 @@ def cpa_sun_image(fit: CPAFit, size: int = 32, direction=(0.0, 0.0, 1.0), irradi
     """(size, size, 3) image of the model on the unit sphere under a sun of ``irradiance`` and angular
     radius ``half_angle_deg`` (:func:`flakedb.export.blender.sun_disk`), at pixel centres, in the frame
     of :func:`flakedb.export.blender.render_cycles_sphere` (row 0 at the top): what the node group
-    (:func:`flakedb.export.blender.cpa_node_group_script`) renders in Cycles, the coat's mirror aside
+    (:func:`flakedb.export.blender.cpa_material_script`) renders in Cycles, the coat's mirror aside
     (it reaches no pixel centre off the sun's highlight)."""
     N, on = sphere_normals(size, extent)
     ok = on & (N[..., 2] > 0)

@@ -231,7 +231,8 @@ def test_cycles_cpa_beats_single_lobe(paint, tmp_path):
                                   python=BLENDER_PYTHON)["image"]
     model = cpa.cpa_sun_image(fit, SIZE, d)
     np.testing.assert_allclose(cy[mask].sum(0), model[mask].sum(0), rtol=CYCLES_SUM_RTOL)
-    single = render_cycles_sphere(op.fit_openpbr(b), size=SIZE, samples=64, direction=d, python=BLENDER_PYTHON)["image"]
+    pbr = op.fit_openpbr(b)
+    single = render_cycles_sphere(pbr, size=SIZE, samples=64, direction=d, python=BLENDER_PYTHON)["image"]
     de_cpa = np.median(delta_E_2000(_lab(cy, mask), _lab(exact, mask)))
     de_single = np.median(delta_E_2000(_lab(single, mask), _lab(exact, mask)))
     assert de_cpa < de_single and de_cpa <= CPA_MEDIAN_BOUND[paint], (de_cpa, de_single)
@@ -240,7 +241,7 @@ def test_cycles_cpa_beats_single_lobe(paint, tmp_path):
     lab_exact = channels_to_Lab(np.pi * op.exact_rgb(b, *geometry_directions(g)), "rgb", WL)
     worst = {}
     for route, kw in (("cpa", {"cpa": cpa_inputs(fit.table, fit.alphas, fit.coat_ior)}),
-                      ("single", {"inputs": principled_inputs(op.fit_openpbr(b))})):
+                      ("single", {"inputs": principled_inputs(pbr)})):
         rf = render_cycles_geometries(g, python=BLENDER_PYTHON, **kw)
         worst[route] = float(delta_E_2000(channels_to_Lab(np.maximum(rf, 1e-6), "rgb", WL), lab_exact).max())
     assert worst["cpa"] < worst["single"] and worst["cpa"] <= E2194_BOUND[paint], worst
