@@ -306,22 +306,33 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
     X_a = {a: _design(np.r_[mi, gi], np.r_[mo, go], np.r_[ph, gp], (a,), n_table)[:, 1, :] for a in alpha_grid}
     n_rows = n_lobes + 1
 
-    def solve_subset(alphas, W):
-        Xs = np.concatenate([X_d] + [X_a[a] for a in alphas], axis=1)
-        Xw = Xs * W[:, None]
-        G = Xs.T @ Xw
-        c = np.stack([_nnls_gram(G, Xw.T @ Y[:, k], n_table, n_rows, SMOOTHNESS) for k in range(3)], axis=-1)
-        r = float(np.sum(W[:, None] * (Xs @ c - Y) ** 2))
+    keys = ("lambert",) + alpha_grid
+    blocks = {"lambert": X_d, **X_a}
+
+    def moments(W):
+        """Gram blocks Σ W X_a^T X_b between every pair of row blocks, Σ W X^T y and Σ W y² per channel:
+        each subset's normal equations are assembled from them, not recomputed."""
+        Wx = {k: blocks[k] * W[:, None] for k in keys}
+        G = {(a, c): blocks[a].T @ Wx[c] for i, a in enumerate(keys) for c in keys[i:]}
+        return G, {k: Wx[k].T @ Y for k in keys}, np.sum(W[:, None] * Y * Y, axis=0)
+
+    def solve_subset(alphas, mom):
+        G_b, XY, yy = mom
+        ks = ("lambert",) + tuple(alphas)
+        G = np.block([[G_b[(a, c)] if (a, c) in G_b else G_b[(c, a)].T for c in ks] for a in ks])
+        XYs = np.concatenate([XY[k] for k in ks], axis=0)                                  # (M, 3)
+        c = np.stack([_nnls_gram(G, XYs[:, k], n_table, n_rows, SMOOTHNESS) for k in range(3)], axis=-1)
+        r = float(np.sum(yy - 2.0 * np.sum(c * XYs, axis=0) + np.einsum("mk,mn,nk->k", c, G, c)))
         return c, r
 
     u = np.r_[np.ones(n45), np.full(len(geoms) - n45, E2539_SHARE)]
     best = None
     for p in range(max(int(minimax_passes), 1)):
-        W = np.r_[W_h, W_g0 * u]
+        mom = moments(np.r_[W_h, W_g0 * u])
         if p == 0:
             subsets = list(itertools.combinations(alpha_grid, n_lobes))
-            alphas = min(subsets, key=lambda s: solve_subset(s, W)[1])
-        c, _ = solve_subset(alphas, W)
+            alphas = min(subsets, key=lambda s: solve_subset(s, mom)[1])
+        c, _ = solve_subset(alphas, mom)
         fit = CPAFit(c.reshape(n_rows, n_table, 3), alphas, coat_ior, source)
         de = delta_E_2000(channels_to_Lab(np.pi * evaluate_cpa(fit, gi, go, gp), "rgb", wl_nm), lab_g)
         key = (float(de[:n45].max()), float(de.max()))
