@@ -61,6 +61,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import nnls
+from scipy.sparse import csr_matrix
 
 from flakedb.atomic import atomic_path
 from flakedb.colour.tolerance import delta_E_2000
@@ -249,14 +250,6 @@ def fit_samples(n_mu: int = N_MU_FIT, n_phi: int = N_PHI_FIT, n_view: int = 2 * 
     return MI.ravel(), -MO.ravel(), PH.ravel(), W.ravel()
 
 
-def _design(mu_i, mu_o, phi_d, alphas, n_table):
-    """(P, K + 1, n_table) design tensor: lobe shape x interpolation weight."""
-    wl, wv = file_directions(mu_i, mu_o, phi_d)
-    B = lobe_basis(wv[..., 2], wl[..., 2], _half_cos(wv, wl), alphas)
-    H = hat_weights(wv[..., 2], n_table)
-    return B[:, :, None] * H[:, None, :]
-
-
 def _second_difference(n_table: int, n_rows: int) -> np.ndarray:
     d = np.zeros((n_table - 2, n_table))
     for j in range(n_table - 2):
@@ -301,26 +294,30 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
     W_g0 = GEOMETRY_WEIGHT * W_g0 / W_g0.sum()
     Y = np.r_[y_h, y_g]
     alpha_grid = tuple(float(a) for a in alpha_grid)
-    # per α the design columns; Gram blocks between every pair, so each subset's Gram is assembled
-    X_d = _design(np.r_[mi, gi], np.r_[mo, go], np.r_[ph, gp], (), n_table)[:, 0, :]         # Lambert (P, n)
-    X_a = {a: _design(np.r_[mi, gi], np.r_[mo, go], np.r_[ph, gp], (a,), n_table)[:, 1, :] for a in alpha_grid}
+    # The design is (lobe shape B_pa) x (interpolation weight H_j(μ_v,p)), and the samples share few
+    # distinct μ_v: the Gram blocks Σ_p W B_pa B_pc H_j H_k = Σ_v H_vj H_vk M_v,ac with M_v = Σ_{p at v}
+    # W B_a B_c, so each pass sums over the samples once and each subset is assembled from (U, K, K).
+    MI, MO, PH = np.r_[mi, gi], np.r_[mo, go], np.r_[ph, gp]
+    wl_dir, wv_dir = file_directions(MI, MO, PH)
+    B_all = lobe_basis(wv_dir[..., 2], wl_dir[..., 2], _half_cos(wv_dir, wl_dir), alpha_grid)      # (P, 1 + A)
+    uniq, inv = np.unique(wv_dir[..., 2], return_inverse=True)
+    H_u = hat_weights(uniq, n_table)                                                               # (U, n)
+    S = csr_matrix((np.ones(len(inv)), (inv, np.arange(len(inv)))), shape=(len(uniq), len(inv)))   # sample -> μ_v
     n_rows = n_lobes + 1
-
-    keys = ("lambert",) + alpha_grid
-    blocks = {"lambert": X_d, **X_a}
+    index = {a: i + 1 for i, a in enumerate(alpha_grid)}
 
     def moments(W):
-        """Gram blocks Σ W X_a^T X_b between every pair of row blocks, Σ W X^T y and Σ W y² per channel:
-        each subset's normal equations are assembled from them, not recomputed."""
-        Wx = {k: blocks[k] * W[:, None] for k in keys}
-        G = {(a, c): blocks[a].T @ Wx[c] for i, a in enumerate(keys) for c in keys[i:]}
-        return G, {k: Wx[k].T @ Y for k in keys}, np.sum(W[:, None] * Y * Y, axis=0)
+        """M_v,ac, Σ_p W B_pa H_j y_p (as (U, K, 3) before H) and Σ W y² per channel."""
+        WB = W[:, None] * B_all
+        M = (S @ (WB[:, :, None] * B_all[:, None, :]).reshape(len(W), -1)).reshape(len(uniq), *B_all.shape[1:] * 2)
+        BY = (S @ (WB[:, :, None] * Y[:, None, :]).reshape(len(W), -1)).reshape(len(uniq), B_all.shape[1], 3)
+        return M, BY, np.sum(W[:, None] * Y * Y, axis=0)
 
     def solve_subset(alphas, mom):
-        G_b, XY, yy = mom
-        ks = ("lambert",) + tuple(alphas)
-        G = np.block([[G_b[(a, c)] if (a, c) in G_b else G_b[(c, a)].T for c in ks] for a in ks])
-        XYs = np.concatenate([XY[k] for k in ks], axis=0)                                  # (M, 3)
+        M, BY, yy = mom
+        ks = [0] + [index[a] for a in alphas]
+        G = np.einsum("vj,vac,vk->ajck", H_u, M[:, ks][:, :, ks], H_u).reshape(n_rows * n_table, n_rows * n_table)
+        XYs = np.einsum("vj,vac->ajc", H_u, BY[:, ks]).reshape(n_rows * n_table, 3)
         c = np.stack([_nnls_gram(G, XYs[:, k], n_table, n_rows, SMOOTHNESS) for k in range(3)], axis=-1)
         r = float(np.sum(yy - 2.0 * np.sum(c * XYs, axis=0) + np.einsum("mk,mn,nk->k", c, G, c)))
         return c, r
