@@ -571,3 +571,175 @@ def sun_direction(theta_deg: float, phi_deg: float = 90.0) -> tuple:
     ``phi_deg`` in the image plane (90 = up)."""
     t, p = math.radians(theta_deg), math.radians(phi_deg)
     return (math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t))
+
+
+# --------------------------------------------------------------------------------------------
+# The angle-indexed colour table (flakedb.export.cpa) as a Cycles / EEVEE node group
+# --------------------------------------------------------------------------------------------
+#: Builds the node group and material of :func:`cpa_inputs` (imports only bpy): the colour table is a
+#: float image made from the pixels (packed into the .blend, linear, "Non-Color": no view transform),
+#: read by one Image Texture per row with linear interpolation and EXTEND at (x, (k + 0.5) / rows),
+#: x = μ_v (n - 1) / n + 0.5 / n (the pixel centres of columns 0 and n - 1 at μ_v = 0 and 1),
+#: μ_v = N · Incoming (Geometry node); row 0 colours a Diffuse BSDF (roughness 0: Lambert), row k a
+#: Glossy BSDF (GGX, single scattering, no Fresnel) of roughness √α_k, all added, plus the coat's
+#: mirror: a Glossy BSDF of roughness 0 coloured by the Fresnel node of the coat's index.
+_CPA_BUILD = '''
+def build_cpa_material(bpy, name, inp, fit_json):
+    """Create (or replace) material `name` with the node group `name`_cpa (flakedb.export.cpa)."""
+    old = bpy.data.materials.get(name)
+    if old is not None:
+        bpy.data.materials.remove(old)
+    rows, n = inp["rows"], inp["n_table"]
+    img = bpy.data.images.new(name + "_table", n, rows, alpha=True, float_buffer=True)
+    img.colorspace_settings.name = "Non-Color"
+    img.pixels.foreach_set(inp["pixels"])
+    img.pack()
+    g = bpy.data.node_groups.new(name + "_cpa", "ShaderNodeTree")
+    g.interface.new_socket("BSDF", in_out="OUTPUT", socket_type="NodeSocketShader")
+    N, L = g.nodes, g.links
+    geo = N.new("ShaderNodeNewGeometry")
+    dot = N.new("ShaderNodeVectorMath"); dot.operation = "DOT_PRODUCT"
+    L.new(geo.outputs["Normal"], dot.inputs[0]); L.new(geo.outputs["Incoming"], dot.inputs[1])
+    x = N.new("ShaderNodeMath"); x.operation = "MULTIPLY_ADD"
+    L.new(dot.outputs["Value"], x.inputs[0])
+    x.inputs[1].default_value = (n - 1) / n
+    x.inputs[2].default_value = 0.5 / n
+    total = None
+    def add(a, b):
+        if a is None:
+            return b
+        s = N.new("ShaderNodeAddShader"); L.new(a, s.inputs[0]); L.new(b, s.inputs[1])
+        return s.outputs[0]
+    for k in range(rows):
+        uv = N.new("ShaderNodeCombineXYZ"); L.new(x.outputs[0], uv.inputs["X"]); uv.inputs["Y"].default_value = (k + 0.5) / rows
+        tex = N.new("ShaderNodeTexImage"); tex.image = img; tex.interpolation = "Linear"; tex.extension = "EXTEND"
+        L.new(uv.outputs[0], tex.inputs["Vector"])
+        if k == 0:
+            b = N.new("ShaderNodeBsdfDiffuse"); b.inputs["Roughness"].default_value = 0.0
+        else:
+            b = N.new("ShaderNodeBsdfGlossy"); b.distribution = "GGX"
+            b.inputs["Roughness"].default_value = inp["roughness"][k - 1]
+        L.new(tex.outputs["Color"], b.inputs["Color"])
+        total = add(total, b.outputs[0])
+    if inp["coat_ior"] > 1.0:
+        fr = N.new("ShaderNodeFresnel"); fr.inputs["IOR"].default_value = inp["coat_ior"]
+        c = N.new("ShaderNodeBsdfGlossy"); c.distribution = "GGX"; c.inputs["Roughness"].default_value = 0.0
+        L.new(fr.outputs[0], c.inputs["Color"])
+        total = add(total, c.outputs[0])
+    out = N.new("NodeGroupOutput"); L.new(total, out.inputs[0])
+    m = bpy.data.materials.new(name)
+    m.use_nodes = True
+    nt = m.node_tree
+    for node in list(nt.nodes):
+        if node.type != "OUTPUT_MATERIAL":
+            nt.nodes.remove(node)
+    grp = nt.nodes.new("ShaderNodeGroup"); grp.node_tree = g
+    nt.links.new(grp.outputs[0], nt.nodes["Material Output"].inputs["Surface"])
+    m["flakedb_cpa"] = fit_json
+    return m
+'''
+
+
+def cpa_inputs(table, alphas, coat_ior: float) -> dict:
+    """The node group's inputs (:data:`_CPA_BUILD`) from a colour table (rows, n, 3) of linear RGB
+    (:class:`flakedb.export.cpa.CPAFit`), the lobes' GGX α and the coat's index: ``pixels`` the RGBA
+    float image, row k = table row k (Blender's row 0 is the image's bottom), ``roughness`` = √α
+    (Cycles squares its Roughness input)."""
+    t = np.asarray(table, float)
+    rgba = np.concatenate([t, np.ones(t.shape[:2] + (1,))], axis=-1)
+    return {"rows": int(t.shape[0]), "n_table": int(t.shape[1]), "pixels": [float(v) for v in rgba.ravel()],
+            "roughness": [float(math.sqrt(a)) for a in alphas], "coat_ior": float(coat_ior)}
+
+
+def cpa_material_script(table, alphas, coat_ior: float, name: str, fit_json: str = "{}") -> str:
+    """A standalone Blender script building the angle-indexed material (``blender --python``)."""
+    n = safe_name(name)
+    return (f'"""flakedb export: the angle-indexed colour-table material of {name} (run inside Blender;\n'
+            f'Cycles and EEVEE).  flakedb.export.cpa: coat mirror + Lambert + GGX lobes coloured by N.V."""\n'
+            f"import bpy\n{_CPA_BUILD}\n"
+            f"INPUTS = {cpa_inputs(table, alphas, coat_ior)!r}\n"
+            f"FIT = {json.dumps(fit_json)}\n"
+            f"material = build_cpa_material(bpy, {('flakedb_cpa_' + n)!r}, INPUTS, FIT)\n"
+            f"for ob in bpy.context.selected_objects:          # assign to the selection, if any\n"
+            f"    if ob.type == 'MESH':\n"
+            f"        ob.data.materials.clear()\n"
+            f"        ob.data.materials.append(material)\n")
+
+
+_CPA_SPHERE_SCRIPT = '''
+bpy.ops.mesh.primitive_uv_sphere_add(segments=128, ring_count=64, radius=1.0)
+ob = bpy.context.object
+bpy.ops.object.shade_smooth()
+ob.data.materials.append(build_cpa_material(bpy, "flakedb_cpa", a["cpa"], "{}"))
+'''
+
+_CPA_RENDER = _CPA_BUILD + SCENE_SETUP_SCRIPT + _CPA_SPHERE_SCRIPT + CAMERA_SUN_RENDER_SCRIPT
+
+
+def render_cycles_cpa_sphere(table, alphas, coat_ior: float, *, size: int = 32, samples: int = 16,
+                             direction=(0.0, 0.0, 1.0), irradiance: float = 1.0, half_angle_deg: float = 2.0,
+                             extent: float = 1.05, threads: int = 1, seed: int = 1, filter_width_px: float = 0.01,
+                             python: str | None = None, timeout: float = 600.0) -> dict:
+    """:func:`render_cycles_sphere` with the angle-indexed node group (:func:`cpa_inputs`) instead of
+    the Principled BSDF.  Returns {"image": (size, size, 3) linear sRGB, row 0 at the top, "blender"}."""
+    args = render_args(size=size, samples=samples, direction=direction, irradiance=irradiance,
+                       half_angle_deg=half_angle_deg, extent=extent, threads=threads, seed=seed,
+                       filter_width_px=filter_width_px)
+    args["cpa"] = cpa_inputs(table, alphas, coat_ior)
+    out = run_bpy_script(_CPA_RENDER, args, python=python, timeout=timeout)
+    return {"image": out["image"], "blender": out["blender"]}
+
+
+#: A large plane whose normal makes the E2194-style in-plane geometry with the camera (+z, orthographic)
+#: and a sun: for a view at x = aspecular - illumination from the normal (x > 0 on the light's side), the
+#: plane is turned by -x about y (normal (-sin x, 0, cos x)) and the sun sits at illumination - x from the
+#: camera axis in the x-z plane; every pixel then sees the same (ω_v, ω_l).  One render per geometry, the
+#: image mean per channel out.
+_GEOMETRY_SCRIPT = '''
+bpy.ops.mesh.primitive_plane_add(size=40.0)
+ob = bpy.context.object
+if "cpa" in a:
+    ob.data.materials.append(build_cpa_material(bpy, "flakedb_cpa", a["cpa"], "{}"))
+else:
+    ob.data.materials.append(build_material(bpy, "flakedb_fit", {k: (tuple(v) if isinstance(v, list) else v)
+                                                                 for k, v in a["inputs"].items()}, "{}"))
+cam = bpy.data.cameras.new("cam"); cam.type = "ORTHO"; cam.ortho_scale = 0.5
+co = bpy.data.objects.new("cam", cam); sc.collection.objects.link(co); co.location = (0.0, 0.0, 4.0); sc.camera = co
+ld = bpy.data.lights.new("sun", "SUN"); ld.energy = 1.0; ld.angle = 2.0 * math.radians(a["half_angle_deg"])
+lo = bpy.data.objects.new("sun", ld); sc.collection.objects.link(lo)
+sc.render.image_settings.file_format = "OPEN_EXR"
+sc.render.image_settings.color_depth = "32"
+means = []
+for illum, x in a["geometries"]:
+    ob.rotation_euler = (0.0, -math.radians(x), 0.0)
+    t = math.radians(illum - x)
+    lo.rotation_euler = Vector((math.sin(t), 0.0, math.cos(t))).to_track_quat("Z", "Y").to_euler()
+    sc.render.filepath = a["exr"]
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(a["exr"], check_existing=False)
+    px = list(img.pixels)
+    n = len(px) // 4
+    means.append([sum(px[c::4]) / n for c in range(3)])
+    bpy.data.images.remove(img)
+open(a["out"], "w").write(json.dumps({"pixels": [], "blender": bpy.app.version_string, "info": {"means": means}}))
+'''
+
+
+def render_cycles_geometries(geometries, *, inputs: dict | None = None, cpa: dict | None = None, size: int = 8,
+                             samples: int = 256, half_angle_deg: float = 0.5, threads: int = 1, seed: int = 1,
+                             python: str | None = None, timeout: float = 600.0) -> np.ndarray:
+    """Reflectance factors π f (G, 3) that Cycles renders at in-plane ``geometries`` (G, 2) =
+    (illumination°, aspecular°) (ASTM E2194's convention, :func:`flakedb.match.fit.geometry_directions`):
+    a plane seen orthographically under a sun of irradiance 1 (:data:`_GEOMETRY_SCRIPT`), the image mean
+    L = f μ_l divided by μ_l = cos(illumination), times π.  The material is the Principled BSDF of
+    ``inputs`` (:func:`principled_inputs`) or the node group of ``cpa`` (:func:`cpa_inputs`)."""
+    g = np.asarray(geometries, float).reshape(-1, 2)
+    args = render_args(size=size, samples=samples, direction=(0, 0, 1), irradiance=1.0, half_angle_deg=half_angle_deg,
+                       extent=1.0, threads=threads, seed=seed, filter_width_px=1.0, adaptive_sampling=False)
+    args["geometries"] = [[float(i), float(asp - i)] for i, asp in g]
+    if cpa is not None:
+        args["cpa"] = cpa
+    else:
+        args["inputs"] = {k: list(v) if isinstance(v, tuple) else v for k, v in inputs.items()}
+    out = run_bpy_script(_BUILD + _CPA_BUILD + SCENE_SETUP_SCRIPT + _GEOMETRY_SCRIPT, args, python=python, timeout=timeout)
+    return np.pi * np.asarray(out["info"]["means"], float) / np.cos(np.radians(g[:, :1]))

@@ -88,3 +88,73 @@ def read_fit(path) -> dict:
     if s is None:
         raise ValueError(f"{path}: a MaterialX document without flakedb's fit (not written by flakedb export-openpbr)")
     return json.loads(s)
+
+
+def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str, fit_json: str = "{}") -> str:
+    """The angle-indexed material of :mod:`flakedb.export.cpa` as a MaterialX 1.39 graph of standard
+    nodes: μ_v = -``normal``·``viewdirection`` (world space), texture coordinate
+    ``(μ_v (n - 1) / n + 0.5 / n, (k + 0.5) / rows)`` into ``image_file`` (the colour table, 16-bit
+    PNG, ``lin_rec709``, linear filtering, clamped), each row times its ``scales[k]``; row 0 colours an
+    ``oren_nayar_diffuse_bsdf`` of roughness 0 (Lambert), row k a ``generalized_schlick_bsdf`` (GGX,
+    ``color0 = color90`` = the row's colour: no Fresnel variation) of roughness α_k (MaterialX's
+    ``roughness`` is α itself), all summed by ``add`` with the coat's mirror, a smooth
+    ``dielectric_bsdf`` of index ``coat_ior`` in reflection only; a ``surface`` and a
+    ``surfacematerial``.  The sum is ``add``, not ``layer``: the table already holds the coat's
+    transmission.  Plain XML (no MaterialX needed to write); the fit as JSON in ``flakedb_cpa``."""
+    n = safe_name(name)
+    rows = len(scales)
+    root = ET.Element("materialx", {"version": MTLX_VERSION, "colorspace": "lin_rec709", "flakedb_cpa": fit_json})
+
+    def node(kind, nname, typ, **inputs):
+        e = ET.SubElement(root, kind, {"name": nname, "type": typ})
+        for k, (t, v) in inputs.items():
+            if isinstance(v, tuple) and v[0] == "node":
+                ET.SubElement(e, "input", {"name": k, "type": t, "nodename": v[1]})
+            else:
+                ET.SubElement(e, "input", {"name": k, "type": t, "value": v})
+        return e
+
+    node("normal", "N_world", "vector3", space=("string", "world"))
+    node("viewdirection", "V_world", "vector3", space=("string", "world"))
+    node("dotproduct", "NdotI", "float", in1=("vector3", ("node", "N_world")), in2=("vector3", ("node", "V_world")))
+    node("multiply", "u_scaled", "float", in1=("float", ("node", "NdotI")), in2=("float", f"{-(n_table - 1) / n_table:.9g}"))
+    node("add", "u", "float", in1=("float", ("node", "u_scaled")), in2=("float", f"{0.5 / n_table:.9g}"))
+    total = None
+    for k in range(rows):
+        node("combine2", f"uv_{k}", "vector2", in1=("float", ("node", "u")), in2=("float", f"{(k + 0.5) / rows:.9g}"))
+        img = node("image", f"table_{k}", "color3", texcoord=("vector2", ("node", f"uv_{k}")),
+                   filtertype=("string", "linear"), uaddressmode=("string", "clamp"), vaddressmode=("string", "clamp"))
+        f = ET.SubElement(img, "input", {"name": "file", "type": "filename", "value": image_file,
+                                         "colorspace": "lin_rec709"})
+        del f
+        node("multiply", f"colour_{k}", "color3", in1=("color3", ("node", f"table_{k}")), in2=("float", f"{float(scales[k]):.9g}"))
+        if k == 0:
+            node("oren_nayar_diffuse_bsdf", "lobe_0", "BSDF", color=("color3", ("node", "colour_0")), roughness=("float", "0"))
+        else:
+            a = float(alphas[k - 1])
+            node("generalized_schlick_bsdf", f"lobe_{k}", "BSDF", color0=("color3", ("node", f"colour_{k}")),
+                 color90=("color3", ("node", f"colour_{k}")), roughness=("vector2", f"{a:.9g}, {a:.9g}"),
+                 distribution=("string", "ggx"))
+        if total is None:
+            total = f"lobe_{k}"
+        else:
+            node("add", f"sum_{k}", "BSDF", in1=("BSDF", ("node", total)), in2=("BSDF", ("node", f"lobe_{k}")))
+            total = f"sum_{k}"
+    if coat_ior > 1.0:
+        node("dielectric_bsdf", "coat", "BSDF", ior=("float", f"{float(coat_ior):.9g}"), roughness=("vector2", "0, 0"),
+             scatter_mode=("string", "R"))
+        node("add", "sum_coat", "BSDF", in1=("BSDF", ("node", total)), in2=("BSDF", ("node", "coat")))
+        total = "sum_coat"
+    node("surface", f"SR_{n}", "surfaceshader", bsdf=("BSDF", ("node", total)))
+    m = ET.SubElement(root, "surfacematerial", {"name": f"M_{n}", "type": "material"})
+    ET.SubElement(m, "input", {"name": "surfaceshader", "type": "surfaceshader", "nodename": f"SR_{n}"})
+    ET.indent(root)
+    return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def write_cpa_mtlx(path, image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str,
+                   fit_json: str = "{}") -> Path:
+    path = Path(path)
+    with atomic_path(path, suffix="") as tmp:
+        Path(tmp).write_text(cpa_mtlx_text(image_file, scales, alphas, coat_ior, n_table, name, fit_json), encoding="utf-8")
+    return path

@@ -8,9 +8,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from flakedb.bsdf import open_bsdf
-from flakedb.export.blender import write_material_script
+import json
+
+from flakedb.export.blender import cpa_material_script, write_material_script
+from flakedb.export.cpa import fit_cpa, png16_bytes, table_image
 from flakedb.export.gltf import write_gltf
-from flakedb.export.materialx import write_mtlx
+from flakedb.export.materialx import cpa_mtlx_text, write_mtlx
 from flakedb.export.openpbr import fit_openpbr
 from flakedb.export.usd import write_usda
 from flakedb.outputs import OutputPlan, check_file_name, sweep_stale
@@ -48,6 +51,44 @@ def export_openpbr(src, out_dir, name: str | None = None, progress=None) -> dict
     return {"fit": fit.to_dict(), "files": {kind: str(p) for kind, p in finals.items()}}
 
 
+def export_cpa(src, out_dir, name: str | None = None, progress=None) -> dict:
+    """Fit the angle-indexed material to ``src`` (:func:`flakedb.export.cpa.fit_cpa`: coat mirror,
+    Lambert and GGX lobes whose colours are a table indexed by N·V) and write ``NAME.cpa.png`` (the
+    colour table, 16-bit linear RGB, each row scaled to its maximum), ``NAME.cpa.mtlx`` (MaterialX
+    graph of standard nodes reading that image by the relative name), ``NAME.cpa.blender.py``
+    (Cycles / EEVEE node group; the table in float, packed: no file needed) and ``NAME.cpa.json``
+    (the fit: table, roughnesses, error) in ``out_dir``.  Returns {"fit": dict, "files": {kind: path}}."""
+    out_dir = Path(out_dir)
+    option = "--name" if name is not None else "FILE's name (before its first '.'; choose one with --name)"
+    name = Path(src).name.split(".")[0] if name is None else str(name)
+    plan = OutputPlan()
+    plan.add_input(src, "FILE")
+    check_file_name(name, option)
+    kinds = {"image": ".cpa.png", "materialx": ".cpa.mtlx", "blender": ".cpa.blender.py", "fit": ".cpa.json"}
+    finals = {kind: plan.in_dir(out_dir, f"{name}{suffix}", kind) for kind, suffix in kinds.items()}
+    plan.check()
+    for p in sweep_stale(out_dir):
+        if progress:
+            progress(f"note: removed {p}, a temporary entry left by an interrupted flakedb run")
+    b = open_bsdf(src)
+    if progress:
+        progress("fitting the angle-indexed colour table (hemisphere + E2194/E2539 geometries)")
+    fit = fit_cpa(b, source=str(src))
+    d = fit.to_dict()
+    fit_json = json.dumps(d, separators=(",", ":"))
+    px, scale = table_image(fit)
+    texts = {"materialx": cpa_mtlx_text(finals["image"].name, scale, fit.alphas, fit.coat_ior, fit.n_table, name,
+                                        json.dumps({k: v for k, v in d.items() if k != "table"}, separators=(",", ":"))),
+             "blender": cpa_material_script(fit.table, fit.alphas, fit.coat_ior, name, fit_json),
+             "fit": json.dumps(d, indent=1)}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with plan.staged() as stage:  # the four files land together or not at all
+        stage.path(finals["image"]).write_bytes(png16_bytes(px))
+        for kind, text in texts.items():
+            stage.path(finals[kind]).write_text(text, encoding="utf-8")
+    return {"fit": d, "files": {kind: str(p) for kind, p in finals.items()}}
+
+
 def _mitsuba_coated(src, out, **kw):
     return export_coated(src, out, **kw)
 
@@ -69,6 +110,9 @@ EXPORT_METHODS = {
                        "spectral channels; not run"),
     "openpbr": (_openpbr, "coat (index, roughness), base colour, metalness, one GGX lobe",
                 "colour travel, the table's lobe shape beyond one GGX lobe, sparkle"),
+    "cpa": (export_cpa, "coat mirror, Lambert + 3 GGX lobes with RGB colours indexed by N.V (MaterialX graph, "
+                        "Blender node group, PNG table)",
+            "colour changes with the light direction beyond the lobes' shapes, the coat's refraction, sparkle"),
 }
 
 
@@ -80,7 +124,7 @@ def export(src, out, method: str = "openpbr", **kwargs):
     >>> export("paint.bsdf", "out", method="blender")
     Traceback (most recent call last):
     ...
-    ValueError: method = 'blender' is not an export route; the routes are: mitsuba-measured, mitsuba-coated, pbrt-v3-coated, openpbr
+    ValueError: method = 'blender' is not an export route; the routes are: mitsuba-measured, mitsuba-coated, pbrt-v3-coated, openpbr, cpa
     """
     key = str(method).lower()
     if key not in EXPORT_METHODS:

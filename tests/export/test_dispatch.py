@@ -13,6 +13,7 @@ from flakedb.export import registry
 
 @pytest.mark.parametrize("args, method", [
     (["export-openpbr", "{src}", "--out", "{out}"], "openpbr"),
+    (["export-cpa", "{src}", "--out", "{out}"], "cpa"),
     (["export-mitsuba", "{src}", "--out", "{out}/p.measured.tensor"], "mitsuba-coated"),
     (["export-mitsuba", "{src}", "--no-coat", "--out", "{out}/p.measured.tensor"], "mitsuba-measured"),
 ])

@@ -1,0 +1,47 @@
+"""`flakedb export-cpa FILE --out DIR`: the angle-indexed colour-table material (MaterialX graph, Blender
+node group, PNG table).  Thin: the work is in :func:`flakedb.export.registry.export_cpa`."""
+
+import json
+from pathlib import Path
+
+import click
+
+from flakedb.bsdf import BSDFFileError
+from flakedb.cli.errors import FlakedbError
+from flakedb.cli.failures import probe_writable, remove_created_dirs
+from flakedb.outputs import OutputError, check_output_dir
+from flakedb.export.registry import export
+
+
+@click.command("export-cpa")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--out", "out", default=None, type=click.Path(file_okay=False),
+              help="Output directory [default: FILE's directory].")
+@click.option("--name", default=None, help="Base name of the files [default: FILE's stem].")
+@click.option("--json", "as_json", is_flag=True, help="Print the fit and the files as JSON.")
+def export_cpa(file, out, name, as_json):
+    """Fit a coat mirror, a Lambert term and three GGX lobes whose colours are a table indexed by the view angle to a Fourier .bsdf / flakedb .h5 FILE, and write NAME.cpa.png (the table), NAME.cpa.mtlx (MaterialX standard nodes), NAME.cpa.blender.py (Cycles / EEVEE node group) and NAME.cpa.json (the fit and its ΔE00)."""
+    out_dir = Path(out) if out is not None else Path(file).absolute().parent
+    try:
+        check_output_dir(out_dir.absolute())
+        probe_writable(out_dir.absolute())
+    except OutputError as e:
+        raise FlakedbError(str(e)) from None
+    try:
+        with remove_created_dirs(out_dir.absolute()):
+            s = export(file, out_dir, method="cpa", name=name,
+                       progress=None if as_json else (lambda m: click.echo(m, err=True)))
+    except (BSDFFileError, OutputError, ValueError) as e:
+        raise FlakedbError(str(e)) from None
+    if as_json:
+        click.echo(json.dumps({"fit": {k: v for k, v in s["fit"].items() if k != "table"}, "files": s["files"]}, indent=2))
+        return
+    f, e = s["fit"], s["fit"]["error"]
+    click.echo(f"fit: lobes GGX α {', '.join(f'{a:.3g}' for a in f['alphas'])}, colour table {len(f['table'])} x "
+               f"{f['n_table']} (indexed by N.V); coat ior {f['coat_ior']:.4g}")
+    click.echo(f"fit error (the model against FILE; Cycles renders the model to 0.2 %, docs/renderers.md): worst ΔE00 "
+               f"{e['worst_dE00_E2194']:.2f} at the E2194 geometries, {e['worst_dE00_E2539']:.2f} with E2539's; over "
+               f"the hemisphere (both within 70°) median {e['dE00_hemisphere_70deg']['median']:.2f}, "
+               f"max {e['dE00_hemisphere_70deg']['max']:.2f}")
+    for k, p in s["files"].items():
+        click.echo(f"wrote {p} ({k})")

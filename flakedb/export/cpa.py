@@ -1,0 +1,436 @@
+"""Angle-dependent colour in production materials: a coat, a Lambert term and a few GGX lobes whose
+RGB colours are a table indexed by angle, fitted to a paint's exact BSDF over the hemisphere.
+
+The car-paint industry carries effect paints this way (X-Rite AxF, CPA2: a few Cook-Torrance lobes
+and a BRDF colour table indexed by angles, under a clear coat).  What a renderer's shader can index
+by decides the table's axes: in Cycles' and EEVEE's node trees (and in a MaterialX graph of standard
+nodes) the shading point knows its normal N and view direction ω_v, never the light's, so the half
+vector and θ_d of AxF's table are not available there.  This model therefore indexes by the view
+cosine μ_v = N·ω_v and leaves the light dependence to the lobes (what AxF-style Cycles
+implementations do)::
+
+    f(ω_v, ω_l) = F_c(μ_v) δ(ω_l - mirror(ω_v))  +  C_0(μ_v) / π  +  Σ_{k=1..K} C_k(μ_v) L_k(ω_v, ω_l),
+
+    L_k = D(h; α_k) G2(ω_v, ω_l; α_k) / (4 μ_v μ_l),
+
+with F_c the smooth coat's dielectric Fresnel reflectance (the file's ``delta``, carried exactly, left
+out of the fit; Born & Wolf §1.5.2), D the GGX distribution and G2 the height-correlated Smith
+masking-shadowing (Heitz 2014, eq. 99): Cycles' Glossy BSDF with GGX and no Fresnel
+(:func:`flakedb.export.blender.ggx_lobe_height_correlated`), so that the model is what the Blender
+node group renders, term for term.  Each C_k is linear RGB, piecewise linear in μ_v between
+``n_table`` equally spaced nodes μ_j = j / (n_table - 1): row k of the colour table (an image of
+(K + 1) rows x n_table columns, read with linear interpolation at pixel centres).  Nothing
+multiplies a lobe by a function of the light direction, so the coat's transmission at the light end,
+(1 - F_c(μ_l)), the refraction of the flakes' lobes by the coat and every light-side colour change
+are approximated by the K + 1 lobe shapes with view-dependent weights.  The model is not reciprocal
+(the exact BSDF is); it is evaluated with ω_v the camera's side, as renderers do.
+
+The fit (:func:`fit_cpa`)
+------------------------
+For fixed roughnesses (α_1..α_K) the model is linear in the (K + 1) n_table colours per channel, so
+they have a non-negative least-squares solution (Lawson-Hanson, :func:`scipy.optimize.nnls`) of
+the weighted residual over
+
+* a hemisphere sample set: Gauss-Legendre nodes in μ_v and μ_l on (0, 1), midpoints in φ_d on
+  (0, π) (f is even in φ_d), weight ``w_q μ_v μ_l`` (the cosine-weighted difference), times the
+  perceptual factor ``R^(-4/3)`` of CIELAB's cube root linearised at the sample's reflectance factor
+  R = π mean(f) (floored at :data:`R_FLOOR`), so that the fit spends its freedom where ΔE00 is judged;
+* the colour geometries of ASTM E2194 (45° illumination) and E2539 (15°), weighted
+  :data:`GEOMETRY_WEIGHT` times the hemisphere's total, in ΔL*-like units as in
+  :func:`flakedb.export.openpbr.fit_openpbr`;
+* a small second-difference penalty along μ_v (:data:`SMOOTHNESS`: the table stays smooth where no
+  sample falls, e.g. towards μ_v = 0).
+
+The roughnesses are searched over :data:`ALPHA_GRID` (every K-subset), the best kept, then
+:data:`MINIMAX_PASSES` reweightings of the E2194 geometries towards their worst ΔE00.
+
+Reported: ΔE00 (CIEDE2000, D65 / 2°, the file's white-normalised linear sRGB) at every E2194 and
+E2539 geometry, and over the hemisphere sample set (median, 95th percentile, max, for both
+directions within 70° of the normal and over all of it), with the cosine-weighted relative BSDF
+difference.  Measurements per paint: docs/renderers.md.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import nnls
+from scipy.sparse import csr_matrix
+
+from flakedb.atomic import atomic_path
+from flakedb.colour.tolerance import delta_E_2000
+from flakedb.export.blender import ggx_lobe_height_correlated, sphere_normals, sun_disk
+from flakedb.export.openpbr import colour_grid, cosine_weighted_difference, exact_rgb, file_directions
+from flakedb.match.fit import channels_to_Lab, geometry_directions
+from flakedb.match.targets import E2194_GEOMETRIES, E2539_EXTRA
+
+#: Columns of the colour table (nodes in μ_v) and number of GGX lobes.
+N_TABLE = 32
+N_LOBES = 3
+#: GGX α searched for the lobes (every N_LOBES-subset of it).
+ALPHA_GRID = (0.03, 0.06, 0.11, 0.18, 0.28, 0.42, 0.65)
+#: Hemisphere sample set of the fit: Gauss-Legendre nodes in μ_v and μ_l, midpoints in φ_d.
+N_MU_FIT = 16
+N_PHI_FIT = 24
+#: Exponent p of the hemisphere's perceptual weight R^(-p) (4/3: CIELAB's cube root linearised).
+PERCEPTUAL_EXPONENT = 4.0 / 3.0
+#: Reflectance factor below which the perceptual weight R^(-4/3) stops growing.
+R_FLOOR = 0.01
+#: The colour geometries' total weight relative to the hemisphere's.
+GEOMETRY_WEIGHT = 1.0
+#: Weight of an E2539 (15° illumination) geometry relative to an E2194 one.
+E2539_SHARE = 0.2
+#: Weight of the second-difference penalty along μ_v, relative to the data's mean diagonal.
+SMOOTHNESS = 1e-2
+#: Reweightings of the E2194 geometries towards the worst ΔE00.
+MINIMAX_PASSES = 4
+#: Largest view / light angle of the "within 70°" hemisphere statistics.
+HEMISPHERE_STAT_DEG = 70.0
+
+
+@dataclass
+class CPAFit:
+    """The fitted material.
+
+    table (K + 1, n_table, 3) linear RGB colours: row 0 the Lambert term's, row k the lobe of GGX
+    α = ``alphas[k - 1]`` (roughness √α); column j at μ_v = j / (n_table - 1).  coat_ior: the smooth
+    coat's index (1: no coat mirror).  error: what the fit costs (module docstring)."""
+
+    table: np.ndarray
+    alphas: tuple
+    coat_ior: float
+    source: str = ""
+    error: dict = field(default_factory=dict)
+
+    @property
+    def n_table(self) -> int:
+        return int(self.table.shape[1])
+
+    def to_dict(self) -> dict:
+        return {"model": "flakedb.export.cpa: coat mirror + Lambert + GGX lobes, RGB colours indexed by N.V",
+                "alphas": [float(a) for a in self.alphas], "roughness": [float(math.sqrt(a)) for a in self.alphas],
+                "coat_ior": float(self.coat_ior), "n_table": self.n_table, "source": self.source,
+                "table": np.round(self.table, 7).tolist(), "error": self.error}
+
+    @classmethod
+    def from_dict(cls, d) -> CPAFit:
+        return cls(np.asarray(d["table"], float), tuple(float(a) for a in d["alphas"]), float(d["coat_ior"]),
+                   d.get("source", ""), dict(d.get("error", {})))
+
+
+# --------------------------------------------------------------------------------------------
+# The model
+# --------------------------------------------------------------------------------------------
+def hat_weights(mu_v, n_table: int) -> np.ndarray:
+    """(P, n_table) weights of linear interpolation between the nodes μ_j = j / (n_table - 1) at
+    ``mu_v`` (clipped to [0, 1]): what an image texture read with linear interpolation at pixel
+    centres returns.  Rows sum to 1."""
+    x = np.clip(np.asarray(mu_v, float).ravel(), 0.0, 1.0) * (n_table - 1)
+    j = np.minimum(np.floor(x).astype(int), n_table - 2)
+    t = x - j
+    H = np.zeros((x.size, n_table))
+    H[np.arange(x.size), j] = 1.0 - t
+    H[np.arange(x.size), j + 1] = t
+    return H
+
+
+def lobe_basis(mu_v, mu_l, cos_h, alphas) -> np.ndarray:
+    """(P, K + 1) the model's lobe shapes [1/sr] without colour: 1/π and the GGX lobes of
+    :func:`flakedb.export.blender.ggx_lobe_height_correlated` (Cycles' Glossy BSDF, F = 1)."""
+    cols = [np.full(np.shape(mu_v), 1.0 / np.pi)]
+    cols += [ggx_lobe_height_correlated(mu_v, mu_l, cos_h, a) for a in alphas]
+    return np.stack(cols, axis=-1)
+
+
+def _half_cos(wv, wl):
+    h = wv + wl
+    return h[..., 2] / np.linalg.norm(h, axis=-1)
+
+
+def evaluate_cpa(fit: CPAFit, mu_i, mu_o, phi_d) -> np.ndarray:
+    """f (..., 3) [1/sr] of the model (no delta) at the file's coordinates (ω_i the light, ω_o, with
+    ``mu_o < 0``, the view: :func:`flakedb.export.openpbr.file_directions`)."""
+    wl, wv = file_directions(mu_i, mu_o, phi_d)
+    return _eval_dirs(fit, wv, wl)
+
+
+def _eval_dirs(fit: CPAFit, wv, wl):
+    mu_v, mu_l = wv[..., 2], wl[..., 2]
+    shape = mu_v.shape
+    B = lobe_basis(mu_v.ravel(), mu_l.ravel(), _half_cos(wv, wl).ravel(), fit.alphas)          # (P, K+1)
+    H = hat_weights(mu_v, fit.n_table)                                                        # (P, n)
+    C = np.einsum("pj,kjc->pkc", H, fit.table)                                               # (P, K+1, 3)
+    return np.einsum("pk,pkc->pc", B, C).reshape(shape + (3,))
+
+
+def cpa_sun_image(fit: CPAFit, size: int = 32, direction=(0.0, 0.0, 1.0), irradiance: float = 1.0,
+                  half_angle_deg: float = 2.0, extent: float = 1.05) -> np.ndarray:
+    """(size, size, 3) image of the model on the unit sphere under a sun of ``irradiance`` and angular
+    radius ``half_angle_deg`` (:func:`flakedb.export.blender.sun_disk`), at pixel centres, in the frame
+    of :func:`flakedb.export.blender.render_cycles_sphere` (row 0 at the top): what the node group
+    (:func:`flakedb.export.blender.cpa_material_script`) renders in Cycles, the coat's mirror aside
+    (it reaches no pixel centre off the sun's highlight)."""
+    N, on = sphere_normals(size, extent)
+    ok = on & (N[..., 2] > 0)
+    Nk = N[ok]
+    # local frame per pixel: z = N, x along the view's tangent part
+    v = np.array([0.0, 0.0, 1.0])
+    out = np.zeros((len(Nk), 3))
+    dirs, wts = sun_disk(direction, half_angle_deg)
+    mu_v = Nk[:, 2]
+    for l, wt in zip(dirs, wts):
+        mu_l = Nk @ l
+        h = (l + v) / np.linalg.norm(l + v)
+        B = lobe_basis(mu_v, mu_l, Nk @ h, fit.alphas)
+        C = np.einsum("pj,kjc->pkc", hat_weights(mu_v, fit.n_table), fit.table)
+        f = np.einsum("pk,pkc->pc", B, C)
+        out += np.where((mu_l > 0)[:, None], f * (wt * np.maximum(mu_l, 0.0) * irradiance)[:, None], 0.0)
+    img = np.zeros((size, size, 3))
+    img[ok] = out
+    return img
+
+
+def _sun_pixels(size, extent, direction, half_angle_deg):
+    """Pixel normals on the sphere, and per sun-disk node (its direction, weight) the file coordinates
+    (mu_i = light, mu_o = -view, phi_d) of every pixel: the frame of :func:`cpa_sun_image`."""
+    N, on = sphere_normals(size, extent)
+    ok = on & (N[..., 2] > 0)
+    Nk = N[ok]
+    mu_v = Nk[:, 2]
+    tv = np.array([0.0, 0.0, 1.0]) - Nk * mu_v[:, None]
+    nodes = []
+    for l, wt in zip(*sun_disk(direction, half_angle_deg)):
+        mu_l = Nk @ l
+        tl = l - Nk * mu_l[:, None]
+        den = np.linalg.norm(tv, axis=-1) * np.linalg.norm(tl, axis=-1)
+        cos_dphi = np.where(den > 0, np.sum(tv * tl, axis=-1) / np.where(den > 0, den, 1.0), 1.0)
+        nodes.append((mu_l, -mu_v, np.pi - np.arccos(np.clip(cos_dphi, -1.0, 1.0)), wt))
+    return ok, nodes
+
+
+def sun_image(f_of, size: int = 32, direction=(0.0, 0.0, 1.0), irradiance: float = 1.0, half_angle_deg: float = 2.0,
+              extent: float = 1.05) -> np.ndarray:
+    """(size, size, 3) image ``L = E Σ_k w_k f(ω_v, ω_k) μ_k`` over the sun disk's nodes
+    (:func:`flakedb.export.blender.sun_disk`) at pixel centres, in the frame of
+    :func:`flakedb.export.blender.render_cycles_sphere`, of ``f_of(mu_i, mu_o, phi_d)`` (..., 3) in
+    the file's coordinates (light = ω_i): with :func:`flakedb.export.openpbr.exact_rgb` it is the
+    exact paint's image, deterministic (flakedb's preview of the same scene without its Monte Carlo
+    noise), the coat's delta aside; with :func:`evaluate_cpa` the model's (:func:`cpa_sun_image`)."""
+    ok, nodes = _sun_pixels(size, extent, direction, half_angle_deg)
+    out = np.zeros((int(ok.sum()), 3))
+    for mu_l, mu_o, phi_d, wt in nodes:
+        lit = mu_l > 0
+        if np.any(lit):
+            out[lit] += f_of(mu_l[lit], mu_o[lit], phi_d[lit]) * (wt * mu_l[lit] * irradiance)[:, None]
+    img = np.zeros((size, size, 3))
+    img[ok] = out
+    return img
+
+
+# --------------------------------------------------------------------------------------------
+# The fit
+# --------------------------------------------------------------------------------------------
+def fit_samples(n_mu: int = N_MU_FIT, n_phi: int = N_PHI_FIT, n_view: int = 2 * N_TABLE):
+    """(mu_i (light), mu_o (< 0, view), phi_d, weight) flat arrays of the hemisphere sample set
+    (module docstring): ``n_view`` midpoints in μ_v (two per table interval, so that every table
+    column is seen by data), Gauss-Legendre nodes in μ_l, midpoints in φ_d on (0, π); weights sum
+    to ∫∫ dμ_i dμ_o dφ over φ in (0, 2π) = 2π."""
+    x, w = np.polynomial.legendre.leggauss(n_mu)
+    x, w = 0.5 * (x + 1), 0.5 * w
+    v = (np.arange(n_view) + 0.5) / n_view
+    phi = (np.arange(n_phi) + 0.5) * np.pi / n_phi
+    MI, MO, PH = np.meshgrid(x, v, phi, indexing="ij")
+    W = (w[:, None, None] * np.full(n_view, 1.0 / n_view)[None, :, None]) * np.full(n_phi, 2 * np.pi / n_phi)[None, None, :]
+    return MI.ravel(), -MO.ravel(), PH.ravel(), W.ravel()
+
+
+def _second_difference(n_table: int, n_rows: int) -> np.ndarray:
+    d = np.zeros((n_table - 2, n_table))
+    for j in range(n_table - 2):
+        d[j, j:j + 3] = (1.0, -2.0, 1.0)
+    return np.kron(np.eye(n_rows), d)
+
+
+def _nnls_gram(G, b, n_table, n_rows, lam):
+    """argmin_{c ≥ 0} c^T G c - 2 b^T c + lam |D c|² via the Cholesky factor of the regularised Gram."""
+    D = _second_difference(n_table, n_rows)
+    s = np.sqrt(np.mean(np.diag(G).reshape(n_rows, n_table), axis=1))      # each row's own scale
+    s = np.repeat(s, n_table)
+    A = G + lam * (s[:, None] * (D.T @ D) * s[None, :]) + 1e-12 * np.diag(s * s)
+    R = np.linalg.cholesky(A).T                                   # A = R^T R
+    z = np.linalg.solve(R.T, b)
+    c, _ = nnls(R, z, maxiter=50 * len(G))
+    return c
+
+
+def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_GRID, source: str = "",
+            minimax_passes: int = MINIMAX_PASSES) -> CPAFit:
+    """Fit :class:`CPAFit` to the FourierBSDF ``b`` (module docstring) and measure its error."""
+    if b.delta is not None:
+        if b.delta.get("kind") != "fresnel":
+            raise ValueError(f"fit_cpa: the file's delta kind {b.delta.get('kind')!r} is not carried "
+                             f"(only 'fresnel', a smooth coat's mirror)")
+        coat_ior = float(b.delta["eta"])
+    else:
+        coat_ior = 1.0                                    # a rough coat is in the table: the lobes fit it
+    mi, mo, ph, wq = fit_samples()
+    geoms = np.asarray(E2194_GEOMETRIES + E2539_EXTRA, float)
+    gi, go, gp = geometry_directions(geoms)
+    n45 = len(E2194_GEOMETRIES)
+    y_h, y_g = exact_rgb(b, mi, mo, ph), exact_rgb(b, gi, go, gp)
+    wl_nm = colour_grid(b)
+    lab_g = channels_to_Lab(np.pi * y_g, "rgb", wl_nm)
+    R_h = np.maximum(np.pi * y_h.mean(axis=1), R_FLOOR)
+    W_h = wq * mi * np.abs(mo) * R_h ** (-PERCEPTUAL_EXPONENT)
+    W_h = W_h / W_h.sum()
+    R_g = np.maximum(np.pi * y_g.mean(axis=1), R_FLOOR)
+    W_g0 = R_g ** (-4.0 / 3.0)
+    W_g0 = GEOMETRY_WEIGHT * W_g0 / W_g0.sum()
+    Y = np.r_[y_h, y_g]
+    alpha_grid = tuple(float(a) for a in alpha_grid)
+    # The design is (lobe shape B_pa) x (interpolation weight H_j(μ_v,p)), and the samples share few
+    # distinct μ_v: the Gram blocks Σ_p W B_pa B_pc H_j H_k = Σ_v H_vj H_vk M_v,ac with M_v = Σ_{p at v}
+    # W B_a B_c, so each pass sums over the samples once and each subset is assembled from (U, K, K).
+    MI, MO, PH = np.r_[mi, gi], np.r_[mo, go], np.r_[ph, gp]
+    wl_dir, wv_dir = file_directions(MI, MO, PH)
+    B_all = lobe_basis(wv_dir[..., 2], wl_dir[..., 2], _half_cos(wv_dir, wl_dir), alpha_grid)      # (P, 1 + A)
+    uniq, inv = np.unique(wv_dir[..., 2], return_inverse=True)
+    H_u = hat_weights(uniq, n_table)                                                               # (U, n)
+    S = csr_matrix((np.ones(len(inv)), (inv, np.arange(len(inv)))), shape=(len(uniq), len(inv)))   # sample -> μ_v
+    n_rows = n_lobes + 1
+    index = {a: i + 1 for i, a in enumerate(alpha_grid)}
+
+    def moments(W):
+        """M_v,ac, Σ_p W B_pa H_j y_p (as (U, K, 3) before H) and Σ W y² per channel."""
+        WB = W[:, None] * B_all
+        M = (S @ (WB[:, :, None] * B_all[:, None, :]).reshape(len(W), -1)).reshape(len(uniq), *B_all.shape[1:] * 2)
+        BY = (S @ (WB[:, :, None] * Y[:, None, :]).reshape(len(W), -1)).reshape(len(uniq), B_all.shape[1], 3)
+        return M, BY, np.sum(W[:, None] * Y * Y, axis=0)
+
+    def solve_subset(alphas, mom):
+        M, BY, yy = mom
+        ks = [0] + [index[a] for a in alphas]
+        G = np.einsum("vj,vac,vk->ajck", H_u, M[:, ks][:, :, ks], H_u).reshape(n_rows * n_table, n_rows * n_table)
+        XYs = np.einsum("vj,vac->ajc", H_u, BY[:, ks]).reshape(n_rows * n_table, 3)
+        c = np.stack([_nnls_gram(G, XYs[:, k], n_table, n_rows, SMOOTHNESS) for k in range(3)], axis=-1)
+        r = float(np.sum(yy - 2.0 * np.sum(c * XYs, axis=0) + np.einsum("mk,mn,nk->k", c, G, c)))
+        return c, r
+
+    u = np.r_[np.ones(n45), np.full(len(geoms) - n45, E2539_SHARE)]
+    best = None
+    for p in range(max(int(minimax_passes), 1)):
+        mom = moments(np.r_[W_h, W_g0 * u])
+        if p == 0:
+            subsets = list(itertools.combinations(alpha_grid, n_lobes))
+            alphas = min(subsets, key=lambda s: solve_subset(s, mom)[1])
+        c, _ = solve_subset(alphas, mom)
+        fit = CPAFit(c.reshape(n_rows, n_table, 3), alphas, coat_ior, source)
+        de = delta_E_2000(channels_to_Lab(np.pi * evaluate_cpa(fit, gi, go, gp), "rgb", wl_nm), lab_g)
+        key = (float(de[:n45].max()), float(de.max()))
+        if best is None or key < best[0]:
+            best = (key, fit)
+        u[:n45] = u[:n45] * (de[:n45] / max(de[:n45].max(), 1e-12)) ** 2 + 1e-3      # towards E2194's minimax
+        u[:n45] = u[:n45] * n45 / u[:n45].sum()
+    fit = best[1]
+    fit.error = cpa_error(b, fit)
+    return fit
+
+
+def cpa_error(b, fit: CPAFit, n_mu: int = 16, n_phi: int = 24) -> dict:
+    """ΔE00 at the E2194 and E2539 geometries and over a hemisphere grid (module docstring), and the
+    cosine-weighted relative BSDF difference."""
+    wl_nm = colour_grid(b)
+    out = {"colour": "CIEDE2000, D65 / 2 deg, white-normalised linear sRGB"}
+    for name, geoms in (("E2194", E2194_GEOMETRIES), ("E2539", E2194_GEOMETRIES + E2539_EXTRA)):
+        g = np.asarray(geoms, float)
+        gi, go, gp = geometry_directions(g)
+        de = delta_E_2000(channels_to_Lab(np.pi * evaluate_cpa(fit, gi, go, gp), "rgb", wl_nm),
+                          channels_to_Lab(np.pi * exact_rgb(b, gi, go, gp), "rgb", wl_nm))
+        out[f"dE00_{name}"] = [{"illumination_deg": float(i), "aspecular_deg": float(a), "dE00": float(d)}
+                               for (i, a), d in zip(g, de)]
+        out[f"worst_dE00_{name}"] = float(np.max(de))
+    # an independent grid (not the fit's nodes): midpoints in θ, so no node is shared
+    th = (np.arange(n_mu) + 0.5) * (np.pi / 2) / n_mu
+    phi = (np.arange(n_phi) + 0.5) * np.pi / n_phi
+    TI, TO, PH = np.meshgrid(th, th, phi, indexing="ij")
+    mi, mo, ph = np.cos(TI).ravel(), -np.cos(TO).ravel(), PH.ravel()
+    f_fit, f_ex = evaluate_cpa(fit, mi, mo, ph), exact_rgb(b, mi, mo, ph)
+    de = delta_E_2000(channels_to_Lab(np.pi * f_fit, "rgb", wl_nm), channels_to_Lab(np.pi * f_ex, "rgb", wl_nm))
+    inner = (TI.ravel() <= math.radians(HEMISPHERE_STAT_DEG)) & (TO.ravel() <= math.radians(HEMISPHERE_STAT_DEG))
+    for key, sel in (("hemisphere", np.ones_like(inner)), ("hemisphere_70deg", inner)):
+        out[f"dE00_{key}"] = {"median": float(np.median(de[sel])), "p95": float(np.percentile(de[sel], 95)),
+                              "max": float(np.max(de[sel]))}
+    w = np.sin(TI).ravel() * np.sin(TO).ravel()                  # dμ = sin θ dθ on the midpoint grid
+    out["cosine_weighted_difference"] = cosine_weighted_difference(f_fit, f_ex, mi, mo, w)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# The colour table as an image
+# --------------------------------------------------------------------------------------------
+def table_image(fit: CPAFit) -> tuple:
+    """(pixels (K + 1, n_table, 3) in [0, 1], row 0 = table row 0 = the image's **bottom** row as
+    renderers index it (v = (k + 0.5) / (K + 1)); scale (K + 1,) per row): row k's colours are
+    ``pixels[k] * scale[k]``, each row scaled to its largest value so that 16-bit storage keeps
+    5 significant digits of every row."""
+    scale = np.maximum(fit.table.reshape(fit.table.shape[0], -1).max(axis=1), 1e-12)
+    return np.clip(fit.table / scale[:, None, None], 0.0, 1.0), scale
+
+
+def png16_bytes(pixels) -> bytes:
+    """A 16-bit RGB PNG (ISO/IEC 15948: signature, IHDR, one zlib IDAT, IEND; filter 0 per row) of
+    ``pixels`` (H, W, 3) in [0, 1], row 0 written **last** (the bottom row, as renderers index
+    textures), values rounded to ``round(65535 x)``."""
+    p = np.asarray(pixels, float)[::-1]
+    h, w, _ = p.shape
+    q = np.round(np.clip(p, 0.0, 1.0) * 65535.0).astype(">u2")
+    raw = b"".join(b"\x00" + row.tobytes() for row in q)
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b""))
+
+
+def read_png16(data: bytes) -> np.ndarray:
+    """(H, W, 3) float pixels of a PNG written by :func:`png16_bytes`, row 0 = the bottom row."""
+    if data[:8] != b"\x89PNG\r\n\x1a\n":
+        raise ValueError("not a PNG file")
+    pos, idat, w, h = 8, b"", 0, 0
+    while pos < len(data):
+        n = struct.unpack(">I", data[pos:pos + 4])[0]
+        kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + n]
+        if kind == b"IHDR":
+            w, h, depth, ctype = struct.unpack(">IIBB", body[:10])
+            if (depth, ctype) != (16, 2):
+                raise ValueError(f"PNG bit depth {depth} / colour type {ctype}: only 16-bit RGB is read")
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + n
+    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w * 6)
+    if np.any(raw[:, 0] != 0):
+        raise ValueError("PNG rows with a filter other than 0 are not read")
+    q = np.frombuffer(raw[:, 1:].tobytes(), ">u2").reshape(h, w, 3)
+    return (q / 65535.0)[::-1]
+
+
+def write_table_png(path, fit: CPAFit) -> Path:
+    """The colour table's normalised pixels (:func:`table_image`) as a 16-bit PNG at ``path``."""
+    path = Path(path)
+    with atomic_path(path, suffix="") as tmp:
+        Path(tmp).write_bytes(png16_bytes(table_image(fit)[0]))
+    return path
+
+
+def quantised(fit: CPAFit) -> CPAFit:
+    """The fit with its table as a renderer reads it back from the 16-bit PNG (pixels x scale)."""
+    px, scale = table_image(fit)
+    return CPAFit(np.round(px * 65535.0) / 65535.0 * scale[:, None, None], fit.alphas, fit.coat_ior, fit.source,
+                  fit.error)
