@@ -293,7 +293,8 @@ def microfacet_albedo(mu, eta_rel, alpha, fresnel=None, n=ALBEDO_NODES):
 
 
 #: μ grid points (uniform on [0, 1], the first at 1e-3) and slope-space Gauss–Legendre nodes per
-#: dimension of the multiple-scattering chain (:func:`multiple_scattering_escape`).  Measured against
+#: dimension of the conductor's multiple-scattering chain (:func:`conductor_multiple_scattering`; the
+#: dielectric's single-scattering albedos use MS_CHAIN_QUAD too, its escape the height chain).  Measured against
 #: (128, 96), η 1.5, 32 nodes: escape probabilities within 1.1e-4 (α 0.05), 2.8e-4 (0.1), 2.2e-3 (0.3),
 #: 8.7e-4 (0.5) of the incident flux; the grid is not the limit (32 and 64 points agree to 1e-5), the
 #: facet integral's kinks (edge-on facets, the horizon, the critical angle) are.
@@ -436,18 +437,16 @@ def multiple_scattering_escape(mu_above, mu_below, eta, alpha, n_grid=MS_CHAIN_G
     """Probability that light arriving at the rough dielectric (Beckmann α, η = n_below / n_above)
     at cosine μ leaves **into the air** after any number of facet events, from above (``mu_above``)
     and from below (``mu_below``): the multiple-scattering split of the compensation lobe
-    (docs/rough-interfaces.md, "Multiple-scattering split").
+    (docs/rough-interfaces.md, "Multiple scattering by the height chain").
 
-    A Markov chain in the incidence cosine: one facet event (:func:`_first_events`, height-
-    correlated Smith escape) either leaves the surface or is blocked; blocked light re-enters the
-    surface on the side it is on (reflected: the same side; refracted: the other) at the cosine of
-    its blocked direction, and is treated as fresh incidence there (azimuth and height memory
-    dropped).  The chain is solved on ``n_grid`` cosines, p = e + M p, then evaluated at the
-    requested cosines.  The compensation lobe uses P_up − R_single (from above) and
-    P_up − T_single (from below) as its multiple-scattering reflection / transmission into the air,
-    with the solver's own single-scattering R, T (separable Smith): so the total R of the interface
-    is the chain's, including the height-correlated single bounce (Heitz et al. 2016, §5; measured
-    against their random walk in tests/reference/test_microsurface.py).  Returns (P_a, P_b)."""
+    Heitz et al. 2016's random walk on the Smith microsurface, solved as a linear system in (side,
+    propagation cosine, height) by :func:`height_chain_escape` (before issue 36 a chain in the cosine alone,
+    which dropped the height of blocked light and let it see the surface as from above: R from the air at
+    α 0.3 was 0.6–1.5 % low at 45–85°).  The compensation lobe uses P_a − R_single (from above) and
+    P_b − T_single (from below) as its multiple-scattering reflection / transmission into the air, with the
+    solver's own single-scattering R, T (separable Smith): so the total R of the interface is the walk's,
+    including the height-correlated single bounce (measured against the walk in
+    tests/reference/test_rough_walk_table.py).  Returns (P_a, P_b)."""
     # cached: the chain depends only on the cosines, η and α (read-only results)
     return dielectric_albedo_and_escape(mu_above, mu_below, eta, alpha, n_grid, n_quad)[2]
 
@@ -703,9 +702,9 @@ def balance_split(m_a, g_a, r_a, m_b, g_b, t_b, eta):
     (≤ g_b) transmitted from below; the transmitted exchange must be the same both ways,
     Σ m_a (g_a − r_a) = η² Σ m_b t_b (reciprocity of the rank-one blocks).  The binder side's t_b is
     scaled to the air side's sum (lowered, with t_a, if a node would then transmit more than its g):
-    the chain of :func:`multiple_scattering_escape` is the more accurate from the air (measured
-    against the random walk, hemispherical transmission at α 0.5: from the air +0.0014, from the
-    binder −0.006 × η²; docs/rough-interfaces.md).  ``m_a``, ``m_b``: flux weights (or quadrature
+    the height chain of :func:`multiple_scattering_escape` is the more accurate from the air (from the
+    binder the critical angle's kink limits its facet quadrature; the sums differ by 8.5, 5.1, 2.3, 1.9 %
+    of the multiple-scattering transmission at α 0.05, 0.1, 0.3, 0.5, n = 64; docs/rough-interfaces.md).  ``m_a``, ``m_b``: flux weights (or quadrature
     weights × μ for a continuous rule).  Returns (r_a, t_a, r_b, t_b, imbalance) with
     t_a = g_a − r_a, r_b = g_b − t_b and imbalance = Σ m_a t_a / (η² Σ m_b t_b) − 1 before scaling."""
     t_a = np.clip(g_a - r_a, 0.0, g_a)
