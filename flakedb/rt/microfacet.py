@@ -555,12 +555,12 @@ def _facet_outcomes(z_in, eta_rel, alpha, n_u, n_y):
     return F * W, zr, (1.0 - F) * W, zt
 
 
-def _spread_signed(grid, z, wt):
-    """Σ of ``wt`` (K, n, n) onto the signed cosine grid [−grid (down-going), +grid (up-going)] by linear
-    interpolation in |z| on each sign's grid: (K, 2 len(grid))."""
-    up = z > 0
-    return np.concatenate([_hat_matrix(grid, np.abs(z), np.where(up, 0.0, wt)),
-                           _hat_matrix(grid, np.abs(z), np.where(up, wt, 0.0))], axis=-1)
+def _spread_signed(zs, z, wt):
+    """Σ of ``wt`` (K, n, n) onto the signed cosine grid ``zs`` (ascending: down-going, then up-going, no node
+    in (−zs_min, zs_min)) by linear interpolation in z, never across the horizon (|z| below the smallest node
+    is taken at it, on its own side): (K, len(zs))."""
+    lim = zs[len(zs) // 2]
+    return _hat_matrix(zs, np.where(z > 0, np.maximum(z, lim), np.minimum(z, -lim)), wt)
 
 
 def _height_kernel(lam, up, c):
@@ -624,7 +624,7 @@ def height_chain_escape(mu_above, mu_below, eta, alpha):
     cosines.  Accuracy against the walk and the grids: docs/rough-interfaces.md.  Returns (P_a, P_b)."""
     grid = np.linspace(0.0, 1.0, MS_HEIGHT_Z + 1) ** MS_HEIGHT_POWER
     grid[0] = 1e-3
-    zs = np.concatenate([-grid, grid])
+    zs = np.concatenate([-grid[::-1], grid])
     up = zs > 0
     inner = 0.5 * (1.0 - np.cos(np.pi * np.arange(1, MS_HEIGHT_C + 1) / (MS_HEIGHT_C + 1)))
     ends = 10.0 ** -np.arange(3.0, 7.0)
@@ -635,8 +635,8 @@ def height_chain_escape(mu_above, mu_below, eta, alpha):
     Kr, Kt = [], []
     for er in (eta, 1.0 / eta):
         wr, zr, wt, zt = _facet_outcomes(zs, er, alpha, MS_FACET_U, MS_FACET_Y)
-        Kr.append(_spread_signed(grid, zr, wr))
-        Kt.append(_spread_signed(grid, zt, wt))
+        Kr.append(_spread_signed(zs, zr, wr))
+        Kt.append(_spread_signed(zs, zt, wt))
     E = np.zeros((2, len(zs), len(c)))
     E[0] = esc
     d = E.copy()
@@ -652,7 +652,7 @@ def height_chain_escape(mu_above, mu_below, eta, alpha):
     def at(mu, s):
         mu = np.atleast_1d(np.asarray(mu, dtype=float))
         wr, zr, wt, zt = _facet_outcomes(-mu, eta if s == 0 else 1.0 / eta, alpha, MS_FACET_U, MS_FACET_Y)
-        H = _spread_signed(grid, zr, wr) @ d[s] + _spread_signed(grid, zt, wt) @ d[1 - s][:, flip]
+        H = _spread_signed(zs, zr, wr) @ d[s] + _spread_signed(zs, zt, wt) @ d[1 - s][:, flip]
         first, _ = _height_kernel(_smith_lambda(mu, alpha), np.zeros(len(mu), dtype=bool), c)
         return np.einsum("kj,kj->k", first[:, -1, :], H)  # from above the surface: departure at c = 1
 
