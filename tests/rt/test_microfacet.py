@@ -573,4 +573,5 @@ def test_height_chain_kernel_keeps_every_path_and_index_matching_lets_all_light_
     mu = radau_hemisphere(12).x
     for alpha in (0.05, 0.5):
         Pa, Pb = mf.height_chain_escape(mu, mu, 1.0 + 1e-9, alpha)
-        assert np.abs(Pa).max() <= 1e-12 and np.abs(Pb - 1.0).max() <= 1e-12, (Pa, Pb)
+        # the Fresnel factor of η = 1 + 1e-9 at grazing facets: 6e-12 measured (α 0.05, the most grazing node)
+        assert np.abs(Pa).max() <= 1e-10 and np.abs(Pb - 1.0).max() <= 1e-10, (Pa, Pb)
