@@ -78,7 +78,7 @@ from flakedb.store import versions as st
 from figures.figure4 import figure4
 
 ROOT = Path(__file__).resolve().parents[1]
-RECIPES = ROOT / "catalog" / "recipes"
+RECIPES = ROOT / "flakedb" / "catalog" / "recipes"
 FIGURES = ("fig4", "fig5", "fig6", "fig7")
 
 #: Settings of a full run (``make figures``) and of ``--quick`` (tests, smoke).

@@ -1,5 +1,18 @@
 """`flakedb export-cpa FILE --out DIR`: the angle-indexed colour-table material (MaterialX graph, Blender
-node group, PNG table).  Thin: the work is in :func:`flakedb.export.registry.export_cpa`."""
+node group, PNG table).  Thin: the work is in :func:`flakedb.export.registry.export_cpa`.
+
+A file that is not a Fourier BSDF is refused in one line, exit status 2, nothing written:
+
+>>> import os, tempfile
+>>> from pathlib import Path
+>>> from click.testing import CliRunner
+>>> from flakedb.cli.main import cli
+>>> where = Path(tempfile.mkdtemp())
+>>> _ = (where / "notes.bsdf").write_bytes(b"hello")
+>>> r = CliRunner().invoke(cli, ["export-cpa", str(where / "notes.bsdf"), "--out", str(where)])
+>>> r.exit_code, sorted(os.listdir(where))
+(2, ['notes.bsdf'])
+"""
 
 import json
 from pathlib import Path

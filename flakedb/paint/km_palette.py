@@ -34,7 +34,14 @@ PALETTE_FILE = CATALOG_DIR / "tinters" / "palette.yaml"
 
 def read_km_table(path: Path) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, np.ndarray]]]:
     """(wavelength_nm (W,), {paint: (K_rel (W,), S_rel (W,))}) from a CSV with columns
-    ``wavelength_nm, K_<paint>, S_<paint>, ...``."""
+    ``wavelength_nm, K_<paint>, S_<paint>, ...``.  The shipped database is relative to its white: S of the
+    white paint is 1 at every wavelength.
+
+    >>> from flakedb.resources import CATALOG_DIR
+    >>> wl, paints = read_km_table(CATALOG_DIR / "tinters" / "rit-golden-heavy-body-km.csv")
+    >>> float(wl[0]), len(paints), bool(np.allclose(paints["TitaniumWhite"][1], 1.0))
+    (380.0, 9, True)
+    """
     with open(path, newline="", encoding="utf-8") as f:
         rows = list(csv.reader(f))
     head, data = rows[0], np.array(rows[1:], dtype=float)

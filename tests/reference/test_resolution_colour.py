@@ -20,7 +20,7 @@ from flakedb.solve.resolution import (
 )
 from flakedb.paint.recipe import RecipeError, load_recipe, parse_recipe, repo_root
 
-RECIPES = repo_root() / "flakedb" / "catalog" / "recipes"
+RECIPES = repo_root() / "catalog" / "recipes"
 
 
 def _with(path, resolution, rgb=False):

@@ -222,7 +222,7 @@ def test_rgb_mode_pigment_store_compose_matches_direct(tiny_visible, tmp_path, m
     series linearly and must apply the same constraints (flakedb.paint.components.rgb_phase_moments: the
     series clipped at 0 and re-projected).  Adapted (issue #11): the store holds Legendre moments, the
     clip is switched off through rgb_phase_moments instead of the gone StoredPigmentMedium.kernel."""
-    from flakedb.paint import mapping as Mp
+    from flakedb.paint import components as Mp
 
     url = tiny_visible
     rec = parse_recipe(_recipe(PIGMENT).replace("range_nm: [500, 600]", "range_nm: [380, 780]")
