@@ -57,6 +57,7 @@ from flakedb.paint.checks import YamlFileError, load_yaml_file, value_problems
 from flakedb.paint.recipe import RecipeError
 from flakedb.paint.species import absorption_factor
 from flakedb.solve.pipeline import settle_node_count
+from flakedb.rt.reuse import reuse_per_call
 
 #: Degree D of the Legendre series of ln(absorption factor) (D + 1 coefficients).
 ABSORPTION_DEGREE = 2
@@ -205,6 +206,7 @@ def _residuals(pred, target, lab_pred, cs):
     return ciede2000_residuals(target.lab_under(cs.observer, cs.illuminant), lab_pred)
 
 
+@reuse_per_call
 def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=None, log=None,
               max_nfev=40) -> CalibrationResult:
     """Fit ``species``'s free parameters (module docstring) to ``panels`` (a list of :class:`Panel`)."""

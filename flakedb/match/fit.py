@@ -91,6 +91,7 @@ from flakedb.match.texture import (
 )
 from flakedb.solve.resolution import resolve_node_count
 from flakedb.paint.recipe import RecipeError, fmt_path, parse_recipe
+from flakedb.rt.reuse import reuse_per_call
 
 #: Forward-difference step: in ln p for log parameters, as a fraction of the range for linear ones.
 FD_STEP = 1e-3
@@ -438,6 +439,7 @@ def _fd_steps(params, z, lb, ub):
     return np.where(z + h > ub, -h, h)
 
 
+@reuse_per_call
 def match(doc, target, observer=None, illuminant=None, weights=None, n=None, catalog=None, store=None, raw=False,
           log=None, max_nfev=50, de_tol=DE_TOL, source="<base recipe>", tolerance=None,
           texture_tolerance=DEFAULT_TEXTURE_TOLERANCE) -> MatchResult:
