@@ -280,10 +280,13 @@ class _BasisProjection:
             K = m + 1 if resident is None else min(m + 1, int(resident))
             if max_orders is not None:
                 K = min(K, int(max_orders))
-            kept = np.empty((K, B, ho, hi))
             j = None if max_orders is None else int(max_orders) - 1
-            last = (j, np.empty((1, B, ho, hi))) if j is not None and K <= j < m + 1 else None
-            scale, change, upper, worst = self._chunk_round(m, n, per, kept, last)
+            if self.cache is not None:
+                scale, change, upper, worst, kept, last = self.cached_chunk_round(m, n, K, j)
+            else:
+                kept = np.empty((K, B, ho, hi))
+                last = (j, np.empty((1, B, ho, hi))) if j is not None and K <= j < m + 1 else None
+                scale, change, upper, worst = self._chunk_round(m, n, per, kept, last)
             if scale == 0.0:
                 return np.zeros((1, B, ho, hi)), {"n_phi": m, "tail": 0.0, "converged": True}
             converged = max(change, upper) / scale <= self.tol
@@ -302,6 +305,62 @@ class _BasisProjection:
             return (kept if L == K else np.ascontiguousarray(kept[:L])), info
         known = {L - 1: last[1]} if last is not None and last[0] == L - 1 else {}
         return ChunkedCoefficients(kept, L, _Recompute(self, m, per), known), info
+
+    def group_round(self, fn, m, n, K, j, mu):
+        """One chunked round (:meth:`_chunk_round`) of one keyed group of basis kernels ``fn`` with weights
+        ``mu`` (B_g,) (max_c |M[c, b]| over its columns, scaled to a largest 1), as what the criteria need of
+        it: Σ_b mu_b |a_b| (Hi, Ho, m + 1) and Σ_b mu_b |a_b − a'_b| over the first n orders (Hi, Ho, n)
+        (a' the coefficients of the even samples), the samples at φ_d = 0, π and order 0 (B_g, Hi, Ho, 3),
+        orders 0 … K − 1 (K, B_g, Ho, Hi) and order j (or None)."""
+        ho, hi = self.ho, self.hi
+        B = len(mu)
+        per = max(1, int(self.budget // (5 * 8 * B * ho * (m + 1))))
+        env = np.empty((hi, ho, m + 1))
+        dif = np.empty((hi, ho, n))
+        ends = np.empty((B, hi, ho, 3))
+        kept = np.empty((K, B, ho, hi))
+        last = np.empty((1, B, ho, hi)) if j is not None and K <= j < m + 1 else None
+        for sl in _chunks(hi, per):
+            v = self.evaluate(phi_samples(m), sl, fn=fn)
+            ac, ap = cosine_coefficients(v), cosine_coefficients(v[..., 0::2])
+            ends[:, sl] = np.stack([v[..., 0], v[..., -1], ac[..., 0]], axis=-1)
+            del v
+            kept[..., sl] = np.transpose(ac[..., :K], (3, 0, 2, 1))
+            if last is not None:
+                last[..., sl] = np.transpose(ac[..., j: j + 1], (3, 0, 2, 1))
+            dif[sl] = np.tensordot(mu, np.abs(ac[..., :n] - ap[..., :n]), axes=(0, 0))
+            del ap
+            env[sl] = np.tensordot(mu, np.abs(ac), axes=(0, 0))
+        return {"mu": mu, "env": env, "dif": dif, "ends": ends, "kept": kept, "last": last}
+
+    def cached_chunk_round(self, m, n, K, j):
+        """:meth:`_chunk_round` from each keyed group's round (:meth:`group_round`), taken from the fit's cache
+        when an earlier evaluation computed it with weights proportional to this one's (a loading scales a
+        group's columns of M: its envelope scales with it), else computed and kept.  The criteria are then
+        formed from the groups' envelopes, Σ_g s_g Σ_{b∈g} mu_b |a_b| = :meth:`envelope`, so the choices and
+        kept orders are those of the uncached round.  Returns (scale, change, upper, worst, kept, last)."""
+        rounds, col = [], 0
+        for key, fn, width in self.parts:
+            mu = self.mu_b[col: col + width]
+            col += width
+            top = float(mu.max())
+            unit = mu / top if top > 0 else np.ones_like(mu)
+            ck = ("chunked round", key, self.grid, int(m), int(n), int(K), j)
+            hit = self.cache.get(ck)
+            if hit is None or not np.allclose(hit["mu"], unit, rtol=1e-12, atol=0.0):
+                hit = self.cache.put(ck, self.group_round(fn, m, n, K, j, unit))
+            rounds.append((top if top > 0 else 0.0, hit))
+        W = self.W[:, :, None]
+        env = sum(s * r["env"] for s, r in rounds) * W
+        change = float((sum(s * r["dif"] for s, r in rounds) * W).max())
+        upper = float(env[..., n:].sum(axis=-1).max())
+        tails = np.flip(np.cumsum(np.flip(env, axis=-1), axis=-1), axis=-1)
+        worst = tails.reshape(-1, m + 1).max(axis=0)
+        ends = np.concatenate([r["ends"] for _, r in rounds], axis=0)
+        scale = float(np.abs(_combine(self.M, ends) * self.W[None, :, :, None]).max())
+        kept = np.concatenate([r["kept"] for _, r in rounds], axis=1)
+        last = None if rounds[0][1]["last"] is None else (j, np.concatenate([r["last"] for _, r in rounds], axis=1))
+        return scale, change, upper, worst, kept, last
 
     def orders_pass(self, m, per, l0, l1):
         """Orders l0 … l1 − 1 (l1 − l0, B, Ho, Hi) of the projection at m intervals, chunk by chunk as
