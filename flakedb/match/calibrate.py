@@ -28,7 +28,9 @@ Residuals over every panel and geometry: spectral reflectance factors when the t
 (100 (R_pred − R_target) per band, the prediction linearly interpolated onto the target's grid,
 which it must cover), else the three CIEDE2000 components (:func:`flakedb.colour.tolerance.ciede2000_residuals`).
 Bounded trust-region least squares (scipy ``least_squares(method="trf")``), forward-difference
-Jacobian (step :data:`FD_STEP` in z), one compose per panel per evaluation (:func:`flakedb.match.fit.predict`).
+Jacobian (step :data:`FD_STEP` in z), one compose per panel per evaluation (:func:`flakedb.match.fit.predict`);
+the other species' optics and projections (and the calibrated species' optics across its panels) are computed once per
+fit (:mod:`flakedb.rt.reuse`, docs/fit-speed.md).
 Standard errors: the Gauss–Newton covariance s² (JᵀJ)⁻¹ at the solution with the residual variance
 s² = Σ r² / (m − p) (m residuals, p parameters), the usual estimate when the measurement noise is
 not known beforehand; it assumes independent residuals of equal variance.

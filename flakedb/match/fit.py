@@ -29,7 +29,9 @@ least squares (``least_squares(method="trf")``).  Parameters are optimised as ln
 is log: loadings act on the colour nearly linearly in ln p over a wide range (optical depth ∝ loading;
 reflectance saturates), and a factor-3 error is then a fixed distance.  The Jacobian is a forward
 difference, one compose call per parameter (step 10⁻³ in ln p, or 10⁻³ of the range for linear
-parameters), so an iteration costs P + 1 compose calls; results are cached by parameter values.
+parameters), so an iteration costs P + 1 compose calls; results are cached by parameter values.  Each fit
+reuses what its evaluations share (:mod:`flakedb.rt.reuse`, docs/fit-speed.md): every species' optics and
+projected kernel per unit loading, so an evaluation that moves only loadings recomputes neither.
 The sensitivities reported at the solution are ∂(L*, a*, b*)/∂p per geometry, forward differences
 with the same steps (cache hits when the last Jacobian was taken there).
 
