@@ -29,9 +29,11 @@ from contextlib import contextmanager
 import numpy as np
 
 #: Bytes a fit's cache may hold (arrays' nbytes).  The largest entries are a projection's basis coefficients,
-#: B × h × 2h × (n_φ + 1) float64: 34 basis kernels at n = 48 and n_φ = 256 take 80 MB; a fit over three
-#: species at n ≤ 64 keeps all it reuses within this (docs/fit-speed.md).
-DEFAULT_BUDGET_BYTES = 512 * 2**20
+#: B × h × 2h × (n_φ + 1) float64 (in memory, below the projection's budget) or a chunked round's envelope and
+#: resident orders.  At 512 MiB a 2-panel calibrate's peak grew by 494 MiB (stale entries of the calibrated
+#: species fill it before they go) while its reused entries are far smaller; a 3-loading match at 41 bands,
+#: n = 40 grew by 165 MiB (docs/fit-speed.md).
+DEFAULT_BUDGET_BYTES = 256 * 2**20
 
 
 def array_key(a) -> tuple:
