@@ -11,9 +11,19 @@ Extra columns: compose calls, seconds per compose call (the time of
 :func:`flakedb.colour.match.compose_table` + evaluation at the geometries; the rest of a fit is
 bookkeeping), iterations, max ΔE00 at the start and at the fit, and the worst relative error of the
 recovered parameters.
+
+``fit/…`` (issue 39 item 1): the three fits of bench/fit_cases.py — three loadings free, the flakes' orientation
+α, a two-panel calibrate — each as two whole processes in turn, today's path (every evaluation computes every
+species' optics and projection) and the product's (the fit's reuse cache, :mod:`flakedb.rt.reuse`), with the
+ratio today / reuse of the pair.  Each pair takes minutes on 2 cores (timed once: ``--long``).
 """
 
+import json
+import os
+import subprocess
+import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -85,8 +95,57 @@ def _run(arg):
             "max_rel_param_error": float(np.max(np.abs(res.values / true - 1.0)))}
 
 
+def _fit_setup():
+    """The issue-39 fits' inputs (bench/fit_cases.py prepare: the targets composed from the true recipes)."""
+    folder = Path(tempfile.mkdtemp(prefix="flakedb-bench-fits-"))
+    subprocess.run([sys.executable, str(FIT_CASES), "prepare", str(folder)], check=True, env=_env())
+    return folder
+
+
+def _env():
+    return {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+
+
+def _whole(case, folder, today):
+    """One whole process (bench/fit_cases.py run): (wall s, CPU s, its JSON line)."""
+    t0 = time.perf_counter()
+    p = subprocess.Popen([sys.executable, str(FIT_CASES), "run", case, str(folder)] + (["--today"] if today else []),
+                         stdout=subprocess.PIPE, env=_env())
+    out = p.stdout.read()
+    _, status, ru = os.wait4(p.pid, 0)
+    wall = time.perf_counter() - t0
+    if status:
+        raise RuntimeError(f"bench/fit_cases.py run {case}{' --today' if today else ''} failed (status {status})")
+    return wall, ru.ru_utime + ru.ru_stime, json.loads(out.decode().strip().splitlines()[-1])
+
+
+def _fit_run(case):
+    def run(folder):
+        """Today's path (no reuse cache) and the product's in turn, as whole processes; the ratio today / reuse
+        of the pair (the machine's load moves both)."""
+        t_today, cpu_today, r_today = _whole(case, folder, today=True)
+        t_reuse, cpu_reuse, r_reuse = _whole(case, folder, today=False)
+        return {"reuse_s": t_reuse, "today_s": t_today, "ratio_today_over_reuse": t_today / t_reuse,
+                "reuse_cpu_s": cpu_reuse, "today_cpu_s": cpu_today, "compose_calls": r_reuse["compose_calls"],
+                "compose_calls_today": r_today["compose_calls"], "max_dE00_fit": r_reuse["max_dE00_fit"]}
+
+    return run
+
+
+FIT_CASES = Path(__file__).resolve().parent / "fit_cases.py"
+
 BENCHMARKS = [
     (f"match/4-param n={N} 16 bands store", _setup, _run,
      {"n": N, "bands": 16, "geometries": 11, "parameters": 4, "store": "compressed",
       "issue_target_s": 60}),
+    ("fit/match 3 loadings, 41 bands, auto n: whole process, reuse vs today", _fit_setup, _fit_run("match3"),
+     {"bands": 41, "geometries": 11, "parameters": 3, "issue_target_s": 10,
+      "what": "bench/fit_cases.py run match3 [--today], whole processes in turn"}),
+    ("fit/match orientation alpha, 41 bands, auto n: whole process, reuse vs today", _fit_setup, _fit_run("alpha"),
+     {"bands": 41, "geometries": 11, "parameters": 1, "issue_target_s": 20,
+      "what": "bench/fit_cases.py run alpha [--today], whole processes in turn"}),
+    ("fit/calibrate 2 panels, 4 parameters, 41 bands, auto n: whole process, reuse vs today", _fit_setup,
+     _fit_run("calibrate2"),
+     {"bands": 41, "geometries": 6, "parameters": 4, "panels": 2, "issue_target_s": 20,
+      "what": "bench/fit_cases.py run calibrate2 [--today], whole processes in turn"}),
 ]

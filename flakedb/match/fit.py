@@ -29,7 +29,9 @@ least squares (``least_squares(method="trf")``).  Parameters are optimised as ln
 is log: loadings act on the colour nearly linearly in ln p over a wide range (optical depth ∝ loading;
 reflectance saturates), and a factor-3 error is then a fixed distance.  The Jacobian is a forward
 difference, one compose call per parameter (step 10⁻³ in ln p, or 10⁻³ of the range for linear
-parameters), so an iteration costs P + 1 compose calls; results are cached by parameter values.
+parameters), so an iteration costs P + 1 compose calls; results are cached by parameter values.  Each fit
+reuses what its evaluations share (:mod:`flakedb.rt.reuse`, docs/fit-speed.md): every species' optics and
+projected kernel per unit loading, so an evaluation that moves only loadings recomputes neither.
 The sensitivities reported at the solution are ∂(L*, a*, b*)/∂p per geometry, forward differences
 with the same steps (cache hits when the last Jacobian was taken there).
 
@@ -91,6 +93,7 @@ from flakedb.match.texture import (
 )
 from flakedb.solve.resolution import resolve_node_count
 from flakedb.paint.recipe import RecipeError, fmt_path, parse_recipe
+from flakedb.rt.reuse import reuse_per_call
 
 #: Forward-difference step: in ln p for log parameters, as a fraction of the range for linear ones.
 FD_STEP = 1e-3
@@ -438,6 +441,7 @@ def _fd_steps(params, z, lb, ub):
     return np.where(z + h > ub, -h, h)
 
 
+@reuse_per_call
 def match(doc, target, observer=None, illuminant=None, weights=None, n=None, catalog=None, store=None, raw=False,
           log=None, max_nfev=50, de_tol=DE_TOL, source="<base recipe>", tolerance=None,
           texture_tolerance=DEFAULT_TEXTURE_TOLERANCE) -> MatchResult:

@@ -7,6 +7,8 @@ assembles them into a stack (the module docstring there states the mapping).
 from __future__ import annotations
 
 import copy
+import hashlib
+import json
 
 import numpy as np
 from numpy.polynomial.legendre import leggauss
@@ -21,6 +23,7 @@ from flakedb.paint.species import flake_reflectance_transmittance, pigment_optic
 from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.media import FlakeMedium, PhaseMedium, vmf_mean_cosine
 from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun
+from flakedb.rt.reuse import active_cache, array_key
 from flakedb.rt.stack import RoughConductor
 from flakedb.rt.stored import StoredPigmentMedium
 
@@ -256,6 +259,21 @@ def metal_bottom(metal, mode, wl, C, eta, info):
 # ----------------------------------------------------------------------------------------------
 
 
+def entry_key(entry) -> str:
+    """A digest of a catalogue entry's whole content (as the recipe resolved it: film overrides, a size
+    override applied): two entries with the same key give the same optics."""
+    text = json.dumps(entry, sort_keys=True, default=repr)
+    return hashlib.blake2b(text.encode(), digest_size=16).hexdigest()
+
+
+def reused(key, compute):
+    """``compute()``, or inside a fit's reuse scope (:func:`flakedb.rt.reuse.reusing`) the value an earlier
+    evaluation computed under ``key`` — a species' optics per unit loading, keyed by everything it depends on
+    (the entry, the wavelengths, the binder index, the grids), never by the loading."""
+    cache = active_cache()
+    return compute() if cache is None else cache.get_or_compute(key, compute)
+
+
 def spectrum_or_const(value, wl, C):
     if isinstance(value, Spectrum):
         return value.at(wl)
@@ -275,8 +293,9 @@ def flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
                "diameter_um": float(p.diameter_um if p.diameter_um is not None else p.entry["diameter_um"]["value"]),
                "loading": "volume_fraction / flake thickness (model.md §3)"}
     elif isinstance(p, CatalogParticle):
-        c, R, T, c_err = adaptive_flake_optics(
-            lambda cc: flake_reflectance_transmittance(p.entry, wl, cc, n_binder))  # (W, nc) each
+        c, R, T, c_err = reused(("flake optics", entry_key(p.entry), array_key(wl), array_key(n_binder),
+                                 FLAKE_C_TOL, FLAKE_C_START, FLAKE_C_MAX), lambda: adaptive_flake_optics(
+            lambda cc: flake_reflectance_transmittance(p.entry, wl, cc, n_binder)))  # (W, nc) each
         info.setdefault("flake_c_grid", {})[p.path] = {"nodes": int(c.size), "max_midpoint_error": c_err}
         if p.opaque:
             T = np.zeros_like(T)
@@ -375,22 +394,29 @@ def pigment_component(p, recipe, layer_um, n_binder, wl, info, stored=None):
     if p.gsd is not None:
         entry["gsd"] = {"value": float(p.gsd), "source": "recipe"}
     mu = phase_cos_grid()
-    po = pigment_optics(entry, wl, n_binder, mu=mu)
-    c_ext, c_sca, phase = np.asarray(po.c_ext_um2), np.asarray(po.c_sca_um2), np.asarray(po.phase_function)
+
+    def optics():
+        po = pigment_optics(entry, wl, n_binder, mu=mu)
+        return (np.asarray(po.c_ext_um2, float), np.asarray(po.c_sca_um2, float), np.asarray(po.phase_function),
+                np.asarray(float(po.mean_volume_um3)))
+
+    c_ext, c_sca, phase, mean_volume = reused(
+        ("pigment optics", entry_key(entry), array_key(wl), array_key(n_binder), array_key(mu)), optics)
+    mean_volume = float(mean_volume)
     phase, integral = normalise_phase_table(mu, phase)
     info.setdefault("phase_table_norm_error", {})[p.path] = float(np.abs(integral - 1.0).max())
     if recipe.mode == "rgb":
         c_ext, c_sca, phase, clip = pigment_tospectra_to_rgb_mode(c_ext, c_sca, phase, wl)
         phase, _ = normalise_phase_table(mu, phase)
         info.setdefault("rgb_clip", {})[p.path] = clip
-    rho = pigment_number_density(p.volume_fraction, po.mean_volume_um3)
+    rho = pigment_number_density(p.volume_fraction, mean_volume)
     sigma_t = rho * c_ext
     with np.errstate(divide="ignore", invalid="ignore"):
         albedo = np.where(c_ext > 0, c_sca / c_ext, 0.0)
     med = PhaseMedium(sigma_t, albedo, ("table", mu, phase))
     rec = {"path": p.path, "species": p.species, "kind": "pigment", "volume_fraction": p.volume_fraction,
            "median_diameter_um": float(entry["median_diameter_um"]["value"]), "gsd": float(entry["gsd"]["value"]),
-           "mean_volume_um3": float(po.mean_volume_um3), "number_density_per_um3": rho,
+           "mean_volume_um3": mean_volume, "number_density_per_um3": rho,
            "sigma_t_per_um": [float(sigma_t.min()), float(sigma_t.max())],
            "albedo": [float(albedo.min()), float(albedo.max())],
            "optical_depth": [float(sigma_t.min() * layer_um), float(sigma_t.max() * layer_um)],

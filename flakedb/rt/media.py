@@ -30,6 +30,7 @@ from flakedb.rt.microflake import (
     table_basis,
 )
 from flakedb.rt.params import check_range
+from flakedb.rt.reuse import array_key
 
 
 def cos_scattering_angle(mu_i, mu_o, phi_d):
@@ -273,8 +274,8 @@ class PhaseMedium:
         sig_s = _channels(self.sigma_t_per_um) * _channels(self.albedo)
         ph = self.phase
         if ph == "isotropic":
-            return KernelBasis(lambda mi, mo, p: np.full((1,) + np.shape(cos_scattering_angle(mi, mo, p)),
-                                                         1.0 / (4.0 * np.pi)), sig_s[:, None])
+            return _single_part(("isotropic",), lambda mi, mo, p: np.full(
+                (1,) + np.shape(cos_scattering_angle(mi, mo, p)), 1.0 / (4.0 * np.pi)), sig_s[:, None])
         if ph[0] in ("hg", "vmf"):
             g = _channels(ph[1])
             C = max(sig_s.size, g.size)
@@ -288,13 +289,14 @@ class PhaseMedium:
                 cos_t = cos_scattering_angle(mi, mo, p)
                 return phase_fn(cos_t[None], uniq.reshape((-1,) + (1,) * cos_t.ndim))
 
-            return KernelBasis(lobe, M)
+            return _single_part((ph[0], array_key(uniq)), lobe, M)
         if ph[0] == "table":
             ct = np.asarray(ph[1], dtype=float)
             U, V = table_basis(np.atleast_2d(np.asarray(ph[2], dtype=float)))
             C = max(sig_s.size, U.shape[0])
             M = np.broadcast_to(sig_s[:, None], (C, 1)) * np.broadcast_to(U, (C, U.shape[1]))
-            return KernelBasis(lambda mi, mo, p: interp_rows(V, ct, cos_scattering_angle(mi, mo, p)), M)
+            return _single_part(("table", array_key(ct), array_key(V)),
+                                lambda mi, mo, p: interp_rows(V, ct, cos_scattering_angle(mi, mo, p)), M)
         raise ValueError(f"unknown phase function {ph!r}; use 'isotropic', ('hg', g), ('vmf', kappa) "
                          "or ('table', cos, p)")
 
@@ -351,7 +353,8 @@ class Mixture:
             shape = np.broadcast_shapes(*(v.shape[1:] for v in vals))
             return np.concatenate([np.broadcast_to(v, v.shape[:1] + shape) for v in vals], axis=0)
 
-        return KernelBasis(fn, M)
+        keyed = None if any(p.parts is None for p in parts) else tuple(g for p in parts for g in p.parts)
+        return KernelBasis(fn, M, keyed)
 
     @property
     def phi_bandwidth(self):
@@ -413,12 +416,15 @@ class FlakeMedium:
         return kernel_Ergun(mu_i, mu_o, phi_d, self.alpha, self.optics, self.a_rho_per_um, self.distribution)
 
     def kernel_basis(self):
-        """The kernel (aρ/2) R(c) D(h) is linear in R(c) (paper eq. 2): R's table (C, nc) factored as
-        M @ V (truncated SVD, :func:`flakedb.rt.microflake.table_basis`), basis kernels
-        (aρ/2) V_b(c) D(h) with the geometry c, D(h) computed once for all rows."""
+        """The kernel (aρ/2) R(c) D(h) is linear in R(c) and in the loading aρ (paper eq. 2): R's table (C, nc)
+        factored as M @ V (truncated SVD, :func:`flakedb.rt.microflake.table_basis`), basis kernels
+        (1/2) V_b(c) D(h) per unit aρ with the geometry c, D(h) computed once for all rows, and aρ in the
+        combination aρ M (so the basis is the same at every loading: :attr:`KernelBasis.parts`)."""
         M, V = table_basis(self.optics.R, rtol=FLAKE_BASIS_RTOL)
-        c, alpha, a_rho, dist = self.optics.c, self.alpha, self.a_rho_per_um, self.distribution
-        return KernelBasis(lambda mi, mo, ph: kernel_Ergun_basis(mi, mo, ph, alpha, c, V, a_rho, dist), M)
+        c, alpha, dist = self.optics.c, self.alpha, self.distribution
+        key = ("flake", float(alpha), dist, array_key(c), array_key(V))
+        return _single_part(key, lambda mi, mo, ph: kernel_Ergun_basis(mi, mo, ph, alpha, c, V, 1.0, dist),
+                            float(self.a_rho_per_um) * M)
 
     @property
     def phi_bandwidth(self):
@@ -475,10 +481,21 @@ class KernelBasis:
     (docs/projection.md): ``fn(mu_i, mu_o, phi_d)`` → (B, *shape) the basis kernels in 1/(µm·sr),
     ``M`` (C, B) dimensionless.  The projection on the cosine series is linear, so the basis kernels
     are projected once and the C channels' coefficients are M times theirs: the geometry (and the
-    azimuthal sampling) is paid per basis function, not per channel."""
+    azimuthal sampling) is paid per basis function, not per channel.
+
+    ``parts``: the basis as consecutive groups of basis kernels, ``((key, fn_part, width), …)``, each
+    ``key`` a hashable identity of ``fn_part`` (everything its values depend on, never a loading: the
+    loading sits in M), so that a fit's evaluations can reuse each group's projection
+    (:mod:`flakedb.rt.reuse`); None where the basis states no identity."""
 
     fn: object
     M: np.ndarray
+    parts: tuple | None = None
+
+
+def _single_part(key, fn, M):
+    """A basis of one keyed group (:attr:`KernelBasis.parts`)."""
+    return KernelBasis(fn, M, ((key, fn, int(np.atleast_2d(M).shape[1])),))
 
 
 def kernel_basis(medium):
@@ -487,4 +504,4 @@ def kernel_basis(medium):
     kb = medium.kernel_basis() if hasattr(medium, "kernel_basis") else None
     if kb is None:
         return None
-    return KernelBasis(kb.fn, np.atleast_2d(np.asarray(kb.M, dtype=float)))
+    return KernelBasis(kb.fn, np.atleast_2d(np.asarray(kb.M, dtype=float)), getattr(kb, "parts", None))

@@ -87,11 +87,11 @@ def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True, 
                 "tail": linfo["tail"], "converged": True}
     else:
         kb = kernel_basis(medium) if basis else None
-        fn, M = (medium.kernel, None) if kb is None else (kb.fn, kb.M)
+        fn, M, parts = (medium.kernel, None, None) if kb is None else (kb.fn, kb.M, kb.parts)
         # over its memory budget the projection keeps its first RESIDENT_ORDERS orders (the order choice
         # rarely asks for more) and evaluates higher ones again on demand
         coeffs, info = project_kernel_basis(fn, M, x, mu_o, tol=tol, n_start=n_start, n_max=n_max, weights=W,
-                                            max_orders=max_orders, resident_orders=RESIDENT_ORDERS)
+                                            max_orders=max_orders, resident_orders=RESIDENT_ORDERS, parts=parts)
         pk = ProjectedKernel(coeffs, M)
         if M is not None:
             info["basis_functions"] = int(M.shape[1])

@@ -14,6 +14,7 @@ orders it uses.
 import numpy as np
 
 from flakedb.rt.fourier import cosine_coefficients, phi_samples
+from flakedb.rt.reuse import active_cache, array_key
 
 
 def _combine(M, a):
@@ -46,7 +47,7 @@ RESIDENT_ORDERS = 64
 
 
 def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, weights=None,
-                         chunk_elems=250_000, budget_bytes=None, max_orders=None, resident_orders=None):
+                         chunk_elems=250_000, budget_bytes=None, max_orders=None, resident_orders=None, parts=None):
     """Cosine coefficients of the C functions Σ_b M[c, b] fn_b(μ_i, μ_o, φ_d), kept per basis function.
 
     ``fn(mu_i[:, None, None], mu_o[None, :, None], phi[None, None, :])`` → (B, Hi, Ho, P);
@@ -71,6 +72,12 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
     :data:`RESIDENT_ORDERS`), a chunked projection keeps only its first orders and its last one in memory
     and returns a :class:`ChunkedCoefficients`, which evaluates the others again when asked.
 
+    ``parts`` (:attr:`flakedb.rt.media.KernelBasis.parts`, the basis as keyed groups): inside a fit's
+    :func:`flakedb.rt.reuse.reusing` scope each group's coefficients at a sampling (and its samples at
+    φ_d = 0, π) are taken from the fit's cache when an earlier evaluation computed them, else computed and
+    kept there; the criteria, M's combinations and the truncation are applied afresh, so the result is the
+    uncached one (the transform acts on each basis kernel alone).  Not used over the memory budget.
+
     A kernel μ_i μ_o (1 + ½ cos φ) has two orders, a_0 = μ_i μ_o and a_1 = ½ μ_i μ_o:
 
     >>> mu = np.array([0.3, 1.0])
@@ -80,7 +87,7 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
     >>> bool(np.allclose(c[:, 0], [np.outer(mu, mu), 0.5 * np.outer(mu, mu)], rtol=0, atol=1e-14))
     True
     """
-    pr = _BasisProjection(fn, M, mu_i, mu_o, tol, n_max, weights, chunk_elems, budget_bytes)
+    pr = _BasisProjection(fn, M, mu_i, mu_o, tol, n_max, weights, chunk_elems, budget_bytes, parts)
     n = max(2, int(n_start))
     B = pr.M.shape[1] if pr.M is not None else pr.evaluate(np.zeros(1), slice(0, 1)).shape[0]
     if 5 * 8 * B * pr.hi * pr.ho * (2 * n + 1) > pr.budget:  # the first round is already over the budget
@@ -89,6 +96,7 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
     while True:
         if 5 * 8 * a.shape[0] * pr.hi * pr.ho * (2 * n + 1) > pr.budget:
             pr.samples.clear()
+            pr.part_samples.clear()
             return pr.row_chunks(n, a.shape[0], max_orders, resident_orders)
         a_prev, a = a, pr.coefficients(2 * n)
         scale, change, upper = pr.stats(a, a_prev, n)
@@ -100,6 +108,7 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
             break
         n *= 2
     pr.samples.clear()
+    pr.part_samples.clear()
     coeffs, info = pr.truncate(a, scale, {"n_phi": 2 * n, "converged": bool(max(change, upper) <= tol)})
     return (coeffs if max_orders is None else coeffs[:max_orders]), info
 
@@ -116,7 +125,7 @@ class _BasisProjection:
     forward scattering).  So the sampling and the order count are at least those the exact
     criteria would choose, at B/C of the cost (docs/projection.md)."""
 
-    def __init__(self, fn, M, mu_i, mu_o, tol, n_max, weights, chunk_elems, budget_bytes):
+    def __init__(self, fn, M, mu_i, mu_o, tol, n_max, weights, chunk_elems, budget_bytes, parts=None):
         self.fn, self.tol, self.n_max, self.chunk_elems = fn, tol, n_max, chunk_elems
         self.budget = float(PROJECTION_BUDGET_BYTES if budget_bytes is None else budget_bytes)
         self.mu_i = np.asarray(mu_i, dtype=float)
@@ -127,15 +136,23 @@ class _BasisProjection:
                   np.broadcast_to(np.asarray(weights, dtype=float), (self.hi, self.ho)))
         self.mu_b = None if self.M is None else np.abs(self.M).max(axis=0)
         self.samples = {}
+        # the fit's cache (flakedb.rt.reuse) and the keyed groups of the basis, when both exist
+        self.cache = active_cache() if parts else None
+        self.parts = parts
+        self.part_samples = {}
+        if self.cache is not None:
+            self.grid = (array_key(self.mu_i), array_key(self.mu_o))
 
-    def evaluate(self, phi, rows=slice(None)):
-        """Kernel samples (B, rows, Ho, len(phi)), in chunks of ``chunk_elems``."""
+    def evaluate(self, phi, rows=slice(None), fn=None):
+        """Kernel samples (B, rows, Ho, len(phi)), in chunks of ``chunk_elems`` (of ``fn``, default the
+        whole basis)."""
+        fn = self.fn if fn is None else fn
         idx = np.arange(self.hi)[rows]
         ho = self.ho
         out = None
         for sl in _chunks(idx.size, max(1, 4 * self.chunk_elems // max(1, ho * len(phi)))):
             r = idx[sl]
-            v = np.asarray(self.fn(self.mu_i[r, None, None], self.mu_o[None, :, None], phi[None, None, :]), dtype=float)
+            v = np.asarray(fn(self.mu_i[r, None, None], self.mu_o[None, :, None], phi[None, None, :]), dtype=float)
             if v.ndim == 3:
                 v = v[None]
             if out is None:
@@ -145,17 +162,39 @@ class _BasisProjection:
 
     def coefficients(self, n):
         """Basis coefficients (B, Hi, Ho, n + 1); the samples of n/2 intervals are the even ones of n,
-        so each round evaluates only the new (odd) azimuths."""
-        prev = self.samples.pop(n // 2, None) if n % 2 == 0 else None
-        if prev is None:
-            v = self.evaluate(phi_samples(n))
-        else:
-            odd = self.evaluate(np.pi * (2 * np.arange(n // 2) + 1) / n)
-            v = np.empty(prev.shape[:3] + (n + 1,))
-            v[..., 0::2] = prev
-            v[..., 1::2] = odd
+        so each round evaluates only the new (odd) azimuths.  With the fit's cache: :meth:`cached_coefficients`."""
+        if self.cache is not None:
+            return self.cached_coefficients(n)
+        v = self._samples(n, self.samples.pop(n // 2, None) if n % 2 == 0 else None)
         self.samples[n] = v
         return cosine_coefficients(v)
+
+    def _samples(self, n, prev, fn=None):
+        """The samples at n intervals, from those at n/2 (``prev``, or None) and the odd azimuths."""
+        if prev is None:
+            return self.evaluate(phi_samples(n), fn=fn)
+        odd = self.evaluate(np.pi * (2 * np.arange(n // 2) + 1) / n, fn=fn)
+        v = np.empty(prev.shape[:3] + (n + 1,))
+        v[..., 0::2] = prev
+        v[..., 1::2] = odd
+        return v
+
+    def cached_coefficients(self, n):
+        """:meth:`coefficients` group by group (:attr:`flakedb.rt.media.KernelBasis.parts`): each group's
+        coefficients (B_g, Hi, Ho, n + 1) and its samples at φ_d = 0 and π (what :meth:`scale_of` reads) from
+        the fit's cache, or computed (from this call's samples at n/2 where it has them) and kept there."""
+        coeffs, ends = [], []
+        for g, (key, fn, _) in enumerate(self.parts):
+            ck = ("basis coefficients", key, self.grid, int(n))
+            hit = self.cache.get(ck)
+            if hit is None:
+                v = self._samples(n, self.part_samples.pop((g, n // 2), None) if n % 2 == 0 else None, fn)
+                self.part_samples[(g, n)] = v
+                hit = self.cache.put(ck, (cosine_coefficients(v), v[..., [0, -1]]))
+            coeffs.append(hit[0])
+            ends.append(hit[1])
+        self.samples[n] = np.concatenate(ends, axis=0)  # (B, Hi, Ho, 2): φ_d = 0 and π
+        return np.concatenate(coeffs, axis=0)
 
     def envelope(self, x):
         """(B, …) → (…): max over channels of |x_c| (exact) or its bound Σ_b μ_b |x_b|."""
@@ -241,10 +280,13 @@ class _BasisProjection:
             K = m + 1 if resident is None else min(m + 1, int(resident))
             if max_orders is not None:
                 K = min(K, int(max_orders))
-            kept = np.empty((K, B, ho, hi))
             j = None if max_orders is None else int(max_orders) - 1
-            last = (j, np.empty((1, B, ho, hi))) if j is not None and K <= j < m + 1 else None
-            scale, change, upper, worst = self._chunk_round(m, n, per, kept, last)
+            if self.cache is not None:
+                scale, change, upper, worst, kept, last = self.cached_chunk_round(m, n, K, j)
+            else:
+                kept = np.empty((K, B, ho, hi))
+                last = (j, np.empty((1, B, ho, hi))) if j is not None and K <= j < m + 1 else None
+                scale, change, upper, worst = self._chunk_round(m, n, per, kept, last)
             if scale == 0.0:
                 return np.zeros((1, B, ho, hi)), {"n_phi": m, "tail": 0.0, "converged": True}
             converged = max(change, upper) / scale <= self.tol
@@ -263,6 +305,62 @@ class _BasisProjection:
             return (kept if L == K else np.ascontiguousarray(kept[:L])), info
         known = {L - 1: last[1]} if last is not None and last[0] == L - 1 else {}
         return ChunkedCoefficients(kept, L, _Recompute(self, m, per), known), info
+
+    def group_round(self, fn, m, n, K, j, mu):
+        """One chunked round (:meth:`_chunk_round`) of one keyed group of basis kernels ``fn`` with weights
+        ``mu`` (B_g,) (max_c |M[c, b]| over its columns, scaled to a largest 1), as what the criteria need of
+        it: Σ_b mu_b |a_b| (Hi, Ho, m + 1) and Σ_b mu_b |a_b − a'_b| over the first n orders (Hi, Ho, n)
+        (a' the coefficients of the even samples), the samples at φ_d = 0, π and order 0 (B_g, Hi, Ho, 3),
+        orders 0 … K − 1 (K, B_g, Ho, Hi) and order j (or None)."""
+        ho, hi = self.ho, self.hi
+        B = len(mu)
+        per = max(1, int(self.budget // (5 * 8 * B * ho * (m + 1))))
+        env = np.empty((hi, ho, m + 1))
+        dif = np.empty((hi, ho, n))
+        ends = np.empty((B, hi, ho, 3))
+        kept = np.empty((K, B, ho, hi))
+        last = np.empty((1, B, ho, hi)) if j is not None and K <= j < m + 1 else None
+        for sl in _chunks(hi, per):
+            v = self.evaluate(phi_samples(m), sl, fn=fn)
+            ac, ap = cosine_coefficients(v), cosine_coefficients(v[..., 0::2])
+            ends[:, sl] = np.stack([v[..., 0], v[..., -1], ac[..., 0]], axis=-1)
+            del v
+            kept[..., sl] = np.transpose(ac[..., :K], (3, 0, 2, 1))
+            if last is not None:
+                last[..., sl] = np.transpose(ac[..., j: j + 1], (3, 0, 2, 1))
+            dif[sl] = np.tensordot(mu, np.abs(ac[..., :n] - ap[..., :n]), axes=(0, 0))
+            del ap
+            env[sl] = np.tensordot(mu, np.abs(ac), axes=(0, 0))
+        return {"mu": mu, "env": env, "dif": dif, "ends": ends, "kept": kept, "last": last}
+
+    def cached_chunk_round(self, m, n, K, j):
+        """:meth:`_chunk_round` from each keyed group's round (:meth:`group_round`), taken from the fit's cache
+        when an earlier evaluation computed it with weights proportional to this one's (a loading scales a
+        group's columns of M: its envelope scales with it), else computed and kept.  The criteria are then
+        formed from the groups' envelopes, Σ_g s_g Σ_{b∈g} mu_b |a_b| = :meth:`envelope`, so the choices and
+        kept orders are those of the uncached round.  Returns (scale, change, upper, worst, kept, last)."""
+        rounds, col = [], 0
+        for key, fn, width in self.parts:
+            mu = self.mu_b[col: col + width]
+            col += width
+            top = float(mu.max())
+            unit = mu / top if top > 0 else np.ones_like(mu)
+            ck = ("chunked round", key, self.grid, int(m), int(n), int(K), j)
+            hit = self.cache.get(ck)
+            if hit is None or not np.allclose(hit["mu"], unit, rtol=1e-12, atol=0.0):
+                hit = self.cache.put(ck, self.group_round(fn, m, n, K, j, unit))
+            rounds.append((top if top > 0 else 0.0, hit))
+        W = self.W[:, :, None]
+        env = sum(s * r["env"] for s, r in rounds) * W
+        change = float((sum(s * r["dif"] for s, r in rounds) * W).max())
+        upper = float(env[..., n:].sum(axis=-1).max())
+        tails = np.flip(np.cumsum(np.flip(env, axis=-1), axis=-1), axis=-1)
+        worst = tails.reshape(-1, m + 1).max(axis=0)
+        ends = np.concatenate([r["ends"] for _, r in rounds], axis=0)
+        scale = float(np.abs(_combine(self.M, ends) * self.W[None, :, :, None]).max())
+        kept = np.concatenate([r["kept"] for _, r in rounds], axis=1)
+        last = None if rounds[0][1]["last"] is None else (j, np.concatenate([r["last"] for _, r in rounds], axis=1))
+        return scale, change, upper, worst, kept, last
 
     def orders_pass(self, m, per, l0, l1):
         """Orders l0 … l1 − 1 (l1 − l0, B, Ho, Hi) of the projection at m intervals, chunk by chunk as
