@@ -14,7 +14,7 @@ are spectral and at n = 64, so they are not that comparison (which belongs to th
 import tempfile
 from pathlib import Path
 
-RECIPES = Path(__file__).resolve().parents[1] / "catalog" / "recipes"
+RECIPES = Path(__file__).resolve().parents[1] / "flakedb" / "catalog" / "recipes"
 N = 64
 
 

@@ -27,7 +27,7 @@ from flakedb.rt.medium_projection import PHI_SAMPLES_PER_ORDER, legendre_moments
 from flakedb.rt.microflake import _abs_cosine_moments_cached
 from flakedb.rt.quadrature import radau_hemisphere
 
-RECIPES = Path(__file__).resolve().parents[1] / "catalog" / "recipes"
+RECIPES = Path(__file__).resolve().parents[1] / "flakedb" / "catalog" / "recipes"
 CASES = [(r, n) for r in ("research-hg-slab", "particle-titanium-white", "metallic-silver") for n in (32, 64, 128, 256)]
 
 

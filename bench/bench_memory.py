@@ -15,7 +15,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-RECIPES = Path(__file__).resolve().parents[1] / "catalog" / "recipes"
+RECIPES = Path(__file__).resolve().parents[1] / "flakedb" / "catalog" / "recipes"
 #: Issue 26 item 5's heavy case: cadmium yellow (41 bands) under a rough 0.1 coat at n = 200 (the issue: 28 s,
 #: 2.9 GB; 3.95 GB once the report's second solve at 3n/4 ran after the first, 2.97 GB with it before).
 BENCH_RECIPES = Path(__file__).resolve().parent / "recipes"
