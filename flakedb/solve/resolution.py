@@ -185,11 +185,13 @@ def auto_resolution(recipe) -> tuple[int, str]:
     flakes = False
     flake_alphas = []
     for _, p in recipe.particles():
-        a = None
+        a = a0 = None
         if isinstance(p, CatalogParticle) and p.is_flake:  # the narrowest lobe on the Beckmann/GGX α scale
-            a = flake_lobe_alpha(recipe_alpha(p), recipe_distribution(p))
+            a0 = recipe_alpha(p)
         elif isinstance(p, CustomFlake):
-            a = flake_lobe_alpha(float(p.orientation_alpha), recipe_distribution(p))
+            a0 = float(p.orientation_alpha)
+        if a0 is not None:
+            a = flake_lobe_alpha(a0, recipe_distribution(p))
         elif isinstance(p, CustomMedium) and isinstance(p.phase, tuple) and p.phase[0] == "hg":
             hh = int(np.ceil(3.0 / max(1e-3, 1.0 - abs(p.phase[1]))))
             need.append((hh, f"HG lobe g = {p.phase[1]:g} ({p.path}): h ≥ 3/(1 − |g|)"))
@@ -200,8 +202,11 @@ def auto_resolution(recipe) -> tuple[int, str]:
         if a is not None:
             flakes = True
             flake_alphas.append(a)
-            add(FLAKE_ALBEDO_ERROR, t_alb, a, f"flakes α = {a:g} ({p.path})", "albedo_error")
-            need.append((int(np.ceil(min(3.0 / a, AUTO_MAX_N))), f"flakes α = {a:g} ({p.path}): h ≥ 3/α (ΔE00 ≲ 0.1)"))
+            label = f"flakes α = {a0:g} ({p.path})" if a == a0 else (
+                f"flakes α = {a0:g} ({p.path}; {recipe_distribution(p)}: a lobe as narrow as α {a:.3g} on the "
+                f"Beckmann/GGX scale)")
+            add(FLAKE_ALBEDO_ERROR, t_alb, a, label, "albedo_error")
+            need.append((int(np.ceil(min(3.0 / a, AUTO_MAX_N))), f"{label}: h ≥ 3/α (ΔE00 ≲ 0.1)"))
     metal = getattr(recipe, "metal", None)
     if metal is not None:
         n_m, err = _needed(METAL_LOBE_ERROR, t_lobe)
