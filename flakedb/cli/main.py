@@ -133,6 +133,11 @@ class FlakedbGroup(click.Group):
             # SIGTERM / SIGHUP / SIGINT (flakedb.process.Terminated), also when a compiled kernel reported it as
             # a SystemError: the command's clean-up has run; exit status 128 + the signal's number
             code = signal_exit_status(exc)
+            if code is None and received_signal() is not None:
+                # the signal's exception was raised inside C code that replaced it with its own error (numpy's
+                # comparison reported "Cannot compare structured arrays" for a Terminated raised in a callback):
+                # the run was still ended by the signal
+                code = 128 + int(received_signal())
             if code is not None:
                 try:
                     name = signal.Signals(code - 128).name

@@ -246,3 +246,26 @@ def test_sigterm_during_calibrate_and_a_batch_compare(tmp_path, command):
         else:
             assert proc.returncode in (0, 1) and left == complete, (proc.returncode, left, text[-2000:])
     assert 143 in codes, codes
+
+
+def test_a_signal_whose_exception_c_code_replaced_still_exits_128_plus_signum(tmp_path, monkeypatch):
+    """A SIGTERM whose Terminated was raised inside numpy C code came back as numpy's own TypeError ("Cannot
+    compare structured arrays ...") with no cause: 1 of 20 random SIGTERMs during match ended as "internal error"
+    (exit 1).  A run that received a terminating signal exits 128 + its number whatever exception surfaced."""
+    from click.testing import CliRunner
+
+    import flakedb.process as proc
+    import flakedb.solve.pipeline as pipeline
+    from flakedb.cli.main import cli
+    from flakedb.resources import RECIPES_DIR
+
+    def replaced(*a, **k):
+        proc._RECEIVED.append(15)   # what the handler records before raising Terminated
+        raise TypeError("Cannot compare structured arrays unless they have a common dtype.")
+
+    monkeypatch.setattr(proc, "_RECEIVED", [])
+    monkeypatch.setattr(pipeline, "solve_paint", replaced)
+    r = CliRunner().invoke(cli, ["compose", str(RECIPES_DIR / "particle-cadmium-yellow.yaml"), "--n", "16",
+                                 "--out", str(tmp_path / "o")])
+    assert r.exit_code == 143 and "internal error" not in r.output, r.output
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
