@@ -178,6 +178,17 @@ def signal_exit_status(exc) -> int | None:
     return None
 
 
+def signals_received() -> int:
+    """How many terminating signals the handler has received in this process (a command compares the count
+    before and after its work to tell whether a signal ended it)."""
+    return len(_RECEIVED)
+
+
+def received_signal_since(count: int) -> int | None:
+    """The first signal received after the first ``count`` (:func:`signals_received`), or None."""
+    return _RECEIVED[count] if len(_RECEIVED) > count else None
+
+
 def received_signal() -> int | None:
     """The first signal :func:`install_signal_handlers`' handler received in this process, or None."""
     return _RECEIVED[0] if _RECEIVED else None

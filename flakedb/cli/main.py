@@ -20,6 +20,8 @@ from flakedb.process import (
     install_signal_handlers,
     install_warning_format,
     received_signal,
+    received_signal_since,
+    signals_received,
     signal_exit_status,
     tune_allocator,
 )
@@ -122,6 +124,7 @@ class FlakedbGroup(click.Group):
         problems = environment_problems()   # before any command's work (flakedb.process)
         if problems:
             raise FlakedbError("; ".join(problems))
+        signals_before = signals_received()
         try:
             return super().invoke(ctx)
         except click.exceptions.ClickException as exc:
@@ -133,11 +136,11 @@ class FlakedbGroup(click.Group):
             # SIGTERM / SIGHUP / SIGINT (flakedb.process.Terminated), also when a compiled kernel reported it as
             # a SystemError: the command's clean-up has run; exit status 128 + the signal's number
             code = signal_exit_status(exc)
-            if code is None and received_signal() is not None:
+            if code is None and signals_received() > signals_before:
                 # the signal's exception was raised inside C code that replaced it with its own error (numpy's
                 # comparison reported "Cannot compare structured arrays" for a Terminated raised in a callback):
                 # the run was still ended by the signal
-                code = 128 + int(received_signal())
+                code = 128 + int(received_signal_since(signals_before))
             if code is not None:
                 try:
                     name = signal.Signals(code - 128).name
