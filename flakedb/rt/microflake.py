@@ -338,15 +338,30 @@ def _abs_cosine_moments_Beckmann(mu_abs, alpha, levels, n_quad):
     (ω·m ∈ {−c, 0, c} at φ_m = 0 or π: θ_m ∈ {γ − θ, θ − γ, θ + γ}, γ = arccos(−x)), plus a few fixed
     splits at multiples of α, and each panel uses smoothstep-mapped Gauss-Legendre (``n_quad`` nodes).
     """
+    t_max = np.sqrt(40.0) * alpha  # exp(−40) ≈ 4e-18 of the weight lies beyond
+
+    def nodes(t, dt_w):  # t = tan θ_m; weight exp(−t²/α²) t/(2πα²) dt
+        inv = 1.0 / np.sqrt(1.0 + t * t)
+        return dt_w * t * np.exp(-((t / alpha) ** 2)) / (_TWO_PI * alpha**2), inv, t * inv
+
+    return _polar_panel_moments(mu_abs, levels, n_quad, np.tan, np.arctan(t_max), t_max,
+                                np.minimum(alpha * np.array([0.5, 1.0, 1.5, 2.0, 3.0, 4.0]), t_max), nodes, 16)
+
+
+def _polar_panel_moments(mu_abs, levels, n_quad, var_of_theta, theta_end, var_end, fixed, nodes, width):
+    """Φ_j(μ, c), j = 0, 1, 2 (array (3, M, K) for ``mu_abs`` (M,), ``levels`` (K,)): the polar integral of
+    an even, azimuthally symmetric density in a variable u of θ_m (``var_of_theta``, increasing, u = ``var_end``
+    at θ_m = ``theta_end``), in panels between the azimuthal breakpoints (:func:`_breakpoint_angles`) that fall
+    in (0, ``theta_end``) and the ``fixed`` splits (in u), each with smoothstep-mapped Gauss-Legendre
+    (``n_quad`` nodes).  ``nodes(u, du_w)`` → (weight, cos θ_m, sin θ_m) at the nodes u, ``du_w`` the
+    panel width × the rule's weights; the azimuth is done by :func:`_accumulate_azimuth`.  ``width`` sizes
+    the chunks over μ (≈ the panels per (μ, c) row)."""
     mu_abs = np.asarray(mu_abs, dtype=float)
     levels = np.asarray(levels, dtype=float)
     M, K = mu_abs.size, levels.size
-    t_max = np.sqrt(40.0) * alpha  # exp(−40) ≈ 4e-18 of the weight lies beyond
-    theta_max = np.arctan(t_max)
     v, wv = _smoothstep_gauss_legendre(n_quad)
-    fixed = alpha * np.array([0.5, 1.0, 1.5, 2.0, 3.0, 4.0])
     out = np.empty((3, M, K))
-    chunk = max(1, int(2_000_000 // max(1, K * 16 * n_quad)))
+    chunk = max(1, int(2_000_000 // max(1, K * width * n_quad)))
     for m0 in range(0, M, chunk):
         mu = mu_abs[m0 : m0 + chunk][:, None]  # (m, 1)
         m = mu.shape[0]
@@ -354,21 +369,19 @@ def _abs_cosine_moments_Beckmann(mu_abs, alpha, levels, n_quad):
         s = np.sqrt(np.maximum(0.0, 1.0 - mu * mu))
         lev = levels[None, :]  # (1, K)
         bp = _breakpoint_angles(th, lev, m, K)
-        bp = np.where((bp > 0.0) & (bp < theta_max), np.tan(np.clip(bp, 0.0, theta_max)), t_max)
+        inside = (bp > 0.0) & (bp < theta_end)
+        bp = np.where(inside, var_of_theta(np.where(inside, bp, 0.0)), var_end)
         bp = np.concatenate(
-            [np.zeros((m, K, 1)), bp, np.broadcast_to(np.minimum(fixed, t_max), (m, K, fixed.size)),
-             np.full((m, K, 1), t_max)],
+            [np.zeros((m, K, 1)), bp, np.broadcast_to(fixed, (m, K, fixed.size)), np.full((m, K, 1), var_end)],
             axis=-1,
         )
         bp.sort(axis=-1)
-        n_used = int(np.max(np.sum(bp < t_max, axis=-1))) + 1  # columns up to the first t_max
+        n_used = int(np.max(np.sum(bp < var_end, axis=-1))) + 1  # columns up to the first var_end
         bp = bp[..., : n_used + 1]
-        ta, tb = bp[..., :-1, None], bp[..., 1:, None]  # (m, K, P, 1)
-        t = ta + (tb - ta) * v
-        wt = (tb - ta) * wv * t * np.exp(-((t / alpha) ** 2)) / (_TWO_PI * alpha**2)
-        inv = 1.0 / np.sqrt(1.0 + t * t)
+        ua, ub = bp[..., :-1, None], bp[..., 1:, None]  # (m, K, P, 1)
+        wt, ct, st = nodes(ua + (ub - ua) * v, (ub - ua) * wv)
         mu4, s4 = mu[..., None, None], s[..., None, None]
-        _accumulate_azimuth(out, slice(m0, m0 + m), wt, -mu4 * inv, s4 * t * inv, lev)
+        _accumulate_azimuth(out, slice(m0, m0 + m), wt, -mu4 * ct, s4 * st, lev)
     return out
 
 
@@ -409,37 +422,15 @@ def _abs_cosine_moments_GGX(mu_abs, alpha, levels, n_quad):
     t = tan θ_m is exact), with the bounded, smooth weight D sin θ_m =
     α² sin θ_m cos θ_m / (2π (α² cos²θ_m + sin²θ_m)²), panels at the same azimuthal breakpoints
     (:func:`_breakpoint_angles`) and at θ_m = arctan(k α), k in :data:`_GGX_SPLITS`."""
-    mu_abs = np.asarray(mu_abs, dtype=float)
-    levels = np.asarray(levels, dtype=float)
-    M, K = mu_abs.size, levels.size
-    half_pi = 0.5 * np.pi
-    v, wv = _smoothstep_gauss_legendre(n_quad)
-    fixed = np.arctan(alpha * _GGX_SPLITS)
     a2 = alpha * alpha
-    out = np.empty((3, M, K))
-    chunk = max(1, int(2_000_000 // max(1, K * 26 * n_quad)))
-    for m0 in range(0, M, chunk):
-        mu = mu_abs[m0 : m0 + chunk][:, None]  # (m, 1)
-        m = mu.shape[0]
-        th = np.arccos(np.clip(mu, -1.0, 1.0))
-        s = np.sqrt(np.maximum(0.0, 1.0 - mu * mu))
-        lev = levels[None, :]  # (1, K)
-        bp = _breakpoint_angles(th, lev, m, K)
-        bp = np.where((bp > 0.0) & (bp < half_pi), bp, half_pi)
-        bp = np.concatenate(
-            [np.zeros((m, K, 1)), bp, np.broadcast_to(fixed, (m, K, fixed.size)), np.full((m, K, 1), half_pi)],
-            axis=-1,
-        )
-        bp.sort(axis=-1)
-        n_used = int(np.max(np.sum(bp < half_pi, axis=-1))) + 1
-        bp = bp[..., : n_used + 1]
-        ta, tb = bp[..., :-1, None], bp[..., 1:, None]  # (m, K, P, 1)
-        tq = ta + (tb - ta) * v
+
+    def nodes(tq, dt_w):  # θ_m; weight D sin θ_m dθ_m
         ct, st = np.cos(tq), np.sin(tq)
-        wt = (tb - ta) * wv * a2 * st * ct / (_TWO_PI * (a2 * ct * ct + st * st) ** 2)
-        mu4, s4 = mu[..., None, None], s[..., None, None]
-        _accumulate_azimuth(out, slice(m0, m0 + m), wt, -mu4 * ct, s4 * st, lev)
-    return out
+        return dt_w * a2 * st * ct / (_TWO_PI * (a2 * ct * ct + st * st) ** 2), ct, st
+
+    half_pi = 0.5 * np.pi
+    return _polar_panel_moments(mu_abs, levels, n_quad, lambda th: th, half_pi, half_pi,
+                                np.arctan(alpha * _GGX_SPLITS), nodes, 26)
 
 
 @functools.lru_cache(maxsize=16)
@@ -792,37 +783,14 @@ def _abs_cosine_moments_cdf(mu_abs, alpha, levels, n_quad, p_of_tan2, tan2_of_p)
     (:func:`_breakpoint_angles`) and at tan θ_m = k α, k in :data:`_CDF_SPLITS`, each with
     smoothstep-mapped Gauss-Legendre (``n_quad`` nodes), which also regularises θ(p) ∝ √p at p = 0
     and the algebraic tail at p = 1."""
-    mu_abs = np.asarray(mu_abs, dtype=float)
-    levels = np.asarray(levels, dtype=float)
-    M, K = mu_abs.size, levels.size
-    half_pi = 0.5 * np.pi
-    v, wv = _smoothstep_gauss_legendre(n_quad)
-    fixed_p = p_of_tan2((alpha * _CDF_SPLITS) ** 2)
-    out = np.empty((3, M, K))
-    chunk = max(1, int(2_000_000 // max(1, K * 29 * n_quad)))
-    for m0 in range(0, M, chunk):
-        mu = mu_abs[m0 : m0 + chunk][:, None]  # (m, 1)
-        m = mu.shape[0]
-        th = np.arccos(np.clip(mu, -1.0, 1.0))
-        s = np.sqrt(np.maximum(0.0, 1.0 - mu * mu))
-        lev = levels[None, :]  # (1, K)
-        bp = _breakpoint_angles(th, lev, m, K)
-        inside = (bp > 0.0) & (bp < half_pi)
-        bp = np.where(inside, p_of_tan2(np.tan(np.where(inside, bp, 0.0)) ** 2), 1.0)
-        bp = np.concatenate(
-            [np.zeros((m, K, 1)), bp, np.broadcast_to(fixed_p, (m, K, fixed_p.size)), np.ones((m, K, 1))], axis=-1)
-        bp.sort(axis=-1)
-        n_used = int(np.max(np.sum(bp < 1.0, axis=-1))) + 1
-        bp = bp[..., : n_used + 1]
-        pa, pb = bp[..., :-1, None], bp[..., 1:, None]  # (m, K, P, 1)
-        p = pa + (pb - pa) * v
+
+    def nodes(p, dp_w):  # p = P(tan²θ_m ≤ x); D dm = dp dφ_m / (4π) on each hemisphere
         x = tan2_of_p(p)
         ct = np.where(np.isfinite(x), 1.0 / np.sqrt(1.0 + np.where(np.isfinite(x), x, 0.0)), 0.0)
-        st = np.sqrt(np.maximum(0.0, (1.0 - ct) * (1.0 + ct)))
-        wt = (pb - pa) * wv / (4.0 * np.pi)
-        mu4, s4 = mu[..., None, None], s[..., None, None]
-        _accumulate_azimuth(out, slice(m0, m0 + m), wt, -mu4 * ct, s4 * st, lev)
-    return out
+        return dp_w / (4.0 * np.pi), ct, np.sqrt(np.maximum(0.0, (1.0 - ct) * (1.0 + ct)))
+
+    return _polar_panel_moments(mu_abs, levels, n_quad, lambda th: p_of_tan2(np.tan(th) ** 2), 0.5 * np.pi, 1.0,
+                                p_of_tan2((alpha * _CDF_SPLITS) ** 2), nodes, 29)
 
 
 def _abs_cosine_moments_StudentT(mu_abs, alpha, levels, n_quad, gamma):
