@@ -15,15 +15,10 @@ A file that is not a Fourier BSDF is refused in one line, exit status 2, nothing
 """
 
 import json
-from pathlib import Path
 
 import click
 
-from flakedb.bsdf import BSDFFileError
-from flakedb.cli.errors import FlakedbError
-from flakedb.cli.failures import probe_writable, remove_created_dirs
-from flakedb.outputs import OutputError, check_output_dir
-from flakedb.export.registry import export
+from flakedb.cli.exporting import run_export
 
 
 @click.command("export-cpa")
@@ -34,18 +29,7 @@ from flakedb.export.registry import export
 @click.option("--json", "as_json", is_flag=True, help="Print the fit and the files as JSON.")
 def export_cpa(file, out, name, as_json):
     """Fit a coat mirror, a Lambert term and three GGX lobes whose colours are a table indexed by the view angle to a Fourier .bsdf / flakedb .h5 FILE, and write NAME.cpa.png (the table), NAME.cpa.mtlx (MaterialX standard nodes), NAME.cpa.blender.py (Cycles / EEVEE node group) and NAME.cpa.json (the fit and its ΔE00)."""
-    out_dir = Path(out) if out is not None else Path(file).absolute().parent
-    try:
-        check_output_dir(out_dir.absolute())
-        probe_writable(out_dir.absolute())
-    except OutputError as e:
-        raise FlakedbError(str(e)) from None
-    try:
-        with remove_created_dirs(out_dir.absolute()):
-            s = export(file, out_dir, method="cpa", name=name,
-                       progress=None if as_json else (lambda m: click.echo(m, err=True)))
-    except (BSDFFileError, OutputError, ValueError) as e:
-        raise FlakedbError(str(e)) from None
+    s = run_export(file, out, "cpa", name, as_json, bad_input=(ValueError,))
     if as_json:
         click.echo(json.dumps({"fit": {k: v for k, v in s["fit"].items() if k != "table"}, "files": s["files"]}, indent=2))
         return

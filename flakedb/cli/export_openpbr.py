@@ -4,6 +4,7 @@ glTF, Blender Principled).  Thin: the work is in :func:`flakedb.export.registry.
 A FILE that is not a BSDF is refused with exit status 2 and one line, and nothing is created:
 
 >>> import tempfile
+>>> from pathlib import Path
 >>> from click.testing import CliRunner
 >>> from flakedb.cli.main import cli
 >>> d = Path(tempfile.mkdtemp())
@@ -16,15 +17,10 @@ A FILE that is not a BSDF is refused with exit status 2 and one line, and nothin
 """
 
 import json
-from pathlib import Path
 
 import click
 
-from flakedb.bsdf import BSDFFileError
-from flakedb.cli.errors import FlakedbError
-from flakedb.cli.failures import probe_writable, remove_created_dirs
-from flakedb.outputs import OutputError, check_output_dir
-from flakedb.export.registry import export
+from flakedb.cli.exporting import run_export
 
 
 @click.command("export-openpbr")
@@ -39,18 +35,7 @@ def export_openpbr(file, out, name, as_json):
     NAME.gltf / NAME.glb (glTF sphere) and NAME.blender.py (Principled BSDF).  The fit's error
     (ΔE00 at the ASTM E2194 / E2539 geometries, cosine-weighted BSDF difference) is printed and
     stored in each file (`flakedb info NAME.mtlx` shows it)."""
-    out_dir = Path(out) if out is not None else Path(file).absolute().parent
-    try:
-        check_output_dir(out_dir.absolute())
-        probe_writable(out_dir.absolute())
-    except OutputError as e:
-        raise FlakedbError(str(e)) from None
-    try:
-        with remove_created_dirs(out_dir.absolute()):
-            s = export(file, out_dir, method="openpbr", name=name,
-                           progress=None if as_json else (lambda m: click.echo(m, err=True)))
-    except (BSDFFileError, OutputError) as e:
-        raise FlakedbError(str(e)) from None
+    s = run_export(file, out, "openpbr", name, as_json)
     if as_json:
         click.echo(json.dumps(s, indent=2))
         return
