@@ -201,10 +201,10 @@ def auto_resolution(recipe) -> tuple[int, str]:
                              f"(measured albedo error ≤ 2.3e-4)"))
         if a is not None:
             flakes = True
-            flake_alphas.append(a)
             label = f"flakes α = {a0:g} ({p.path})" if a == a0 else (
                 f"flakes α = {a0:g} ({p.path}; {recipe_distribution(p)}: a lobe as narrow as α {a:.3g} on the "
                 f"Beckmann/GGX scale)")
+            flake_alphas.append((a, label))
             add(FLAKE_ALBEDO_ERROR, t_alb, a, label, "albedo_error")
             need.append((int(np.ceil(min(3.0 / a, AUTO_MAX_N))), f"{label}: h ≥ 3/α (ΔE00 ≲ 0.1)"))
     metal = getattr(recipe, "metal", None)
@@ -299,8 +299,8 @@ def resolve_node_count(recipe, n=None) -> tuple[int, str]:
 
 def _colour_needs(recipe, target, flake_alphas, metal):
     """(h, reason) of the ``colour_error`` target (ΔE00 at the report geometries: against the converged answer for a
-    metal base, between n and 2n otherwise) from the
-    measured envelopes :data:`METAL_COLOUR_ERROR`, :data:`FLAKE_COLOUR_ERROR`, :data:`PLAIN_COLOUR_ERROR`
+    metal base, between n and 2n otherwise) for ``flake_alphas`` ((Beckmann/GGX-scale α, label) per flake
+    population) and ``metal`` from the measured envelopes :data:`METAL_COLOUR_ERROR`, :data:`FLAKE_COLOUR_ERROR`, :data:`PLAIN_COLOUR_ERROR`
     (docs/resolution.md "colour_error"); raises :class:`RecipeError` when no measured n meets it."""
     def refuse(what, table, unit):
         raise RecipeError(getattr(recipe, "source", "<recipe>"), [
@@ -319,12 +319,12 @@ def _colour_needs(recipe, target, flake_alphas, metal):
             n_m = int(np.ceil(n_m * METAL_COLOUR_ALPHA / metal.roughness))
             why += f", scaled by {METAL_COLOUR_ALPHA:g}/α → n ≥ {n_m}"
         out.append(((min(n_m, AUTO_MAX_N) + 1) // 2, why))
-    for a in flake_alphas:
+    for a, label in flake_alphas:  # a: the lobe's Beckmann/GGX-scale α; label names the recipe's own
         x, err = _needed(FLAKE_COLOUR_ERROR, target)
         if x is None:
-            refuse(f"flakes α = {a:g}", FLAKE_COLOUR_ERROR, "h·α =")
+            refuse(label, FLAKE_COLOUR_ERROR, "h·α =")
         out.append((min(int(np.ceil(x / a - 1e-9)), AUTO_MAX_N // 2),
-                    f"flakes α = {a:g}: h·α ≥ {x:g} for colour_error ≤ {target:g} (measured ΔE00 {err:g})"))
+                    f"{label}: h·α ≥ {x:g} for colour_error ≤ {target:g} (measured ΔE00 {err:g})"))
     if metal is None and not flake_alphas:
         n_p, err = _needed(PLAIN_COLOUR_ERROR, target)
         if n_p is None:

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from flakedb.process import TERMINATING_SIGNALS, Terminated, install_signal_handlers
-from tests.cases import small_mono_recipe
+from tests.cases import basecoat_recipe, small_mono_recipe
 
 RECIPE = small_mono_recipe("sig-test")
 
@@ -145,20 +145,7 @@ def test_a_signal_reported_by_a_kernel_as_systemerror_exits_128_plus_signum(tmp_
     assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())
 
 
-MATCH_BASE = """\
-flakedb: 1
-name: sig-match
-spectral: {mode: spectral, range_nm: [400, 700], step_nm: 20}
-resolution: 16
-layers:
-  - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
-  - basecoat:
-      thickness_um: 15
-      ior: 1.5
-      particles:
-        - {species: cadmium-yellow, volume_fraction: {fit: [0.01, 0.2]}}
-  - primer: {color: gray}
-"""
+MATCH_BASE = basecoat_recipe("sig-match", ["{species: cadmium-yellow, volume_fraction: {fit: [0.01, 0.2]}}"])
 MATCH_TARGET = "illumination_deg,aspecular_deg,L*,a*,b*\n45,15,85,5,80\n45,45,80,4,75\n45,110,78,3,70\n"
 MATCH_OUTPUTS = sorted(["sig-match-fitted.yaml", "sig-match-match.json", "sig-match-prediction.csv", "sig-match.bsdf",
                         "sig-match.h5", "sig-match.json"])

@@ -18,6 +18,7 @@ from click.testing import CliRunner
 from flakedb.cli.main import cli
 from flakedb.match.cxf import load_target, read_cxf_target
 from flakedb.match.targets import TargetError, read_target
+from tests.cases import basecoat_recipe
 
 NS = 'xmlns:cc="http://colorexchangeformat.com/CxF3-core"'
 
@@ -160,20 +161,7 @@ def test_object_choice(tmp_path):
 def test_compare_reads_a_cxf_target(tmp_path):
     """End to end: the recipe's own prediction, laid out by hand as CxF3, passes `compare` at ΔE00 ≈ 0,
     and a CxF with one geometry's spectrum scaled by 0.9 fails there and only there."""
-    recipe = textwrap.dedent("""\
-        flakedb: 1
-        name: cxf-check
-        spectral: {mode: spectral, range_nm: [400, 700], step_nm: 20}
-        resolution: 16
-        layers:
-          - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
-          - basecoat:
-              thickness_um: 15
-              ior: 1.5
-              particles:
-                - {species: metallic, volume_fraction: 0.04, orientation_alpha: 0.3}
-          - primer: {color: gray}
-        """)
+    recipe = basecoat_recipe("cxf-check", ["{species: metallic, volume_fraction: 0.04, orientation_alpha: 0.3}"])
     (tmp_path / "r.yaml").write_text(recipe)
     r = CliRunner().invoke(cli, ["compare", str(tmp_path / "r.yaml"), "--geometries", "e2194",
                                  "--write-csv", str(tmp_path / "p.csv")])

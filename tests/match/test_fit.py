@@ -8,7 +8,6 @@ does not recover known loadings from a target made by flakedb itself (the issue'
 """
 
 import json
-import textwrap
 
 import numpy as np
 import pytest
@@ -25,22 +24,10 @@ from flakedb.match.fit import (
 from flakedb.match.targets import E2194_GEOMETRIES, read_target
 from flakedb.paint.catalog import load_catalog
 from flakedb.paint.recipe import RecipeError
+from tests.cases import basecoat_recipe
 
-BASE = textwrap.dedent("""\
-    flakedb: 1
-    name: two-species
-    spectral: {mode: spectral, range_nm: [400, 700], step_nm: 20}
-    resolution: 16
-    layers:
-      - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
-      - basecoat:
-          thickness_um: 15
-          ior: 1.5
-          particles:
-            - {species: metallic, volume_fraction: VF_METALLIC, orientation_alpha: 0.3}
-            - {species: cadmium-yellow, volume_fraction: VF_YELLOW}
-      - primer: {color: gray}
-    """)
+BASE = basecoat_recipe("two-species", ["{species: metallic, volume_fraction: VF_METALLIC, orientation_alpha: 0.3}",
+                                        "{species: cadmium-yellow, volume_fraction: VF_YELLOW}"])
 TRUE = {"VF_METALLIC": 0.04, "VF_YELLOW": 0.02}
 
 

@@ -18,22 +18,10 @@ from flakedb.paint.catalog import load_catalog
 from flakedb.rt.reuse import reusing
 from flakedb.solve.pipeline import solve_recipe
 from tests.tolerances import ulps
+from tests.cases import basecoat_recipe
 
-DOC = yaml.safe_load("""\
-flakedb: 1
-name: reuse
-spectral: {mode: spectral, range_nm: [400, 700], step_nm: 20}
-resolution: 16
-layers:
-  - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
-  - basecoat:
-      thickness_um: 15
-      ior: 1.5
-      particles:
-        - {species: metallic, volume_fraction: 0.04, orientation_alpha: 0.3}
-        - {species: cadmium-yellow, volume_fraction: 0.02}
-  - primer: {color: gray}
-""")
+DOC = yaml.safe_load(basecoat_recipe("reuse", ["{species: metallic, volume_fraction: 0.04, orientation_alpha: 0.3}",
+                                               "{species: cadmium-yellow, volume_fraction: 0.02}"]))
 
 
 @pytest.fixture(scope="module")

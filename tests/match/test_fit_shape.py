@@ -6,28 +6,16 @@ fit that cannot tell a tail shape from the measured angles: a synthetic target m
 is recovered from a start far off.
 """
 
-import textwrap
 
 import pytest
 import yaml
 from click.testing import CliRunner
 
 from flakedb.cli.main import cli
+from tests.cases import basecoat_recipe
 
-BASE = textwrap.dedent("""\
-    flakedb: 1
-    name: shape
-    spectral: {mode: spectral, range_nm: [400, 700], step_nm: 20}
-    resolution: 32
-    layers:
-      - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
-      - basecoat:
-          thickness_um: 15
-          ior: 1.5
-          particles:
-            - {species: metallic, volume_fraction: 0.04, orientation_alpha: 0.2, ORIENT}
-      - primer: {color: gray}
-    """)
+BASE = basecoat_recipe("shape", ["{species: metallic, volume_fraction: 0.04, orientation_alpha: 0.2, ORIENT}"],
+                       resolution=32)
 
 
 @pytest.mark.slow

@@ -10,6 +10,7 @@ from flakedb.paint.catalog import get_species, load_catalog
 from flakedb.paint.recipe import RecipeError, parse_recipe
 from flakedb.paint.recipe_checks import flake_entry_with_films
 from flakedb.paint.species import binder_index, film_spreads, film_stack, flake_reflectance_transmittance
+from tests.cases import basecoat_recipe
 
 NEW = ("aluminium-cornflake", "aluminium-silver-dollar", "aluminium-vmp", "aluminium-silica", "mica-tio2-pearl",
        "alumina-tio2", "aluminium-tio2")
@@ -128,20 +129,7 @@ def test_match_recovers_the_tio2_thickness_on_aluminium(tmp_path):
     from click.testing import CliRunner
 
     from flakedb.cli.main import cli
-    text = textwrap.dedent("""\
-        flakedb: 1
-        name: warm-silver
-        spectral: {mode: spectral, range_nm: [400, 700], step_nm: 20}
-        resolution: 16
-        layers:
-          - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
-          - basecoat:
-              thickness_um: 15
-              ior: 1.5
-              particles:
-                - {species: aluminium-tio2, volume_fraction: 0.05, coating_thickness_nm: [THICK]}
-          - primer: {color: gray}
-        """)
+    text = basecoat_recipe("warm-silver", ["{species: aluminium-tio2, volume_fraction: 0.05, coating_thickness_nm: [THICK]}"])
     (tmp_path / "true.yaml").write_text(text.replace("THICK", "20"))
     target = tmp_path / "target.csv"
     r = CliRunner().invoke(cli, ["compare", str(tmp_path / "true.yaml"), "--write-csv", str(target),

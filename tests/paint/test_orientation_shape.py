@@ -190,3 +190,15 @@ def test_catalogue_entries_can_state_a_shape():
     req = dataclasses.replace(req, species={"metallic": e}, alphas={}, distribution_alphas={})
     a = e["orientation_alpha"]["value"]
     assert [t.prefix for t in st.plan_build(req).tasks] == [f"species/metallic/n16/student_t(2.5)/a{a:g}"]
+
+
+def test_auto_reasons_name_the_recipes_own_alpha():
+    """Every auto rule's reason (albedo, the h ≥ 3/α rule and colour_error) names the flake's own α; a
+    heavy-tailed flake adds the narrower lobe α the rules were applied at (the colour_error reason named only
+    the latter: 'flakes α = 0.163' for a recipe's 0.2)."""
+    from flakedb.solve.resolution import auto_resolution
+
+    text = _recipe(MET % ", orientation_alpha: 0.2, orientation_distribution: student_t, orientation_shape: 1.5")
+    n, why = auto_resolution(parse_recipe(text.replace("resolution: 16\n", "")))  # the default colour_error binds
+    assert "colour_error ≤ 0.1" in why and "flakes α = 0.2 (" in why, why
+    assert "flakes α = 0.163" not in why, why

@@ -8,7 +8,6 @@ catalog/recipes that the schema does not accept; the auto resolution heuristic d
 """
 
 import os
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -23,24 +22,12 @@ from flakedb.paint.mapping import build_paint, solve_paint
 from flakedb.solve.resolution import auto_resolution
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError, load_recipe, parse_recipe
 from flakedb.rt.stack import InnerSmooth
+from tests.cases import basecoat_recipe
 
 RECIPES = sorted((Path(__file__).resolve().parents[2] / "flakedb" / "catalog" / "recipes").glob("*.yaml"))
 
-BASE = textwrap.dedent("""\
-    flakedb: 1
-    name: test-paint
-    spectral: {mode: spectral, range_nm: [400, 700], step_nm: 20}
-    resolution: 16
-    layers:
-      - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
-      - basecoat:
-          thickness_um: 15
-          ior: 1.5
-          particles:
-            - {species: pearlescent, volume_fraction: 0.04, diameter_um: 15, orientation_alpha: 0.2}
-            - {species: titanium-white, volume_fraction: 0.02}
-      - primer: {color: white}
-""")
+BASE = basecoat_recipe("test-paint", ["{species: pearlescent, volume_fraction: 0.04, diameter_um: 15, orientation_alpha: 0.2}",
+                                      "{species: titanium-white, volume_fraction: 0.02}"], primer="{color: white}")
 
 
 def doc():
