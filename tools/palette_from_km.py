@@ -37,7 +37,7 @@ def main():
                 "converted by flakedb/paint/km_palette.py with catalog/tinters/palette.yaml"]
         if "density_g_cm3" in sp:
             out += ["    density_g_cm3:", f"      value: {sp['density_g_cm3']['value']}",
-                    f"      source: {sp['density_g_cm3']['source']}"]
+                    f"      source: >-\n        {' '.join(sp['density_g_cm3']['source'].split())}"]
         for key, arr in (("specific_absorption_per_um", t["sigma_a_per_um"]),
                          ("specific_scattering_per_um", t["sigma_s_per_um"])):
             out += [f"    {key}:", f"      wavelength_nm: {fmt(t['wavelength_nm'])}", f"      value: {fmt(arr)}",
