@@ -127,11 +127,12 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
 @click.option("--max-de", "max_de", default=DEFAULT_MAX_DE00, show_default=True, type=float,
               help="ΔE limit (in --formula) at every geometry (a policy you choose; not a standard's number).")
 @click.option("--limit", "limits", multiple=True,
-              help="Per-geometry ΔE limit (in --formula), ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; "
+              help="Per-geometry ΔE limit (in --formula), ASPECULAR=V (45° illumination), ILLUM/ASPECULAR=V or ILLUM/ASPECULAR/AZIMUTH=V (out of plane); "
                    "repeatable.")
 @click.option("--geometries", "geometry_set", default=DEFAULT_GEOMETRY_SET, show_default=True,
               type=click.Choice(list(GEOMETRY_SETS)),
-              help="Without --target: the geometries to predict (E2194: 45° illumination; E2539 adds 15°).")
+              help="Without --target: the geometries to predict (E2194: 45° illumination; E2539 adds 15°; xrite19 "
+                   "adds eight out of plane).")
 @click.option("--write-cxf", "cxf_out", default=None, type=click.Path(dir_okay=False),
               help="Write the prediction (multi-angle spectra and CIELAB under the comparison's conditions) as a "
                    "CxF3 file that flakedb and QC software read as a target; one recipe.")

@@ -83,7 +83,7 @@ FITTED_SUFFIX = "-fitted.yaml"
               help="The target's tolerance: ΔE (in --formula) limit at every geometry (a policy; exit status 1 when the fit "
                    "does not get within it).")
 @click.option("--limit", "limits", multiple=True,
-              help="Per-geometry ΔE limit (in --formula), ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
+              help="Per-geometry ΔE limit (in --formula), ASPECULAR=V (45° illumination), ILLUM/ASPECULAR=V or ILLUM/ASPECULAR/AZIMUTH=V (out of plane); repeatable.")
 @click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=click.IntRange(1, 10_000),
               help="Most residual evaluations of the least-squares solver.")
 @click.option("--texture-tolerance", "texture_tol", default=DEFAULT_TEXTURE_TOLERANCE, show_default=True, type=float,

@@ -129,7 +129,8 @@ def directions(geometries):
     mu_o = -v[:, 2]
     phi_d = np.abs(np.arctan2(v[:, 1], v[:, 0]))
     in_plane = g[:, 2] == 0.0
-    # in plane: φ_d exactly 0 or π, as the in-plane evaluation always had it
+    # in plane: μ_o = −cos|θ_i − γ| and φ_d exactly 0 or π, bit for bit as the in-plane evaluation always had them
+    mu_o = np.where(in_plane, -np.cos(np.radians(np.abs(g[:, 0] - g[:, 1]))), mu_o)
     phi_d = np.where(in_plane, np.where(g[:, 0] - g[:, 1] >= 0.0, 0.0, np.pi), phi_d)
     theta_view = np.where(in_plane, g[:, 0] - g[:, 1], np.degrees(np.arccos(np.clip(v[:, 2], -1.0, 1.0))))
     return mu_i, mu_o, phi_d, theta_view
