@@ -313,16 +313,17 @@ def format_formulation(layers) -> list:
 def format_report(rep) -> str:
     """The colour report as the text table ``flakedb compose`` prints."""
     cond = f"{rep.get('illuminant', 'D65')}/{rep.get('observer', '2')}°"
+    asps = [(f"{r['aspecular_deg']:g}°az{r['azimuth_deg']:g}°" if r.get("azimuth_deg") else f"{r['aspecular_deg']:g}°")
+            for r in rep["geometries"]]
+    wa = max([10] + [len(a) for a in asps])   # out-of-plane names are longer
     lines = [f"colour report: {rep['name']} ({rep['mode']} mode; CIELAB {cond}, geometries "
              f"{rep.get('geometry_set', 'e2194').upper()})",
-             f"{'illum':>6} {'aspecular':>10} {'view':>12} {'L*':>8} {'a*':>8} {'b*':>8} {'C*':>8} {'h°':>6}"]
+             f"{'illum':>6} {'aspecular':>{wa}} {'view':>12} {'L*':>8} {'a*':>8} {'b*':>8} {'C*':>8} {'h°':>6}"]
     if rep.get("colour_note"):
         lines.insert(1, f"note: {rep['colour_note']}")
-    for r in rep["geometries"]:
+    for r, asp in zip(rep["geometries"], asps):
         view = f"{r['theta_view_deg']:.4g}° {'out' if r.get('azimuth_deg') else r['side'][:5]}"
-        asp = (f"{r['aspecular_deg']:g}°az{r['azimuth_deg']:g}°" if r.get("azimuth_deg")
-               else f"{r['aspecular_deg']:g}°")
-        lines.append(f"{r.get('illumination_deg', ILLUMINATION_DEG):>5g}° {asp:>10} {view:>12} "
+        lines.append(f"{r.get('illumination_deg', ILLUMINATION_DEG):>5g}° {asp:>{wa}} {view:>12} "
                      f"{r['L']:8.2f} {r['a']:8.2f} {r['b']:8.2f}"
                      + (f" {r['C']:8.2f} {r['h_deg']:6.1f}" if "C" in r else ""))
     lines += format_formulation(rep.get("formulation") or [])
