@@ -194,7 +194,8 @@ def qc_figure(page: QCPage):
     w = page.worst
     lines = [f"worst geometry {geometry_label(g[w])}: {page.formula} {page.de[w]:.2f} (limit {page.limit[w]:.2f})",
              f"{int(np.sum(~ok))} of {len(ok)} geometries outside their limits", ""]
-    lines += [f"{geometry_label(v):>8}  {d:5.2f} / {lim:4.2f}  {'ok ' if p else 'NO '} {s}"
+    wl = max([8] + [len(geometry_label(v)) for v in g])   # out-of-plane names are longer
+    lines += [f"{geometry_label(v):>{wl}}  {d:5.2f} / {lim:4.2f}  {'ok ' if p else 'NO '} {s}"
               for v, d, lim, p, s in zip(g, page.de, page.limit, ok, page.shade)]
     ax.text(0.0, 0.78, "\n".join(lines), fontsize=6.5, family="monospace", va="top", transform=ax.transAxes)
     ax = fig.add_subplot(grid[2, 2:])
