@@ -13,6 +13,8 @@ side for θ_v > 0, on the illuminator's side for θ_v < 0.  In flakedb's convent
 (:mod:`flakedb.conventions`: propagation directions, μ > 0 travels down, φ_d = 0 mirror/forward):
 μ_i = cos 45°, μ_o = −cos θ_v, φ_d = 0 on the specular side and φ_d = π on the illuminator's side.
 The aspecular angles are −15°, 15°, 25°, 45°, 75°, 110° (θ_v = 60°, 30°, 20°, 0°, −30°, −65°).
+Out-of-plane geometries (a third angle, the azimuth; the set "xrite19") are points of the full azimuth:
+(μ_i, μ_o, φ_d) from :func:`flakedb.colour.geometry.directions`, f from the table's Fourier series in φ_d.
 
 Reflectance factor = π f(ω_i, ω_o): the tabulated part only.  The smooth coat's mirror term is a
 delta at γ = 0, which no aspecular angle hits, so it adds nothing to these geometries (it is
@@ -57,6 +59,8 @@ from flakedb.colour.colorimetry import (
     spectral_grid,
     white_XYZ,
 )
+from flakedb.colour.geometry import as_geometry_array, key as geometry_key
+from flakedb.colour.geometry import directions as geometry_directions
 from flakedb.colour.settings import FLOP_GEOMETRIES, ColourSettings, resolve
 from flakedb.colour.tolerance import lch, observer_name
 from flakedb.colour.tolerance import reflectance_to_XYZ as reflectance_to_XYZ_under
@@ -73,8 +77,13 @@ ALBEDO_THETA_DEG = (0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 85.0)
 MONO_WHITE_GRID = ((380.0, 780.0), 10.0)
 
 
-def multiangle_geometry(aspecular_deg, illumination_deg=ILLUMINATION_DEG):
-    """(mu_i, mu_o, phi_d, theta_view_deg) of an aspecular angle (module docstring)."""
+def multiangle_geometry(aspecular_deg, illumination_deg=ILLUMINATION_DEG, azimuth_deg=0.0):
+    """(mu_i, mu_o, phi_d, theta_view_deg) of an aspecular angle (module docstring); with ``azimuth_deg`` ≠ 0 an
+    out-of-plane geometry (:func:`flakedb.colour.geometry.directions`, X-Rite's notation)."""
+    if azimuth_deg:
+        mu_i, mu_o, phi_d, tv = (float(x[0]) for x in geometry_directions([(illumination_deg, aspecular_deg,
+                                                                             azimuth_deg)]))
+        return mu_i, mu_o, phi_d, tv
     tv = float(illumination_deg) - float(aspecular_deg)
     mu_i = np.cos(np.radians(illumination_deg))
     mu_o = -np.cos(np.radians(abs(tv)))
@@ -222,24 +231,25 @@ def colour_report(table, mode, wavelength_nm, x_nodes, albedo_nodes, delta_eta=N
         settings = resolve(settings.observer, settings.illuminant, settings.geometry_set, mode)
     white = reference_white(mode, wavelength_nm, settings)
     rows = []
-    for th_i, g in settings.geometries:
-        mu_i, mu_o, phi_d, tv = multiangle_geometry(g, th_i)
+    for th_i, g, az in as_geometry_array(settings.geometries):
+        mu_i, mu_o, phi_d, tv = multiangle_geometry(g, th_i, az)
         f_cos = eval_table(table, mu_i, mu_o, phi_d)  # (C,)
         rf = np.pi * f_cos / abs(mu_o)
         XYZ = channels_to_XYZ(rf, mode, wavelength_nm, settings)
         lab = XYZ_to_Lab(XYZ, white=white)
         rgb = XYZ_to_linear_sRGB(XYZ)
         rows.append({
-            "illumination_deg": float(th_i), "aspecular_deg": g, "theta_view_deg": abs(tv),
-            "side": "specular" if tv > 0 else ("normal" if tv == 0 else "illuminator"),
+            "illumination_deg": float(th_i), "aspecular_deg": float(g), "azimuth_deg": float(az),
+            "theta_view_deg": abs(float(tv)),
+            "side": ("out of plane" if az else "specular" if tv > 0 else ("normal" if tv == 0 else "illuminator")),
             "mu_i": float(mu_i), "mu_o": float(mu_o), "phi_d": float(phi_d),
             "L": float(lab[0]), "a": float(lab[1]), "b": float(lab[2]),
             "C": float(lch(lab)[1]), "h_deg": float(lch(lab)[2]),
             "XYZ": [float(v) for v in XYZ], "linear_sRGB": [float(v) for v in rgb],
             "reflectance_factor": [float(v) for v in rf],
         })
-    Ls = {(r["illumination_deg"], r["aspecular_deg"]): r["L"] for r in rows}
-    L15, L45, L110 = (Ls[g] for g in FLOP_GEOMETRIES)
+    Ls = {geometry_key((r["illumination_deg"], r["aspecular_deg"], r["azimuth_deg"])): r["L"] for r in rows}
+    L15, L45, L110 = (Ls[geometry_key(g)] for g in FLOP_GEOMETRIES)
     fi = flop_index(L15, L45, L110)
     fi_std = flop_index_standard(L15, L45, L110)
     if fi is None:
@@ -303,14 +313,17 @@ def format_formulation(layers) -> list:
 def format_report(rep) -> str:
     """The colour report as the text table ``flakedb compose`` prints."""
     cond = f"{rep.get('illuminant', 'D65')}/{rep.get('observer', '2')}°"
+    asps = [(f"{r['aspecular_deg']:g}°az{r['azimuth_deg']:g}°" if r.get("azimuth_deg") else f"{r['aspecular_deg']:g}°")
+            for r in rep["geometries"]]
+    wa = max([10] + [len(a) for a in asps])   # out-of-plane names are longer
     lines = [f"colour report: {rep['name']} ({rep['mode']} mode; CIELAB {cond}, geometries "
              f"{rep.get('geometry_set', 'e2194').upper()})",
-             f"{'illum':>6} {'aspecular':>10} {'view':>12} {'L*':>8} {'a*':>8} {'b*':>8} {'C*':>8} {'h°':>6}"]
+             f"{'illum':>6} {'aspecular':>{wa}} {'view':>12} {'L*':>8} {'a*':>8} {'b*':>8} {'C*':>8} {'h°':>6}"]
     if rep.get("colour_note"):
         lines.insert(1, f"note: {rep['colour_note']}")
-    for r in rep["geometries"]:
-        view = f"{r['theta_view_deg']:g}° {r['side'][:5]}"
-        lines.append(f"{r.get('illumination_deg', ILLUMINATION_DEG):>5g}° {r['aspecular_deg']:>9g}° {view:>12} "
+    for r, asp in zip(rep["geometries"], asps):
+        view = f"{r['theta_view_deg']:.4g}° {'out' if r.get('azimuth_deg') else r['side'][:5]}"
+        lines.append(f"{r.get('illumination_deg', ILLUMINATION_DEG):>5g}° {asp:>{wa}} {view:>12} "
                      f"{r['L']:8.2f} {r['a']:8.2f} {r['b']:8.2f}"
                      + (f" {r['C']:8.2f} {r['h_deg']:6.1f}" if "C" in r else ""))
     lines += format_formulation(rep.get("formulation") or [])

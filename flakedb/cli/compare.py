@@ -25,6 +25,9 @@ import numpy as np
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import check_plan, remove_created_dirs
 from flakedb.cli.options import check_node_count, prediction_options
+from flakedb.colour.geometry import cells as geometry_cells
+from flakedb.colour.geometry import compact
+from flakedb.colour.geometry import key as geometry_key
 from flakedb.colour.settings import (
     DEFAULT_GEOMETRY_SET,
     DEFAULT_ILLUMINANT,
@@ -56,24 +59,28 @@ from flakedb.store.versions import StoreError
 
 
 def parse_limits(items, option="--limit"):
-    """``ILLUM/ASPEC=VALUE`` or ``ASPEC=VALUE`` (illumination 45°) → {(illum, aspec): value}.
+    """``ILLUM/ASPEC=VALUE``, ``ASPEC=VALUE`` (illumination 45°) or ``ILLUM/ASPEC/AZIMUTH=VALUE`` (out of plane)
+    → {geometry key: value} (:func:`flakedb.colour.geometry.key`).
 
-    >>> parse_limits(["45/15=1.5", "110=2"])
-    {(45.0, 15.0): 1.5, (45.0, 110.0): 2.0}
+    >>> parse_limits(["45/15=1.5", "110=2", "45/25/90=3"])
+    {(45.0, 15.0): 1.5, (45.0, 110.0): 2.0, (45.0, 25.0, 90.0): 3.0}
     """
     out = {}
     for it in items:
         try:
             geo, val = it.split("=")
-            parts = geo.split("/")
-            illum, asp = (45.0, float(parts[0])) if len(parts) == 1 else (float(parts[0]), float(parts[1]))
-            value = float(val)
-            if not all(math.isfinite(x) for x in (illum, asp, value)) or value < 0 or len(parts) > 2:
+            parts = [float(x) for x in geo.split("/")]
+            if len(parts) > 3:
                 raise ValueError(it)
-            out[(illum, asp)] = value
+            g = (45.0, parts[0]) if len(parts) == 1 else tuple(parts)
+            value = float(val)
+            if not all(math.isfinite(x) for x in g + (value,)) or value < 0:
+                raise ValueError(it)
+            out[geometry_key(g)] = value
         except ValueError:
-            raise FlakedbError(f"{option} {it}: write ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V with finite "
-                               f"angles and V ≥ 0, e.g. {option} 15=1.2 {option} 15/-15=2") from None
+            raise FlakedbError(f"{option} {it}: write ASPECULAR=V (45° illumination), ILLUM/ASPECULAR=V or, out of "
+                               f"plane, ILLUM/ASPECULAR/AZIMUTH=V with finite angles and V ≥ 0, e.g. {option} 15=1.2 "
+                               f"{option} 15/-15=2 {option} 45/25/90=2") from None
     return out
 
 
@@ -120,11 +127,12 @@ def open_store(store, recipe, n=None, raw=False, verify=True):
 @click.option("--max-de", "max_de", default=DEFAULT_MAX_DE00, show_default=True, type=float,
               help="ΔE limit (in --formula) at every geometry (a policy you choose; not a standard's number).")
 @click.option("--limit", "limits", multiple=True,
-              help="Per-geometry ΔE limit (in --formula), ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; "
+              help="Per-geometry ΔE limit (in --formula), ASPECULAR=V (45° illumination), ILLUM/ASPECULAR=V or ILLUM/ASPECULAR/AZIMUTH=V (out of plane); "
                    "repeatable.")
 @click.option("--geometries", "geometry_set", default=DEFAULT_GEOMETRY_SET, show_default=True,
               type=click.Choice(list(GEOMETRY_SETS)),
-              help="Without --target: the geometries to predict (E2194: 45° illumination; E2539 adds 15°).")
+              help="Without --target: the geometries to predict (E2194: 45° illumination; E2539 adds 15°; xrite19 "
+                   "adds eight out of plane).")
 @click.option("--write-cxf", "cxf_out", default=None, type=click.Path(dir_okay=False),
               help="Write the prediction (multi-angle spectra and CIELAB under the comparison's conditions) as a "
                    "CxF3 file that flakedb and QC software read as a target; one recipe.")
@@ -191,7 +199,7 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
         raise FlakedbError(str(exc)) from exc
     plan = _check_outputs(*outputs, figures=[(rec.name, None if target is None else _target_label(target))],
                           plot_format=plot_format, cxf_out=cxf_out)   # every output, before any work
-    geoms = target.geometries if target is not None else np.asarray(GEOMETRY_SETS[geometry_set])
+    geoms = target.geometries if target is not None else compact(GEOMETRY_SETS[geometry_set])
     try:
         pred = predict(rec, geoms, n, catalog, version, raw)
         cs = for_target(pred.mode, target, observer, illuminant, geometry_set)
@@ -235,8 +243,8 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
     if target is None:
         click.echo(f"{'illum':>6} {'aspec':>6} {'L*':>8} {'a*':>8} {'b*':>8}")
         for g, v in zip(geoms, lab):
-            click.echo(f"{g[0]:5g}° {g[1]:5g}° {v[0]:8.2f} {v[1]:8.2f} {v[2]:8.2f}")
-        comp = batch.Comparison(rec.name, None, np.asarray(geoms, float), lab, None, obs, ill, None, None, pred)
+            click.echo(f"{geometry_cells(g)} {v[0]:8.2f} {v[1]:8.2f} {v[2]:8.2f}")
+        comp = batch.Comparison(rec.name, None, compact(geoms), lab, None, obs, ill, None, None, pred)
         _outputs(plan, [comp], table_out, plot_dir, plot_format, csv, cxf)
         return
     try:
@@ -262,7 +270,7 @@ def compare(recipes, target_paths, pairs_path, cxf_object, observer, illuminant,
                + (f"  MI({ill}->{mi_illuminant})" if mi is not None else ""))
     for i, g in enumerate(geoms):
         lt, ls = lab_t[i], lab[i]
-        click.echo(f"{g[0]:5g}° {g[1]:5g}° | {lt[0]:6.2f} {lt[1]:7.2f} {lt[2]:7.2f} {lch_t[i, 1]:6.2f} {lch_t[i, 2]:6.1f} | "
+        click.echo(f"{geometry_cells(g)} | {lt[0]:6.2f} {lt[1]:7.2f} {lt[2]:7.2f} {lch_t[i, 1]:6.2f} {lch_t[i, 2]:6.1f} | "
                    f"{ls[0]:6.2f} {ls[1]:7.2f} {ls[2]:7.2f} {lch_s[i, 1]:6.2f} {lch_s[i, 2]:6.1f} | {d['dL'][i]:+6.2f} "
                    f"{d['dC'][i]:+6.2f} {d['dH'][i]:+6.2f} {ev['value'][i]:7.2f} {ev['limit'][i]:6.2f}  "
                    f"{'yes' if ev['passed'][i] else 'NO '}  {words[i]}" + (f"  {mi[i]:.3f}" if mi is not None else ""))

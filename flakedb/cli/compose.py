@@ -63,7 +63,8 @@ from flakedb.store.versions import StoreError, StoreIntegrityError
               help=f"Colour report illuminant, D65, A, F11, ... (default {DEFAULT_ILLUMINANT}).")
 @click.option("--geometries", "geometry_set", default=DEFAULT_GEOMETRY_SET, show_default=True,
               type=click.Choice(list(GEOMETRY_SETS)),
-              help="Colour report geometries: e2194 (45° illumination) or e2539 (adds 15° illumination).")
+              help="Colour report geometries: e2194 (45° illumination), e2539 (adds 15° illumination) or xrite19 (adds "
+                   "eight out-of-plane geometries, e.g. 45as25az90).")
 @click.option("--quiet", is_flag=True, help="No progress lines on stderr (warnings are still printed).")
 @click.option("--build-missing", is_flag=True,
               help="When the store cannot serve the recipe (a species, α, n or band range it lacks), build "

@@ -43,6 +43,7 @@ from flakedb.cli.compare import formula, open_store, parse_limits
 from flakedb.cli.errors import FlakedbError
 from flakedb.cli.failures import check_plan, remove_created_dirs
 from flakedb.cli.options import check_node_count, prediction_options
+from flakedb.colour.geometry import key as geometry_key
 from flakedb.colour.settings import DEFAULT_MAX_DE00, resolve
 from flakedb.colour.tolerance import PerAngleLimits
 from flakedb.compose.orchestrate import OUTPUT_SUFFIXES, output_plan
@@ -82,7 +83,7 @@ FITTED_SUFFIX = "-fitted.yaml"
               help="The target's tolerance: ΔE (in --formula) limit at every geometry (a policy; exit status 1 when the fit "
                    "does not get within it).")
 @click.option("--limit", "limits", multiple=True,
-              help="Per-geometry ΔE limit (in --formula), ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
+              help="Per-geometry ΔE limit (in --formula), ASPECULAR=V (45° illumination), ILLUM/ASPECULAR=V or ILLUM/ASPECULAR/AZIMUTH=V (out of plane); repeatable.")
 @click.option("--max-evaluations", "max_nfev", default=50, show_default=True, type=click.IntRange(1, 10_000),
               help="Most residual evaluations of the least-squares solver.")
 @click.option("--texture-tolerance", "texture_tol", default=DEFAULT_TEXTURE_TOLERANCE, show_default=True, type=float,
@@ -120,9 +121,10 @@ def match(base, target_paths, cxf_object, out_dir, observer, illuminant, weights
     except (RecipeError, CatalogError, TargetError, ValueError) as exc:
         raise FlakedbError(str(exc)) from exc
     for t in targets:   # every target's --weight geometries before the first fit (not after target 1's outputs)
-        for il, asp in weight_items:
-            if not any(g[0] == il and g[1] == asp for g in t.geometries):
-                raise FlakedbError(f"--weight {il:g}/{asp:g}: the target {_short(t.source)} has no such geometry")
+        for k in weight_items:
+            if not any(geometry_key(g) == k for g in t.geometries):
+                raise FlakedbError(f"--weight {'/'.join(f'{x:g}' for x in k)}: the target {_short(t.source)} has no "
+                                   f"such geometry")
     stems = [Path(str(f)).stem for f in files]
     if len(targets) > 1:
         for f, stem in zip(files, stems):   # OUT/<stem>/ must be a folder in OUT ('..' of '...csv' is OUT's parent)
@@ -185,10 +187,10 @@ def _fit_one(doc, base, params, target, out, planned, observer, illuminant, weig
     """One fit and its files, all together or none (module docstring); returns the MatchResult."""
     plan, paths = planned
     w = np.ones(len(target.geometries))
-    for (il, asp), v in weight_items.items():
-        hit = [i for i, g in enumerate(target.geometries) if g[0] == il and g[1] == asp]
+    for k, v in weight_items.items():
+        hit = [i for i, g in enumerate(target.geometries) if geometry_key(g) == k]
         if not hit:
-            raise FlakedbError(f"--weight {il:g}/{asp:g}: the target has no such geometry")
+            raise FlakedbError(f"--weight {'/'.join(f'{x:g}' for x in k)}: the target has no such geometry")
         w[hit] = v
     click.echo(f"match {doc.get('name')}: {len(params)} parameter(s), {len(target.geometries)} geometries"
                + (f" and {len(target.texture)} texture indices" if target.texture else "") + f" from "

@@ -82,7 +82,7 @@ def texture_rows(rec, pred, target, texture_tol):
 @click.option("--max-de", "max_de", default=DEFAULT_MAX_DE00, show_default=True, type=float,
               help="ΔE limit (in --formula) at every geometry (a policy you choose).")
 @click.option("--limit", "limits", multiple=True,
-              help="Per-geometry ΔE limit, ASPECULAR=V (45° illumination) or ILLUM/ASPECULAR=V; repeatable.")
+              help="Per-geometry ΔE limit, ASPECULAR=V (45° illumination), ILLUM/ASPECULAR=V or ILLUM/ASPECULAR/AZIMUTH=V (out of plane); repeatable.")
 @click.option("--texture-tolerance", "texture_tol", default=DEFAULT_TEXTURE_TOLERANCE, show_default=True, type=float,
               help="Relative tolerance of the target's texture columns, with a floor per index (docs/texture.md §9).")
 @prediction_options

@@ -13,7 +13,8 @@ Defaults (docs/colorimetry.md, "Conditions"; every command's ``--observer``, ``-
 * **Illuminant: D65** (:data:`DEFAULT_ILLUMINANT`), CIE daylight.
 * **Tolerance: ΔE00 ≤ 1 at every geometry** (:data:`DEFAULT_MAX_DE00`), a policy, not a standard.
 * **Geometry set: "e2194"** (:data:`DEFAULT_GEOMETRY_SET`), the six 45° geometries every
-  multi-angle instrument measures; "e2539" adds the five 15° geometries (:data:`E2539_EXTRA`).
+  multi-angle instrument measures; "e2539" adds the five 15° geometries (:data:`E2539_EXTRA`);
+  "xrite19" adds eight out-of-plane geometries (:data:`OUT_OF_PLANE_GEOMETRIES`).
 
 **RGB-mode paints are the exception, by construction.**  Their channels are white-normalised linear
 sRGB, defined under D65 and the 2° observer (docs/model.md, RGB mode); there is no spectrum from
@@ -22,8 +23,9 @@ caller did not choose, says so in :attr:`ColourSettings.note`, and refuses an ex
 non-D65 illuminant (compose in spectral mode for those).  A mono (grey) paint is the same grey
 under every observer and illuminant.
 
-Geometries (in-plane; illumination θ_i and aspecular γ in degrees, ASTM E2194's sign: positive
-towards the illuminator, the detector at θ_v = θ_i − γ from the normal)
+Geometries (illumination θ_i and aspecular γ in degrees, ASTM E2194's sign in plane: positive
+towards the illuminator, the detector at θ_v = θ_i − γ from the normal; out of plane a third angle,
+the azimuth, in X-Rite's notation: :mod:`flakedb.colour.geometry`)
 -------------------------------------------------------------------------------------------------
 * :data:`E2194_GEOMETRIES`: illumination 45°, aspecular −15°, 15°, 25°, 45°, 75°, 110° (X-Rite MA-T
   / MA98 class).  ASTM E2194 itself asks for three aspecular angles; the −15° geometry, beyond the
@@ -32,10 +34,14 @@ towards the illuminator, the detector at θ_v = θ_i − γ from the normal)
 * :data:`E2539_EXTRA`: illumination 15°, aspecular −45°, −15°, 15°, 45°, 80° (X-Rite's 15as-45 …
   15as80).  What is and is not verified about this set: :mod:`flakedb.match.targets`.
 
-Out-of-plane geometries (the MA-T12's azimuthal ones) are not offered as a named set: their
-angles are not in any public document found (the instrument's data sheet names them but not
-their azimuths), and a set that cannot be sourced is not shipped.  A CxF3 file that states an
-``Azimuth`` is still refused by the reader.
+* :data:`OUT_OF_PLANE_GEOMETRIES`: the eight out-of-plane geometries X-Rite's formulation software
+  names, (illumination, aspecular, azimuth) = 45as25az±90, 45as60az±125.3, 15as38.3az±43,
+  15as46.9az±104.5: two pairs of detectors out of the plane of incidence, at (0.640856, ±0.422618,
+  0.640856) and (0, ±0.7071, 0.7071), seen with the 45° and the 15° illuminator (source, notation and
+  the checks of both against the published vectors: :mod:`flakedb.colour.geometry`).  The set "xrite19"
+  is these with the eleven in-plane E2539 geometries (the 19 geometries that software names; which
+  instrument model measures which subset is not stated there and not claimed here).  An out-of-plane
+  geometry is a point of the BSDF's full azimuth, evaluated from its Fourier series in φ_d.
 """
 
 from __future__ import annotations
@@ -60,8 +66,13 @@ E2194_GEOMETRIES = tuple((45.0, g) for g in (-15.0, 15.0, 25.0, 45.0, 75.0, 110.
 E2539_EXTRA = tuple((15.0, g) for g in (-45.0, -15.0, 15.0, 45.0, 80.0))
 #: Both sets.
 E2539_GEOMETRIES = E2194_GEOMETRIES + E2539_EXTRA
+#: Out-of-plane geometries (illumination_deg, aspecular_deg, azimuth_deg), X-Rite's notation (module docstring).
+OUT_OF_PLANE_GEOMETRIES = ((45.0, 25.0, 90.0), (45.0, 25.0, -90.0), (45.0, 60.0, 125.3), (45.0, 60.0, -125.3),
+                           (15.0, 38.3, 43.0), (15.0, 38.3, -43.0), (15.0, 46.9, 104.5), (15.0, 46.9, -104.5))
+#: The E2539 set and the out-of-plane geometries (azimuth 0 written out for the in-plane ones).
+XRITE19_GEOMETRIES = tuple(g + (0.0,) for g in E2539_GEOMETRIES) + OUT_OF_PLANE_GEOMETRIES
 #: Named sets (the CLI's --geometries).
-GEOMETRY_SETS = {"e2194": E2194_GEOMETRIES, "e2539": E2539_GEOMETRIES}
+GEOMETRY_SETS = {"e2194": E2194_GEOMETRIES, "e2539": E2539_GEOMETRIES, "xrite19": XRITE19_GEOMETRIES}
 #: The geometries the flop index needs (all in every named set).
 FLOP_GEOMETRIES = ((45.0, 15.0), (45.0, 45.0), (45.0, 110.0))
 

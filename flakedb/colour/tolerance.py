@@ -42,6 +42,7 @@ import numpy as np
 from flakedb.colour import colorimetry
 from flakedb.colour.cie_tables import ILLUMINANT_DOMAIN_NM
 from flakedb.colour.colorimetry import XYZ_to_Lab, ciede2000_terms
+from flakedb.colour.geometry import key as geometry_key
 
 #: Observer names accepted → colour-science's colour matching functions.
 OBSERVERS = {"2": "CIE 1931 2 Degree Standard Observer", "10": "CIE 1964 10 Degree Standard Observer"}
@@ -385,11 +386,11 @@ def lch(lab) -> np.ndarray:
 # Tolerance schemes
 # ----------------------------------------------------------------------------------------------
 
-Geometry = tuple  # (illumination_deg, aspecular_deg)
+Geometry = tuple  # (illumination_deg, aspecular_deg[, azimuth_deg]): flakedb.colour.geometry
 
 
 def _key(g) -> tuple:
-    return (float(g[0]), float(g[1]))
+    return geometry_key(g)
 
 
 @dataclass

@@ -733,7 +733,9 @@ def render_cycles_geometries(geometries, *, inputs: dict | None = None, cpa: dic
     a plane seen orthographically under a sun of irradiance 1 (:data:`_GEOMETRY_SCRIPT`), the image mean
     L = f μ_l divided by μ_l = cos(illumination), times π.  The material is the Principled BSDF of
     ``inputs`` (:func:`principled_inputs`) or the node group of ``cpa`` (:func:`cpa_inputs`)."""
-    g = np.asarray(geometries, float).reshape(-1, 2)
+    g = np.asarray(geometries, float)
+    if g.ndim != 2 or g.shape[1] != 2:
+        raise ValueError(f"render_cycles_geometries: in-plane geometries (G, 2) only, got shape {g.shape}")
     args = render_args(size=size, samples=samples, direction=(0, 0, 1), irradiance=1.0, half_angle_deg=half_angle_deg,
                        extent=1.0, threads=threads, seed=seed, filter_width_px=1.0, adaptive_sampling=False)
     args["geometries"] = [[float(i), float(asp - i)] for i, asp in g]

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from flakedb.colour.geometry import label as geometry_label
 from flakedb.colour.tolerance import lch, shade_words
 from flakedb.match.fit import predict, recipe_from_doc
 from flakedb.paint.catalog import load_catalog
@@ -110,7 +111,7 @@ def direction_words(lab_fit, r_perp) -> list:
 
 
 def _label(g) -> str:
-    return f"{g[0]:g}as{g[1]:g}"
+    return geometry_label(g)
 
 
 @dataclass

@@ -28,6 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from flakedb.atomic import atomic_write_text
+from flakedb.colour.geometry import compact
+from flakedb.colour.geometry import key as geometry_key
+from flakedb.colour.geometry import label as geometry_label
 from flakedb.colour.settings import DEFAULT_MAX_DE00, GEOMETRY_SETS, for_target, resolve
 from flakedb.colour.tolerance import PerAngleLimits, lab_differences, lch, shade_words
 from flakedb.match.fit import Prediction, compare_texture, predict
@@ -66,7 +69,7 @@ class Comparison:
 
 
 def _key(g) -> tuple:
-    return (float(g[0]), float(g[1]))
+    return geometry_key(g)
 
 
 def compare_batch(recipes, targets=(), pairs=None, observer=None, illuminant=None, tolerance=None,
@@ -96,9 +99,9 @@ def compare_batch(recipes, targets=(), pairs=None, observer=None, illuminant=Non
             for j in mine:
                 for g in targets[j].geometries:
                     union.setdefault(_key(g), None)
-            geoms = np.asarray(list(union), float)
+            geoms = compact([k + (0.0,) * (3 - len(k)) for k in union])
         else:
-            geoms = np.asarray(GEOMETRY_SETS[resolve(geometry_set=geometry_set).geometry_set], float)
+            geoms = compact(GEOMETRY_SETS[resolve(geometry_set=geometry_set).geometry_set])
         version = store_for(rec) if store_for is not None else None
         pred = predict(rec, geoms, n, catalog, version, raw)
         log(f"composed {rec.name} ({pred.mode}, n = {pred.n}) [{i + 1}/{len(recipes)}]")
@@ -116,13 +119,13 @@ def compare_batch(recipes, targets=(), pairs=None, observer=None, illuminant=Non
             lab = sub.lab(cs.observer, cs.illuminant)
             lab_t = t.lab_under(cs.observer, cs.illuminant)
             tex, sparkle = compare_texture(rec, pred, t, texture_tolerance)
-            out.append(Comparison(rec.name, t.label, np.asarray(t.geometries, float), lab, lab_t,
+            out.append(Comparison(rec.name, t.label, compact(t.geometries), lab, lab_t,
                                   cs.observer, cs.illuminant, scheme.evaluate(t.geometries, lab_t, lab),
                                   lab_differences(lab_t, lab), sub, t.reflectance, t.wavelength_nm, tex, sparkle))
     return out
 
 
-LONG_COLUMNS = ("recipe", "target", "illumination_deg", "aspecular_deg", "observer", "illuminant",
+LONG_COLUMNS = ("recipe", "target", "illumination_deg", "aspecular_deg", "azimuth_deg", "observer", "illuminant",
                 "L_target", "a_target", "b_target", "L", "a", "b", "dL", "dC", "dH", "dE00", "limit", "passed",
                 "C_target", "h_target", "C", "h", "formula", "dE", "shade")
 SUMMARY_COLUMNS = ("recipe", "target", "geometries", "max_dE00", "worst_geometry", "failed", "texture_failed", "passed",
@@ -137,6 +140,7 @@ def long_rows(comparisons) -> list:
     for c in comparisons:
         for k, g in enumerate(c.geometries):
             r = {"recipe": c.recipe, "target": c.target, "illumination_deg": float(g[0]), "aspecular_deg": float(g[1]),
+                 "azimuth_deg": float(g[2]) if len(g) > 2 else 0.0,
                  "observer": c.observer, "illuminant": c.illuminant,
                  "L": float(c.lab_pred[k, 0]), "a": float(c.lab_pred[k, 1]), "b": float(c.lab_pred[k, 2]),
                  "C": float(lch(c.lab_pred[k])[1]), "h": float(lch(c.lab_pred[k])[2])}
@@ -161,7 +165,7 @@ def summary_rows(comparisons) -> list:
         de = c.differences["dE00"]
         w = int(np.argmax(de))
         rows.append({"recipe": c.recipe, "target": c.target, "geometries": int(len(de)), "max_dE00": float(de[w]),
-                     "worst_geometry": f"{c.geometries[w][0]:g}as{c.geometries[w][1]:g}",
+                     "worst_geometry": geometry_label(c.geometries[w]),
                      "failed": int(np.sum(~c.evaluation["passed"])),
                      "texture_failed": sum(not r["passed"] for r in c.texture) if c.texture else None,
                      "passed": c.passed, "formula": c.evaluation.get("formula", "dE00"),

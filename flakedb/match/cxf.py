@@ -5,8 +5,8 @@ What is read (docs/colour-matching.md, section "CxF3"; the element names are the
 ---------------------------------------------------------------------------------------------
 * ``Resources/ColorSpecificationCollection/ColorSpecification[@Id]``: its
   ``MeasurementSpec/GeometryChoice/MultiAngle/BRDFAngle[@Notation]`` elements give the geometries
-  (``IlluminationAngle``, ``Aspecular``; an ``Azimuth`` means out of plane and is refused: flakedb
-  predicts in-plane geometries only), ``MeasurementSpec/WavelengthRange[@StartWL, @Increment]`` the
+  (``IlluminationAngle``, ``Aspecular`` and, out of plane, a non-zero ``Azimuth``, read in X-Rite's
+  notation, e.g. ``45as25az90``: :mod:`flakedb.colour.geometry`), ``MeasurementSpec/WavelengthRange[@StartWL, @Increment]`` the
   spectral grid, and ``TristimulusSpec/Illuminant`` / ``Observer`` (``2_Degree`` / ``10_Degree``)
   the conditions of any CIELab values.
 * ``Resources/ObjectCollection/Object``: its ``ColorValues`` hold ``ReflectanceSpectrum`` (a
@@ -42,6 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
+from flakedb.colour.geometry import compact
+from flakedb.colour.geometry import key as geometry_key
+from flakedb.colour.geometry import label as geometry_label
 from flakedb.colour.settings import DEFAULT_ILLUMINANT, DEFAULT_OBSERVER
 from flakedb.colour.tolerance import illuminant_name, observer_name, reflectance_to_Lab
 from flakedb.match.targets import Target, TargetError, check_measured, read_target, validate_geometries
@@ -78,7 +81,7 @@ def _short(text, limit=80) -> str:
 
 
 def _specifications(root, where) -> dict:
-    """Id → {'angles': {notation: (illum, aspec)}, 'start', 'increment', 'observer', 'illuminant'}."""
+    """Id → {'angles': {notation: (illum, aspec[, azimuth])}, 'start', 'increment', 'observer', 'illuminant'}."""
     specs = {}
     for cs in root.iter(_q("ColorSpecification")):
         sid = cs.get("Id")
@@ -94,12 +97,12 @@ def _specifications(root, where) -> dict:
             notation = b.get("Notation")
             if notation is None:
                 raise TargetError(f"{w}: a BRDFAngle has no Notation attribute (the schema requires one)")
-            if b.find(_q("Azimuth")) is not None and _float(b.findtext(_q("Azimuth")), "Azimuth", w) != 0.0:
-                raise TargetError(f"{w}: BRDFAngle {notation} is out of plane (Azimuth given); flakedb predicts "
-                                  f"in-plane geometries only (docs/colour-matching.md, Limits)")
+            az = 0.0
+            if b.find(_q("Azimuth")) is not None:
+                az = _float(b.findtext(_q("Azimuth")), f"BRDFAngle {notation} Azimuth", w)
             th = _float(b.findtext(_q("IlluminationAngle")), f"BRDFAngle {notation} IlluminationAngle", w)
             asp = _float(b.findtext(_q("Aspecular")), f"BRDFAngle {notation} Aspecular", w)
-            angles[notation] = (th, asp)
+            angles[notation] = geometry_key((th, asp, az))   # (th, asp) in plane, (th, asp, az) out of plane
         wr = cs.find(f"{_q('MeasurementSpec')}/{_q('WavelengthRange')}")
         start = inc = None
         if wr is not None:
@@ -230,13 +233,13 @@ def read_cxf_target(path_or_bytes, object_name=None, observer=None, illuminant=N
             if r.size < 2 or not np.all(np.isfinite(r)):
                 raise TargetError(f"{w}: a ReflectanceSpectrum needs ≥ 2 finite values (got {r.size})")
             if g in spectra:
-                raise TargetError(f"{w}: two spectra at geometry {g[0]:g}as{g[1]:g}")
+                raise TargetError(f"{w}: two spectra at geometry {geometry_label(g)}")
             spectra[g] = r
             grids.add((start, inc, r.size))
         else:
             lab = [_float(v.findtext(_q(k)), k, w) for k in ("L", "A", "B")]
             if g in labs:
-                raise TargetError(f"{w}: two CIELab values at geometry {g[0]:g}as{g[1]:g}")
+                raise TargetError(f"{w}: two CIELab values at geometry {geometry_label(g)}")
             labs[g] = lab
             lab_cond.add((spec["observer"], spec["illuminant"]))
     if spectra:
@@ -275,7 +278,7 @@ def read_cxf_target(path_or_bytes, object_name=None, observer=None, illuminant=N
         observer_name(obs), illuminant_name(ill)
     except ValueError as exc:
         raise TargetError(f"{w}: {exc}") from None
-    g_arr = np.asarray(geoms, float)
+    g_arr = compact([tuple(g) + (0.0,) * (3 - len(g)) for g in geoms])
     validate_geometries(g_arr, w)
     t = Target(geometries=g_arr, observer=obs, illuminant=ill, name=oname, notes=notes, source=where)
     if R is not None:

@@ -17,7 +17,8 @@ schema's sequences (``CxF3_Core.xsd`` 3.0.018):
   the closest of the schema's choices to flakedb's CIE 15:2004 sum on ≤ 1 nm nodes after Sprague
   interpolation), ``MeasurementSpec`` (``MeasurementType`` ``Spectrum_Reflectance``, or
   ``Colorimetric_Reflectance`` for an RGB-mode paint, which has no spectrum; ``GeometryChoice/MultiAngle``
-  with one ``BRDFAngle`` of ``IlluminationAngle`` and ``Aspecular`` in ASTM E2194's sign, as read;
+  with one ``BRDFAngle`` of ``IlluminationAngle`` and ``Aspecular`` in ASTM E2194's sign, and an ``Azimuth``
+  for an out-of-plane geometry (X-Rite's notation, :mod:`flakedb.colour.geometry`), as read;
   ``WavelengthRange`` ``StartWL`` / ``Increment``).
 
 What the schema cannot hold is refused (ValueError naming the value and the limit), never written
@@ -36,6 +37,8 @@ import numpy as np
 
 from flakedb import __version__
 from flakedb.atomic import atomic_write
+from flakedb.colour.geometry import as_geometry_array
+from flakedb.colour.geometry import label as geometry_label
 from flakedb.colour.tolerance import observer_name
 from flakedb.match.cxf import INCREMENTS, NS
 
@@ -54,12 +57,12 @@ def _q(tag: str) -> str:
 
 
 def notation(geometry) -> str:
-    """``45as15``, ``15as-45`` (the multi-angle notation of the reader and the CSV layout).
+    """``45as15``, ``15as-45``, ``45as25az90`` (the multi-angle notation of the reader and the CSV layout).
 
-    >>> notation((45.0, 15.0)), notation((15, -45)), notation((45.0, 110.0))
-    ('45as15', '15as-45', '45as110')
+    >>> notation((45.0, 15.0)), notation((15, -45)), notation((45.0, 110.0)), notation((45.0, 60.0, -125.3))
+    ('45as15', '15as-45', '45as110', '45as60az-125.3')
     """
-    return f"{float(geometry[0]):g}as{float(geometry[1]):g}"
+    return geometry_label(geometry)
 
 
 def _cxf_illuminant(illuminant) -> str:
@@ -85,12 +88,12 @@ def format_cxf(geometries, lab, reflectance=None, wavelength_nm=None, observer="
                description="", created=None) -> bytes:
     """The CxF3 document (UTF-8 bytes) of one object's multi-angle colour (module docstring).
 
-    ``geometries`` (G, 2): (illumination_deg, aspecular_deg); ``lab`` (G, 3): CIELAB under ``observer`` /
+    ``geometries`` (G, 2): (illumination_deg, aspecular_deg), or (G, 3) with an azimuth; ``lab`` (G, 3): CIELAB under ``observer`` /
     ``illuminant``; ``reflectance`` (G, W) reflectance factors on ``wavelength_nm`` (W,) nm, or None (an
     RGB-mode paint: CIELab only).  ``created``: a timezone-aware datetime (default: now, UTC).
     Raises ValueError for what the schema cannot hold (module docstring).
     """
-    g = np.asarray(geometries, float).reshape(-1, 2)
+    g = as_geometry_array(geometries)
     lab = np.asarray(lab, float).reshape(-1, 3)
     if lab.shape[0] != g.shape[0]:
         raise ValueError(f"{g.shape[0]} geometries but {lab.shape[0]} CIELab values")
@@ -153,6 +156,8 @@ def format_cxf(geometries, lab, reflectance=None, wavelength_nm=None, observer="
                            {"Notation": nt})
         ET.SubElement(ba, _q("IlluminationAngle")).text = _num(geo[0])
         ET.SubElement(ba, _q("Aspecular")).text = _num(geo[1])
+        if geo[2] != 0.0:   # out of plane (X-Rite's notation, as read)
+            ET.SubElement(ba, _q("Azimuth")).text = _num(geo[2])
         if R is not None:
             ET.SubElement(ms, _q("WavelengthRange"), {"StartWL": str(int(start)), "Increment": f"{step:g}"})
     ET.indent(root)

@@ -68,6 +68,10 @@ import yaml
 from scipy.optimize import least_squares
 
 from flakedb.colour.colorimetry import XYZ_to_Lab
+from flakedb.colour.geometry import as_geometry_array, compact
+from flakedb.colour.geometry import directions as directions_of
+from flakedb.colour.geometry import cells as geometry_cells
+from flakedb.colour.geometry import label as geometry_label
 from flakedb.colour.settings import DEFAULT_MAX_DE00, for_target, resolve
 from flakedb.colour.tolerance import (
     PerAngleLimits,
@@ -81,7 +85,6 @@ from flakedb.solve.pipeline import settle_node_count, solve_recipe, solve_report
 from flakedb.appearance.report import (
     channels_to_XYZ,
     eval_table,
-    multiangle_geometry,
     reference_white,
     texture_ground,
 )
@@ -231,18 +234,19 @@ def compose_table(recipe, n, catalog=None, store=None, raw=False):
 
 
 def geometry_directions(geometries):
-    """(mu_i, mu_o, phi_d) arrays (G,) of in-plane geometries (G, 2) = (illumination_deg, aspecular_deg)."""
-    g = np.asarray(geometries, float).reshape(-1, 2)
-    bad = [(i, a) for i, a in g if not (0.0 <= i < 90.0 and abs(i - a) < 90.0)]
+    """(mu_i, mu_o, phi_d) arrays (G,) of geometries (G, 2) = (illumination_deg, aspecular_deg) or (G, 3) with
+    an azimuth (out of plane, :mod:`flakedb.colour.geometry`)."""
+    g = as_geometry_array(geometries)
+    bad = [(i, a, z) for i, a, z in g if (z == 0.0 and not (0.0 <= i < 90.0 and abs(i - a) < 90.0))]
     if bad:
         raise ValueError(f"geometry (illumination {bad[0][0]:g}°, aspecular {bad[0][1]:g}°): the source must be within "
                          f"[0, 90)° and the detector within ±90° of the normal")
-    d = np.array([multiangle_geometry(a, i)[:3] for i, a in g])
-    return d[:, 0], d[:, 1], d[:, 2]
+    mu_i, mu_o, phi_d, _ = directions_of(g)
+    return mu_i, mu_o, phi_d
 
 
 def eval_geometries(table, geometries) -> np.ndarray:
-    """Reflectance factors π f (G, C) of a table at in-plane geometries (module docstring)."""
+    """Reflectance factors π f (G, C) of a table at geometries, in plane or out of plane (module docstring)."""
     mu_i, mu_o, phi_d = geometry_directions(geometries)
     return np.pi * eval_table(table, mu_i, mu_o, phi_d) / np.abs(mu_o)[:, None]
 
@@ -287,7 +291,7 @@ def predict(recipe, geometries, n=None, catalog=None, store=None, raw=False) -> 
         solved = compose_solved(recipe, resolve_node_count(recipe, n)[0], catalog, store, raw)
     n = solved.n
     paint, table, stack = solved.paint, solved.table, solved.stack
-    g = np.asarray(geometries, float).reshape(-1, 2)
+    g = compact(geometries)
     ground = texture_ground(table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False),
                             paint.eta if paint.delta else None)   # as compose's report (docs/texture.md §4)
     return Prediction(g, eval_geometries(table, g), paint.mode, paint.wavelength_nm, n, ground)
@@ -375,7 +379,7 @@ class MatchResult:
             worst = max(fail, key=lambda i: tol["value"][i])
             g = self.geometries[worst]
             parts.append(f"{len(fail)} of {len(tol['passed'])} geometries outside {tol['scheme']} "
-                         f"(worst {g[0]:g}as{g[1]:g}: {tol['value'][worst]:.2f} > {tol['limit'][worst]:.2f})")
+                         f"(worst {geometry_label(g)}: {tol['value'][worst]:.2f} > {tol['limit'][worst]:.2f})")
         tfail = [r for r in self.texture_fit if not r["passed"]]
         if tfail:
             parts.append(f"{len(tfail)} of {len(self.texture_fit)} texture indices outside tolerance ("
@@ -476,7 +480,7 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
     n = settle_node_count(rec0, n, catalog, store, raw, log)  # one n for every evaluation of the fit
     cs = for_target(rec0.mode, target, observer, illuminant)
     obs, ill = cs.observer, cs.illuminant
-    geoms = np.asarray(target.geometries, float)
+    geoms = compact(target.geometries)
     G = geoms.shape[0]
     w = np.ones(G) if weights is None else np.asarray(weights, float)
     if w.shape != (G,) or np.any(w < 0):
@@ -583,7 +587,7 @@ def format_match(res: MatchResult) -> str:
                  + "   L*a*b* C* h° target -> fitted; shade of the fit")
     for i, (g, d0, d1, lt, lf) in enumerate(zip(res.geometries, res.de_start, res.de_fit, res.lab_target, res.lab_fit)):
         ct, cf = lch(lt), lch(lf)
-        lines.append(f"{g[0]:5g}° {g[1]:5g}° {d0:11.3f} {d1:9.3f}"
+        lines.append(f"{geometry_cells(g)} {d0:11.3f} {d1:9.3f}"
                      + (f" {tol['value'][i]:12.3f}" if tol and "formula" in tol else "")
                      + f"   ({lt[0]:6.2f} {lt[1]:6.2f} {lt[2]:6.2f} {ct[1]:6.2f} {ct[2]:5.1f}) -> "
                      f"({lf[0]:6.2f} {lf[1]:6.2f} {lf[2]:6.2f} {cf[1]:6.2f} {cf[2]:5.1f}); {shade_words(lt, lf)[0]}")
@@ -593,7 +597,7 @@ def format_match(res: MatchResult) -> str:
         lines.append(f"  {p.name}:")
         for g, s in zip(res.geometries, res.sensitivities[:, :, j]):
             d = s * v / 100.0
-            lines.append(f"    {g[0]:5g}° {g[1]:5g}°  dL* {d[0]:+8.4f}  da* {d[1]:+8.4f}  db* {d[2]:+8.4f}")
+            lines.append(f"    {geometry_cells(g)}  dL* {d[0]:+8.4f}  da* {d[1]:+8.4f}  db* {d[2]:+8.4f}")
     if res.texture_fit:
         lines.append(f"texture ({res.texture_tolerance:.0%} tolerance, or the index's floor; start -> fit):")
         for r0, r in zip(res.texture_start, res.texture_fit):
@@ -619,7 +623,8 @@ def match_report(res: MatchResult) -> dict:
         "observer": res.observer, "illuminant": res.illuminant, "n": res.n,
         "parameters": [{"path": p.name, "bounds": [p.lo, p.hi], "scale": "log" if p.log else "linear",
                         "start": float(s), "fitted": float(v)} for p, s, v in zip(res.params, res.start, res.values)],
-        "geometries": [{"illumination_deg": float(g[0]), "aspecular_deg": float(g[1]), "weight": float(wt),
+        "geometries": [{"illumination_deg": float(g[0]), "aspecular_deg": float(g[1]),
+                        "azimuth_deg": float(g[2]) if len(g) > 2 else 0.0, "weight": float(wt),
                         "lab_target": lt.tolist(), "lab_start": ls.tolist(), "lab_fit": lf.tolist(),
                         "dE00_start": float(d0), "dE00_fit": float(d1),
                         "LCh_target": lch(lt).tolist(), "LCh_fit": lch(lf).tolist(),

@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from flakedb.colour.colorimetry import SRGB_PRIMARIES_XY, SRGB_WHITE_XY, XYZ_to_Lab, normalised_primary_matrix
+from flakedb.colour.geometry import as_geometry_array, view_vector
 
 #: MERL's channel scale factors (red, green, blue): stored value × scale = f_r [1/sr].
 MERL_SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
@@ -66,13 +67,16 @@ class MerlError(ValueError):
 
 
 def in_plane_directions(geometries_deg):
-    """Unit vectors (ω_i, ω_o), each (G, 3), of in-plane geometries (G, 2) = (θ_i, aspecular γ) [deg]:
-    ω_i = (sin θ_i, 0, cos θ_i), ω_o = (−sin θ_v, 0, cos θ_v) with θ_v = θ_i − γ (module docstring)."""
-    g = np.radians(np.asarray(geometries_deg, dtype=float).reshape(-1, 2))
-    ti, tv = g[:, 0], g[:, 0] - g[:, 1]
+    """Unit vectors (ω_i, ω_o), each (G, 3), of geometries (G, 2) = (θ_i, aspecular γ) [deg]:
+    ω_i = (sin θ_i, 0, cos θ_i), ω_o = (−sin θ_v, 0, cos θ_v) with θ_v = θ_i − γ (module docstring); (G, 3)
+    geometries with an azimuth give ω_o out of the plane (:func:`flakedb.colour.geometry.view_vector`,
+    mirrored in x: here the light is on the +x side)."""
+    g = as_geometry_array(geometries_deg)
+    ti = np.radians(g[:, 0])
     zero = np.zeros_like(ti)
+    v = view_vector(g[:, 0], g[:, 1], g[:, 2])
     return (np.stack([np.sin(ti), zero, np.cos(ti)], axis=-1),
-            np.stack([-np.sin(tv), zero, np.cos(tv)], axis=-1))
+            np.stack([-v[:, 0], v[:, 1], v[:, 2]], axis=-1))
 
 
 def half_diff(wi, wo):

@@ -26,6 +26,10 @@ illuminator's side when negative; :func:`flakedb.report.multiangle_geometry`), t
   percent with ``# reflectance: percent``) on any uniform nm grid of step 1–20 nm; then the target's
   L*a*b* can be computed for any observer and illuminant the grid allows.
 
+An optional third column ``azimuth_deg`` makes a geometry out of plane (0: in plane): X-Rite's notation,
+``45as25az90`` is ``45,25,90`` (:mod:`flakedb.colour.geometry`; the set ``xrite19`` of
+:mod:`flakedb.colour.settings` has eight such geometries).
+
 Texture columns (optional; :mod:`flakedb.match.texture`, docs/texture.md §9): ``sparkle_area_<L>``,
 ``sparkle_intensity_<L>``, ``glints_per_mm2_<L>`` (light at L°) and ``graininess``, the panel's texture
 indices for the observer ``# texture_observer: NAME`` (default ``byk-mac-like``).  A texture value
@@ -36,8 +40,8 @@ A file may carry both (the writer writes both for a spectral prediction); the sp
 what is compared, and the L*a*b* columns are checked against them under the stated observer and
 illuminant (to 0.01 ΔE00) so a file whose two halves disagree is refused.
 
-Geometries (in-plane)
----------------------
+Geometries
+----------
 The sets are defined in :mod:`flakedb.colour.settings` (with the other defaults) and re-exported here.
 
 * :data:`E2194_GEOMETRIES`: the 45° set of multi-angle instruments (X-Rite MA-T / MA98 class):
@@ -68,6 +72,10 @@ from pathlib import Path
 import numpy as np
 
 from flakedb.atomic import atomic_write_text
+from flakedb.colour.geometry import as_geometry_array, compact
+from flakedb.colour.geometry import key as geometry_key
+from flakedb.colour.geometry import label as geometry_label
+from flakedb.colour.geometry import problem as geometry_problem
 from flakedb.colour.settings import (  # the geometry sets live with the other defaults
     DEFAULT_ILLUMINANT,
     DEFAULT_OBSERVER,
@@ -124,7 +132,8 @@ class TargetError(ValueError):
 class Target:
     """A multi-angle colour target.
 
-    ``geometries`` (G, 2): illumination and aspecular angles in degrees.  ``lab`` (G, 3) or None;
+    ``geometries`` (G, 2): illumination and aspecular angles in degrees, or (G, 3) with an azimuth when a
+    geometry is out of plane (:mod:`flakedb.colour.geometry`).  ``lab`` (G, 3) or None;
     ``reflectance`` (G, W) reflectance factors (fraction) on ``wavelength_nm`` (W,) or None.
     ``observer`` / ``illuminant``: the conditions of ``lab``.
     """
@@ -178,15 +187,10 @@ def _validate_geometries(geoms, where):
     if len(geoms) > MAX_TARGET_GEOMETRIES:
         raise TargetError(f"{where}: {len(geoms):,} geometries; the limit is {MAX_TARGET_GEOMETRIES} (a multi-angle "
                           f"instrument measures 5-20, and each costs a BSDF evaluation in every fit iteration)")
-    for i, (th_i, asp) in enumerate(geoms):
-        if not (0.0 <= th_i < 90.0):
-            raise TargetError(f"{where} row {i + 1}: illumination_deg {th_i:g} must be in [0, 90)")
-        if not abs(th_i - asp) < 90.0:
-            raise TargetError(f"{where} row {i + 1}: aspecular_deg {asp:g} puts the detector at "
-                              f"{th_i - asp:g}° from the normal (must be within ±90°)")
-        if asp == 0.0:
-            raise TargetError(f"{where} row {i + 1}: aspecular 0° is the specular direction (the smooth coat's "
-                              f"mirror delta): not a colour geometry")
+    for i, g in enumerate(as_geometry_array(geoms)):
+        p = geometry_problem(g)   # the one statement of what flakedb can measure (flakedb.colour.geometry)
+        if p:
+            raise TargetError(f"{where} row {i + 1}: {p}")
 
 
 def check_measured(where, geometries, lab=None, reflectance=None, wavelength_nm=None) -> None:
@@ -199,10 +203,10 @@ def check_measured(where, geometries, lab=None, reflectance=None, wavelength_nm=
     ...
     flakedb.match.targets.TargetError: t.csv geometry 45as15 (row 1): R_510 = -0.3 is outside [-0.02, 20] (a reflectance factor, fraction of the perfect white diffuser; a percent file needs '# reflectance: percent')
     """
-    g = np.asarray(geometries, float).reshape(-1, 2)
+    g = as_geometry_array(geometries)
 
     def at(i):
-        return f"{where} geometry {g[i, 0]:g}as{g[i, 1]:g} (row {i + 1})"
+        return f"{where} geometry {geometry_label(g[i])} (row {i + 1})"
 
     if reflectance is not None:
         R = np.asarray(reflectance, float)
@@ -296,6 +300,7 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     if header[:2] != ["illumination_deg", "aspecular_deg"]:
         raise TargetError(f"{where} line {hdr_ln}: the header must start with illumination_deg,aspecular_deg; "
                           f"got {','.join(header[:2])}")
+    n_geo = 3 if len(header) > 2 and header[2] == "azimuth_deg" else 2   # out-of-plane geometries
     lab_idx = None
     for names in _LAB_COLUMNS:
         if all(n in header for n in names):
@@ -307,10 +312,11 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     if len(set(header)) != len(header):
         raise TargetError(f"{where} line {hdr_ln}: a column name appears twice")
     tex_idx = [(i, h) for i, h in enumerate(header) if parse_texture_column(h) is not None]
-    known = {0, 1} | set(lab_idx or []) | {i for i, _ in r_cols} | {i for i, _ in tex_idx}
+    known = set(range(n_geo)) | set(lab_idx or []) | {i for i, _ in r_cols} | {i for i, _ in tex_idx}
     unknown = [h for i, h in enumerate(header) if i not in known]
     if unknown:
-        raise TargetError(f"{where} line {hdr_ln}: unknown column(s) {', '.join(unknown)} (allowed: L*,a*,b*, "
+        raise TargetError(f"{where} line {hdr_ln}: unknown column(s) {', '.join(unknown)} (allowed: azimuth_deg "
+                          f"third, L*,a*,b*, "
                           f"R_<nm> reflectance factors, and the texture columns sparkle_area_<deg>, "
                           f"sparkle_intensity_<deg>, glints_per_mm2_<deg>, graininess)")
     if lab_idx is None and not r_cols:
@@ -352,9 +358,9 @@ def read_target(path_or_text, observer=None, illuminant=None, source=None) -> Ta
     if tex_obs not in TEXTURE_PRESETS:
         raise TargetError(f"{where}: '# texture_observer: {tex_obs}': use one of {', '.join(sorted(TEXTURE_PRESETS))}")
     col = {i: k for k, i in enumerate(i for i in range(len(header)) if i not in tex_pos)}  # header → data column
-    geoms = a[:, :2]
+    geoms = compact(a[:, :n_geo])   # (G, 2) when every azimuth is 0
     _validate_geometries(geoms, where)
-    keys = [tuple(g) for g in geoms.tolist()]
+    keys = [geometry_key(g) for g in geoms.tolist()]
     if len(set(keys)) != len(keys):
         raise TargetError(f"{where}: a geometry is listed twice")
     if not r_cols:  # L*a*b* only: the file's stated conditions are facts; a call fills in only what it omits
@@ -404,7 +410,7 @@ def format_target(geometries, lab=None, reflectance=None, wavelength_nm=None, ob
                   name="", notes=None, texture=None, texture_observer=DEFAULT_TEXTURE_OBSERVER) -> str:
     """The CSV text of a target (module docstring); ``lab`` computed from ``reflectance`` when omitted;
     ``texture``: {column: value} written on the first row (the others' cells empty)."""
-    g = np.asarray(geometries, float)
+    g = compact(geometries)
     if reflectance is not None:
         R = np.asarray(reflectance, float)
         wl = np.asarray(wavelength_nm, float)
@@ -425,14 +431,14 @@ def format_target(geometries, lab=None, reflectance=None, wavelength_nm=None, ob
         out.write(f"# texture_observer: {texture_observer}\n")
     for k, v in (notes or {}).items():
         out.write(f"# {k}: {v}\n")
-    cols = ["illumination_deg", "aspecular_deg", "L*", "a*", "b*"]
+    cols = ["illumination_deg", "aspecular_deg"] + (["azimuth_deg"] if g.shape[1] == 3 else []) + ["L*", "a*", "b*"]
     if reflectance is not None:
         cols += [f"R_{w:g}" for w in wl]
     cols += list(texture)
     w = csv.writer(out, lineterminator="\n")
     w.writerow(cols)
     for i in range(g.shape[0]):
-        row = [f"{g[i, 0]:g}", f"{g[i, 1]:g}"] + [f"{v:.6f}" for v in lab[i]]
+        row = [f"{v:g}" for v in g[i]] + [f"{v:.6f}" for v in lab[i]]
         if reflectance is not None:
             row += [f"{v:.9g}" for v in R[i]]
         row += [f"{v:.9g}" if i == 0 else "" for v in texture.values()]

@@ -8,6 +8,8 @@ import numpy as np
 
 from flakedb.atomic import atomic_path
 from flakedb.colour.colorimetry import spectra_to_rgb_mode, spectral_grid
+from flakedb.colour.geometry import as_geometry_array
+from flakedb.colour.geometry import label as _geometry_label
 from flakedb.paint.catalog import TINTER_TABLES, get_species, load_catalog
 from flakedb.paint.species import (
     SHOW_ANGLES_DEG,
@@ -118,8 +120,8 @@ def geometry_colours(count) -> np.ndarray:
 
 
 def geometry_label(geometry) -> str:
-    """``45as15``: the instrument's name of an in-plane geometry (illumination, aspecular) in degrees."""
-    return f"{geometry[0]:g}as{geometry[1]:g}"
+    """``45as15``, ``45as25az90``: the instrument's name of a geometry (:func:`flakedb.colour.geometry.label`)."""
+    return _geometry_label(geometry)
 
 
 #: Candidate label offsets of :func:`place_labels` [points]: radii, and directions (counter-clockwise from +x).
@@ -199,7 +201,7 @@ def multiangle_figure(geometries, lab, lab_target=None, wavelength_nm=None, refl
     )
     from matplotlib.figure import Figure  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
 
-    g = np.asarray(geometries, float).reshape(-1, 2)
+    g = as_geometry_array(geometries)
     lab = np.asarray(lab, float)
     lt = None if lab_target is None else np.asarray(lab_target, float)
     if not (np.all(np.isfinite(lab)) and (lt is None or np.all(np.isfinite(lt)))):
@@ -213,24 +215,38 @@ def multiangle_figure(geometries, lab, lab_target=None, wavelength_nm=None, refl
     tname = target_name or "target"
     for c, (name, ax) in enumerate(zip(("L*", "a*", "b*"), axes[0, :3])):
         for il in illums:
-            sel = np.flatnonzero(g[:, 0] == il)
+            sel = np.flatnonzero((g[:, 0] == il) & (g[:, 2] == 0.0))
             sel = sel[np.argsort(g[sel, 1])]
             ax.plot(g[sel, 1], lab[sel, c], "-o", ms=4, color=colours[il], label=f"predicted, {il:g}° illum.")
             if lt is not None:
                 ax.plot(g[sel, 1], lt[sel, c], "--s", ms=7, mfc="none", lw=1.0, color=colours[il],
                         label=f"{tname}, {il:g}° illum.")
+            oop = np.flatnonzero((g[:, 0] == il) & (g[:, 2] != 0.0))   # out of plane: points, not a curve
+            if oop.size:
+                ax.plot(g[oop, 1], lab[oop, c], "^", ms=6, color=colours[il],
+                        label=f"predicted, {il:g}° illum., out of plane")
+                if lt is not None:
+                    ax.plot(g[oop, 1], lt[oop, c], "v", ms=8, mfc="none", color=colours[il],
+                            label=f"{tname}, {il:g}° illum., out of plane")
         ax.set(xlabel="aspecular angle (°)", ylabel=name, title=f"{name} vs aspecular angle")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7)
     ax = axes[0, 3]
     for il in illums:
-        sel = np.flatnonzero(g[:, 0] == il)
+        sel = np.flatnonzero((g[:, 0] == il) & (g[:, 2] == 0.0))
         sel = sel[np.argsort(g[sel, 1])]
-        ax.plot(lab[sel, 1], lab[sel, 2], "-o", ms=4, color=colours[il], label=f"predicted, {il:g}°")
-        ax.plot(lab[sel[0], 1], lab[sel[0], 2], "*", ms=12, color=colours[il])
-        if lt is not None:
-            ax.plot(lt[sel, 1], lt[sel, 2], "--s", ms=7, mfc="none", lw=1.0, color=colours[il],
-                    label=f"{tname}, {il:g}°")
+        if sel.size:
+            ax.plot(lab[sel, 1], lab[sel, 2], "-o", ms=4, color=colours[il], label=f"predicted, {il:g}°")
+            ax.plot(lab[sel[0], 1], lab[sel[0], 2], "*", ms=12, color=colours[il])
+            if lt is not None:
+                ax.plot(lt[sel, 1], lt[sel, 2], "--s", ms=7, mfc="none", lw=1.0, color=colours[il],
+                        label=f"{tname}, {il:g}°")
+        oop = np.flatnonzero((g[:, 0] == il) & (g[:, 2] != 0.0))
+        if oop.size:
+            ax.plot(lab[oop, 1], lab[oop, 2], "^", ms=6, color=colours[il], label=f"predicted, {il:g}° out of plane")
+            if lt is not None:
+                ax.plot(lt[oop, 1], lt[oop, 2], "v", ms=8, mfc="none", color=colours[il],
+                        label=f"{tname}, {il:g}° out of plane")
     ax.axhline(0, color="0.7", lw=0.8)
     ax.axvline(0, color="0.7", lw=0.8)
     ax.set(xlabel="a*", ylabel="b*", title="colour travel (★ = smallest aspecular)")
@@ -264,9 +280,9 @@ def label_travel(ax, geometries, lab, lab_target=None) -> list:
     """The geometry labels of an a*b* travel panel (:func:`place_labels`): each predicted point by its
     aspecular angle (``45as15`` when there are several illumination angles), and the target's points by
     the same names (the legend names the target); returns the annotations."""
-    g = np.asarray(geometries, float).reshape(-1, 2)
+    g = as_geometry_array(geometries)
     several = len(set(g[:, 0].tolist())) > 1
-    names = [geometry_label(x) if several else f"{x[1]:g}°" for x in g]
+    names = [geometry_label(x) if several or x[2] != 0.0 else f"{x[1]:g}°" for x in g]
     xy = [np.asarray(lab, float)[:, 1:]]
     texts = list(names)
     if lab_target is not None:
@@ -286,7 +302,8 @@ def plot_multiangle(path, geometries, lab, lab_target=None, wavelength_nm=None, 
     points joined in aspecular order, the first marked, every point labelled with its geometry without
     overlap: :func:`place_labels`); and, when ``reflectance`` (G, W) on ``wavelength_nm`` is given, the
     reflectance factor curves per geometry, each its own colour (:func:`geometry_colours`; target dashed).
-    ``geometries`` (G, 2): (illumination_deg, aspecular_deg); ``lab`` / ``lab_target`` (G, 3).
+    ``geometries`` (G, 2): (illumination_deg, aspecular_deg), or (G, 3) with azimuths (out-of-plane geometries
+    are drawn as unjoined triangles at their aspecular angle); ``lab`` / ``lab_target`` (G, 3).
     """
     path = Path(path)
     fmt = PLOT_FORMATS.get(path.suffix.lower())

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flakedb.colour.geometry import as_geometry_array
 from flakedb.render.plots import freeze_layout, geometry_colours, geometry_label, label_travel
 
 #: The page: A4 landscape [inches].
@@ -102,7 +103,7 @@ def qc_figure(page: QCPage):
     )
     from matplotlib.figure import Figure  # lazy: matplotlib takes ~0.3 s to import; only plotting needs it
 
-    g = np.asarray(page.geometries, float).reshape(-1, 2)
+    g = as_geometry_array(page.geometries)
     lab, lt = np.asarray(page.lab, float), np.asarray(page.lab_target, float)
     if not (np.all(np.isfinite(lab)) and np.all(np.isfinite(lt))):
         raise ValueError("qc_figure: L*a*b* values must be finite")
@@ -115,7 +116,12 @@ def qc_figure(page: QCPage):
     for c, name in enumerate(("L*", "a*", "b*")):
         ax = fig.add_subplot(grid[0, c])
         for il in illums:
-            sel = np.flatnonzero(g[:, 0] == il)
+            oop = np.flatnonzero((g[:, 0] == il) & (g[:, 2] != 0.0))   # out of plane: points, not curves
+            if oop.size:
+                ax.plot(g[oop, 1], lt[oop, c], "v", ms=6, mfc="none", color=ill_col[il])
+                ax.plot(g[oop, 1], lab[oop, c], "^", ms=4.5, color=ill_col[il],
+                        label=f"predicted, {il:g}° out of plane")
+            sel = np.flatnonzero((g[:, 0] == il) & (g[:, 2] == 0.0))
             sel = sel[np.argsort(g[sel, 1])]
             x = g[sel, 1]
             ax.fill_between(x, lt[sel, c] + band[sel, c, 0], lt[sel, c] + band[sel, c, 1], color=ill_col[il],
@@ -145,7 +151,11 @@ def qc_figure(page: QCPage):
     # a*b* travel
     ax_ab = fig.add_subplot(grid[1, 0])
     for il in illums:
-        sel = np.flatnonzero(g[:, 0] == il)
+        oop = np.flatnonzero((g[:, 0] == il) & (g[:, 2] != 0.0))
+        if oop.size:
+            ax_ab.plot(lt[oop, 1], lt[oop, 2], "v", ms=6, mfc="none", color=ill_col[il])
+            ax_ab.plot(lab[oop, 1], lab[oop, 2], "^", ms=4.5, color=ill_col[il])
+        sel = np.flatnonzero((g[:, 0] == il) & (g[:, 2] == 0.0))
         sel = sel[np.argsort(g[sel, 1])]
         ax_ab.plot(lt[sel, 1], lt[sel, 2], "--s", ms=5, mfc="none", lw=1.0, color=ill_col[il],
                    label=f"{page.target}, {il:g}°")
@@ -184,7 +194,8 @@ def qc_figure(page: QCPage):
     w = page.worst
     lines = [f"worst geometry {geometry_label(g[w])}: {page.formula} {page.de[w]:.2f} (limit {page.limit[w]:.2f})",
              f"{int(np.sum(~ok))} of {len(ok)} geometries outside their limits", ""]
-    lines += [f"{geometry_label(v):>8}  {d:5.2f} / {lim:4.2f}  {'ok ' if p else 'NO '} {s}"
+    wl = max([8] + [len(geometry_label(v)) for v in g])   # out-of-plane names are longer
+    lines += [f"{geometry_label(v):>{wl}}  {d:5.2f} / {lim:4.2f}  {'ok ' if p else 'NO '} {s}"
               for v, d, lim, p, s in zip(g, page.de, page.limit, ok, page.shade)]
     ax.text(0.0, 0.78, "\n".join(lines), fontsize=6.5, family="monospace", va="top", transform=ax.transAxes)
     ax = fig.add_subplot(grid[2, 2:])
