@@ -3,7 +3,7 @@ flakedb.match.measured) -> targets at the E2194 and E2539 geometries -> `match` 
 with physically bounded free parameters (tools/validation/*.yaml) -> a per-geometry ΔE00 table.  MERL may not be
 redistributed: give your own copy.  The RGL paints' targets ship in tools/validation/targets/.
 
-Usage: python tools/validate_measured.py OUT_DIR FILE [FILE ...] [--n N] [--max-nfev K] [--base NAME.yaml]
+Usage: python tools/validate_measured.py OUT_DIR FILE|TARGET.csv [...] [--n N] [--max-nfev K] [--base NAME.yaml]
 The base is chosen by the file's name (KINDS below: silver, gold, pearl, colour-shift, blue metallic, with the
 RGL database's names of its car paints), or given with --base (a file in tools/validation/); paints of a kind
 with no base are reported as not attempted, with the reason.  Writes OUT_DIR/<name>.csv (target), OUT_DIR/<name>-fitted.yaml and prints a
@@ -67,12 +67,16 @@ def main(argv):
         if not base.endswith(".yaml"):
             print(f"## {name}\n\nnot attempted: {base}\n")
             continue
-        try:
-            _, lab, notes = measured_target(f, g)
-        except MeasuredError as e:
-            print(f"error: {e}", file=sys.stderr)
-            return 2
-        csv = write_target(out / f"{name}.csv", g, lab=lab, observer="2", illuminant="D65", name=name, notes=notes)
+        if Path(f).suffix.lower() == ".csv":      # a target already made (tools/validation/targets/)
+            csv = f
+        else:
+            try:
+                _, lab, notes = measured_target(f, g)
+            except MeasuredError as e:
+                print(f"error: {e}", file=sys.stderr)
+                return 2
+            csv = write_target(out / f"{name}.csv", g, lab=lab, observer="2", illuminant="D65", name=name,
+                               notes=notes)
         doc = yaml.safe_load((BASES / base).read_text(encoding="utf-8"))
         res = match(doc, read_target(csv), n=n, catalog=cat, max_nfev=max_nfev, source=base,
                     log=lambda s: print(s, file=sys.stderr, flush=True))
