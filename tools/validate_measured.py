@@ -1,11 +1,12 @@
-"""Validation against measured paints (docs/validation.md): MERL BRDF files -> targets at the E2194 and E2539
-geometries -> `match` from a base of catalogue species with physically bounded free parameters
-(tools/validation/*.yaml) -> a per-geometry ΔE00 table.  MERL may not be redistributed: give your own copy.
+"""Validation against measured paints (docs/validation.md): measured BRDF files (MERL .binary, RGL .bsdf;
+flakedb.match.measured) -> targets at the E2194 and E2539 geometries -> `match` from a base of catalogue species
+with physically bounded free parameters (tools/validation/*.yaml) -> a per-geometry ΔE00 table.  MERL may not be
+redistributed: give your own copy.  The RGL paints' targets ship in tools/validation/targets/.
 
-Usage: python tools/validate_measured.py OUT_DIR FILE.binary [FILE.binary ...] [--n N] [--max-nfev K]
-The base is chosen by the file's name: silver -> silver.yaml, gold -> gold.yaml, pearl -> pearl.yaml,
-color-changing / colour-shift -> colour-shift.yaml; other paints (blue, red metallics) are reported as not
-attempted, with the reason.  Writes OUT_DIR/<name>.csv (target), OUT_DIR/<name>-fitted.yaml and prints a
+Usage: python tools/validate_measured.py OUT_DIR FILE|TARGET.csv [...] [--n N] [--max-nfev K] [--base NAME.yaml]
+The base is chosen by the file's name (KINDS below: silver, gold, pearl, colour-shift, blue metallic, with the
+RGL database's names of its car paints), or given with --base (a file in tools/validation/); paints of a kind
+with no base are reported as not attempted, with the reason.  Writes OUT_DIR/<name>.csv (target), OUT_DIR/<name>-fitted.yaml and prints a
 Markdown table (ΔE00 at the start and after the fit, per geometry) and the fit's outcome sentence."""
 import sys
 from pathlib import Path
@@ -14,24 +15,26 @@ import numpy as np
 import yaml
 
 from flakedb.match.fit import match
-from flakedb.match.merl import MerlError, merl_target, read_merl
+from flakedb.match.measured import MeasuredError, measured_target
 from flakedb.match.targets import E2539_GEOMETRIES, read_target, write_target
 from flakedb.paint.catalog import load_catalog
 
 BASES = Path(__file__).resolve().parent / "validation"
 #: name fragment -> base recipe, or the reason no base exists
-KINDS = (("silver", "silver.yaml"), ("gold", "gold.yaml"), ("pearl", "pearl.yaml"),
-         ("color-changing", "colour-shift.yaml"), ("colour-shift", "colour-shift.yaml"),
-         ("blue", "no blue colourant in the catalogue (phthalocyanine PB15 has no published optical data "
-                  "in reach: docs/colourants.md)"),
-         ("red", "no organic red in the catalogue (transparent PR101 gives copper, not a red metallic's hue)"))
+KINDS = (("silver", "silver-tio2.yaml"), ("ilm_l3_37_metallic", "silver-tio2.yaml"), ("gold", "gold.yaml"),
+         ("pearl", "pearl.yaml"), ("color-changing", "colour-shift.yaml"), ("colour-shift", "colour-shift.yaml"),
+         ("irid_flake_paint", "colour-shift.yaml"), ("blue", "blue-metallic.yaml"),
+         ("ilm_solo_m_68", "blue-metallic.yaml"),
+         ("red", "no red-metallic base yet (the organic reds are KM-derived tinters, docs/colourants.md; a base "
+                 "of Al flakes with quinacridone-red or pyrrole-red is not written)"))
 
 
 def base_for(name):
     for frag, what in KINDS:
         if frag in name:
             return what
-    return "no base recipe for this kind of paint (name must contain silver, gold, pearl or color-changing)"
+    return ("no base recipe for this kind of paint (name must contain silver, gold, pearl, color-changing, blue "
+            "or an RGL car paint's name; or give --base)")
 
 
 def table(res):
@@ -46,6 +49,9 @@ def main(argv):
     n, max_nfev = 32, 40   # n = 32: flop index within 0.03, L* within 0.8 of auto (n = 80) for alpha 0.12 flakes
     if "--n" in argv:
         i = argv.index("--n"); n = int(argv[i + 1]); del argv[i:i + 2]
+    forced = None
+    if "--base" in argv:
+        i = argv.index("--base"); forced = argv[i + 1]; del argv[i:i + 2]
     if "--max-nfev" in argv:
         i = argv.index("--max-nfev"); max_nfev = int(argv[i + 1]); del argv[i:i + 2]
     if len(argv) < 2:
@@ -56,19 +62,21 @@ def main(argv):
     cat = load_catalog(None)
     g = np.asarray(E2539_GEOMETRIES, float)
     for f in argv[1:]:
-        name = Path(f).name.removesuffix(".binary")
-        base = base_for(name)
+        name = Path(f).stem
+        base = forced or base_for(name)
         if not base.endswith(".yaml"):
             print(f"## {name}\n\nnot attempted: {base}\n")
             continue
-        try:
-            _, lab = merl_target(read_merl(f), g)
-        except MerlError as e:
-            print(f"error: {e}", file=sys.stderr)
-            return 2
-        csv = write_target(out / f"{name}.csv", g, lab=lab, observer="2", illuminant="D65", name=name,
-                           notes={"source": f"MERL BRDF database (Matusik et al. 2003), {Path(f).name}",
-                                  "licence": "MERL terms: no redistribution; do not commit"})
+        if Path(f).suffix.lower() == ".csv":      # a target already made (tools/validation/targets/)
+            csv = f
+        else:
+            try:
+                _, lab, notes = measured_target(f, g)
+            except MeasuredError as e:
+                print(f"error: {e}", file=sys.stderr)
+                return 2
+            csv = write_target(out / f"{name}.csv", g, lab=lab, observer="2", illuminant="D65", name=name,
+                               notes=notes)
         doc = yaml.safe_load((BASES / base).read_text(encoding="utf-8"))
         res = match(doc, read_target(csv), n=n, catalog=cat, max_nfev=max_nfev, source=base,
                     log=lambda s: print(s, file=sys.stderr, flush=True))

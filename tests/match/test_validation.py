@@ -206,8 +206,8 @@ def test_measured_file_to_match_round_trip(tmp_path):
 
 def test_validation_tool_names_what_it_cannot_attempt(tmp_path):
     # a kind with no colourant in the catalogue is reported with its reason, not fitted with a stand-in
-    write_merl(tmp_path / "blue-metallic-paint.binary", np.full((3, *DIMS), 0.1))
-    r = _tool("validate_measured.py", tmp_path / "o", tmp_path / "blue-metallic-paint.binary")
+    write_merl(tmp_path / "red-metallic-paint.binary", np.full((3, *DIMS), 0.1))
+    r = _tool("validate_measured.py", tmp_path / "o", tmp_path / "red-metallic-paint.binary")
     assert r.returncode == 0, r.stderr
-    assert "not attempted: no blue colourant" in r.stdout
-    assert not (tmp_path / "o" / "blue-metallic-paint.csv").exists()
+    assert "not attempted: no red-metallic base" in r.stdout
+    assert not (tmp_path / "o" / "red-metallic-paint.csv").exists()
