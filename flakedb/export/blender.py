@@ -724,13 +724,18 @@ def cpa_inputs(table, alphas, coat_ior: float, sparkle: dict | None = None) -> d
             **({"sparkle": dict(sparkle)} if sparkle is not None else {})}
 
 
-def cpa_material_script(table, alphas, coat_ior: float, name: str, fit_json: str = "{}") -> str:
-    """A standalone Blender script building the angle-indexed material (``blender --python``)."""
+def cpa_material_script(table, alphas, coat_ior: float, name: str, fit_json: str = "{}",
+                        sparkle: dict | None = None) -> str:
+    """A standalone Blender script building the angle-indexed material (``blender --python``), with the glint
+    layer when ``sparkle`` (:func:`flakedb.export.sparkle.node_inputs`) is given."""
     n = safe_name(name)
     return (f'"""flakedb export: the angle-indexed colour-table material of {name} (run inside Blender;\n'
             f'Cycles and EEVEE).  flakedb.export.cpa: coat mirror + Lambert + GGX lobes coloured by N.V."""\n'
             f"import bpy\n{_CPA_BUILD}\n"
-            f"INPUTS = {cpa_inputs(table, alphas, coat_ior)!r}\n"
+            + (f"# sparkle: the glint cells are in the UV map {sparkle['uv_map'] or '(the active one)'!s}, read as "
+               f"{sparkle['cells_per_uv']:.6g} cells per UV unit: the UVs must be proportional to lengths on the surface\n"
+               if sparkle else "")
+            + f"INPUTS = {cpa_inputs(table, alphas, coat_ior, sparkle)!r}\n"
             f"FIT = {json.dumps(fit_json)}\n"
             f"material = build_cpa_material(bpy, {('flakedb_cpa_' + n)!r}, INPUTS, FIT)\n"
             f"for ob in bpy.context.selected_objects:          # assign to the selection, if any\n"

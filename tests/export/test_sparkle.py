@@ -267,3 +267,30 @@ def test_cycles_mean_is_the_smooth_render(silver_cpa, light_deg):
     a = render_cycles_patch(cpa_inputs(fit.table, fit.alphas, fit.coat_ior, sp.node_inputs(lay)), **kw)["image"]
     b = render_cycles_patch(cpa_inputs(fit.table, fit.alphas, fit.coat_ior), **kw)["image"]
     np.testing.assert_allclose(a.mean(axis=(0, 1)) / b.mean(axis=(0, 1)), 1.0, atol=PATCH_MEAN_RTOL)
+
+
+def test_export_cpa_carries_the_layer(tmp_path):
+    """``export(..., method="cpa", sparkle_recipe=...)`` writes the layer of design_from_recipe on its own fit
+    into the JSON, the MaterialX graph (node ``glints``) and the Blender script (its node inputs, cells per UV
+    unit scaled by ``uv_metres``); a non-positive ``uv_metres`` is refused before anything is written."""
+    from flakedb.bsdf import write_bsdf
+    from flakedb.export.registry import export
+    from tests.export.test_cpa import cpa_table, truth_fit
+
+    src = tmp_path / "model.bsdf"
+    write_bsdf(src, cpa_table(truth_fit()), truncation=0.0)
+    recipe = RECIPES / "metallic-silver.yaml"
+    out = export(src, tmp_path / "out", method="cpa", sparkle_recipe=recipe, uv_metres=1e-3)
+    d = json.loads(Path(out["files"]["fit"]).read_text())
+    lay = sp.design_from_recipe(np.asarray(d["table"]), d["alphas"], SILVER)
+    got = sp.SparkleLayer.from_dict(d["sparkle"])                # the JSON's table is rounded to 1e-7
+    assert (got.lobe, got.reference["light_deg"]) == (lay.lobe, lay.reference["light_deg"])
+    for k in ("share", "cell_um", "occupancy", "lobe_alpha", "glint_alpha"):
+        assert getattr(got, k) == pytest.approx(getattr(lay, k), rel=1e-5)
+    assert d["sparkle"]["node_inputs"] == sp.node_inputs(got, 1e-3)
+    assert d["sparkle"]["node_inputs"]["cells_per_uv"] == pytest.approx(1e-3 / (got.cell_um * 1e-6))
+    assert 'name="glints"' in Path(out["files"]["materialx"]).read_text()
+    assert repr(d["sparkle"]["node_inputs"]) in Path(out["files"]["blender"]).read_text()
+    with pytest.raises(ValueError, match="uv-metres"):
+        export(src, tmp_path / "bad", method="cpa", sparkle_recipe=recipe, uv_metres=0.0)
+    assert not (tmp_path / "bad").exists()
