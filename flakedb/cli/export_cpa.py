@@ -26,10 +26,16 @@ from flakedb.cli.exporting import run_export
 @click.option("--out", "out", default=None, type=click.Path(file_okay=False),
               help="Output directory [default: FILE's directory].")
 @click.option("--name", default=None, help="Base name of the files [default: FILE's stem].")
+@click.option("--sparkle", "sparkle", default=None, type=click.Path(dir_okay=False),
+              help="The paint's recipe (.yaml): add the glint layer (flakes as perturbed normals in cells of the "
+                   "UV map), parameterised from its flakes by the texture model (docs/renderers.md, 'Sparkle').")
+@click.option("--uv-metres", "uv_metres", default=1.0, show_default=True, type=float,
+              help="With --sparkle: metres per UV unit of the geometry's UV map (0.001 for UVs in mm).")
 @click.option("--json", "as_json", is_flag=True, help="Print the fit and the files as JSON.")
-def export_cpa(file, out, name, as_json):
+def export_cpa(file, out, name, sparkle, uv_metres, as_json):
     """Fit a coat mirror, a Lambert term and three GGX lobes whose colours are a table indexed by the view angle to a Fourier .bsdf / flakedb .h5 FILE, and write NAME.cpa.png (the table), NAME.cpa.mtlx (MaterialX standard nodes), NAME.cpa.blender.py (Cycles / EEVEE node group) and NAME.cpa.json (the fit and its ΔE00)."""
-    s = run_export(file, out, "cpa", name, as_json, bad_input=(ValueError,))
+    s = run_export(file, out, "cpa", name, as_json, bad_input=(ValueError, OSError), sparkle_recipe=sparkle,
+                   uv_metres=uv_metres)
     if as_json:
         click.echo(json.dumps({"fit": {k: v for k, v in s["fit"].items() if k != "table"}, "files": s["files"]}, indent=2))
         return
@@ -40,5 +46,12 @@ def export_cpa(file, out, name, as_json):
                f"{e['worst_dE00_E2194']:.2f} at the E2194 geometries, {e['worst_dE00_E2539']:.2f} with E2539's; over "
                f"the hemisphere (both within 70°) median {e['dE00_hemisphere_70deg']['median']:.2f}, "
                f"max {e['dE00_hemisphere_70deg']['max']:.2f}")
+    if "sparkle" in f:
+        g, r = f["sparkle"], f["sparkle"]["reference"]
+        click.echo(f"sparkle: lobe {g['lobe']} (GGX α {g['lobe_alpha']:.3g}) split {g['share']:.3g} into glints: cells "
+                   f"{g['cell_um']:.3g} µm, {g['occupancy']:.3g} of them a flake, glint α {g['glint_alpha']:.3g} "
+                   f"({r['diameter_um']:g} µm flakes); {r['glints_per_mm2_above_threshold']:.3g} glints/mm² above the "
+                   f"texture model's threshold at {r['light_deg']:g}° under a {r['source_half_angle_deg']:g}° source "
+                   f"(the model's count, Cycles within ±20 %, docs/renderers.md)")
     for k, p in s["files"].items():
         click.echo(f"wrote {p} ({k})")

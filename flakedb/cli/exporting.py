@@ -24,12 +24,12 @@ from flakedb.export.registry import export
 from flakedb.outputs import OutputError, check_output_dir
 
 
-def run_export(file, out, method, name, quiet, bad_input=()):
+def run_export(file, out, method, name, quiet, bad_input=(), **options):
     """The body every ``flakedb export-*`` command shares: the output directory (``--out``, else FILE's)
     checked and probed before any work, :func:`flakedb.export.registry.export` run with ``method``
     (progress on stderr unless ``quiet``), directories it created removed if it fails; a file that is not
-    a BSDF, an output error or an exception class in ``bad_input`` becomes one line, exit status 2.
-    Returns the export's summary."""
+    a BSDF, an output error or an exception class in ``bad_input`` becomes one line, exit status 2;
+    ``options`` go to the route.  Returns the export's summary."""
     out_dir = Path(out) if out is not None else Path(file).absolute().parent
     try:
         check_output_dir(out_dir.absolute())
@@ -39,6 +39,6 @@ def run_export(file, out, method, name, quiet, bad_input=()):
     try:
         with remove_created_dirs(out_dir.absolute()):
             return export(file, out_dir, method=method, name=name,
-                          progress=None if quiet else (lambda m: click.echo(m, err=True)))
+                          progress=None if quiet else (lambda m: click.echo(m, err=True)), **options)
     except (BSDFFileError, OutputError, *bad_input) as e:
         raise FlakedbError(str(e)) from None

@@ -584,6 +584,66 @@ def sun_direction(theta_deg: float, phi_deg: float = 90.0) -> tuple:
 #: Glossy BSDF (GGX, single scattering, no Fresnel) of roughness √α_k, all added, plus the coat's
 #: mirror: a Glossy BSDF of roughness 0 coloured by the Fresnel node of the coat's index.
 _CPA_BUILD = '''
+def build_sparkle_nodes(N, L, geo, colour, sp):
+    """The glint layer of flakedb.export.sparkle in nodes: (glint shader, cell coordinates, the cell's three
+    uniform numbers) sockets."""
+    def math(op, a, b=None, c=None):
+        n = N.new("ShaderNodeMath"); n.operation = op
+        for i, v in enumerate((a, b, c)):
+            if v is None:
+                continue
+            if isinstance(v, (int, float)):
+                n.inputs[i].default_value = float(v)
+            else:
+                L.new(v, n.inputs[i])
+        return n.outputs[0]
+    def vec(op, a, b=None, scale=None):
+        n = N.new("ShaderNodeVectorMath"); n.operation = op
+        L.new(a, n.inputs[0])
+        if b is not None:
+            L.new(b, n.inputs[1])
+        if scale is not None:
+            if isinstance(scale, (int, float)):
+                n.inputs["Scale"].default_value = float(scale)
+            else:
+                L.new(scale, n.inputs["Scale"])
+        return n.outputs["Value"] if op in ("DOT_PRODUCT", "LENGTH", "DISTANCE") else n.outputs["Vector"]
+    uvm = N.new("ShaderNodeUVMap"); uvm.uv_map = sp["uv_map"]
+    cell = vec("FLOOR", vec("SCALE", uvm.outputs["UV"], scale=sp["cells_per_uv"]))
+    wn = N.new("ShaderNodeTexWhiteNoise"); wn.noise_dimensions = "3D"
+    L.new(cell, wn.inputs["Vector"])
+    rgb = N.new("ShaderNodeSeparateColor"); L.new(wn.outputs["Color"], rgb.inputs[0])
+    u1, u2, u3 = rgb.outputs[0], rgb.outputs[1], rgb.outputs[2]
+    t = math("MULTIPLY", math("SQRT", math("DIVIDE", u1, math("SUBTRACT", 1.0, u1))), sp["lobe_alpha"])
+    c = math("INVERSE_SQRT", math("MULTIPLY_ADD", t, t, 1.0))
+    s = math("MULTIPLY", t, c)
+    phi = math("MULTIPLY", u2, 6.283185307179586)
+    n_ = geo.outputs["Normal"]
+    tg = N.new("ShaderNodeTangent"); tg.direction_type = "UV_MAP"; tg.uv_map = sp["uv_map"]
+    tt = vec("NORMALIZE", vec("SUBTRACT", tg.outputs["Tangent"], vec("SCALE", n_, scale=vec("DOT_PRODUCT", tg.outputs["Tangent"], n_))))
+    bb = vec("CROSS_PRODUCT", n_, tt)
+    m = vec("ADD", vec("ADD", vec("SCALE", tt, scale=math("MULTIPLY", s, math("COSINE", phi))),
+                        vec("SCALE", bb, scale=math("MULTIPLY", s, math("SINE", phi)))), vec("SCALE", n_, scale=c))
+    v = geo.outputs["Incoming"]
+    mv = vec("DOT_PRODUCT", m, v)
+    nv = math("MAXIMUM", vec("DOT_PRODUCT", n_, v), 1e-4)
+    mu_l = math("SUBTRACT", math("MULTIPLY", math("MULTIPLY", mv, c), 2.0), nv)
+    def lam(a2, mu):                       # GGX Smith Λ(μ) = (sqrt(1 + α² (1/μ² − 1)) − 1) / 2
+        mu = math("MAXIMUM", mu, 1e-4)
+        return math("MULTIPLY", math("SUBTRACT", math("SQRT", math("MULTIPLY_ADD", math("SUBTRACT", math("POWER", mu, -2.0), 1.0), a2, 1.0)), 1.0), 0.5)
+    a2k, a2g = sp["lobe_alpha"] ** 2, sp["glint_alpha"] ** 2
+    g2k = math("DIVIDE", 1.0, math("ADD", math("ADD", lam(a2k, nv), lam(a2k, mu_l)), 1.0))
+    g2g = math("DIVIDE", 1.0, math("MULTIPLY_ADD", lam(a2g, mv), 2.0, 1.0))
+    w = math("DIVIDE", math("MULTIPLY", g2k, mv), math("MULTIPLY", math("MULTIPLY", math("MAXIMUM", c, 1e-4), nv), g2g))
+    ok = math("MULTIPLY", math("MULTIPLY", math("GREATER_THAN", mv, 0.0), math("GREATER_THAN", mu_l, 0.0)),
+              math("LESS_THAN", u3, sp["occupancy"]))
+    gain = math("MULTIPLY", math("MULTIPLY", w, ok), sp["share"] / sp["occupancy"])
+    gl = N.new("ShaderNodeBsdfGlossy"); gl.distribution = "GGX"; gl.inputs["Roughness"].default_value = sp["glint_alpha"] ** 0.5
+    L.new(vec("SCALE", colour, scale=gain), gl.inputs["Color"])
+    L.new(m, gl.inputs["Normal"])
+    return gl.outputs[0], cell, wn.outputs["Color"]
+
+
 def build_cpa_material(bpy, name, inp, fit_json):
     """Create (or replace) material `name` with the node group `name`_cpa (flakedb.export.cpa)."""
     old = bpy.data.materials.get(name)
@@ -610,16 +670,25 @@ def build_cpa_material(bpy, name, inp, fit_json):
             return b
         s = N.new("ShaderNodeAddShader"); L.new(a, s.inputs[0]); L.new(b, s.inputs[1])
         return s.outputs[0]
+    sp = inp.get("sparkle")
     for k in range(rows):
         uv = N.new("ShaderNodeCombineXYZ"); L.new(x.outputs[0], uv.inputs["X"]); uv.inputs["Y"].default_value = (k + 0.5) / rows
         tex = N.new("ShaderNodeTexImage"); tex.image = img; tex.interpolation = "Linear"; tex.extension = "EXTEND"
         L.new(uv.outputs[0], tex.inputs["Vector"])
+        colour = tex.outputs["Color"]
+        if sp is not None and k == sp["lobe"]:
+            glint, cell, rnd = build_sparkle_nodes(N, L, geo, colour, sp)
+            total = add(total, glint)
+            g.interface.new_socket("Cell", in_out="OUTPUT", socket_type="NodeSocketVector")
+            g.interface.new_socket("Random", in_out="OUTPUT", socket_type="NodeSocketColor")
+            keep = N.new("ShaderNodeVectorMath"); keep.operation = "SCALE"; keep.inputs["Scale"].default_value = 1.0 - sp["share"]
+            L.new(colour, keep.inputs[0]); colour = keep.outputs[0]
         if k == 0:
             b = N.new("ShaderNodeBsdfDiffuse"); b.inputs["Roughness"].default_value = 0.0
         else:
             b = N.new("ShaderNodeBsdfGlossy"); b.distribution = "GGX"
             b.inputs["Roughness"].default_value = inp["roughness"][k - 1]
-        L.new(tex.outputs["Color"], b.inputs["Color"])
+        L.new(colour, b.inputs["Color"])
         total = add(total, b.outputs[0])
     if inp["coat_ior"] > 1.0:
         fr = N.new("ShaderNodeFresnel"); fr.inputs["IOR"].default_value = inp["coat_ior"]
@@ -627,6 +696,8 @@ def build_cpa_material(bpy, name, inp, fit_json):
         L.new(fr.outputs[0], c.inputs["Color"])
         total = add(total, c.outputs[0])
     out = N.new("NodeGroupOutput"); L.new(total, out.inputs[0])
+    if sp is not None:
+        L.new(cell, out.inputs["Cell"]); L.new(rnd, out.inputs["Random"])
     m = bpy.data.materials.new(name)
     m.use_nodes = True
     nt = m.node_tree
@@ -640,24 +711,31 @@ def build_cpa_material(bpy, name, inp, fit_json):
 '''
 
 
-def cpa_inputs(table, alphas, coat_ior: float) -> dict:
+def cpa_inputs(table, alphas, coat_ior: float, sparkle: dict | None = None) -> dict:
     """The node group's inputs (:data:`_CPA_BUILD`) from a colour table (rows, n, 3) of linear RGB
     (:class:`flakedb.export.cpa.CPAFit`), the lobes' GGX α and the coat's index: ``pixels`` the RGBA
     float image, row k = table row k (Blender's row 0 is the image's bottom), ``roughness`` = √α
-    (Cycles squares its Roughness input)."""
+    (Cycles squares its Roughness input); ``sparkle``: the glint layer's node inputs
+    (:func:`flakedb.export.sparkle.node_inputs`), or None for the smooth material."""
     t = np.asarray(table, float)
     rgba = np.concatenate([t, np.ones(t.shape[:2] + (1,))], axis=-1)
     return {"rows": int(t.shape[0]), "n_table": int(t.shape[1]), "pixels": [float(v) for v in rgba.ravel()],
-            "roughness": [float(math.sqrt(a)) for a in alphas], "coat_ior": float(coat_ior)}
+            "roughness": [float(math.sqrt(a)) for a in alphas], "coat_ior": float(coat_ior),
+            **({"sparkle": dict(sparkle)} if sparkle is not None else {})}
 
 
-def cpa_material_script(table, alphas, coat_ior: float, name: str, fit_json: str = "{}") -> str:
-    """A standalone Blender script building the angle-indexed material (``blender --python``)."""
+def cpa_material_script(table, alphas, coat_ior: float, name: str, fit_json: str = "{}",
+                        sparkle: dict | None = None) -> str:
+    """A standalone Blender script building the angle-indexed material (``blender --python``), with the glint
+    layer when ``sparkle`` (:func:`flakedb.export.sparkle.node_inputs`) is given."""
     n = safe_name(name)
     return (f'"""flakedb export: the angle-indexed colour-table material of {name} (run inside Blender;\n'
             f'Cycles and EEVEE).  flakedb.export.cpa: coat mirror + Lambert + GGX lobes coloured by N.V."""\n'
             f"import bpy\n{_CPA_BUILD}\n"
-            f"INPUTS = {cpa_inputs(table, alphas, coat_ior)!r}\n"
+            + (f"# sparkle: the glint cells are in the UV map {sparkle['uv_map'] or '(the active one)'!s}, read as "
+               f"{sparkle['cells_per_uv']:.6g} cells per UV unit: the UVs must be proportional to lengths on the surface\n"
+               if sparkle else "")
+            + f"INPUTS = {cpa_inputs(table, alphas, coat_ior, sparkle)!r}\n"
             f"FIT = {json.dumps(fit_json)}\n"
             f"material = build_cpa_material(bpy, {('flakedb_cpa_' + n)!r}, INPUTS, FIT)\n"
             f"for ob in bpy.context.selected_objects:          # assign to the selection, if any\n"
@@ -745,3 +823,79 @@ def render_cycles_geometries(geometries, *, inputs: dict | None = None, cpa: dic
         args["inputs"] = {k: list(v) if isinstance(v, tuple) else v for k, v in inputs.items()}
     out = run_bpy_script(_BUILD + _CPA_BUILD + SCENE_SETUP_SCRIPT + _GEOMETRY_SCRIPT, args, python=python, timeout=timeout)
     return np.pi * np.asarray(out["info"]["means"], float) / np.cos(np.radians(g[:, :1]))
+
+
+#: A square patch of side ``side_m`` metres in the x-y plane (UV = position in metres, so the glint cells are in
+#: world units), seen from +z by an orthographic camera covering it, under a sun at ``light_deg`` from the
+#: normal in the x-z plane.  Two renders: the material (radiance), then, when ``cells`` is set, the node
+#: group's ``Cell`` output as an emission of strength 1 (the integer cell coordinates at every pixel centre).
+#: Pixels out as raw float32 RGBA files (row 0 at the bottom, Blender's order).
+_PATCH_SCRIPT = """
+import array
+bpy.ops.mesh.primitive_plane_add(size=a["side_m"])
+ob = bpy.context.object
+me = ob.data
+uvl = me.uv_layers.active
+for lp in me.loops:
+    co = me.vertices[lp.vertex_index].co
+    uvl.data[lp.index].uv = (co.x + 0.5 * a["side_m"], co.y + 0.5 * a["side_m"])
+mat = build_cpa_material(bpy, "flakedb_cpa", a["cpa"], "{}")
+me.materials.append(mat)
+cam = bpy.data.cameras.new("cam"); cam.type = "ORTHO"; cam.ortho_scale = a["side_m"]
+co = bpy.data.objects.new("cam", cam); sc.collection.objects.link(co); co.location = (0.0, 0.0, 1.0); sc.camera = co
+ld = bpy.data.lights.new("sun", "SUN"); ld.energy = 1.0; ld.angle = 2.0 * math.radians(a["half_angle_deg"])
+lo = bpy.data.objects.new("sun", ld); sc.collection.objects.link(lo)
+t = math.radians(a["light_deg"])
+lo.rotation_euler = Vector((math.sin(t), 0.0, math.cos(t))).to_track_quat("Z", "Y").to_euler()
+sc.render.image_settings.file_format = "OPEN_EXR"
+sc.render.image_settings.color_depth = "32"
+def shoot(path):
+    sc.render.filepath = a["exr"]
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(a["exr"], check_existing=False)
+    buf = array.array("f", [0.0]) * (a["size"] * a["size"] * 4)
+    img.pixels.foreach_get(buf)
+    open(path, "wb").write(buf.tobytes())
+    bpy.data.images.remove(img)
+shoot(a["radiance_raw"])
+if a["cells"]:
+    nt = mat.node_tree
+    grp = [n for n in nt.nodes if n.type == "GROUP"][0]
+    em = nt.nodes.new("ShaderNodeEmission"); em.inputs["Strength"].default_value = 1.0
+    nt.links.new(em.outputs[0], nt.nodes["Material Output"].inputs["Surface"])
+    sc.cycles.samples = 1
+    ld.energy = 0.0
+    for socket, path in (("Cell", a["cells_raw"]), ("Random", a["random_raw"])):
+        nt.links.new(grp.outputs[socket], em.inputs["Color"])
+        shoot(path)
+open(a["out"], "w").write(json.dumps({"pixels": [], "blender": bpy.app.version_string, "info": {}}))
+"""
+
+
+def render_cycles_patch(cpa: dict, *, side_m: float, size: int, light_deg: float, half_angle_deg: float,
+                        samples: int = 16, cells: bool = False, filter_width_px: float = 0.01, threads: int = 2,
+                        seed: int = 1, python: str | None = None, timeout: float = 600.0) -> dict:
+    """Render the node group of ``cpa`` (:func:`cpa_inputs`, with or without its sparkle layer) on a flat
+    square patch of side ``side_m`` metres (UV = position in metres) seen along its normal by an
+    orthographic camera, ``size`` px, under a sun of irradiance 1 and angular radius ``half_angle_deg`` at
+    ``light_deg`` from the normal, black world, ``samples`` per pixel (no adaptive sampling), every sample at
+    its pixel's centre (``filter_width_px`` 0.01) unless a wider filter is asked for.  Returns {"image":
+    (size, size, 3) radiance, linear sRGB, row 0 at the top; when ``cells``, "cells": (size, size, 2) integer
+    cell coordinates and "random": (size, size, 3) the cell's uniform numbers (u₁, u₂, u₃) at the pixel
+    centres; "blender": version}."""
+    args = render_args(size=size, samples=samples, direction=(0, 0, 1), irradiance=1.0, half_angle_deg=half_angle_deg,
+                       extent=1.0, threads=threads, seed=seed, filter_width_px=filter_width_px, adaptive_sampling=False)
+    with tempfile.TemporaryDirectory(prefix="flakedb-patch-") as tmp:
+        args.update(cpa=cpa, side_m=float(side_m), light_deg=float(light_deg), cells=bool(cells),
+                    radiance_raw=str(Path(tmp) / "radiance.raw"), cells_raw=str(Path(tmp) / "cells.raw"),
+                    random_raw=str(Path(tmp) / "random.raw"))
+        out = run_bpy_script(_CPA_BUILD + SCENE_SETUP_SCRIPT + _PATCH_SCRIPT, args, python=python, timeout=timeout)
+
+        def read(p):
+            return np.fromfile(p, dtype="<f4").reshape(size, size, 4)[::-1, :, :3].astype(np.float64)
+
+        res = {"image": read(args["radiance_raw"]), "blender": out["blender"]}
+        if cells:
+            res["cells"] = np.rint(read(args["cells_raw"])[..., :2]).astype(np.int64)
+            res["random"] = read(args["random_raw"])
+    return res

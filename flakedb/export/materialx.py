@@ -90,7 +90,8 @@ def read_fit(path) -> dict:
     return json.loads(s)
 
 
-def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str, fit_json: str = "{}") -> str:
+def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str, fit_json: str = "{}",
+                  sparkle: dict | None = None) -> str:
     """The angle-indexed material of :mod:`flakedb.export.cpa` as a MaterialX 1.39 graph of standard
     nodes: μ_v = -``normal``·``viewdirection`` (world space), texture coordinate
     ``(μ_v (n - 1) / n + 0.5 / n, (k + 0.5) / rows)`` into ``image_file`` (the colour table, 16-bit
@@ -100,7 +101,10 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
     ``roughness`` is α itself), all summed by ``add`` with the coat's mirror, a smooth
     ``dielectric_bsdf`` of index ``coat_ior`` in reflection only; a ``surface`` and a
     ``surfacematerial``.  The sum is ``add``, not ``layer``: the table already holds the coat's
-    transmission.  Plain XML (no MaterialX needed to write); the fit as JSON in ``flakedb_cpa``."""
+    transmission.  Plain XML (no MaterialX needed to write); the fit as JSON in ``flakedb_cpa``.
+
+    ``sparkle`` (:func:`flakedb.export.sparkle.node_inputs`): lobe k's colour is split into (1 − β) on the smooth
+    lobe and the glint layer of :mod:`flakedb.export.sparkle` (:func:`_sparkle_nodes`)."""
     n = safe_name(name)
     rows = len(scales)
     root = ET.Element("materialx", {"version": MTLX_VERSION, "colorspace": "lin_rec709", "flakedb_cpa": fit_json})
@@ -128,12 +132,23 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
                                          "colorspace": "lin_rec709"})
         del f
         node("multiply", f"colour_{k}", "color3", in1=("color3", ("node", f"table_{k}")), in2=("float", f"{float(scales[k]):.9g}"))
+        if sparkle is not None and k == sparkle["lobe"]:
+            glint = _sparkle_nodes(node, f"colour_{k}", sparkle)
+            node("multiply", f"colour_{k}_smooth", "color3", in1=("color3", ("node", f"colour_{k}")),
+                 in2=("float", f"{1.0 - float(sparkle['share']):.9g}"))
+            node("generalized_schlick_bsdf", "glints", "BSDF", color0=("color3", ("node", glint)),
+                 color90=("color3", ("node", glint)),
+                 roughness=("vector2", f"{sparkle['glint_alpha']:.9g}, {sparkle['glint_alpha']:.9g}"),
+                 normal=("vector3", ("node", "sp_m")), distribution=("string", "ggx"))
+            node("add", "sum_glints", "BSDF", in1=("BSDF", ("node", total)), in2=("BSDF", ("node", "glints")))
+            total = "sum_glints"
         if k == 0:
             node("oren_nayar_diffuse_bsdf", "lobe_0", "BSDF", color=("color3", ("node", "colour_0")), roughness=("float", "0"))
         else:
             a = float(alphas[k - 1])
-            node("generalized_schlick_bsdf", f"lobe_{k}", "BSDF", color0=("color3", ("node", f"colour_{k}")),
-                 color90=("color3", ("node", f"colour_{k}")), roughness=("vector2", f"{a:.9g}, {a:.9g}"),
+            ck = f"colour_{k}_smooth" if sparkle is not None and k == sparkle["lobe"] else f"colour_{k}"
+            node("generalized_schlick_bsdf", f"lobe_{k}", "BSDF", color0=("color3", ("node", ck)),
+                 color90=("color3", ("node", ck)), roughness=("vector2", f"{a:.9g}, {a:.9g}"),
                  distribution=("string", "ggx"))
         if total is None:
             total = f"lobe_{k}"
@@ -150,6 +165,77 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
     ET.SubElement(m, "input", {"name": "surfaceshader", "type": "surfaceshader", "nodename": f"SR_{n}"})
     ET.indent(root)
     return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def _sparkle_nodes(node, colour: str, sp: dict) -> str:
+    """The glint layer of :mod:`flakedb.export.sparkle` in MaterialX standard nodes, term for term as the
+    Blender node group (:data:`flakedb.export.blender._CPA_BUILD`): cell = floor(``texcoord`` × cells per UV
+    unit); u₁, u₂, u₃ = ``cellnoise3d`` of (cell, 0 | 1 | 2) (MaterialX's hash, not Blender's: the same
+    statistics, another layout); the normal m (node ``sp_m``) in the world-space ``tangent`` frame; the weight W,
+    the occupancy test and the share.  Returns the name of the glint colour node (color3)."""
+    count = [0]
+
+    def f(kind, typ="float", **inputs):
+        count[0] += 1
+        nm = f"sp_{count[0]}"
+        node(kind, nm, typ, **{k: ((t, ("node", v)) if isinstance(v, str) and v.startswith("sp_") or v in ("N_world", "V_world", colour) else (t, v))
+                               for k, (t, v) in inputs.items()})
+        return nm
+
+    def num(x):
+        return f"{float(x):.9g}"
+
+    node("texcoord", "sp_uv", "vector2", index=("integer", "0"))
+    cell = f("floor", "vector2", **{"in": ("vector2", f("multiply", "vector2", in1=("vector2", "sp_uv"),
+                                                        in2=("float", num(sp["cells_per_uv"]))))})
+    cx = f("extract", "float", **{"in": ("vector2", cell)}, index=("integer", "0"))
+    cy = f("extract", "float", **{"in": ("vector2", cell)}, index=("integer", "1"))
+    u1, u2, u3 = (f("cellnoise3d", "float", position=("vector3", f("combine3", "vector3", in1=("float", cx), in2=("float", cy),
+                                                                   in3=("float", num(i))))) for i in range(3))
+    t = f("multiply", in1=("float", f("sqrt", **{"in": ("float", f("divide", in1=("float", u1),
+                                                                        in2=("float", f("subtract", in1=("float", "1"), in2=("float", u1)))))})),
+          in2=("float", num(sp["lobe_alpha"])))
+    c = f("divide", in1=("float", "1"), in2=("float", f("sqrt", **{"in": ("float", f("add", in1=("float", f("multiply", in1=("float", t), in2=("float", t))),
+                                                                                     in2=("float", "1")))})))
+    s = f("multiply", in1=("float", t), in2=("float", c))
+    phi = f("multiply", in1=("float", u2), in2=("float", num(2.0 * 3.141592653589793)))
+    node("tangent", "sp_T0", "vector3", space=("string", "world"))
+    tn = f("dotproduct", in1=("vector3", "sp_T0"), in2=("vector3", "N_world"))
+    tt = f("normalize", "vector3", **{"in": ("vector3", f("subtract", "vector3", in1=("vector3", "sp_T0"),
+                                                           in2=("vector3", f("multiply", "vector3", in1=("vector3", "N_world"), in2=("float", tn)))))})
+    bb = f("crossproduct", "vector3", in1=("vector3", "N_world"), in2=("vector3", tt))
+    mx = f("multiply", "vector3", in1=("vector3", tt), in2=("float", f("multiply", in1=("float", s), in2=("float", f("cos", **{"in": ("float", phi)})))))
+    my = f("multiply", "vector3", in1=("vector3", bb), in2=("float", f("multiply", in1=("float", s), in2=("float", f("sin", **{"in": ("float", phi)})))))
+    mz = f("multiply", "vector3", in1=("vector3", "N_world"), in2=("float", c))
+    node("add", "sp_m", "vector3", in1=("vector3", ("node", f("add", "vector3", in1=("vector3", mx), in2=("vector3", my)))),
+         in2=("vector3", ("node", mz)))
+    v = f("multiply", "vector3", in1=("vector3", "V_world"), in2=("float", "-1"))      # towards the viewer
+    mv = f("dotproduct", in1=("vector3", "sp_m"), in2=("vector3", v))
+    nv = f("max", in1=("float", f("dotproduct", in1=("vector3", "N_world"), in2=("vector3", v))), in2=("float", "0.0001"))
+    mu_l = f("subtract", in1=("float", f("multiply", in1=("float", f("multiply", in1=("float", mv), in2=("float", c))), in2=("float", "2"))),
+             in2=("float", nv))
+
+    def lam(a2, mu):  # GGX Smith Λ(μ) = (sqrt(1 + α² (1/μ² − 1)) − 1) / 2
+        mu = f("max", in1=("float", mu), in2=("float", "0.0001"))
+        x = f("subtract", in1=("float", f("divide", in1=("float", "1"), in2=("float", f("multiply", in1=("float", mu), in2=("float", mu))))),
+              in2=("float", "1"))
+        r = f("sqrt", **{"in": ("float", f("add", in1=("float", f("multiply", in1=("float", x), in2=("float", num(a2)))), in2=("float", "1")))})
+        return f("multiply", in1=("float", f("subtract", in1=("float", r), in2=("float", "1"))), in2=("float", "0.5"))
+
+    a2k, a2g = float(sp["lobe_alpha"]) ** 2, float(sp["glint_alpha"]) ** 2
+    g2k = f("divide", in1=("float", "1"), in2=("float", f("add", in1=("float", f("add", in1=("float", lam(a2k, nv)), in2=("float", lam(a2k, mu_l)))),
+                                                           in2=("float", "1"))))
+    g2g = f("divide", in1=("float", "1"), in2=("float", f("add", in1=("float", f("multiply", in1=("float", lam(a2g, mv)), in2=("float", "2"))),
+                                                           in2=("float", "1"))))
+    cmax = f("max", in1=("float", c), in2=("float", "0.0001"))
+    den = f("multiply", in1=("float", f("multiply", in1=("float", cmax), in2=("float", nv))), in2=("float", g2g))
+    w = f("divide", in1=("float", f("multiply", in1=("float", g2k), in2=("float", mv))), in2=("float", den))
+    ok_v = f("ifgreater", value1=("float", mv), value2=("float", "0"), in1=("float", "1"), in2=("float", "0"))
+    ok_l = f("ifgreater", value1=("float", mu_l), value2=("float", "0"), in1=("float", ok_v), in2=("float", "0"))
+    ok = f("ifgreater", value1=("float", num(sp["occupancy"])), value2=("float", u3), in1=("float", ok_l), in2=("float", "0"))
+    gain = f("multiply", in1=("float", f("multiply", in1=("float", w), in2=("float", ok))),
+             in2=("float", num(float(sp["share"]) / float(sp["occupancy"]))))
+    return f("multiply", "color3", in1=("color3", colour), in2=("float", gain))
 
 
 def write_cpa_mtlx(path, image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str,

@@ -9,11 +9,15 @@ from pathlib import Path
 
 from flakedb.bsdf import open_bsdf
 import json
+import math
 
 from flakedb.export.blender import cpa_material_script, write_material_script
 from flakedb.export.cpa import fit_cpa, png16_bytes, table_image
 from flakedb.export.gltf import write_gltf
 from flakedb.export.materialx import cpa_mtlx_text, write_mtlx
+from flakedb.export.sparkle import design_from_recipe
+from flakedb.export.sparkle import node_inputs as sparkle_node_inputs
+from flakedb.paint.recipe import load_recipe
 from flakedb.export.openpbr import fit_openpbr
 from flakedb.export.usd import write_usda
 from flakedb.outputs import OutputPlan, check_file_name, sweep_stale
@@ -51,13 +55,17 @@ def export_openpbr(src, out_dir, name: str | None = None, progress=None) -> dict
     return {"fit": fit.to_dict(), "files": {kind: str(p) for kind, p in finals.items()}}
 
 
-def export_cpa(src, out_dir, name: str | None = None, progress=None) -> dict:
+def export_cpa(src, out_dir, name: str | None = None, progress=None, sparkle_recipe=None,
+               uv_metres: float = 1.0) -> dict:
     """Fit the angle-indexed material to ``src`` (:func:`flakedb.export.cpa.fit_cpa`: coat mirror,
     Lambert and GGX lobes whose colours are a table indexed by N·V) and write ``NAME.cpa.png`` (the
     colour table, 16-bit linear RGB, each row scaled to its maximum), ``NAME.cpa.mtlx`` (MaterialX
     graph of standard nodes reading that image by the relative name), ``NAME.cpa.blender.py``
     (Cycles / EEVEE node group; the table in float, packed: no file needed) and ``NAME.cpa.json``
-    (the fit: table, roughnesses, error) in ``out_dir``.  Returns {"fit": dict, "files": {kind: path}}."""
+    (the fit: table, roughnesses, error) in ``out_dir``.  With ``sparkle_recipe`` (the paint's recipe file)
+    the MaterialX graph and the node group carry the glint layer of :mod:`flakedb.export.sparkle`,
+    parameterised from the recipe's flakes by the texture model, for a UV map of ``uv_metres`` metres per unit;
+    the layer is in the fit's JSON under ``sparkle``.  Returns {"fit": dict, "files": {kind: path}}."""
     out_dir = Path(out_dir)
     option = "--name" if name is not None else "FILE's name (before its first '.'; choose one with --name)"
     name = Path(src).name.split(".")[0] if name is None else str(name)
@@ -70,16 +78,28 @@ def export_cpa(src, out_dir, name: str | None = None, progress=None) -> dict:
     for p in sweep_stale(out_dir):
         if progress:
             progress(f"note: removed {p}, a temporary entry left by an interrupted flakedb run")
+    if not (math.isfinite(float(uv_metres)) and float(uv_metres) > 0):
+        raise ValueError(f"--uv-metres {uv_metres}: the UV map's metres per UV unit must be a finite number > 0 "
+                         f"(1 when the UVs are in metres, 0.001 in millimetres)")
+    recipe = load_recipe(sparkle_recipe) if sparkle_recipe is not None else None
     b = open_bsdf(src)
     if progress:
         progress("fitting the angle-indexed colour table (hemisphere + E2194/E2539 geometries)")
     fit = fit_cpa(b, source=str(src))
     d = fit.to_dict()
+    nodes = None
+    if recipe is not None:
+        if progress:
+            progress(f"designing the glint layer from {sparkle_recipe}'s flakes (texture model)")
+        layer = design_from_recipe(fit.table, fit.alphas, recipe)
+        nodes = sparkle_node_inputs(layer, uv_metres)
+        d["sparkle"] = dict(layer.to_dict(), node_inputs=nodes)
     fit_json = json.dumps(d, separators=(",", ":"))
     px, scale = table_image(fit)
     texts = {"materialx": cpa_mtlx_text(finals["image"].name, scale, fit.alphas, fit.coat_ior, fit.n_table, name,
-                                        json.dumps({k: v for k, v in d.items() if k != "table"}, separators=(",", ":"))),
-             "blender": cpa_material_script(fit.table, fit.alphas, fit.coat_ior, name, fit_json),
+                                        json.dumps({k: v for k, v in d.items() if k != "table"}, separators=(",", ":")),
+                                        sparkle=nodes),
+             "blender": cpa_material_script(fit.table, fit.alphas, fit.coat_ior, name, fit_json, sparkle=nodes),
              "fit": json.dumps(d, indent=1)}
     out_dir.mkdir(parents=True, exist_ok=True)
     with plan.staged() as stage:  # the four files land together or not at all
