@@ -1244,13 +1244,19 @@ def _sky_terms(stack, f, view_deg):
     Tl_y = np.einsum("c,cmz->mz", y, amp * T_l) / np.maximum(yamp, 1e-300)
     B2 = np.einsum("m,mz->z", wm / np.maximum(fore, 1e-12), yamp**2 * np.exp(-lo_l * (1 - Tl_y**2)))
     # a crossed flake's luminance transmittance on the view path (weighted by the light it dims)
-    T_vy = float(np.sum(np.einsum("c,cmz,m->cz", y, amp, wm) * T_v) / max(float(np.sum(np.einsum("c,cmz,m->cz", y, amp, wm))), 1e-300))
+    # (a flake above that covers the ray and also lies on the light path, λ_b of λ_v, dims the light twice)
+    ya_mz = np.einsum("c,cmz->mz", y, amp) * wm[:, None]
+    T_vy = float(np.sum(np.einsum("c,cmz,m->cz", y, amp, wm) * T_v) / max(float(np.sum(ya_mz)), 1e-300))
+    T_ly = float(np.sum(np.einsum("c,cmz,m->mz", y, amp * T_l, wm)) / max(float(np.sum(ya_mz)), 1e-300))
+    f_b = float(np.sum(ya_mz * lam_b) / max(float(np.sum(ya_mz * lam_v[None, :])), 1e-300))
+    T_vy *= 1.0 - min(f_b, 1.0) * (1.0 - T_ly)
     P_v = float(projected_area(np.array([mu_vb]), f.alpha, distribution=f.distribution)[0]) / mu_vb
     return Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v)
 
 
-#: Least uniform depth cells and the offset nodes of the mosaic's covariance (:func:`mosaic_variance`).
-N_MOSAIC_DEPTH, N_MOSAIC_OFFSET = 96, 48
+#: Least uniform depth cells, and the offset nodes per interval between kinks, of the mosaic's covariance
+#: (:func:`mosaic_variance`).
+N_MOSAIC_DEPTH, N_MOSAIC_OFFSET = 96, 8
 
 
 @lru_cache(maxsize=64)
@@ -1296,18 +1302,23 @@ def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um):
     lam = rho * h * A_e * (1.0 - T)
     e1 = b1 * np.exp(-lam)
     mean = float(e1.sum())
+    # offsets: C(s) = 0 beyond the largest flake, K̄(s) = 0 beyond √2 p; Gauss rules between the kinks (p, where
+    # K̄ changes form, and each diameter node, where its covariogram ends)
+    p = float(spot_um)
+    s_end = min(float(Dn.max()), np.sqrt(2.0) * p)
+    br = np.unique(np.concatenate([[0.0, s_end], [p], Dn]))
+    br = br[br <= s_end]
     x, wx = leggauss(N_MOSAIC_OFFSET)
-    D_top = float(Dn.max())
-    ss = 0.5 * D_top * (x + 1.0)
-    ws = 0.5 * D_top * wx
+    lo_, hi_ = br[:-1, None], br[1:, None]
+    ss = (0.5 * (hi_ - lo_) * (x + 1.0) + lo_).ravel()
+    ws = (0.5 * (hi_ - lo_) * wx).ravel()
     rr = 0.5 * Dn[:, None]
     L = kappa * (Dw @ _lens_area_sq(np.broadcast_to(ss, (Dn.size, ss.size)), ss * ss, rr, rr, equal=True))  # (ns,)
     lam_b = rho * h[None, :] * (2.0 * (A_e - L[:, None]) * (1.0 - T) + L[:, None] * (1.0 - T * T))  # (ns, nu)
-    one = rho * L * (np.exp(-lam_b) @ b2)
+    one = rho * (L / kappa) * (np.exp(-lam_b) @ b2)  # flakes covering both, ρκ⟨lens⟩, × E_hit[b²] = B2/κ
     G = np.cumsum(e1[::-1])[::-1] - 0.5 * e1  # Σ_{l ≥ k} (½ on the diagonal) B1_l e^{−Λ_l}
     two = 2.0 * (1.0 - (L / A_e) * (1.0 - T)) * (np.exp(-lam_b + lam[None, :]) @ (b1 * G))
     cov = one + two - mean * mean
-    p = float(spot_um)
     var = float(np.sum(ws * ss * _square_ring(p, ss.tobytes()) * cov)) / p**4
     return mean, var
 

@@ -446,3 +446,25 @@ def test_partial_occlusion_keeps_the_paths_mean_transmission(correlated, light):
     assert abs(got - wz @ want) <= 4.0 * se + 0.005, (got, wz @ want, se)
     # partly covered flakes exist: the draws are not all-or-nothing, as a centre decision makes them
     assert np.mean((occ > 0.05) & (occ < 0.95)) > 0.2
+
+
+def test_mosaic_of_a_point_is_the_topmost_flake():
+    """A spot far smaller than the flakes (0.05 µm against 20 µm) is one ray: its variance is E[b_top²] − E[b_top]²
+    of the topmost flake (opaque flakes), P(top in dz) = ρA_e e^{−ρA_e h} dz, here summed independently on the
+    layer's own depth nodes; a spot far larger than the flakes (2 and 8 mm) has a variance falling as 1/p².
+    (Before the offsets were split at the kinks, the 0.05 µm spot read 0.45× the point's variance.)"""
+    st = stack_of(species="metallic", vf=0.08, alpha=0.2, D=20.0)
+    f = st.flakes[0]
+    _, _, z, wz, _, _, _, (B1, B2, T, kappa) = tm._sky_terms(st, f, 0.0)
+    assert T == 0.0
+    rho, A_e = f.number_density_per_um3, kappa * f.mean_area_um2()
+    h = z - f.z_top_um
+    top = rho * A_e * np.exp(-rho * A_e * h) * f.thickness_um * wz  # P(the ray's top flake at each node)
+    m1 = np.sum(top * B1 * f.mean_area_um2() / A_e)  # E_hit[b] = B1 ⟨A⟩/A_e
+    m2 = np.sum(top * B2 / kappa)  # E_hit[b²] = B2/κ
+    mean, var = tm.mosaic_variance(f, z, B1, B2, T, kappa, 0.05)
+    assert mean == pytest.approx(m1, rel=2e-3)
+    assert var == pytest.approx(m2 - m1 * m1, rel=1e-2)
+    _, v1 = tm.mosaic_variance(f, z, B1, B2, T, kappa, 2000.0)
+    _, v4 = tm.mosaic_variance(f, z, B1, B2, T, kappa, 8000.0)
+    assert v4 == pytest.approx(v1 / 16.0, rel=1e-2)  # K̄ = 2πp² − 8ps + …: 0.6 % at s = 10 µm, p = 2 mm
