@@ -406,7 +406,7 @@ def test_glint_depth_integral_converges_through_the_threshold(light, monkeypatch
     """Each crossing combination glints only down to the depth where its transmission falls below
     GLINT_FRACTION, and the count jumps to 0 there (a flat-topped beam): integrated over the whole layer
     by one Gauss rule the count converged as 1/N (the 3-species benchmark paint's glints at 75°: 11 % off
-    with 24 nodes).  With the rule cut at that depth (flakedb.texture.model._glint_paths), 16 and 64 depth
+    with 24 nodes).  With the rule cut at that depth (flakedb.texture.model._glint_paths), 12 and 48 depth
     nodes give the same indices to 2e-3, for a strongly absorbing paint (cadmium yellow 10 % beside the flakes):
     1e-4 with a smooth beam; the beam's level sets now come from a grid (flakedb.texture.model.BEAM_GRID), so the
     region above a threshold grows by whole cells (measured 8.7e-4)."""
@@ -415,10 +415,11 @@ def test_glint_depth_integral_converges_through_the_threshold(light, monkeypatch
 
     def at(n):
         monkeypatch.setattr(tm, "N_DEPTH", n)
+        monkeypatch.setattr(tm, "N_DEPTH_OCCLUSION", n)
         monkeypatch.setattr(tm._depth_nodes, "__defaults__", (n,))
         return tm.sparkle_indices(s, obs, light)
 
-    a, b = at(16), at(64)
+    a, b = at(12), at(48)
     assert a["glints_per_mm2"] > 0
     for k in ("glints_per_mm2", "sparkle_area_fraction", "sparkle_intensity", "flake_luminance_factor"):
         assert a[k] == pytest.approx(b[k], rel=2e-3), k
