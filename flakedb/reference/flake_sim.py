@@ -158,7 +158,7 @@ def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, la
     cos_a = np.cos(r_a)
     K = us.shape[0]
     C = p_ch.shape[0]
-    acc = 0.0
+    acc = np.zeros(C)
     for k in range(K):
         # source point: uniform in the cone of half-angle r_s (small-angle disc on the unit sphere)
         u1 = (us[k, 0] + rot1) % 1.0
@@ -212,14 +212,232 @@ def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, la
         on = np.sqrt(ox2 * ox2 + oy2 * oy2 + oz2 * oz2)
         ax, ay, az, ok = _refract_up_to_air(ox2 / on, oy2 / on, oz2 / on, eta)
         if ok and ax * vx + ay * vy + az * vz >= cos_a:
-            acc += wt_ch[ch]
+            acc[ch] += wt_ch[ch]
     return acc / K
+
+
+@numba.njit(cache=True)
+def _area_transmission(i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab, cell_start, cell_items, ncell, cell, rmax,
+                       absz, absd, abss, blx, bly, blz, bvx, bvy, bvz, disc):
+    """Per channel, the mean over points of flake i's tilted disc (``disc``: (Q, 2) points of the unit disc) of
+    the light path's × the view path's transmission from that point (:func:`_path_transmission`): the flakes
+    above and the absorbers crossed, per point, so a partly covered flake is dimmed by the share covered
+    (area hiding).  One point at (0, 0): the path from the centre only."""
+    mx, my, mz = NX[i], NY[i], NZ[i]
+    if abs(mz) < 0.9:
+        ax, ay, az = 0.0, 0.0, 1.0
+    else:
+        ax, ay, az = 1.0, 0.0, 0.0
+    e1x, e1y, e1z = ay * mz - az * my, az * mx - ax * mz, ax * my - ay * mx
+    n1 = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    e1x, e1y, e1z = e1x / n1, e1y / n1, e1z / n1
+    e2x, e2y, e2z = my * e1z - mz * e1y, mz * e1x - mx * e1z, mx * e1y - my * e1x
+    C = Ttab.shape[1]
+    acc = np.zeros(C)
+    Q = disc.shape[0]
+    for q in range(Q):
+        dx = RAD[i] * (disc[q, 0] * e1x + disc[q, 1] * e2x)
+        dy = RAD[i] * (disc[q, 0] * e1y + disc[q, 1] * e2y)
+        dz = RAD[i] * (disc[q, 0] * e1z + disc[q, 1] * e2z)  # up
+        z0 = max(Z[i] - dz, 1e-9)
+        tl = _path_transmission(X[i] + dx, Y[i] + dy, z0, blx, bly, blz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
+                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
+        tv = _path_transmission(X[i] + dx, Y[i] + dy, z0, bvx, bvy, bvz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
+                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
+        for ch in range(C):
+            acc[ch] += tl[ch] * tv[ch]
+    return acc / Q
+
+
+@numba.njit(cache=True)
+def _airy_density(airy_x, airy_pdf, x):
+    """[2 J1(x)/x]² from the table (0 beyond it)."""
+    n = airy_x.shape[0] - 1
+    step = airy_x[1] - airy_x[0]
+    u = x / step
+    if u >= n:
+        return 0.0
+    j = int(u)
+    t = u - j
+    return airy_pdf[j] * (1.0 - t) + airy_pdf[j + 1] * t
+
+
+@numba.njit(cache=True)
+def _collected_density(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, p_ch, wt_ch, us, ua, uc,
+                       rot1, rot2, airy_x, airy_pdf):
+    """The same mean as :func:`_collected_fraction` by a second estimator, for cones that are not wide against
+    the flake's diffraction (a person's pupil): pairs of a source point and an aperture point (air, uniform in
+    their cones), the source point refracted and mirrored about m, the aperture point refracted into the
+    binder, and the flake's Fraunhofer density (:func:`airy_pattern`'s (A c/λ²)[2 J1(x)/x]² of its projection
+    seen along the mirrored ray, D c along the tilt × D) evaluated at their offset, × Ω_a μ_a/(η² μ_a') (the
+    aperture's solid angle mapped into the binder); a channel drawn per pair with probability p_ch.  Both
+    estimators return the per-channel sums (C,) (× wt_ch), so one pass serves any path transmissions."""
+    ex, ey, ez = lz, 0.0, -lx
+    nrm = np.sqrt(ex * ex + ey * ey + ez * ez)
+    ex, ey, ez = ex / nrm, ey / nrm, ez / nrm
+    fx, fy, fz = ly * ez - lz * ey, lz * ex - lx * ez, lx * ey - ly * ex
+    gx, gy, gz = vz, 0.0, -vx
+    nrm = np.sqrt(gx * gx + gy * gy + gz * gz)
+    gx, gy, gz = gx / nrm, gy / nrm, gz / nrm
+    hx, hy, hz = vy * gz - vz * gy, vz * gx - vx * gz, vx * gy - vy * gx
+    om_a = 2.0 * np.pi * (1.0 - np.cos(r_a))
+    K = us.shape[0]
+    C = p_ch.shape[0]
+    acc = np.zeros(C)
+    for k in range(K):
+        u1 = (us[k, 0] + rot1) % 1.0
+        u2 = (us[k, 1] + rot2) % 1.0
+        cth = 1.0 - u1 * (1.0 - np.cos(r_s))
+        sth = np.sqrt(max(0.0, 1.0 - cth * cth))
+        ph = 2.0 * np.pi * u2
+        sx = cth * lx + sth * (np.cos(ph) * ex + np.sin(ph) * fx)
+        sy = cth * ly + sth * (np.cos(ph) * ey + np.sin(ph) * fy)
+        sz = cth * lz + sth * (np.cos(ph) * ez + np.sin(ph) * fz)
+        bx, by = sx / eta, sy / eta
+        bz = np.sqrt(1.0 - bx * bx - by * by)
+        dm = bx * mx + by * my + bz * mz
+        ox, oy, oz = 2.0 * dm * mx - bx, 2.0 * dm * my - by, 2.0 * dm * mz - bz
+        # aperture point (air), refracted into the binder
+        w1 = (ua[k, 0] + rot2) % 1.0
+        w2 = (ua[k, 1] + rot1) % 1.0
+        cta = 1.0 - w1 * (1.0 - np.cos(r_a))
+        sta = np.sqrt(max(0.0, 1.0 - cta * cta))
+        pa = 2.0 * np.pi * w2
+        ax = cta * vx + sta * (np.cos(pa) * gx + np.sin(pa) * hx)
+        ay = cta * vy + sta * (np.cos(pa) * gy + np.sin(pa) * hy)
+        az = cta * vz + sta * (np.cos(pa) * gz + np.sin(pa) * hz)
+        qx, qy = ax / eta, ay / eta
+        qz = np.sqrt(1.0 - qx * qx - qy * qy)
+        jac = om_a * az / (eta * eta * qz)
+        # offset of q from o in o's tangent plane, along the tilt t and across it k
+        tx, ty, tz = mx - dm * ox, my - dm * oy, mz - dm * oz
+        tn = np.sqrt(tx * tx + ty * ty + tz * tz)
+        if tn < 1e-12:
+            if abs(oz) < 0.9:
+                tx, ty, tz = -oy, ox, 0.0
+            else:
+                tx, ty, tz = 0.0, -oz, oy
+            tn = np.sqrt(tx * tx + ty * ty + tz * tz)
+        tx, ty, tz = tx / tn, ty / tn, tz / tn
+        kx, ky, kz = oy * tz - oz * ty, oz * tx - ox * tz, ox * ty - oy * tx
+        dq = qx * ox + qy * oy + qz * oz
+        if dq <= 0.0:
+            continue
+        th_t = (qx * tx + qy * ty + qz * tz) / dq  # gnomonic coordinates around o
+        th_k = (qx * kx + qy * ky + qz * kz) / dq
+        c = max(abs(dm), 1e-6)
+        rr = np.sqrt((c * th_t) ** 2 + th_k * th_k)
+        uch = (uc[k] + rot1 + rot2) % 1.0
+        ch = 0
+        cum = p_ch[0]
+        while uch > cum and ch < C - 1:
+            ch += 1
+            cum += p_ch[ch]
+        lam = lam_ch[ch]
+        dens = 0.25 * np.pi * D * D * c / (lam * lam) * _airy_density(airy_x, airy_pdf, np.pi * D * rr / lam)
+        acc[ch] += wt_ch[ch] * dens * jac
+    return acc / K
+
+
+@numba.njit(cache=True)
+def _sky_rays(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, ncell, cell, rmax,
+              absz, absd, abss, eta, vx, vy, vz, t_out, L, nsub, npx, zmax, nw):
+    """The uniform sky's luminance factor of every pixel rendered per ray (npx, npx): ``nsub``² rays per pixel
+    (a regular grid) go down along the view; every flake disc a ray meets, in depth order, adds
+    t_in t_out Σ_c y_c R_c(|v'·m|) V_c T_l,c e^{−τ_v}, V the transmission of the flakes the ray met above it
+    (0 for opaque flakes: the topmost flake alone), T_l the path from the hit point along the mirrored
+    direction toward the sky (:func:`_path_transmission`: flakes and absorbers), τ_v the absorbers along the
+    view (0 where the mirrored direction points down or is totally internally reflected at the coat)."""
+    bvx, bvy = vx / eta, vy / eta
+    bvz = np.sqrt(1.0 - bvx * bvx - bvy * bvy)
+    C = y.shape[0]
+    p = L / npx
+    step = p / nsub
+    img = np.zeros((nw, nw))  # the window of the first nw × nw pixels
+    MAXH = 256
+    hd = np.zeros(MAXH)
+    hi = np.zeros(MAXH, dtype=np.int64)
+    sx, sy = bvx / bvz, bvy / bvz  # lateral drift per µm of depth (the ray goes down: x − depth sx)
+    for a in range(nw * nsub):
+        for b in range(nw * nsub):
+            x0 = (a + 0.5) * step
+            y0 = (b + 0.5) * step
+            xe, ye = x0 - zmax * sx, y0 - zmax * sy
+            ix0 = int(np.floor((min(x0, xe) - rmax) / cell))
+            ix1 = int(np.floor((max(x0, xe) + rmax) / cell))
+            iy0 = int(np.floor((min(y0, ye) - rmax) / cell))
+            iy1 = int(np.floor((max(y0, ye) + rmax) / cell))
+            nh = 0
+            for ix in range(ix0, ix1 + 1):
+                for iy in range(iy0, iy1 + 1):
+                    cx, cy = ix % ncell, iy % ncell
+                    shx = (ix - cx) * cell
+                    shy = (iy - cy) * cell
+                    k = cx * ncell + cy
+                    for q in range(cell_start[k], cell_start[k + 1]):
+                        j = cell_items[q]
+                        px, py = X[j] + shx, Y[j] + shy
+                        # ray point at depth t: (x0 − t sx, y0 − t sy); plane m·(P − C) = 0, heights up = −depth
+                        den = NZ[j] + NX[j] * sx + NY[j] * sy
+                        num = NX[j] * (x0 - px) + NY[j] * (y0 - py) + NZ[j] * Z[j]
+                        if abs(den) < 1e-12:
+                            continue
+                        t = num / den  # depth of the hit: m·((x0 − t sx − px), (y0 − t sy − py), (−t + Z)) = 0
+                        if t <= 0.0:
+                            continue
+                        hx, hy, hz = x0 - t * sx - px, y0 - t * sy - py, Z[j] - t
+                        if hx * hx + hy * hy + hz * hz <= RAD[j] * RAD[j] and nh < MAXH:
+                            hd[nh] = t
+                            hi[nh] = j
+                            nh += 1
+            # depth order (insertion sort: few hits)
+            for u in range(1, nh):
+                dv, iv = hd[u], hi[u]
+                w = u - 1
+                while w >= 0 and hd[w] > dv:
+                    hd[w + 1] = hd[w]
+                    hi[w + 1] = hi[w]
+                    w -= 1
+                hd[w + 1] = dv
+                hi[w + 1] = iv
+            V = np.ones(C)
+            lum = 0.0
+            for u in range(nh):
+                j = hi[u]
+                t = hd[u]
+                mx, my, mz = NX[j], NY[j], NZ[j]
+                cv = bvx * mx + bvy * my + bvz * mz
+                if cv < 0.0:
+                    mx, my, mz, cv = -mx, -my, -mz, -cv
+                lx, ly, lz = 2.0 * cv * mx - bvx, 2.0 * cv * my - bvy, 2.0 * cv * mz - bvz
+                s2 = (1.0 - lz * lz) * eta * eta
+                if lz > 1e-6 and s2 < 1.0:
+                    t_in = 1.0 - _fresnel_unpolarised(np.sqrt(1.0 - s2), 1.0, eta)
+                    R = _lookup(Rtab[SP[j]], cv)
+                    px, py = x0 - t * sx, y0 - t * sy
+                    tl = _path_transmission(px, py, t, lx, ly, lz, j, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
+                                            cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
+                    for ch in range(C):
+                        att = 1.0
+                        for aa in range(absz.shape[0]):
+                            seg = max(0.0, min(t, absz[aa] + absd[aa]) - max(0.0, absz[aa]))
+                            att *= np.exp(-abss[aa, ch] * seg / bvz)
+                        lum += t_in * t_out * y[ch] * R[ch] * tl[ch] * V[ch] * att
+                Tj = _lookup(Ttab[SP[j]], cv)
+                vmax = 0.0
+                for ch in range(C):
+                    V[ch] *= Tj[ch]
+                    vmax = max(vmax, V[ch])
+                if vmax < 1e-7:
+                    break
+            img[a // nsub, b // nsub] += lum
+    return img / (nsub * nsub)
 
 
 @numba.njit(cache=True)
 def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_items, ncell, cell, rmax,
                  absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, us, ud, uc, rots,
-                 cos_cut, t_in, t_out, mu_lb, mu_v, om_a, airy_cdf, airy_x):
+                 cos_cut, t_in, t_out, mu_lb, mu_v, om_a, airy_cdf, airy_x, airy_pdf, disc, density, beta_ref_half):
     """Per flake: β (luminance factor), β_peak of its diameter, and whether it was examined.  Each flake's
     colours: channels drawn with probability ∝ y R(c) and weighted by their path transmissions, so the
     luminance Σ y R T_l T_v f is estimated per channel, each with its own wavelength's pattern."""
@@ -237,6 +455,7 @@ def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_i
     hx, hy, hz = hx / hn, hy / hn, hz / hn
     c_h = blx * hx + bly * hy + blz * hz
     ones = np.ones(C)
+    centre = np.zeros((1, 2))
     for i in range(N):
         D = 2.0 * RAD[i]
         if NX[i] * hx + NY[i] * hy + NZ[i] * hz < cos_cut[i]:
@@ -246,8 +465,12 @@ def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_i
         RYh = yRh.sum()
         if RYh <= 0.0:
             continue
-        f0 = _collected_fraction(hx, hy, hz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, yRh / RYh, ones,
-                                 us, ud, uc, rots[i, 0], rots[i, 1], airy_cdf, airy_x)
+        if density:
+            f0 = _collected_density(hx, hy, hz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, yRh / RYh, ones,
+                                    us, ud, uc, rots[i, 0], rots[i, 1], airy_x, airy_pdf).sum()
+        else:
+            f0 = _collected_fraction(hx, hy, hz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, yRh / RYh, ones,
+                                     us, ud, uc, rots[i, 0], rots[i, 1], airy_cdf, airy_x).sum()
         peak[i] = np.pi * t_in * t_out * RYh * f0 * c_h / (mu_lb * mu_v * om_a)
         c = abs(blx * NX[i] + bly * NY[i] + blz * NZ[i])
         R = _lookup(Rtab[SP[i]], c)
@@ -255,13 +478,19 @@ def _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, cell_start, cell_i
         RY = yR.sum()
         if RY <= 0.0:
             continue
-        tl = _path_transmission(X[i], Y[i], Z[i], blx, bly, blz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
-                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
-        tv = _path_transmission(X[i], Y[i], Z[i], bvx, bvy, bvz, i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab,
-                                cell_start, cell_items, ncell, cell, rmax, absz, absd, abss)
-        f = _collected_fraction(NX[i], NY[i], NZ[i], D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, yR / RY,
-                                tl * tv, us, ud, uc, rots[i, 0], rots[i, 1], airy_cdf, airy_x)
-        beta[i] = np.pi * t_in * t_out * RY * f * c / (mu_lb * mu_v * om_a)
+        if density:
+            acc = _collected_density(NX[i], NY[i], NZ[i], D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, yR / RY,
+                                     ones, us, ud, uc, rots[i, 0], rots[i, 1], airy_x, airy_pdf)
+        else:
+            acc = _collected_fraction(NX[i], NY[i], NZ[i], D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, yR / RY,
+                                      ones, us, ud, uc, rots[i, 0], rots[i, 1], airy_cdf, airy_x)
+        k = np.pi * t_in * t_out * RY * c / (mu_lb * mu_v * om_a)
+        # hiding only dims: a flake below both thresholds unhidden is no glint, and its mean needs no area
+        # average (over the placements the centre's transmission has the area mean's expectation)
+        pts = disc if k * acc.sum() >= min(0.5 * peak[i], beta_ref_half) else centre
+        wt = _area_transmission(i, X, Y, Z, NX, NY, NZ, RAD, SP, Ttab, cell_start, cell_items, ncell, cell, rmax,
+                                absz, absd, abss, blx, bly, blz, bvx, bvy, bvz, pts)
+        beta[i] = k * (acc * wt).sum()
     return beta, peak
 
 
@@ -424,11 +653,22 @@ def _cells(X, Y, L, cell_target):
 
 def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_rad, source_half_angle_deg,
              view_deg, light_deg=(), L_um=2000.0, seed=0, n_samples=256, diffuse=True,
-             wavelength_nm=555.0) -> dict:
+             wavelength_nm=555.0, hiding="area", hiding_points=64, estimator="auto", sky="rays", ray_um=1.0,
+             sky_pixels=None) -> dict:
     """Simulate one patch (module docstring).  ``species``: dicts as :func:`place_flakes` plus c, R
     (C, nc), T (C, nc); ``absorbers``: dicts z_top_um, thickness_um, sigma_per_um (C,).  Returns
     {"flakes": N, "area_mm2", "directional": [{light_deg, glints, glints_per_mm2, sigma_glints_per_mm2,
-    sparkle_area_fraction, sparkle_intensity, ...}], "diffuse": {graininess, sigma, mean}}."""
+    sparkle_area_fraction, sparkle_intensity, ...}], "diffuse": {graininess, sigma, mean}}.
+
+    ``hiding``: "area" (the paths from ``hiding_points`` points of each flake's disc, so a partly covered flake is
+    dimmed by the share covered) or "centre" (from its centre only: the shortcut the issue found, kept to
+    measure it).  ``estimator``: "hit" (:func:`_collected_fraction`, source and diffraction sampled, the aperture
+    tested), "density" (:func:`_collected_density`, source and aperture sampled, the Airy density evaluated)
+    or "auto" (density where the aperture's radius in the binder is below the 16 µm flake's Airy half maximum at
+    555 nm: a person's pupil, where hit-or-miss has almost no hits).  ``sky``: "rays" (:func:`_sky_rays`, the
+    topmost flake per ray, rays ``ray_um`` apart, rounded to a whole number per pixel) or "deposit" (each
+    flake's footprint added to the pixels, overlaps additive: the old shortcut); ``sky_pixels``: the rays render
+    only the first sky_pixels × sky_pixels pixels of the patch (default all)."""
     rng = np.random.default_rng(seed)
     y = np.asarray(y_weights, float)
     X, Y, Z, NX, NY, NZ, RAD, SP = place_flakes(species, L_um, rng)
@@ -452,6 +692,11 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
     lam_b = float(np.max(wavelength_nm)) * 1e-3 / eta  # the widest pattern (the candidates' reach)
     lam_ch = np.broadcast_to(np.asarray(wavelength_nm, float), y.shape) * 1e-3 / eta  # per channel, binder
     airy_cdf = _airy_cdf()
+    xs = np.where(_AIRY_X > 0, _AIRY_X, 1.0)
+    airy_pdf = np.where(_AIRY_X > 0, (2.0 * j1(xs) / xs) ** 2, 1.0)
+    disc = _disc_points(int(hiding_points)) if hiding == "area" else np.zeros((1, 2))
+    if estimator == "auto":
+        estimator = "density" if aperture_half_angle_rad / eta < 0.514 * 0.555 / eta / 16.0 else "hit"
     area_mm2 = (L_um * 1e-3) ** 2
     out = {"flakes": int(X.size), "area_mm2": area_mm2, "pixels": npx * npx, "directional": []}
     us, ud = _stratified(n_samples, rng), _stratified(n_samples, rng)
@@ -466,27 +711,34 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
         lx, ly, lz = np.sin(th), 0.0, np.cos(th)
         mu_lb = np.sqrt(1.0 - (np.sin(th) / eta) ** 2)
         t_in = 1.0 - float(_fresnel_unpolarised(np.cos(th), 1.0, eta))
-        # candidates: normals within a generous cone of h' (3× the reach of beam + aperture, in normal angle)
-        r_sb = r_s / eta
-        reach = 3.0 * (r_sb + 3.0 * lam_b / (2.0 * RAD) + aperture_half_angle_rad / eta) + 1e-3
-        cos_cut = np.cos(np.minimum(reach, np.pi / 2))
-        rots = rng.random((X.size, 2))
-        beta, peak = _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
-                                  absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, aperture_half_angle_rad,
-                                  lam_ch, us, ud, uc, rots, cos_cut, t_in, t_out, mu_lb, mu_v, om_a, airy_cdf, _AIRY_X)
-        glint = (peak > 0) & (beta >= 0.5 * peak)
-        n = int(glint.sum())
-        A = np.pi * RAD**2
-        bpx = beta[glint] * _brightest_fill(X, Y, RAD, glint, p, _disc_points(1024))[glint]
         # the fixed threshold: half the peak of an aligned, unattenuated R = 1 flake of 16 µm at 555 nm
         blz = np.sqrt(1.0 - (lx / eta) ** 2)
         hx, hz = lx / eta + vx / eta, blz + np.sqrt(1.0 - (vx / eta) ** 2)
         hn = np.hypot(hx, hz)
         c_h = (lx / eta * hx + blz * hz) / hn
-        f_ref = _collected_fraction(hx / hn, 0.0, hz / hn, 16.0, eta, lx, ly, lz, vx, vy, vz, r_s,
-                                    aperture_half_angle_rad, np.array([0.555 / eta]), np.ones(1), np.ones(1),
-                                    us_ref, ud_ref, uc_ref, 0.0, 0.0, airy_cdf, _AIRY_X)
+        if estimator == "density":
+            f_ref = _collected_density(hx / hn, 0.0, hz / hn, 16.0, eta, lx, ly, lz, vx, vy, vz, r_s,
+                                       aperture_half_angle_rad, np.array([0.555 / eta]), np.ones(1), np.ones(1),
+                                       us_ref, ud_ref, uc_ref, 0.0, 0.0, _AIRY_X, airy_pdf).sum()
+        else:
+            f_ref = _collected_fraction(hx / hn, 0.0, hz / hn, 16.0, eta, lx, ly, lz, vx, vy, vz, r_s,
+                                        aperture_half_angle_rad, np.array([0.555 / eta]), np.ones(1), np.ones(1),
+                                        us_ref, ud_ref, uc_ref, 0.0, 0.0, airy_cdf, _AIRY_X).sum()
         beta_ref = np.pi * t_in * t_out * f_ref * c_h / (mu_lb * mu_v * om_a)
+        # candidates: normals within reach of h': beam offsets up to the source + aperture + 6 λ'/D (the Airy
+        # pattern there is 4e-4 of its peak), halved (the half-vector map), ×1.5 margin, over the flake cosine
+        r_sb = r_s / eta
+        reach = 0.75 * (r_sb + aperture_half_angle_rad / eta + 6.0 * lam_b / (2.0 * RAD)) / c_h + 1e-3
+        cos_cut = np.cos(np.minimum(reach, np.pi / 2))
+        rots = rng.random((X.size, 2))
+        beta, peak = _directional(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
+                                  absz, absd, abss, eta, lx, ly, lz, vx, vy, vz, r_s, aperture_half_angle_rad,
+                                  lam_ch, us, ud, uc, rots, cos_cut, t_in, t_out, mu_lb, mu_v, om_a, airy_cdf, _AIRY_X,
+                                  airy_pdf, disc, estimator == "density", 0.5 * beta_ref)
+        glint = (peak > 0) & (beta >= 0.5 * peak)
+        n = int(glint.sum())
+        A = np.pi * RAD**2
+        bpx = beta[glint] * _brightest_fill(X, Y, RAD, glint, p, _disc_points(1024))[glint]
         n_fixed = int(np.sum(beta >= 0.5 * beta_ref))
         lit = _lit(X, Y, RAD, glint, p, npx, L_um)
         out["directional"].append({
@@ -503,11 +755,17 @@ def simulate(eta, y_weights, species, absorbers, spot_um, aperture_half_angle_ra
             "peak_luminance_factor_max": float(peak.max()) if peak.size else 0.0,
         })
     if diffuse:
-        b = _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
-                 absz, absd, abss, eta, vx, vy, vz, t_out)
         bvx, bvy = vx / eta, vy / eta
-        img = _deposit(X, Y, Z, NX, NY, NZ, RAD, b, p, npx, L_um, _disc_points(64), bvx, bvy,
-                       np.sqrt(1.0 - bvx * bvx - bvy * bvy))
+        if sky == "rays":
+            zmax = max([s["z_top_um"] + s["thickness_um"] for s in species], default=0.0) + rmax
+            img = _sky_rays(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
+                            absz, absd, abss, eta, vx, vy, vz, t_out, L_um, max(1, int(round(p / ray_um))), npx, zmax,
+                            min(npx, int(sky_pixels or npx)))
+        else:
+            b = _sky(X, Y, Z, NX, NY, NZ, RAD, SP, Rtab, Ttab, y, start, items, ncell, cell, rmax,
+                     absz, absd, abss, eta, vx, vy, vz, t_out)
+            img = _deposit(X, Y, Z, NX, NY, NZ, RAD, b, p, npx, L_um, _disc_points(64), bvx, bvy,
+                           np.sqrt(1.0 - bvx * bvx - bvy * bvy))
         v = img.ravel()
         m, sd = v.mean(), v.std(ddof=1)
         kurt = np.mean((v - m) ** 4) / max(sd**4, 1e-300)

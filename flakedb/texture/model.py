@@ -69,12 +69,15 @@ N_DIAMETER, N_DEPTH = 12, 16
 N_TILT, N_AZIMUTH = 12, 12
 #: Depth nodes of the graininess integrals.
 N_DEPTH_SKY = 16
-#: Whether, for the glints under a directional source, a flake crossed by both the light's and the view's path
-#: hides the two together (docs/texture.md eq. S4, the opposition effect of hiding) or, as in the solver's
-#: radiative transfer (paper eq. 2: extinction independent along each path), twice.  False: the glints are the
-#: BSDF's single-flake term split into flakes, so their mean is that term (previews and exports keep the mean).
-#: True raised metallic silver's glint flux to 1.66× the BSDF's single-flake term at 15° (1.57× at 45°).
-CORRELATED_PATHS = False
+#: Whether, for the glints under a directional source (counts, intensity, area), a flake crossed by both the
+#: light's and the view's path hides the two together (docs/texture.md §3.3, the opposition effect of hiding), as
+#: in a layer of discs, or, as in the solver's radiative transfer (paper eq. 2), twice.  True (issue 36): the
+#: counts are what a camera counts; with False they were 35 % low at 8 % metallic against the discrete-flake
+#: reference.  The mean keeps the BSDF's paths (:data:`CORRELATED_MEAN`); ``hot_spot_factor`` reports the ratio.
+CORRELATED_PATHS = True
+#: The same for ``flake_luminance_factor``, the mean of all flakes' mirror reflections: False, the BSDF's
+#: single-flake term (paper eq. 2), so previews and exports that swap it for glints keep the BSDF's mean.
+CORRELATED_MEAN = False
 #: The same for the flakes under the uniform sky (graininess).  True: the graininess is a ratio to the paint's
 #: mean, which the composed BSDF gives, and no preview draws it, so it keeps the geometry of discs (the
 #: independent paths put metallic 8 % graininess at 0.17 against the simulation's 0.51; docs/texture.md §4).
@@ -632,8 +635,124 @@ def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v, combos):
     return w, _poisson_each(i, lam_l) * _poisson_each(j, lam_v) * _poisson_each(b, lam_b)
 
 
-#: Uniform depths at which :func:`_glint_paths` finds where each crossing combination stops glinting.
+#: Obstacle configurations and points per flake disc of the partial-occlusion distribution (:func:`_occlusion`).
+N_OCCLUSION, N_OCCLUSION_POINTS = 192, 16
+#: Flake radii at which the occlusion is drawn (log-spaced over the diameter nodes; linear in ln r between).
+N_OCCLUSION_RADII = 4
+#: Seed of the occlusion configurations: common random numbers for every depth, diameter and geometry, so the
+#: indices are deterministic and smooth in every input.
+OCCLUSION_SEED = 36
+
+
+#: Most flakes above one flake's bounding cylinder the occlusion draws per configuration.
+N_OCCLUSION_MAX = 2048
+
+
+@lru_cache(maxsize=4)
+def _occlusion_table(n_cfg, stream):
+    u = np.random.default_rng([OCCLUSION_SEED, stream]).random((5, n_cfg, N_OCCLUSION_MAX))
+    u.setflags(write=False)
+    return u
+
+
+def _occlusion_uniforms(n_cfg, n_max, stream=0):
+    """Uniforms (5, n_cfg, n_max) of the occlusion's configurations: the first n_max columns of one fixed table
+    per stream (the same numbers whatever n_max, so the indices are smooth across diameters and depths)."""
+    if n_max > N_OCCLUSION_MAX:
+        raise TextureModelLimit(f"a flake's paths meet up to {n_max} flakes above it: beyond the occlusion's "
+                                f"{N_OCCLUSION_MAX} (docs/texture.md §3.3)")
+    return _occlusion_table(n_cfg, stream)[:, :, :n_max]
+
+
+def _disc_points(n):
+    """n points of the unit disc, equal areas (Vogel's spiral) → (n, 2)."""
+    k = np.arange(n) + 0.5
+    r = np.sqrt(k / n)
+    t = k * np.pi * (3.0 - np.sqrt(5.0))
+    return np.stack([r * np.cos(t), r * np.sin(t)], -1)
+
+
+def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUSION_POINTS):
+    """Partial occlusion (docs/texture.md §3.3): the distribution of a flake's path transmission over its area.
+
+    A flake of radius r (``radii`` (nR,), as a horizontal disc) at depth z (``z`` (nz,)) sends the light it
+    mirrors from each point x of its disc along the light path l' and the view path v'; a flake j above it at
+    height Δ (a horizontal disc of radius r_j, centre c_j) crosses the light path of x when |x + Δ t_l − c_j| < r_j
+    (t = ω_xy/ω_z the paths' drift per µm of height) and the view path when |x + Δ t_v − c_j| < r_j, each crossing
+    transmitting T̄_c(μ) (:meth:`FlakeLayer.mean_crossed_transmittance`).  The flakes above are Poisson (ρ per
+    µm³, diameters log-normal, crossing rate scaled by P(μ)/μ, the solver's projected area) and are drawn
+    (:data:`N_OCCLUSION` configurations, common random numbers); ``correlated``: one set of flakes crosses
+    both paths (a layer of discs: a flake above may cover both), else two independent sets (the solver's RT).
+    Returns t (C, nR, nz, n_cfg): per channel, the mean over :data:`N_OCCLUSION_POINTS` points of the disc of
+    Π_j T^{crossings}: a partly covered flake is dimmed by the share covered, not all or nothing."""
+    from scipy.special import ndtri
+    from scipy.stats import poisson
+
+    z = np.asarray(z, float)
+    radii = np.atleast_1d(np.asarray(radii, float))
+    lb = np.array([np.sqrt(1 - g.mu_l_b**2), 0.0, g.mu_l_b])
+    vb = np.array([-np.sqrt(1 - g.mu_v_b**2), 0.0, g.mu_v_b])
+    t_l, t_v = lb[:2] / lb[2], vb[:2] / vb[2]
+    mid, half = 0.5 * (t_l + t_v), 0.5 * float(np.linalg.norm(t_l - t_v))
+    C = np.asarray(stack.y_weights).size
+    pts = _disc_points(n_pts)  # (Q, 2)
+    r_all = radii
+    radii = np.exp(np.linspace(np.log(radii.min()), np.log(radii.max()), min(N_OCCLUSION_RADII, radii.size)))
+    r_big = float(radii.max())
+    out = np.empty((C, radii.size, z.size, n_cfg))
+    for ir, r in enumerate(radii):
+        tr = np.ones((C, z.size, n_cfg, n_pts))  # per point
+        for f in stack.flakes:
+            lo = np.clip(z - (f.z_top_um + f.thickness_um), 0.0, None)  # heights Δ of this species above each depth
+            hi = np.clip(z - f.z_top_um, 0.0, None)
+            if not np.any(hi > lo):
+                continue
+            s_g = np.log(float(f.diameter_gsd))
+            r_q = 0.5 * float(f.diameter_median_um) * np.exp(3.5 * s_g)  # bounding radius (quantile 0.9998)
+            mus = np.array([g.mu_l_b, g.mu_v_b])
+            P = projected_area(mus, f.alpha, distribution=f.distribution) / mus
+            T = f.mean_crossed_transmittance(mus)  # (C, 2): light, view
+            R_b = r_big + r_q + float(hi.max()) * half  # obstacles that can touch a path lie within R_b of Δ·mid
+            counts = []
+            for s in range(1 if correlated else 2):
+                rho = float(f.number_density_per_um3) * (0.5 * (P[0] + P[1]) if correlated else P[s])
+                lam = rho * np.pi * R_b * R_b * (hi - lo)  # (nz,) expected obstacles in the bounding cylinder
+                n_max = int(np.ceil(lam.max() + 6.0 * np.sqrt(lam.max()) + 6.0))
+                u = _occlusion_uniforms(n_cfg, n_max, s)
+                # Poisson counts by inversion of the same uniform at every depth (smooth in z)
+                N = poisson.ppf(u[0, :, 0][None, :], lam[:, None])  # (nz, n_cfg)
+                live = np.arange(n_max)[None, None, :] < N[:, :, None]  # (nz, n_cfg, n_max)
+                dlt = lo[:, None, None] + u[1][None] * (hi - lo)[:, None, None]
+                rr = np.minimum(0.5 * float(f.diameter_median_um) * np.exp(s_g * ndtri(np.clip(u[2], 1e-12, 1 - 1e-12))), r_q)
+                rr2 = np.where(live, (rr * rr)[None], -1.0)
+                rad = R_b * np.sqrt(u[4])
+                cx = dlt * mid[0] + (rad * np.cos(2.0 * np.pi * u[3]))[None]
+                cy = dlt * mid[1] + (rad * np.sin(2.0 * np.pi * u[3]))[None]
+                for path, tvec in enumerate((t_l, t_v)):
+                    if not correlated and path != s:
+                        continue
+                    px = r * pts[:, 0] + (dlt * tvec[0] - cx)[..., None]  # (nz, n_cfg, n_max, Q)
+                    py = r * pts[:, 1] + (dlt * tvec[1] - cy)[..., None]
+                    counts.append(np.sum(px * px + py * py < rr2[..., None], axis=2))  # (nz, n_cfg, Q)
+            for path in range(2):
+                n = counts[path]
+                k = int(n.max(initial=0))
+                pw = T[:, path][:, None] ** np.arange(k + 1)[None, :]  # (C, k + 1); 0^0 = 1
+                tr *= pw[:, n]
+        out[:, ir] = tr.mean(axis=-1)
+    if radii.size == 1:
+        return np.repeat(out, r_all.size, axis=1)
+    # the same configurations at every radius: each draw interpolated in ln r to the requested radii
+    x = np.log(r_all)
+    k = np.clip(np.searchsorted(np.log(radii), x) - 1, 0, radii.size - 2)
+    t = np.clip((x - np.log(radii)[k]) / (np.log(radii)[k + 1] - np.log(radii)[k]), 0.0, 1.0)
+    return out[:, k] * (1.0 - t)[None, :, None, None] + out[:, k + 1] * t[None, :, None, None]
+
+
+#: Uniform depths at which :func:`_glint_paths` finds where the absorbers stop every flake glinting.
 N_CUT = 33
+#: Depth nodes (Gauss–Legendre) of the glint counts' occlusion draws.
+N_DEPTH_OCCLUSION = 12
 
 
 def _glint_paths(stack, f, g):
@@ -663,11 +782,11 @@ def _glint_paths(stack, f, g):
     gap = _gap(lb, vb)
     yR, top, d, C = y * R_h, f.z_top_um, f.thickness_um, y.size
 
-    def weights(z, combos):  # (w, P) (*z.shape[:-1], combinations) at depths z (…, 1 or combinations)
+    def weights(z, combos, correlated):  # (w, P) (*z.shape[:-1], combinations) at depths z (…, 1 or combinations)
         shape = z.shape
         tau_l, lam_l, T_l = _path(stack, z.ravel(), g.mu_l_b)
         tau_v, lam_v, T_v = _path(stack, z.ravel(), g.mu_v_b)
-        lam_b = _both_paths(stack, z.ravel(), np.full(z.size, gap), lam_l, lam_v, CORRELATED_PATHS)
+        lam_b = _both_paths(stack, z.ravel(), np.full(z.size, gap), lam_l, lam_v, correlated)
         cs = (C,) + shape
         inputs = (np.exp(-(tau_l + tau_v)).reshape(cs), (lam_l - lam_b).reshape(shape), (lam_v - lam_b).reshape(shape),
                   lam_b.reshape(shape), T_l.reshape(cs), T_v.reshape(cs))
@@ -675,27 +794,44 @@ def _glint_paths(stack, f, g):
         return out, (lam_l - lam_b, lam_v - lam_b, lam_b, T_l, T_v), inputs
 
     z, wz = _depth_nodes(f)
+    means = []
+    for correlated in (CORRELATED_MEAN, True):  # the mean as the BSDF has it, and as a layer of discs (hot spot)
+        _, (ll, lv, lbb, Tl, Tv), inputs = weights(z[:, None], None, correlated)
+        combos = _combinations(ll, lv, lbb, Tl, Tv)
+        w, P = _path_weights(yR, R_Y, *inputs, combos)
+        means.append(float(np.sum(wz[:, None] * P * w)))
+    # the counts: the distribution of w over each flake's area (partial occlusion, :func:`_occlusion`); the
+    # absorbers' transmission w_a(z) bounds it, so nothing glints below z* where w_a = GLINT_FRACTION
+    radii = 0.5 * f.diameters()[0]
+
+    def absorbed(zz):
+        tau_l, _, _ = _path(stack, zz, g.mu_l_b)
+        tau_v, _, _ = _path(stack, zz, g.mu_v_b)
+        return np.exp(-(tau_l + tau_v))  # (C, nz)
+
+    def samples(zz):  # w (nD, nz, configurations) at depths zz
+        occ = _occlusion(stack, g, zz, radii, CORRELATED_PATHS)  # (C, nD, nz, K)
+        return np.einsum("c,cz,cdzk->dzk", yR / R_Y, absorbed(zz), occ)
+
     zf = top + d * np.linspace(0.0, 1.0, N_CUT)
-    nz = z.size
-    _, (ll, lv, lbb, Tl, Tv), inputs = weights(np.concatenate([z, zf])[:, None], None)  # the Gauss and the cut depths
-    combos = _combinations(ll[:nz], lv[:nz], lbb[:nz], Tl[:, :nz], Tv[:, :nz])
-    w, P = _path_weights(yR, R_Y, *(a[..., :nz, :] for a in inputs), combos)
-    wf, _ = _path_weights(yR, R_Y, *(a[..., nz:, :] for a in inputs), combos)  # (N_CUT, combinations)
-    below = wf < GLINT_FRACTION
-    first = np.where(below.any(axis=0), below.argmax(axis=0), N_CUT)  # first depth index that stops glinting
-    live = np.flatnonzero(first > 0)
-    first = first[live]
-    k = np.clip(first, 1, N_CUT - 1)
-    w0, w1 = wf[k - 1, live], np.maximum(wf[k, live], 1e-300)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.clip(np.log(w0 / GLINT_FRACTION) / np.log(w0 / w1), 0.0, 1.0)
-    z_end = np.where(first >= N_CUT, top + d, zf[k - 1] + np.nan_to_num(t) * (zf[k] - zf[k - 1]))
-    x, wx = leggauss(N_DEPTH)
-    span = z_end - top  # (glinting combinations,)
-    zg = top + 0.5 * (x[:, None] + 1.0) * span[None, :]  # (N_DEPTH, glinting combinations)
-    wzg = 0.5 * wx[:, None] * (span / d)[None, :]
-    (wg, Pg), _, _ = weights(zg, tuple(c[live] for c in combos))
-    return (wz, w, P), (wzg, wg, Pg), R_Y
+    wa = (yR / R_Y) @ absorbed(zf)  # (N_CUT,) non-increasing
+    below = np.flatnonzero(wa < GLINT_FRACTION)
+    if below.size == 0:
+        z_end = top + d
+    elif below[0] == 0:
+        z_end = top
+    else:
+        k = below[0]
+        t = np.clip(np.log(wa[k - 1] / GLINT_FRACTION) / np.log(wa[k - 1] / max(wa[k], 1e-300)), 0.0, 1.0)
+        z_end = zf[k - 1] + t * (zf[k] - zf[k - 1])
+    x, wx = leggauss(N_DEPTH_OCCLUSION)
+    glint = None
+    if z_end > top:
+        zg = top + 0.5 * (x + 1.0) * (z_end - top)
+        glint = (0.5 * wx * (z_end - top) / d, samples(zg))
+    zl = top + 0.5 * (x + 1.0) * d
+    fixed = (0.5 * wx, samples(zl))
+    return tuple(means), glint, fixed, R_Y
 
 
 def reference_peak(g) -> float:
@@ -775,6 +911,7 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
     b_ref = GLINT_FRACTION * reference_peak(g)
     flux = 0.0  # Σ over glints of β_px (per µm²)
     mean_all = 0.0
+    mean_discs = 0.0
     mink = 0.0
     peak = 0.0
     for i_f, f in enumerate(stack.flakes):
@@ -787,7 +924,7 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
             paths = memo[key]
         if paths is None:
             continue
-        (wz_all, w_all, P_all), (wz, w, P), R_Y = paths
+        (mean_w, mean_w_discs), glint, (wz_f, w_f), R_Y = paths
         Dn, Dw = f.diameters()
         Nz = f.number_density_per_um3 * f.thickness_um  # flakes per µm² in the layer
         # the beam of each diameter node (its Airy pattern at the flake's own colours), and the median's for the peak
@@ -799,23 +936,23 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
         b_all = np.pi * g.t_in * g.t_out * R_Y * f_max * g.c / (g.mu_l_b * g.mu_v * g.omega_a)
         b_peak = b_all[:-1]  # (nD,)
         A = 0.25 * np.pi * Dn * Dn
-        q = GLINT_FRACTION / np.maximum(w, 1e-300)
-        S_q = np.empty((Dn.size,) + q.shape)
-        I_q = np.empty_like(S_q)
-        for i in range(Dn.size):  # np.interp is one-dimensional: one call per diameter node
-            S_q[i] = np.interp(q, levels, S_P[i], right=0.0)
-            I_q[i] = np.interp(q, levels, I_P[i], right=0.0)
         dens = Nz * Dw / (4.0 * g.c)  # flakes per µm² per unit ω_o-space area and unit density
-        wP = wz * P
-        cnt = dens * np.einsum("zk,dzk->d", wP, S_q)
-        n_g += float(cnt.sum())
-        flux += float(np.sum(dens * b_peak * spot_fill(Dn, p) * np.einsum("zk,dzk->d", wP * w, I_q)))
-        # above the fixed luminance β_ref: the layer's own depth rule (the cut depth differs per diameter)
-        S_f = np.stack([np.interp(b_ref / np.maximum(b_peak[i] * w_all, 1e-300), levels, S_P[i], right=0.0)
+        if glint is not None:
+            wz, w = glint  # (nz,), (nD, nz, draws): each draw one flake's area-mean transmission
+            q = GLINT_FRACTION / np.maximum(w, 1e-300)
+            S_q = np.stack([np.interp(q[i], levels, S_P[i], right=0.0) for i in range(Dn.size)])
+            I_q = np.stack([np.interp(q[i], levels, I_P[i], right=0.0) for i in range(Dn.size)])
+            wP = wz[:, None] / w.shape[-1]
+            cnt = dens * np.einsum("zk,dzk->d", wP, S_q)
+            n_g += float(cnt.sum())
+            flux += float(np.sum(dens * b_peak * spot_fill(Dn, p) * np.einsum("zk,dzk,dzk->d", wP, w, I_q)))
+            mink += float(np.sum(cnt * (a_spot + 2.0 * p * Dn + 0.25 * np.pi * Dn * Dn)))
+        # above the fixed luminance β_ref: draws over the whole layer (the cut depth differs per diameter)
+        S_f = np.stack([np.interp(b_ref / np.maximum(b_peak[i] * w_f[i], 1e-300), levels, S_P[i], right=0.0)
                         for i in range(Dn.size)])
-        n_fixed += float(np.sum(dens * np.einsum("zk,dzk->d", wz_all[:, None] * P_all, S_f)))
-        mean_all += float(np.sum(dens * b_peak * A * float(np.sum(wz_all[:, None] * P_all * w_all)) * I_P[:-1, 0]))
-        mink += float(np.sum(cnt * (a_spot + 2.0 * p * Dn + 0.25 * np.pi * Dn * Dn)))
+        n_fixed += float(np.sum(dens * np.einsum("zk,dzk->d", wz_f[:, None] / w_f.shape[-1], S_f)))
+        mean_all += float(np.sum(dens * b_peak * A * mean_w * I_P[:-1, 0]))
+        mean_discs += float(np.sum(dens * b_peak * A * mean_w_discs * I_P[:-1, 0]))
         peak = max(peak, float(b_all[-1]))
     sparkle = bool(stack.flakes) and bool(peak >= SPARKLE_MIN_PEAK) and bool(n_g > 0)
     intensity = flux / n_g if n_g > 0 else 0.0
@@ -839,6 +976,10 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
         "sparkle_intensity": float(intensity) if sparkle else 0.0,
         "peak_luminance_factor": float(peak),
         "flake_luminance_factor": float(mean_all),
+        # the same mean in a layer of discs, whose light and view paths share the flakes above a flake (the
+        # opposition effect of hiding, eq. S4): the glints' counts and intensities have it, the BSDF has not
+        "flake_luminance_factor_discs": float(mean_discs),
+        "hot_spot_factor": float(mean_discs / mean_all) if mean_all > 0 else 1.0,
     }, ground_luminance_factor)
 
 
@@ -1051,7 +1192,10 @@ def _sky_terms(stack, f, view_deg):
     mu_air = np.sqrt(np.clip(1.0 - s2, 0.0, 1.0))
     t_in = np.where(ok, coat_transmittance(mu_air, eta), 0.0)
     R = f.reflectance(np.abs(cv))  # (C, M)
-    z, wz = _depth_nodes(f, N_DEPTH_SKY)
+    # depth nodes: N_DEPTH_SKY, or 4 per flake a vertical ray meets in the layer (thick, dense layers: the mosaic
+    # is made near the top, which 16 nodes over 120 µm of 8 % metallic resolved to 1 %)
+    coverage = float(f.number_density_per_um3 * f.mean_area_um2() * f.thickness_um)
+    z, wz = _depth_nodes(f, int(min(max(N_DEPTH_SKY, np.ceil(4.0 * coverage)), 128)))
     mu_lb_s = np.where(ok, mu_lb, 1.0)
     # paths: in along each m's mirrored direction, out along v'
     tau_v, lam_v, T_v = _path(stack, z, mu_vb)  # (C, nz), (nz,), (C, nz)
@@ -1091,7 +1235,92 @@ def _sky_terms(stack, f, view_deg):
     Eb, Eb2 = float(np.sum(wgt * b1)), float(np.sum(wgt * b2))
     b0 = np.einsum("c,cmz,m->z", y, amp, wm)  # unhidden mean luminance factor per depth
     tau_y = float(y @ (T_v[:, -1] ** 2))  # a flake crossed by both (vertical) paths transmits T²
-    return Eb, Eb2, z, wz, b0, lam_v, tau_y
+    # the mosaic (docs/texture.md §4): per depth, the flakes' sky luminance before the view path's crossings
+    # (which the mosaic counts itself), B1 = Σ_m w_m Y[amp e^{−λ_l'(1 − T_l)}] (amp carries the footprint), and
+    # B2 = Σ_m w_m Y[amp]² e^{−λ_l'(1 − T̄_l²)}/fore (a ray's second moment: the footprint weights the normals once)
+    a_l = np.exp(-lo_l * (1 - T_l))  # (C, M, nz)
+    yamp = np.einsum("c,cmz->mz", y, amp)
+    B1 = np.einsum("c,cmz,m->z", y, amp * a_l, wm)
+    Tl_y = np.einsum("c,cmz->mz", y, amp * T_l) / np.maximum(yamp, 1e-300)
+    B2 = np.einsum("m,mz->z", wm / np.maximum(fore, 1e-12), yamp**2 * np.exp(-lo_l * (1 - Tl_y**2)))
+    # a crossed flake's luminance transmittance on the view path (weighted by the light it dims)
+    # (a flake above that covers the ray and also lies on the light path, λ_b of λ_v, dims the light twice)
+    ya_mz = np.einsum("c,cmz->mz", y, amp) * wm[:, None]
+    T_vy = float(np.sum(np.einsum("c,cmz,m->cz", y, amp, wm) * T_v) / max(float(np.sum(ya_mz)), 1e-300))
+    T_ly = float(np.sum(np.einsum("c,cmz,m->mz", y, amp * T_l, wm)) / max(float(np.sum(ya_mz)), 1e-300))
+    f_b = float(np.sum(ya_mz * lam_b) / max(float(np.sum(ya_mz * lam_v[None, :])), 1e-300))
+    T_vy *= 1.0 - min(f_b, 1.0) * (1.0 - T_ly)
+    P_v = float(projected_area(np.array([mu_vb]), f.alpha, distribution=f.distribution)[0]) / mu_vb
+    return Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v)
+
+
+#: Least uniform depth cells, and the offset nodes per interval between kinks, of the mosaic's covariance
+#: (:func:`mosaic_variance`).
+N_MOSAIC_DEPTH, N_MOSAIC_OFFSET = 96, 8
+
+
+@lru_cache(maxsize=64)
+def _square_ring(p, s_key):
+    """K̄(s) = ∫_0^{2π} (p − s|cos θ|)₊ (p − s|sin θ|)₊ dθ (µm²): the p × p square's set covariogram around a
+    circle of radius s (2πp² − 8ps + 2s² for s ≤ p; 1024 midpoint angles)."""
+    s = np.frombuffer(s_key)
+    th = (np.arange(1024) + 0.5) * (2.0 * np.pi / 1024)
+    c, sn = np.abs(np.cos(th)), np.abs(np.sin(th))
+    k = np.maximum(p - s[:, None] * c, 0.0) * np.maximum(p - s[:, None] * sn, 0.0)
+    return k.mean(axis=1) * 2.0 * np.pi
+
+
+def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um):
+    """(mean, variance) of a p × p spot's luminance factor under the sky for flake layer ``f``, each view ray
+    seeing the flakes it meets in depth order (docs/texture.md §4, eq. G5): the topmost alone when they are
+    opaque (a mosaic), those below through T per flake crossed when they transmit.  Valid at any coverage.
+
+    The flakes are a Poisson process of discs (ρ per µm³, diameters log-normal); a view ray meets them at the
+    rate ρ A_e per µm of depth, A_e = κ⟨A⟩ (κ = P(μ_v')/μ_v', the solver's projected area), and two rays s apart
+    meet a common flake at the rate ρ L(s), L = κ⟨lens(s; r, r)⟩ (the footprints' covariogram, taken as discs).
+    With B1(z) (per µm of depth: the luminance the flakes at z give before the view's crossings, ``B1n`` × ρ⟨A⟩)
+    and B2(z) (a ray's second moment, ``B2n``) on the depth nodes ``z`` (interpolated to a uniform grid), the
+    two-point moment is, by the Poisson generating functional (Λ_b = ρ h [2(A_e − L)(1 − T) + L(1 − T²)], h the
+    depth below the layer's top, Λ = ρ h A_e (1 − T)):
+
+        E[β(x)β(x+s)] = ∫ ρ L B2 e^{−Λ_b} dz + 2 ∫∫_{z1<z2} B1(z1) (1 − (L/A_e)(1 − T)) e^{−Λ_b(z1) + Λ(z1)} B1(z2) e^{−Λ(z2)} dz2 dz1,
+
+    the first term one flake covering both points, the second two flakes, the upper one dimming the lower's
+    ray where it covers both.  Var = p⁻⁴ ∫ (E[ββ](s) − mean²) s K̄(s) ds (:func:`_square_ring`), zero beyond
+    the largest diameter.  Sparse flakes: Var → N_A⟨O(0)⟩E[b²] (eq. G2).  ``T``: a crossed flake's luminance
+    transmittance on the view path."""
+    rho = float(f.number_density_per_um3)
+    Dn, Dw = f.diameters()
+    A_e = kappa * f.mean_area_um2()
+    # cells thin against the depth a ray travels between flakes (ρ A_e dz ≤ 0.01): the midpoint rule's error
+    nu = int(min(max(N_MOSAIC_DEPTH, np.ceil(rho * A_e * f.thickness_um / 0.01)), 20000))
+    dz = f.thickness_um / nu
+    zu = f.z_top_um + (np.arange(nu) + 0.5) * dz
+    h = zu - f.z_top_um
+    b1 = rho * f.mean_area_um2() * np.interp(zu, z, B1n) * dz
+    b2 = np.interp(zu, z, B2n) * dz
+    lam = rho * h * A_e * (1.0 - T)
+    e1 = b1 * np.exp(-lam)
+    mean = float(e1.sum())
+    # offsets: C(s) = 0 beyond the largest flake, K̄(s) = 0 beyond √2 p; Gauss rules between the kinks (p, where
+    # K̄ changes form, and each diameter node, where its covariogram ends)
+    p = float(spot_um)
+    s_end = min(float(Dn.max()), np.sqrt(2.0) * p)
+    br = np.unique(np.concatenate([[0.0, s_end], [p], Dn]))
+    br = br[br <= s_end]
+    x, wx = leggauss(N_MOSAIC_OFFSET)
+    lo_, hi_ = br[:-1, None], br[1:, None]
+    ss = (0.5 * (hi_ - lo_) * (x + 1.0) + lo_).ravel()
+    ws = (0.5 * (hi_ - lo_) * wx).ravel()
+    rr = 0.5 * Dn[:, None]
+    L = kappa * (Dw @ _lens_area_sq(np.broadcast_to(ss, (Dn.size, ss.size)), ss * ss, rr, rr, equal=True))  # (ns,)
+    lam_b = rho * h[None, :] * (2.0 * (A_e - L[:, None]) * (1.0 - T) + L[:, None] * (1.0 - T * T))  # (ns, nu)
+    one = rho * (L / kappa) * (np.exp(-lam_b) @ b2)  # flakes covering both, ρκ⟨lens⟩, × E_hit[b²] = B2/κ
+    G = np.cumsum(e1[::-1])[::-1] - 0.5 * e1  # Σ_{l ≥ k} (½ on the diagonal) B1_l e^{−Λ_l}
+    two = 2.0 * (1.0 - (L / A_e) * (1.0 - T)) * (np.exp(-lam_b + lam[None, :]) @ (b1 * G))
+    cov = one + two - mean * mean
+    var = float(np.sum(ws * ss * _square_ring(p, ss.tobytes()) * cov)) / p**4
+    return mean, var
 
 
 def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=None, memo=None) -> dict:
@@ -1116,27 +1345,16 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
                 memo[key] = terms
         else:
             terms = memo[key]
-        Eb, Eb2, z, wz, b0, lam_v, tau_y = terms
+        Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v) = terms
         Dn, Dw = f.diameters()
         A = 0.25 * np.pi * Dn * Dn
         NA = f.areal_density_per_um2
         mean += NA * float(Dw @ A) * Eb
         var_single += NA * float(Dw @ overlap_integral(Dn, observer.spot_um)) * Eb2
-        # pairs of flakes of this layer, one above the other (docs/texture.md eq. G4): Σ_j w_j Σ_s c_j(s) ⟨O_j(s)⟩,
-        # ⟨O⟩ over the lower flake's diameter (the same 6-node rule as the upper one's)
-        Dj, wj = f.diameters(6)
-        pair = np.empty(Dj.size)
-        for j, D in enumerate(Dj):
-            key = ("pair", i_f, float(observer.view_deg), float(D))
-            if memo is None or key not in memo:
-                kern = _pair_kernel(f, z, b0, lam_v, tau_y, 0.5 * D)
-                if memo is not None:
-                    memo[key] = kern
-            else:
-                kern = memo[key]
-            ss, c = kern
-            pair[j] = c @ (wj @ pair_overlap(D, observer.spot_um, ss, diameter2_um=Dj, memo=memo))
-        var_pair += float(wj @ pair)
+        # each ray sees the flakes it meets in depth order (the mosaic, eq. G5): valid at any coverage
+        _, v = mosaic_variance(f, z, B1, B2, T_vy, P_v, observer.spot_um)
+        var_pair += v
+    var_pair -= var_single  # what hiding changes: the mosaic's variance over the flakes' independent sum
     var = var_single + var_pair
     out = {
         "view_deg": float(observer.view_deg),

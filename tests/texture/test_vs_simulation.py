@@ -1,14 +1,13 @@
 """The texture model against the independent discrete-flake simulation (flakedb/reference/flake_sim.py,
-which shares no code with the model): glints per mm² (half their own peak, and above the fixed
-threshold, itself compared), the sparkle area fraction, the sparkle intensity (the brightest pixel), the flakes' mean luminance factor under a directional source, and the graininess and
-mean under a uniform sky, for recipes that vary the loading (×4), the median diameter (10–40 µm),
-α (0.05–0.3), the flake (metallic, pearlescent) and a hiding pigment.  Agreement: within
-3σ + 10 % (σ the simulation's statistical error).  A perturbed orientation term must fail.
-
-The simulation traces discs, so a flake above a glinting one hides both of its paths together: the model's
-glints are compared in their geometric variant (``CORRELATED_PATHS``, eq. S4), not in the product's default,
-which attenuates the paths independently as the solver's RT does (docs/texture.md §3.3); the graininess is
-geometric in the product too (``CORRELATED_SKY_PATHS``)."""
+which shares no code with the model, nor its shortcuts since issue 36: hiding traced from 64 points of each
+flake, graininess rendered per ray (the topmost flake), each flake's Airy pattern at its colours): glints per
+mm² (half their own peak, and above the fixed threshold, itself compared), the sparkle area fraction, the
+sparkle intensity (the brightest pixel), the flakes' mean luminance factor in a layer of discs under a
+directional source, and the graininess and mean under a uniform sky, for recipes that vary the loading (×4),
+the median diameter (10–40 µm), α (0.05–0.3), the flake (metallic, pearlescent) and a hiding pigment.
+Agreement: within 3σ + 10 % (σ the simulation's statistical error).  A perturbed orientation term must fail;
+the reference with the old shortcuts switched back on must disagree.  The wider sweep at the BYK-like and
+person presets: bench/texture_reference.py, docs/texture.md §8."""
 
 import numpy as np
 import pytest
@@ -29,10 +28,8 @@ CASES = {
 }
 
 
-@pytest.fixture(autouse=True)
-def _geometric_hiding(monkeypatch):
-    monkeypatch.setattr(tm, "CORRELATED_PATHS", True)
-    monkeypatch.setattr(tm, "CORRELATED_SKY_PATHS", True)
+#: The sky rendered per ray in a window of this many 20 µm pixels per side, rays this far apart (µm).
+SKY_PIXELS, RAY_UM = 100, 2.0
 
 
 def _close(model, sim, sigma, rel=0.10):
@@ -48,7 +45,7 @@ def runs():
         sp, ab = sim_inputs(st)
         res = simulate(st.eta, st.y_weights, sp, ab, o.spot_um, o.aperture_half_angle_rad, o.source_half_angle_deg,
                        o.view_deg, o.light_deg, L_um=L, seed=11, diffuse=sky,
-                       wavelength_nm=st.wavelength_nm)
+                       wavelength_nm=st.wavelength_nm, ray_um=RAY_UM, sky_pixels=SKY_PIXELS)
         out[name] = (st, res)
     return out
 
@@ -75,7 +72,7 @@ def test_glints_agree_with_the_simulation(runs, name):
             ("glints_per_mm2", m["glints_per_mm2"], r["glints_per_mm2"], r["sigma_glints_per_mm2"]),
             ("sparkle_area_fraction", m["sparkle_area_fraction"], r["sparkle_area_fraction"],
              r["sparkle_area_fraction"] / np.sqrt(n) + 1.0 / res["pixels"]),
-            ("flake_luminance_factor", m["flake_luminance_factor"], r["flake_luminance_factor"],
+            ("flake_luminance_factor_discs", m["flake_luminance_factor_discs"], r["flake_luminance_factor"],
              r["sigma_flake_luminance_factor"]),
             ("glints_per_mm2_above_threshold", m["glints_per_mm2_above_threshold"],
              r["glints_per_mm2_above_threshold"], r["sigma_glints_per_mm2_above_threshold"]),
@@ -116,3 +113,24 @@ def test_a_perturbed_orientation_term_is_caught(runs, monkeypatch):
                              and _close(m["glints_per_mm2_above_threshold"], r["glints_per_mm2_above_threshold"],
                                         r["sigma_glints_per_mm2_above_threshold"]))
     assert failures >= 3
+
+
+@pytest.mark.slow
+def test_the_old_shortcuts_are_not_the_reference():
+    """The reference with its old shortcuts switched back on (hiding decided from the flake's centre, the sky's
+    footprints added per flake) reproduces the model's earlier errors at 8 % metallic: more glints than the
+    area hiding gives and a graininess far above the per-ray mosaic (the issue: +72–80 %), which the model
+    (eq. G5) does not follow."""
+    st = stack_of(**CASES["metallic-8%-20um-a0.2"][0])
+    sp, ab = sim_inputs(st)
+    o = TEST_OBSERVER
+    kw = dict(L_um=1500.0, seed=5, wavelength_nm=st.wavelength_nm, ray_um=RAY_UM, sky_pixels=75)
+    new = simulate(st.eta, st.y_weights, sp, ab, o.spot_um, o.aperture_half_angle_rad, o.source_half_angle_deg,
+                   o.view_deg, (15.0,), **kw)
+    old = simulate(st.eta, st.y_weights, sp, ab, o.spot_um, o.aperture_half_angle_rad, o.source_half_angle_deg,
+                   o.view_deg, (15.0,), hiding="centre", sky="deposit", **kw)
+    assert old["directional"][0]["glints"] > 1.15 * new["directional"][0]["glints"]
+    g = tm.graininess_indices(st, o)["graininess"]
+    assert old["diffuse"]["graininess"] > 1.5 * new["diffuse"]["graininess"]
+    assert not _close(g, old["diffuse"]["graininess"], old["diffuse"]["sigma_graininess"])
+    assert _close(g, new["diffuse"]["graininess"], new["diffuse"]["sigma_graininess"])
