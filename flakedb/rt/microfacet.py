@@ -37,6 +37,8 @@ several % at grazing for α = 0.3) and the discretisation carries exactly that, 
 """
 
 import functools
+import threading
+from concurrent.futures import Future
 
 import numpy as np
 from numpy.polynomial.hermite import hermgauss
@@ -605,23 +607,45 @@ def _height_kernel(lam, up, c):
     return out, esc
 
 
-def height_chain_escape(mu_above, mu_below, eta, alpha):
-    """Probability that light arriving at a rough dielectric (Beckmann α, η = n_below / n_above) at cosine μ
-    from above (``mu_above``) or below (``mu_below``) leaves **into the air**, after any number of facet
-    events: the random walk of Heitz, Hanika, d'Eon & Dachsbacher 2016 ("Multiple-scattering microfacet BSDFs
-    with the Smith model", §4–5; uniform heights, :mod:`flakedb.reference.microsurface`) solved as a linear
-    system instead of sampled.  For the totals the walk is a Markov process in (side, propagation cosine z,
-    height C1(h)): the surface is isotropic, so azimuth does not matter, and the walk's next event depends only
-    on those.  With D_s(z, c) the probability of ending in the air for a ray leaving height c on side s,
+#: Solutions of the height chain on its own grids (:func:`_height_chain_grid`), by (η, α): at most
+#: MS_HEIGHT_GRID_CACHE of them (the oldest dropped first), each a future that a second thread asking for the same
+#: (η, α) waits on instead of solving it again.
+MS_HEIGHT_GRID_CACHE = 16
+_HEIGHT_GRIDS: dict = {}
+_HEIGHT_GRIDS_LOCK = threading.Lock()
 
-        D_s(z, c) = [s = air, z > 0] c^{Λ(z)} + ∫ P(hit at x | z, c) H_s(z, x) dx,
-        H_s(z, x) = E_facet[F · D_s(z_r, x) + (1 − F) · D_{1−s}(−z_t, 1 − x)]
 
-    (the facet from the visible normals of the blocked or incident direction, :func:`_facet_outcomes`; the
-    height kernel :func:`_height_kernel`; refraction flips the frame, h → −h), discretised by linear
-    interpolation in z (``MS_HEIGHT_Z`` cosines per sign) and in c (``MS_HEIGHT_C`` + 8 nodes) and solved by
-    iteration (each pass is one more event; converged to 1e-12 in about 10).  P = D_s(−μ, 1) at the requested
-    cosines.  Accuracy against the walk and the grids: docs/rough-interfaces.md.  Returns (P_a, P_b)."""
+def _height_chain_grid(eta, alpha):
+    """The part of :func:`height_chain_escape` that does not depend on the requested cosines: the grids (signed
+    propagation cosines z, heights c, the map c → 1 − c) and the chain's solution D_s(z, c) on them, ``(zs, c,
+    flip, d)``, read-only.  Solved once per (η, α) in a process and shared by every node set (compose's solve at
+    n and its discretisation's second solve at 3n/4; a fit's solves): the same arrays, so the escape probabilities
+    are those of a fresh solve bit for bit.  Threads asking for the same (η, α) at once solve it once."""
+    key = (float(eta), float(alpha))
+    with _HEIGHT_GRIDS_LOCK:
+        job = _HEIGHT_GRIDS.get(key)
+        mine = job is None
+        if mine:
+            while len(_HEIGHT_GRIDS) >= MS_HEIGHT_GRID_CACHE:
+                _HEIGHT_GRIDS.pop(next(iter(_HEIGHT_GRIDS)))
+            job = _HEIGHT_GRIDS[key] = Future()
+    if mine:
+        try:
+            out = _solve_height_chain_grid(*key)
+        except BaseException as e:
+            with _HEIGHT_GRIDS_LOCK:
+                if _HEIGHT_GRIDS.get(key) is job:
+                    del _HEIGHT_GRIDS[key]
+            job.set_exception(e)
+            raise
+        for a in out:
+            a.flags.writeable = False
+        job.set_result(out)
+    return job.result()
+
+
+def _solve_height_chain_grid(eta, alpha):
+    """:func:`_height_chain_grid` uncached: the chain of :func:`height_chain_escape` solved on its grids."""
     grid = np.linspace(0.0, 1.0, MS_HEIGHT_Z + 1) ** MS_HEIGHT_POWER
     grid[0] = 1e-3
     zs = np.concatenate([-grid[::-1], grid])
@@ -648,6 +672,28 @@ def height_chain_escape(mu_above, mu_below, eta, alpha):
         d = new
         if done:
             break
+    return zs, c, flip, d
+
+
+def height_chain_escape(mu_above, mu_below, eta, alpha):
+    """Probability that light arriving at a rough dielectric (Beckmann α, η = n_below / n_above) at cosine μ
+    from above (``mu_above``) or below (``mu_below``) leaves **into the air**, after any number of facet
+    events: the random walk of Heitz, Hanika, d'Eon & Dachsbacher 2016 ("Multiple-scattering microfacet BSDFs
+    with the Smith model", §4–5; uniform heights, :mod:`flakedb.reference.microsurface`) solved as a linear
+    system instead of sampled.  For the totals the walk is a Markov process in (side, propagation cosine z,
+    height C1(h)): the surface is isotropic, so azimuth does not matter, and the walk's next event depends only
+    on those.  With D_s(z, c) the probability of ending in the air for a ray leaving height c on side s,
+
+        D_s(z, c) = [s = air, z > 0] c^{Λ(z)} + ∫ P(hit at x | z, c) H_s(z, x) dx,
+        H_s(z, x) = E_facet[F · D_s(z_r, x) + (1 − F) · D_{1−s}(−z_t, 1 − x)]
+
+    (the facet from the visible normals of the blocked or incident direction, :func:`_facet_outcomes`; the
+    height kernel :func:`_height_kernel`; refraction flips the frame, h → −h), discretised by linear
+    interpolation in z (``MS_HEIGHT_Z`` cosines per sign) and in c (``MS_HEIGHT_C`` + 8 nodes) and solved by
+    iteration (each pass is one more event; converged to 1e-12 in about 10).  P = D_s(−μ, 1) at the requested
+    cosines (the solution on the grids is solved once per (η, α): :func:`_height_chain_grid`).  Accuracy against
+    the walk and the grids: docs/rough-interfaces.md.  Returns (P_a, P_b)."""
+    zs, c, flip, d = _height_chain_grid(eta, alpha)
 
     def at(mu, s):
         mu = np.atleast_1d(np.asarray(mu, dtype=float))
