@@ -108,3 +108,21 @@ def test_a_rough_top_queued_behind_another_is_built_by_the_solve_that_needs_it_b
     blocker.result(20)
     assert out["s"].Rt.tobytes() == serial.Rt.tobytes()
     assert np.array_equal(out["s"].x, serial.x) and out["s"].info["orders"] == serial.info["orders"]
+
+
+@pytest.mark.parametrize("eta, alpha", [(1.5, 0.1), (1.0 / 1.3, 0.3)])
+def test_one_rule_on_both_sides_shares_the_facets_and_gives_each_side_its_own_escape_bit_for_bit(eta, alpha):
+    """With the same cosines above and below, the facet events are sampled once for both sides
+    (mf._facet_outcomes with both indices); each side's escape must be what it is beside another side's rule."""
+    mu = radau_hemisphere(10).x
+    other = radau_hemisphere(7).x
+    Pa, Pb = mf.height_chain_escape(mu, mu, eta, alpha)
+    assert Pa.tobytes() == mf.height_chain_escape(mu, other, eta, alpha)[0].tobytes()
+    assert Pb.tobytes() == mf.height_chain_escape(other, mu, eta, alpha)[1].tobytes()
+    # and the reflected spread shared by both indices is each index's own
+    ev = mf._facet_outcomes(-mu, (eta, 1.0 / eta), alpha, 16, 6)
+    zs = np.concatenate([-np.linspace(1e-3, 1.0, 9)[::-1], np.linspace(1e-3, 1.0, 9)])
+    both = mf._spread_signed_all(zs, ev[0][1], [ev[0][0], ev[1][0]])
+    for k in (0, 1):
+        alone = mf._facet_outcomes(-mu, ((eta, 1.0 / eta)[k],), alpha, 16, 6)[0]
+        assert both[k].tobytes() == mf._spread_signed(zs, alone[1], alone[0]).tobytes()
