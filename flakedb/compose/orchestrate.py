@@ -49,6 +49,7 @@ from flakedb.bsdf.h5file import preload_h5py
 from flakedb.colour import gamut
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.outputs import OutputPlan
+from flakedb.paint.texture_inputs import texture_report, texture_report_grounded
 from flakedb.solve.pipeline import STORE_NONE, solve_reported
 from flakedb.texture.instruments import PRESETS as TEXTURE_OBSERVERS
 
@@ -260,14 +261,14 @@ def compose(recipe, out_dir, n=None, raw=False, catalog=None, log=None, store=No
 def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, progress, allow_unphysical,
              colour_settings, plan, pool) -> ComposeResult:
     """:func:`compose`'s body; ``pool`` runs the texture model (it needs neither the resolution nor the BSDF, only
-    the store's cross-sections, and is grounded on the BSDF after: :func:`_texture_report`) beside the
+    the store's cross-sections, and is grounded on the BSDF after: :func:`texture_report_grounded`) beside the
     solve, whose numpy and LAPACK calls leave the interpreter free most of the time."""
     observers = list(TEXTURE_OBSERVERS.values())
     texture = []
 
     def start_texture(stored):
         if not texture:  # once: auto's refinement re-solves at another n, and the texture does not depend on n
-            texture.append(pool.submit(_texture_report, recipe, observers, stored))
+            texture.append(pool.submit(texture_report, recipe, observers, None, stored))
             pool.submit(preload_h5py)  # then h5py's import, off the write's path (flakedb.bsdf.h5file)
 
     rep = solve_reported(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical, colour_settings,
@@ -302,7 +303,7 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
     report["rgb_file"] = gamut_info
     report["formulation"] = [dict(b.formulation, layer=b.path) for b in recipe.basecoats if b.formulation]  # PVC, w/v
     report["warnings"] = list(warnings)
-    report["texture"] = texture[0].result()(texture_ground(  # docs/texture.md
+    report["texture"] = texture_report_grounded(texture[0].result(), observers, texture_ground(  # docs/texture.md
         table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False), paint.eta if paint.delta else None))
     h5_md["rgb_file"] = gamut_info
     t0 = time.perf_counter()
@@ -311,17 +312,6 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
     progress("write", {"seconds": t["write"], "paths": paths})
     return ComposeResult(paths=paths, report=report, n=n_used, n_reason=reason, timings_s=t, bsdf_summary=summary,
                          warnings=warnings, paint=paint, stack=stack, table=table)
-
-
-def _texture_report(recipe, observers, stored):
-    """The texture report of ``recipe`` made without its ground (:func:`flakedb.paint.texture_inputs.texture_report`,
-    in the texture thread beside the solve, its import too: the model imports scipy.special, about 0.13 s that
-    the solve does not need), as ``ground ↦`` the report grounded on ``ground``
-    (:func:`~flakedb.paint.texture_inputs.texture_report_grounded`)."""
-    from flakedb.paint.texture_inputs import texture_report, texture_report_grounded
-
-    bare = texture_report(recipe, observers, None, stored)
-    return lambda ground: texture_report_grounded(bare, observers, ground)
 
 
 def _jsonable(o):
