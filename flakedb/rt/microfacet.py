@@ -37,6 +37,8 @@ several % at grazing for α = 0.3) and the discretisation carries exactly that, 
 """
 
 import functools
+import threading
+from concurrent.futures import Future
 
 import numpy as np
 from numpy.polynomial.hermite import hermgauss
@@ -417,15 +419,21 @@ def _first_events(mu, eta_rel, alpha, n, fresnel=None, albedo=False):
 def _hat_matrix(grid, z, wt):
     """Σ over the last two axes of ``wt`` spread onto ``grid`` by linear interpolation in ``z``:
     (…, K, n, n) → (…, K, len(grid)), row k = where the blocked light of incidence k re-enters."""
+    return _hat_matrices(grid, z, (wt,))[0]
+
+
+def _hat_matrices(grid, z, wts):
+    """:func:`_hat_matrix` of each weight array in ``wts`` (all of ``z``'s shape) at the same ``z``: the cells and
+    fractions found once."""
     G = len(grid)
     j = np.clip(np.searchsorted(grid, z) - 1, 0, G - 2)
     f = np.clip((z - grid[j]) / (grid[j + 1] - grid[j]), 0.0, 1.0)
-    lead = wt.shape[:-2]
+    lead = z.shape[:-2]
     rows = np.arange(int(np.prod(lead)))[:, None, None].reshape(lead + (1, 1)) * G
     idx = (rows + j).ravel()
     size = int(np.prod(lead)) * G
-    out = np.bincount(idx, (wt * (1.0 - f)).ravel(), size) + np.bincount(idx + 1, (wt * f).ravel(), size + 1)[:size]
-    return out.reshape(lead + (G,))
+    return [(np.bincount(idx, (wt * (1.0 - f)).ravel(), size)
+             + np.bincount(idx + 1, (wt * f).ravel(), size + 1)[:size]).reshape(lead + (G,)) for wt in wts]
 
 
 def _escape_then(z, wt, p_grid, grid):
@@ -539,28 +547,38 @@ def _visible_facets(wz, alpha, n_u, n_y):
     return mx * inv, my * inv, inv, (0.5 * wu)[:, None] * (wy / _SQRT_PI)[None, :]
 
 
-def _facet_outcomes(z_in, eta_rel, alpha, n_u, n_y):
+def _facet_outcomes(z_in, eta_rels, alpha, n_u, n_y):
     """One facet event of the walk for rays of propagation cosines ``z_in`` (K,) on a side whose far side has
-    relative index ``eta_rel``: reflection with probability F, refraction otherwise (Walter et al. 2007 eq. 40).
-    Returns (weight, z) of the reflected branch (this side's frame) and of the refracted branch (the far side's
-    frame, z flipped as in :func:`flakedb.reference.microsurface.walk_dielectric`), each (K, n_u, n_y)."""
+    relative index ``eta_rel``, for each of ``eta_rels``: reflection with probability F, refraction otherwise
+    (Walter et al. 2007 eq. 40).  Returns, per index, (weight, z) of the reflected branch (this side's frame) and
+    of the refracted branch (the far side's frame, z flipped as in
+    :func:`flakedb.reference.microsurface.walk_dielectric`), each (K, n_u, n_y).  The visible facets, their cosines
+    and the reflected directions do not depend on the index: computed once."""
     wz = -np.asarray(z_in, dtype=float)
     mx, _, mz, W = _visible_facets(wz, alpha, n_u, n_y)
     wzz = wz[:, None, None]
     c = np.clip(np.sqrt(np.maximum(1.0 - wzz * wzz, 0.0)) * mx + wzz * mz, 0.0, 1.0)
-    F = fresnel_dielectric_real(c, eta_rel)
     zr = 2.0 * c * mz - wzz
-    ct = np.sqrt(np.maximum(1.0 - (1.0 - c * c) / eta_rel**2, 0.0))
-    zt = wzz / eta_rel - (c / eta_rel - ct) * mz
-    return F * W, zr, (1.0 - F) * W, zt
+    out = []
+    for eta_rel in eta_rels:
+        F = fresnel_dielectric_real(c, eta_rel)
+        ct = np.sqrt(np.maximum(1.0 - (1.0 - c * c) / eta_rel**2, 0.0))
+        zt = wzz / eta_rel - (c / eta_rel - ct) * mz
+        out.append((F * W, zr, (1.0 - F) * W, zt))
+    return out
 
 
 def _spread_signed(zs, z, wt):
     """Σ of ``wt`` (K, n, n) onto the signed cosine grid ``zs`` (ascending: down-going, then up-going, no node
     in (−zs_min, zs_min)) by linear interpolation in z, never across the horizon (|z| below the smallest node
     is taken at it, on its own side): (K, len(zs))."""
+    return _spread_signed_all(zs, z, (wt,))[0]
+
+
+def _spread_signed_all(zs, z, wts):
+    """:func:`_spread_signed` of each of ``wts`` at the same ``z`` (the cells found once)."""
     lim = zs[len(zs) // 2]
-    return _hat_matrix(zs, np.where(z > 0, np.maximum(z, lim), np.minimum(z, -lim)), wt)
+    return _hat_matrices(zs, np.where(z > 0, np.maximum(z, lim), np.minimum(z, -lim)), wts)
 
 
 def _height_kernel(lam, up, c):
@@ -605,6 +623,72 @@ def _height_kernel(lam, up, c):
     return out, esc
 
 
+#: Solutions of the height chain on its own grids (:func:`_height_chain_grid`), by (η, α): at most
+#: MS_HEIGHT_GRID_CACHE of them (the oldest dropped first), each a future that a second thread asking for the same
+#: (η, α) waits on instead of solving it again.
+MS_HEIGHT_GRID_CACHE = 16
+_HEIGHT_GRIDS: dict = {}
+_HEIGHT_GRIDS_LOCK = threading.Lock()
+
+
+def _height_chain_grid(eta, alpha):
+    """The part of :func:`height_chain_escape` that does not depend on the requested cosines: the grids (signed
+    propagation cosines z, heights c, the map c → 1 − c) and the chain's solution D_s(z, c) on them, ``(zs, c,
+    flip, d)``, read-only.  Solved once per (η, α) in a process and shared by every node set (compose's solve at
+    n and its discretisation's second solve at 3n/4; a fit's solves): the same arrays, so the escape probabilities
+    are those of a fresh solve bit for bit.  Threads asking for the same (η, α) at once solve it once."""
+    key = (float(eta), float(alpha))
+    with _HEIGHT_GRIDS_LOCK:
+        job = _HEIGHT_GRIDS.get(key)
+        mine = job is None
+        if mine:
+            while len(_HEIGHT_GRIDS) >= MS_HEIGHT_GRID_CACHE:
+                _HEIGHT_GRIDS.pop(next(iter(_HEIGHT_GRIDS)))
+            job = _HEIGHT_GRIDS[key] = Future()
+    if mine:
+        try:
+            out = _solve_height_chain_grid(*key)
+        except BaseException as e:
+            with _HEIGHT_GRIDS_LOCK:
+                if _HEIGHT_GRIDS.get(key) is job:
+                    del _HEIGHT_GRIDS[key]
+            job.set_exception(e)
+            raise
+        for a in out:
+            a.flags.writeable = False
+        job.set_result(out)
+    return job.result()
+
+
+def _solve_height_chain_grid(eta, alpha):
+    """:func:`_height_chain_grid` uncached: the chain of :func:`height_chain_escape` solved on its grids."""
+    grid = np.linspace(0.0, 1.0, MS_HEIGHT_Z + 1) ** MS_HEIGHT_POWER
+    grid[0] = 1e-3
+    zs = np.concatenate([-grid[::-1], grid])
+    up = zs > 0
+    inner = 0.5 * (1.0 - np.cos(np.pi * np.arange(1, MS_HEIGHT_C + 1) / (MS_HEIGHT_C + 1)))
+    ends = 10.0 ** -np.arange(3.0, 7.0)
+    c = np.sort(np.concatenate([[0.0, 1.0], ends, 1.0 - ends, inner]))  # distinct (np.unique imports numpy.ma)
+    flip = np.arange(len(c))[::-1]  # c → 1 − c (the grid is symmetric)
+    Hg, esc = _height_kernel(_smith_lambda(np.abs(zs), alpha), up, c)
+    Hf = Hg[:, :, flip]
+    events = _facet_outcomes(zs, (eta, 1.0 / eta), alpha, MS_FACET_U, MS_FACET_Y)
+    Kr = _spread_signed_all(zs, events[0][1], [wr for wr, _, _, _ in events])  # zr is the same for both indices
+    Kt = [_spread_signed(zs, zt, wt) for _, _, wt, zt in events]
+    E = np.zeros((2, len(zs), len(c)))
+    E[0] = esc
+    d = E.copy()
+    for _ in range(2000):  # D ← E + height ∘ facet(D): the k-th pass adds the paths of k + 1 events
+        new = E.copy()
+        for s in (0, 1):
+            new[s] += np.einsum("ajk,ak->aj", Hg, Kr[s] @ d[s]) + np.einsum("ajk,ak->aj", Hf, Kt[s] @ d[1 - s])
+        done = np.abs(new - d).max() < 1e-12
+        d = new
+        if done:
+            break
+    return zs, c, flip, d
+
+
 def height_chain_escape(mu_above, mu_below, eta, alpha):
     """Probability that light arriving at a rough dielectric (Beckmann α, η = n_below / n_above) at cosine μ
     from above (``mu_above``) or below (``mu_below``) leaves **into the air**, after any number of facet
@@ -621,42 +705,27 @@ def height_chain_escape(mu_above, mu_below, eta, alpha):
     height kernel :func:`_height_kernel`; refraction flips the frame, h → −h), discretised by linear
     interpolation in z (``MS_HEIGHT_Z`` cosines per sign) and in c (``MS_HEIGHT_C`` + 8 nodes) and solved by
     iteration (each pass is one more event; converged to 1e-12 in about 10).  P = D_s(−μ, 1) at the requested
-    cosines.  Accuracy against the walk and the grids: docs/rough-interfaces.md.  Returns (P_a, P_b)."""
-    grid = np.linspace(0.0, 1.0, MS_HEIGHT_Z + 1) ** MS_HEIGHT_POWER
-    grid[0] = 1e-3
-    zs = np.concatenate([-grid[::-1], grid])
-    up = zs > 0
-    inner = 0.5 * (1.0 - np.cos(np.pi * np.arange(1, MS_HEIGHT_C + 1) / (MS_HEIGHT_C + 1)))
-    ends = 10.0 ** -np.arange(3.0, 7.0)
-    c = np.sort(np.concatenate([[0.0, 1.0], ends, 1.0 - ends, inner]))  # distinct (np.unique imports numpy.ma)
-    flip = np.arange(len(c))[::-1]  # c → 1 − c (the grid is symmetric)
-    Hg, esc = _height_kernel(_smith_lambda(np.abs(zs), alpha), up, c)
-    Hf = Hg[:, :, flip]
-    Kr, Kt = [], []
-    for er in (eta, 1.0 / eta):
-        wr, zr, wt, zt = _facet_outcomes(zs, er, alpha, MS_FACET_U, MS_FACET_Y)
-        Kr.append(_spread_signed(zs, zr, wr))
-        Kt.append(_spread_signed(zs, zt, wt))
-    E = np.zeros((2, len(zs), len(c)))
-    E[0] = esc
-    d = E.copy()
-    for _ in range(2000):  # D ← E + height ∘ facet(D): the k-th pass adds the paths of k + 1 events
-        new = E.copy()
-        for s in (0, 1):
-            new[s] += np.einsum("ajk,ak->aj", Hg, Kr[s] @ d[s]) + np.einsum("ajk,ak->aj", Hf, Kt[s] @ d[1 - s])
-        done = np.abs(new - d).max() < 1e-12
-        d = new
-        if done:
-            break
+    cosines (the solution on the grids is solved once per (η, α): :func:`_height_chain_grid`).  Accuracy against
+    the walk and the grids: docs/rough-interfaces.md.  Returns (P_a, P_b)."""
+    zs, c, flip, d = _height_chain_grid(eta, alpha)
+    mus = [np.atleast_1d(np.asarray(mu, dtype=float)) for mu in (mu_above, mu_below)]
+    etas = (eta, 1.0 / eta)
+    if mus[0].shape == mus[1].shape and np.array_equal(mus[0], mus[1]):  # one rule on both sides: facets once
+        events = _facet_outcomes(-mus[0], etas, alpha, MS_FACET_U, MS_FACET_Y)
+        spread_r = _spread_signed_all(zs, events[0][1], [wr for wr, _, _, _ in events])
+        first, _ = _height_kernel(_smith_lambda(mus[0], alpha), np.zeros(len(mus[0]), dtype=bool), c)
+        firsts = (first, first)
+    else:
+        events = [_facet_outcomes(-mu, (er,), alpha, MS_FACET_U, MS_FACET_Y)[0] for mu, er in zip(mus, etas)]
+        spread_r = [_spread_signed(zs, zr, wr) for wr, zr, _, _ in events]
+        firsts = [_height_kernel(_smith_lambda(mu, alpha), np.zeros(len(mu), dtype=bool), c)[0] for mu in mus]
 
-    def at(mu, s):
-        mu = np.atleast_1d(np.asarray(mu, dtype=float))
-        wr, zr, wt, zt = _facet_outcomes(-mu, eta if s == 0 else 1.0 / eta, alpha, MS_FACET_U, MS_FACET_Y)
-        H = _spread_signed(zs, zr, wr) @ d[s] + _spread_signed(zs, zt, wt) @ d[1 - s][:, flip]
-        first, _ = _height_kernel(_smith_lambda(mu, alpha), np.zeros(len(mu), dtype=bool), c)
-        return np.einsum("kj,kj->k", first[:, -1, :], H)  # from above the surface: departure at c = 1
+    def at(s):
+        _, _, wt, zt = events[s]
+        H = spread_r[s] @ d[s] + _spread_signed(zs, zt, wt) @ d[1 - s][:, flip]
+        return np.einsum("kj,kj->k", firsts[s][:, -1, :], H)  # from above the surface: departure at c = 1
 
-    return at(mu_above, 0), at(mu_below, 1)
+    return at(0), at(1)
 
 
 def conductor_multiple_scattering(mu, alpha, fresnel, n_grid=MS_CHAIN_GRID, n_quad=MS_CHAIN_QUAD):

@@ -15,6 +15,7 @@ pole (:mod:`flakedb.rt.specular`), the opaque order loop (:mod:`flakedb.rt.order
 channels (:mod:`flakedb.rt.channels`).  This module joins them; its names are the public interface.
 """
 
+import functools
 from concurrent.futures import Future
 
 import numpy as np
@@ -127,44 +128,72 @@ def _submit(n_threads, fn, /, *args, **kw):
     return thread_pool(1, "flakedb-solve").submit(fn, *args, **kw)
 
 
+class _RoughBuild:
+    """One rough top's :func:`flakedb.rt.interface.rough_dielectric` ``(layer, info)``, submitted (:func:`_submit`)
+    when made.  Its independent parts are :class:`flakedb.rt.jobs.SharedJobs` (``parts``) that other threads may
+    take.  The background thread is shared by every solve of the process, so a build can wait in its queue behind
+    another solve's (compose's discretisation solve, submitted first): :meth:`layer` then builds it in the asking
+    thread instead.  Each part is a pure function of its arguments: the layer is the same bit for bit whichever
+    thread builds it."""
+
+    def __init__(self, threads, *args, **kw):
+        self.parts = SharedJobs()
+        self.build = functools.partial(itf.rough_dielectric, *args, jobs=self.parts, **kw)
+        self.job = _submit(threads, self.build)
+
+    def done(self):
+        return self.job.done()
+
+    def layer(self, threads):
+        """``(layer, info)``: built here if the background thread has not started it, else the parts it has not
+        reached run here (``threads``: this thread and ``threads`` − 1 workers), then its result."""
+        if self.job.cancel():
+            job = Future()
+            job.set_running_or_notify_cancel()
+            try:
+                job.set_result(self.build())
+            except BaseException as e:
+                job.set_exception(e)
+            self.job = job
+        self.parts.help(threads)
+        return self.job.result()
+
+
 class _Top:
     """The top interface of one solve: None, a smooth top's layer (``smooth1``) and delta, or a rough top
     built (in the background with threads > 1) by :func:`flakedb.rt.interface.rough_dielectric`, shared
     through ``top_cache`` by channel groups (read only, never written in place).
 
-    The background build's independent parts are :class:`flakedb.rt.jobs.SharedJobs` (``parts``): the
-    background thread takes them in order while the main thread solves the body's first orders (on
-    threads − 1 threads), and the main thread, once it needs the top, takes those not yet started
-    (:meth:`rough_layer`, with threads − 2 workers) instead of waiting idle."""
+    The background build's independent parts are :class:`flakedb.rt.jobs.SharedJobs`: the background thread
+    takes them in order while the main thread solves the body's first orders (on threads − 1 threads), and the
+    main thread, once it needs the top, takes those not yet started (:meth:`rough_layer`, with threads − 2
+    workers) instead of waiting idle, or builds the whole top when the background thread has not reached it
+    (:class:`_RoughBuild`)."""
 
     def __init__(self, top, q_out, q_in, s, inner, top_cache):
         self.top, self.s, self.q_out = top, s, q_out
-        self.smooth1 = self.delta_F = self.job = self.parts = self.layer = None
+        self.smooth1 = self.delta_F = self.job = self.layer = None
         if isinstance(top, Smooth):
             self.smooth1, self.delta_F = itf.smooth_dielectric(q_out, q_in, top.eta, 1)
         elif isinstance(top, Rough):
             key = None if top_cache is None else (
                 q_out.x.tobytes(), q_out.w.tobytes(), q_in.x.tobytes(), q_in.w.tobytes(), float(top.eta),
                 float(top.alpha), s.tol, s.order_cap, bool(top.energy_compensation), inner)
-            self.job, self.parts = (None, None) if key is None else top_cache.get(key, (None, None))
+            self.job = None if key is None else top_cache.get(key)
             if self.job is None:
-                self.parts = SharedJobs()
-                self.job = _submit(s.threads, itf.rough_dielectric, q_out, q_in, top.eta, top.alpha, tol=s.tol,
-                                   max_orders=s.order_cap, energy_compensation=top.energy_compensation,
-                                   inner_orders=inner, jobs=self.parts)
+                self.job = _RoughBuild(s.threads, q_out, q_in, top.eta, top.alpha, tol=s.tol, max_orders=s.order_cap,
+                                       energy_compensation=top.energy_compensation, inner_orders=inner)
                 if key is not None:
-                    top_cache[key] = (self.job, self.parts)
+                    top_cache[key] = self.job
 
     def busy(self):
         """Whether the rough top is still being built in the background."""
         return self.job is not None and not self.job.done()
 
     def rough_layer(self):
-        """The rough top's layer: the parts of its build not yet started are run here (on the solver's
-        threads), then it waits for the background build."""
+        """The rough top's layer (:meth:`_RoughBuild.layer`)."""
         if self.layer is None:
-            self.parts.help(max(1, self.s.threads - 1))  # beside the background thread
-            self.layer, _ = self.job.result()
+            self.layer, _ = self.job.layer(max(1, self.s.threads - 1))
         return self.layer
 
     def n_orders(self):

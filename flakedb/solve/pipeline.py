@@ -227,12 +227,14 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
                         timings_s=t, version=version, store_label=store_label, stored=stored, before=before)
 
 
-def second_report(paint, n, version, colour_settings=None, progress=None):
+def second_report(paint, n, version, colour_settings=None, progress=None, threads=None):
     """``(n', colour report at n')`` of the discretisation's second solve at n' = :func:`flakedb.solve.resolution.second_solve_n`
     (≈ 3n/4), or a dict saying why there is none: n < 16, or a store (it holds the species' factors at its own n
     only).  Made before the solve at n (:func:`solve_recipe`'s ``before_solve``), so that its arrays are freed
     before those of n exist: made after, while n's R^t and table were held, it set the compose's peak (cadmium
-    yellow under a rough 0.1 coat, 41 bands, n = 200: 3.95 GB, of which 1.6 GB the second solve's)."""
+    yellow under a rough 0.1 coat, 41 bands, n = 200: 3.95 GB, of which 1.6 GB the second solve's).  ``threads``:
+    the solver's threads (default every core; 1 beside the solve at n, so that its rough top is built in its own
+    thread and the solver's background thread is the solve at n's)."""
     if version is not None:
         return {"method": "not estimated: species factors from the store exist at n only"}
     if n < 16:
@@ -241,7 +243,7 @@ def second_report(paint, n, version, colour_settings=None, progress=None):
     n2 = second_solve_n(n)
     t0 = time.perf_counter()
     progress("discretisation", {"start": True, "n": n2})
-    second = solve_paint(paint, n2, memory_budget_bytes=memory_budget_bytes(), threads=os.cpu_count() or 1)
+    second = solve_paint(paint, n2, memory_budget_bytes=memory_budget_bytes(), threads=threads or os.cpu_count() or 1)
     table = stack_to_table(second.scattered(), paint.channels, paint.eta, None, paint.delta, {})
     x, albedo = second.x, second.albedo(include_delta=False)
     del second  # its R^t, before the report's evaluation
@@ -337,7 +339,8 @@ def report_of(solved, colour_settings=None, name=""):
 #: that the two never hold their arrays at once (cadmium yellow under a rough 0.1 coat, 41 bands, n = 200: a
 #: 1.3 GB R^t; made after the solve, the second solve had set the peak at 3.95 GB, made before it 2.97 GB).
 #: The solve itself keeps about one of two cores busy (docs/compose-overhead.md), so beside it the estimate's
-#: time is mostly hidden.
+#: time is mostly hidden; beside it the second solve runs on one thread (its rough top too), leaving the solver's
+#: background thread to the solve at n.
 CONCURRENT_SECOND_BYTES = 256e6
 
 
@@ -359,16 +362,16 @@ def _solve_reported(recipe, n, raw, catalog, log, store, verify, progress, allow
     """:func:`solve_reported`'s body; ``pool`` runs the discretisation's second solve beside the main one."""
     second_s = []
 
-    def timed(paint, n_solve, version):
+    def timed(paint, n_solve, version, threads=None):
         t0 = time.perf_counter()
         try:
-            return second_report(paint, n_solve, version, colour_settings, progress)
+            return second_report(paint, n_solve, version, colour_settings, progress, threads)
         finally:
             second_s.append(time.perf_counter() - t0)
 
     def second(paint, n_solve, version):  # the discretisation's second solve, beside or before the solve at n_solve
         if version is None and 4.0 * paint.n_channels * float(n_solve) ** 3 <= CONCURRENT_SECOND_BYTES:
-            return pool.submit(timed, paint, n_solve, version)
+            return pool.submit(timed, paint, n_solve, version, 1)
         return timed(paint, n_solve, version)
 
     solved = solve_recipe(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical,
