@@ -478,10 +478,9 @@ def multiple_scattering_escape(mu_above, mu_below, eta, alpha, n_grid=MS_CHAIN_G
 def dielectric_albedo_and_escape(mu_above, mu_below, eta, alpha, n_grid=MS_CHAIN_GRID, n_quad=MS_CHAIN_QUAD):
     """((R_a, T_a), (R_b, T_b), (P_a, P_b)): the single-scattering albedos of :func:`microfacet_albedo`
     (with n = ``n_quad``) from above at ``mu_above`` (η) and from below at ``mu_below`` (1/η), and the
-    escape probabilities of :func:`multiple_scattering_escape`, from one pass over the facet samples at
-    the nodes (:func:`_first_events`): the same values bit for bit as the two functions, for the cost of
-    the chain alone (measured at n 200, α 0.1: the albedos were 50 ms on top of the chain's 110).
-    Cached (read-only results): the chain depends only on the cosines, η and α."""
+    escape probabilities of :func:`multiple_scattering_escape`, the albedos from one set of facet samples at
+    the nodes for both sides when they share their cosines (:func:`_single_albedos`): the same values bit for
+    bit as the two functions.  Cached (read-only results): the chain depends only on the cosines, η and α."""
     a = np.ascontiguousarray(np.atleast_1d(mu_above), dtype=float)
     b = np.ascontiguousarray(np.atleast_1d(mu_below), dtype=float)
     return _ms_escape_cached(a.tobytes(), b.tobytes(), float(eta), float(alpha), int(n_grid), int(n_quad))
