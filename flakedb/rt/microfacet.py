@@ -337,20 +337,12 @@ def _smith_lambda(mu, alpha):
     return 1.0 / np.maximum(smith_G1(mu, alpha), 1e-12) - 1.0
 
 
-def _first_events(mu, eta_rel, alpha, n, fresnel=None, albedo=False):
-    """Where one facet event sends light arriving at cosines ``mu`` (K,) on a Beckmann surface, with
-    the **height-correlated** Smith escape probabilities (Heitz 2014, "Understanding the masking-
-    shadowing function", eq. 99 for reflection, (1 + Λ_i) B(1 + Λ_i, 1 + Λ_o) for transmission;
-    uncorrelated heights, the statistics of the walk in :mod:`flakedb.reference.microsurface`).
-    The facet normals are integrated in slope space as in :func:`microfacet_albedo` (n × n rule).
-    Returns (wR, zR, eR, wT, zT, eT), each (…, K, n, n): the weight of the reflected / refracted
-    branch (quadrature weight × visible-normal density × F or 1 − F), |cos| of the outgoing
-    direction against the macro-normal, and its escape probability (0 where it points back into the
-    surface).  ``fresnel``: a conductor's F(c) → (C, …): wR gets a leading channel axis, wT is None.
-
-    ``albedo`` (a dielectric only): also the single-scattering albedos (R, T), each (1, K), of
-    :func:`microfacet_albedo` with the same ``n``, from the same facet samples (its c, F, visible-normal
-    density, reflected and refracted directions and Smith factors are these), bit for bit its values."""
+def _facet_samples(mu, alpha, n):
+    """The facet samples at cosines ``mu`` (K,) on a Beckmann surface, integrated in slope space as in
+    :func:`microfacet_albedo` (n × n rule), shared by :func:`_first_events` and :func:`_single_albedos`: the
+    quadrature weights W (1, n, n), the incidence cosines (K, 1, 1), the facet normals' z (1, n, n), i·m (K, n, n),
+    the visible-normal density (microfacet_albedo's "base"), the reflected direction's z, its |z| clipped to
+    [1e-12, 1] and Smith's G1 there."""
     gu, wu = _gauss_legendre(n)
     u, wu = 0.5 * (gu + 1.0), 0.5 * wu
     ph = 0.5 * np.pi * (gu + 1.0)
@@ -366,29 +358,41 @@ def _first_events(mu, eta_rel, alpha, n, fresnel=None, albedo=False):
     c = si * mx + mi * mz
     ok = c > 0
     density = np.where(ok, c * smith_G1(mi, alpha) / (mi * mz), 0.0)  # microfacet_albedo's "base"
-    base = density * W
-    Li = _smith_lambda(mi, alpha)
     orz = 2.0 * c * mz - mi
     zR = np.clip(np.abs(orz), 1e-12, 1.0)
-    G1R = smith_G1(zR, alpha)
-    eR = np.where(orz > 0, (1.0 + Li) / (1.0 + Li + (1.0 / np.maximum(G1R, 1e-12) - 1.0)), 0.0)  # Λ = 1/G1 − 1
-    if fresnel is not None:
-        return fresnel(c) * base, zR, eR, None, None, None
+    return W, mi, mz, c, density, orz, zR, smith_G1(zR, alpha)
+
+
+def _refracted(c, mi, mz, eta_rel):
+    """Fresnel's F at the facet cosines ``c`` into relative index ``eta_rel``, sin²θ_t, the refracted direction's
+    z and its |z| clipped to [1e-12, 1] (Walter et al. 2007 eq. 40)."""
     F = fresnel_dielectric_real(c, eta_rel)
     sin2_t = (1.0 - c * c) / eta_rel**2
     cos_t = np.sqrt(np.maximum(1.0 - sin2_t, 0.0))
     otz = -mi / eta_rel + (c / eta_rel - cos_t) * mz
-    zT = np.clip(np.abs(otz), 1e-12, 1.0)
-    down = (otz < 0) & (sin2_t < 1.0)
-    live = down & (base > 0)
+    return F, sin2_t, otz, np.clip(np.abs(otz), 1e-12, 1.0)
+
+
+def _first_events(mu, eta_rel, alpha, n, fresnel=None):
+    """Where one facet event sends light arriving at cosines ``mu`` (K,) on a Beckmann surface, with
+    the **height-correlated** Smith escape probabilities (Heitz 2014, "Understanding the masking-
+    shadowing function", eq. 99 for reflection, (1 + Λ_i) B(1 + Λ_i, 1 + Λ_o) for transmission;
+    uncorrelated heights, the statistics of the walk in :mod:`flakedb.reference.microsurface`).
+    The facet normals are integrated in slope space as in :func:`microfacet_albedo` (n × n rule).
+    Returns (wR, zR, eR, wT, zT, eT), each (…, K, n, n): the weight of the reflected / refracted
+    branch (quadrature weight × visible-normal density × F or 1 − F), |cos| of the outgoing
+    direction against the macro-normal, and its escape probability (0 where it points back into the
+    surface).  ``fresnel``: a conductor's F(c) → (C, …): wR gets a leading channel axis, wT is None."""
+    W, mi, mz, c, density, orz, zR, G1R = _facet_samples(mu, alpha, n)
+    base = density * W
+    Li = _smith_lambda(mi, alpha)
+    eR = np.where(orz > 0, (1.0 + Li) / (1.0 + Li + (1.0 / np.maximum(G1R, 1e-12) - 1.0)), 0.0)  # Λ = 1/G1 − 1
+    if fresnel is not None:
+        return fresnel(c) * base, zR, eR, None, None, None
+    F, sin2_t, otz, zT = _refracted(c, mi, mz, eta_rel)
+    live = (otz < 0) & (sin2_t < 1.0) & (base > 0)
     eT = np.zeros_like(otz)
-    if albedo:  # G1 wherever microfacet_albedo's refracted term is not multiplied by 0 (a superset of live)
-        seen = down & (density > 0)
-        G1T = np.zeros_like(otz)
-        G1T[seen] = smith_G1(zT[seen], alpha)
-        Lo = 1.0 / np.maximum(G1T[live], 1e-12) - 1.0
-    else:
-        Lo = _smith_lambda(zT[live], alpha)
+    Lo = _smith_lambda(zT[live], alpha)
     Lil = np.broadcast_to(Li, otz.shape)[live]
     # ln Γ(1 + Λ_o) and ln Γ(2 + Λ_i + Λ_o): where Λ_o = 0 (G1 = 1, most refracted directions: from the
     # air all of them at α 0.1) they are ln Γ(1) and the incidence's ln Γ(2 + Λ_i), taken per cosine
@@ -399,21 +403,33 @@ def _first_events(mu, eta_rel, alpha, n, fresnel=None, albedo=False):
         lg_o[some] = _lgamma(1.0 + Lo[some])
         lg_s[some] = _lgamma(2.0 + Lil[some] + Lo[some])
     eT[live] = (1.0 + Lil) * np.exp(np.broadcast_to(_lgamma(1.0 + Li), otz.shape)[live] + lg_o - lg_s)
-    out = F * base, zR, eR, np.where(sin2_t < 1.0, 1.0 - F, 0.0) * base, zT, eT
-    if not albedo:
-        return out
-    # microfacet_albedo evaluates G1 at |cos| clipped to 1e-300, these at 1e-12: the few cosines in
+    return F * base, zR, eR, np.where(sin2_t < 1.0, 1.0 - F, 0.0) * base, zT, eT
+
+
+def _single_albedos(mu, eta_rels, alpha, n):
+    """The single-scattering albedos (R, T), each (1, K), of :func:`microfacet_albedo` with the same ``n`` at cosines
+    ``mu`` (K,), for each relative index of ``eta_rels``, from one set of facet samples (:func:`_facet_samples`: the
+    facets, their density and the reflected directions do not depend on the index): bit for bit its values."""
+    W, mi, mz, c, density, orz, _, G1R = _facet_samples(mu, alpha, n)
+    # microfacet_albedo evaluates G1 at |cos| clipped to 1e-300, the samples at 1e-12: the few cosines in
     # between are evaluated again
     gr = np.where(orz > 0, G1R, 0.0)
     tiny = (orz > 0) & (orz < 1e-12)
     if tiny.any():
         gr[tiny] = smith_G1(orz[tiny], alpha)
-    tiny = seen & (otz > -1e-12)
-    if tiny.any():
-        G1T[tiny] = smith_G1(otz[tiny], alpha)
-    R = np.einsum("...kab,ab->...k", F * density * gr, W[0])
-    T = np.einsum("kab,ab->k", (1.0 - F) * density * G1T, W[0])
-    return out + ((R[None], T[None]),)
+    out = []
+    for eta_rel in eta_rels:
+        F, sin2_t, otz, zT = _refracted(c, mi, mz, eta_rel)
+        seen = (otz < 0) & (sin2_t < 1.0) & (density > 0)  # where microfacet_albedo's refracted term is not 0
+        G1T = np.zeros_like(otz)
+        G1T[seen] = smith_G1(zT[seen], alpha)
+        tiny = seen & (otz > -1e-12)
+        if tiny.any():
+            G1T[tiny] = smith_G1(otz[tiny], alpha)
+        R = np.einsum("...kab,ab->...k", F * density * gr, W[0])
+        T = np.einsum("kab,ab->k", (1.0 - F) * density * G1T, W[0])
+        out.append((R[None], T[None]))
+    return out
 
 
 def _hat_matrix(grid, z, wt):
@@ -462,10 +478,9 @@ def multiple_scattering_escape(mu_above, mu_below, eta, alpha, n_grid=MS_CHAIN_G
 def dielectric_albedo_and_escape(mu_above, mu_below, eta, alpha, n_grid=MS_CHAIN_GRID, n_quad=MS_CHAIN_QUAD):
     """((R_a, T_a), (R_b, T_b), (P_a, P_b)): the single-scattering albedos of :func:`microfacet_albedo`
     (with n = ``n_quad``) from above at ``mu_above`` (η) and from below at ``mu_below`` (1/η), and the
-    escape probabilities of :func:`multiple_scattering_escape`, from one pass over the facet samples at
-    the nodes (:func:`_first_events`): the same values bit for bit as the two functions, for the cost of
-    the chain alone (measured at n 200, α 0.1: the albedos were 50 ms on top of the chain's 110).
-    Cached (read-only results): the chain depends only on the cosines, η and α."""
+    escape probabilities of :func:`multiple_scattering_escape`, the albedos from one set of facet samples at
+    the nodes for both sides when they share their cosines (:func:`_single_albedos`): the same values bit for
+    bit as the two functions.  Cached (read-only results): the chain depends only on the cosines, η and α."""
     a = np.ascontiguousarray(np.atleast_1d(mu_above), dtype=float)
     b = np.ascontiguousarray(np.atleast_1d(mu_below), dtype=float)
     return _ms_escape_cached(a.tobytes(), b.tobytes(), float(eta), float(alpha), int(n_grid), int(n_quad))
@@ -487,14 +502,17 @@ def _multiple_scattering_escape(mu_above, mu_below, eta, alpha, n_grid, n_quad):
     signature and the cache key of the callers."""
     Pa, Pb = height_chain_escape(mu_above, mu_below, eta, alpha)
 
-    def single(mu, eta_rel):  # a few cosines at a time: the temporaries stay in cache
-        mu = np.atleast_1d(np.asarray(mu, dtype=float))
+    def single(mu, etas):  # [(R, T) per index], a few cosines at a time: the temporaries stay in cache
         step = max(1, MS_CHUNK_SAMPLES // (n_quad * n_quad))
-        parts = [_first_events(mu[k:k + step], eta_rel, alpha, n_quad, albedo=True)[-1]
-                 for k in range(0, len(mu), step)]
-        return tuple(np.concatenate([part[j] for part in parts], axis=-1) for j in range(2))
+        parts = [_single_albedos(mu[k:k + step], etas, alpha, n_quad) for k in range(0, len(mu), step)]
+        return [tuple(np.concatenate([part[e][j] for part in parts], axis=-1) for j in range(2)) for e in range(len(etas))]
 
-    return (Pa, single(mu_above, eta)), (Pb, single(mu_below, 1.0 / eta))
+    a, b = (np.atleast_1d(np.asarray(mu, dtype=float)) for mu in (mu_above, mu_below))
+    if a.shape == b.shape and np.array_equal(a, b):  # one rule on both sides: the facets sampled once
+        sa, sb = single(a, (eta, 1.0 / eta))
+    else:
+        (sa,), (sb,) = single(a, (eta,)), single(b, (1.0 / eta,))
+    return (Pa, sa), (Pb, sb)
 
 
 # ------------------------------------------------------------------------------------------------

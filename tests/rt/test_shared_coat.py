@@ -126,3 +126,16 @@ def test_one_rule_on_both_sides_shares_the_facets_and_gives_each_side_its_own_es
     for k in (0, 1):
         alone = mf._facet_outcomes(-mu, ((eta, 1.0 / eta)[k],), alpha, 16, 6)[0]
         assert both[k].tobytes() == mf._spread_signed(zs, alone[1], alone[0]).tobytes()
+
+
+@pytest.mark.parametrize("eta, alpha", [(1.5, 0.1), (1.0 / 1.5, 0.3), (1.1, 0.02)])
+def test_one_rule_on_both_sides_gives_each_side_microfacet_albedo_bit_for_bit(eta, alpha):
+    """The single-scattering albedos of both sides from one set of facet samples (mf._single_albedos with both
+    indices, a rough top's rule above and below) are microfacet_albedo's, bit for bit, over several chunks of
+    cosines (MS_CHUNK_SAMPLES)."""
+    mu = radau_hemisphere(50).x
+    assert len(mu) * mf.MS_CHAIN_QUAD**2 > 2 * mf.MS_CHUNK_SAMPLES
+    (Ra, Ta), (Rb, Tb), _ = mf.dielectric_albedo_and_escape(mu, mu, eta, alpha)
+    for (R, T), e in (((Ra, Ta), eta), ((Rb, Tb), 1.0 / eta)):
+        R2, T2 = mf.microfacet_albedo(mu, e, alpha)
+        assert R.tobytes() == np.asarray(R2).tobytes() and T.tobytes() == np.asarray(T2).tobytes()
