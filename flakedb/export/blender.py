@@ -309,7 +309,7 @@ def _F0(n):
     return ((n - 1.0) / (n + 1.0)) ** 2
 
 
-def _smith_lambda(a2, mu):
+def smith_lambda(a2, mu):
     """GGX's Smith Λ(μ) = (sqrt(1 + α² tan²θ) - 1) / 2 (Heitz 2014, eq. 72), ``a2`` = α²."""
     mu = np.clip(mu, 1e-12, 1.0)
     return 0.5 * (np.sqrt(1.0 + a2 * (1.0 / (mu * mu) - 1.0)) - 1.0)
@@ -323,7 +323,7 @@ def ggx_lobe_height_correlated(mu_v, mu_l, cos_h, alpha):
     a2 = max(float(alpha), 1e-3) ** 2
     ch = np.clip(cos_h, 1e-12, 1.0)
     D = a2 / (np.pi * (ch * ch * (a2 - 1.0) + 1.0) ** 2)
-    G2 = 1.0 / (1.0 + _smith_lambda(a2, mu_v) + _smith_lambda(a2, mu_l))
+    G2 = 1.0 / (1.0 + smith_lambda(a2, mu_v) + smith_lambda(a2, mu_l))
     return D * G2 / (4.0 * np.clip(mu_v, 1e-12, 1.0) * np.clip(mu_l, 1e-12, 1.0))
 
 
@@ -374,7 +374,7 @@ def ggx_lobe_averages(roughness: float, mu_v, n: float, n_u: int = 48, n_phi: in
     ok = (vh > 0.0) & (mu_l > 0.0)
     # f μ_l dω_l = D G2 / (4 μ_v μ_l) μ_l 4 (v·h) dω_h = [G2 (v·h) / (μ_v cos θ_h)] D cos θ_h dω_h
     g = np.where(ok, vh / (mu[:, None, None] * ch[None, :, None])
-                 / (1.0 + _smith_lambda(a2, mu)[:, None, None] + _smith_lambda(a2, mu_l)), 0.0)
+                 / (1.0 + smith_lambda(a2, mu)[:, None, None] + smith_lambda(a2, mu_l)), 0.0)
     E = np.einsum("u,mup->m", w, g) / n_phi
     S = np.einsum("u,mup->m", w, g * fresnel_blend(vh, n)) / n_phi
     s_bar = S / np.where(E > 0, E, 1.0)
