@@ -309,7 +309,7 @@ def _F0(n):
     return ((n - 1.0) / (n + 1.0)) ** 2
 
 
-def _smith_lambda(a2, mu):
+def smith_lambda(a2, mu):
     """GGX's Smith Λ(μ) = (sqrt(1 + α² tan²θ) - 1) / 2 (Heitz 2014, eq. 72), ``a2`` = α²."""
     mu = np.clip(mu, 1e-12, 1.0)
     return 0.5 * (np.sqrt(1.0 + a2 * (1.0 / (mu * mu) - 1.0)) - 1.0)
@@ -323,7 +323,7 @@ def ggx_lobe_height_correlated(mu_v, mu_l, cos_h, alpha):
     a2 = max(float(alpha), 1e-3) ** 2
     ch = np.clip(cos_h, 1e-12, 1.0)
     D = a2 / (np.pi * (ch * ch * (a2 - 1.0) + 1.0) ** 2)
-    G2 = 1.0 / (1.0 + _smith_lambda(a2, mu_v) + _smith_lambda(a2, mu_l))
+    G2 = 1.0 / (1.0 + smith_lambda(a2, mu_v) + smith_lambda(a2, mu_l))
     return D * G2 / (4.0 * np.clip(mu_v, 1e-12, 1.0) * np.clip(mu_l, 1e-12, 1.0))
 
 
@@ -374,7 +374,7 @@ def ggx_lobe_averages(roughness: float, mu_v, n: float, n_u: int = 48, n_phi: in
     ok = (vh > 0.0) & (mu_l > 0.0)
     # f μ_l dω_l = D G2 / (4 μ_v μ_l) μ_l 4 (v·h) dω_h = [G2 (v·h) / (μ_v cos θ_h)] D cos θ_h dω_h
     g = np.where(ok, vh / (mu[:, None, None] * ch[None, :, None])
-                 / (1.0 + _smith_lambda(a2, mu)[:, None, None] + _smith_lambda(a2, mu_l)), 0.0)
+                 / (1.0 + smith_lambda(a2, mu)[:, None, None] + smith_lambda(a2, mu_l)), 0.0)
     E = np.einsum("u,mup->m", w, g) / n_phi
     S = np.einsum("u,mup->m", w, g * fresnel_blend(vh, n)) / n_phi
     s_bar = S / np.where(E > 0, E, 1.0)
@@ -825,27 +825,32 @@ def render_cycles_geometries(geometries, *, inputs: dict | None = None, cpa: dic
     return np.pi * np.asarray(out["info"]["means"], float) / np.cos(np.radians(g[:, :1]))
 
 
-#: A square patch of side ``side_m`` metres in the x-y plane (UV = position in metres, so the glint cells are in
-#: world units), seen from +z by an orthographic camera covering it, under a sun at ``light_deg`` from the
-#: normal in the x-z plane.  Two renders: the material (radiance), then, when ``cells`` is set, the node
+#: A square patch (UV = position in metres, so the glint cells are in world units), seen from +z by an
+#: orthographic camera covering ``side_m`` metres, turned by ``view_deg`` about y (its normal (sin x, 0, cos x):
+#: the view at x from the normal on the patch's −u side; wider by 1 / cos x so that it fills the frame), under a
+#: sun at ``light_deg`` from the patch's normal on its +u side (in the patch's frame: view (−sin x, 0, cos x),
+#: light (sin θ, 0, cos θ)).  Two renders: the material (radiance), then, when ``cells`` is set, the node
 #: group's ``Cell`` output as an emission of strength 1 (the integer cell coordinates at every pixel centre).
 #: Pixels out as raw float32 RGBA files (row 0 at the bottom, Blender's order).
 _PATCH_SCRIPT = """
 import array
-bpy.ops.mesh.primitive_plane_add(size=a["side_m"])
+x = math.radians(a["view_deg"])
+size = a["side_m"] / math.cos(x)
+bpy.ops.mesh.primitive_plane_add(size=size)
 ob = bpy.context.object
+ob.rotation_euler = (0.0, x, 0.0)
 me = ob.data
 uvl = me.uv_layers.active
 for lp in me.loops:
     co = me.vertices[lp.vertex_index].co
-    uvl.data[lp.index].uv = (co.x + 0.5 * a["side_m"], co.y + 0.5 * a["side_m"])
+    uvl.data[lp.index].uv = (co.x + 0.5 * size, co.y + 0.5 * size)
 mat = build_cpa_material(bpy, "flakedb_cpa", a["cpa"], "{}")
 me.materials.append(mat)
 cam = bpy.data.cameras.new("cam"); cam.type = "ORTHO"; cam.ortho_scale = a["side_m"]
 co = bpy.data.objects.new("cam", cam); sc.collection.objects.link(co); co.location = (0.0, 0.0, 1.0); sc.camera = co
 ld = bpy.data.lights.new("sun", "SUN"); ld.energy = 1.0; ld.angle = 2.0 * math.radians(a["half_angle_deg"])
 lo = bpy.data.objects.new("sun", ld); sc.collection.objects.link(lo)
-t = math.radians(a["light_deg"])
+t = x + math.radians(a["light_deg"])
 lo.rotation_euler = Vector((math.sin(t), 0.0, math.cos(t))).to_track_quat("Z", "Y").to_euler()
 sc.render.image_settings.file_format = "OPEN_EXR"
 sc.render.image_settings.color_depth = "32"
@@ -873,12 +878,12 @@ open(a["out"], "w").write(json.dumps({"pixels": [], "blender": bpy.app.version_s
 
 
 def render_cycles_patch(cpa: dict, *, side_m: float, size: int, light_deg: float, half_angle_deg: float,
-                        samples: int = 16, cells: bool = False, filter_width_px: float = 0.01, threads: int = 2,
+                        view_deg: float = 0.0, samples: int = 16, cells: bool = False, filter_width_px: float = 0.01, threads: int = 2,
                         seed: int = 1, python: str | None = None, timeout: float = 600.0) -> dict:
     """Render the node group of ``cpa`` (:func:`cpa_inputs`, with or without its sparkle layer) on a flat
-    square patch of side ``side_m`` metres (UV = position in metres) seen along its normal by an
-    orthographic camera, ``size`` px, under a sun of irradiance 1 and angular radius ``half_angle_deg`` at
-    ``light_deg`` from the normal, black world, ``samples`` per pixel (no adaptive sampling), every sample at
+    square patch (UV = position in metres) seen at ``view_deg`` from its normal by an orthographic camera
+    covering ``side_m`` metres, ``size`` px, under a sun of irradiance 1 and angular radius ``half_angle_deg`` at
+    ``light_deg`` from the normal on the other side (:data:`_PATCH_SCRIPT`), black world, ``samples`` per pixel (no adaptive sampling), every sample at
     its pixel's centre (``filter_width_px`` 0.01) unless a wider filter is asked for.  Returns {"image":
     (size, size, 3) radiance, linear sRGB, row 0 at the top; when ``cells``, "cells": (size, size, 2) integer
     cell coordinates and "random": (size, size, 3) the cell's uniform numbers (u₁, u₂, u₃) at the pixel
@@ -886,7 +891,7 @@ def render_cycles_patch(cpa: dict, *, side_m: float, size: int, light_deg: float
     args = render_args(size=size, samples=samples, direction=(0, 0, 1), irradiance=1.0, half_angle_deg=half_angle_deg,
                        extent=1.0, threads=threads, seed=seed, filter_width_px=filter_width_px, adaptive_sampling=False)
     with tempfile.TemporaryDirectory(prefix="flakedb-patch-") as tmp:
-        args.update(cpa=cpa, side_m=float(side_m), light_deg=float(light_deg), cells=bool(cells),
+        args.update(cpa=cpa, side_m=float(side_m), light_deg=float(light_deg), view_deg=float(view_deg), cells=bool(cells),
                     radiance_raw=str(Path(tmp) / "radiance.raw"), cells_raw=str(Path(tmp) / "cells.raw"),
                     random_raw=str(Path(tmp) / "random.raw"))
         out = run_bpy_script(_CPA_BUILD + SCENE_SETUP_SCRIPT + _PATCH_SCRIPT, args, python=python, timeout=timeout)

@@ -132,7 +132,8 @@ EXPORT_METHODS = {
                 "colour travel, the table's lobe shape beyond one GGX lobe, sparkle"),
     "cpa": (export_cpa, "coat mirror, Lambert + 3 GGX lobes with RGB colours indexed by N.V (MaterialX graph, "
                         "Blender node group, PNG table)",
-            "colour changes with the light direction beyond the lobes' shapes, the coat's refraction, sparkle"),
+            "colour changes with the light direction beyond the lobes' shapes, the coat's refraction, sparkle unless "
+            "sparkle_recipe is given"),
 }
 
 

@@ -6,13 +6,13 @@ The layer (what the Blender node group and the MaterialX graph evaluate, term fo
 ---------------------------------------------------------------------------------------
 The surface is cut into square cells of side ``cell_um`` in world units (the UV map in metres; one
 cell = one flake seen from above: at the loadings of effect paints the flakes one sees form a mosaic,
-docs/texture.md).  Each cell draws two uniform numbers (u₁, u₂) from its integer cell coordinates
-and with them a normal m in the tangent frame (T, B, N) from lobe k's GGX distribution weighted by
+docs/texture.md).  Each cell draws three uniform numbers (u₁, u₂, u₃) from its integer cell coordinates,
+holds a flake when u₃ < f (the occupancy), and draws a normal m in the tangent frame (T, B, N) from lobe k's GGX distribution weighted by
 projected area, p(m) = D_k(m) (m·N) (Walter et al. 2007, eq. 35–36)::
 
     tan θ_m = α_k √(u₁ / (1 − u₁)),  φ_m = 2π u₂.
 
-The cell's BSDF is lobe k's colour share β C_k(μ_v) times a narrow GGX lobe (Cycles' Glossy BSDF,
+An occupied cell's BSDF is lobe k's colour share over the occupancy, β C_k(μ_v) / f, times a narrow GGX lobe (Cycles' Glossy BSDF,
 α_g) about m, times the weight
 
     W(m, ω_v) = G2_k(ω_v, ω_l*) (m·ω_v) / ((m·N) (N·ω_v) G2_g(m·ω_v, m·ω_v)),  ω_l* = 2 (m·ω_v) m − ω_v,
@@ -22,18 +22,19 @@ the radiance E D_g(h; m) G2_g / (4 m·ω_v) (the Glossy BSDF with the shading no
 cells (m ~ p) and with α_g → 0 this is E D_k(h) (h·N) G2_g / (4 h·ω_v), while the smooth lobe gives
 E D_k(h) G2_k / (4 N·ω_v).  The ratio depends on m and ω_v only once h = m, the one normal that lights
 a narrow lobe, so W evaluated at the mirror direction ω_l* of the cell makes the cells' mean the
-smooth lobe's, to O(α_g² / α_k²) (the narrow lobe's width; measured in the tests).  The mean of the
-whole material is then the smooth material's: ``mean_ratio`` states it, and Cycles renders it
-(tests/export/test_sparkle.py, docs/renderers.md).
+smooth lobe's, to O((α_g/α_k)² ln(α_k/α_g)) (the narrow lobe's width and its GGX tail).  The mean of the
+whole material is then the smooth material's (measured in numpy and in Cycles: tests/export/test_sparkle.py,
+docs/renderers.md).
 
 Parameters from the texture model (:func:`flakedb.texture.model.sparkle_indices`)
 -------------------------------------------------------------------------------
-* α_g, a glint's width: the flake's diffraction.  A circular flake of diameter D (area A) reflects its
-  power into a far-field whose on-axis intensity is A / λ'² per steradian of the total (Airy, in the
-  binder; λ' = λ/η); in half-vector space (¼ of the solid angle) and mapped to air (slopes × η,
-  paraxial) a GGX lobe of the same peak density has 1 / (π α_g²) = 4 A η² / (λ'² η² ...) i.e.
-  ``α_g = λ / (π D)`` with λ the wavelength in air (555 nm, :data:`flakedb.texture.instruments.DIFFRACTION_WAVELENGTH_NM`)
-  and D the median diameter: 0.011 for 16 µm flakes.  The source's size is the renderer's light.
+* α_g, a glint's width: the flake's diffraction.  A circular flake of diameter D (area A) sends a fraction
+  A / λ'² of its reflected power per steradian along its mirror direction (the Airy pattern's peak; λ' = λ/η
+  in the binder); per unit half-vector solid angle that is 4 A / λ'² (dω_o = 4 cos θ_d dω_h), and mapped to
+  air (half-vector slopes × η, paraxial: solid angles × η²) 4 A / λ².  The GGX lobe of the same peak,
+  D(0) = 1 / (π α_g²), has ``α_g = λ / (π D)`` (λ in air: 555 nm,
+  :data:`flakedb.texture.instruments.DIFFRACTION_WAVELENGTH_NM`; D the median diameter): 0.011 for 16 µm
+  flakes.  The source's size is the renderer's light.
 * the lobe k: the fitted lobe whose α is nearest the air image of the flake spread, η α_flake (a binder
   slope s is seen in air as η s for small tilts, docs/texture.md §3.1).
 * the share β: the model's ``flake_luminance_factor`` (the flakes' single mirror reflections, the part
@@ -43,7 +44,9 @@ Parameters from the texture model (:func:`flakedb.texture.model.sparkle_indices`
   model's fixed luminance threshold (``glint_threshold_luminance_factor``) is the model's
   ``glints_per_mm2_above_threshold`` at the reference geometry (light polar angle, view along the
   normal, source half-angle: :func:`layer_glints_per_mm2`).  Elsewhere the layer predicts its own count
-  from its own normals and widths; the tests compare it with the model at a second light angle.
+  from its own normals and widths; the tests compare it with the model at other lights and sources.
+* the occupancy f = β Y(C_k) / Y_flake (at most 1), Y_flake = R(c) T_in T_out of an aligned surface flake:
+  an occupied cell is as bright as a flake, so the glints reach the model's threshold as flakes do.
 
 All vectors are in the tangent frame (N = +z); every function is vectorised over leading axes.
 """
@@ -55,8 +58,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from flakedb.export.blender import _smith_lambda, sun_disk
-from flakedb.texture.instruments import DIFFRACTION_WAVELENGTH_NM
+from flakedb.export.blender import ggx_lobe_height_correlated, smith_lambda, sun_disk
+from flakedb.paint.texture_inputs import texture_stack
+from flakedb.texture.instruments import DIFFRACTION_WAVELENGTH_NM, Observer
+from flakedb.texture.model import directional_geometry, sparkle_indices
 
 #: Rec. 709 / sRGB luminance weights of linear RGB (the cpa table's channels).
 Y_WEIGHTS = np.array([0.2126, 0.7152, 0.0722])
@@ -134,8 +139,8 @@ def cell_weight(m, v, lobe_alpha: float, glint_alpha_: float):
     mu_l = 2.0 * mv * mn - nv
     ok = (mv > 0) & (mu_l > 0) & (mn > 0)
     a2k, a2g = float(lobe_alpha) ** 2, float(glint_alpha_) ** 2
-    g2k = 1.0 / (1.0 + _smith_lambda(a2k, nv) + _smith_lambda(a2k, np.where(ok, mu_l, 1.0)))
-    g2g = 1.0 / (1.0 + 2.0 * _smith_lambda(a2g, np.where(ok, mv, 1.0)))
+    g2k = 1.0 / (1.0 + smith_lambda(a2k, nv) + smith_lambda(a2k, np.where(ok, mu_l, 1.0)))
+    g2g = 1.0 / (1.0 + 2.0 * smith_lambda(a2g, np.where(ok, mv, 1.0)))
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(ok, g2k * mv / (np.maximum(mn, 1e-12) * nv * g2g), 0.0)
 
@@ -153,7 +158,7 @@ def glint_radiance(m, v, light_dir, half_angle_deg: float, glint_alpha_: float):
     mh = np.einsum("...c,kc->...k", m, h)
     ml = np.einsum("...c,kc->...k", m, dirs)
     D = ggx_D(mh, glint_alpha_)
-    G2 = 1.0 / (1.0 + _smith_lambda(a2, np.clip(mv, 1e-12, 1)) + _smith_lambda(a2, np.clip(ml, 1e-12, 1)))
+    G2 = 1.0 / (1.0 + smith_lambda(a2, np.clip(mv, 1e-12, 1)) + smith_lambda(a2, np.clip(ml, 1e-12, 1)))
     # sun_disk's weights multiply f (m·ω) = D G2 / (4 m·ω_v) (the shading normal's cosine cancels):
     f_cos = np.where((ml > 0) & (mv > 0) & (dirs[:, 2] > 0), D * G2 / (4.0 * np.clip(mv, 1e-12, 1)), 0.0)
     return np.einsum("...k,k->...", f_cos, wts)
@@ -206,7 +211,6 @@ def layer_glints_per_mm2(layer: SparkleLayer, colour_Y: float, light_deg: float,
 def lobe_luminance_factor(colour_Y: float, lobe_alpha: float, light_deg: float) -> float:
     """π C_Y L_k of a fitted GGX lobe (:func:`flakedb.export.blender.ggx_lobe_height_correlated`) for a view
     along the normal and a directional light at ``light_deg``."""
-    from flakedb.export.blender import ggx_lobe_height_correlated
     t = math.radians(light_deg)
     return float(np.pi * colour_Y * ggx_lobe_height_correlated(1.0, math.cos(t), math.cos(0.5 * t), lobe_alpha))
 
@@ -286,10 +290,6 @@ def design_from_recipe(table, alphas, recipe, light_deg: float = REFERENCE_LIGHT
     (:func:`flakedb.paint.texture_inputs.texture_stack`), its glint row at the reference geometry
     (:func:`flakedb.texture.model.sparkle_indices`), the flake species with the most flakes per mm² for the
     diameter, spread and the aligned flake's luminance R(c) T_in T_out."""
-    from flakedb.paint.texture_inputs import texture_stack
-    from flakedb.texture.instruments import Observer
-    from flakedb.texture.model import directional_geometry, sparkle_indices
-
     stack, _ = texture_stack(recipe)
     if not stack.flakes:
         raise ValueError(f"recipe {recipe.name!r} has no flakes the texture model can use: no sparkle layer")

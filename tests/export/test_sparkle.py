@@ -257,12 +257,13 @@ PATCH_MEAN_RTOL = 0.02
 
 @pytest.mark.slow
 @needs_bpy
-@pytest.mark.parametrize("light_deg", [20.0, 45.0])
-def test_cycles_mean_is_the_smooth_render(silver_cpa, light_deg):
-    """A 40 mm patch (128 px, Blackman–Harris 1.5 px, 64 spp: each sample a different cell) under a 10° sun:
+@pytest.mark.parametrize("light_deg, view_deg", [(20.0, 0.0), (45.0, 0.0), (20.0, 40.0)])
+def test_cycles_mean_is_the_smooth_render(silver_cpa, light_deg, view_deg):
+    """A 40 mm patch (128 px, Blackman–Harris 1.5 px, 64 spp: each sample a different cell) under a 10° sun,
+    seen along its normal and at 40° from it (where the cells' weight W matters: test_cells_keep_the_lobe_mean):
     the mean with the glint layer is the smooth material's (no sparkle) within 2 % per channel."""
     fit, lay = silver_cpa
-    kw = dict(side_m=0.04, size=128, light_deg=light_deg, half_angle_deg=sp.REFERENCE_SOURCE_DEG, samples=64,
+    kw = dict(side_m=0.04, size=128, light_deg=light_deg, view_deg=view_deg, half_angle_deg=sp.REFERENCE_SOURCE_DEG, samples=64,
               filter_width_px=1.5, python=BLENDER_PYTHON)
     a = render_cycles_patch(cpa_inputs(fit.table, fit.alphas, fit.coat_ior, sp.node_inputs(lay)), **kw)["image"]
     b = render_cycles_patch(cpa_inputs(fit.table, fit.alphas, fit.coat_ior), **kw)["image"]
