@@ -35,6 +35,19 @@ projected kernel per unit loading, so an evaluation that moves only loadings rec
 The sensitivities reported at the solution are ∂(L*, a*, b*)/∂p per geometry, forward differences
 with the same steps (cache hits when the last Jacobian was taken there).
 
+Resolution of a fit
+-------------------
+Every evaluation of one fit stage uses one n, so the objective does not jump with n.  With a given n (``--n``,
+the recipe's ``resolution: N``) that n; with ``resolution: auto`` and loadings only, the auto resolution settled
+on the start values (:func:`flakedb.solve.pipeline.settle_node_count`).  With ``resolution: auto`` and a fitted
+field that is not a loading (an orientation α, a film thickness, a size: each evaluation recomputes a projection,
+docs/fit-speed.md), the fit first *searches* at a coarser n (:func:`search_node_count`: half the auto
+resolution's first choice for the start values), then settles the auto resolution on the searched values and
+*refines* there from the searched values with the same solver and stopping rules.  The result is the fit at the
+n that compose picks for the fitted recipe (a fit from a narrow start α ran at the start's larger n, and its
+colours then differed from its fitted recipe's by up to ΔE00 0.03 in the α bench); the search only supplies the
+refine's start, so its coarser n does not enter the result.
+
 Texture (docs/colour-matching.md, "Texture"): when the target has texture columns
 (:mod:`flakedb.match.texture`), each compose call also predicts the texture indices
 (:func:`flakedb.paint.texture_inputs.texture_report`, the composed BSDF as the ground) and the
@@ -440,6 +453,28 @@ class _Evaluator:
         return np.array([r["residual"] for r in rows], float)
 
 
+#: The last field of a loading's path: a fit moving only these reuses every species' optics and projection
+#: (:mod:`flakedb.rt.reuse`); any other fitted field recomputes a projection at every evaluation.
+LOADING_FIELDS = ("volume_fraction", "optical_depth", "weight_fraction")
+#: Smallest node count a search runs at (module docstring, "Resolution of a fit").
+SEARCH_MIN_N = 16
+
+
+def search_node_count(recipe, n, params):
+    """The coarser node count a fit searches at before it settles the resolution on the searched values
+    (module docstring, "Resolution of a fit"), or None (the fit settles n at its start and runs there): only
+    with ``resolution: auto`` (no ``n``, no recipe resolution) and a fitted field other than a loading; half
+    the auto resolution's first choice for the start values, even, at least :data:`SEARCH_MIN_N`, and None
+    when that is not coarser."""
+    if n is not None or recipe.n is not None:
+        return None
+    if all(p.name.rsplit(".", 1)[-1] in LOADING_FIELDS for p in params):
+        return None
+    n_auto = resolve_node_count(recipe)[0]
+    n_s = max(SEARCH_MIN_N, 2 * (n_auto // 4))
+    return n_s if n_s < n_auto else None
+
+
 def _fd_steps(params, z, lb, ub):
     h = np.array([FD_STEP if p.log else FD_STEP * (p.hi - p.lo) for p in params])
     return np.where(z + h > ub, -h, h)
@@ -477,7 +512,9 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
             raise RecipeError(source, [f"with every fit field at its {label}: {p}" for p in exc.problems]) from None
         if label == "start values":
             rec0 = rec
-    n = settle_node_count(rec0, n, catalog, store, raw, log)  # one n for every evaluation of the fit
+    n_search = search_node_count(rec0, n, params)
+    if n_search is None:
+        n = settle_node_count(rec0, n, catalog, store, raw, log)  # one n for every evaluation of the fit
     cs = for_target(rec0.mode, target, observer, illuminant)
     obs, ill = cs.observer, cs.illuminant
     geoms = compact(target.geometries)
@@ -489,7 +526,6 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
     lab_t = target.lab_under(obs, ill)
     scheme = tolerance if tolerance is not None else PerAngleLimits(default=DEFAULT_MAX_DE00)
     unit = float(getattr(scheme, "default", DEFAULT_MAX_DE00))  # a texture index at δ_k weighs one ΔE00 limit
-    ev = _Evaluator(doc, params, geoms, n, obs, ill, catalog, store, raw, source, target, texture_tolerance)
     to_p = lambda z: np.array([p.from_z(v) for p, v in zip(params, z)])
     lb = np.array([p.to_z(p.lo) for p in params])
     ub = np.array([p.to_z(p.hi) for p in params])
@@ -499,41 +535,63 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
     residuals = getattr(scheme, "residuals", ciede2000_residuals)  # the scheme's formula (--formula), else ΔE00
     de_label = getattr(getattr(scheme, "formula", None), "label", "dE00")
 
-    def resid(z):
-        colour = (sw[:, None] * residuals(lab_t, ev.lab(to_p(z)))).ravel()
-        return np.concatenate([colour, unit * ev.texture_residuals(to_p(z))])
+    def solve(ev, z_start, stage=""):
+        """Bounded least squares with ``ev``'s compositions from ``z_start``: (z, nfev, status, message)."""
+        def resid(z):
+            colour = (sw[:, None] * residuals(lab_t, ev.lab(to_p(z)))).ravel()
+            return np.concatenate([colour, unit * ev.texture_residuals(to_p(z))])
 
-    def jac(z):
-        r0 = resid(z)
-        h = _fd_steps(params, z, lb, ub)
-        J = np.empty((r0.size, len(params)))
-        for j in range(len(params)):
-            zj = z.copy()
-            zj[j] += h[j]
-            J[:, j] = (resid(zj) - r0) / h[j]
-        de = np.linalg.norm(residuals(lab_t, ev.lab(to_p(z))), axis=-1)
-        rt = np.abs(ev.texture_residuals(to_p(z)))
-        line = (f"iteration {len(history)}: {'cost (colour + texture)' if rt.size else f'sum w*{de_label}^2'} = "
-                f"{float(r0 @ r0):.4g}, max {de_label} = {de.max():.3f}"
-                + (f", max |texture difference|/tolerance = {rt.max():.3f}" if rt.size else "") + "; "
-                + ", ".join(f"{p.name} = {v:.6g}" for p, v in zip(params, to_p(z)))
-                + f"  [{ev.calls} compose calls, {ev.seconds / max(ev.calls, 1):.2f} s/call]")
-        history.append({"values": to_p(z).tolist(), "cost": float(r0 @ r0), "max_dE00": float(delta_E_2000(lab_t, ev.lab(to_p(z))).max())}
-                       | ({"max_texture_residual": float(rt.max())} if rt.size else {}))
-        log(line)
-        if de_tol and de.max() <= de_tol and np.all(unit * rt <= de_tol):
-            raise _Converged(z.copy())
-        return J
+        def jac(z):
+            r0 = resid(z)
+            h = _fd_steps(params, z, lb, ub)
+            J = np.empty((r0.size, len(params)))
+            for j in range(len(params)):
+                zj = z.copy()
+                zj[j] += h[j]
+                J[:, j] = (resid(zj) - r0) / h[j]
+            de = np.linalg.norm(residuals(lab_t, ev.lab(to_p(z))), axis=-1)
+            rt = np.abs(ev.texture_residuals(to_p(z)))
+            line = (f"{stage}iteration {len(history)}: "
+                    f"{'cost (colour + texture)' if rt.size else f'sum w*{de_label}^2'} = "
+                    f"{float(r0 @ r0):.4g}, max {de_label} = {de.max():.3f}"
+                    + (f", max |texture difference|/tolerance = {rt.max():.3f}" if rt.size else "") + "; "
+                    + ", ".join(f"{p.name} = {v:.6g}" for p, v in zip(params, to_p(z)))
+                    + f"  [{ev.calls} compose calls, {ev.seconds / max(ev.calls, 1):.2f} s/call]")
+            history.append({"values": to_p(z).tolist(), "cost": float(r0 @ r0),
+                            "max_dE00": float(delta_E_2000(lab_t, ev.lab(to_p(z))).max())}
+                           | ({"max_texture_residual": float(rt.max())} if rt.size else {})
+                           | ({"n": ev.n, "stage": "search"} if stage else {}))
+            log(line)
+            if de_tol and de.max() <= de_tol and np.all(unit * rt <= de_tol):
+                raise _Converged(z.copy())
+            return J
 
+        try:
+            sol = least_squares(resid, z_start, jac=jac, bounds=(lb, ub), method="trf", x_scale="jac",
+                                ftol=1e-10, xtol=1e-7, gtol=1e-10, max_nfev=max_nfev)
+            return sol.x, int(sol.nfev), int(sol.status), str(sol.message)
+        except _Converged as c:
+            return (c.z, len(history), 5, f"every {de_label} <= {de_tol:g}"
+                    + (" and every texture index within 1 % of its tolerance" if target.texture else ""))
+
+    z_begin, evaluators = z0, []
+    if n_search is not None:
+        # search at a coarser n, then the resolution settled on the searched values and the fit refined there
+        # (module docstring, "Resolution of a fit")
+        ev_s = _Evaluator(doc, params, geoms, n_search, obs, ill, catalog, store, raw, source, target,
+                          texture_tolerance)
+        evaluators.append(ev_s)
+        z_begin = solve(ev_s, z0, f"search (n = {n_search}) ")[0]
+        rec_s = recipe_from_doc(substitute(doc, params, to_p(z_begin)), source, catalog)
+        n = settle_node_count(rec_s, None, catalog, store, raw, log)
+        log(f"searched at n = {n_search}: " + ", ".join(f"{p.name} = {v:.6g}" for p, v in zip(params, to_p(z_begin)))
+            + f"; resolution at these values: n = {n}; refining there")
+    ev = (evaluators[0] if evaluators and evaluators[0].n == n else
+          _Evaluator(doc, params, geoms, n, obs, ill, catalog, store, raw, source, target, texture_tolerance))
+    if ev not in evaluators:
+        evaluators.append(ev)
     lab_start = ev.lab(to_p(z0)).copy()
-    try:
-        sol = least_squares(resid, z0, jac=jac, bounds=(lb, ub), method="trf", x_scale="jac",
-                            ftol=1e-10, xtol=1e-7, gtol=1e-10, max_nfev=max_nfev)
-        z_fit, nfev, status, message = sol.x, int(sol.nfev), int(sol.status), str(sol.message)
-    except _Converged as c:
-        z_fit, nfev, status = c.z, len(history), 5
-        message = f"every {de_label} <= {de_tol:g}" + (" and every texture index within 1 % of its tolerance"
-                                                   if target.texture else "")
+    z_fit, nfev, status, message = solve(ev, z_begin)
     p_fit = to_p(z_fit)
     pred = ev.prediction(p_fit)
     lab_fit = ev.lab(p_fit)
@@ -555,8 +613,9 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
                     if np.max(np.abs(sens[:, :, j])) * abs(p_fit[j]) / 100.0 < 1e-6
                     and np.all(np.abs(tsens[:, j]) * abs(p_fit[j]) / 100.0 < 1e-6 * tex_tol)]
     de_fit = delta_E_2000(lab_t, lab_fit)
+    calls, secs = sum(e.calls for e in evaluators), sum(e.seconds for e in evaluators)
     log(f"done: {message.strip()} after {len(history)} iteration(s); max dE00 {de_fit.max():.3f}; "
-        f"{ev.calls} compose calls, {ev.seconds / max(ev.calls, 1):.2f} s per call")
+        f"{calls} compose calls, {secs / max(calls, 1):.2f} s per call")
     values_out = np.array([float(f"{v:.6g}") for v in p_fit])
     tol = scheme.evaluate(geoms, lab_t, lab_fit)
     span = ub - lb
@@ -567,7 +626,8 @@ def match(doc, target, observer=None, illuminant=None, weights=None, n=None, cat
         params=params, start=to_p(z0), values=p_fit, geometries=geoms, weights=w, lab_target=lab_t,
         lab_start=lab_start, lab_fit=lab_fit, de_start=delta_E_2000(lab_t, lab_start), de_fit=de_fit,
         sensitivities=sens, fitted_doc=substitute(doc, params, values_out), prediction=pred, n=n,
-        observer=obs, illuminant=ill, n_compose=ev.calls, compose_s=ev.seconds, iterations=len(history),
+        observer=obs, illuminant=ill, n_compose=sum(e.calls for e in evaluators),
+        compose_s=sum(e.seconds for e in evaluators), iterations=len(history),
         nfev=nfev, status=status, message=message, history=history, tolerance=tol, at_bound=at_bound,
         texture_start=ev.texture(to_p(z0))[0], texture_fit=tex_fit, texture_sensitivities=tsens,
         texture_tolerance=float(texture_tolerance), sparkle=sparkle, undetermined=undetermined)
