@@ -179,3 +179,19 @@ def test_silver_is_reciprocal_and_its_luminance_is_srgb_y():
     f = read_tensor_file(SILVER)
     lum = np.einsum("c,ptcij->ptij", [0.2126729, 0.7151522, 0.0721750], f["rgb"].astype(float))
     assert np.allclose(lum, f["luminance"], rtol=1e-5, atol=1e-6 * f["luminance"].max())
+
+
+TARGETS = sorted((ROOT / "tools" / "validation" / "targets").glob("*.csv"))
+
+
+@pytest.mark.parametrize("csv", TARGETS, ids=[p.stem for p in TARGETS])
+def test_shipped_targets_are_the_files_read(csv):
+    # every shipped target names its source and CC0 licence; with the database's file at hand it is that file
+    # read by this code (to the CSV's 6 decimals)
+    t = read_target(csv)
+    assert np.allclose(t.geometries, G) and "RGL material database" in t.notes["source"]
+    assert "CC0" in t.notes["licence"]
+    f = RGL_DIR / f"{csv.stem}.bsdf"
+    if f.exists():
+        _, lab, _ = measured_target(f, G)
+        assert np.allclose(t.lab_under(observer="2", illuminant="D65"), lab, atol=2e-6)
