@@ -71,12 +71,13 @@ def main(argv):
             csv = f
         else:
             try:
-                _, lab, notes = measured_target(f, g)
+                m = measured_target(f, g)
             except MeasuredError as e:
                 print(f"error: {e}", file=sys.stderr)
                 return 2
-            csv = write_target(out / f"{name}.csv", g, lab=lab, observer="2", illuminant="D65", name=name,
-                               notes=notes)
+            csv = write_target(out / f"{name}.csv", g, lab=m.lab, reflectance=m.reflectance,
+                               wavelength_nm=m.wavelength_nm, observer="2", illuminant="D65", name=name,
+                               notes=m.notes)
         doc = yaml.safe_load((BASES / base).read_text(encoding="utf-8"))
         res = match(doc, read_target(csv), n=n, catalog=cat, max_nfev=max_nfev, source=base,
                     log=lambda s: print(s, file=sys.stderr, flush=True))

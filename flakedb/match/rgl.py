@@ -50,8 +50,8 @@ import numpy as np
 
 from flakedb.match.merl import in_plane_directions, merl_rgb_to_lab
 
-__all__ = ["RglBrdf", "RglError", "read_rgl", "read_tensor_file", "rgl_brdf", "rgl_target", "vndf_invert",
-           "write_tensor_file"]
+__all__ = ["RglBrdf", "RglError", "read_rgl", "read_tensor_file", "rgl_brdf", "rgl_spectral_target", "rgl_target",
+           "vndf_invert", "write_tensor_file"]
 
 TENSOR_MAGIC = b"tensor_file\0"
 #: Mitsuba Struct::EType codes -> numpy little-endian dtypes
@@ -293,7 +293,25 @@ def rgl_target(brdf, geometries_deg):
     out-of-gamut values of its spectra's sRGB, so M_sRGB · R is the spectra's XYZ (as far as the database's
     conversion is linear) and CIELAB is computed from it."""
     if brdf.wavelengths_nm is not None:
-        raise RglError(f"{brdf.name}: a spectral file; rgl_target takes the RGB version (<name>_rgb.bsdf)")
+        raise RglError(f"{brdf.name}: a spectral file; rgl_target takes the RGB version (<name>_rgb.bsdf), "
+                       "rgl_spectral_target the spectral one")
     wi, wo = in_plane_directions(geometries_deg)
     R = np.pi * rgl_brdf(brdf, wi, wo, clip=False)
     return R, merl_rgb_to_lab(R)
+
+
+def rgl_spectral_target(brdf, geometries_deg, wavelength_nm=None):
+    """Spectral reflectance factors R = π f_r (G, W) of a spectral :class:`RglBrdf` (``<name>_spec.bsdf``) at
+    in-plane geometries (G, 2) [deg], linearly interpolated from the file's wavelengths (195 bins, 358.6-1001.9
+    nm, ~3.3 nm apart) to ``wavelength_nm`` (default 380-780 nm every 5 nm, a uniform grid a target CSV takes);
+    returns (R, wavelength_nm).  Negative values (measurement noise in dark bins) are kept, as measured."""
+    if brdf.wavelengths_nm is None:
+        raise RglError(f"{brdf.name}: an RGB file; rgl_spectral_target takes the spectral version (<name>_spec.bsdf)")
+    wl = np.arange(380.0, 781.0, 5.0) if wavelength_nm is None else np.asarray(wavelength_nm, dtype=float)
+    src = brdf.wavelengths_nm
+    if wl.min() < src.min() or wl.max() > src.max():
+        raise RglError(f"{brdf.name}: wavelengths {wl.min():g}-{wl.max():g} nm asked, the file covers "
+                       f"{src.min():g}-{src.max():g} nm")
+    wi, wo = in_plane_directions(geometries_deg)
+    R = np.pi * rgl_brdf(brdf, wi, wo, clip=False)                       # (G, n_λ)
+    return np.stack([np.interp(wl, src, r) for r in R]), wl

@@ -41,7 +41,7 @@ THETA_I = np.radians([0.0, 30.0, 55.0, 90.0]).astype(np.float32)
 RGB_COEF = np.array([[0.2, 0.3, -0.1], [0.5, -0.2, 0.1], [0.1, 0.05, 0.3]])   # R_c = a + b s_x + c s_y
 
 
-def _synthetic(path, rows=9, cols=11, nm=33):
+def _synthetic(path, rows=9, cols=11, nm=33, wavelengths_nm=None):
     """An isotropic RGL-layout file with closed-form tables: ndf D = 1 + u_θ + 0.5 u_φ, σ = 2 + u_θ, VNDF density
     (1 + x)(1 + 2y) in every slice, R_c(s; θ_i) = (a_c + b_c s_x + c_c s_y)(1 + θ_i)."""
     ut, up = np.meshgrid(np.linspace(0, 1, nm), np.linspace(0, 1, 2))
@@ -51,12 +51,16 @@ def _synthetic(path, rows=9, cols=11, nm=33):
     R = np.stack([a + b * sx + c * sy for a, b, c in RGB_COEF])
     rgb = R[None, None] * (1 + THETA_I.astype(float))[None, :, None, None, None]
     f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)
+    chan = {"rgb": f32(rgb)}
+    if wavelengths_nm is not None:   # spectra: channel 0's pattern times a spectrum linear in λ
+        spec = 0.2 + 0.0005 * (np.asarray(wavelengths_nm) - 360.0)
+        chan = {"wavelengths": f32(wavelengths_nm), "spectra": f32(rgb[:, :, :1] * spec[None, None, :, None, None])}
     write_tensor_file(path, {
         "version": np.array([1, 0], np.uint8), "description": np.frombuffer(b"synthetic", np.uint8),
         "phi_i": np.zeros(1, np.float32), "theta_i": THETA_I,
         "sigma": f32(2 + ut), "ndf": f32(1 + ut + 0.5 * up), "vndf": f32(vndf),
         "luminance": f32(np.einsum("c,ptcij->ptij", [0.2126729, 0.7151522, 0.0721750], rgb)),
-        "rgb": f32(rgb), "jacobian": np.ones(1, np.uint8)})
+        **chan, "jacobian": np.ones(1, np.uint8)})
     return path
 
 
@@ -110,6 +114,20 @@ def test_synthetic_file_closed_form(tmp_path):
     below = wo.copy()
     below[:, 2] *= -1
     assert np.all(rgl_brdf(b, wi, below) == 0)
+
+
+def test_spectral_file_gives_a_spectral_target(tmp_path):
+    # the database's 195-bin grid; a spectrum linear in λ is resampled exactly onto 380-780 nm; the geometry
+    # factor is the RGB test's channel 0 (closed form there), so R(λ) / R(λ0) is the spectrum's ratio
+    wl = np.linspace(358.63, 1001.89, 195)
+    path = _synthetic(tmp_path / "s_spec.bsdf", wavelengths_nm=wl)
+    m = measured_target(path, G)
+    assert m.lab is None and np.allclose(m.wavelength_nm, np.arange(380, 781, 5))
+    rgb_like = rgl_brdf(read_rgl(_synthetic(tmp_path / "s_rgb.bsdf")), *in_plane_directions(G), clip=False)[:, 0]
+    spec = 0.2 + 0.0005 * (m.wavelength_nm - 360.0)
+    assert np.allclose(m.reflectance, np.pi * rgb_like[:, None] * spec[None], rtol=1e-5)
+    with pytest.raises(RglError, match="spectral file"):
+        rgl_target(read_rgl(path), G)
 
 
 def test_tool_writes_rgl_target_that_reads_back(tmp_path):
@@ -171,11 +189,26 @@ def test_silver_is_reciprocal_and_its_luminance_is_srgb_y():
     rng = np.random.default_rng(11)
     x, y = _dirs(rng, 2000, 75.0), _dirs(rng, 2000, 75.0)
     f1, f2 = rgl_brdf(b, x, y).sum(1), rgl_brdf(b, y, x).sum(1)
-    # measured data, sliced by θ_i only: reciprocal to ~15 % (median; 0.137 measured on this file), while the
-    # other reading of eval (f_r cos θ_i) breaks it by cos θ_o / cos θ_i (median 0.356)
+    # measured data, sliced by θ_i only: reciprocal to ~15 % (median |ln ratio| 0.137 measured on this file), while
+    # the other reading of eval (f_r cos θ_i, so f_r = eval / cos θ_i) breaks it by (cos θ_o / cos θ_i)² (0.634)
     rec = np.median(np.abs(np.log(f1 / f2)))
-    alt = np.median(np.abs(np.log(f1 * y[:, 2] / (f2 * x[:, 2]))))
-    assert rec < 0.2 and alt > 2 * rec
+    alt = np.median(np.abs(np.log(f1 * y[:, 2] ** 2 / (f2 * x[:, 2] ** 2))))
+    assert rec < 0.2 and alt > 3 * rec
     f = read_tensor_file(SILVER)
     lum = np.einsum("c,ptcij->ptij", [0.2126729, 0.7151522, 0.0721750], f["rgb"].astype(float))
     assert np.allclose(lum, f["luminance"], rtol=1e-5, atol=1e-6 * f["luminance"].max())
+
+
+TARGETS = sorted((ROOT / "tools" / "validation" / "targets").glob("*.csv"))
+
+
+@pytest.mark.parametrize("csv", TARGETS, ids=[p.stem for p in TARGETS])
+def test_shipped_targets_are_the_files_read(csv):
+    # every shipped target names its source and CC0 licence; with the database's file at hand it is that file
+    # read by this code (to the CSV's 6 decimals)
+    t = read_target(csv)
+    assert np.allclose(t.geometries, G) and "RGL material database" in t.notes["source"]
+    assert "CC0" in t.notes["licence"]
+    f = RGL_DIR / f"{csv.stem}.bsdf"
+    if f.exists():
+        assert np.allclose(t.lab_under(observer="2", illuminant="D65"), measured_target(f, G).lab, atol=2e-6)
