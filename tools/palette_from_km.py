@@ -27,7 +27,7 @@ def main():
         t = tables[name]
         how = (f"catalog/tinters/{pal['table']} column {sp['column']} (relative K, S) x the absolute S of "
                f"{ref['species']} at volume fraction {ref['volume_fraction']['value']:g} (palette.yaml), "
-               f"Star 1988 KM->RT with g {sp['asymmetry_g']['value']:g}, / pigment volume fraction "
+               f"{pal.get('conversion', {}).get('value', 'Star1988')} KM->RT with g {sp['asymmetry_g']['value']:g}, / pigment volume fraction "
                f"{sp['pigment_volume_fraction']['value']:g} (an assumption, palette.yaml); {pal['extend_to_nm']} nm "
                f"end: last band held (palette.yaml)")
         out += [f"  {name}:", "    kind: tinter", f"    description: >-\n      {sp['description'].strip()}",
