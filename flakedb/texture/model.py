@@ -697,7 +697,12 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
     C = np.asarray(stack.y_weights).size
     pts = _disc_points(n_pts)  # (Q, 2)
     r_all = radii
-    radii = np.exp(np.linspace(np.log(radii.min()), np.log(radii.max()), min(N_OCCLUSION_RADII, radii.size)))
+    # drawn at radii spanning the flakes' 1–99 % quantiles (the outer Gauss–Hermite nodes, of negligible weight,
+    # reach 9× the median at σ_g 1.5 and would set the draws' bounding cylinder); beyond them the nearest is held
+    s_g0 = np.log(float(stack.flakes[0].diameter_gsd)) if stack.flakes else 0.0
+    r_med = float(np.exp(np.mean(np.log(radii))))
+    lo_r, hi_r = max(radii.min(), r_med * np.exp(-2.33 * s_g0)), min(radii.max(), r_med * np.exp(2.33 * s_g0))
+    radii = np.exp(np.linspace(np.log(lo_r), np.log(hi_r), min(N_OCCLUSION_RADII, radii.size)))
     r_big = float(radii.max())
     out = np.empty((C, radii.size, z.size, n_cfg))
     for ir, r in enumerate(radii):
@@ -708,7 +713,7 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
             if not np.any(hi > lo):
                 continue
             s_g = np.log(float(f.diameter_gsd))
-            r_q = 0.5 * float(f.diameter_median_um) * np.exp(3.5 * s_g)  # bounding radius (quantile 0.9998)
+            r_q = 0.5 * float(f.diameter_median_um) * np.exp(3.0 * s_g)  # bounding radius (quantile 0.9987)
             mus = np.array([g.mu_l_b, g.mu_v_b])
             P = projected_area(mus, f.alpha, distribution=f.distribution) / mus
             T = f.mean_crossed_transmittance(mus)  # (C, 2): light, view
@@ -825,12 +830,14 @@ def _glint_paths(stack, f, g):
         t = np.clip(np.log(wa[k - 1] / GLINT_FRACTION) / np.log(wa[k - 1] / max(wa[k], 1e-300)), 0.0, 1.0)
         z_end = zf[k - 1] + t * (zf[k] - zf[k - 1])
     x, wx = leggauss(N_DEPTH_OCCLUSION)
-    glint = None
-    if z_end > top:
-        zg = top + 0.5 * (x + 1.0) * (z_end - top)
-        glint = (0.5 * wx * (z_end - top) / d, samples(zg))
     zl = top + 0.5 * (x + 1.0) * d
     fixed = (0.5 * wx, samples(zl))
+    glint = None
+    if z_end >= top + d:  # nothing stops glinting inside the layer: the layer's draws serve both counts
+        glint = fixed
+    elif z_end > top:
+        zg = top + 0.5 * (x + 1.0) * (z_end - top)
+        glint = (0.5 * wx * (z_end - top) / d, samples(zg))
     return tuple(means), glint, fixed, R_Y
 
 
@@ -1134,7 +1141,8 @@ def _sky_terms(stack, f, view_deg):
     yamp = np.einsum("c,cmz->mz", y, amp)
     B1 = np.einsum("c,cmz,m->z", y, amp * a_l, wm)
     Tl_y = np.einsum("c,cmz->mz", y, amp * T_l) / np.maximum(yamp, 1e-300)
-    B2 = np.einsum("m,mz->z", wm / np.maximum(fore, 1e-12), yamp**2 * np.exp(-lo_l * (1 - Tl_y**2)))
+    Q = (wm / np.maximum(fore, 1e-12))[:, None] * yamp**2
+    B2 = np.sum(Q * np.exp(-lo_l * (1 - Tl_y**2)), axis=0)
     # a crossed flake's luminance transmittance on the view path (weighted by the light it dims)
     # (a flake above that covers the ray and also lies on the light path, λ_b of λ_v, dims the light twice)
     ya_mz = np.einsum("c,cmz->mz", y, amp) * wm[:, None]
@@ -1143,7 +1151,7 @@ def _sky_terms(stack, f, view_deg):
     f_b = float(np.sum(ya_mz * lam_b) / max(float(np.sum(ya_mz * lam_v[None, :])), 1e-300))
     T_vy *= 1.0 - min(f_b, 1.0) * (1.0 - T_ly)
     P_v = float(projected_area(np.array([mu_vb]), f.alpha, distribution=f.distribution)[0]) / mu_vb
-    return Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v)
+    return Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v, (Q, lo_l, Tl_y))
 
 
 #: Least uniform depth cells, and the offset nodes per interval between kinks, of the mosaic's covariance
@@ -1162,7 +1170,7 @@ def _square_ring(p, s_key):
     return k.mean(axis=1) * 2.0 * np.pi
 
 
-def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um):
+def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um, light=None):
     """(mean, variance) of a p × p spot's luminance factor under the sky for flake layer ``f``, each view ray
     seeing the flakes it meets in depth order (docs/texture.md §4, eq. G5): the topmost alone when they are
     opaque (a mosaic), those below through T per flake crossed when they transmit.  Valid at any coverage.
@@ -1180,7 +1188,9 @@ def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um):
     the first term one flake covering both points, the second two flakes, the upper one dimming the lower's
     ray where it covers both.  Var = p⁻⁴ ∫ (E[ββ](s) − mean²) s K̄(s) ds (:func:`_square_ring`), zero beyond
     the largest diameter.  Sparse flakes: Var → N_A⟨O(0)⟩E[b²] (eq. G2).  ``T``: a crossed flake's luminance
-    transmittance on the view path."""
+    transmittance on the view path.  ``light``: (Q, λ_l', T_l) per normal and depth (:func:`_sky_terms`), so
+    that two rays on one flake share only the crossings of their sky paths both meet (ℓ(s) = ⟨lens⟩/⟨A⟩ of
+    them); without it B2 (s-independent: the two rays' sky paths blocked together)."""
     rho = float(f.number_density_per_um3)
     Dn, Dw = f.diameters()
     A_e = kappa * f.mean_area_um2()
@@ -1190,7 +1200,7 @@ def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um):
     zu = f.z_top_um + (np.arange(nu) + 0.5) * dz
     h = zu - f.z_top_um
     b1 = rho * f.mean_area_um2() * np.interp(zu, z, B1n) * dz
-    b2 = np.interp(zu, z, B2n) * dz
+    b2 = np.interp(zu, z, B2n) * dz  # (nu,), or per offset below
     lam = rho * h * A_e * (1.0 - T)
     e1 = b1 * np.exp(-lam)
     mean = float(e1.sum())
@@ -1207,7 +1217,17 @@ def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um):
     rr = 0.5 * Dn[:, None]
     L = kappa * (Dw @ _lens_area_sq(np.broadcast_to(ss, (Dn.size, ss.size)), ss * ss, rr, rr, equal=True))  # (ns,)
     lam_b = rho * h[None, :] * (2.0 * (A_e - L[:, None]) * (1.0 - T) + L[:, None] * (1.0 - T * T))  # (ns, nu)
-    one = rho * (L / kappa) * (np.exp(-lam_b) @ b2)  # flakes covering both, ρκ⟨lens⟩, × E_hit[b²] = B2/κ
+    if light is not None:
+        # two rays on one flake s apart: their mirrored sky paths (parallel) meet a flake above in common at the
+        # share ℓ(s) = ⟨lens(s)⟩/⟨A⟩ of their crossings, each its own otherwise (partial occlusion of the sky path)
+        Qm, lo, Tl = light  # (M, nz): Σ_c-luminance² × weight / footprint, the light path's own crossings, its T
+        ell = (L / kappa) / f.mean_area_um2()
+        ex = -lo[None] * (ell[:, None, None] * (1 - Tl[None] ** 2) + 2.0 * (1.0 - ell[:, None, None]) * (1 - Tl[None]))
+        B2s = np.einsum("mz,smz->sz", Qm, np.exp(ex))  # (ns, nz)
+        b2 = np.stack([np.interp(zu, z, row) for row in B2s]) * dz  # (ns, nu)
+        one = rho * (L / kappa) * np.sum(np.exp(-lam_b) * b2, axis=1)
+    else:
+        one = rho * (L / kappa) * (np.exp(-lam_b) @ b2)  # flakes covering both, ρκ⟨lens⟩, × E_hit[b²] = B2/κ
     G = np.cumsum(e1[::-1])[::-1] - 0.5 * e1  # Σ_{l ≥ k} (½ on the diagonal) B1_l e^{−Λ_l}
     two = 2.0 * (1.0 - (L / A_e) * (1.0 - T)) * (np.exp(-lam_b + lam[None, :]) @ (b1 * G))
     cov = one + two - mean * mean
@@ -1237,14 +1257,14 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
                 memo[key] = terms
         else:
             terms = memo[key]
-        Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v) = terms
+        Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v, light) = terms
         Dn, Dw = f.diameters()
         A = 0.25 * np.pi * Dn * Dn
         NA = f.areal_density_per_um2
         mean += NA * float(Dw @ A) * Eb
         var_single += NA * float(Dw @ overlap_integral(Dn, observer.spot_um)) * Eb2
         # each ray sees the flakes it meets in depth order (the mosaic, eq. G5): valid at any coverage
-        _, v = mosaic_variance(f, z, B1, B2, T_vy, P_v, observer.spot_um)
+        _, v = mosaic_variance(f, z, B1, B2, T_vy, P_v, observer.spot_um, light)
         var_pair += v
     var_pair -= var_single  # what hiding changes: the mosaic's variance over the flakes' independent sum
     var = var_single + var_pair

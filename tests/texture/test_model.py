@@ -298,7 +298,7 @@ def test_sky_terms_at_the_normal_view_need_the_tilts_only(monkeypatch):
     monkeypatch.setattr(tm, "_sky_normals", lambda alpha, vb, eta, n_t=tm.N_TILT, n_p=tm.N_AZIMUTH, distribution="beckmann":
                         full_normals(alpha, vb, eta, n_t, tm.N_AZIMUTH, distribution))
     full = tm._sky_terms(st, f, 0.0)
-    for a, b in zip(tilts[:-1] + tilts[-1], full[:-1] + full[-1]):  # the mosaic's terms (B1, B2, T, κ) too
+    for a, b in zip(tilts[:-1] + tilts[-1][:4], full[:-1] + full[-1][:4]):  # the mosaic's terms (B1, B2, T, κ) too
         assert np.allclose(a, b, rtol=1e-13, atol=0)
 
 
@@ -417,7 +417,7 @@ def test_mosaic_of_a_point_is_the_topmost_flake():
     (Before the offsets were split at the kinks, the 0.05 µm spot read 0.45× the point's variance.)"""
     st = stack_of(species="metallic", vf=0.08, alpha=0.2, D=20.0)
     f = st.flakes[0]
-    _, _, z, wz, _, _, _, (B1, B2, T, kappa) = tm._sky_terms(st, f, 0.0)
+    _, _, z, wz, _, _, _, (B1, B2, T, kappa, _) = tm._sky_terms(st, f, 0.0)
     assert T == 0.0
     rho, A_e = f.number_density_per_um3, kappa * f.mean_area_um2()
     h = z - f.z_top_um
