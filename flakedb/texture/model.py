@@ -636,7 +636,7 @@ def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v, combos):
 
 
 #: Obstacle configurations and points per flake disc of the partial-occlusion distribution (:func:`_occlusion`).
-N_OCCLUSION, N_OCCLUSION_POINTS = 192, 16
+N_OCCLUSION, N_OCCLUSION_POINTS = 512, 12
 #: Flake radii at which the occlusion is drawn (log-spaced over the diameter nodes; linear in ln r between).
 N_OCCLUSION_RADII = 4
 #: Seed of the occlusion configurations: common random numbers for every depth, diameter and geometry, so the
