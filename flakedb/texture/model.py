@@ -27,7 +27,8 @@ from functools import lru_cache
 import numpy as np
 from numpy.polynomial.hermite_e import hermegauss as _hermegauss
 from numpy.polynomial.legendre import leggauss as _leggauss
-from scipy.special import j1
+from scipy.special import j1, ndtri
+from scipy.stats import poisson
 
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun, flake_distribution, projected_area
@@ -685,9 +686,6 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
     both paths (a layer of discs: a flake above may cover both), else two independent sets (the solver's RT).
     Returns t (C, nR, nz, n_cfg): per channel, the mean over :data:`N_OCCLUSION_POINTS` points of the disc of
     Π_j T^{crossings}: a partly covered flake is dimmed by the share covered, not all or nothing."""
-    from scipy.special import ndtri
-    from scipy.stats import poisson
-
     z = np.asarray(z, float)
     radii = np.atleast_1d(np.asarray(radii, float))
     lb = np.array([np.sqrt(1 - g.mu_l_b**2), 0.0, g.mu_l_b])
