@@ -96,12 +96,12 @@ def test_graininess_agrees_with_the_simulation(runs, name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scale,least", [(1.3, 1), (1.0 / 1.3, 3)])
+@pytest.mark.parametrize("scale,least", [(1.3, 2), (1.0 / 1.3, 3)])
 def test_a_perturbed_orientation_term_is_caught(runs, monkeypatch, scale, least):
     """The same comparison with the flake-normal density's α scaled by 1/1.3 in the model fails (glints per mm²,
-    half-peak and above the fixed threshold) in at least three geometries (measured 8), by 1.3 in at least one
-    (measured 1: the model's counts run high in the seed-11 placement, 2 % and black-pigment cases, so a
-    sparser density moves them toward the reference; 3 before the reference's area hiding lowered its counts)."""
+    half-peak and above the fixed threshold) in at least three geometries (measured 7), by 1.3 in at least two
+    (measured 3; the model's counts run high in the seed-11 placement of the 2 % and black-pigment cases, so a
+    sparser density moves those toward the reference)."""
     import dataclasses
 
     from flakedb.rt.microflake import FLAKE_DISTRIBUTIONS
