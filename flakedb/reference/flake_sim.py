@@ -7,10 +7,11 @@ statistics, and traces them.
 * Flakes: per species a Poisson number ρ d L² of discs, centres uniform in the patch (periodic in x
   and y) and in depth over the layer, diameters log-normal (median, σ_g), upper-hemisphere normals
   with the Beckmann density (tan²θ = −α² ln U, azimuth uniform: inverted here).
-* Hiding: the straight paths from a flake's centre up to the coat's surface, toward the source and
-  toward the observer, are intersected with every other flake disc (a uniform cell grid finds the
-  candidates); each disc crossed multiplies the light by its T(|u·m|, λ); pigments and an
-  absorbing coat by e^{−σ s}.
+* Hiding: the straight paths up to the coat's surface, toward the source and toward the observer, are
+  intersected with every other flake disc (a uniform cell grid finds the candidates) from 64 points of each
+  possible glint's tilted disc (area hiding: a partly covered flake is dimmed by the share covered), from the
+  centre for the other flakes (their mean only); each disc crossed multiplies the light by its T(|u·m|, λ);
+  pigments and an absorbing coat by e^{−σ s}.  ``hiding="centre"``: the centre for all (the old shortcut).
 * Directional light: for flakes near the mirror orientation, the fraction f of the flake's
   reflected beam that enters the aperture is integrated by stratified sampling of the source
   disc (in air, refracted exactly by Snell's law in vector form), exact mirror reflection about the
@@ -25,10 +26,14 @@ statistics, and traces them.
   (computed by the same sampling); a glint above the fixed threshold, a flake with β ≥ half the peak of
   an aligned, unattenuated R = 1 flake of 16 µm at 555 nm.  Lit spots: pixels of the observer's spot size
   overlapped by a glint's disc; a glint's intensity: β × the largest fraction of one pixel its disc covers.
-* Uniform sky: every flake mirrors the sky direction 2(v'·m)m − v' (0 if it points down or is
-  totally internally reflected at the coat), b = T_in T_out R_Y(|v'·m|) w; its footprint (points on its
-  tilted disc carried up along v' to the surface: an ellipse of area A |v'·m|/v'_z) is deposited into
-  the pixel grid; graininess = std/mean of the pixel values.
+* Uniform sky, per ray (:func:`_sky_rays`): rays on a regular grid go down along the view; every flake disc a ray
+  meets adds, in depth order, t_in t_out Σ y R(|v'·m|) V T_l e^{−τ} (V the flakes met above it: the topmost alone
+  for opaque flakes, T_l its mirrored sky path traced from the hit point; 0 if that direction points down or
+  is totally internally reflected at the coat); a pixel is the mean of its rays; graininess = std/mean of the
+  pixels.  ``sky="deposit"``: each flake's footprint added to the pixels (the old shortcut).
+* Collected fraction: "hit" (source and Airy offset sampled, aperture tested) or, for apertures small against
+  the Airy core, "density" (:func:`_collected_density`: source and aperture points sampled, the Airy density
+  evaluated).
 
 Every function takes plain arrays; :func:`simulate` returns a dict.  numba compiles the loops
 (cached).  Statistical errors: Poisson √N on counts; the standard error of the relative standard

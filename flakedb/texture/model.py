@@ -27,7 +27,8 @@ from functools import lru_cache
 import numpy as np
 from numpy.polynomial.hermite_e import hermegauss as _hermegauss
 from numpy.polynomial.legendre import leggauss as _leggauss
-from scipy.special import j1
+from scipy.special import j1, ndtri
+from scipy.stats import poisson
 
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun, flake_distribution, projected_area
@@ -636,7 +637,7 @@ def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v, combos):
 
 
 #: Obstacle configurations and points per flake disc of the partial-occlusion distribution (:func:`_occlusion`).
-N_OCCLUSION, N_OCCLUSION_POINTS = 192, 16
+N_OCCLUSION, N_OCCLUSION_POINTS = 512, 12
 #: Flake radii at which the occlusion is drawn (log-spaced over the diameter nodes; linear in ln r between).
 N_OCCLUSION_RADII = 4
 #: Seed of the occlusion configurations: common random numbers for every depth, diameter and geometry, so the
@@ -685,9 +686,6 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
     both paths (a layer of discs: a flake above may cover both), else two independent sets (the solver's RT).
     Returns t (C, nR, nz, n_cfg): per channel, the mean over :data:`N_OCCLUSION_POINTS` points of the disc of
     Π_j T^{crossings}: a partly covered flake is dimmed by the share covered, not all or nothing."""
-    from scipy.special import ndtri
-    from scipy.stats import poisson
-
     z = np.asarray(z, float)
     radii = np.atleast_1d(np.asarray(radii, float))
     lb = np.array([np.sqrt(1 - g.mu_l_b**2), 0.0, g.mu_l_b])
@@ -697,7 +695,12 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
     C = np.asarray(stack.y_weights).size
     pts = _disc_points(n_pts)  # (Q, 2)
     r_all = radii
-    radii = np.exp(np.linspace(np.log(radii.min()), np.log(radii.max()), min(N_OCCLUSION_RADII, radii.size)))
+    # drawn at radii spanning the flakes' 1–99 % quantiles (the outer Gauss–Hermite nodes, of negligible weight,
+    # reach 9× the median at σ_g 1.5 and would set the draws' bounding cylinder); beyond them the nearest is held
+    s_g0 = np.log(float(stack.flakes[0].diameter_gsd)) if stack.flakes else 0.0
+    r_med = float(np.exp(np.mean(np.log(radii))))
+    lo_r, hi_r = max(radii.min(), r_med * np.exp(-2.33 * s_g0)), min(radii.max(), r_med * np.exp(2.33 * s_g0))
+    radii = np.exp(np.linspace(np.log(lo_r), np.log(hi_r), min(N_OCCLUSION_RADII, radii.size)))
     r_big = float(radii.max())
     out = np.empty((C, radii.size, z.size, n_cfg))
     for ir, r in enumerate(radii):
@@ -708,7 +711,7 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
             if not np.any(hi > lo):
                 continue
             s_g = np.log(float(f.diameter_gsd))
-            r_q = 0.5 * float(f.diameter_median_um) * np.exp(3.5 * s_g)  # bounding radius (quantile 0.9998)
+            r_q = 0.5 * float(f.diameter_median_um) * np.exp(3.0 * s_g)  # bounding radius (quantile 0.9987)
             mus = np.array([g.mu_l_b, g.mu_v_b])
             P = projected_area(mus, f.alpha, distribution=f.distribution) / mus
             T = f.mean_crossed_transmittance(mus)  # (C, 2): light, view
@@ -825,12 +828,14 @@ def _glint_paths(stack, f, g):
         t = np.clip(np.log(wa[k - 1] / GLINT_FRACTION) / np.log(wa[k - 1] / max(wa[k], 1e-300)), 0.0, 1.0)
         z_end = zf[k - 1] + t * (zf[k] - zf[k - 1])
     x, wx = leggauss(N_DEPTH_OCCLUSION)
-    glint = None
-    if z_end > top:
-        zg = top + 0.5 * (x + 1.0) * (z_end - top)
-        glint = (0.5 * wx * (z_end - top) / d, samples(zg))
     zl = top + 0.5 * (x + 1.0) * d
     fixed = (0.5 * wx, samples(zl))
+    glint = None
+    if z_end >= top + d:  # nothing stops glinting inside the layer: the layer's draws serve both counts
+        glint = fixed
+    elif z_end > top:
+        zg = top + 0.5 * (x + 1.0) * (z_end - top)
+        glint = (0.5 * wx * (z_end - top) / d, samples(zg))
     return tuple(means), glint, fixed, R_Y
 
 
@@ -1061,119 +1066,11 @@ def _sky_normals(alpha, vb, eta, n_t=N_TILT, n_p=N_AZIMUTH, distribution=DEFAULT
     return m.reshape(-1, 3), w.ravel()
 
 
-#: Rows of the offset grid per block in :func:`_pair_moments` (n = 16 columns: ~16000 elements at a time).
-_PAIR_ROWS = 1024
-
-
-def _pair_moments(D, D2, s, h, n=16, n_dir=3):
-    """The spot-independent sums of :func:`pair_overlap`: (M0, M1, M2), each (k, S), with
-    Σ_e Σ_ij w_i w_j g(|δ_ij − s e|) (p − |δ_x|)(p − |δ_y|) = p² M0 − p M1 + M2 for the Gauss nodes δ = h x,
-    weights h w on [−h, h]² (``h`` (k, S): the half-widths; one row of the n × n grid per node δ_x).
-    ``D`` the first disc's diameter (scalar), ``D2`` (k,) the second's, ``s`` (S,) the offsets.  Only the
-    grid rows with |δ_x − s e_x| < (D + D2)/2 are evaluated: on the others the discs never meet (g = 0
-    exactly, as the full grid gives).  The rows of D2 = D take the equal-radius lens."""
-    D2 = np.asarray(D2, float)
-    k, S = h.shape
-    x, w = leggauss(n)
-    ang = (np.arange(n_dir) + 0.5) * (0.25 * np.pi / n_dir)
-    R = 0.5 * (D + D2)  # (k,) the discs meet below this centre distance
-    u = h[:, :, None] * x  # (k, S, n)
-    wu = h[:, :, None] * w
-    au = np.abs(u)
-    W = np.stack([wu, wu * au], axis=-2)  # (k, S, 2, n): the weights of M0 and of the |δ| moments
-    dx = u[:, :, None, :] - (s[:, None] * np.cos(ang))[None, :, :, None]  # (k, S, T, n): δ_x − s cos t
-    dy2 = (u[:, :, None, :] - (s[:, None] * np.sin(ang))[None, :, :, None]) ** 2
-    kp, si, ti, ii = np.nonzero(np.abs(dx) < (R * (1.0 + 1e-12))[:, None, None, None])  # rows grouped by D2
-    dx2 = dx[kp, si, ti, ii] ** 2
-    Wi = W[kp, si, :, ii]  # (rows, 2): w_i, w_i |δ_x,i|
-    M = np.zeros((3, k * S))
-    starts = np.searchsorted(kp, np.arange(k + 1))
-    for kk in range(k):  # one radius pair at a time (scalar radii: the fast ufunc loops), in blocks of rows
-        for lo in range(starts[kk], starts[kk + 1], _PAIR_ROWS):
-            sl = slice(lo, min(lo + _PAIR_ROWS, starts[kk + 1]))
-            ss_ = si[sl]
-            d2 = dx2[sl, None] + dy2[kk, ss_, ti[sl], :]  # (rows, n)
-            g = _lens_area_sq(np.sqrt(d2), d2, 0.5 * D, 0.5 * float(D2[kk]), equal=bool(D2[kk] == D))
-            AB = np.einsum("rcj,rj->rc", W[kk, ss_], g)  # Σ_j w_j g, Σ_j w_j |δ_y,j| g
-            wi, bi = Wi[sl, 0], Wi[sl, 1]
-            idx = kk * S + ss_
-            M[0] += np.bincount(idx, wi * AB[:, 0], k * S)
-            M[1] += np.bincount(idx, wi * AB[:, 1] + bi * AB[:, 0], k * S)
-            M[2] += np.bincount(idx, bi * AB[:, 1], k * S)
-    return M.reshape(3, k, S)
-
-
-def pair_overlap(diameter_um, spot_um, s_um, n=16, n_dir=3, diameter2_um=None, memo=None):
-    """O(s) = ∫ o_i(x) o_j(x) dx (µm²) for two discs of diameters D, D2 whose centres are s apart, o the
-    fraction of p² a disc covers in a p × p square at position x: p⁻⁴ ∫ g(|δ − s e|) K(δ) dδ
-    (g the discs' cross-covariogram, K(δ) = (p − |δ_x|)(p − |δ_y|)), averaged over directions e in [0, π/4]
-    (the square's symmetry); n × n Gauss–Legendre over δ ∈ [−h, h]², h = min(p, s + (D + D2)/2).
-    O(0) = :func:`overlap_integral`.  ``diameter2_um``: the second disc's diameter, a scalar (default D;
-    → (S,)) or an array (→ its shape + (S,)).  K is a quadratic in p, so the grid sums are the
-    spot-independent moments of :func:`_pair_moments`; ``memo``: an optional dict that keeps them per
-    (D, D2, s, h), for observers whose integration squares coincide (spots wider than s + (D + D2)/2 at
-    every offset: both person presets)."""
-    D, p = float(diameter_um), float(spot_um)
-    D2 = np.asarray(D if diameter2_um is None else diameter2_um, float)
-    s_um = np.atleast_1d(np.asarray(s_um, float))
-    D2f = D2.reshape(-1)
-    h = np.minimum(p, s_um[None, :] + 0.5 * (D + D2f[:, None]))  # (k, S) half-width of each integration square
-    key = ("pair_overlap", D, D2f.tobytes(), s_um.tobytes(), h.tobytes(), n, n_dir)
-    M = None if memo is None else memo.get(key)
-    if M is None:
-        M = _pair_moments(D, D2f, s_um, h, n, n_dir)
-        if memo is not None:
-            memo[key] = M
-    O = (p * p * M[0] - p * M[1] + M[2]) / n_dir / p**4
-    return O.reshape(D2.shape + s_um.shape)
-
-
-def _pair_kernel(f, z, b0, lam, tau, r, n=16):
-    """The spot-independent part of the second-order (pair) term of the spot variance from hiding within one
-    flake layer (docs/texture.md eq. G4), for an upper flake of radius r: the term is
-    2ρ² ∫∫_{z_j < z_i} b0_i b0_j e^{−(λ_i + λ_j)(1 − τ)} S(z_j) dz_i dz_j with S(z_j) = ∫ 2πs ds O(s)
-    ([τ if s < r else 1] · e^{Λ(s)(1 − τ)²} − 1), where Λ(s) = ρ ⟨lens(s; r', r')⟩_{r'} (z_j − z_top) counts
-    the flakes above both that cover both centres (r' over the size distribution) and O(s) = ∫ o_i o_j dx
-    (:func:`pair_overlap`, averaged over the lower flake's diameter): the upper flake j hides the lower i when
-    its disc covers i's centre (paths taken vertical).  The term is linear in O: returns the offsets s (2n,)
-    and c (2n,) with term = Σ_s c(s) O(s)."""
-    rho = float(f.number_density_per_um3)
-    Dn, Dw = f.diameters()
-    r_far = max(float(r), 0.5 * float(Dn.max()))
-    x, wx = leggauss(n)
-    s_in, w_in = 0.5 * r * (x + 1.0), 0.5 * r * wx
-    s_out = r + 0.5 * (2.0 * r_far - r) * (x + 1.0)
-    w_out = 0.5 * (2.0 * r_far - r) * wx
-    ss = np.concatenate([s_in, s_out])
-    ws = np.concatenate([w_in, w_out]) * 2.0 * np.pi * ss
-    cover = np.concatenate([np.full(n, tau), np.ones(n)])
-    rr = 0.5 * Dn[:, None]
-    lens = Dw @ _lens_area_sq(np.broadcast_to(ss, (Dn.size, ss.size)), ss * ss, rr, rr, equal=True)
-    # the triangle z_j < z_i on a uniform midpoint grid, diagonal cells halved (second order);
-    # b0 and λ interpolated from the depth nodes (smooth in z)
-    nu = 48
-    dz = f.thickness_um / nu
-    zu = f.z_top_um + (np.arange(nu) + 0.5) * dz
-    h = zu - f.z_top_um
-    E = cover * np.exp(rho * (1.0 - tau) ** 2 * h[:, None] * lens[None, :]) - 1.0  # (nu, 2n): S = E @ (ws O)
-    g = np.interp(zu, z, b0) * np.exp(-np.interp(zu, z, lam) * (1.0 - tau)) * dz
-    tri = _lower_triangle(nu)  # [i, j]: z_j < z_i
-    return ss, 2.0 * rho * rho * (((g @ tri) * g) @ E) * ws
-
-
-@lru_cache(maxsize=8)
-def _lower_triangle(nu):
-    """[i, j] = 1 for j < i, ½ on the diagonal (read-only)."""
-    t = np.tril(np.ones((nu, nu)), -1) + 0.5 * np.eye(nu)
-    t.setflags(write=False)
-    return t
-
-
 def _sky_terms(stack, f, view_deg):
     """The part of :func:`graininess_indices` for flake layer ``f`` that depends on the view only (not on
     the observer's spot): E[b], E[b²] over normals and depths (docs/texture.md eq. G3), the depth nodes,
     the unhidden mean luminance factor per depth b0, the view path's crossings λ_v and the luminance of
-    T² of a flake crossed by both vertical paths (the inputs of :func:`_pair_kernel`).  A view along the
+    T² of a flake crossed by both vertical paths, and the mosaic's depth profiles (:func:`mosaic_variance`).  A view along the
     normal (v' = z) sees every azimuth of a normal alike (v'·m, the mirrored direction's polar angle and the
     paths' drift depend on the tilt only), so there the normals are the tilts alone (one azimuth each, the
     weight of all: the azimuth average of equal terms)."""
@@ -1242,7 +1139,8 @@ def _sky_terms(stack, f, view_deg):
     yamp = np.einsum("c,cmz->mz", y, amp)
     B1 = np.einsum("c,cmz,m->z", y, amp * a_l, wm)
     Tl_y = np.einsum("c,cmz->mz", y, amp * T_l) / np.maximum(yamp, 1e-300)
-    B2 = np.einsum("m,mz->z", wm / np.maximum(fore, 1e-12), yamp**2 * np.exp(-lo_l * (1 - Tl_y**2)))
+    Q = (wm / np.maximum(fore, 1e-12))[:, None] * yamp**2
+    B2 = np.sum(Q * np.exp(-lo_l * (1 - Tl_y**2)), axis=0)
     # a crossed flake's luminance transmittance on the view path (weighted by the light it dims)
     # (a flake above that covers the ray and also lies on the light path, λ_b of λ_v, dims the light twice)
     ya_mz = np.einsum("c,cmz->mz", y, amp) * wm[:, None]
@@ -1251,7 +1149,7 @@ def _sky_terms(stack, f, view_deg):
     f_b = float(np.sum(ya_mz * lam_b) / max(float(np.sum(ya_mz * lam_v[None, :])), 1e-300))
     T_vy *= 1.0 - min(f_b, 1.0) * (1.0 - T_ly)
     P_v = float(projected_area(np.array([mu_vb]), f.alpha, distribution=f.distribution)[0]) / mu_vb
-    return Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v)
+    return Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v, (Q, lo_l, Tl_y))
 
 
 #: Least uniform depth cells, and the offset nodes per interval between kinks, of the mosaic's covariance
@@ -1270,7 +1168,7 @@ def _square_ring(p, s_key):
     return k.mean(axis=1) * 2.0 * np.pi
 
 
-def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um):
+def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um, light=None):
     """(mean, variance) of a p × p spot's luminance factor under the sky for flake layer ``f``, each view ray
     seeing the flakes it meets in depth order (docs/texture.md §4, eq. G5): the topmost alone when they are
     opaque (a mosaic), those below through T per flake crossed when they transmit.  Valid at any coverage.
@@ -1288,7 +1186,9 @@ def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um):
     the first term one flake covering both points, the second two flakes, the upper one dimming the lower's
     ray where it covers both.  Var = p⁻⁴ ∫ (E[ββ](s) − mean²) s K̄(s) ds (:func:`_square_ring`), zero beyond
     the largest diameter.  Sparse flakes: Var → N_A⟨O(0)⟩E[b²] (eq. G2).  ``T``: a crossed flake's luminance
-    transmittance on the view path."""
+    transmittance on the view path.  ``light``: (Q, λ_l', T_l) per normal and depth (:func:`_sky_terms`), so
+    that two rays on one flake share only the crossings of their sky paths both meet (ℓ(s) = ⟨lens⟩/⟨A⟩ of
+    them); without it B2 (s-independent: the two rays' sky paths blocked together)."""
     rho = float(f.number_density_per_um3)
     Dn, Dw = f.diameters()
     A_e = kappa * f.mean_area_um2()
@@ -1298,7 +1198,7 @@ def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um):
     zu = f.z_top_um + (np.arange(nu) + 0.5) * dz
     h = zu - f.z_top_um
     b1 = rho * f.mean_area_um2() * np.interp(zu, z, B1n) * dz
-    b2 = np.interp(zu, z, B2n) * dz
+    b2 = np.interp(zu, z, B2n) * dz  # (nu,), or per offset below
     lam = rho * h * A_e * (1.0 - T)
     e1 = b1 * np.exp(-lam)
     mean = float(e1.sum())
@@ -1315,7 +1215,17 @@ def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um):
     rr = 0.5 * Dn[:, None]
     L = kappa * (Dw @ _lens_area_sq(np.broadcast_to(ss, (Dn.size, ss.size)), ss * ss, rr, rr, equal=True))  # (ns,)
     lam_b = rho * h[None, :] * (2.0 * (A_e - L[:, None]) * (1.0 - T) + L[:, None] * (1.0 - T * T))  # (ns, nu)
-    one = rho * (L / kappa) * (np.exp(-lam_b) @ b2)  # flakes covering both, ρκ⟨lens⟩, × E_hit[b²] = B2/κ
+    if light is not None:
+        # two rays on one flake s apart: their mirrored sky paths (parallel) meet a flake above in common at the
+        # share ℓ(s) = ⟨lens(s)⟩/⟨A⟩ of their crossings, each its own otherwise (partial occlusion of the sky path)
+        Qm, lo, Tl = light  # (M, nz): Σ_c-luminance² × weight / footprint, the light path's own crossings, its T
+        ell = (L / kappa) / f.mean_area_um2()
+        ex = -lo[None] * (ell[:, None, None] * (1 - Tl[None] ** 2) + 2.0 * (1.0 - ell[:, None, None]) * (1 - Tl[None]))
+        B2s = np.einsum("mz,smz->sz", Qm, np.exp(ex))  # (ns, nz)
+        b2 = np.stack([np.interp(zu, z, row) for row in B2s]) * dz  # (ns, nu)
+        one = rho * (L / kappa) * np.sum(np.exp(-lam_b) * b2, axis=1)
+    else:
+        one = rho * (L / kappa) * (np.exp(-lam_b) @ b2)  # flakes covering both, ρκ⟨lens⟩, × E_hit[b²] = B2/κ
     G = np.cumsum(e1[::-1])[::-1] - 0.5 * e1  # Σ_{l ≥ k} (½ on the diagonal) B1_l e^{−Λ_l}
     two = 2.0 * (1.0 - (L / A_e) * (1.0 - T)) * (np.exp(-lam_b + lam[None, :]) @ (b1 * G))
     cov = one + two - mean * mean
@@ -1334,7 +1244,7 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
     eq. G2).  ``ground_luminance_factor``: the paint's total luminance factor under the sky (its
     directional albedo at the view), which replaces the flakes' mean in the denominator; without
     it G is the flake-only value (an upper bound).  ``memo``: as :func:`sparkle_indices` (keeps
-    :func:`_sky_terms`, :func:`_pair_kernel` and the moments of :func:`pair_overlap`).  Returns a dict; where the variance comes out ≤ 0 (the hiding term cancels the
+    :func:`_sky_terms`).  Returns a dict; where the variance comes out ≤ 0 (the hiding term cancels the
     single-flake term: thick, dense flake layers) ``graininess`` is None, ``valid`` False and ``note`` says why."""
     mean, var_single, var_pair = 0.0, 0.0, 0.0
     for i_f, f in enumerate(stack.flakes):
@@ -1345,32 +1255,31 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
                 memo[key] = terms
         else:
             terms = memo[key]
-        Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v) = terms
+        Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v, light) = terms
         Dn, Dw = f.diameters()
         A = 0.25 * np.pi * Dn * Dn
         NA = f.areal_density_per_um2
         mean += NA * float(Dw @ A) * Eb
         var_single += NA * float(Dw @ overlap_integral(Dn, observer.spot_um)) * Eb2
         # each ray sees the flakes it meets in depth order (the mosaic, eq. G5): valid at any coverage
-        _, v = mosaic_variance(f, z, B1, B2, T_vy, P_v, observer.spot_um)
+        _, v = mosaic_variance(f, z, B1, B2, T_vy, P_v, observer.spot_um, light)
         var_pair += v
     var_pair -= var_single  # what hiding changes: the mosaic's variance over the flakes' independent sum
     var = var_single + var_pair
     out = {
         "view_deg": float(observer.view_deg),
         "flake_luminance_factor": mean,
-        # the hiding (pair) term over the single-flake term: 0 for sparse flakes, → −1 where hiding dominates
+        # the mosaic's variance over the independent flakes' (eq. G2), minus 1: 0 for sparse flakes, → −1 where hiding dominates
         "pair_over_single": var_pair / var_single if var_single > 0 else 0.0,
     }
     if not np.isfinite(out["pair_over_single"]):  # overflowing terms (a layer of thousands of µm): no ratio to give
         out["pair_over_single"] = None
     if not (np.isfinite(var) and var > 0.0):
-        # a variance ≤ 0: the pair term, a second-order correction, cancels the first-order one (thick, dense
-        # flake layers), so the model has no number to give (docs/texture.md §4, "Validity")
+        # a variance that is not finite or ≤ 0 (overflowing terms: a layer of thousands of µm): no number to give
         out.update(luminance_sd=None, valid=False,
-                   note=("graininess not predicted: the hiding (pair) term is "
+                   note=("graininess not predicted: the spot variance is not a finite positive number (mosaic "
                          + (f"{out['pair_over_single']:+.2f}×" if out["pair_over_single"] is not None else "not finite beside")
-                         + " the single-flake term, beyond the first-order model (docs/texture.md §4, Validity)"))
+                         + " the independent-flake variance; docs/texture.md §4, Validity)"))
     else:
         out.update(luminance_sd=float(np.sqrt(var)), valid=True)
     return graininess_grounded(out, ground_luminance_factor)

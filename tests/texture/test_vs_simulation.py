@@ -96,15 +96,18 @@ def test_graininess_agrees_with_the_simulation(runs, name):
 
 
 @pytest.mark.slow
-def test_a_perturbed_orientation_term_is_caught(runs, monkeypatch):
-    """The same comparison with the flake-normal density's α scaled by 1.3 in the model fails (glints per mm²,
-    half-peak and above the fixed threshold, in at least three geometries)."""
+@pytest.mark.parametrize("scale,least", [(1.3, 2), (1.0 / 1.3, 3)])
+def test_a_perturbed_orientation_term_is_caught(runs, monkeypatch, scale, least):
+    """The same comparison with the flake-normal density's α scaled by 1/1.3 in the model fails (glints per mm²,
+    half-peak and above the fixed threshold) in at least three geometries (measured 7), by 1.3 in at least two
+    (measured 3; the model's counts run high in the seed-11 placement of the 2 % and black-pigment cases, so a
+    sparser density moves those toward the reference)."""
     import dataclasses
 
     from flakedb.rt.microflake import FLAKE_DISTRIBUTIONS
 
     beck = FLAKE_DISTRIBUTIONS["beckmann"]
-    monkeypatch.setitem(FLAKE_DISTRIBUTIONS, "beckmann", dataclasses.replace(beck, ndf=lambda c, a: beck.ndf(c, 1.3 * a)))
+    monkeypatch.setitem(FLAKE_DISTRIBUTIONS, "beckmann", dataclasses.replace(beck, ndf=lambda c, a: beck.ndf(c, scale * a)))
     failures = 0
     for name in CASES:
         st, res = runs[name]
@@ -112,7 +115,8 @@ def test_a_perturbed_orientation_term_is_caught(runs, monkeypatch):
             failures += not (_close(m["glints_per_mm2"], r["glints_per_mm2"], r["sigma_glints_per_mm2"])
                              and _close(m["glints_per_mm2_above_threshold"], r["glints_per_mm2_above_threshold"],
                                         r["sigma_glints_per_mm2_above_threshold"]))
-    assert failures >= 3
+    print(f"α × {scale:.3f}: {failures} geometries fail")
+    assert failures >= least
 
 
 @pytest.mark.slow
