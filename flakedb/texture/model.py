@@ -703,42 +703,51 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
     radii = np.exp(np.linspace(np.log(lo_r), np.log(hi_r), min(N_OCCLUSION_RADII, radii.size)))
     r_big = float(radii.max())
     out = np.empty((C, radii.size, z.size, n_cfg))
+    # the flakes above, drawn once for every radius (the bounding cylinder holds the largest): per species and
+    # set, their heights, centres, squared radii (−1 where not drawn) and the crossed flakes' T per path
+    drawn = []
+    for f in stack.flakes:
+        lo = np.clip(z - (f.z_top_um + f.thickness_um), 0.0, None)  # heights Δ of this species above each depth
+        hi = np.clip(z - f.z_top_um, 0.0, None)
+        if not np.any(hi > lo):
+            continue
+        s_g = np.log(float(f.diameter_gsd))
+        r_q = 0.5 * float(f.diameter_median_um) * np.exp(3.0 * s_g)  # bounding radius (quantile 0.9987)
+        mus = np.array([g.mu_l_b, g.mu_v_b])
+        P = projected_area(mus, f.alpha, distribution=f.distribution) / mus
+        T = f.mean_crossed_transmittance(mus)  # (C, 2): light, view
+        R_b = r_big + r_q + float(hi.max()) * half  # obstacles that can touch a path lie within R_b of Δ·mid
+        sets = []
+        for s in range(1 if correlated else 2):
+            rho = float(f.number_density_per_um3) * (0.5 * (P[0] + P[1]) if correlated else P[s])
+            lam = rho * np.pi * R_b * R_b * (hi - lo)  # (nz,) expected obstacles in the bounding cylinder
+            n_max = int(np.ceil(lam.max() + 6.0 * np.sqrt(lam.max()) + 6.0))
+            u = _occlusion_uniforms(n_cfg, n_max, s)
+            # Poisson counts by inversion of the same uniform at every depth (smooth in z)
+            N = poisson.ppf(u[0, :, 0][None, :], lam[:, None])  # (nz, n_cfg)
+            live = np.arange(n_max)[None, None, :] < N[:, :, None]  # (nz, n_cfg, n_max)
+            dlt = lo[:, None, None] + u[1][None] * (hi - lo)[:, None, None]
+            rr = np.minimum(0.5 * float(f.diameter_median_um) * np.exp(s_g * ndtri(np.clip(u[2], 1e-12, 1 - 1e-12))), r_q)
+            rad = R_b * np.sqrt(u[4])
+            cx = dlt * mid[0] + (rad * np.cos(2.0 * np.pi * u[3]))[None]
+            cy = dlt * mid[1] + (rad * np.sin(2.0 * np.pi * u[3]))[None]
+            sets.append((dlt, cx, cy, np.broadcast_to(rr[None], dlt.shape), live))
+        drawn.append((sets, T))
+    nzc = z.size * n_cfg
     for ir, r in enumerate(radii):
         tr = np.ones((C, z.size, n_cfg, n_pts))  # per point
-        for f in stack.flakes:
-            lo = np.clip(z - (f.z_top_um + f.thickness_um), 0.0, None)  # heights Δ of this species above each depth
-            hi = np.clip(z - f.z_top_um, 0.0, None)
-            if not np.any(hi > lo):
-                continue
-            s_g = np.log(float(f.diameter_gsd))
-            r_q = 0.5 * float(f.diameter_median_um) * np.exp(3.0 * s_g)  # bounding radius (quantile 0.9987)
-            mus = np.array([g.mu_l_b, g.mu_v_b])
-            P = projected_area(mus, f.alpha, distribution=f.distribution) / mus
-            T = f.mean_crossed_transmittance(mus)  # (C, 2): light, view
-            R_b = r_big + r_q + float(hi.max()) * half  # obstacles that can touch a path lie within R_b of Δ·mid
-            counts = []
-            for s in range(1 if correlated else 2):
-                rho = float(f.number_density_per_um3) * (0.5 * (P[0] + P[1]) if correlated else P[s])
-                lam = rho * np.pi * R_b * R_b * (hi - lo)  # (nz,) expected obstacles in the bounding cylinder
-                n_max = int(np.ceil(lam.max() + 6.0 * np.sqrt(lam.max()) + 6.0))
-                u = _occlusion_uniforms(n_cfg, n_max, s)
-                # Poisson counts by inversion of the same uniform at every depth (smooth in z)
-                N = poisson.ppf(u[0, :, 0][None, :], lam[:, None])  # (nz, n_cfg)
-                live = np.arange(n_max)[None, None, :] < N[:, :, None]  # (nz, n_cfg, n_max)
-                dlt = lo[:, None, None] + u[1][None] * (hi - lo)[:, None, None]
-                rr = np.minimum(0.5 * float(f.diameter_median_um) * np.exp(s_g * ndtri(np.clip(u[2], 1e-12, 1 - 1e-12))), r_q)
-                rr2 = np.where(live, (rr * rr)[None], -1.0)
-                rad = R_b * np.sqrt(u[4])
-                cx = dlt * mid[0] + (rad * np.cos(2.0 * np.pi * u[3]))[None]
-                cy = dlt * mid[1] + (rad * np.sin(2.0 * np.pi * u[3]))[None]
-                for path, tvec in enumerate((t_l, t_v)):
-                    if not correlated and path != s:
-                        continue
-                    px = r * pts[:, 0] + (dlt * tvec[0] - cx)[..., None]  # (nz, n_cfg, n_max, Q)
-                    py = r * pts[:, 1] + (dlt * tvec[1] - cy)[..., None]
-                    counts.append(np.sum(px * px + py * py < rr2[..., None], axis=2))  # (nz, n_cfg, Q)
-            for path in range(2):
-                n = counts[path]
+        for sets, T in drawn:
+            for path, tvec in enumerate((t_l, t_v)):
+                dlt, cx, cy, rr, live = sets[0 if correlated else path]
+                # only the flakes whose disc reaches the path of some point of the flake (centre within r + r_j)
+                ox, oy = dlt * tvec[0] - cx, dlt * tvec[1] - cy
+                near = live & (ox * ox + oy * oy < (r + rr) ** 2)
+                iz, ic, ij = np.nonzero(near)
+                px = r * pts[:, 0] + ox[iz, ic, ij][:, None]  # (near flakes, Q)
+                py = r * pts[:, 1] + oy[iz, ic, ij][:, None]
+                hit = px * px + py * py < (rr[iz, ic, ij] ** 2)[:, None]
+                cell = ((iz * n_cfg + ic)[:, None] * n_pts + np.arange(n_pts)).ravel()
+                n = np.bincount(cell, hit.ravel(), nzc * n_pts).astype(np.int64).reshape(z.size, n_cfg, n_pts)
                 k = int(n.max(initial=0))
                 pw = T[:, path][:, None] ** np.arange(k + 1)[None, :]  # (C, k + 1); 0^0 = 1
                 tr *= pw[:, n]
