@@ -27,12 +27,32 @@ from functools import lru_cache
 import numpy as np
 from numpy.polynomial.hermite_e import hermegauss as _hermegauss
 from numpy.polynomial.legendre import leggauss as _leggauss
-from scipy.special import j1, ndtri
-from scipy.stats import poisson
 
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun, flake_distribution, projected_area
 from flakedb.texture.instruments import DIFFRACTION_WAVELENGTH_NM
+
+
+def j1(x):
+    """Bessel J1 (scipy.special, imported on first use: a compose of a paint imports this module, and
+    scipy.special's import costs ≈ 0.15 s of every run; docs/compose-overhead.md)."""
+    from scipy.special import j1 as _j1  # lazy: scipy.special is slow to import; only the Airy terms need it
+
+    return _j1(x)
+
+
+def ndtri(p):
+    """Inverse of the standard normal CDF (scipy.special, imported on first use as :func:`j1`)."""
+    from scipy.special import ndtri as _ndtri  # lazy: scipy.special is slow to import; only the glint draws need it
+
+    return _ndtri(p)
+
+
+def _poisson_ppf(q, lam):
+    """Poisson quantile (scipy.stats, imported on first use: scipy.stats costs more than scipy.special)."""
+    from scipy.stats import poisson  # lazy: scipy.stats is slow to import; only the glint draws need it
+
+    return poisson.ppf(q, lam)
 
 
 @lru_cache(maxsize=64)
@@ -724,7 +744,7 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
             n_max = int(np.ceil(lam.max() + 6.0 * np.sqrt(lam.max()) + 6.0))
             u = _occlusion_uniforms(n_cfg, n_max, s)
             # Poisson counts by inversion of the same uniform at every depth (smooth in z)
-            N = poisson.ppf(u[0, :, 0][None, :], lam[:, None])  # (nz, n_cfg)
+            N = _poisson_ppf(u[0, :, 0][None, :], lam[:, None])  # (nz, n_cfg)
             live = np.arange(n_max)[None, None, :] < N[:, :, None]  # (nz, n_cfg, n_max)
             dlt = lo[:, None, None] + u[1][None] * (hi - lo)[:, None, None]
             rr = np.minimum(0.5 * float(f.diameter_median_um) * np.exp(s_g * ndtri(np.clip(u[2], 1e-12, 1 - 1e-12))), r_q)
