@@ -19,13 +19,13 @@ from threadpoolctl import threadpool_limits
 
 from flakedb.paint.mapping import build_paint, solve_paint
 from flakedb.paint.recipe import load_recipe
-from flakedb.rt.fourier import cosine_coefficients
-from flakedb.rt.layer import eigen_slab
-from flakedb.rt.legendre import LegendreKernel
-from flakedb.rt.media import kernel_basis
-from flakedb.rt.medium_projection import PHI_SAMPLES_PER_ORDER, legendre_moments
-from flakedb.rt.microflake import _abs_cosine_moments_cached
-from flakedb.rt.quadrature import radau_hemisphere
+from flakedb.rt.basis.fourier import cosine_coefficients
+from flakedb.rt.adding.layer import eigen_slab
+from flakedb.rt.basis.legendre import LegendreKernel
+from flakedb.rt.scattering.media import kernel_basis
+from flakedb.rt.scattering.medium_projection import PHI_SAMPLES_PER_ORDER, legendre_moments
+from flakedb.rt.scattering.microflake import _abs_cosine_moments_cached
+from flakedb.rt.basis.quadrature import radau_hemisphere
 
 RECIPES = Path(__file__).resolve().parents[1] / "flakedb" / "catalog" / "recipes"
 CASES = [(r, n) for r in ("research-hg-slab", "particle-titanium-white", "metallic-silver") for n in (32, 64, 128, 256)]
@@ -55,7 +55,7 @@ EIGEN_BATCH_MAX, EIGEN_BATCH_ELEMENTS = 512, 4_000_000
 
 
 def _eigen_s(h, L=4, C=8):
-    """CPU seconds of the slab's eigen-solution (:func:`flakedb.rt.layer.eigen_slab`: a Cholesky, one ``eigh``, three
+    """CPU seconds of the slab's eigen-solution (:func:`flakedb.rt.adding.layer.eigen_slab`: a Cholesky, one ``eigh``, three
     solves and products) per (order, channel) at h nodes, one BLAS thread, best of seven: ``eigh`` runs far
     below the LU rate of :func:`_rate_flops`, so the slab is timed on its own kernel rather than counted in flops.
     ``L``, ``C``: the solve's own orders and channels (one batch, as the solve runs them: a batch of 32 small
@@ -76,7 +76,7 @@ def _eigen_s(h, L=4, C=8):
 
 def _legendre_s(medium, h, L=16):
     """CPU seconds per (order, channel, Legendre degree, node pair) of the Legendre kernel's blocks
-    (:class:`flakedb.rt.legendre.LegendreKernel`, addition theorem) of ``medium`` at h nodes, or 0 for a
+    (:class:`flakedb.rt.basis.legendre.LegendreKernel`, addition theorem) of ``medium`` at h nodes, or 0 for a
     medium without moments."""
     lm = legendre_moments(medium, 1e-5)
     if lm is None:

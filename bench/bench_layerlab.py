@@ -126,8 +126,8 @@ def _compile_package():
 
 def _flakedb_stack(n, mode, energy_compensation=True):
     """flakedb's solve of bench/stack_rough_hg_lambertian.py's stack (same parameters as layerlab_stack)."""
-    from flakedb.rt.media import PhaseMedium
-    from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+    from flakedb.rt.scattering.media import PhaseMedium
+    from flakedb.rt.adding.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
 
     sys.path.insert(0, str(HERE))
     import layerlab_stack as ls  # lazy: it imports layerlab (optional); bench/ is not a package

@@ -4,8 +4,8 @@ mean cosine, at n = 64 and 128 (same stack, same settings; the ratio is what to 
 
 import numpy as np
 
-from flakedb.rt.media import PhaseMedium, vmf_mean_cosine
-from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.scattering.media import PhaseMedium, vmf_mean_cosine
+from flakedb.rt.adding.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
 
 
 def _slab(kind, kappa, n, channels=16):

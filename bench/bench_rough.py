@@ -1,5 +1,5 @@
 """Rough-interface benchmarks (issue 12): building the rough dielectric coat's scattering matrices by
-flux-cell integration (flakedb.rt.microfacet) against the former node-sampled projection, and the
+flux-cell integration (flakedb.rt.boundaries.microfacet) against the former node-sampled projection, and the
 rough conductor base.  Accuracy is in tests/test_rough_energy.py; here only the time."""
 
 import os
@@ -8,8 +8,8 @@ import sys
 import tempfile
 import time
 
-from flakedb.rt import interface as itf
-from flakedb.rt.quadrature import radau_hemisphere
+from flakedb.rt.boundaries import interface as itf
+from flakedb.rt.basis.quadrature import radau_hemisphere
 
 
 def _coat(n, alpha, scheme):
@@ -67,8 +67,8 @@ def _whole_stack(n=200, write=True, colour=False):
                    os.path.join(tempfile.gettempdir(), "flakedb-bench-whole.bsdf")] + (["colour"] if colour else [])
         else:
             cmd = [sys.executable, "-c", (
-                "import numpy as np; from flakedb.rt.stack import Rough, Slab, Lambertian, SolverSettings, solve_stack; "
-                "from flakedb.rt.media import PhaseMedium; "
+                "import numpy as np; from flakedb.rt.adding.stack import Rough, Slab, Lambertian, SolverSettings, solve_stack; "
+                "from flakedb.rt.scattering.media import PhaseMedium; "
                 "slab = Slab(2.0, PhaseMedium(np.ones(3), np.full(3, 0.95), ('hg', np.full(3, 0.7)))); "
                 f"solve_stack(Rough(1.5, 0.1), [slab], Lambertian(np.full(3, 0.5)), SolverSettings.product({n}))")]
         env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",

@@ -6,9 +6,9 @@
   projection.  The row records both times and their ratio, measured back to back.
 * Rough coat (Beckmann 0.1, η 1.5) / HG slab (g 0.7, albedo 0.95, τ 2) / Lambertian 0.5, RGB, n = 200:
   the solve with the rough interface built beforehand (its construction is excluded).
-* The doubling loop (:func:`flakedb.rt.layer.double_symmetric`) in GFLOP/s against a batched matmul
+* The doubling loop (:func:`flakedb.rt.adding.layer.double_symmetric`) in GFLOP/s against a batched matmul
   of the same matrices in the same run.
-* Homogeneous slabs: the eigen-solution (:func:`flakedb.rt.layer.eigen_slab`, the default) against
+* Homogeneous slabs: the eigen-solution (:func:`flakedb.rt.adding.layer.eigen_slab`, the default) against
   diamond start + doubling from a 2⁻⁷ slice, same kernels, back to back; max |ΔR|, |ΔT| relative.
 """
 
@@ -17,12 +17,12 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from flakedb.rt import stack as st
-from flakedb.rt.layer import double_symmetric, homogeneous_slab
-from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
-from flakedb.rt.microflake import FlakeOptics
-from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
-from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, medium_kernel_blocks, solve_stack
+from flakedb.rt.adding import stack as st
+from flakedb.rt.adding.layer import double_symmetric, homogeneous_slab
+from flakedb.rt.scattering.media import FlakeMedium, Mixture, PhaseMedium
+from flakedb.rt.scattering.microflake import FlakeOptics
+from flakedb.rt.basis.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
+from flakedb.rt.adding.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, medium_kernel_blocks, solve_stack
 
 
 def _three_species_medium(channels=16):
@@ -98,7 +98,7 @@ def _doubling_rate(batch=256, h=69, times=8):
     32h³/3, whatever the solve does (the block inverse with its probe performs about 12h³,
     docs/model.md §4 "Doubling"), so the rate is a time per doubling in matmul-equivalent units.  The
     O(h²) updates (I − R R, R + …) are not counted.  Two comparisons, each
-    in the same run: one core (BLAS at one thread for both, as :func:`flakedb.rt.stack.solve_stack`
+    in the same run: one core (BLAS at one thread for both, as :func:`flakedb.rt.adding.stack.solve_stack`
     runs the doubling; best of three for each) and the whole machine (matmul with BLAS's own threads against
     ``double_symmetric(threads=2)`` with BLAS at one thread per call, again as ``solve_stack`` runs it).
     """

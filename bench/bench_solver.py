@@ -3,9 +3,9 @@ one and 16 channels, at n = 100 and 200; and a smooth-coated three-species basec
 
 import numpy as np
 
-from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
-from flakedb.rt.microflake import FlakeOptics
-from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.scattering.media import FlakeMedium, Mixture, PhaseMedium
+from flakedb.rt.scattering.microflake import FlakeOptics
+from flakedb.rt.adding.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
 
 
 def _rough_hg(n, channels):

@@ -3,8 +3,8 @@ against the direct path, in one run (the machine is shared and noisy: compare th
 
 * ``store/3-species n=N``: bench/bench_solver.py's smooth-coated three-species basecoat (two flake
   species + one HG pigment, 16 channels, 15 µm, Lambertian 0.5) solved from precomputed factors (the
-  flakes' spectral SVD × projected blocks from :func:`flakedb.rt.stored.flake_factors`, the pigment's
-  Legendre moments g^k, untimed in setup) and directly (:class:`flakedb.rt.media.Mixture`, projected per
+  flakes' spectral SVD × projected blocks from :func:`flakedb.rt.scattering.stored.flake_factors`, the pigment's
+  Legendre moments g^k, untimed in setup) and directly (:class:`flakedb.rt.scattering.media.Mixture`, projected per
   solve).  Extra columns: the direct solve's time in the same run, the ratio, max |Δf| / max f, and
   the profile split (projection / contraction / doubling / adding / I/O, cProfile cumulative times).
 * ``store/tri-coat n=N``: ``flakedb compose`` of catalog/recipes/tri-coat-pearl-white.yaml at its own
@@ -62,12 +62,12 @@ def _profile_split(fn):
 
 
 def _three_species(n):
-    from flakedb.rt.legendre import LEGENDRE_TOL, truncate_legendre
-    from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
-    from flakedb.rt.microflake import FlakeOptics
-    from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
-    from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
-    from flakedb.rt.stored import FlakeFactors, StoredFlakeMedium, StoredMixture, StoredPigmentMedium, flake_factors
+    from flakedb.rt.basis.legendre import LEGENDRE_TOL, truncate_legendre
+    from flakedb.rt.scattering.media import FlakeMedium, Mixture, PhaseMedium
+    from flakedb.rt.scattering.microflake import FlakeOptics
+    from flakedb.rt.basis.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
+    from flakedb.rt.adding.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
+    from flakedb.rt.scattering.stored import FlakeFactors, StoredFlakeMedium, StoredMixture, StoredPigmentMedium, flake_factors
 
     def setup():
         c = np.linspace(0, 1, 33)

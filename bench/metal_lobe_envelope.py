@@ -3,8 +3,8 @@
 binned in 5° θ_o bins from the solver's flux cells, against n = 384.  Run: PYTHONPATH=. python
 bench/metal_lobe_envelope.py (about 5 minutes on 2 cores).  Not a benchmark: bench/run.py runs bench_*.py only."""
 import numpy as np
-from flakedb.rt.stack import Smooth, RoughConductor, SolverSettings, solve_stack
-from flakedb.rt.microfacet import flux_cell_edges
+from flakedb.rt.adding.stack import Smooth, RoughConductor, SolverSettings, solve_stack
+from flakedb.rt.boundaries.microfacet import flux_cell_edges
 N = np.array([1.2 + 7.0j])
 edges_deg = np.arange(0, 90.01, 5.0)
 mu_edges = np.sort(np.cos(np.radians(edges_deg)))

@@ -14,8 +14,8 @@ import tempfile
 from flakedb.bsdf import write_bsdf
 from flakedb.process import tune_allocator
 from flakedb.bsdf.convert import stack_to_table
-from flakedb.rt.media import PhaseMedium
-from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+from flakedb.rt.scattering.media import PhaseMedium
+from flakedb.rt.adding.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
 
 
 def main(n=200, out=None, colour=False):

@@ -72,8 +72,8 @@ from flakedb.render.preview import (
     studio_environment,
     studio_sun,
 )
-from flakedb.rt import media as rm
-from flakedb.rt import stack as rs
+from flakedb.rt.scattering import media as rm
+from flakedb.rt.adding import stack as rs
 from flakedb.store import versions as st
 from figures.figure4 import figure4
 

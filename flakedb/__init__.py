@@ -16,8 +16,8 @@ The main entry points are importable from here:
 A white furnace: a lossless Henyey–Greenstein slab over a white Lambertian primer returns all light.
 
 >>> import flakedb
->>> from flakedb.rt.media import PhaseMedium
->>> from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings
+>>> from flakedb.rt.scattering.media import PhaseMedium
+>>> from flakedb.rt.adding.stack import Lambertian, Slab, Smooth, SolverSettings
 >>> slab = Slab(2.0, PhaseMedium(sigma_t_per_um=1.0, albedo=1.0, phase=("hg", 0.6)))
 >>> paint = flakedb.solve_stack(Smooth(1.5), [slab], Lambertian(1.0), SolverSettings(n=16))
 >>> albedo = paint.albedo()      # (channels, incident nodes), the mirror term included
@@ -55,12 +55,12 @@ __version__ = "0.1.0"
 
 #: name → (module, attribute) of the entry points (``compose_recipe``, not ``compose``: that name is the
 #: ``flakedb.compose`` subpackage); imported on first use (PEP 562), so that importing a kernel
-#: (``flakedb.rt.quadrature``) does not import the whole package.
+#: (``flakedb.rt.basis.quadrature``) does not import the whole package.
 _ENTRY_POINTS = {
     "load_recipe": ("flakedb.paint.recipe", "load_recipe"),
     "parse_recipe": ("flakedb.paint.recipe", "parse_recipe"),
     "compose_recipe": ("flakedb.compose.orchestrate", "compose"),
-    "solve_stack": ("flakedb.rt.stack", "solve_stack"),
+    "solve_stack": ("flakedb.rt.adding.stack", "solve_stack"),
     "open_bsdf": ("flakedb.bsdf", "open_bsdf"),
 }
 

@@ -22,7 +22,7 @@ worker spinning for ~50 ms after every threaded call (measured: 48–52 ms of pr
 sleep after one 300 × 300 product), and on 2 cores that worker takes a core from the solve or the texture
 thread: the 3-species store compose used 0.76 s of CPU against 0.65 s with one BLAS thread (wall 0.57 s
 against 0.54 s).  The solver already runs its batched matrices on one BLAS thread
-(:func:`flakedb.rt.stack.solve_stack`); this makes the rest of the process do the same.
+(:func:`flakedb.rt.adding.stack.solve_stack`); this makes the rest of the process do the same.
 """
 
 import contextlib

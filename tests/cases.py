@@ -9,9 +9,9 @@ from click.testing import CliRunner
 
 import flakedb.reference.montecarlo as mc
 from flakedb.cli.main import cli
-from flakedb.rt import media as rm
-from flakedb.rt.microflake import FlakeOptics
-from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth
+from flakedb.rt.scattering import media as rm
+from flakedb.rt.scattering.microflake import FlakeOptics
+from flakedb.rt.adding.stack import Lambertian, Rough, Slab, Smooth
 
 N_PATHS = 400_000
 C_GRID = np.linspace(0.0, 1.0, 33)

@@ -59,7 +59,7 @@ def test_solve_bound_holds_for_lapack(n, near_identity):
 
 @pytest.mark.parametrize("N", [64, 256])
 def test_fft_bound_holds_for_the_cosine_coefficients(N):
-    from flakedb.rt.fourier import cosine_coefficients
+    from flakedb.rt.basis.fourier import cosine_coefficients
 
     rng = np.random.default_rng(3)
     g = rng.normal(size=N + 1)
@@ -85,7 +85,7 @@ def test_sum_bound_and_adding_bound_hold():
     b = tol.sum_tol(1000, np.abs(x) @ np.abs(y), evaluations=1)
     assert np.all(np.abs(got - ref).astype(float) <= b)
 
-    from flakedb.rt.layer import Layer, add_reflection_only
+    from flakedb.rt.adding.layer import Layer, add_reflection_only
 
     h = 12
     top = Layer(*(0.4 * rng.random((2, 3, h, h)) / h for _ in range(4)))

@@ -15,7 +15,7 @@ import sys
 import numpy as np
 
 from flakedb.reference import microsurface as ms
-from flakedb.rt.quadrature import radau_hemisphere
+from flakedb.rt.basis.quadrature import radau_hemisphere
 
 ETA = 1.5
 ALPHAS = (0.05, 0.1, 0.3, 0.5)

@@ -23,7 +23,7 @@ from flakedb.conventions import fourier_weight
 
 
 def stack_to_table(stack, channels=None, eta=None, alpha=None, delta="auto", metadata=None) -> BSDFTable:
-    """:class:`BSDFTable` of a solved stack (:class:`flakedb.rt.stack.StackBSDF`).
+    """:class:`BSDFTable` of a solved stack (:class:`flakedb.rt.adding.stack.StackBSDF`).
 
     ``channels``: names (default by count, :class:`BSDFTable`); ``eta``: the header's relative index
     (default the stack's); ``alpha``: the top's Beckmann roughness (informational; default the solved stack's
@@ -37,8 +37,8 @@ def stack_to_table(stack, channels=None, eta=None, alpha=None, delta="auto", met
 
     >>> import flakedb
     >>> from flakedb.optics.fresnel import fresnel_dielectric
-    >>> from flakedb.rt.media import PhaseMedium
-    >>> from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings
+    >>> from flakedb.rt.scattering.media import PhaseMedium
+    >>> from flakedb.rt.adding.stack import Lambertian, Slab, Smooth, SolverSettings
     >>> slab = Slab(2.0, PhaseMedium(sigma_t_per_um=1.0, albedo=1.0, phase=("hg", 0.6)))
     >>> table = stack_to_table(flakedb.solve_stack(Smooth(1.5), [slab], Lambertian(1.0), SolverSettings(n=16)))
     >>> table.delta, table.n

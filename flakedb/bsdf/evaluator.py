@@ -378,7 +378,7 @@ def table_evaluator(table: BSDFTable, path=None, metadata=None) -> FourierBSDF:
 
     A Lambertian of albedo (0.8, 0.5, 0.2) evaluates to ρ |μ_o| / π and reflects ρ at every incidence:
 
-    >>> from flakedb.rt.quadrature import gauss_radau_unit
+    >>> from flakedb.rt.basis.quadrature import gauss_radau_unit
     >>> x, _ = gauss_radau_unit(8)
     >>> rho = np.array([0.8, 0.5, 0.2])
     >>> refl = np.broadcast_to((rho[:, None] * x[None, ::-1] / np.pi)[:, None, :, None], (3, 8, 8, 1))

@@ -129,7 +129,7 @@ def write_bsdf(path, table: BSDFTable, truncation: float = TRUNCATION_DEFAULT) -
     pair of directions, to float32:
 
     >>> import tempfile
-    >>> from flakedb.rt.quadrature import gauss_radau_unit
+    >>> from flakedb.rt.basis.quadrature import gauss_radau_unit
     >>> x, _ = gauss_radau_unit(8)
     >>> refl = np.broadcast_to((0.5 * x[::-1] / np.pi)[None, None, :, None], (1, 8, 8, 1))
     >>> path = Path(tempfile.mkdtemp()) / "grey.bsdf"

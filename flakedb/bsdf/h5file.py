@@ -29,7 +29,7 @@ from flakedb.bsdf.limits import (
 )
 from flakedb.bsdf.metadata import check_delta, check_known_metadata
 from flakedb.bsdf.table import BSDFFileError, BSDFTable
-from flakedb.rt.jobs import thread_pool
+from flakedb.rt.adding.jobs import thread_pool
 from flakedb.safeio import check_regular
 
 #: An HDF5 file's first eight bytes.
@@ -455,7 +455,7 @@ def read_h5(path) -> FourierBSDF:
 
     >>> import tempfile
     >>> from pathlib import Path
-    >>> from flakedb.rt.quadrature import gauss_radau_unit
+    >>> from flakedb.rt.basis.quadrature import gauss_radau_unit
     >>> x, _ = gauss_radau_unit(8)
     >>> rho = np.array([0.8, 0.5, 0.2])
     >>> refl = np.broadcast_to((rho[:, None] * x[None, ::-1] / np.pi)[:, None, :, None], (3, 8, 8, 1))

@@ -62,7 +62,7 @@ class BSDFTable:
     A white Lambertian primer, f·|μ_o| = |μ_o|/π, given as its reflection quadrant: its albedo is 1 at
     every incident node going down into it, 0 for light arriving from below:
 
-    >>> from flakedb.rt.quadrature import gauss_radau_unit
+    >>> from flakedb.rt.basis.quadrature import gauss_radau_unit
     >>> x, _ = gauss_radau_unit(8)
     >>> refl = np.broadcast_to((x[::-1] / np.pi)[None, None, :, None], (1, 8, 8, 1))        # (C, h, h, L)
     >>> t = BSDFTable(np.concatenate([-x[::-1], x]), reflection=refl)

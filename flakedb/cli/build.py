@@ -12,7 +12,7 @@ from flakedb.paint.catalog import CatalogError, load_catalog
 from flakedb.paint.limits import node_count_problem
 from flakedb.paint.recipe import RecipeError, load_recipe
 from flakedb.pipelines.build import DEFAULT_N, make_request, request_for_recipe
-from flakedb.rt.microflake import FLAKE_ALPHA_RANGE
+from flakedb.rt.scattering.microflake import FLAKE_ALPHA_RANGE
 from flakedb.pipelines.build import build as run_build
 from flakedb.store import versions as st
 

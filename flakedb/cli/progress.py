@@ -9,7 +9,7 @@ import click
 
 class StageProgress:
     """``progress(stage, detail)`` callback of :func:`flakedb.compose.orchestrate.compose` (and the
-    solver's :class:`flakedb.rt.stack.SolverSettings` ``progress``): stages optics, discretisation, projection, solve,
+    solver's :class:`flakedb.rt.adding.stack.SolverSettings` ``progress``): stages optics, discretisation, projection, solve,
     channels, write and warning.  ``stream`` defaults to stderr; ``tty`` to whether it is a terminal.
 
     Into a log, one time-stamped line per event:

@@ -290,7 +290,7 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
                            "projected kernel factors of catalogue species from the store (flakes: spectral factor U "
                            f"and projected blocks V{', untruncated' if raw else ''}, sigma_t, sigma_s per unit loading; "
                            "pigments: Mie cross-sections and Legendre moments): no azimuthal projection "
-                           "(flakedb.paint.mapping, flakedb.rt.stored, docs/store.md)"),
+                           "(flakedb.paint.mapping, flakedb.rt.scattering.stored, docs/store.md)"),
         "raw": bool(raw), "n_reason": reason,
         "wavelength_nm": None if paint.wavelength_nm is None else paint.wavelength_nm.tolist(),
         "components": paint.components, "paint_info": paint.info,

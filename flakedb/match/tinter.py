@@ -9,7 +9,7 @@ Usage card::
 A *tinter* is a catalogue species of kind ``tinter`` (schemas/catalog.schema.json): its absorption and
 scattering per unit volume fraction, σ_a/φ and σ_s/φ [1/µm], tabulated in wavelength, and a
 Henyey–Greenstein mean cosine g; :mod:`flakedb.paint.mapping` turns it into a
-:class:`flakedb.rt.media.PhaseMedium` (σ = φ · σ/φ) like every species, so a recipe names it and it mixes
+:class:`flakedb.rt.scattering.media.PhaseMedium` (σ = φ · σ/φ) like every species, so a recipe names it and it mixes
 with catalogue pigments and flakes.
 
 The model fitted (all smooth in wavelength, so that a ladder of a few panels determines it)

@@ -20,7 +20,7 @@ import numpy as np
 
 from flakedb.optics.mie import default_n_quad
 from flakedb.paint.checks import YamlFileError, load_yaml_file, value_problems
-from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, STUDENT_T_SHAPE_RANGE, flake_distribution
+from flakedb.rt.scattering.microflake import DEFAULT_DISTRIBUTION, STUDENT_T_SHAPE_RANGE, flake_distribution
 from flakedb.paint.materials import material_names
 from flakedb.resources import CATALOG_DIR, PACKAGE_DIR, SCHEMAS_DIR
 
@@ -143,7 +143,7 @@ MAX_SWEEP_MEMBERS = 1000
 
 def catalog_distribution(entry) -> str:
     """The flake-normal distribution of a catalogue flake ``entry``, as the canonical name of
-    :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`: its ``orientation_distribution`` (default Beckmann,
+    :data:`flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS`: its ``orientation_distribution`` (default Beckmann,
     every entry written before the field), ``student_t`` with its ``orientation_shape`` value γ as
     ``student_t(γ)``.  The one place a catalogue entry's orientation fields become a name (recipes, the
     store's plan and the build request read it)."""

@@ -20,12 +20,12 @@ from flakedb.paint.limits import is_rough_interface
 from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import CatalogParticle, Spectrum
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics, tinter_coefficients
-from flakedb.rt.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
-from flakedb.rt.media import FlakeMedium, PhaseMedium, vmf_mean_cosine
-from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun
-from flakedb.rt.reuse import active_cache, array_key
-from flakedb.rt.stack import RoughConductor
-from flakedb.rt.stored import StoredPigmentMedium
+from flakedb.rt.basis.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
+from flakedb.rt.scattering.media import FlakeMedium, PhaseMedium, vmf_mean_cosine
+from flakedb.rt.scattering.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun
+from flakedb.rt.adding.reuse import active_cache, array_key
+from flakedb.rt.adding.stack import RoughConductor
+from flakedb.rt.scattering.stored import StoredPigmentMedium
 
 
 #: Flake-cosine grid: start from FLAKE_C_START nodes c = cos θ, θ uniform on [0°, 90°], and bisect
@@ -63,7 +63,7 @@ def recipe_alpha(p) -> float:
 
 
 def recipe_distribution(p) -> str:
-    """The flake-normal distribution (a key of :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`) of a
+    """The flake-normal distribution (a key of :data:`flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS`) of a
     catalogue or custom flake in a recipe: its ``orientation_distribution``, else the catalogue entry's,
     else Beckmann (the paper's eq. 5; every catalogue entry and store written before the field)."""
     own = getattr(p, "orientation_distribution", None)
@@ -134,7 +134,7 @@ def normalise_phase_table(cos_theta, values) -> tuple[np.ndarray, np.ndarray]:
     A Henyey–Greenstein phase function tabulated on :func:`phase_cos_grid` (0.5° steps) integrates to 1
     within 1e-5 before the scaling, exactly after it:
 
-    >>> from flakedb.rt.microflake import phase_HG
+    >>> from flakedb.rt.scattering.microflake import phase_HG
     >>> c = phase_cos_grid()
     >>> p, before = normalise_phase_table(c, phase_HG(c, 0.3)[None])
     >>> bool(abs(before[0] - 1.0) < 1e-5), round(float(2 * np.pi * np.trapezoid(p[0], c)), 12)
@@ -267,7 +267,7 @@ def entry_key(entry) -> str:
 
 
 def reused(key, compute):
-    """``compute()``, or inside a fit's reuse scope (:func:`flakedb.rt.reuse.reusing`) the value an earlier
+    """``compute()``, or inside a fit's reuse scope (:func:`flakedb.rt.adding.reuse.reusing`) the value an earlier
     evaluation computed under ``key`` — a species' optics per unit loading, keyed by everything it depends on
     (the entry, the wavelengths, the binder index, the grids), never by the loading."""
     cache = active_cache()

@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from flakedb.optics.kubelka_munk import relative_km_to_specific, rt_to_km
-from flakedb.rt.media import PhaseMedium
-from flakedb.rt.stack import Slab, SolverSettings, solve_stack
+from flakedb.rt.scattering.media import PhaseMedium
+from flakedb.rt.adding.stack import Slab, SolverSettings, solve_stack
 from flakedb.paint.catalog import get_species
 from flakedb.paint.species import binder_index, pigment_optics
 from flakedb.resources import CATALOG_DIR

@@ -1,6 +1,6 @@
 """Recipe → solver inputs: the physics mapping of a paint (docs/model.md §1, §3, §6).
 
-A :class:`flakedb.paint.recipe.Recipe` becomes the arguments of :func:`flakedb.rt.stack.solve_stack`::
+A :class:`flakedb.paint.recipe.Recipe` becomes the arguments of :func:`flakedb.rt.adding.stack.solve_stack`::
 
     top     Smooth(η) | Rough(η, α) | None      η = the top binder's index (the clear coat's, else the
                                                  first basecoat's; ior 1 = no interface)
@@ -19,7 +19,7 @@ clear binder and adds nothing.
 Particles (docs/model.md §3 "the anisotropic medium", §6 "particle optics")
 ----------------------------------------------------------------------
 * **Flakes** (interference and mirror flakes of the catalogue; paper eq. 2, docs/model.md §3): a
-  :class:`flakedb.rt.media.FlakeMedium` with
+  :class:`flakedb.rt.scattering.media.FlakeMedium` with
 
   - loading ``aρ = volume_fraction / t_flake`` (flake area × number density, 1/µm; docs/model.md: "aρ =
     volume fraction / flake thickness": N flakes of area a and thickness t fill a volume N a t,
@@ -33,14 +33,14 @@ Particles (docs/model.md §3 "the anisotropic medium", §6 "particle optics")
   - the Beckmann orientation spread α of the catalogue, or the recipe's ``orientation_alpha``.
 
 * **Pigments** (spheres; docs/model.md §3 "uniform D with a Mie kernel is an isotropic Mie medium", §6):
-  a :class:`flakedb.rt.media.PhaseMedium` with number density ``ρ = volume_fraction / <V>``
+  a :class:`flakedb.rt.scattering.media.PhaseMedium` with number density ``ρ = volume_fraction / <V>``
   (``<V>`` the mean particle volume of the log-normal, µm³), ``σ_t = ρ <C_ext>``,
   ``albedo = <C_sca>/<C_ext>`` and the C_sca-weighted Mie phase function tabulated on
   :func:`phase_cos_grid` (from :func:`flakedb.paint.species.pigment_optics`, Du 2004, relative index
   m = N/n_binder, size parameter x = π d n_binder / λ).
 
 * **Tinters** (a colourant known by its optics per unit volume fraction φ, made by ``flakedb calibrate``
-  from drawdowns or from Kubelka–Munk K and S; docs/calibration.md): a :class:`flakedb.rt.media.PhaseMedium`
+  from drawdowns or from Kubelka–Munk K and S; docs/calibration.md): a :class:`flakedb.rt.scattering.media.PhaseMedium`
   with ``σ_a = φ · σ_a/φ``, ``σ_s = φ · σ_s/φ`` (the entry's tables at the band centres,
   :func:`flakedb.paint.species.tinter_coefficients`) and the Henyey–Greenstein phase function of the
   entry's g (:func:`tinter_medium`).  Linear in φ: the dilute, independent-scattering assumption every
@@ -55,23 +55,23 @@ Particles (docs/model.md §3 "the anisotropic medium", §6 "particle optics")
   - a medium with single-scattering albedo ϖ (a number, or a spectrum: per band, or in RGB mode
     through the same linear map as every spectrum, clipped to [0, 1]; :func:`custom_medium_albedo`)
     and an isotropic, Henyey–Greenstein, von Mises–Fisher (κ, or its mean cosine g converted to κ;
-    :func:`flakedb.rt.media.phase_vMF`) or tabulated phase function: ``σ_t = τ / d`` (the same in
+    :func:`flakedb.rt.scattering.media.phase_vMF`) or tabulated phase function: ``σ_t = τ / d`` (the same in
     every channel).  A tabulated phase function is normalised so that its
-    piecewise-linear interpolant (what :class:`~flakedb.rt.media.PhaseMedium` evaluates) integrates
+    piecewise-linear interpolant (what :class:`~flakedb.rt.scattering.media.PhaseMedium` evaluates) integrates
     to 1 over the sphere.
 
 From the precomputed store (issue #6)
 -----------------------------------
 With an open store version (:func:`build_paint` ``store=``), catalogue flakes become
-:class:`flakedb.rt.stored.StoredFlakeMedium` and catalogue pigments
-:class:`flakedb.rt.stored.StoredPigmentMedium`: the kernels' R(μ_i, μ_o, φ_d) comes from the store
+:class:`flakedb.rt.scattering.stored.StoredFlakeMedium` and catalogue pigments
+:class:`flakedb.rt.scattering.stored.StoredPigmentMedium`: the kernels' R(μ_i, μ_o, φ_d) comes from the store
 (compressed factors, or the raw samples with ``raw``), the rest as above: the loadings, σ_t(μ) and
 σ_s(μ) of flakes (1-D integrals of R(c), T(c): the store has no T), a pigment's ρ <C_ext> and
 <C_sca> (Mie cross-sections, no phase function), and the recipe's α (D(h) is evaluated, not
 stored).  :func:`flakedb.solve.store_context.store_problems` lists what the store lacks for a recipe.  In RGB mode the stored
 spectral R is mapped to linear sRGB coefficient by coefficient (the map is linear).  For pigments the
 direct path's clips are reproduced: C_sca ≤ C_ext scales each channel's kernel, and the phase ≥ 0
-clip is applied to the evaluated kernel (:class:`flakedb.rt.stored.StoredPigmentMedium`
+clip is applied to the evaluated kernel (:class:`flakedb.rt.scattering.stored.StoredPigmentMedium`
 ``nonnegative``), whose renormalisation to σ_s the solver does as for the direct path.  Without the
 phase clip the store path differed from the direct one by ΔE00 0.83 (cadmium-yellow, n = 16, 380–780
 nm; the blue channel's phase goes negative over 14 % of cos Θ); with it 1.2e-3 (tests/test_stored.py).
@@ -84,7 +84,7 @@ size distribution.
 Primer (Lambertian, docs/model.md §4): ``color`` black / gray / white → albedo 0.04 / 0.18 / 0.9
 (:data:`flakedb.paint.recipe.PRIMER_ALBEDO`); or an albedo; or a spectrum (linear in λ).
 
-Metal base (docs/model.md §4 "metal base"): a :class:`flakedb.rt.stack.RoughConductor` of the recipe's
+Metal base (docs/model.md §4 "metal base"): a :class:`flakedb.rt.adding.stack.RoughConductor` of the recipe's
 Beckmann roughness, with its complex index N = n + ik relative to vacuum (the solver divides it by the
 binder's index above): per band from the catalogue material (:func:`flakedb.paint.materials.refractive_index`)
 in spectral mode, the recipe's constant {n, k} in every mode.  In ``rgb`` mode N itself cannot be
@@ -132,9 +132,9 @@ from flakedb.paint.components import (
     tinter_component,
 )
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium
-from flakedb.rt.media import Mixture, PhaseMedium
-from flakedb.rt.stack import InnerRough, InnerSmooth, Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
-from flakedb.rt.stored import StoredMixture
+from flakedb.rt.scattering.media import Mixture, PhaseMedium
+from flakedb.rt.adding.stack import InnerRough, InnerSmooth, Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.scattering.stored import StoredMixture
 
 
 @dataclass
@@ -317,6 +317,6 @@ def with_media(paint: Paint, replace: dict) -> Paint:
 
 
 def solve_paint(paint: Paint, n: int, **settings):
-    """Solve the paint's stack at ``n`` nodes; returns :class:`flakedb.rt.stack.StackBSDF`."""
+    """Solve the paint's stack at ``n`` nodes; returns :class:`flakedb.rt.adding.stack.StackBSDF`."""
     return solve_stack(paint.top, paint.slabs, paint.bottom, SolverSettings.product(n, **settings),
                        channels=paint.n_channels)

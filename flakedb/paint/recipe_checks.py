@@ -38,8 +38,8 @@ from flakedb.paint.recipe_model import (
 )
 from flakedb.paint.recipe_schema import json_short
 from flakedb.paint.species import species_density_g_cm3
-from flakedb.rt.media import vmf_kappa_from_mean_cosine
-from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, STUDENT_T_SHAPE_RANGE, flake_distribution
+from flakedb.rt.scattering.media import vmf_kappa_from_mean_cosine
+from flakedb.rt.scattering.microflake import DEFAULT_DISTRIBUTION, STUDENT_T_SHAPE_RANGE, flake_distribution
 
 
 def _spectrum_problems(path, spec, grid, lo_val=None, hi_val=None, what="value"):
@@ -237,7 +237,7 @@ def _population_name(pp, dist, shape, dist_field):
 def orientation_name(pp, P, entry=None):
     """(problems, name or None): the flake-normal distribution a particle's orientation fields
     (``orientation_distribution``, ``orientation_shape``, ``orientation_mixture``) ask for, as the canonical
-    name of :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS` (``student_t(γ)``, ``mix(first,w,second,α₂)``);
+    name of :data:`flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS` (``student_t(γ)``, ``mix(first,w,second,α₂)``);
     None where the particle states none of them (the catalogue's, else Beckmann, applies).
     ``entry``: the catalogue entry whose distribution (and Student-t shape) a field the particle leaves
     out takes (None: a custom flake, Beckmann)."""

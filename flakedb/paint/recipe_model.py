@@ -116,14 +116,14 @@ class CustomFlake:
     optical_depth: float
     name: str = "custom-flake"
     path: str = ""
-    #: the flake normals' distribution (flakedb.rt.microflake.FLAKE_DISTRIBUTIONS)
+    #: the flake normals' distribution (flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS)
     orientation_distribution: str = "beckmann"
 
 
 @dataclass
 class CustomMedium:
     """``albedo``: a float or a :class:`Spectrum` (per band); ``phase``: ``"isotropic"``, ``("hg", g)``,
-    ``("vmf", kappa)`` (a recipe's mean cosine g converted to κ, :func:`flakedb.rt.media.vmf_kappa_from_mean_cosine`)
+    ``("vmf", kappa)`` (a recipe's mean cosine g converted to κ, :func:`flakedb.rt.scattering.media.vmf_kappa_from_mean_cosine`)
     or ``("table", cos_theta, value)``."""
 
     albedo: float | Spectrum

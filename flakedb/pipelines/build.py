@@ -27,7 +27,7 @@ from flakedb.paint.recipe import load_recipe
 from flakedb.pipelines.progress import BuildProgress
 from flakedb.pipelines.workers import MAX_POOL_RESTARTS, process_pool
 from flakedb.resources import RECIPES_DIR
-from flakedb.rt.stored import RANK_TOL
+from flakedb.rt.scattering.stored import RANK_TOL
 from flakedb.store import versions as st
 
 DEFAULT_N = (32,)

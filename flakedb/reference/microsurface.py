@@ -9,7 +9,7 @@ from the distribution of visible normals, D_ω(m) = G1(ω) max(0, ω·m) D(m) / 
 path reflects (conductor: weight × F) or reflects / refracts with probability F / 1 − F (dielectric;
 the other side of the surface is the same random surface seen with z flipped, their §5), until it
 leaves the surface.  Single and multiple scattering come out of the same walk: nothing of the
-solver's compensation lobe (flakedb.rt.microfacet) is used, and the Fresnel factors, Λ and the
+solver's compensation lobe (flakedb.rt.boundaries.microfacet) is used, and the Fresnel factors, Λ and the
 visible-normal sampling are written here.
 
 Directions are graphics vectors (pointing away from the surface for the incident direction, along

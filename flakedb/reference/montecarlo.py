@@ -62,12 +62,12 @@ Interfaces
   otherwise the compensation lobe with weight 1: from the air it reflects with probability r_a/g_a
   (μ_o ∝ μ_o r_a) or enters the binder (μ_o ∝ μ_o t_b); from the binder it leaves with probability
   t_b/g_b (μ_o ∝ μ_o t_a) or reflects (μ_o ∝ μ_o r_b); φ uniform (g = 1 − E).  The split r, t is the
-  solver's definition, imported on purpose (:func:`flakedb.rt.microfacet.multiple_scattering_escape`,
-  :func:`flakedb.rt.microfacet.balance_split`): this Monte Carlo checks the solver's transport and
+  solver's definition, imported on purpose (:func:`flakedb.rt.boundaries.microfacet.multiple_scattering_escape`,
+  :func:`flakedb.rt.boundaries.microfacet.balance_split`): this Monte Carlo checks the solver's transport and
   discretisation with the same lobe; the lobe itself is checked against the explicit random walk of
   :mod:`flakedb.reference.microsurface`.  A rough conductor bottom's lobe is taken with probability
   1 − E₁(μ_i) (E₁ its albedo with F ≡ 1), weight a(μ_i)/(1 − E₁(μ_i)), μ_o ∝ μ_o a(μ_o), with a the
-  solver's (:func:`flakedb.rt.microfacet.conductor_compensation`).
+  solver's (:func:`flakedb.rt.boundaries.microfacet.conductor_compensation`).
 
 Estimators
 ----------
@@ -99,7 +99,7 @@ from typing import Any
 import numpy as np
 
 from flakedb.reference import kernels as _k
-from flakedb.rt import microfacet as _mf
+from flakedb.rt.boundaries import microfacet as _mf
 
 __all__ = [
     "Isotropic",
@@ -258,7 +258,7 @@ class RoughConductor:
     of the metal relative to vacuum (scalar or (C,)); it is divided by the binder's index.  The
     masked/shadowed part and the metal's absorption are both lost (counted in ``absorbed``) unless
     ``energy_compensation`` (default) adds the multiple-scattering lobe of
-    :func:`flakedb.rt.microfacet.conductor_compensation` (docs/rough-interfaces.md)."""
+    :func:`flakedb.rt.boundaries.microfacet.conductor_compensation` (docs/rough-interfaces.md)."""
 
     N: Any
     alpha: float
@@ -706,9 +706,9 @@ def _flux_weights(grid):
 @functools.lru_cache(maxsize=32)
 def _dielectric_split(eta, alpha):
     """The lobe's split on the table grid, (r_a, t_a, r_b, t_b) over the kernel's own g = 1 − E: the
-    solver's definition (:func:`flakedb.rt.microfacet.multiple_scattering_escape` minus the single-
-    scattering R, T of :func:`flakedb.rt.microfacet.microfacet_albedo`, made reciprocal by
-    :func:`flakedb.rt.microfacet.balance_split` on this grid's flux weights): shared on purpose, so
+    solver's definition (:func:`flakedb.rt.boundaries.microfacet.multiple_scattering_escape` minus the single-
+    scattering R, T of :func:`flakedb.rt.boundaries.microfacet.microfacet_albedo`, made reciprocal by
+    :func:`flakedb.rt.boundaries.microfacet.balance_split` on this grid's flux weights): shared on purpose, so
     that the Monte Carlo samples the lobe the solver defines (the random walk of
     :mod:`flakedb.reference.microsurface` is the independent check of the lobe)."""
     grid = (np.arange(MS_TABLE_K + 1) / MS_TABLE_K) ** 2
@@ -727,7 +727,7 @@ def _dielectric_split(eta, alpha):
 
 def _conductor_lobe(N, alpha, E1):
     """The conductor lobe's a(μ) on the table grid (the solver's definition, as
-    :func:`flakedb.rt.microfacet.conductor_compensation`: a = P_F / P_1 − R_F, at most 1 − E₁)."""
+    :func:`flakedb.rt.boundaries.microfacet.conductor_compensation`: a = P_F / P_1 − R_F, at most 1 − E₁)."""
     grid = (np.arange(MS_TABLE_K + 1) / MS_TABLE_K) ** 2
     mu = np.maximum(grid, 1e-4)
     F = _mf.conductor_fresnel(np.array([N]))

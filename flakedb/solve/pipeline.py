@@ -58,7 +58,7 @@ ALBEDO_SLACK = 1e-3
 #: order kept; rough coats α 0.02–0.3 over white or an HG slab, n 32–128, ≥ −9e-6 (Jackson-filtered
 #: where the 2n cap binds, docs/rough-interfaces.md "Positivity"); a medium kernel cut by the cap
 #: (perfect mirror flakes α 0.15 in air at n 32 rang to −3.5 %) is Jackson-filtered the same way
-#: (flakedb.rt.medium_projection.damp_if_capped): −2.4e-5.  So the threshold is 1e-3, 30× the worst measured value.
+#: (flakedb.rt.scattering.medium_projection.damp_if_capped): −2.4e-5.  So the threshold is 1e-3, 30× the worst measured value.
 NEGATIVE_SLACK = 1e-3
 
 
@@ -203,7 +203,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     if recipe.description:
         md["description"] = " ".join(str(recipe.description).split())
     flakes = {c["path"]: c["orientation_distribution"] for c in paint.components if "orientation_distribution" in c}
-    if flakes:  # the flakes' normal distribution (flakedb.rt.microflake.FLAKE_DISTRIBUTIONS), by recipe path
+    if flakes:  # the flakes' normal distribution (flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS), by recipe path
         md["flake_distributions"] = flakes
     t0 = time.perf_counter()
     table = stack_to_table(stack, paint.channels, paint.eta, None, paint.delta, md)  # α from the solved stack
@@ -271,13 +271,13 @@ def discretisation_estimate(solved, report, log=None) -> dict:
     return est
 
 
-#: Above this, the kernel renormalisation (flakedb.rt.stack.project_medium: σ_s of the discrete kernel made equal to
+#: Above this, the kernel renormalisation (flakedb.rt.adding.stack.project_medium: σ_s of the discrete kernel made equal to
 #: the accurately integrated one) is reported as a warning: the nodes under-resolve the kernel's peaks.
 RENORM_WARN = 0.01
 
 
 def solver_warnings(info, n) -> list:
-    """Convergence problems in the solver's ``info`` (:func:`flakedb.rt.stack.solve_stack`), as one-line
+    """Convergence problems in the solver's ``info`` (:func:`flakedb.rt.adding.stack.solve_stack`), as one-line
     warnings in words: a kernel whose azimuthal projection stopped at its sampling limit before its
     tolerance, a renormalisation larger than :data:`RENORM_WARN`, an order choice that did not converge.
     The same text goes to the terminal, the ``.h5`` (``warnings``) and the colour report."""

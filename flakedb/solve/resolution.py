@@ -3,7 +3,7 @@
 Precedence (:func:`resolve_node_count`): the caller's ``n`` (``--n``), else the recipe's ``resolution``, else
 ``resolution: auto`` (:func:`auto_resolution`) from accuracy targets and measured error envelopes; every n is
 checked against :func:`flakedb.paint.limits.check_node_count`.  Auto's rules ask the solver's own test of a rough
-inner interface solved as a smooth one (:func:`flakedb.rt.stack.inner_interface_verdicts`), so auto and the solver
+inner interface solved as a smooth one (:func:`flakedb.rt.adding.stack.inner_interface_verdicts`), so auto and the solver
 never disagree.  Auto then checks its result (:func:`refine_auto_n`) against the report's discretisation estimate,
 made from a second solve at :func:`second_solve_n`.  Compose, compare, match, calibrate, texture and build ask
 :func:`resolve_node_count` (or :func:`flakedb.solve.pipeline.solve_recipe`, which does).
@@ -18,8 +18,8 @@ from flakedb.paint.limits import NODE_COUNT_MAX, check_node_count
 from flakedb.paint.mapping import recipe_interfaces
 from flakedb.paint.components import recipe_alpha, recipe_distribution
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError
-from flakedb.rt.microflake import flake_lobe_alpha
-from flakedb.rt.stack import InnerRough, inner_interface_verdicts
+from flakedb.rt.scattering.microflake import flake_lobe_alpha
+from flakedb.rt.adding.stack import InnerRough, inner_interface_verdicts
 
 #: Default accuracy targets of ``resolution: auto`` (a recipe's ``resolution: {albedo_error: …,
 #: lobe_error: …, colour_error: …}`` overrides them; why these values: docs/resolution.md "colour_error").
@@ -260,7 +260,7 @@ def _n_of_h(h) -> int:
 def _inner_interface_needs(recipe, need, add, t_lobe):
     """Add the rule of each rough inner interface (the rough coat's measured lobe envelope, not measured for it)
     to ``need``, unless the solver solves it as a smooth one at the n the rest of the stack asks for
-    (:func:`flakedb.rt.stack.inner_interface_verdicts`: a nearly index-matched interface, whose lobe no node cell
+    (:func:`flakedb.rt.adding.stack.inner_interface_verdicts`: a nearly index-matched interface, whose lobe no node cell
     resolves): then it asks nothing, and the returned notes say so."""
     top, inner = recipe_interfaces(recipe)
     rough = [k for k, it in enumerate(inner) if isinstance(it, InnerRough)]

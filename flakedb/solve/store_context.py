@@ -13,7 +13,7 @@ from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.paint.catalog import optical_entry
 from flakedb.paint.mapping import catalog_species
 from flakedb.paint.components import recipe_alpha, recipe_distribution, recipe_top_alpha
-from flakedb.rt.stored import StoredFlakeMedium
+from flakedb.rt.scattering.stored import StoredFlakeMedium
 from flakedb.store import versions as st
 from flakedb.store.versions import StoreError
 
@@ -191,7 +191,7 @@ class StoreContext:
         return out
 
     def flake_medium(self, species, alpha, a_rho, opaque=False, distribution="beckmann"):
-        """A :class:`flakedb.rt.stored.StoredFlakeMedium` of the species at the recipe's α, orientation
+        """A :class:`flakedb.rt.scattering.stored.StoredFlakeMedium` of the species at the recipe's α, orientation
         distribution and loading."""
         return StoredFlakeMedium(self.version.flake_factors(species, self.n, alpha, distribution), float(a_rho),
                                  self.channel_map, bool(opaque))

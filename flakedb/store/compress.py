@@ -4,7 +4,7 @@ end and §6, Figure 4).  Pure numpy: arrays in, arrays out; the paper's Figure 4
 What is sampled
 ---------------
 Conventions: :mod:`flakedb.conventions` (μ > 0 travels down, φ_d = φ_o − φ_i, φ_d = 0 forward).  The
-micro-flake kernel (paper eq. 2, :func:`flakedb.rt.microflake.kernel_Ergun`) is
+micro-flake kernel (paper eq. 2, :func:`flakedb.rt.scattering.microflake.kernel_Ergun`) is
 (aρ/2) R(c) D(h) with the flake cosine c = |ω_i·h| = |ω_o − ω_i|/2, so
 
     c²(μ_i, μ_o, φ_d) = (1 − ω_i·ω_o)/2,   ω_i·ω_o = cos Θ = μ_i μ_o + s_i s_o cos φ_d,  s = √(1 − μ²).
@@ -13,8 +13,8 @@ The stored reflectance function of a species is therefore R(μ_i, μ_o, φ_d) = 
 
 * flakes (interference, mirror): the flake's unpolarised reflectance R(c) per wavelength
   (:func:`flakedb.paint.species.flake_reflectance_transmittance`); dimensionless, in [0, 1];
-* pigments (paper eq. 8, :func:`flakedb.rt.microflake.pigment_kernel_Ergun`): with the uniform
-  normal density and the representation of :func:`flakedb.rt.microflake.pigment_extinction_Ergun`
+* pigments (paper eq. 8, :func:`flakedb.rt.scattering.microflake.pigment_kernel_Ergun`): with the uniform
+  normal density and the representation of :func:`flakedb.rt.scattering.microflake.pigment_extinction_Ergun`
   (opaque flakes of area a = 2 C_ext), a R = 8π C_sca p(cos Θ), i.e. the dimensionless
   R = 4π ϖ p(cos Θ), ϖ = C_sca/C_ext, p the ensemble Mie phase function in 1/sr (normalised to 1 over
   the sphere, cos Θ = ω_i·ω_o).  It exceeds 1 near forward scattering (it is a reflectance times a
@@ -22,20 +22,20 @@ The stored reflectance function of a species is therefore R(μ_i, μ_o, φ_d) = 
 
 The 1-D functions R(c) and p(cos Θ) are tabulated on ``n_table`` nodes uniform in angle
 (c = cos θ, θ ∈ [0, π/2]; cos Θ, Θ ∈ [0, π]) and linearly interpolated onto the grid — the same
-piecewise-linear-in-c representation as the solver's :class:`flakedb.rt.microflake.FlakeOptics`.
+piecewise-linear-in-c representation as the solver's :class:`flakedb.rt.scattering.microflake.FlakeOptics`.
 
 The grid
 --------
 μ: the solver's full node set *inside the binder* for n nodes in air (n even), sign order
-``[-x_h … -x_1, x_1 … x_h]`` — the nodes on which :func:`flakedb.rt.stack.solve_stack` projects a
+``[-x_h … -x_1, x_1 … x_h]`` — the nodes on which :func:`flakedb.rt.adding.stack.solve_stack` projects a
 medium's kernel.  Without a top interface, or a rough one (``eta_top`` None or 1), that is the
-Gauss–Radau set (:func:`flakedb.rt.quadrature.radau_hemisphere`, h = n/2 per hemisphere, n nodes in
+Gauss–Radau set (:func:`flakedb.rt.basis.quadrature.radau_hemisphere`, h = n/2 per hemisphere, n nodes in
 all).  Below a smooth coat of index η > 1 (``eta_top`` = η) it is the Snell image of the n/2 outside
-Radau nodes plus :func:`flakedb.rt.quadrature.default_tir_nodes` Gauss–Legendre nodes in the totally
-internally reflected range (:func:`flakedb.rt.quadrature.snell_mapped_quadrature`), so
+Radau nodes plus :func:`flakedb.rt.basis.quadrature.default_tir_nodes` Gauss–Legendre nodes in the totally
+internally reflected range (:func:`flakedb.rt.basis.quadrature.snell_mapped_quadrature`), so
 n_mu = 2 (n/2 + h_tir) > n nodes.  φ_d: the m points
-φ_k = π k/(m − 1), k = 0 … m − 1 of [0, π] (both ends; :func:`flakedb.rt.fourier.phi_samples` with
-N = m − 1), whose DCT-I (:func:`flakedb.rt.fourier.cosine_coefficients`) gives the cosine orders
+φ_k = π k/(m − 1), k = 0 … m − 1 of [0, π] (both ends; :func:`flakedb.rt.basis.fourier.phi_samples` with
+N = m − 1), whose DCT-I (:func:`flakedb.rt.basis.fourier.cosine_coefficients`) gives the cosine orders
 0 … m − 1.  Array layout: ``R[i, o, k] = R(mu[i], mu[o], phi[k])``; flattened to (n_mu², m) with row
 ``i·n_mu + o``.
 
@@ -59,14 +59,14 @@ import numpy as np
 
 from flakedb.paint import species as sp
 from flakedb.paint.components import adaptive_flake_optics
-from flakedb.rt.fourier import cosine_coefficients, phi_samples
-from flakedb.rt.legendre import legendre_moments_gauss
-from flakedb.rt.quadrature import (
+from flakedb.rt.basis.fourier import cosine_coefficients, phi_samples
+from flakedb.rt.basis.legendre import legendre_moments_gauss
+from flakedb.rt.basis.quadrature import (
     default_tir_nodes,
     radau_hemisphere,
     snell_mapped_quadrature,
 )
-from flakedb.rt.stored import flake_factors
+from flakedb.rt.scattering.stored import flake_factors
 
 __all__ = [
     "grid_nodes",
@@ -375,7 +375,7 @@ def figure4_table(R_by_species, ranks=range(1, 13), nmf_iter=500, seed=0):
 # --------------------------------------------------------------------------------------------
 
 #: Largest Legendre degree of the pigments' stored phase moments (the catalogue's need 38–53 at a
-#: 1e-6 tail, flakedb.rt.legendre) and the Gauss–Legendre nodes the Mie phase function is evaluated on.
+#: 1e-6 tail, flakedb.rt.basis.legendre) and the Gauss–Legendre nodes the Mie phase function is evaluated on.
 LEGENDRE_STORE_DEGREE = 127
 LEGENDRE_STORE_NODES = 192
 #: Orders per chunk of a flake's V (compose reads only the chunks of the orders it solves).
@@ -384,7 +384,7 @@ ORDER_CHUNK = 16
 
 def store_nodes(n, eta_top=None, top="smooth"):
     """The solver's positive inside nodes and weights ``(x, w)`` (h,) for n nodes in air below a smooth
-    top of index ``eta_top`` (None or 1: plain Gauss–Radau, h = n/2), as :func:`flakedb.rt.stack.solve_stack`
+    top of index ``eta_top`` (None or 1: plain Gauss–Radau, h = n/2), as :func:`flakedb.rt.adding.stack.solve_stack`
     builds them (:func:`grid_nodes` gives the full signed set)."""
     n = int(n)
     if n < 2 or n % 2:
@@ -398,9 +398,9 @@ def flake_task(entry, wavelength_nm, n_binder, n, alpha, eta_top, rank_tol, proj
     """A flake species' stored factors at (n, η, α, orientation ``distribution``) over ``wavelength_nm``
     (the whole spectrum): R(c),
     T(c) tabulated on the adaptive c grid of the direct path (:func:`flakedb.paint.components.adaptive_flake_optics`),
-    then :func:`flakedb.rt.stored.flake_factors` (spectral SVD, projection of the basis kernels, σ's).
+    then :func:`flakedb.rt.scattering.stored.flake_factors` (spectral SVD, projection of the basis kernels, σ's).
     Returns ``U`` float64, ``V`` float32 (r, L, 2, h, h), ``V_last_order`` = V[:, L − 1] (r, 2, h, h) (the order
-    the Jackson filter's test reads, :func:`flakedb.rt.medium_projection.damp_if_capped`, without the 16-order
+    the Jackson filter's test reads, :func:`flakedb.rt.scattering.medium_projection.damp_if_capped`, without the 16-order
     chunk that holds it), ``sigma_t``, ``sigma_s``, ``projected_area`` and ``info``."""
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))
     nb = np.broadcast_to(np.asarray(n_binder, dtype=float), wl.shape)
@@ -422,7 +422,7 @@ def pigment_task(entry, wavelength_nm, n_binder, degree=LEGENDRE_STORE_DEGREE, n
                  n_quad=None):
     """A pigment's stored optics over ``wavelength_nm``: ⟨C_ext⟩, ⟨C_sca⟩ (µm²), ⟨V⟩ (µm³) and the
     Legendre moments χ_0 … χ_degree of its ensemble Mie phase function (normalised, χ_0 = 1),
-    from the phase function at ``nodes`` Gauss–Legendre cosines (:func:`flakedb.rt.legendre.legendre_moments_gauss`;
+    from the phase function at ``nodes`` Gauss–Legendre cosines (:func:`flakedb.rt.basis.legendre.legendre_moments_gauss`;
     no table, no interpolation).  ``n_quad``: the size quadrature (the store passes the one of its whole
     wavelength grid, :func:`flakedb.paint.species.pigment_n_quad`, so every block gets the same)."""
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=float))

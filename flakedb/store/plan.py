@@ -19,8 +19,8 @@ from flakedb import __version__
 from flakedb.paint.catalog import catalog_distribution, optical_entry
 from flakedb.paint.components import FLAKE_C_TOL
 from flakedb.resources import SCHEMAS_DIR
-from flakedb.rt.microflake import flake_distribution
-from flakedb.rt.stored import RANK_TOL
+from flakedb.rt.scattering.microflake import flake_distribution
+from flakedb.rt.scattering.stored import RANK_TOL
 from flakedb.store.compress import (
     LEGENDRE_STORE_DEGREE,
     ORDER_CHUNK,
@@ -78,7 +78,7 @@ def _alpha_key(alpha) -> str:
 
 
 #: The flake orientation distribution of factors keyed by α alone: every version written before the
-#: distribution became part of the key reads as Beckmann (flakedb.rt.microflake.DEFAULT_DISTRIBUTION).
+#: distribution became part of the key reads as Beckmann (flakedb.rt.scattering.microflake.DEFAULT_DISTRIBUTION).
 BECKMANN = "beckmann"
 
 
@@ -90,7 +90,7 @@ def _flake_key(alpha, distribution=BECKMANN) -> str:
 
 def _orientations(request, k) -> dict:
     """Flake species ``k``'s orientations to project, distribution (its canonical name,
-    :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`: parameters included, so factors of different
+    :data:`flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS`: parameters included, so factors of different
     shapes or mixtures get different keys) → sorted α's: the request's Beckmann ``alphas`` and
     ``distribution_alphas``, else the catalogue's α in the catalogue's distribution."""
     out = {}
@@ -114,12 +114,12 @@ class BuildRequest:
     ``resolutions``: node counts n in air; ``wavelength_nm``: the store's wavelengths (nm);
     ``alphas``: flake species → the Beckmann spreads α to project for; ``distribution_alphas``: flake
     species → {distribution: α's} for other flake orientation distributions (e.g. ``{"ggx": [0.2]}``,
-    :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`); a species in neither: the catalogue's α in the
+    :data:`flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS`); a species in neither: the catalogue's α in the
     catalogue's distribution (``orientation_distribution``, default Beckmann);
     ``channel_block``: pigment wavelengths per task (and per chunk); ``store_raw``: keep the spectral
     SVD at its numerical rank (no truncation: ``compose --raw``); ``rank_tol``: otherwise its
-    truncation (:data:`flakedb.rt.stored.RANK_TOL`); ``projection_tol``: the solver's φ-projection
-    tolerance (:class:`flakedb.rt.stack.SolverSettings` ``tol``); ``legendre_degree``: the largest
+    truncation (:data:`flakedb.rt.scattering.stored.RANK_TOL`); ``projection_tol``: the solver's φ-projection
+    tolerance (:class:`flakedb.rt.adding.stack.SolverSettings` ``tol``); ``legendre_degree``: the largest
     Legendre degree of the pigments' phase moments; ``eta_top``: relative index of the paint's smooth
     top interface (module docstring): the nodes are the solver's inside nodes below it and the optics
     use it as the binder index; None or 1: plain Radau nodes (no / a rough interface) with the
@@ -320,14 +320,14 @@ def metadata(plan: BuildPlan) -> dict:
         "conventions": "flakedb.conventions: mu > 0 travels down (propagation directions), phi_d = phi_o - phi_i, "
                        "phi_d = 0 forward / mirror reflection; wavelengths in vacuum nm",
         "grid": {"x": ("the solver's positive inside nodes for n nodes in air "
-                       + ("and no smooth top interface: Gauss-Radau, n/2 (flakedb.rt.quadrature)"
+                       + ("and no smooth top interface: Gauss-Radau, n/2 (flakedb.rt.basis.quadrature)"
                           if eta in (None, 1.0) else
                           f"below a rough top interface (binder index eta_top = {eta:g}): the air-side "
-                          "Gauss-Radau rule, n/2 nodes (flakedb.rt.quadrature)"
+                          "Gauss-Radau rule, n/2 nodes (flakedb.rt.basis.quadrature)"
                           if plan.inputs.get("top") == "rough" else
                           f"below a smooth top interface of relative index eta_top = {eta:g}: the Snell image of "
                           "the n/2 air-side Gauss-Radau nodes plus default_tir_nodes(n/2, eta_top) Gauss-Legendre "
-                          "nodes in the TIR range (flakedb.rt.quadrature.snell_mapped_quadrature)")),
+                          "nodes in the TIR range (flakedb.rt.basis.quadrature.snell_mapped_quadrature)")),
                  "w": "the weights of that hemisphere rule",
                  "orders": "cosine orders 0..L-1 of phi_d, L <= 2n (the solver's order cap), chunked by "
                            f"{ORDER_CHUNK} orders"},

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flakedb.rt.stored import FlakeFactors
+from flakedb.rt.scattering.stored import FlakeFactors
 from flakedb.store.compress import (
     ORDER_CHUNK,
 )
@@ -286,7 +286,7 @@ def _integrity_error(url, version, problems):
 
 
 #: Ranges of V order chunks a flake's reader keeps: the solver reads the first orders, then the last (the Jackson
-#: filter's test, flakedb.rt.medium_projection.damp_if_capped), then the first again; with one kept, the first chunk
+#: filter's test, flakedb.rt.scattering.medium_projection.damp_if_capped), then the first again; with one kept, the first chunk
 #: was read and hashed twice (the 3-species compose: 6 reads of 6.7-9.7 MB instead of 4).
 V_CHUNKS_CACHED = 2
 
@@ -432,7 +432,7 @@ class StoreVersion:
 
     def flake_factors(self, species, n, alpha, distribution=BECKMANN) -> FlakeFactors:
         """The stored factors of a flake species at (n, α, orientation ``distribution``)
-        (:class:`flakedb.rt.stored.FlakeFactors`); V is read lazily, a chunk of :data:`ORDER_CHUNK`
+        (:class:`flakedb.rt.scattering.stored.FlakeFactors`); V is read lazily, a chunk of :data:`ORDER_CHUNK`
         orders at a time, as the solver asks."""
         self._check(species, n, alpha, distribution)
         p = self.flake_prefix(species, n, alpha, distribution)

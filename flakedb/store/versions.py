@@ -27,7 +27,7 @@ Layout (``STORE`` a local directory or any fsspec URL)::
         complete                              written last, after every task finished
 
 So compose performs no azimuthal projection: a flake's kernel in the recipe's channels is
-(loading · map @ U) @ V, a pigment's the addition theorem on its moments (flakedb/rt/stored.py).
+(loading · map @ U) @ V, a pigment's the addition theorem on its moments (flakedb/rt/scattering/stored.py).
 
 A version is named by :func:`content_hash` of its inputs (catalogue entries, optical-data file
 checksums, node counts, α's, wavelengths, tolerances, flakedb version): the same inputs give the same

@@ -14,7 +14,7 @@ everything else per channel; per-channel luminance weights) and an observer
 (:class:`flakedb.texture.instruments.Observer`).  Everything here is a pure function of those.
 
 Optics reused from the solver's kernels: the flake-normal density D(m), its sampling and the flakes'
-mean projected area, all through the registry :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS` (a
+mean projected area, all through the registry :data:`flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS` (a
 layer's ``distribution``: Beckmann, paper eq. 5, GGX, or any family added there; no family is named
 here), and the coat's Fresnel transmission (:func:`flakedb.optics.fresnel.fresnel_dielectric`).
 """
@@ -29,7 +29,7 @@ from numpy.polynomial.hermite_e import hermegauss as _hermegauss
 from numpy.polynomial.legendre import leggauss as _leggauss
 
 from flakedb.optics.fresnel import fresnel_dielectric
-from flakedb.rt.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun, flake_distribution, projected_area
+from flakedb.rt.scattering.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun, flake_distribution, projected_area
 from flakedb.texture.instruments import DIFFRACTION_WAVELENGTH_NM
 
 
@@ -119,7 +119,7 @@ class FlakeLayer:
     ``thickness_um``: the layer's; ``number_density_per_um3``: flakes per µm³; diameters log-normal
     in number with ``diameter_median_um`` and geometric standard deviation ``diameter_gsd`` (≥ 1;
     1 = one size); ``flake_thickness_um``; ``alpha`` the spread of the orientation density named
-    ``distribution`` (a key of :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`; Beckmann, paper eq. 5,
+    ``distribution`` (a key of :data:`flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS`; Beckmann, paper eq. 5,
     by default); ``c`` (nc,) ascending flake cosines with ``R``, ``T`` (C, nc) per channel (linear
     interpolation in c)."""
 
@@ -138,7 +138,7 @@ class FlakeLayer:
 
     @property
     def orientation(self):
-        """The :class:`flakedb.rt.microflake.FlakeDistribution` of the flake normals (registry lookup)."""
+        """The :class:`flakedb.rt.scattering.microflake.FlakeDistribution` of the flake normals (registry lookup)."""
         return flake_distribution(self.distribution)
 
     def reflectance(self, c):
@@ -341,7 +341,7 @@ def _path(stack, z, mu):
     weighted flake transmittance per channel (C, nz).  A path crosses flakes of normal m at the rate
     ρ⟨A⟩ |ω·m| D(m)/μ, so the crossed flakes' mean transmittance is at their true angles,
     T̄(μ) = ∫ T(|ω·m|) |ω·m| D dm / ∫ |ω·m| D dm = 1 − σ_t(μ)/(aρ P(μ)): the solver's own extinction
-    (:func:`flakedb.rt.microflake.extinction_Ergun`, paper eq. 2) over its projected area, so a path's mean
+    (:func:`flakedb.rt.scattering.microflake.extinction_Ergun`, paper eq. 2) over its projected area, so a path's mean
     attenuation e^{−λ(1 − T̄)} is the RT's e^{−σ_t s} exactly (T at c = μ was 4 % low on 5 % pearlescent)."""
     z = np.asarray(z, float)
     # one cosine for all depths: the flakes' crossing rate and transmittance evaluated once
@@ -1062,7 +1062,7 @@ N_CUT_BISECT = 40
 
 def _sky_normals(alpha, vb, eta, n_t=N_TILT, n_p=N_AZIMUTH, distribution=DEFAULT_DISTRIBUTION):
     """Upper-hemisphere flake normals m (M, 3) and weights (Σ ≤ 1) for the density 2D(m) of
-    ``distribution`` (:data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`) over the normals that mirror the
+    ``distribution`` (:data:`flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS`) over the normals that mirror the
     view ``vb`` (3,) (binder, pointing up) into the coat's escape cone (the sky; cos θ' > √(1 − 1/η²)):
     the others mirror nothing (total internal reflection at the coat), so leaving them out is exact.
 

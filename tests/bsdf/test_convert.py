@@ -13,8 +13,8 @@ from flakedb.bsdf.convert import stack_to_table
 from flakedb.compose.orchestrate import compose
 from flakedb.paint.mapping import build_paint, solve_paint
 from flakedb.paint.recipe import parse_recipe
-from flakedb.rt.media import PhaseMedium
-from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.scattering.media import PhaseMedium
+from flakedb.rt.adding.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
 
 PHI = np.array([0.0, 0.7, 2.0, np.pi])
 
@@ -100,7 +100,7 @@ def test_an_opaque_paints_table_is_its_reflection_quadrant(tmp_path, grey):
 
 def test_a_grey_rgb_paint_is_written_as_its_dense_copy(tmp_path):
     """A grey stack in RGB is solved once and its table is one channel broadcast to three
-    (flakedb.rt.stack._distinct_channels): the values are the solver's f·μ_o at the nodes, and the
+    (flakedb.rt.adding.stack._distinct_channels): the values are the solver's f·μ_o at the nodes, and the
     .bsdf written from the broadcast (truncated once) is byte for byte the one of a dense copy."""
     s = solve_stack(Smooth(1.5), [Slab(1.0, PhaseMedium([1.0] * 3, [0.9] * 3, ("hg", 0.5)))], Lambertian([0.5] * 3),
                     SolverSettings(n=12))

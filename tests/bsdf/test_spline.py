@@ -9,7 +9,7 @@ import pytest
 from scipy.interpolate import CubicSpline
 
 from flakedb.bsdf.spline import cubic_spline_not_a_knot
-from flakedb.rt.quadrature import radau_hemisphere
+from flakedb.rt.basis.quadrature import radau_hemisphere
 
 
 @pytest.mark.parametrize("n", [4, 5, 8, 64])

@@ -314,7 +314,7 @@ def test_check_physical_flags_energy_gain_negative_values_and_unconverged_orders
     import copy
 
     from flakedb.solve.pipeline import check_physical
-    from flakedb.rt.stack import Lambertian, Rough, SolverSettings, solve_stack
+    from flakedb.rt.adding.stack import Lambertian, Rough, SolverSettings, solve_stack
 
     r = solve_stack(Rough(1.5, 0.1), [], Lambertian(1.0), SolverSettings.product(32))
     assert check_physical(r) == []
@@ -336,8 +336,8 @@ def test_check_physical_range_is_the_bsdf_evaluated_at_the_nodes(grey):
     min of f μ_i μ_o from StackBSDF.eval_nodes (the coefficient array times cos(l φ), summed), to rounding; a
     grey stack solved once (channels broadcast, stride 0) is read as one channel."""
     from flakedb.solve.pipeline import _bsdf_range
-    from flakedb.rt.media import PhaseMedium
-    from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+    from flakedb.rt.scattering.media import PhaseMedium
+    from flakedb.rt.adding.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
 
     albedo, primer = ([0.9] * 3, [0.5] * 3) if grey else ([0.95, 0.6, 0.3], [0.5, 0.2, 0.7])
     slab = Slab(1.0, PhaseMedium(sigma_t_per_um=[1.0] * 3, albedo=albedo, phase=("hg", 0.7)))
@@ -394,7 +394,7 @@ def test_bsdf_range_by_channel_blocks_is_the_whole_arrays():
     import copy
 
     from flakedb.solve.pipeline import CHECK_CHANNEL_BLOCK, _bsdf_range
-    from flakedb.rt.stack import Lambertian, Rough, SolverSettings, solve_stack
+    from flakedb.rt.adding.stack import Lambertian, Rough, SolverSettings, solve_stack
 
     C = 2 * CHECK_CHANNEL_BLOCK + 1
     r = solve_stack(Rough(1.5, 0.2), [], Lambertian(np.linspace(0.1, 0.9, C)), SolverSettings.product(16))

@@ -155,8 +155,8 @@ def test_grey_table_is_mapped_once_as_its_materialised_copy(mode, space):
     to the rounding of the map's column sums (exactly for RGB mode in sRGB, whose map is the identity)."""
     from flakedb.bsdf.convert import stack_to_table
     from flakedb.colour.colorimetry import spectral_grid
-    from flakedb.rt.media import PhaseMedium
-    from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+    from flakedb.rt.scattering.media import PhaseMedium
+    from flakedb.rt.adding.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
 
     wl = spectral_grid()  # RGB mode: the grid its white is integrated on
     C = wl.size if mode == "spectral" else 3
@@ -188,8 +188,8 @@ def test_an_rgb_mode_table_in_srgb_is_written_as_it_is():
     applied as c + 0.0), an in-gamut table nothing desaturated, and the recorded costs zero."""
     from flakedb.bsdf.convert import stack_to_table
     from flakedb.colour.colorimetry import spectral_grid
-    from flakedb.rt.media import PhaseMedium
-    from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+    from flakedb.rt.scattering.media import PhaseMedium
+    from flakedb.rt.adding.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
 
     slab = Slab(1.0, PhaseMedium(sigma_t_per_um=[1.0] * 3, albedo=[0.95, 0.8, 0.6], phase=("hg", 0.7)))
     table = stack_to_table(solve_stack(Rough(1.5, 0.2), [slab], Lambertian([0.5, 0.4, 0.3]), SolverSettings.product(16)))

@@ -14,7 +14,7 @@ import pytest
 
 from flakedb.paint.mapping import build_paint, solve_paint
 from flakedb.paint.recipe import load_recipe
-from flakedb.rt.stack import SolverSettings, solve_stack
+from flakedb.rt.adding.stack import SolverSettings, solve_stack
 from tests.cases import FAST
 from tests.cases import case as _case
 

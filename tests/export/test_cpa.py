@@ -35,7 +35,7 @@ from flakedb.export.registry import EXPORT_METHODS, export
 from flakedb.match.fit import channels_to_Lab, geometry_directions
 from flakedb.match.targets import E2194_GEOMETRIES
 from flakedb.paint.recipe import load_recipe
-from flakedb.rt.quadrature import radau_hemisphere
+from flakedb.rt.basis.quadrature import radau_hemisphere
 from tests.blender_python import blender_python
 
 ETA = 1.5

@@ -42,7 +42,7 @@ from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.render import mitsuba as fm
 from flakedb.render.mitsuba.coated import pbrt_coated_scene
 from flakedb.render.preview import Environment, Sun, render_sphere
-from flakedb.rt.quadrature import radau_hemisphere
+from flakedb.rt.basis.quadrature import radau_hemisphere
 from tests.blender_python import blender_python
 from tests.render.test_mitsuba import synthetic_table
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from flakedb.optics.kubelka_munk import km_reflectance, km_reflectance_infinite, km_to_rt, rt_to_km
-from flakedb.rt.media import PhaseMedium
-from flakedb.rt.stack import Lambertian, Slab, SolverSettings, solve_stack
+from flakedb.rt.scattering.media import PhaseMedium
+from flakedb.rt.adding.stack import Lambertian, Slab, SolverSettings, solve_stack
 
 #: σ_s′/σ_a of the comparison (reduced scattering 1 /µm) and the measured |R_KM − R_RT| bounds per ratio
 #: (docs/calibration.md, "Kubelka–Munk data": 0.046, 0.027, 0.012, 0.005, 0.0016, 0.0006 at n = 32).

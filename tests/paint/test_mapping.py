@@ -19,9 +19,9 @@ from flakedb.paint.components import metal_index_rgb
 from flakedb.solve.resolution import auto_resolution
 from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import parse_recipe
-from flakedb.rt import microfacet as mf
+from flakedb.rt.boundaries import microfacet as mf
 from flakedb.paint.recipe import RecipeError
-from flakedb.rt.stack import InnerRough, InnerSmooth, RoughConductor
+from flakedb.rt.adding.stack import InnerRough, InnerSmooth, RoughConductor
 
 
 def _recipe(alpha, slab=True, primer=0.5):
@@ -295,7 +295,7 @@ def test_adaptive_flake_optics_keeps_passed_midpoints(species, tol, max_nodes):
 
 def test_auto_asks_the_solvers_own_near_matched_test():
     """Issue #34: an inner interface 1.5 → 1.501 at roughness 0.03 got auto n = 160 from the rough-coat envelope,
-    which the solver then solved as a smooth interface (flakedb.rt.parts.near_matched); the same stack without
+    which the solver then solved as a smooth interface (flakedb.rt.adding.parts.near_matched); the same stack without
     that interface got n = 32.  Auto now asks the solver's own verdict at the n the rest of the stack needs: the
     n is the smooth stack's, the reason says why, and the solve at that n does solve it smooth."""
     def rec(ior_below, roughness):

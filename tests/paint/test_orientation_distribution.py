@@ -18,8 +18,8 @@ from flakedb.paint.mapping import build_paint
 from flakedb.paint.components import recipe_distribution
 from flakedb.paint.recipe import RecipeError, parse_recipe
 from flakedb.resources import SCHEMAS_DIR
-from flakedb.rt.media import FlakeMedium
-from flakedb.rt.microflake import FLAKE_DISTRIBUTION_FAMILIES, FLAKE_DISTRIBUTIONS, extinction_Ergun, flake_distribution
+from flakedb.rt.scattering.media import FlakeMedium
+from flakedb.rt.scattering.microflake import FLAKE_DISTRIBUTION_FAMILIES, FLAKE_DISTRIBUTIONS, extinction_Ergun, flake_distribution
 
 
 def _recipe(particle):

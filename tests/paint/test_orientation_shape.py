@@ -16,8 +16,8 @@ import pytest
 from flakedb.paint.mapping import build_paint, solve_paint
 from flakedb.paint.components import recipe_distribution
 from flakedb.paint.recipe import RecipeError, parse_recipe
-from flakedb.rt.microflake import FlakeOptics, extinction_Ergun
-from flakedb.rt.stack import SolverSettings, solve_stack
+from flakedb.rt.scattering.microflake import FlakeOptics, extinction_Ergun
+from flakedb.rt.adding.stack import SolverSettings, solve_stack
 from tests.paint.test_orientation_distribution import CUSTOM, _recipe
 from tests.reference.test_shape_vs_montecarlo import MIX, shape_case
 
@@ -136,10 +136,10 @@ layers:
 
 def test_auto_resolution_follows_the_narrowest_lobe():
     """``resolution: auto`` applies the rules measured for Beckmann/GGX at α to the narrowest lobe
-    (:func:`flakedb.rt.microflake.flake_lobe_alpha`): a narrow second population raises n, a Student-t with
+    (:func:`flakedb.rt.scattering.microflake.flake_lobe_alpha`): a narrow second population raises n, a Student-t with
     γ ≥ 2 keeps α's n, and γ = 1.5 (core √(2/3) × GGX's) asks for more."""
     from flakedb.solve.resolution import auto_resolution
-    from flakedb.rt.microflake import flake_lobe_alpha
+    from flakedb.rt.scattering.microflake import flake_lobe_alpha
 
     def n_for(extra):
         return auto_resolution(parse_recipe(_recipe(MET % extra).replace("resolution: 16\n", "")))[0]

@@ -21,7 +21,7 @@ from flakedb.solve import resolution
 from flakedb.paint.mapping import build_paint, solve_paint
 from flakedb.solve.resolution import auto_resolution
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, RecipeError, load_recipe, parse_recipe
-from flakedb.rt.stack import InnerSmooth
+from flakedb.rt.adding.stack import InnerSmooth
 from tests.cases import basecoat_recipe
 
 RECIPES = sorted((Path(__file__).resolve().parents[2] / "flakedb" / "catalog" / "recipes").glob("*.yaml"))

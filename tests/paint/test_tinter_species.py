@@ -24,7 +24,7 @@ from flakedb.paint.mapping import build_paint, catalog_species, with_media
 from flakedb.paint.components import tinter_medium
 from flakedb.paint.recipe import RecipeError
 from flakedb.pipelines.build import make_request
-from flakedb.rt.media import Mixture, PhaseMedium
+from flakedb.rt.scattering.media import Mixture, PhaseMedium
 
 WL = [400.0, 550.0, 700.0]
 

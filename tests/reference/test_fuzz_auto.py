@@ -6,11 +6,11 @@ physical check of the result.
 * A flake whose reflectance is 0 near c = 1 (a pearlescent flake's interference minimum in one RGB channel:
   the random recipe was a smooth 1.38 coat over pearl-white flakes over a 1.46 basecoat of
   ``pearlescent-tio2-100nm`` flakes, α 0.07, auto n 144) scatters nothing at near-normal incidence:
-  σ_s(μ_i) = 0 there.  The kernel's renormalisation divided 0 by 0 (flakedb.rt.medium_projection.renormalization)
+  σ_s(μ_i) = 0 there.  The kernel's renormalisation divided 0 by 0 (flakedb.rt.scattering.medium_projection.renormalization)
   and compose refused the NaN BSDF at every n.
 * A binder back at the index above an index step (1.37 → 1.48 → 1.37: 30 % of such pairs of two-decimal
   indices in 1.3–1.9 do not return exactly, the chain multiplies ratios): the binder chain
-  (flakedb.rt.quadrature.binder_chain_quadratures) cut a segment for the few-ulp gap, with near-duplicate nodes
+  (flakedb.rt.basis.quadrature.binder_chain_quadratures) cut a segment for the few-ulp gap, with near-duplicate nodes
   of weight ~1e-17: a NaN BSDF with a rough inner interface (fuzzed: rough 0.4 coat, 1.37 → rough 0.19 → 1.48
   → 1.37, metal base, auto n 144), a negative BSDF at n 64 with smooth ones.
 """
@@ -23,7 +23,7 @@ from flakedb.compose.orchestrate import compose
 from flakedb.solve.pipeline import check_physical
 from flakedb.solve.resolution import AUTO_TARGETS
 from flakedb.paint.recipe import parse_recipe
-from flakedb.rt.quadrature import binder_chain_quadratures, radau_hemisphere
+from flakedb.rt.basis.quadrature import binder_chain_quadratures, radau_hemisphere
 
 #: R(c) of the zero-reflectance flake: 0 for c ≥ 0.7 (at α 0.1 the normal density there is exp(−1/α²·1.04) ≈ e^−104
 #: of its peak at normal incidence, so σ_s(μ_i = 1) is 0 in floating point).
@@ -154,7 +154,7 @@ def test_renormalisation_reports_the_columns_that_scatter():
     out columns scattering < RENORM_REPORT_FLOOR of the channel's largest σ_s: a column at 1e-6 rescaled by ×9
     moves no visible energy (a fuzzed recipe read "up to 351 %"), while the same rescale of a scattering column
     is reported.  The scale factors themselves are unchanged: every column still meets its σ_s."""
-    from flakedb.rt.medium_projection import RENORM_REPORT_FLOOR, renormalization
+    from flakedb.rt.scattering.medium_projection import RENORM_REPORT_FLOOR, renormalization
 
     M = np.array([[[1.0, 0.0], [0.0, 1.0]]]) / (2 * np.pi)
 

@@ -1,6 +1,6 @@
 """GGX flakes: the adding-doubling solver against the independent Monte Carlo (docs/model.md §7.2, issue #21).
 
-Guards against a GGX path that is wrong somewhere the unit tests of rt/microflake.py cannot see: the
+Guards against a GGX path that is wrong somewhere the unit tests of rt/scattering/microflake.py cannot see: the
 σ_t/σ_s moments, the kernel and its projection, the φ-bandwidth guess, all against the Monte Carlo's
 own GGX flake sampler (flakedb/reference/kernels.py, written independently: normals drawn in closed
 form, accepted with |ω·m|, passing with T, reflecting with R).  Acceptance as for Beckmann
@@ -20,9 +20,9 @@ import pytest
 import flakedb.reference.montecarlo as mc
 from flakedb.bsdf import table_evaluator
 from flakedb.bsdf.convert import stack_to_table
-from flakedb.rt import media as rm
-from flakedb.rt.microflake import FlakeOptics
-from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.scattering import media as rm
+from flakedb.rt.scattering.microflake import FlakeOptics
+from flakedb.rt.adding.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
 from tests.cases import N_PATHS
 
 MU_EDGES = np.array([0.3, 0.5, 0.7, 0.85, 1.0])

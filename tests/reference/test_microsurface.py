@@ -5,12 +5,12 @@ Dachsbacher 2016) and the solver's rough interfaces against it (docs/rough-inter
 The walk is checked on its own first (energy on a perfect mirror surface, the smooth limit, the
 single-bounce albedo against the height-correlated Smith integral by quadrature), then the solver's
 rough conductor, rough dielectric and coat-over-Lambertian stack per angle.  The solver's Kulla–Conty
-style lobe (flakedb.rt.microfacet.dielectric_compensation) is not used by the walk.
+style lobe (flakedb.rt.boundaries.microfacet.dielectric_compensation) is not used by the walk.
 
 Before issue 26's fix (2026-12-02, solver − walk, n = 64, η 1.5): the rough dielectric's R from the air
 was 5–7 % low at 80–85° (the lobe's fixed split, Σ m g_a / Z, reflected about 3× too little at grazing),
 a coat over a Lambertian 0.5 −1.2 … −3.5 % at 80–85°, the Kulla–Conty conductor lobe +0.5 … +0.7 % at
-61–70° for α ≥ 0.3.  With the split of flakedb.rt.microfacet.multiple_scattering_escape everything below
+61–70° for α ≥ 0.3.  With the split of flakedb.rt.boundaries.microfacet.multiple_scattering_escape everything below
 is within 3σ + 0.5 % per angle (the measured table: docs/rough-interfaces.md), except T from the binder
 beyond the critical angle, which holds a measured allowance (BINDER_SPLIT: a cell average where T falls
 steeply), and the node whose cell holds the critical angle (a cell average, not a point value), which is
@@ -22,9 +22,9 @@ import numpy as np
 import pytest
 
 from flakedb.reference import microsurface as ms
-from flakedb.rt import microfacet as mf
-from flakedb.rt.quadrature import radau_hemisphere
-from flakedb.rt.stack import (
+from flakedb.rt.boundaries import microfacet as mf
+from flakedb.rt.basis.quadrature import radau_hemisphere
+from flakedb.rt.adding.stack import (
     Lambertian,
     Rough,
     RoughConductor,

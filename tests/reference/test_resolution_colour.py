@@ -154,8 +154,8 @@ def test_auto_refines_where_its_own_estimate_misses_the_target(tmp_path, monkeyp
     the report's own estimate is ΔE00 2.6; compose solves again (32 → 64 → 96) until the estimate meets 0.1, says
     so in the reason, and the result is within 0.1 of a solve at twice its n (measured, not the estimate).
     The stack's nearly matched rough interface is solved rough here (at n = 32 the product solves it smooth,
-    flakedb.rt.parts.near_matched: test_nearly_matched_rough_interface_at_auto_is_within_the_target)."""
-    import flakedb.rt.parts as parts
+    flakedb.rt.adding.parts.near_matched: test_nearly_matched_rough_interface_at_auto_is_within_the_target)."""
+    import flakedb.rt.adding.parts as parts
 
     monkeypatch.setattr(parts, "NEAR_MATCH_FRESNEL", -1.0)
     rec = parse_recipe(UNCOVERED)
@@ -170,7 +170,7 @@ def test_auto_refines_where_its_own_estimate_misses_the_target(tmp_path, monkeyp
 @pytest.mark.slow
 def test_nearly_matched_rough_interface_at_auto_is_within_the_target(tmp_path):
     """The same stack (1.77 → 1.8 at α 0.188: normal Fresnel 7e-5, transmitted lobe 0.003 rad) at auto: n = 32,
-    its rough inner interface solved smooth (flakedb.rt.parts.near_matched), is within ΔE00 0.1 of the rough
+    its rough inner interface solved smooth (flakedb.rt.adding.parts.near_matched), is within ΔE00 0.1 of the rough
     flux-cell solve at n = 96 (where the lobe is resolved and solved rough; measured 0.026), where the rough solve
     at n = 32 was 2.6 off by the report's own estimate."""
     rec = parse_recipe(UNCOVERED)

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 import flakedb.reference.montecarlo as mc
-from flakedb.rt import media as rm
-from flakedb.rt.microflake import FlakeOptics
-from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.scattering import media as rm
+from flakedb.rt.scattering.microflake import FlakeOptics
+from flakedb.rt.adding.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
 from tests.cases import N_PATHS
 from tests.rt.test_flake_shape import chi2_pvalue, ndf_of, theta_bin_probs
 

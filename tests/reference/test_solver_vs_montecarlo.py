@@ -16,9 +16,9 @@ import pytest
 import flakedb.reference.montecarlo as mc
 from flakedb.bsdf import table_evaluator
 from flakedb.bsdf.convert import stack_to_table
-from flakedb.rt import microfacet as mf
-from flakedb.rt.media import PhaseMedium
-from flakedb.rt.stack import (
+from flakedb.rt.boundaries import microfacet as mf
+from flakedb.rt.scattering.media import PhaseMedium
+from flakedb.rt.adding.stack import (
     InnerRough,
     InnerSmooth,
     Lambertian,

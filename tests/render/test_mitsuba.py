@@ -30,7 +30,7 @@ import pytest
 from flakedb.bsdf import BSDFTable, open_bsdf, write_bsdf, write_h5
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.render import mitsuba as fm
-from flakedb.rt.quadrature import radau_hemisphere
+from flakedb.rt.basis.quadrature import radau_hemisphere
 
 REPO = Path(__file__).resolve().parents[2]
 LAYERLAB = REPO.parent / "shared" / "data" / "bsdf-files" / "coated_diffuse_mono_n200.bsdf"

@@ -76,8 +76,8 @@ def _lambertian(path, albedo=(0.8, 0.5, 0.2)):
 
 def _smooth_coated_h5(path):
     """A smooth-coated paint composed by flakedb's solver (delta term {"fresnel", 1.5})."""
-    from flakedb.rt.media import PhaseMedium
-    from flakedb.rt.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
+    from flakedb.rt.scattering.media import PhaseMedium
+    from flakedb.rt.adding.stack import Lambertian, Slab, Smooth, SolverSettings, solve_stack
 
     med = PhaseMedium(sigma_t_per_um=[0.3, 0.3, 0.3], albedo=[0.95, 0.45, 0.15], phase=("hg", 0.5))
     s = solve_stack(Smooth(1.5), [Slab(10.0, med)], Lambertian([0.8, 0.8, 0.8]), SolverSettings(n=32))

@@ -1,11 +1,11 @@
-"""Channels that scatter identically are solved once (flakedb.rt.channels.distinct_channels): the result
+"""Channels that scatter identically are solved once (flakedb.rt.adding.channels.distinct_channels): the result
 must be the channel-by-channel solve, whatever the grouping of equal channels."""
 
 import numpy as np
 
-from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
-from flakedb.rt.microflake import FlakeOptics
-from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
+from flakedb.rt.scattering.media import FlakeMedium, Mixture, PhaseMedium
+from flakedb.rt.scattering.microflake import FlakeOptics
+from flakedb.rt.adding.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, solve_stack
 
 
 def _one_channel_solves(top, make_slabs, albedos, n):

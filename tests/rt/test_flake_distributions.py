@@ -1,4 +1,4 @@
-"""The registry of flake orientation distributions (flakedb.rt.microflake.FLAKE_DISTRIBUTIONS; docs/model.md §3
+"""The registry of flake orientation distributions (flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS; docs/model.md §3
 "Flake orientation distributions"): Beckmann (paper eq. 5) and GGX (Trowbridge–Reitz, flake convention).
 
 Guards against: a GGX density normalised in the microfacet convention (over one hemisphere with cos θ)
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from flakedb.rt.media import FlakeMedium
-from flakedb.rt.microflake import (
+from flakedb.rt.scattering.media import FlakeMedium
+from flakedb.rt.scattering.microflake import (
     FLAKE_DISTRIBUTIONS,
     FlakeOptics,
     extinction_Ergun,

@@ -1,5 +1,5 @@
 """Flake orientation with a shape (issue #35 item 3): the Student-t family ``student_t(γ)`` and
-two-population mixtures ``mix(first, w, second, α₂)`` of :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`.
+two-population mixtures ``mix(first, w, second, α₂)`` of :data:`flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS`.
 
 Guards against: a Student-t density in the microfacet convention or with the wrong slope scale (it must be
 GGX at γ = 2 and tend to Beckmann as γ → ∞, at the rate 1/γ); an inverse-CDF sampler that follows its
@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from flakedb.rt.media import FlakeMedium
-from flakedb.rt.microflake import (
+from flakedb.rt.scattering.media import FlakeMedium
+from flakedb.rt.scattering.microflake import (
     FLAKE_DISTRIBUTIONS,
     FlakeOptics,
     extinction_Ergun,

@@ -1,4 +1,4 @@
-"""Doubling of symmetric layers (flakedb/rt/layer.py, docs/model.md §4).
+"""Doubling of symmetric layers (flakedb/rt/adding/layer.py, docs/model.md §4).
 
 Guards against: a chunked / in-place doubling that differs from add(S, S) (a chunk boundary that
 skips or repeats matrices, an update that uses the new R or T where the old one is meant, a
@@ -8,14 +8,14 @@ broadcast T that is not expanded), and a thread split that changes the result.
 import numpy as np
 import pytest
 
-import flakedb.rt.layer as ly
-from flakedb.rt.layer import Layer, add, double_symmetric
+import flakedb.rt.adding.layer as ly
+from flakedb.rt.adding.layer import Layer, add, double_symmetric
 from tests import tolerances as tol
 
 
 def _whole_batch(R, T, times):
     """The whole-batch doubling written out (add(S, S) for a symmetric S, docs/model.md §4), with the
-    doubling's own solve (:func:`flakedb.rt.layer._solve_near_identity`, per matrix)."""
+    doubling's own solve (:func:`flakedb.rt.adding.layer._solve_near_identity`, per matrix)."""
     eye = np.eye(R.shape[-1])
     for _ in range(times):
         X = ly._solve_near_identity(eye - R @ R, T)
@@ -71,9 +71,9 @@ def test_symmetry_tolerance_decides_the_slab_method(factor, doubled):
     """A kernel asymmetric by ``factor`` × EIGEN_SYMMETRY_TOL × max |K| (here a negative entry) is solved
     by the eigen-solution below the tolerance and doubled above it; a zero kernel is the exact
     attenuation."""
-    from flakedb.rt.media import PhaseMedium
-    from flakedb.rt.quadrature import radau_hemisphere
-    from flakedb.rt.stack import medium_kernel_blocks
+    from flakedb.rt.scattering.media import PhaseMedium
+    from flakedb.rt.basis.quadrature import radau_hemisphere
+    from flakedb.rt.adding.stack import medium_kernel_blocks
 
     q = radau_hemisphere(6)
     med = PhaseMedium(np.ones(2), np.array([0.6, 0.9]), ("hg", 0.5))

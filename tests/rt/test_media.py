@@ -1,4 +1,4 @@
-"""The von Mises–Fisher phase function of flakedb.rt.media (docs/model.md §3) against closed forms and
+"""The von Mises–Fisher phase function of flakedb.rt.scattering.media (docs/model.md §3) against closed forms and
 quadrature.
 
 Guards against: a wrong normalisation (2π ∫ p dcosΘ ≠ 1) or overflow for large κ, a wrong mean
@@ -13,11 +13,11 @@ import pytest
 from numpy.polynomial.legendre import leggauss
 from scipy.special import eval_legendre, spherical_in
 
-from flakedb.rt import media as rm
-from flakedb.rt.legendre import LegendreKernel, truncate_legendre
-from flakedb.rt.quadrature import radau_hemisphere
+from flakedb.rt.scattering import media as rm
+from flakedb.rt.basis.legendre import LegendreKernel, truncate_legendre
+from flakedb.rt.basis.quadrature import radau_hemisphere
 from tests import tolerances as tol
-from flakedb.rt.stack import (
+from flakedb.rt.adding.stack import (
     Lambertian,
     Slab,
     Smooth,
@@ -102,7 +102,7 @@ def test_legendre_moments_match_spherical_in_and_stay_finite_for_large_kappa():
 @pytest.mark.parametrize("kappa", [5.0, 200.0])
 def test_solver_kernel_equals_the_addition_theorem_with_closed_form_moments(kappa):
     """The solver projects σ_s p(cos Θ) by φ sampling; the addition theorem with the closed-form
-    moments gives the same cosine coefficients without any φ sampling (flakedb.rt.legendre)."""
+    moments gives the same cosine coefficients without any φ sampling (flakedb.rt.basis.legendre)."""
     q = radau_hemisphere(16)
     alb = np.array([0.9, 0.4])
     med = rm.PhaseMedium(0.5, alb, ("vmf", kappa))

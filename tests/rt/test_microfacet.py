@@ -22,9 +22,9 @@ from scipy.special import roots_legendre
 import flakedb.reference.montecarlo as mc
 from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_dielectric_real
-from flakedb.rt import microfacet as mf
-from flakedb.rt.quadrature import binder_chain_quadratures, radau_hemisphere
-from flakedb.rt.stack import (
+from flakedb.rt.boundaries import microfacet as mf
+from flakedb.rt.basis.quadrature import binder_chain_quadratures, radau_hemisphere
+from flakedb.rt.adding.stack import (
     Lambertian,
     Rough,
     RoughConductor,
@@ -176,8 +176,8 @@ def test_multiple_scattering_chain_limits(alpha):
 
 def test_white_furnace_was_broken_by_point_sampling():
     """The former node-sampled interface (kept for comparison) fails the same furnace badly."""
-    from flakedb.rt import interface as itf
-    from flakedb.rt.layer import add_reflection_only
+    from flakedb.rt.boundaries import interface as itf
+    from flakedb.rt.adding.layer import add_reflection_only
 
     q = radau_hemisphere(16)
     lay, _ = itf.rough_dielectric_point_sampled(q, q, ETA, 0.05, max_orders=64)
@@ -355,7 +355,7 @@ def test_jackson_factors_give_a_positive_kernel():
 @pytest.mark.parametrize("eta", [1.45 / 1.6, 1.6 / 1.45, 1.5])
 def test_rough_dielectric_between_two_rules_is_lossless_and_reciprocal(eta):
     """The cells between two different rules (an inner interface: the binders' rules of
-    flakedb.rt.quadrature.binder_chain_quadratures): with the compensation lobe every column of order 0 carries
+    flakedb.rt.basis.quadrature.binder_chain_quadratures): with the compensation lobe every column of order 0 carries
     exactly 1 from either side (flux, η² across), T^bt is T^tb's reciprocal, R^t and R^b are symmetric in f;
     with one rule passed twice the result is the one-rule interface."""
     c = binder_chain_quadratures(radau_hemisphere(12), 1.0, [1.6, 1.6 * eta])
@@ -458,8 +458,8 @@ def test_a_rough_coat_solved_and_written_imports_neither_scipy_nor_numpy_ma():
         import sys, tempfile, os
         from flakedb.bsdf import write_bsdf
         from flakedb.bsdf.convert import stack_to_table
-        from flakedb.rt.media import PhaseMedium
-        from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+        from flakedb.rt.scattering.media import PhaseMedium
+        from flakedb.rt.adding.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
         slab = Slab(2.0, PhaseMedium([1.0] * 3, [0.95] * 3, ("hg", 0.7)))
         s = solve_stack(Rough(1.5, 0.1), [slab], Lambertian([0.5] * 3), SolverSettings.product(16, threads=2))
         write_bsdf(os.path.join(tempfile.mkdtemp(), "t.bsdf"), stack_to_table(s))

@@ -1,4 +1,4 @@
-"""The translucent micro-flake medium (flakedb.rt.microflake; paper eq. 2, 5-8; docs/model.md §3).
+"""The translucent micro-flake medium (flakedb.rt.scattering.microflake; paper eq. 2, 5-8; docs/model.md §3).
 
 Guards against: a Beckmann density normalised over the wrong domain (π vs 2π, hemisphere vs
 sphere); a half-vector formula (eq. 6-7) in the wrong angle convention (μ' ↔ −μ', cos φ sign,
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from flakedb.rt.microflake import (
+from flakedb.rt.scattering.microflake import (
     UNIFORM_NDF_PER_SR,
     FlakeOptics,
     extinction_Ergun,

@@ -4,13 +4,13 @@ BSDF's decay, reflection-only adding of opaque stacks (docs/projection.md, docs/
 import numpy as np
 import pytest
 
-from flakedb.rt.layer import Layer
-from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium, kernel_basis
-from flakedb.rt.microflake import FlakeOptics, table_basis
-from flakedb.rt.orders import MIN_ORDERS_CHECKED, next_block_end, order_tail, reflection_over, reflection_under_smooth
-from flakedb.rt.projection import ChunkedCoefficients, ProjectedKernel, project_kernel_basis
-from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
-from flakedb.rt.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, medium_kernel_blocks, solve_stack
+from flakedb.rt.adding.layer import Layer
+from flakedb.rt.scattering.media import FlakeMedium, Mixture, PhaseMedium, kernel_basis
+from flakedb.rt.scattering.microflake import FlakeOptics, table_basis
+from flakedb.rt.adding.orders import MIN_ORDERS_CHECKED, next_block_end, order_tail, reflection_over, reflection_under_smooth
+from flakedb.rt.scattering.projection import ChunkedCoefficients, ProjectedKernel, project_kernel_basis
+from flakedb.rt.basis.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature
+from flakedb.rt.adding.stack import Lambertian, Rough, Slab, Smooth, SolverSettings, medium_kernel_blocks, solve_stack
 from tests import tolerances as tol
 
 
@@ -133,7 +133,7 @@ def test_next_block_end_is_where_the_criterion_first_holds(r):
 
 
 def _loop(a_full, tol=1e-4, L_max=200):
-    """The order loop of flakedb.rt.order_blocks.OrderBlocks.solve on a given decay: (kept, solved)."""
+    """The order loop of flakedb.rt.adding.order_blocks.OrderBlocks.solve on a given decay: (kept, solved)."""
     a = []
     while True:
         l1 = next_block_end(a, L_max, tol, 8) if a else 8
@@ -172,8 +172,8 @@ def test_order_loop_solves_fewer_orders_with_the_same_result():
 
 
 def test_reflection_only_adding_equals_full_adding():
-    from flakedb.rt.interface import smooth_dielectric
-    from flakedb.rt.layer import add
+    from flakedb.rt.boundaries.interface import smooth_dielectric
+    from flakedb.rt.adding.layer import add
 
     rng = np.random.default_rng(3)
     q_out = radau_hemisphere(6)
@@ -225,11 +225,11 @@ def test_inner_orders_of_a_rough_top_change_nothing(monkeypatch):
     """Over an opaque body the rough top's T^tb, R^b, T^bt are built only to the body's orders
     (rough_dielectric_cells(inner_orders=…)): the blocks agree with the full ones there, and the
     stack's R^t is the one solved with the full top."""
-    from flakedb.rt import interface as itf
-    from flakedb.rt import microfacet as mf
-    from flakedb.rt.media import PhaseMedium
-    from flakedb.rt.quadrature import radau_hemisphere
-    from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+    from flakedb.rt.boundaries import interface as itf
+    from flakedb.rt.boundaries import microfacet as mf
+    from flakedb.rt.scattering.media import PhaseMedium
+    from flakedb.rt.basis.quadrature import radau_hemisphere
+    from flakedb.rt.adding.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
 
     q = radau_hemisphere(24)
     full, _ = mf.rough_dielectric_cells(q.x, q.w, 1.5, 0.1, max_orders=96)

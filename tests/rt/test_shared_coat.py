@@ -1,6 +1,6 @@
 """What a rough top shares between solves (issue 34 item 8, docs/compose-overhead.md): the height chain's solution on
-its own grids, once per (η, α) (flakedb.rt.microfacet._height_chain_grid), and the background thread that builds
-rough tops (flakedb.rt.stack._RoughBuild).
+its own grids, once per (η, α) (flakedb.rt.boundaries.microfacet._height_chain_grid), and the background thread that builds
+rough tops (flakedb.rt.adding.stack._RoughBuild).
 
 Guards against: a cached chain that differs from a fresh one (by a bit), that is solved again by a second thread
 asking at the same time, or that keeps a failure; a solve whose rough top waits in the background thread's queue
@@ -12,11 +12,11 @@ import threading
 import numpy as np
 import pytest
 
-import flakedb.rt.jobs as jobs
-import flakedb.rt.microfacet as mf
-from flakedb.rt.media import PhaseMedium
-from flakedb.rt.quadrature import radau_hemisphere
-from flakedb.rt.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
+import flakedb.rt.adding.jobs as jobs
+import flakedb.rt.boundaries.microfacet as mf
+from flakedb.rt.scattering.media import PhaseMedium
+from flakedb.rt.basis.quadrature import radau_hemisphere
+from flakedb.rt.adding.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
 
 
 def _fresh_escape(mu_a, mu_b, eta, alpha):

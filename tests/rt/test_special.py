@@ -1,4 +1,4 @@
-"""flakedb.rt.special against scipy.special (an independent implementation: Cephes / specfun / xsf) and
+"""flakedb.rt.basis.special against scipy.special (an independent implementation: Cephes / specfun / xsf) and
 against closed forms (exactness of the Gauss rules, the sectoral functions)."""
 
 import math
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import scipy.special as sp
 
-from flakedb.rt import special
-from flakedb.rt.quadrature import gauss_radau_unit
+from flakedb.rt.basis import special
+from flakedb.rt.basis.quadrature import gauss_radau_unit
 
 
 def test_erf_matches_scipy_to_rounding():

@@ -1,4 +1,4 @@
-"""Specular paths of inner interfaces and the pole (flakedb/rt/specular.py, flakedb/rt/pole.py;
+"""Specular paths of inner interfaces and the pole (flakedb/rt/boundaries/specular.py, flakedb/rt/basis/pole.py;
 docs/model.md §4 "Specular paths and the pole").
 
 Guards against: a smooth inner interface's mirror (a delta, the same in every Fourier order) left in the
@@ -13,9 +13,9 @@ import pytest
 
 from flakedb.solve.pipeline import NEGATIVE_SLACK
 from flakedb.optics.fresnel import fresnel_dielectric
-from flakedb.rt.media import PhaseMedium
-from flakedb.rt.pole import zero_pole_orders
-from flakedb.rt.stack import (
+from flakedb.rt.scattering.media import PhaseMedium
+from flakedb.rt.basis.pole import zero_pole_orders
+from flakedb.rt.adding.stack import (
     InnerRough,
     InnerSmooth,
     Lambertian,

@@ -12,23 +12,23 @@ import pytest
 from scipy.integrate import quad
 from scipy.special import ive
 
-import flakedb.rt.channels as rt_channels
-import flakedb.rt.parts as rt_parts
-import flakedb.rt.stack as stk
+import flakedb.rt.adding.channels as rt_channels
+import flakedb.rt.adding.parts as rt_parts
+import flakedb.rt.adding.stack as stk
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.optics.fresnel import fresnel_dielectric
-from flakedb.rt.fourier import cosine_coefficients, phi_samples, project_azimuthal
-from flakedb.rt.layer import add, homogeneous_slab, identity_layer
-from flakedb.rt.media import FlakeMedium, Mixture, PhaseMedium
-from flakedb.rt.microflake import FlakeOptics
-from flakedb.rt.quadrature import (
+from flakedb.rt.basis.fourier import cosine_coefficients, phi_samples, project_azimuthal
+from flakedb.rt.adding.layer import add, homogeneous_slab, identity_layer
+from flakedb.rt.scattering.media import FlakeMedium, Mixture, PhaseMedium
+from flakedb.rt.scattering.microflake import FlakeOptics
+from flakedb.rt.basis.quadrature import (
     binder_chain_quadratures,
     default_tir_nodes,
     gauss_radau_unit,
     radau_hemisphere,
     snell_mapped_quadrature,
 )
-from flakedb.rt.stack import (
+from flakedb.rt.adding.stack import (
     InnerRough,
     InnerSmooth,
     Lambertian,
@@ -90,7 +90,7 @@ def test_projection_adapts_to_a_narrow_lobe():
 def test_empty_layer_changes_nothing():
     med = PhaseMedium(1.0, 0.9, ("hg", 0.5))
     r = solve_stack(None, [Slab(0.7, med)], None, SolverSettings(n=16))
-    from flakedb.rt.layer import Layer
+    from flakedb.rt.adding.layer import Layer
 
     lay = Layer(r.Rt, r.Ttb, r.Rb, r.Tbt)
     e = identity_layer(r.n_orders, len(r.x))
@@ -329,7 +329,7 @@ def test_channel_groups_equal_one_solve(monkeypatch):
                    PhaseMedium(np.linspace(0.5, 1.5, 5), np.linspace(0.5, 0.9, 5), ("hg", np.linspace(0.1, 0.6, 5)))])
     args = (Smooth(1.5), [Slab(2.0, med)], Lambertian(np.linspace(0.1, 0.9, 5)))
     whole = solve_stack(*args, SolverSettings(n=16))
-    from flakedb.rt import stack as st
+    from flakedb.rt.adding import stack as st
 
     monkeypatch.setattr(st, "MEMORY_BUDGET_BYTES", 2.5 * st._bytes_per_channel(16, 8 + 3, 32))
     grouped = solve_stack(*args, SolverSettings(n=16))
@@ -393,7 +393,7 @@ def test_kernel_cut_by_the_order_cap_is_jackson_filtered():
 
 # ------------------------------------------------------------------------------------------------
 # Inner interface into a less dense binder (a fall, η_below / η_above < 1): the chain of rules on the
-# Snell invariant (flakedb.rt.quadrature.binder_chain_quadratures, docs/model.md §4 "Inner interface")
+# Snell invariant (flakedb.rt.basis.quadrature.binder_chain_quadratures, docs/model.md §4 "Inner interface")
 # ------------------------------------------------------------------------------------------------
 
 def test_binder_chain_reproduces_the_snell_mapped_rules():
@@ -468,7 +468,7 @@ def test_inner_interface_fall_white_furnace_and_reciprocity(top, settings):
 def test_inner_interface_fall_under_an_empty_binder(top, slabs):
     """A binder without a slab between a smooth top (or an inner interface) and a fall has directions that
     are totally reflected on both sides and that nothing reaches: the adding stays regular
-    (flakedb.rt.layer.solve_regular) and lossless, on both solve paths."""
+    (flakedb.rt.adding.layer.solve_regular) and lossless, on both solve paths."""
     for settings in (SolverSettings(n=24), SolverSettings.product(24)):
         r = solve_stack(top, slabs, Lambertian(1.0), settings)
         assert np.abs(r.albedo() - 1.0).max() < 1e-12
@@ -595,12 +595,12 @@ def test_threads_build_the_rough_top_in_the_background_with_the_same_result(bott
 
 @pytest.mark.parametrize("eta,alpha", [(1.02, 0.3), (0.99, 0.3)])
 def test_nearly_index_matched_rough_inner_interface_is_solved_smooth(eta, alpha, monkeypatch):
-    """flakedb.rt.parts.near_matched: a rough inner interface whose step reflects ≤ 1e-4 at normal incidence and
+    """flakedb.rt.adding.parts.near_matched: a rough inner interface whose step reflects ≤ 1e-4 at normal incidence and
     whose transmitted lobe (α |1 − 1/η|) is under a tenth of a node cell is solved as a smooth one.  Against the
     flux-cell rough solve of the same stack (30-100x slower here; 110 GiB for 1.5 → 1.501 at α 0.03): albedo
     within 1e-4, BSDF within 1e-3 of its maximum (measured 4e-5 and 4e-4); a step of 1.5 → 1.501 at α 0.03, which
     asked for 110 GiB at n = 32, solves, lossless over a white primer."""
-    import flakedb.rt.parts as parts
+    import flakedb.rt.adding.parts as parts
 
     def stack(primer=0.5, e=eta, a=alpha):
         return solve_stack(Smooth(1.5), [Slab(10.0, PhaseMedium(0.3, 0.9, ("hg", 0.6))), InnerRough(e, a),

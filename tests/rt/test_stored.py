@@ -1,4 +1,4 @@
-"""Kernels assembled from stored factors (flakedb/rt/stored.py, docs/store.md): the contraction.
+"""Kernels assembled from stored factors (flakedb/rt/scattering/stored.py, docs/store.md): the contraction.
 
 Guards against: a contraction that mixes up ranks, orders or the (K_T, K_R) blocks when several
 species' factors are contracted in one GEMM; factors of a species with fewer orders leaking into
@@ -8,9 +8,9 @@ sum.
 
 import numpy as np
 
-from flakedb.rt.legendre import LegendreKernel
-from flakedb.rt.quadrature import radau_hemisphere
-from flakedb.rt.stored import FactorKernel, SumKernel
+from flakedb.rt.basis.legendre import LegendreKernel
+from flakedb.rt.basis.quadrature import radau_hemisphere
+from flakedb.rt.scattering.stored import FactorKernel, SumKernel
 
 
 def _factor_kernel(rng, r, L, C, h):

@@ -12,7 +12,7 @@ import pytest
 from figures.figure4 import figure4
 from flakedb.paint import catalog as cat
 from flakedb.paint import species as sp
-from flakedb.rt.fourier import cosine_coefficients
+from flakedb.rt.basis.fourier import cosine_coefficients
 from flakedb.store import compress as C
 from tests import tolerances as tol
 
@@ -73,7 +73,7 @@ def test_pigment_R_integrates_to_albedo(catalog):
     nb = sp.binder_index(catalog, wl)
     n, m = 24, 129
     R = C.sample_reflectance(entry, wl, nb, n, m, n_table=1025)[0]
-    from flakedb.rt.quadrature import radau_hemisphere
+    from flakedb.rt.basis.quadrature import radau_hemisphere
 
     _, w = radau_hemisphere(n // 2).full()
     dphi = np.pi / (m - 1)

@@ -20,9 +20,9 @@ from flakedb.compose.orchestrate import compose
 from flakedb.solve.store_context import store_problems
 from flakedb.paint.recipe import parse_recipe
 from flakedb.pipelines.build import build, make_request, request_for_recipe
-from flakedb.rt.media import FlakeMedium
-from flakedb.rt.stack import project_medium
-from flakedb.rt.stored import StoredFlakeMedium
+from flakedb.rt.scattering.media import FlakeMedium
+from flakedb.rt.adding.stack import project_medium
+from flakedb.rt.scattering.stored import StoredFlakeMedium
 from flakedb.store import versions as st
 from tests.store.test_stored import ETA, FLAKE, N, WL, _f, _inside_nodes, _lab, _recipe, _same_table_optics
 

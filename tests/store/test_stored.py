@@ -1,4 +1,4 @@
-"""Compose from the projected-kernel store (issues #5/#6/#11; flakedb/rt/stored.py, flakedb/rt/legendre.py,
+"""Compose from the projected-kernel store (issues #5/#6/#11; flakedb/rt/scattering/stored.py, flakedb/rt/basis/legendre.py,
 flakedb/paint/mapping.py, flakedb compose --store): guards against stored factors that are not the
 solver's projection of kernel_Ergun on its inside nodes below a smooth coat, a Legendre pigment kernel
 that is not the projected phase-function kernel, a store-backed compose that differs from the direct
@@ -28,16 +28,16 @@ from flakedb.solve.pipeline import UnphysicalResultError
 from flakedb.paint import species as sp
 from flakedb.paint.recipe import parse_recipe
 from flakedb.pipelines.build import build, make_request
-from flakedb.rt.legendre import LegendreKernel, legendre_moments_gauss
-from flakedb.rt.media import FlakeMedium, PhaseMedium
-from flakedb.rt.microflake import FlakeOptics
-from flakedb.rt.quadrature import (
+from flakedb.rt.basis.legendre import LegendreKernel, legendre_moments_gauss
+from flakedb.rt.scattering.media import FlakeMedium, PhaseMedium
+from flakedb.rt.scattering.microflake import FlakeOptics
+from flakedb.rt.basis.quadrature import (
     default_tir_nodes,
     radau_hemisphere,
     snell_mapped_quadrature,
 )
-from flakedb.rt.stack import project_medium
-from flakedb.rt.stored import StoredFlakeMedium, StoredGridMismatch
+from flakedb.rt.adding.stack import project_medium
+from flakedb.rt.scattering.stored import StoredFlakeMedium, StoredGridMismatch
 from flakedb.store import compress as C
 from flakedb.store import versions as st
 from flakedb.store import write as W
@@ -455,7 +455,7 @@ def test_a_deferred_chunk_missing_or_corrupted_is_refused_when_read(tiny, tmp_pa
 
 def test_the_last_order_is_read_on_its_own_and_equals_its_chunk(tiny, tmp_path):
     """V_last_order (written by the build beside V) is what the Jackson filter's test reads
-    (flakedb.rt.medium_projection.damp_if_capped asks for the kernel's last order): bit for bit the last order of
+    (flakedb.rt.scattering.medium_projection.damp_if_capped asks for the kernel's last order): bit for bit the last order of
     V's last chunk, served without that chunk (here deleted: the read still works), corrupted → refused at open."""
     url0, _, v = tiny
     f = v.flake_factors(FLAKE, N, 0.25)

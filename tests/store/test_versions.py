@@ -54,10 +54,10 @@ def test_reader_values(serial):
     """Adapted to the format-2 readers (issue #11): the stored factors reproduce the direct projection
     of the flake's kernel on the stored nodes, the pigment's moments its Mie phase function."""
     from flakedb.paint import species as sp
-    from flakedb.rt.media import FlakeMedium
-    from flakedb.rt.microflake import FlakeOptics
-    from flakedb.rt.stack import project_medium
-    from flakedb.rt.stored import StoredFlakeMedium
+    from flakedb.rt.scattering.media import FlakeMedium
+    from flakedb.rt.scattering.microflake import FlakeOptics
+    from flakedb.rt.adding.stack import project_medium
+    from flakedb.rt.scattering.stored import StoredFlakeMedium
     from flakedb.store.compress import store_nodes
 
     url, req, res = serial

@@ -13,7 +13,7 @@ import pytest
 from flakedb.paint.recipe import load_recipe
 from flakedb.paint.texture_inputs import texture_report, texture_stack
 from flakedb.resources import PACKAGE_DIR, RECIPES_DIR
-from flakedb.rt.microflake import FLAKE_DISTRIBUTIONS, FlakeOptics, extinction_Ergun, kernel_Ergun
+from flakedb.rt.scattering.microflake import FLAKE_DISTRIBUTIONS, FlakeOptics, extinction_Ergun, kernel_Ergun
 from flakedb.texture import model as tm
 from flakedb.texture.instruments import PRESETS, Observer
 from tests.texture.cases import TEST_OBSERVER, recipe, stack_of

@@ -104,7 +104,7 @@ def test_a_perturbed_orientation_term_is_caught(runs, monkeypatch, scale, least)
     sparser density moves those toward the reference)."""
     import dataclasses
 
-    from flakedb.rt.microflake import FLAKE_DISTRIBUTIONS
+    from flakedb.rt.scattering.microflake import FLAKE_DISTRIBUTIONS
 
     beck = FLAKE_DISTRIBUTIONS["beckmann"]
     monkeypatch.setitem(FLAKE_DISTRIBUTIONS, "beckmann", dataclasses.replace(beck, ndf=lambda c, a: beck.ndf(c, scale * a)))

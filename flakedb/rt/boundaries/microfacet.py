@@ -6,7 +6,7 @@ spans about 0.03 rad; 32 Gauss–Radau nodes per hemisphere are 0.05 rad apart).
 albedo of a rough coat over a white primer is 1.74 for α = 0.05 at n = 128, 36 at n = 32).  Here
 the BSDF is instead **integrated over each node's quadrature cell** (a Galerkin / cell-average
 projection, the finite-volume idea of discrete-ordinate "quadrature cells", e.g. Lathrop 1971;
-the symmetric rescaling is the one of :func:`flakedb.rt.stack.medium_kernel_blocks`):
+the symmetric rescaling is the one of :func:`flakedb.rt.adding.stack.medium_kernel_blocks`):
 
 1. **Flux cells.**  Node j of the hemisphere rule (x_j, w_j) owns the cell [C_{j−1}, C_j] of μ with
    ∫_cell μ dμ = w_j x_j (C_j² = 2 Σ_{k≤j} w_k x_k; the cells partition [0, 1] because the rule
@@ -46,9 +46,9 @@ from numpy.polynomial.legendre import leggauss
 
 from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_conductor_real, fresnel_dielectric_real
-from flakedb.rt.jobs import SharedJobs
-from flakedb.rt.pole import zero_pole_orders
-from flakedb.rt.special import erf, smith_masking_denominator
+from flakedb.rt.adding.jobs import SharedJobs
+from flakedb.rt.basis.pole import zero_pole_orders
+from flakedb.rt.basis.special import erf, smith_masking_denominator
 
 #: Pairs whose Beckmann factor exp(−tan²θ_h/α²) stays below exp(−PRUNE_T2) for every φ are skipped.
 PRUNE_T2 = 40.0
@@ -1103,7 +1103,7 @@ def jackson_factors(L):
 
 def _symmetric_energy_scale(E, target, iters=2000, tol=1e-13, newton_after=100):
     """Scale factors s (C, N) with s_i Σ_o E[c, o, i] s_o = target[c, i] (damped multiplicative
-    fixed point, as :func:`flakedb.rt.stack.medium_kernel_blocks`), iterated until every column
+    fixed point, as :func:`flakedb.rt.adding.stack.medium_kernel_blocks`), iterated until every column
     is within ``tol`` of its target.  E (C, N, N) ≥ 0.
 
     The fixed point converges slowly when E is close to a permutation (an interface of relative index
@@ -1180,7 +1180,7 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     :func:`dielectric_compensation` is added to order 0, so that every column carries exactly 1
     (lossless interface, docs/rough-interfaces.md); without it, the single-scattering Walter model.
 
-    Blocks as in :class:`flakedb.rt.layer.Layer` (basic radiance): Rt, Ttb from above, Rb, Tbt
+    Blocks as in :class:`flakedb.rt.adding.layer.Layer` (basic radiance): Rt, Ttb from above, Rb, Tbt
     from below; Tbt is the reciprocal of Ttb (f_bt[i, o] = η² f_tb[o, i]).
 
     ``inner_orders``: Ttb, Rb and Tbt are returned only for the orders below it (Rt has all its orders):
@@ -1188,8 +1188,8 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     orders multiply zero).  The blocks then have different order counts; their values are unchanged.
 
     Its independent parts (the cell blocks; the albedo integrals and the compensation's chain) are
-    :class:`flakedb.rt.jobs.SharedJobs`: on ``threads`` threads, and other threads may take the parts not
-    yet started through ``jobs`` (a :class:`~flakedb.rt.jobs.SharedJobs` to run them on; its own thread
+    :class:`flakedb.rt.adding.jobs.SharedJobs`: on ``threads`` threads, and other threads may take the parts not
+    yet started through ``jobs`` (a :class:`~flakedb.rt.adding.jobs.SharedJobs` to run them on; its own thread
     count then applies).  Each part is the same pure function of its arguments whichever thread runs it:
     the result is the serial one, bit for bit.
     """

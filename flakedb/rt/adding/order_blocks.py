@@ -1,5 +1,5 @@
 """R^t of an opaque stack solved in blocks of Fourier orders (8, 16, then up to where the decay predicts the
-tolerance is met, :func:`flakedb.rt.orders.next_block_end`) bottom-up with reflection-only adding, until
+tolerance is met, :func:`flakedb.rt.adding.orders.next_block_end`) bottom-up with reflection-only adding, until
 the BSDF's dropped tail is within the order tolerance (docs/orders.md).
 
 :class:`OrderBlocks` holds what one solve needs (the body's parts, the bottom, the top); its
@@ -11,19 +11,19 @@ order count follows the scattered light.
 import numpy as np
 
 from flakedb.conventions import fourier_weight
-from flakedb.rt import interface as itf
-from flakedb.rt.layer import pad_orders
-from flakedb.rt.orders import (
+from flakedb.rt.boundaries import interface as itf
+from flakedb.rt.adding.layer import pad_orders
+from flakedb.rt.adding.orders import (
     MIN_ORDERS_CHECKED,
     next_block_end,
     order_tail,
     reflection_over,
 )
-from flakedb.rt.parts import order_range
+from flakedb.rt.adding.parts import order_range
 
 #: First block of orders solved by the order choice; the next ends at 16 (the criterion is not accepted before,
-#: :data:`flakedb.rt.orders.MIN_ORDERS_CHECKED`), later ones where the decay measured so far predicts the tolerance
-#: is met (at least 4 orders more, at most double: :func:`flakedb.rt.orders.next_block_end`).  Blocks of 8 rather
+#: :data:`flakedb.rt.adding.orders.MIN_ORDERS_CHECKED`), later ones where the decay measured so far predicts the tolerance
+#: is met (at least 4 orders more, at most double: :func:`flakedb.rt.adding.orders.next_block_end`).  Blocks of 8 rather
 #: than one of 16 halve the eigen-solutions' temporaries (docs/orders.md: the bench's 3-species basecoat, the
 #: solve's process peak 266 → 191 MB, the same 16 orders solved).
 FIRST_ORDER_BLOCK = 8
@@ -33,7 +33,7 @@ OVERLAP_ORDERS = (16, 64)
 
 
 class OrderBlocks:
-    """One opaque solve.  ``parts``: the body top to bottom (:mod:`flakedb.rt.parts`); ``q_bottom``,
+    """One opaque solve.  ``parts``: the body top to bottom (:mod:`flakedb.rt.adding.parts`); ``q_bottom``,
     ``albedo``: the Lambertian primer's rule and albedo, or ``Rc``: a rough conductor bottom's R^t (all its
     orders); ``through_top(R, l0, l1)``: R^t of the top over a body of reflection R (orders l0 … l1 − 1);
     ``top_rt``: for a rough top, a function returning its R^t (L_top, 1, h, h) once built: where the body
@@ -43,12 +43,12 @@ class OrderBlocks:
     node counts; ``specular``: R_s (C, h, h) to take out of every order, or None.
 
 
-    The order choice, through :func:`flakedb.rt.stack.solve_stack`: the kept orders' dropped tail is within
+    The order choice, through :func:`flakedb.rt.adding.stack.solve_stack`: the kept orders' dropped tail is within
     the tolerance, and fewer orders are kept than the cap 2n allows.
 
-    >>> from flakedb.rt.components import Lambertian, Rough, Slab, SolverSettings
-    >>> from flakedb.rt.media import PhaseMedium
-    >>> from flakedb.rt.stack import solve_stack
+    >>> from flakedb.rt.adding.components import Lambertian, Rough, Slab, SolverSettings
+    >>> from flakedb.rt.scattering.media import PhaseMedium
+    >>> from flakedb.rt.adding.stack import solve_stack
     >>> b = solve_stack(Rough(1.5, 0.3), [Slab(10.0, PhaseMedium(0.5, 0.9, ("hg", 0.7)))], Lambertian(0.5),
     ...                 SolverSettings.product(n=16))
     >>> L, decay = b.info["orders"], b.info["order_decay"]

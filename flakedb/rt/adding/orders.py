@@ -13,16 +13,16 @@ stated tolerance (:func:`order_tail`).
 
 import numpy as np
 
-from flakedb.rt.layer import solve_regular
+from flakedb.rt.adding.layer import solve_regular
 
 
 def reflection_over(top, bottom_Rt):
-    """R^t of ``top`` (a :class:`flakedb.rt.layer.Layer`) over an opaque bottom of reflection
+    """R^t of ``top`` (a :class:`flakedb.rt.adding.layer.Layer`) over an opaque bottom of reflection
     ``bottom_Rt`` (None: a black bottom, R^t = top.R^t): paper eq. 4's first line, one LU solve.
 
     An empty layer over a body returns the body's reflection; with a black bottom, the top's own:
 
-    >>> from flakedb.rt.layer import Layer, identity_layer
+    >>> from flakedb.rt.adding.layer import Layer, identity_layer
     >>> Rt = np.random.default_rng(0).uniform(0.0, 0.2, (2, 1, 3, 3))        # (L, C, h, h)
     >>> bool(np.allclose(reflection_over(identity_layer(2, 3), Rt), Rt, rtol=0, atol=1e-15))
     True
@@ -55,7 +55,7 @@ def reflection_over(top, bottom_Rt):
 def reflection_under_smooth(t, F_in, h_tir, bottom_Rt):
     """R^t of a smooth interface over an opaque body of reflection ``bottom_Rt`` (L, C, hi, hi).
 
-    The smooth interface (:func:`flakedb.rt.interface.smooth_dielectric`) has R^t = 0 (its mirror
+    The smooth interface (:func:`flakedb.rt.boundaries.interface.smooth_dielectric`) has R^t = 0 (its mirror
     reflection is the analytic delta term), T^tb[h_tir + j, j] = t_j = 1 − F(x_j), T^bt = (T^tb)ᵀ and
     R^b = diag(F_in): the products with it are row/column selections and scalings, so
     R^t = diag(t) [R2 (I − diag(F_in) R2)^{-1}]_{mapped rows, mapped columns} diag(t) costs one LU

@@ -7,8 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flakedb.conventions import fourier_weight
-from flakedb.rt.pole import zero_pole_orders
-from flakedb.rt.specular import smoothed_specular
+from flakedb.rt.basis.pole import zero_pole_orders
+from flakedb.rt.boundaries.specular import smoothed_specular
 
 @dataclass
 class StackBSDF:
@@ -76,8 +76,8 @@ class StackBSDF:
     def albedo(self, include_delta=True):
         """Directional albedo of reflection at the air-side nodes, (C, h): ∫ f |μ_o| dω_o (+ F).
 
-        >>> from flakedb.rt.components import Lambertian, Smooth, SolverSettings
-        >>> from flakedb.rt.stack import solve_stack
+        >>> from flakedb.rt.adding.components import Lambertian, Smooth, SolverSettings
+        >>> from flakedb.rt.adding.stack import solve_stack
         >>> white = solve_stack(Smooth(1.5), [], Lambertian(1.0), SolverSettings(n=8))   # a lossless stack
         >>> bool(np.allclose(white.albedo(), 1.0, rtol=0, atol=1e-12)), bool(np.all(white.albedo(False) < 1.0))
         (True, True)

@@ -1,5 +1,5 @@
-"""Checks of the solver's inputs at its public edge (:mod:`flakedb.rt.stack` components and
-:mod:`flakedb.rt.media` media): a non-finite or out-of-range parameter is refused with a
+"""Checks of the solver's inputs at its public edge (:mod:`flakedb.rt.adding.stack` components and
+:mod:`flakedb.rt.scattering.media` media): a non-finite or out-of-range parameter is refused with a
 ``ValueError`` that names the field, the value and the allowed range, instead of reaching the
 numerics (where it gave NaN output, a silently wrong BSDF, or a 72 TiB allocation for α < 0).
 The recipe layer (:mod:`flakedb.paint.recipe`) checks the same quantities with the recipe's names."""

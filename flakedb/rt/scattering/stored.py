@@ -8,14 +8,14 @@ across wavelength,
     K_λ[l, o, i] = Σ_r U[λ, r] V_r[l, o, i]        (flakes; V float32, orders chunked)
 
 and for pigments the Legendre moments χ_k(λ) of the phase function with C_ext, C_sca (the addition
-theorem gives the blocks without azimuthal quadrature, :mod:`flakedb.rt.legendre`).  Compose then
+theorem gives the blocks without azimuthal quadrature, :mod:`flakedb.rt.basis.legendre`).  Compose then
 only contracts: a recipe's channels are a linear map of the store's wavelengths (selection,
 interpolation, or the RGB mode's spectra → linear sRGB), so a channel's kernel is
 (loading · map @ U) @ V — :class:`FactorKernel` — and a layer's kernel is the sum over its species
 (:class:`SumKernel`).  Nothing is sampled in φ or transformed.
 
-Both kernels follow :class:`flakedb.rt.projection.ProjectedKernel`'s interface (``n_orders``,
-``channels``, ``blocks(l0, l1)``, ``scale``), so :func:`flakedb.rt.stack.project_medium` renormalises
+Both kernels follow :class:`flakedb.rt.scattering.projection.ProjectedKernel`'s interface (``n_orders``,
+``channels``, ``blocks(l0, l1)``, ``scale``), so :func:`flakedb.rt.adding.stack.project_medium` renormalises
 them as any projected kernel and the solver asks only for the orders it uses.
 """
 
@@ -25,16 +25,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flakedb.rt.legendre import LegendreKernel
-from flakedb.rt.media import FlakeMedium, channel_subset
-from flakedb.rt.microflake import (
+from flakedb.rt.basis.legendre import LegendreKernel
+from flakedb.rt.scattering.media import FlakeMedium, channel_subset
+from flakedb.rt.scattering.microflake import (
     FlakeOptics,
     extinction_Ergun,
     kernel_Ergun_basis,
     projected_area,
     scattering_Ergun,
 )
-from flakedb.rt.projection import project_kernel_basis
+from flakedb.rt.scattering.projection import project_kernel_basis
 
 #: Solver nodes and the store's nodes must agree to this (absolute, in μ).
 NODE_TOL = 1e-12
@@ -193,7 +193,7 @@ class FlakeFactors:
     sigma_s: np.ndarray
     projected_area: np.ndarray
     source: str = "store"
-    #: the flake-normal density the factors were projected for (flakedb.rt.microflake.FLAKE_DISTRIBUTIONS)
+    #: the flake-normal density the factors were projected for (flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS)
     distribution: str = "beckmann"
 
 
@@ -239,7 +239,7 @@ class StoredFlakeMedium:
 @dataclass(eq=False)
 class StoredPigmentMedium:
     """Pigments from stored Mie optics: σ_t = ρ C_ext, σ_s = ρ C_sca per channel (C,) in 1/µm, and
-    the phase function's Legendre moments ``chi`` (C, K + 1) (:class:`flakedb.rt.legendre.LegendreKernel`)."""
+    the phase function's Legendre moments ``chi`` (C, K + 1) (:class:`flakedb.rt.basis.legendre.LegendreKernel`)."""
 
     sigma_t_per_um: np.ndarray
     sigma_s_per_um: np.ndarray
@@ -340,14 +340,14 @@ def spectral_factors(table, rank_tol=RANK_TOL):
 
 def flake_factors(c, R, T, alpha, x, w, tol=1e-5, max_orders=None, rank_tol=RANK_TOL, distribution="beckmann"):
     """The stored quantities of one flake species at one (nodes, α, ``distribution``), per unit loading
-    aρ = 1/µm (``distribution``: the flake-normal density, :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`).
+    aρ = 1/µm (``distribution``: the flake-normal density, :data:`flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS`).
 
-    ``c`` (nc,), ``R``, ``T`` (W, nc): the flake's tables (:class:`flakedb.rt.microflake.FlakeOptics`);
+    ``c`` (nc,), ``R``, ``T`` (W, nc): the flake's tables (:class:`flakedb.rt.scattering.microflake.FlakeOptics`);
     ``x``, ``w`` (h,) the solver's inside hemisphere rule; ``tol``, ``max_orders`` as the solver's
-    projection (:func:`flakedb.rt.stack.project_medium`: same φ sampling, weights and criteria, here
+    projection (:func:`flakedb.rt.adding.stack.project_medium`: same φ sampling, weights and criteria, here
     on the W wavelengths as channels).  The kernel (aρ/2) R(c) D(h) is linear in R, so with
     R ≈ U @ basis (:func:`spectral_factors`) the kernel of wavelength λ is Σ_r U[λ, r] k_r, and the
-    basis kernels k_r are projected once (:func:`flakedb.rt.projection.project_kernel_basis`).
+    basis kernels k_r are projected once (:func:`flakedb.rt.scattering.projection.project_kernel_basis`).
 
     Returns a dict: ``U`` (W, r), ``V`` (r, L, 2, h, h) [rank, order, (K_T, K_R), outgoing, incident]
     in 1/(µm·sr), ``sigma_t``, ``sigma_s`` (W, h) in 1/µm, ``projected_area`` (h,), ``info``.

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flakedb.conventions import fourier_weight
-from flakedb.rt.jobs import thread_pool
+from flakedb.rt.adding.jobs import thread_pool
 
 
 @dataclass
@@ -212,7 +212,7 @@ def double_symmetric(R, T, times, threads=1):
     three products per doubling.  Orders and channels are independent: with ``threads`` > 1 the
     (L, C) batch is split into that many parts doubled in parallel threads (numpy's LAPACK and BLAS
     calls release the GIL; the caller keeps BLAS itself at one thread per call, see
-    :func:`flakedb.rt.stack.solve_stack`).  The result is bit-identical to the serial one.
+    :func:`flakedb.rt.adding.stack.solve_stack`).  The result is bit-identical to the serial one.
     """
     L, C = R.shape[:2]
     threads = int(threads)

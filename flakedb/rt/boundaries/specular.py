@@ -14,20 +14,20 @@ g_0 = 1 keeps its energy exactly, g_l ≥ 0 of a positive kernel keeps it positi
 lobe ≈ π/L wide in φ_d at its own node pair), and R_s is symmetric (reciprocity kept).
 
 At the pole μ = 1 a direction has no azimuth, so only order 0 may be non-zero in the row and the column
-of the node μ = 1 (:func:`flakedb.rt.pole.zero_pole_orders`); a discrete cell rule leaves azimuth-dependent terms there
+of the node μ = 1 (:func:`flakedb.rt.basis.pole.zero_pole_orders`); a discrete cell rule leaves azimuth-dependent terms there
 (coated aluminium: +84 % at n = 48 in the normal-incidence column, falling as 1/n).
 """
 
 import numpy as np
 
-from flakedb.rt.microfacet import jackson_factors
-from flakedb.rt.orders import reflection_over, reflection_under_smooth
-from flakedb.rt.pole import pole_index, zero_pole_orders  # noqa: F401  (re-exported)
+from flakedb.rt.boundaries.microfacet import jackson_factors
+from flakedb.rt.adding.orders import reflection_over, reflection_under_smooth
+from flakedb.rt.basis.pole import pole_index, zero_pole_orders  # noqa: F401  (re-exported)
 
 
 def specular_reflection(parts, through_top):
     """R_s (C, h, h) of the stack seen from above: the parts' specular blocks (:meth:`specular` of
-    :mod:`flakedb.rt.parts`) added bottom-up over a black bottom (a primer or a rough metal reflects
+    :mod:`flakedb.rt.adding.parts`) added bottom-up over a black bottom (a primer or a rough metal reflects
     nothing unscattered), then ``through_top(R)`` (the smooth top's transmission and internal
     reflections, or the identity).  None when nothing is reflected unscattered."""
     R = None
@@ -40,9 +40,9 @@ def specular_reflection(parts, through_top):
 
 
 def smooth_top_transfer(smooth1, h_out):
-    """``(t, F_in, h_tir)`` of a smooth top's layer (:func:`flakedb.rt.interface.smooth_dielectric`):
+    """``(t, F_in, h_tir)`` of a smooth top's layer (:func:`flakedb.rt.boundaries.interface.smooth_dielectric`):
     the transmissions 1 − F at the mapped nodes and the internal reflection (the arguments of
-    :func:`flakedb.rt.orders.reflection_under_smooth`)."""
+    :func:`flakedb.rt.adding.orders.reflection_under_smooth`)."""
     h_tir = smooth1.Ttb.shape[-2] - h_out
     t = smooth1.Ttb[0, 0][h_tir + np.arange(h_out), np.arange(h_out)]
     return t, np.diagonal(smooth1.Rb[0, 0]), h_tir
@@ -56,7 +56,7 @@ def under_smooth(smooth1, h_out):
 
 def smoothed_specular(Rs, L):
     """The specular matrix as L Fourier orders: g_l R_s (L, C, h, h), g the Jackson factors
-    (:func:`flakedb.rt.microfacet.jackson_factors`), order 0 exactly R_s.
+    (:func:`flakedb.rt.boundaries.microfacet.jackson_factors`), order 0 exactly R_s.
 
     >>> Rs = 0.04 * np.eye(3)[None]                    # a mirror: (C, h, h)
     >>> S = smoothed_specular(Rs, 8)

@@ -5,7 +5,7 @@ A fit changes a few recipe fields per evaluation; most often only loadings (volu
 which enter a medium linearly: σ_t and σ_s scale with them, and so does its kernel.  Everything computed
 *per unit loading* is then the same in every evaluation: each species' optics (thin-film R(c), T(c) of a
 flake, the Mie cross-sections and phase function of a pigment) and each medium's basis kernels projected on
-the cosine series (:mod:`flakedb.rt.projection`; the loading sits in the combination matrix M).
+the cosine series (:mod:`flakedb.rt.scattering.projection`; the loading sits in the combination matrix M).
 
 A :class:`ReuseCache` holds such results keyed by *everything they depend on* (the species entry, the
 binder index, the wavelengths, the node cosines, the orientation α, …: :func:`array_key` hashes arrays by

@@ -2,10 +2,10 @@
 
 A medium's kernel is linear in what varies with wavelength (paper eq. 2: a flake's R(c); a
 pigment's σ_s p(cos Θ)), so k_c = Σ_b M[c, b] k_b with a few basis kernels k_b
-(:class:`flakedb.rt.media.KernelBasis`).  The cosine-series projection (docs/model.md §4,
-:mod:`flakedb.rt.fourier`) is linear too: the basis kernels are sampled and transformed once and every
+(:class:`flakedb.rt.scattering.media.KernelBasis`).  The cosine-series projection (docs/model.md §4,
+:mod:`flakedb.rt.basis.fourier`) is linear too: the basis kernels are sampled and transformed once and every
 channel's coefficients are M times theirs.  :func:`project_kernel_basis` applies exactly the adaptive
-criteria of :func:`flakedb.rt.fourier.project_azimuthal` to the C channel combinations (computed in
+criteria of :func:`flakedb.rt.basis.fourier.project_azimuthal` to the C channel combinations (computed in
 chunks, never stored whole), and :class:`ProjectedKernel` hands out the channel coefficients of any
 range of orders on demand, so a solver that chooses its order count from the physics only builds the
 orders it uses.
@@ -13,8 +13,8 @@ orders it uses.
 
 import numpy as np
 
-from flakedb.rt.fourier import cosine_coefficients, phi_samples
-from flakedb.rt.reuse import active_cache, array_key
+from flakedb.rt.basis.fourier import cosine_coefficients, phi_samples
+from flakedb.rt.adding.reuse import active_cache, array_key
 
 
 def _combine(M, a):
@@ -38,7 +38,7 @@ PROJECTION_BUDGET_BYTES = 1 * 2**30
 
 #: Orders of a projection over its memory budget kept in memory (:class:`ChunkedCoefficients`); higher
 #: orders are evaluated again when a solver asks for them.  The order choice of an opaque stack solves
-#: blocks of 8, then as far as its decay predicts (:data:`flakedb.rt.order_blocks.FIRST_ORDER_BLOCK`) and stops where
+#: blocks of 8, then as far as its decay predicts (:data:`flakedb.rt.adding.order_blocks.FIRST_ORDER_BLOCK`) and stops where
 #: its BSDF's tail is within the order tolerance: 11–31 orders for every catalogue recipe at n = 128
 #: (docs/cost-model.md), while the projection of a kernel that never converges at grazing pairs carries
 #: up to the cap 2n = 256.  Particle pearlescent at n = 128 (B = 41 basis kernels): the 256 orders held
@@ -52,7 +52,7 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
 
     ``fn(mu_i[:, None, None], mu_o[None, :, None], phi[None, None, :])`` → (B, Hi, Ho, P);
     ``M`` (C, B) or None (then B = C and the basis functions are the channels).  ``tol``,
-    ``n_start``, ``n_max`` and ``weights`` (Hi, Ho) as in :func:`flakedb.rt.fourier.project_azimuthal`,
+    ``n_start``, ``n_max`` and ``weights`` (Hi, Ho) as in :func:`flakedb.rt.basis.fourier.project_azimuthal`,
     whose criteria are applied unchanged to the C combinations: the φ sampling doubles until the
     combined coefficients change by ≤ tol · s and the upper half carries ≤ tol · s, and the series is
     truncated at the first L whose dropped tail Σ_{k≥L} |a_k| ≤ tol · s for every channel and node
@@ -72,8 +72,8 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
     :data:`RESIDENT_ORDERS`), a chunked projection keeps only its first orders and its last one in memory
     and returns a :class:`ChunkedCoefficients`, which evaluates the others again when asked.
 
-    ``parts`` (:attr:`flakedb.rt.media.KernelBasis.parts`, the basis as keyed groups): inside a fit's
-    :func:`flakedb.rt.reuse.reusing` scope each group's coefficients at a sampling (and its samples at
+    ``parts`` (:attr:`flakedb.rt.scattering.media.KernelBasis.parts`, the basis as keyed groups): inside a fit's
+    :func:`flakedb.rt.adding.reuse.reusing` scope each group's coefficients at a sampling (and its samples at
     φ_d = 0, π) are taken from the fit's cache when an earlier evaluation computed them, else computed and
     kept there; the criteria, M's combinations and the truncation are applied afresh, so the result is the
     uncached one (the transform acts on each basis kernel alone).  Not used over the memory budget.
@@ -136,7 +136,7 @@ class _BasisProjection:
                   np.broadcast_to(np.asarray(weights, dtype=float), (self.hi, self.ho)))
         self.mu_b = None if self.M is None else np.abs(self.M).max(axis=0)
         self.samples = {}
-        # the fit's cache (flakedb.rt.reuse) and the keyed groups of the basis, when both exist
+        # the fit's cache (flakedb.rt.adding.reuse) and the keyed groups of the basis, when both exist
         self.cache = active_cache() if parts else None
         self.parts = parts
         self.part_samples = {}
@@ -180,7 +180,7 @@ class _BasisProjection:
         return v
 
     def cached_coefficients(self, n):
-        """:meth:`coefficients` group by group (:attr:`flakedb.rt.media.KernelBasis.parts`): each group's
+        """:meth:`coefficients` group by group (:attr:`flakedb.rt.scattering.media.KernelBasis.parts`): each group's
         coefficients (B_g, Hi, Ho, n + 1) and its samples at φ_d = 0 and π (what :meth:`scale_of` reads) from
         the fit's cache, or computed (from this call's samples at n/2 where it has them) and kept there."""
         coeffs, ends = [], []

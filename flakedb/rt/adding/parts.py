@@ -14,13 +14,13 @@ and builds the inner interfaces.
 
 import numpy as np
 
-from flakedb.rt import interface as itf
-from flakedb.rt.channels import GroupView
-from flakedb.rt.components import InnerRough, InnerSmooth, Smooth
-from flakedb.rt.layer import Layer, direct_only_orders, extend_orders, homogeneous_slab
-from flakedb.rt.medium_projection import project_medium
-from flakedb.rt.microfacet import flux_cell_edges
-from flakedb.rt.quadrature import binder_chain_quadratures, radau_hemisphere
+from flakedb.rt.boundaries import interface as itf
+from flakedb.rt.adding.channels import GroupView
+from flakedb.rt.adding.components import InnerRough, InnerSmooth, Smooth
+from flakedb.rt.adding.layer import Layer, direct_only_orders, extend_orders, homogeneous_slab
+from flakedb.rt.scattering.medium_projection import project_medium
+from flakedb.rt.boundaries.microfacet import flux_cell_edges
+from flakedb.rt.basis.quadrature import binder_chain_quadratures, radau_hemisphere
 
 
 def order_range(b, l0, l1):
@@ -63,7 +63,7 @@ class SlabPart:
 
     def block(self, l0, l1, threads=1):
         """Layer of orders l0 … l1 − 1: the slab solved where the kernel has orders, the exact direct beam
-        beyond (:func:`flakedb.rt.layer.extend_orders`)."""
+        beyond (:func:`flakedb.rt.adding.layer.extend_orders`)."""
         q, sig, d, pk = self.q, self.sig, self.d, self.pk
         k1 = min(l1, pk.n_orders)
         if k1 <= l0:
@@ -82,7 +82,7 @@ class SlabPart:
 class SmoothInnerPart:
     """A smooth interface between the binders of rules ``q_a`` (above) and ``q_b`` (below), mapped
     node pairs ``ia`` ↔ ``ib``, relative index ``eta`` = n_below / n_above
-    (:func:`flakedb.rt.interface.smooth_inner`)."""
+    (:func:`flakedb.rt.boundaries.interface.smooth_inner`)."""
 
     n_orders = 0  # the same blocks in every order: it does not bound the stack's order count
 
@@ -123,7 +123,7 @@ class RoughInnerPart:
 
 
 def binder_chain(top, eta, slabs, q_out, s):
-    """The rules of every binder of the stack (:func:`flakedb.rt.quadrature.binder_chain_quadratures`,
+    """The rules of every binder of the stack (:func:`flakedb.rt.basis.quadrature.binder_chain_quadratures`,
     docs/model.md §4 "Inner interface"), top to bottom.  Under a smooth top the chain is anchored on the
     air's rule (the top binder's rule holds its Snell image); under a rough top on the Gauss–Radau rule
     of the least dense binder (the rough interface joins any two rules); without a top interface the
@@ -166,12 +166,12 @@ def near_matched(eta, alpha, q_a, q_b) -> dict | None:
     """Why a rough inner interface of relative index ``eta`` and Beckmann ``alpha`` between rules ``q_a``, ``q_b``
     is solved as a smooth one (a dict for ``info``), or None.  A nearly index-matched rough interface barely
     refracts: its transmitted lobe, α |1 − 1/η| wide, is far narrower than any node cell, and the flux-cell
-    integration that resolves it (sub-cells ∝ α |1 − 1/η|, :func:`flakedb.rt.microfacet.rough_dielectric_cells`)
+    integration that resolves it (sub-cells ∝ α |1 − 1/η|, :func:`flakedb.rt.boundaries.microfacet.rough_dielectric_cells`)
     grew without bound: 1.5 → 1.501 at α 0.03 asked for 110 GiB at n = 32, 1.406 → 1.404 at α 0.134 for 16 GB.
     Solved smooth, the transmission is the delta it is at this resolution (docs/model.md §4, "Inner interface"),
     and the reflection, ≤ :data:`NEAR_MATCH_FRESNEL` of the light, keeps its energy but becomes a mirror.
 
-    >>> from flakedb.rt.quadrature import radau_hemisphere
+    >>> from flakedb.rt.basis.quadrature import radau_hemisphere
     >>> q = radau_hemisphere(16)
     >>> bool(near_matched(1.501 / 1.5, 0.03, q, q)), near_matched(1.6 / 1.5, 0.1, q, q)
     (True, None)

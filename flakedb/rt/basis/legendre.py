@@ -10,7 +10,7 @@ and the addition theorem of spherical harmonics (e.g. Chandrasekhar 1960, §48; 
     P_k(cos Θ) = 4π/(2k + 1) [S_k^0(μ_i) S_k^0(μ_o) + 2 Σ_{m≥1} S_k^m(μ_i) S_k^m(μ_o) cos(m φ_d)],
 
 S_k^m(μ) = √((2k+1)/(4π) (k−m)!/(k+m)!) P_k^m(μ) the orthonormal associated Legendre functions
-(:func:`flakedb.rt.special.sph_legendre_all`, θ = arccos μ).  So the cosine-series coefficients of the
+(:func:`flakedb.rt.basis.special.sph_legendre_all`, θ = arccos μ).  So the cosine-series coefficients of the
 kernel σ_s p(cos Θ) on the quadrature nodes are, for order m,
 
     a_m(μ_i, μ_o) = c_m σ_s Σ_{k≥m} χ_k S_k^m(μ_i) S_k^m(μ_o),   c_0 = 1, c_m = 2,
@@ -18,7 +18,7 @@ kernel σ_s p(cos Θ) on the quadrature nodes are, for order m,
 a sum of products of functions of μ_i and of μ_o: no φ sampling, no DCT.  S_k^m(−μ) = (−1)^{k+m} S_k^m(μ)
 gives the reflection block.
 
-The moments of a tabulated p (linear interpolation in cos Θ, as :class:`flakedb.rt.media.PhaseMedium`
+The moments of a tabulated p (linear interpolation in cos Θ, as :class:`flakedb.rt.scattering.media.PhaseMedium`
 evaluates it) are exact: χ = 2π p @ Hᵀ with H[k, j] = ∫ hat_j(t) P_k(t) dt computed once per grid by
 per-segment Gauss–Legendre quadrature of degree ≥ k + 1 (:func:`hat_legendre_matrix`).  The series is
 truncated at the first K whose dropped tail Σ_{k>K} (2k+1)/(4π) |χ_k| is ≤ ``tol`` × Σ_k (2k+1)/(4π) |χ_k|
@@ -31,7 +31,7 @@ from functools import lru_cache
 import numpy as np
 from numpy.polynomial.legendre import leggauss
 
-from flakedb.rt.special import sph_legendre_all
+from flakedb.rt.basis.special import sph_legendre_all
 
 #: Truncation of the Legendre series (relative dropped tail, see the module docstring).
 LEGENDRE_TOL = 1e-6
@@ -97,7 +97,7 @@ def normalized_legendre(x, K, M):
 
 class LegendreKernel:
     """The projected kernel of σ_s p(cos Θ) on the nodes ``x`` (h,) by the addition theorem: the
-    :class:`flakedb.rt.projection.ProjectedKernel` interface (``n_orders``, ``channels``,
+    :class:`flakedb.rt.scattering.projection.ProjectedKernel` interface (``n_orders``, ``channels``,
     ``blocks(l0, l1)``, ``scale``) with the blocks formed on demand.
 
     ``chi`` (C, K + 1) the Legendre moments, ``sigma_s`` (C,) in 1/µm (the kernel is σ_s p, in
@@ -185,7 +185,7 @@ def legendre_moments_gauss(nodes, weights, values, tol=LEGENDRE_TOL, k_max=LEGEN
 
     The Henyey–Greenstein phase function has the moments χ_k = g^k, and its series gives it back:
 
-    >>> from flakedb.rt.microflake import phase_HG
+    >>> from flakedb.rt.scattering.microflake import phase_HG
     >>> t, w = np.polynomial.legendre.leggauss(64)
     >>> chi, info = legendre_moments_gauss(t, w, phase_HG(t, 0.5))
     >>> bool(np.allclose(chi[0, :6], 0.5 ** np.arange(6), rtol=0, atol=1e-12)), info["converged"]

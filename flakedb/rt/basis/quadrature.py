@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.polynomial.legendre import leggauss
 
-from flakedb.rt.special import gauss_jacobi
+from flakedb.rt.basis.special import gauss_jacobi
 
 
 def gauss_radau_unit(h):

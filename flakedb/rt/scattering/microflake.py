@@ -576,7 +576,7 @@ def _kernel_phi_bandwidth_Beckmann(alpha, mu_i, mu_o, eps=1e-6):
     this estimate does not cover: check convergence in the projector.  Returns int array of the
     broadcast shape of (mu_i, mu_o, alpha).
     """
-    from scipy.special import ive  # lazy: scipy.special takes 0.15 s to import (flakedb.rt.special); only this bandwidth estimate needs it
+    from scipy.special import ive  # lazy: scipy.special takes 0.15 s to import (flakedb.rt.basis.special); only this bandwidth estimate needs it
     alpha = _check_alpha(alpha)
     mu_i, mu_o, alpha = np.broadcast_arrays(np.asarray(mu_i, float), np.asarray(mu_o, float), alpha)
     s_i, s_o = _sines(mu_i), _sines(mu_o)
@@ -1074,7 +1074,7 @@ GGX_PHI_FACTOR = 2
 def _phi_samples_GGX(alpha):
     """First number of φ intervals for projecting a GGX flake kernel: :data:`GGX_PHI_FACTOR` × the
     Beckmann guess at the same α (capped at 2^20).  Only a first guess: the projection doubles the
-    samples until its coefficients converge (:func:`flakedb.rt.fourier.project_azimuthal`)."""
+    samples until its coefficients converge (:func:`flakedb.rt.basis.fourier.project_azimuthal`)."""
     return int(min(GGX_PHI_FACTOR * _phi_samples_Beckmann(alpha), 2**20))
 
 

@@ -4,12 +4,12 @@
     (:class:`Slab`, :class:`InnerSmooth`, :class:`InnerRough`) | bottom (:class:`Lambertian`,
     :class:`RoughConductor` or None)
 
-Plain parameter records, checked on construction; :func:`flakedb.rt.stack.solve_stack` solves them.
+Plain parameter records, checked on construction; :func:`flakedb.rt.adding.stack.solve_stack` solves them.
 """
 
 from dataclasses import dataclass
 
-from flakedb.rt.params import check_alpha, check_complex_index, check_range
+from flakedb.rt.adding.params import check_alpha, check_complex_index, check_range
 
 @dataclass
 class Smooth:
@@ -38,7 +38,7 @@ class Rough:
 
 @dataclass
 class Slab:
-    """A homogeneous slab of ``thickness_um`` holding ``medium`` (see :mod:`flakedb.rt.media`)."""
+    """A homogeneous slab of ``thickness_um`` holding ``medium`` (see :mod:`flakedb.rt.scattering.media`)."""
 
     thickness_um: float
     medium: object
@@ -52,7 +52,7 @@ class InnerSmooth:
     """A smooth interface between two slabs (docs/model.md §4 "Inner interface"): relative index
     ``eta`` = n_below / n_above (the binder below over the binder above; a rise > 1 or a fall < 1).
     Placed in the ``slabs`` list of :func:`solve_stack` between the slabs it separates; every binder
-    lives on its rule of :func:`flakedb.rt.quadrature.binder_chain_quadratures` (one node set on the
+    lives on its rule of :func:`flakedb.rt.basis.quadrature.binder_chain_quadratures` (one node set on the
     Snell invariant: the interface maps shared nodes one to one, lossless and reciprocal)."""
 
     eta: float
@@ -65,7 +65,7 @@ class InnerSmooth:
 class InnerRough:
     """A rough interface between two slabs: Beckmann roughness ``alpha`` > 0, relative index ``eta`` =
     n_below / n_above (a rise or a fall), by flux-cell integration between the two binders' rules
-    (:func:`flakedb.rt.interface.rough_dielectric`, docs/rough-interfaces.md, docs/model.md §4 "Inner
+    (:func:`flakedb.rt.boundaries.interface.rough_dielectric`, docs/rough-interfaces.md, docs/model.md §4 "Inner
     interface").  ``energy_compensation`` (default): lossless, with the multiple-scattering lobe; False:
     the single-scattering Walter et al. 2007 model.  Placed in ``slabs`` as :class:`InnerSmooth` is."""
 
@@ -146,14 +146,14 @@ class SolverSettings:
     order_tol: float | None = None
     #: Project kernels through their spectral basis (docs/projection.md); False samples every channel.
     kernel_basis: bool = True
-    #: How homogeneous slabs are solved (:func:`flakedb.rt.layer.homogeneous_slab`): "eigen", the exact
+    #: How homogeneous slabs are solved (:func:`flakedb.rt.adding.layer.homogeneous_slab`): "eigen", the exact
     #: eigen-solution of the discrete-ordinate equations (default), or "doubling" from a thin slice
     #: of optical thickness ``slice_tau`` (the fallback for non-reciprocal kernels).
     slab_method: str = "eigen"
-    #: Jackson-filter a medium kernel cut by the order cap (:func:`flakedb.rt.medium_projection.damp_if_capped`): its truncated
+    #: Jackson-filter a medium kernel cut by the order cap (:func:`flakedb.rt.scattering.medium_projection.damp_if_capped`): its truncated
     #: series rings negative otherwise.  False: plain truncation (order-convergence studies).
     filter_capped_kernels: bool = True
-    #: Threads over the (orders, channels) batch of the slab solvers (:func:`flakedb.rt.layer.double_symmetric`,
+    #: Threads over the (orders, channels) batch of the slab solvers (:func:`flakedb.rt.adding.layer.double_symmetric`,
     #: the eigen-solution); > 1 also builds a rough top in a background thread while the slabs are
     #: projected.  Compose sets the machine's core count.  BLAS itself runs one thread per call during a solve.
     threads: int = 1

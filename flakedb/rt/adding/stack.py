@@ -8,11 +8,11 @@ of Fourier orders, doubles the slabs and adds everything.  The result, :class:`S
 BSDF of the stack seen from above (and the transmission blocks when the stack is not opaque), the
 analytic delta term of a smooth top, and evaluates them.
 
-The concepts live in their own modules: the stack's parts and settings (:mod:`flakedb.rt.components`),
-the result (:mod:`flakedb.rt.stack_bsdf`), medium kernels (:mod:`flakedb.rt.medium_projection`), the
-body's slabs and inner interfaces as solver parts (:mod:`flakedb.rt.parts`), the specular paths and the
-pole (:mod:`flakedb.rt.specular`), the opaque order loop (:mod:`flakedb.rt.order_blocks`) and spectral
-channels (:mod:`flakedb.rt.channels`).  This module joins them; its names are the public interface.
+The concepts live in their own modules: the stack's parts and settings (:mod:`flakedb.rt.adding.components`),
+the result (:mod:`flakedb.rt.adding.stack_bsdf`), medium kernels (:mod:`flakedb.rt.scattering.medium_projection`), the
+body's slabs and inner interfaces as solver parts (:mod:`flakedb.rt.adding.parts`), the specular paths and the
+pole (:mod:`flakedb.rt.boundaries.specular`), the opaque order loop (:mod:`flakedb.rt.adding.order_blocks`) and spectral
+channels (:mod:`flakedb.rt.adding.channels`).  This module joins them; its names are the public interface.
 """
 
 import functools
@@ -21,8 +21,8 @@ from concurrent.futures import Future
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from flakedb.rt import interface as itf
-from flakedb.rt.channels import (
+from flakedb.rt.boundaries import interface as itf
+from flakedb.rt.adding.channels import (
     bottom_subset,
     bytes_per_channel,
     distinct_channels,
@@ -30,7 +30,7 @@ from flakedb.rt.channels import (
     n_channels,
     solve_in_channel_groups,
 )
-from flakedb.rt.components import (  # noqa: F401  (the public interface of the solver)
+from flakedb.rt.adding.components import (  # noqa: F401  (the public interface of the solver)
     ORDER_TOL,
     InnerRough,
     InnerSmooth,
@@ -41,28 +41,28 @@ from flakedb.rt.components import (  # noqa: F401  (the public interface of the 
     Smooth,
     SolverSettings,
 )
-from flakedb.rt.jobs import SharedJobs, thread_pool
-from flakedb.rt.layer import Layer, add, add_reflection_only, identity_layer, pad_orders
-from flakedb.rt.media import channel_subset
-from flakedb.rt.medium_projection import (  # noqa: F401
+from flakedb.rt.adding.jobs import SharedJobs, thread_pool
+from flakedb.rt.adding.layer import Layer, add, add_reflection_only, identity_layer, pad_orders
+from flakedb.rt.scattering.media import channel_subset
+from flakedb.rt.scattering.medium_projection import (  # noqa: F401
     CAPPED_TAIL,
     DampedKernel,
     legendre_moments,
     medium_kernel_blocks,
     project_medium,
 )
-from flakedb.rt.order_blocks import FIRST_ORDER_BLOCK, OrderBlocks  # noqa: F401
-from flakedb.rt.orders import reflection_over
-from flakedb.rt.parts import SmoothInnerPart, binder_chain, build_parts, layer_orders, near_matched
-from flakedb.rt.quadrature import default_tir_nodes, radau_hemisphere
-from flakedb.rt.specular import pole_index, smoothed_specular, specular_reflection, under_smooth, zero_pole_orders
-from flakedb.rt.stack_bsdf import StackBSDF  # noqa: F401
+from flakedb.rt.adding.order_blocks import FIRST_ORDER_BLOCK, OrderBlocks  # noqa: F401
+from flakedb.rt.adding.orders import reflection_over
+from flakedb.rt.adding.parts import SmoothInnerPart, binder_chain, build_parts, layer_orders, near_matched
+from flakedb.rt.basis.quadrature import default_tir_nodes, radau_hemisphere
+from flakedb.rt.boundaries.specular import pole_index, smoothed_specular, specular_reflection, under_smooth, zero_pole_orders
+from flakedb.rt.adding.stack_bsdf import StackBSDF  # noqa: F401
 
 #: Memory the solver may use for one group of spectral channels (bytes); channels are independent,
 #: so a large problem is solved in groups of channels that fit (``SolverSettings.memory_budget_bytes``
 #: overrides; compose takes it from ``$FLAKEDB_MEMORY_BUDGET``).
 MEMORY_BUDGET_BYTES = 4 * 2**30
-#: The solver's stated peak-memory estimate per channel (:func:`flakedb.rt.channels.bytes_per_channel`).
+#: The solver's stated peak-memory estimate per channel (:func:`flakedb.rt.adding.channels.bytes_per_channel`).
 _bytes_per_channel = bytes_per_channel
 
 
@@ -75,7 +75,7 @@ def solve_stack(top, slabs, bottom, settings=None, channels=None):
     of the binder's index).  ``channels``: number of spectral channels (inferred from the components
     when None).
 
-    Channels are independent: when the estimated memory (:func:`flakedb.rt.channels.bytes_per_channel`)
+    Channels are independent: when the estimated memory (:func:`flakedb.rt.adding.channels.bytes_per_channel`)
     of all of them together exceeds the budget (``settings.memory_budget_bytes``, default
     ``MEMORY_BUDGET_BYTES``), the channels are solved in groups and the results joined (orders padded
     to the largest count).
@@ -83,7 +83,7 @@ def solve_stack(top, slabs, bottom, settings=None, channels=None):
     A lossless stack (a non-absorbing forward-scattering slab over a white primer, under a smooth coat)
     reflects all the light at every incidence; an absorbing slab does not:
 
-    >>> from flakedb.rt.media import PhaseMedium
+    >>> from flakedb.rt.scattering.media import PhaseMedium
     >>> coat, primer, s = Smooth(1.5), Lambertian(1.0), SolverSettings(n=16)
     >>> lossless = solve_stack(coat, [Slab(10.0, PhaseMedium(0.5, 1.0, ("hg", 0.7)))], primer, s)
     >>> grey = solve_stack(coat, [Slab(10.0, PhaseMedium(0.5, 0.8, ("hg", 0.7)))], primer, s)
@@ -119,7 +119,7 @@ def _solve_stack_grouped(top, slabs, bottom, s, channels):
 
 
 def _submit(n_threads, fn, /, *args, **kw):
-    """``fn(*args, **kw)`` in the background thread (:func:`flakedb.rt.jobs.thread_pool` "flakedb-solve") when
+    """``fn(*args, **kw)`` in the background thread (:func:`flakedb.rt.adding.jobs.thread_pool` "flakedb-solve") when
     ``n_threads`` > 1, else now; a future either way."""
     if int(n_threads) <= 1:
         done = Future()
@@ -129,8 +129,8 @@ def _submit(n_threads, fn, /, *args, **kw):
 
 
 class _RoughBuild:
-    """One rough top's :func:`flakedb.rt.interface.rough_dielectric` ``(layer, info)``, submitted (:func:`_submit`)
-    when made.  Its independent parts are :class:`flakedb.rt.jobs.SharedJobs` (``parts``) that other threads may
+    """One rough top's :func:`flakedb.rt.boundaries.interface.rough_dielectric` ``(layer, info)``, submitted (:func:`_submit`)
+    when made.  Its independent parts are :class:`flakedb.rt.adding.jobs.SharedJobs` (``parts``) that other threads may
     take.  The background thread is shared by every solve of the process, so a build can wait in its queue behind
     another solve's (compose's discretisation solve, submitted first): :meth:`layer` then builds it in the asking
     thread instead.  Each part is a pure function of its arguments: the layer is the same bit for bit whichever
@@ -161,10 +161,10 @@ class _RoughBuild:
 
 class _Top:
     """The top interface of one solve: None, a smooth top's layer (``smooth1``) and delta, or a rough top
-    built (in the background with threads > 1) by :func:`flakedb.rt.interface.rough_dielectric`, shared
+    built (in the background with threads > 1) by :func:`flakedb.rt.boundaries.interface.rough_dielectric`, shared
     through ``top_cache`` by channel groups (read only, never written in place).
 
-    The background build's independent parts are :class:`flakedb.rt.jobs.SharedJobs`: the background thread
+    The background build's independent parts are :class:`flakedb.rt.adding.jobs.SharedJobs`: the background thread
     takes them in order while the main thread solves the body's first orders (on threads − 1 threads), and the
     main thread, once it needs the top, takes those not yet started (:meth:`rough_layer`, with threads − 2
     workers) instead of waiting idle, or builds the whole top when the background thread has not reached it
@@ -218,10 +218,10 @@ class _Top:
 
 def inner_interface_verdicts(top, inner, n) -> list:
     """The solver's own verdict on each inner interface of a stack solved at ``n`` nodes (product settings):
-    for an :class:`InnerRough` solved as a smooth one, :func:`flakedb.rt.parts.near_matched`'s dict, else None
+    for an :class:`InnerRough` solved as a smooth one, :func:`flakedb.rt.adding.parts.near_matched`'s dict, else None
     (an :class:`InnerSmooth` or None entry gives None).  ``inner``: the inner interfaces top to bottom (None
     entries skipped; other items of a slab list ignored).  Cheap: only the binder chain's rules are built, so
-    the resolution (:mod:`flakedb.solve.resolution`) asks the very test :func:`flakedb.rt.parts.build_parts`
+    the resolution (:mod:`flakedb.solve.resolution`) asks the very test :func:`flakedb.rt.adding.parts.build_parts`
     applies.
 
     >>> inner_interface_verdicts(Smooth(1.5), [InnerRough(1.501 / 1.5, 0.03)], 32)[0]["solved_as"]
@@ -287,7 +287,7 @@ def _solve_stack(top, slabs, bottom, s, top_cache=None):
         return min(max([L_top] + L_rest), s.order_cap)
 
     # the never-scattered paths (a smooth inner interface's mirror seen through a smooth top or none):
-    # taken out before the order choice, put back as a Jackson-smoothed series (flakedb.rt.specular)
+    # taken out before the order choice, put back as a Jackson-smoothed series (flakedb.rt.boundaries.specular)
     Rs = None if isinstance(top, Rough) or not smooth_inside else specular_reflection(
         parts, lambda R: tp.over()(R, 0, 1))
     if bottom is not None and s.order_tol is not None:
@@ -314,8 +314,8 @@ def _top_alpha(top) -> float:
 
 def _with_specular(Rt, Rs, info, q_out):
     """The scattered R^t (L, C, h, h) plus the specular matrix as a Jackson-smoothed series of the same
-    L orders (:func:`flakedb.rt.specular.smoothed_specular`), with the pole's orders l ≥ 1 zero
-    (:func:`flakedb.rt.specular.zero_pole_orders`; a copy first where R^t is a read-only view)."""
+    L orders (:func:`flakedb.rt.boundaries.specular.smoothed_specular`), with the pole's orders l ≥ 1 zero
+    (:func:`flakedb.rt.boundaries.specular.zero_pole_orders`; a copy first where R^t is a read-only view)."""
     L = Rt.shape[0]
     if Rs is not None:
         Rt = Rt + smoothed_specular(Rs, L)

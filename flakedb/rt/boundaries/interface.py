@@ -1,7 +1,7 @@
 """Interfaces and boundaries as scattering matrices (docs/model.md §4).
 
 * :func:`smooth_dielectric` — the smooth interface handled exactly: the inside quadrature is the
-  Snell image of the outside one (:func:`flakedb.rt.quadrature.snell_mapped_quadrature`), so
+  Snell image of the outside one (:func:`flakedb.rt.basis.quadrature.snell_mapped_quadrature`), so
   refraction maps node j outside to node j inside with weight 1 − F, internal reflection is
   diagonal (F, and 1 in the totally internally reflected range), all in every Fourier order (a
   delta in φ_d has every order).  The first-surface mirror reflection F(θ_i) is *not* put in the
@@ -10,7 +10,7 @@
 * :func:`rough_dielectric` — a Beckmann microfacet dielectric (Walter et al. 2007, with the exact
   Smith shadowing), reflection and transmission both ways including total internal reflection,
   integrated over the nodes' flux cells so that it carries exactly the continuous BSDF's energy
-  and reciprocity at any n (:mod:`flakedb.rt.microfacet`, docs/rough-interfaces.md).
+  and reciprocity at any n (:mod:`flakedb.rt.boundaries.microfacet`, docs/rough-interfaces.md).
   :func:`rough_dielectric_point_sampled` is the former node-sampled projection, kept as the
   "before" of the comparison (it creates energy once the lobe is narrower than the node spacing).
 * :func:`rough_conductor` — a Beckmann microfacet conductor at the bottom of the stack.
@@ -23,9 +23,9 @@ import numpy as np
 
 from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_dielectric, fresnel_dielectric_real
-from flakedb.rt.fourier import project_azimuthal
-from flakedb.rt.layer import Layer, pad_orders
-from flakedb.rt.microfacet import rough_conductor_cells, rough_dielectric_cells, smith_G1
+from flakedb.rt.basis.fourier import project_azimuthal
+from flakedb.rt.adding.layer import Layer, pad_orders
+from flakedb.rt.boundaries.microfacet import rough_conductor_cells, rough_dielectric_cells, smith_G1
 
 
 def smooth_dielectric(q_out, q_in, eta, L):
@@ -137,15 +137,15 @@ def _bsdf_block(fn, x_in, w_in, x_out, w_out, tol, n_start, max_orders):
 def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512, energy_compensation=True, inner_orders=None,
                      threads=1, jobs=None):
     """Rough dielectric interface (Beckmann α, relative index η) as a :class:`Layer`, by flux-cell
-    integration (:func:`flakedb.rt.microfacet.rough_dielectric_cells`): every column of order 0
+    integration (:func:`flakedb.rt.boundaries.microfacet.rough_dielectric_cells`): every column of order 0
     carries the continuous BSDF's directional albedo, the blocks are reciprocal, and as α → 0 it
     tends to the smooth interface.  ``q_out`` is the rule above (air, or the binder above an inner
     interface), ``q_in`` the rule below; they may differ (the cells integrate between any two rules).
     ``eta`` = n_below / n_above, > 1 or < 1.
     ``energy_compensation``: add the reciprocal multiple-scattering lobe (lossless interface,
-    :func:`flakedb.rt.microfacet.dielectric_compensation`).  ``inner_orders``: T^tb, R^b and T^bt
-    only below that order (:func:`flakedb.rt.microfacet.rough_dielectric_cells`).  ``threads``, ``jobs``: the
-    threads its independent parts run on, a :class:`flakedb.rt.jobs.SharedJobs` other threads may help
+    :func:`flakedb.rt.boundaries.microfacet.dielectric_compensation`).  ``inner_orders``: T^tb, R^b and T^bt
+    only below that order (:func:`flakedb.rt.boundaries.microfacet.rough_dielectric_cells`).  ``threads``, ``jobs``: the
+    threads its independent parts run on, a :class:`flakedb.rt.adding.jobs.SharedJobs` other threads may help
     (bit-identical either way).  Returns ``(layer, info)``.
     """
     same = q_in.h == q_out.h and np.array_equal(q_in.x, q_out.x) and np.array_equal(q_in.w, q_out.w)
@@ -159,14 +159,14 @@ def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512, energy_c
 def rough_conductor(q, eta_complex, alpha, tol=1e-5, max_orders=512, energy_compensation=True):
     """Rough conductor (Beckmann α, complex index relative to the binder above, scalar or (C,)) at
     the bottom of the stack: reflection only, by flux-cell integration
-    (:func:`flakedb.rt.microfacet.rough_conductor_cells`).  Returns ``(Rt, info)``, Rt (L, C, h, h)."""
+    (:func:`flakedb.rt.boundaries.microfacet.rough_conductor_cells`).  Returns ``(Rt, info)``, Rt (L, C, h, h)."""
     return rough_conductor_cells(q.x, q.w, eta_complex, alpha, tol=tol, max_orders=max_orders,
                                  energy_compensation=energy_compensation)
 
 
 def rough_dielectric_point_sampled(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512):
     """The former discretisation: the BSDF sampled at the node pairs and projected on the cosine
-    series (:func:`flakedb.rt.fourier.project_azimuthal`).  Wrong once the lobe is narrower than
+    series (:func:`flakedb.rt.basis.fourier.project_azimuthal`).  Wrong once the lobe is narrower than
     the node spacing (energy created or lost); kept for comparison.  Returns ``(layer, info)``.
     """
     n_start = int(max(16, 2 ** np.ceil(np.log2(4.0 / alpha))))
@@ -204,7 +204,7 @@ def lambertian(q, albedo, L):
 def smooth_inner(q_above, q_below, ia, ib, eta_rel, L):
     """Smooth interface *between two slabs* (docs/model.md §4 "Inner interface"), relative index
     ``eta_rel`` = n_below / n_above (a rise > 1 or a fall < 1), on the rules of
-    :func:`flakedb.rt.quadrature.binder_chain_quadratures` (mapped pairs ``ia`` ↔ ``ib``: the nodes of equal
+    :func:`flakedb.rt.basis.quadrature.binder_chain_quadratures` (mapped pairs ``ia`` ↔ ``ib``: the nodes of equal
     Snell invariant; the others are totally reflected on their side).  Unlike the top, its mirror reflection is inside the stack, so it is
     in the matrix: R^t = diag(F_a), R^b = diag(F_b) (1 where no partner: total internal reflection),
     T^tb[ib, ia] = 1 − F_a[ia], T^bt = (T^tb)ᵀ, in every Fourier order (a delta in φ_d).

@@ -6,10 +6,10 @@ the order cap."""
 
 import numpy as np
 
-from flakedb.rt.legendre import LegendreKernel
-from flakedb.rt.media import kernel_basis
-from flakedb.rt.microfacet import jackson_factors
-from flakedb.rt.projection import RESIDENT_ORDERS, ProjectedKernel, project_kernel_basis
+from flakedb.rt.basis.legendre import LegendreKernel
+from flakedb.rt.scattering.media import kernel_basis
+from flakedb.rt.boundaries.microfacet import jackson_factors
+from flakedb.rt.scattering.projection import RESIDENT_ORDERS, ProjectedKernel, project_kernel_basis
 
 #: φ samples of a kernel projection at most, per order of the cap 2n (and at least 128).  It was 2 (4n samples:
 #: where the cap binds, aliasing from orders ≥ 2L far below the truncation): metallic silver at n = 128 then
@@ -22,7 +22,7 @@ PHI_SAMPLES_PER_ORDER = 0.5
 
 def legendre_moments(medium, tol):
     """The medium's Legendre moments when its kernel is σ_s times an HG, vMF or tabulated phase
-    function (:meth:`flakedb.rt.media.PhaseMedium.legendre_moments`), else None."""
+    function (:meth:`flakedb.rt.scattering.media.PhaseMedium.legendre_moments`), else None."""
     fn = getattr(medium, "legendre_moments", None)
     return None if fn is None else fn(tol)
 
@@ -44,11 +44,11 @@ def medium_kernel_blocks(medium, x, w, tol, max_orders, renormalize=True, basis=
 
 
 def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True, filter_capped=True):
-    """A medium's kernel projected on the cosine series: a :class:`flakedb.rt.projection.ProjectedKernel`
+    """A medium's kernel projected on the cosine series: a :class:`flakedb.rt.scattering.projection.ProjectedKernel`
     (K_T, K_R blocks of any orders on demand) and the projection info.
 
     With ``basis`` (default) the kernel is projected through its spectral basis
-    (:func:`flakedb.rt.media.kernel_basis`, docs/projection.md): B basis kernels are sampled and
+    (:func:`flakedb.rt.scattering.media.kernel_basis`, docs/projection.md): B basis kernels are sampled and
     transformed once and the C channels combined from them, with the adaptive criteria applied to
     the channels exactly as before; ``basis=False`` samples every channel's kernel (the previous path;
     the same coefficients to rounding, tested).
@@ -60,8 +60,8 @@ def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True, 
     otherwise creates or destroys energy; the scale factors' spread is reported in ``info``
     (``renorm_max_dev``) and tested.
 
-    >>> from flakedb.rt.media import PhaseMedium
-    >>> from flakedb.rt.quadrature import gauss_radau_unit
+    >>> from flakedb.rt.scattering.media import PhaseMedium
+    >>> from flakedb.rt.basis.quadrature import gauss_radau_unit
     >>> x, w = gauss_radau_unit(4)
     >>> pk, info = project_medium(PhaseMedium(2.0, 0.9, ("hg", 0.6)), x, w, 1e-6, 16)
     >>> K_T, K_R = pk.blocks(0, pk.n_orders)
@@ -75,7 +75,7 @@ def project_medium(medium, x, w, tol, max_orders, renormalize=True, basis=True, 
     # kept orders is far below the truncation itself
     n_max = max(int(PHI_SAMPLES_PER_ORDER * max_orders), 128)
     n_start = min(max(4, _component_orders_hint(medium)), n_max)
-    if hasattr(medium, "projected_kernel"):  # precomputed factors (flakedb.rt.stored): no projection here
+    if hasattr(medium, "projected_kernel"):  # precomputed factors (flakedb.rt.scattering.stored): no projection here
         pk, info = medium.projected_kernel(
             x, max_orders, lambda m: project_medium(m, x, w, tol, max_orders, renormalize=False, basis=basis,
                                                     filter_capped=False))
@@ -178,7 +178,7 @@ def damp_if_capped(pk, info, max_orders):
     truncated cosine series goes negative (perfect mirror flakes α 0.15 in air at n = 32: the BSDF
     reaches −3.5 % of its maximum).  Like the rough interfaces (docs/rough-interfaces.md,
     "Positivity"), it is then smoothed in φ by the Jackson kernel's factors
-    (:func:`flakedb.rt.microfacet.jackson_factors`): a positive convolution ≈ π/L wide that keeps
+    (:func:`flakedb.rt.boundaries.microfacet.jackson_factors`): a positive convolution ≈ π/L wide that keeps
     order 0 (energy, the renormalisation) and reciprocity.  Decided from the blocks alone, so the
     store's factors and the direct projection are treated alike."""
     L = pk.n_orders

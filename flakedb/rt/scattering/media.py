@@ -10,15 +10,15 @@ A medium component provides
 * ``phi_bandwidth`` — a first guess of the number of φ intervals the kernel needs (the projection
   refines it adaptively),
 
-and is symmetric under z → −z (the solver relies on it, see :func:`flakedb.rt.layer.thin_slab_diamond`).
+and is symmetric under z → −z (the solver relies on it, see :func:`flakedb.rt.adding.layer.thin_slab_diamond`).
 """
 
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from flakedb.rt.legendre import LEGENDRE_K_MAX, LEGENDRE_TOL, legendre_moments, truncate_legendre
-from flakedb.rt.microflake import (
+from flakedb.rt.basis.legendre import LEGENDRE_K_MAX, LEGENDRE_TOL, legendre_moments, truncate_legendre
+from flakedb.rt.scattering.microflake import (
     FlakeOptics,
     extinction_Ergun,
     flake_distribution,
@@ -29,8 +29,8 @@ from flakedb.rt.microflake import (
     scattering_Ergun,
     table_basis,
 )
-from flakedb.rt.params import check_range
-from flakedb.rt.reuse import array_key
+from flakedb.rt.adding.params import check_range
+from flakedb.rt.adding.reuse import array_key
 
 
 def cos_scattering_angle(mu_i, mu_o, phi_d):
@@ -121,7 +121,7 @@ def vmf_legendre_moments(kappa, K):
     cancel in the ratio), so it neither overflows for large κ (tested to κ = 2000) nor needs
     ``spherical_in`` (which overflows beyond κ ≈ 700); κ = 0 gives (1, 0, 0, …).  The moments
     decay like exp(−k(k + 1)/(2κ)) for large κ.  docs/model.md §3."""
-    from scipy.special import ive  # lazy: scipy.special takes 0.15 s to import (flakedb.rt.special); only von Mises–Fisher needs it
+    from scipy.special import ive  # lazy: scipy.special takes 0.15 s to import (flakedb.rt.basis.special); only von Mises–Fisher needs it
     k = np.atleast_1d(np.asarray(kappa, dtype=float))
     if np.any(~(k >= 0.0)) or np.any(~np.isfinite(k)):
         raise ValueError(f"vMF moments need a finite kappa >= 0, got {kappa!r}")
@@ -135,8 +135,8 @@ def vmf_legendre_moments(kappa, K):
 
 def vmf_legendre_degree(kappa, tol=LEGENDRE_TOL, k_max=LEGENDRE_K_MAX):
     """The Legendre degree K at which the vMF series' relative dropped tail is ≤ ``tol``
-    (:func:`flakedb.rt.legendre.truncate_legendre`) for every κ in ``kappa``; the kernel has no
-    azimuthal order above it (addition theorem, :mod:`flakedb.rt.legendre`)."""
+    (:func:`flakedb.rt.basis.legendre.truncate_legendre`) for every κ in ``kappa``; the kernel has no
+    azimuthal order above it (addition theorem, :mod:`flakedb.rt.basis.legendre`)."""
     k = np.atleast_1d(np.asarray(kappa, dtype=float))
     K = 64
     while True:
@@ -238,12 +238,12 @@ class PhaseMedium:
 
     def legendre_moments(self, tol=LEGENDRE_TOL):
         """``(χ, info)``: the Legendre moments (C, K + 1) of the phase function, truncated at the
-        relative tail ``tol`` (:func:`flakedb.rt.legendre.truncate_legendre`): χ_k = g^k for HG (its
+        relative tail ``tol`` (:func:`flakedb.rt.basis.legendre.truncate_legendre`): χ_k = g^k for HG (its
         generating function, Henyey & Greenstein 1941), :func:`vmf_legendre_moments` for vMF, the exact
-        moments of the linear interpolant for a table (:func:`flakedb.rt.legendre.legendre_moments`).
+        moments of the linear interpolant for a table (:func:`flakedb.rt.basis.legendre.legendre_moments`).
         None for the isotropic phase function, or when the series needs more than ``LEGENDRE_K_MAX``
         degrees (HG with |g| → 1, a very sharp forward peak).  The kernel then follows from the
-        addition theorem with no azimuthal sampling (:class:`flakedb.rt.legendre.LegendreKernel`;
+        addition theorem with no azimuthal sampling (:class:`flakedb.rt.basis.legendre.LegendreKernel`;
         docs/model.md §3)."""
         if self.phase == "isotropic" or self.phase[0] not in ("hg", "vmf", "table"):
             return None
@@ -376,11 +376,11 @@ FLAKE_BASIS_RTOL = 1e-7
 @dataclass
 class FlakeMedium:
     """Translucent micro-flakes (paper eq. 2, docs/model.md §3): orientation spread ``alpha`` of the
-    flake-normal density ``distribution`` (a key of :data:`flakedb.rt.microflake.FLAKE_DISTRIBUTIONS`:
-    "beckmann", paper eq. 5, or "ggx"), flake optics :class:`flakedb.rt.microflake.FlakeOptics`
+    flake-normal density ``distribution`` (a key of :data:`flakedb.rt.scattering.microflake.FLAKE_DISTRIBUTIONS`:
+    "beckmann", paper eq. 5, or "ggx"), flake optics :class:`flakedb.rt.scattering.microflake.FlakeOptics`
     (R(c), T(c) per channel) and loading ``a_rho_per_um`` (flake area per volume, 1/µm).  σ_t(μ) is
-    the accurate 1-D integral of :func:`flakedb.rt.microflake.extinction_Ergun`; the kernel is
-    :func:`flakedb.rt.microflake.kernel_Ergun`.
+    the accurate 1-D integral of :func:`flakedb.rt.scattering.microflake.extinction_Ergun`; the kernel is
+    :func:`flakedb.rt.scattering.microflake.kernel_Ergun`.
     """
 
     alpha: float
@@ -417,7 +417,7 @@ class FlakeMedium:
 
     def kernel_basis(self):
         """The kernel (aρ/2) R(c) D(h) is linear in R(c) and in the loading aρ (paper eq. 2): R's table (C, nc)
-        factored as M @ V (truncated SVD, :func:`flakedb.rt.microflake.table_basis`), basis kernels
+        factored as M @ V (truncated SVD, :func:`flakedb.rt.scattering.microflake.table_basis`), basis kernels
         (1/2) V_b(c) D(h) per unit aρ with the geometry c, D(h) computed once for all rows, and aρ in the
         combination aρ M (so the basis is the same at every loading: :attr:`KernelBasis.parts`)."""
         M, V = table_basis(self.optics.R, rtol=FLAKE_BASIS_RTOL)
@@ -486,7 +486,7 @@ class KernelBasis:
     ``parts``: the basis as consecutive groups of basis kernels, ``((key, fn_part, width), …)``, each
     ``key`` a hashable identity of ``fn_part`` (everything its values depend on, never a loading: the
     loading sits in M), so that a fit's evaluations can reuse each group's projection
-    (:mod:`flakedb.rt.reuse`); None where the basis states no identity."""
+    (:mod:`flakedb.rt.adding.reuse`); None where the basis states no identity."""
 
     fn: object
     M: np.ndarray

@@ -4,16 +4,16 @@ the slabs' kernel projections and a rough top.  Channels are independent: the re
 
 import numpy as np
 
-from flakedb.rt.components import InnerRough, InnerSmooth, Lambertian, RoughConductor, Slab
-from flakedb.rt.media import channel_key, channel_subset
-from flakedb.rt.medium_projection import DampedKernel, project_medium
-from flakedb.rt.projection import ProjectedKernel
-from flakedb.rt.stack_bsdf import StackBSDF
+from flakedb.rt.adding.components import InnerRough, InnerSmooth, Lambertian, RoughConductor, Slab
+from flakedb.rt.scattering.media import channel_key, channel_subset
+from flakedb.rt.scattering.medium_projection import DampedKernel, project_medium
+from flakedb.rt.scattering.projection import ProjectedKernel
+from flakedb.rt.adding.stack_bsdf import StackBSDF
 
 def n_channels(slabs, bottom):
     """Largest channel count among the media (σ_t at one node) and the primer's albedo.
 
-    >>> from flakedb.rt.components import Lambertian
+    >>> from flakedb.rt.adding.components import Lambertian
     >>> n_channels([], Lambertian([0.2, 0.5, 1.0])), n_channels([], Lambertian(0.5)), n_channels([], None)
     (3, 1, 1)
     """
@@ -110,7 +110,7 @@ def distinct_channels(slabs, bottom, C):
     """``(first, inverse)`` when some of the stack's C channels scatter identically: ``first`` (U,) the
     first channel of each distinct kind, ``inverse`` (C,) the kind of every channel (channels in the
     order of first appearance).  None when every channel differs, or when a medium does not state its
-    per-channel parameters (:func:`flakedb.rt.media.channel_key`).  Channels are compared through every
+    per-channel parameters (:func:`flakedb.rt.scattering.media.channel_key`).  Channels are compared through every
     per-channel input (media, primer albedo, conductor index): equal inputs give equal outputs, so a
     grey stack in RGB is solved once (docs/model.md §4, "Channels")."""
     if C <= 1:
@@ -167,7 +167,7 @@ def solve_in_channel_groups(solve, top, slabs, bottom, s, C, group):
     result as soon as it is solved (orders beyond a group's own count are zero).  The groups share the
     slabs' projections and a rough top: the interface does not depend on the channels, so it is built
     once (it took 0.3 s per group at n = 200, 9 groups for 41 bands).  ``solve(top, slabs, bottom, s,
-    top_cache=)`` solves one group (:func:`flakedb.rt.stack.solve_stack`'s single-group solver)."""
+    top_cache=)`` solves one group (:func:`flakedb.rt.adding.stack.solve_stack`'s single-group solver)."""
     shared = [None if isinstance(sl, (InnerSmooth, InnerRough)) else SharedProjection(sl.medium) for sl in slabs]
     top_cache = {}
     out, infos, meta, L = {}, [], None, 0
