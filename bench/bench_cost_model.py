@@ -20,7 +20,7 @@ from threadpoolctl import threadpool_limits
 from flakedb.paint.mapping import build_paint, solve_paint
 from flakedb.paint.recipe import load_recipe
 from flakedb.rt.basis.fourier import cosine_coefficients
-from flakedb.rt.adding.layer import eigen_slab
+from flakedb.rt.basis.layer import eigen_slab
 from flakedb.rt.basis.legendre import LegendreKernel
 from flakedb.rt.scattering.media import kernel_basis
 from flakedb.rt.scattering.medium_projection import PHI_SAMPLES_PER_ORDER, legendre_moments
@@ -55,7 +55,7 @@ EIGEN_BATCH_MAX, EIGEN_BATCH_ELEMENTS = 512, 4_000_000
 
 
 def _eigen_s(h, L=4, C=8):
-    """CPU seconds of the slab's eigen-solution (:func:`flakedb.rt.adding.layer.eigen_slab`: a Cholesky, one ``eigh``, three
+    """CPU seconds of the slab's eigen-solution (:func:`flakedb.rt.basis.layer.eigen_slab`: a Cholesky, one ``eigh``, three
     solves and products) per (order, channel) at h nodes, one BLAS thread, best of seven: ``eigh`` runs far
     below the LU rate of :func:`_rate_flops`, so the slab is timed on its own kernel rather than counted in flops.
     ``L``, ``C``: the solve's own orders and channels (one batch, as the solve runs them: a batch of 32 small

@@ -14,7 +14,7 @@ recovered parameters.
 
 ``fit/…`` (issue 39 item 1): the three fits of bench/fit_cases.py — three loadings free, the flakes' orientation
 α, a two-panel calibrate — each as two whole processes in turn, today's path (every evaluation computes every
-species' optics and projection) and the product's (the fit's reuse cache, :mod:`flakedb.rt.adding.reuse`), with the
+species' optics and projection) and the product's (the fit's reuse cache, :mod:`flakedb.rt.common.reuse`), with the
 ratio today / reuse of the pair.  Each pair takes minutes on 2 cores (timed once: ``--long``).
 """
 

@@ -6,9 +6,9 @@
   projection.  The row records both times and their ratio, measured back to back.
 * Rough coat (Beckmann 0.1, η 1.5) / HG slab (g 0.7, albedo 0.95, τ 2) / Lambertian 0.5, RGB, n = 200:
   the solve with the rough interface built beforehand (its construction is excluded).
-* The doubling loop (:func:`flakedb.rt.adding.layer.double_symmetric`) in GFLOP/s against a batched matmul
+* The doubling loop (:func:`flakedb.rt.basis.layer.double_symmetric`) in GFLOP/s against a batched matmul
   of the same matrices in the same run.
-* Homogeneous slabs: the eigen-solution (:func:`flakedb.rt.adding.layer.eigen_slab`, the default) against
+* Homogeneous slabs: the eigen-solution (:func:`flakedb.rt.basis.layer.eigen_slab`, the default) against
   diamond start + doubling from a 2⁻⁷ slice, same kernels, back to back; max |ΔR|, |ΔT| relative.
 """
 
@@ -18,7 +18,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from flakedb.rt.adding import stack as st
-from flakedb.rt.adding.layer import double_symmetric, homogeneous_slab
+from flakedb.rt.basis.layer import double_symmetric, homogeneous_slab
 from flakedb.rt.scattering.media import FlakeMedium, Mixture, PhaseMedium
 from flakedb.rt.scattering.microflake import FlakeOptics
 from flakedb.rt.basis.quadrature import default_tir_nodes, radau_hemisphere, snell_mapped_quadrature

@@ -1,5 +1,5 @@
 """The fits of issue 39 item 1 as whole processes: a 3-loading match, an orientation-α fit and a 2-panel calibrate,
-each with the fit's reuse cache (:mod:`flakedb.rt.adding.reuse`, the product's path) or without it (``--today``: every
+each with the fit's reuse cache (:mod:`flakedb.rt.common.reuse`, the product's path) or without it (``--today``: every
 evaluation computes every species' optics and projection afresh, the path before the cache).
 
     python bench/fit_cases.py prepare DIR            # the base recipes, targets and ladder (true recipes composed)

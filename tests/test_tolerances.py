@@ -85,7 +85,7 @@ def test_sum_bound_and_adding_bound_hold():
     b = tol.sum_tol(1000, np.abs(x) @ np.abs(y), evaluations=1)
     assert np.all(np.abs(got - ref).astype(float) <= b)
 
-    from flakedb.rt.adding.layer import Layer, add_reflection_only
+    from flakedb.rt.basis.layer import Layer, add_reflection_only
 
     h = 12
     top = Layer(*(0.4 * rng.random((2, 3, h, h)) / h for _ in range(4)))

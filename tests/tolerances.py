@@ -95,7 +95,7 @@ def solve_tol(A, X, evaluations: int = 2, extra_ops: int = 0) -> np.ndarray:
 
 def adding_tol(top, R2, evaluations: int = 2) -> np.ndarray:
     """Elementwise bound of the adding equation's top reflection R = Rt + Tbt R2 (I − Rb R2)⁻¹ Ttb
-    of ``top`` (a Layer: .Rt, .Ttb, .Rb, .Tbt) over a reflection R2 (paper eq. 4, flakedb.rt.adding.layer.add,
+    of ``top`` (a Layer: .Rt, .Ttb, .Rb, .Tbt) over a reflection R2 (paper eq. 4, flakedb.rt.basis.layer.add,
     add_reflection_only, flakedb.rt.adding.orders), to first order in u: forming
     A = I − Rb R2 errs by γ_{h+1}(I + |Rb||R2|) (eq. 3.13 and one subtraction), the solve X = A⁻¹ Ttb by
     :func:`solve_tol`'s γ_{3h} |A⁻¹| P|L||U| |X| plus |A⁻¹| δA |X|, and R = Rt + Tbt (R2 X) by

@@ -29,7 +29,7 @@ from flakedb.bsdf.limits import (
 )
 from flakedb.bsdf.metadata import check_delta, check_known_metadata
 from flakedb.bsdf.table import BSDFFileError, BSDFTable
-from flakedb.rt.adding.jobs import thread_pool
+from flakedb.rt.common.jobs import thread_pool
 from flakedb.safeio import check_regular
 
 #: An HDF5 file's first eight bytes.

@@ -30,7 +30,7 @@ which it must cover), else the three CIEDE2000 components (:func:`flakedb.colour
 Bounded trust-region least squares (scipy ``least_squares(method="trf")``), forward-difference
 Jacobian (step :data:`FD_STEP` in z), one compose per panel per evaluation (:func:`flakedb.match.fit.predict`);
 the other species' optics and projections (and the calibrated species' optics across its panels) are computed once per
-fit (:mod:`flakedb.rt.adding.reuse`, docs/fit-speed.md).
+fit (:mod:`flakedb.rt.common.reuse`, docs/fit-speed.md).
 Standard errors: the Gauss–Newton covariance s² (JᵀJ)⁻¹ at the solution with the residual variance
 s² = Σ r² / (m − p) (m residuals, p parameters), the usual estimate when the measurement noise is
 not known beforehand; it assumes independent residuals of equal variance.
@@ -59,7 +59,7 @@ from flakedb.paint.checks import YamlFileError, load_yaml_file, value_problems
 from flakedb.paint.recipe import RecipeError
 from flakedb.paint.species import absorption_factor
 from flakedb.solve.pipeline import settle_node_count
-from flakedb.rt.adding.reuse import reuse_per_call
+from flakedb.rt.common.reuse import reuse_per_call
 
 #: Degree D of the Legendre series of ln(absorption factor) (D + 1 coefficients).
 ABSORPTION_DEGREE = 2

@@ -30,7 +30,7 @@ is log: loadings act on the colour nearly linearly in ln p over a wide range (op
 reflectance saturates), and a factor-3 error is then a fixed distance.  The Jacobian is a forward
 difference, one compose call per parameter (step 10⁻³ in ln p, or 10⁻³ of the range for linear
 parameters), so an iteration costs P + 1 compose calls; results are cached by parameter values.  Each fit
-reuses what its evaluations share (:mod:`flakedb.rt.adding.reuse`, docs/fit-speed.md): every species' optics and
+reuses what its evaluations share (:mod:`flakedb.rt.common.reuse`, docs/fit-speed.md): every species' optics and
 projected kernel per unit loading, so an evaluation that moves only loadings recomputes neither.
 The sensitivities reported at the solution are ∂(L*, a*, b*)/∂p per geometry, forward differences
 with the same steps (cache hits when the last Jacobian was taken there).
@@ -109,7 +109,7 @@ from flakedb.match.texture import (
 )
 from flakedb.solve.resolution import resolve_node_count
 from flakedb.paint.recipe import RecipeError, fmt_path, parse_recipe
-from flakedb.rt.adding.reuse import reuse_per_call
+from flakedb.rt.common.reuse import reuse_per_call
 
 #: Forward-difference step: in ln p for log parameters, as a fraction of the range for linear ones.
 FD_STEP = 1e-3
@@ -454,7 +454,7 @@ class _Evaluator:
 
 
 #: The last field of a loading's path: a fit moving only these reuses every species' optics and projection
-#: (:mod:`flakedb.rt.adding.reuse`); any other fitted field recomputes a projection at every evaluation.
+#: (:mod:`flakedb.rt.common.reuse`); any other fitted field recomputes a projection at every evaluation.
 LOADING_FIELDS = ("volume_fraction", "optical_depth", "weight_fraction")
 #: Smallest node count a search runs at (module docstring, "Resolution of a fit").
 SEARCH_MIN_N = 16

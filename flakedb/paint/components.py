@@ -23,7 +23,7 @@ from flakedb.paint.species import flake_reflectance_transmittance, pigment_optic
 from flakedb.rt.basis.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
 from flakedb.rt.scattering.media import FlakeMedium, PhaseMedium, vmf_mean_cosine
 from flakedb.rt.scattering.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun
-from flakedb.rt.adding.reuse import active_cache, array_key
+from flakedb.rt.common.reuse import active_cache, array_key
 from flakedb.rt.adding.stack import RoughConductor
 from flakedb.rt.scattering.stored import StoredPigmentMedium
 
@@ -267,7 +267,7 @@ def entry_key(entry) -> str:
 
 
 def reused(key, compute):
-    """``compute()``, or inside a fit's reuse scope (:func:`flakedb.rt.adding.reuse.reusing`) the value an earlier
+    """``compute()``, or inside a fit's reuse scope (:func:`flakedb.rt.common.reuse.reusing`) the value an earlier
     evaluation computed under ``key`` — a species' optics per unit loading, keyed by everything it depends on
     (the entry, the wavelengths, the binder index, the grids), never by the loading."""
     cache = active_cache()

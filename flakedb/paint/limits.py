@@ -33,14 +33,14 @@ from __future__ import annotations
 import math
 import numbers
 
-from flakedb.rt.adding.params import ALPHA_MAX, ALPHA_MIN
+from flakedb.rt.common.params import ALPHA_MAX, ALPHA_MIN
 
 #: Smallest node count (4 nodes per hemisphere).
 NODE_COUNT_MIN = 8
 #: Largest node count: what compose, match, build and ``resolution: auto`` accept.
 NODE_COUNT_MAX = 512
 #: Smallest non-zero and largest Beckmann roughness of an interface (0 is a smooth interface): the solver's own
-#: bounds (:data:`flakedb.rt.adding.params.ALPHA_MIN`, :data:`~flakedb.rt.adding.params.ALPHA_MAX`), stated once there.
+#: bounds (:data:`flakedb.rt.common.params.ALPHA_MIN`, :data:`~flakedb.rt.common.params.ALPHA_MAX`), stated once there.
 ROUGHNESS_MIN, ROUGHNESS_MAX = ALPHA_MIN, ALPHA_MAX
 
 

@@ -1,5 +1,5 @@
 """Fits reuse each species' optics and projected kernel between evaluations that change only loadings
-(flakedb.rt.adding.reuse; issue 39 item 1).
+(flakedb.rt.common.reuse; issue 39 item 1).
 
 Guards against: a cached solve that differs from the uncached one; a change of a non-loading field (the
 flakes' orientation α, a coating film's thickness, a pigment's size) served from the cache; and a `match` whose
@@ -15,7 +15,7 @@ import yaml
 from flakedb.match.fit import match, predict, recipe_from_doc
 from flakedb.match.targets import E2194_GEOMETRIES, read_target, format_target
 from flakedb.paint.catalog import load_catalog
-from flakedb.rt.adding.reuse import reusing
+from flakedb.rt.common.reuse import reusing
 from flakedb.solve.pipeline import solve_recipe
 from tests.tolerances import ulps
 from tests.cases import basecoat_recipe

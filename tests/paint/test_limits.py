@@ -50,7 +50,7 @@ def test_flake_spread_bounds_stated_once_and_restated_alike():
     """Issue #34: the flake α bounds lived in two schemas and cli/build.py; the solver's
     flakedb.rt.scattering.microflake.FLAKE_ALPHA_RANGE is their home and every restatement agrees with it."""
     from flakedb.rt.scattering.microflake import FLAKE_ALPHA_RANGE
-    from flakedb.rt.adding.params import ALPHA_MAX, ALPHA_MIN
+    from flakedb.rt.common.params import ALPHA_MAX, ALPHA_MIN
 
     assert (limits.ROUGHNESS_MIN, limits.ROUGHNESS_MAX) == (ALPHA_MIN, ALPHA_MAX)
     lo, hi = FLAKE_ALPHA_RANGE

@@ -1,4 +1,4 @@
-"""SharedJobs (flakedb/rt/adding/jobs.py), which the rough top's build shares with the solver's main thread.
+"""SharedJobs (flakedb/rt/common/jobs.py), which the rough top's build shares with the solver's main thread.
 
 Guards against: a job run twice or never when a helper thread takes jobs meanwhile, results out of the
 listed order, a helper that blocks (it must return when nothing is left), and a job's error lost."""
@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-from flakedb.rt.adding.jobs import SharedJobs
+from flakedb.rt.common.jobs import SharedJobs
 
 
 def test_a_helper_takes_the_jobs_not_yet_started_and_results_keep_their_order():

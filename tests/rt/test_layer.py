@@ -1,4 +1,4 @@
-"""Doubling of symmetric layers (flakedb/rt/adding/layer.py, docs/model.md §4).
+"""Doubling of symmetric layers (flakedb/rt/basis/layer.py, docs/model.md §4).
 
 Guards against: a chunked / in-place doubling that differs from add(S, S) (a chunk boundary that
 skips or repeats matrices, an update that uses the new R or T where the old one is meant, a
@@ -8,14 +8,14 @@ broadcast T that is not expanded), and a thread split that changes the result.
 import numpy as np
 import pytest
 
-import flakedb.rt.adding.layer as ly
-from flakedb.rt.adding.layer import Layer, add, double_symmetric
+import flakedb.rt.basis.layer as ly
+from flakedb.rt.basis.layer import Layer, add, double_symmetric
 from tests import tolerances as tol
 
 
 def _whole_batch(R, T, times):
     """The whole-batch doubling written out (add(S, S) for a symmetric S, docs/model.md §4), with the
-    doubling's own solve (:func:`flakedb.rt.adding.layer._solve_near_identity`, per matrix)."""
+    doubling's own solve (:func:`flakedb.rt.basis.layer._solve_near_identity`, per matrix)."""
     eye = np.eye(R.shape[-1])
     for _ in range(times):
         X = ly._solve_near_identity(eye - R @ R, T)

@@ -177,7 +177,7 @@ def test_multiple_scattering_chain_limits(alpha):
 def test_white_furnace_was_broken_by_point_sampling():
     """The former node-sampled interface (kept for comparison) fails the same furnace badly."""
     from flakedb.rt.boundaries import interface as itf
-    from flakedb.rt.adding.layer import add_reflection_only
+    from flakedb.rt.basis.layer import add_reflection_only
 
     q = radau_hemisphere(16)
     lay, _ = itf.rough_dielectric_point_sampled(q, q, ETA, 0.05, max_orders=64)

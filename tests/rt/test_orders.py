@@ -4,7 +4,7 @@ BSDF's decay, reflection-only adding of opaque stacks (docs/projection.md, docs/
 import numpy as np
 import pytest
 
-from flakedb.rt.adding.layer import Layer
+from flakedb.rt.basis.layer import Layer
 from flakedb.rt.scattering.media import FlakeMedium, Mixture, PhaseMedium, kernel_basis
 from flakedb.rt.scattering.microflake import FlakeOptics, table_basis
 from flakedb.rt.adding.orders import MIN_ORDERS_CHECKED, next_block_end, order_tail, reflection_over, reflection_under_smooth
@@ -173,7 +173,7 @@ def test_order_loop_solves_fewer_orders_with_the_same_result():
 
 def test_reflection_only_adding_equals_full_adding():
     from flakedb.rt.boundaries.interface import smooth_dielectric
-    from flakedb.rt.adding.layer import add
+    from flakedb.rt.basis.layer import add
 
     rng = np.random.default_rng(3)
     q_out = radau_hemisphere(6)

@@ -1,5 +1,5 @@
 """The solver's components refuse non-finite and out-of-range parameters at construction, naming the
-field, the value and the range (flakedb/rt/adding/params.py).  Before, they reached the numerics: a NaN
+field, the value and the range (flakedb/rt/common/params.py).  Before, they reached the numerics: a NaN
 primer albedo gave a NaN BSDF with no error, an albedo of 1.5 a BSDF that creates energy, a negative
 roughness a 72 TiB allocation, a NaN thickness "cannot convert float NaN to integer"."""
 

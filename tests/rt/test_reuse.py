@@ -1,4 +1,4 @@
-"""The fit's reuse cache (flakedb.rt.adding.reuse) and the projection's use of it (flakedb.rt.scattering.projection).
+"""The fit's reuse cache (flakedb.rt.common.reuse) and the projection's use of it (flakedb.rt.scattering.projection).
 
 Guards against: a cache that grows without bound or keeps values after its fit; a cached projection that
 differs from the uncached one (in memory and over the memory budget, in chunks); and a change of a
@@ -12,7 +12,7 @@ from flakedb.rt.scattering.media import FlakeMedium, Mixture, PhaseMedium, kerne
 from flakedb.rt.scattering.microflake import FlakeOptics
 from flakedb.rt.scattering.projection import project_kernel_basis
 from flakedb.rt.basis.quadrature import gauss_radau_unit
-from flakedb.rt.adding.reuse import ReuseCache, active_cache, array_key, reusing
+from flakedb.rt.common.reuse import ReuseCache, active_cache, array_key, reusing
 from tests.tolerances import ulps
 
 

@@ -12,7 +12,7 @@ import threading
 import numpy as np
 import pytest
 
-import flakedb.rt.adding.jobs as jobs
+import flakedb.rt.common.jobs as jobs
 import flakedb.rt.boundaries.microfacet as mf
 from flakedb.rt.scattering.media import PhaseMedium
 from flakedb.rt.basis.quadrature import radau_hemisphere

@@ -1,4 +1,4 @@
-"""Specular paths of inner interfaces and the pole (flakedb/rt/boundaries/specular.py, flakedb/rt/basis/pole.py;
+"""Specular paths of inner interfaces and the pole (flakedb/rt/adding/specular.py, flakedb/rt/basis/pole.py;
 docs/model.md §4 "Specular paths and the pole").
 
 Guards against: a smooth inner interface's mirror (a delta, the same in every Fourier order) left in the

@@ -18,7 +18,7 @@ import flakedb.rt.adding.stack as stk
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.optics.fresnel import fresnel_dielectric
 from flakedb.rt.basis.fourier import cosine_coefficients, phi_samples, project_azimuthal
-from flakedb.rt.adding.layer import add, homogeneous_slab, identity_layer
+from flakedb.rt.basis.layer import add, homogeneous_slab, identity_layer
 from flakedb.rt.scattering.media import FlakeMedium, Mixture, PhaseMedium
 from flakedb.rt.scattering.microflake import FlakeOptics
 from flakedb.rt.basis.quadrature import (
@@ -90,7 +90,7 @@ def test_projection_adapts_to_a_narrow_lobe():
 def test_empty_layer_changes_nothing():
     med = PhaseMedium(1.0, 0.9, ("hg", 0.5))
     r = solve_stack(None, [Slab(0.7, med)], None, SolverSettings(n=16))
-    from flakedb.rt.adding.layer import Layer
+    from flakedb.rt.basis.layer import Layer
 
     lay = Layer(r.Rt, r.Ttb, r.Rb, r.Tbt)
     e = identity_layer(r.n_orders, len(r.x))
@@ -468,7 +468,7 @@ def test_inner_interface_fall_white_furnace_and_reciprocity(top, settings):
 def test_inner_interface_fall_under_an_empty_binder(top, slabs):
     """A binder without a slab between a smooth top (or an inner interface) and a fall has directions that
     are totally reflected on both sides and that nothing reaches: the adding stays regular
-    (flakedb.rt.adding.layer.solve_regular) and lossless, on both solve paths."""
+    (flakedb.rt.basis.layer.solve_regular) and lossless, on both solve paths."""
     for settings in (SolverSettings(n=24), SolverSettings.product(24)):
         r = solve_stack(top, slabs, Lambertian(1.0), settings)
         assert np.abs(r.albedo() - 1.0).max() < 1e-12

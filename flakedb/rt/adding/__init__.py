@@ -1,2 +1,2 @@
-"""Adding-doubling: layers, the stack's parts and channels, order-by-order and blocked solves, the whole stack
-and its solved BSDF, the inputs' checks, and what a series of solves shares (paper eq. 3-4, docs/model.md §1, §4)."""
+"""The whole stack: its parts and channels, the order-by-order and blocked solves, the specular part of its
+reflection, the solved stack and its BSDF, and the solver's settings (docs/model.md §1, §4)."""

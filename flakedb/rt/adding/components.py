@@ -9,7 +9,7 @@ Plain parameter records, checked on construction; :func:`flakedb.rt.adding.stack
 
 from dataclasses import dataclass
 
-from flakedb.rt.adding.params import check_alpha, check_complex_index, check_range
+from flakedb.rt.common.params import check_alpha, check_complex_index, check_range
 
 @dataclass
 class Smooth:
@@ -146,14 +146,14 @@ class SolverSettings:
     order_tol: float | None = None
     #: Project kernels through their spectral basis (docs/projection.md); False samples every channel.
     kernel_basis: bool = True
-    #: How homogeneous slabs are solved (:func:`flakedb.rt.adding.layer.homogeneous_slab`): "eigen", the exact
+    #: How homogeneous slabs are solved (:func:`flakedb.rt.basis.layer.homogeneous_slab`): "eigen", the exact
     #: eigen-solution of the discrete-ordinate equations (default), or "doubling" from a thin slice
     #: of optical thickness ``slice_tau`` (the fallback for non-reciprocal kernels).
     slab_method: str = "eigen"
     #: Jackson-filter a medium kernel cut by the order cap (:func:`flakedb.rt.scattering.medium_projection.damp_if_capped`): its truncated
     #: series rings negative otherwise.  False: plain truncation (order-convergence studies).
     filter_capped_kernels: bool = True
-    #: Threads over the (orders, channels) batch of the slab solvers (:func:`flakedb.rt.adding.layer.double_symmetric`,
+    #: Threads over the (orders, channels) batch of the slab solvers (:func:`flakedb.rt.basis.layer.double_symmetric`,
     #: the eigen-solution); > 1 also builds a rough top in a background thread while the slabs are
     #: projected.  Compose sets the machine's core count.  BLAS itself runs one thread per call during a solve.
     threads: int = 1

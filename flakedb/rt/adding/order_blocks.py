@@ -12,7 +12,7 @@ import numpy as np
 
 from flakedb.conventions import fourier_weight
 from flakedb.rt.boundaries import interface as itf
-from flakedb.rt.adding.layer import pad_orders
+from flakedb.rt.basis.layer import pad_orders
 from flakedb.rt.adding.orders import (
     MIN_ORDERS_CHECKED,
     next_block_end,

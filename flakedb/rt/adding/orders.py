@@ -13,16 +13,16 @@ stated tolerance (:func:`order_tail`).
 
 import numpy as np
 
-from flakedb.rt.adding.layer import solve_regular
+from flakedb.rt.basis.layer import solve_regular
 
 
 def reflection_over(top, bottom_Rt):
-    """R^t of ``top`` (a :class:`flakedb.rt.adding.layer.Layer`) over an opaque bottom of reflection
+    """R^t of ``top`` (a :class:`flakedb.rt.basis.layer.Layer`) over an opaque bottom of reflection
     ``bottom_Rt`` (None: a black bottom, R^t = top.R^t): paper eq. 4's first line, one LU solve.
 
     An empty layer over a body returns the body's reflection; with a black bottom, the top's own:
 
-    >>> from flakedb.rt.adding.layer import Layer, identity_layer
+    >>> from flakedb.rt.basis.layer import Layer, identity_layer
     >>> Rt = np.random.default_rng(0).uniform(0.0, 0.2, (2, 1, 3, 3))        # (L, C, h, h)
     >>> bool(np.allclose(reflection_over(identity_layer(2, 3), Rt), Rt, rtol=0, atol=1e-15))
     True

@@ -17,7 +17,7 @@ import numpy as np
 from flakedb.rt.boundaries import interface as itf
 from flakedb.rt.adding.channels import GroupView
 from flakedb.rt.adding.components import InnerRough, InnerSmooth, Smooth
-from flakedb.rt.adding.layer import Layer, direct_only_orders, extend_orders, homogeneous_slab
+from flakedb.rt.basis.layer import Layer, direct_only_orders, extend_orders, homogeneous_slab
 from flakedb.rt.scattering.medium_projection import project_medium
 from flakedb.rt.boundaries.microfacet import flux_cell_edges
 from flakedb.rt.basis.quadrature import binder_chain_quadratures, radau_hemisphere
@@ -63,7 +63,7 @@ class SlabPart:
 
     def block(self, l0, l1, threads=1):
         """Layer of orders l0 … l1 − 1: the slab solved where the kernel has orders, the exact direct beam
-        beyond (:func:`flakedb.rt.adding.layer.extend_orders`)."""
+        beyond (:func:`flakedb.rt.basis.layer.extend_orders`)."""
         q, sig, d, pk = self.q, self.sig, self.d, self.pk
         k1 = min(l1, pk.n_orders)
         if k1 <= l0:

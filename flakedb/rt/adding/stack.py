@@ -11,7 +11,7 @@ analytic delta term of a smooth top, and evaluates them.
 The concepts live in their own modules: the stack's parts and settings (:mod:`flakedb.rt.adding.components`),
 the result (:mod:`flakedb.rt.adding.stack_bsdf`), medium kernels (:mod:`flakedb.rt.scattering.medium_projection`), the
 body's slabs and inner interfaces as solver parts (:mod:`flakedb.rt.adding.parts`), the specular paths and the
-pole (:mod:`flakedb.rt.boundaries.specular`), the opaque order loop (:mod:`flakedb.rt.adding.order_blocks`) and spectral
+pole (:mod:`flakedb.rt.adding.specular`), the opaque order loop (:mod:`flakedb.rt.adding.order_blocks`) and spectral
 channels (:mod:`flakedb.rt.adding.channels`).  This module joins them; its names are the public interface.
 """
 
@@ -41,8 +41,8 @@ from flakedb.rt.adding.components import (  # noqa: F401  (the public interface 
     Smooth,
     SolverSettings,
 )
-from flakedb.rt.adding.jobs import SharedJobs, thread_pool
-from flakedb.rt.adding.layer import Layer, add, add_reflection_only, identity_layer, pad_orders
+from flakedb.rt.common.jobs import SharedJobs, thread_pool
+from flakedb.rt.basis.layer import Layer, add, add_reflection_only, identity_layer, pad_orders
 from flakedb.rt.scattering.media import channel_subset
 from flakedb.rt.scattering.medium_projection import (  # noqa: F401
     CAPPED_TAIL,
@@ -55,7 +55,7 @@ from flakedb.rt.adding.order_blocks import FIRST_ORDER_BLOCK, OrderBlocks  # noq
 from flakedb.rt.adding.orders import reflection_over
 from flakedb.rt.adding.parts import SmoothInnerPart, binder_chain, build_parts, layer_orders, near_matched
 from flakedb.rt.basis.quadrature import default_tir_nodes, radau_hemisphere
-from flakedb.rt.boundaries.specular import pole_index, smoothed_specular, specular_reflection, under_smooth, zero_pole_orders
+from flakedb.rt.adding.specular import pole_index, smoothed_specular, specular_reflection, under_smooth, zero_pole_orders
 from flakedb.rt.adding.stack_bsdf import StackBSDF  # noqa: F401
 
 #: Memory the solver may use for one group of spectral channels (bytes); channels are independent,
@@ -119,7 +119,7 @@ def _solve_stack_grouped(top, slabs, bottom, s, channels):
 
 
 def _submit(n_threads, fn, /, *args, **kw):
-    """``fn(*args, **kw)`` in the background thread (:func:`flakedb.rt.adding.jobs.thread_pool` "flakedb-solve") when
+    """``fn(*args, **kw)`` in the background thread (:func:`flakedb.rt.common.jobs.thread_pool` "flakedb-solve") when
     ``n_threads`` > 1, else now; a future either way."""
     if int(n_threads) <= 1:
         done = Future()
@@ -130,7 +130,7 @@ def _submit(n_threads, fn, /, *args, **kw):
 
 class _RoughBuild:
     """One rough top's :func:`flakedb.rt.boundaries.interface.rough_dielectric` ``(layer, info)``, submitted (:func:`_submit`)
-    when made.  Its independent parts are :class:`flakedb.rt.adding.jobs.SharedJobs` (``parts``) that other threads may
+    when made.  Its independent parts are :class:`flakedb.rt.common.jobs.SharedJobs` (``parts``) that other threads may
     take.  The background thread is shared by every solve of the process, so a build can wait in its queue behind
     another solve's (compose's discretisation solve, submitted first): :meth:`layer` then builds it in the asking
     thread instead.  Each part is a pure function of its arguments: the layer is the same bit for bit whichever
@@ -164,7 +164,7 @@ class _Top:
     built (in the background with threads > 1) by :func:`flakedb.rt.boundaries.interface.rough_dielectric`, shared
     through ``top_cache`` by channel groups (read only, never written in place).
 
-    The background build's independent parts are :class:`flakedb.rt.adding.jobs.SharedJobs`: the background thread
+    The background build's independent parts are :class:`flakedb.rt.common.jobs.SharedJobs`: the background thread
     takes them in order while the main thread solves the body's first orders (on threads − 1 threads), and the
     main thread, once it needs the top, takes those not yet started (:meth:`rough_layer`, with threads − 2
     workers) instead of waiting idle, or builds the whole top when the background thread has not reached it
@@ -287,7 +287,7 @@ def _solve_stack(top, slabs, bottom, s, top_cache=None):
         return min(max([L_top] + L_rest), s.order_cap)
 
     # the never-scattered paths (a smooth inner interface's mirror seen through a smooth top or none):
-    # taken out before the order choice, put back as a Jackson-smoothed series (flakedb.rt.boundaries.specular)
+    # taken out before the order choice, put back as a Jackson-smoothed series (flakedb.rt.adding.specular)
     Rs = None if isinstance(top, Rough) or not smooth_inside else specular_reflection(
         parts, lambda R: tp.over()(R, 0, 1))
     if bottom is not None and s.order_tol is not None:
@@ -314,8 +314,8 @@ def _top_alpha(top) -> float:
 
 def _with_specular(Rt, Rs, info, q_out):
     """The scattered R^t (L, C, h, h) plus the specular matrix as a Jackson-smoothed series of the same
-    L orders (:func:`flakedb.rt.boundaries.specular.smoothed_specular`), with the pole's orders l ≥ 1 zero
-    (:func:`flakedb.rt.boundaries.specular.zero_pole_orders`; a copy first where R^t is a read-only view)."""
+    L orders (:func:`flakedb.rt.adding.specular.smoothed_specular`), with the pole's orders l ≥ 1 zero
+    (:func:`flakedb.rt.adding.specular.zero_pole_orders`; a copy first where R^t is a read-only view)."""
     L = Rt.shape[0]
     if Rs is not None:
         Rt = Rt + smoothed_specular(Rs, L)

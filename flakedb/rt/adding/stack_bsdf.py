@@ -8,7 +8,7 @@ import numpy as np
 
 from flakedb.conventions import fourier_weight
 from flakedb.rt.basis.pole import zero_pole_orders
-from flakedb.rt.boundaries.specular import smoothed_specular
+from flakedb.rt.adding.specular import smoothed_specular
 
 @dataclass
 class StackBSDF:

@@ -1,2 +1,2 @@
-"""Interfaces and boundaries as scattering matrices: smooth (Fresnel), rough (microfacet flux cells) and the
-specular part of a stack's reflection (docs/model.md §4, docs/rough-interfaces.md)."""
+"""Interfaces as scattering matrices: smooth (Fresnel) and rough (microfacet flux cells, the height chain's
+multiple scattering) (docs/model.md §4, docs/rough-interfaces.md)."""

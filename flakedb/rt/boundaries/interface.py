@@ -24,7 +24,7 @@ import numpy as np
 from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_dielectric, fresnel_dielectric_real
 from flakedb.rt.basis.fourier import project_azimuthal
-from flakedb.rt.adding.layer import Layer, pad_orders
+from flakedb.rt.basis.layer import Layer, pad_orders
 from flakedb.rt.boundaries.microfacet import rough_conductor_cells, rough_dielectric_cells, smith_G1
 
 
@@ -145,7 +145,7 @@ def rough_dielectric(q_out, q_in, eta, alpha, tol=1e-5, max_orders=512, energy_c
     ``energy_compensation``: add the reciprocal multiple-scattering lobe (lossless interface,
     :func:`flakedb.rt.boundaries.microfacet.dielectric_compensation`).  ``inner_orders``: T^tb, R^b and T^bt
     only below that order (:func:`flakedb.rt.boundaries.microfacet.rough_dielectric_cells`).  ``threads``, ``jobs``: the
-    threads its independent parts run on, a :class:`flakedb.rt.adding.jobs.SharedJobs` other threads may help
+    threads its independent parts run on, a :class:`flakedb.rt.common.jobs.SharedJobs` other threads may help
     (bit-identical either way).  Returns ``(layer, info)``.
     """
     same = q_in.h == q_out.h and np.array_equal(q_in.x, q_out.x) and np.array_equal(q_in.w, q_out.w)

@@ -46,7 +46,7 @@ from numpy.polynomial.legendre import leggauss
 
 from flakedb.conventions import fourier_weight
 from flakedb.optics.fresnel import fresnel_conductor_real, fresnel_dielectric_real
-from flakedb.rt.adding.jobs import SharedJobs
+from flakedb.rt.common.jobs import SharedJobs
 from flakedb.rt.basis.pole import zero_pole_orders
 from flakedb.rt.basis.special import erf, smith_masking_denominator
 
@@ -1180,7 +1180,7 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     :func:`dielectric_compensation` is added to order 0, so that every column carries exactly 1
     (lossless interface, docs/rough-interfaces.md); without it, the single-scattering Walter model.
 
-    Blocks as in :class:`flakedb.rt.adding.layer.Layer` (basic radiance): Rt, Ttb from above, Rb, Tbt
+    Blocks as in :class:`flakedb.rt.basis.layer.Layer` (basic radiance): Rt, Ttb from above, Rb, Tbt
     from below; Tbt is the reciprocal of Ttb (f_bt[i, o] = η² f_tb[o, i]).
 
     ``inner_orders``: Ttb, Rb and Tbt are returned only for the orders below it (Rt has all its orders):
@@ -1188,8 +1188,8 @@ def rough_dielectric_cells(x, w, eta, alpha, tol=1e-5, max_orders=512, sub_width
     orders multiply zero).  The blocks then have different order counts; their values are unchanged.
 
     Its independent parts (the cell blocks; the albedo integrals and the compensation's chain) are
-    :class:`flakedb.rt.adding.jobs.SharedJobs`: on ``threads`` threads, and other threads may take the parts not
-    yet started through ``jobs`` (a :class:`~flakedb.rt.adding.jobs.SharedJobs` to run them on; its own thread
+    :class:`flakedb.rt.common.jobs.SharedJobs`: on ``threads`` threads, and other threads may take the parts not
+    yet started through ``jobs`` (a :class:`~flakedb.rt.common.jobs.SharedJobs` to run them on; its own thread
     count then applies).  Each part is the same pure function of its arguments whichever thread runs it:
     the result is the serial one, bit for bit.
     """

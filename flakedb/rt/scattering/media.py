@@ -10,7 +10,7 @@ A medium component provides
 * ``phi_bandwidth`` — a first guess of the number of φ intervals the kernel needs (the projection
   refines it adaptively),
 
-and is symmetric under z → −z (the solver relies on it, see :func:`flakedb.rt.adding.layer.thin_slab_diamond`).
+and is symmetric under z → −z (the solver relies on it, see :func:`flakedb.rt.basis.layer.thin_slab_diamond`).
 """
 
 from dataclasses import dataclass, field
@@ -29,8 +29,8 @@ from flakedb.rt.scattering.microflake import (
     scattering_Ergun,
     table_basis,
 )
-from flakedb.rt.adding.params import check_range
-from flakedb.rt.adding.reuse import array_key
+from flakedb.rt.common.params import check_range
+from flakedb.rt.common.reuse import array_key
 
 
 def cos_scattering_angle(mu_i, mu_o, phi_d):
@@ -486,7 +486,7 @@ class KernelBasis:
     ``parts``: the basis as consecutive groups of basis kernels, ``((key, fn_part, width), …)``, each
     ``key`` a hashable identity of ``fn_part`` (everything its values depend on, never a loading: the
     loading sits in M), so that a fit's evaluations can reuse each group's projection
-    (:mod:`flakedb.rt.adding.reuse`); None where the basis states no identity."""
+    (:mod:`flakedb.rt.common.reuse`); None where the basis states no identity."""
 
     fn: object
     M: np.ndarray

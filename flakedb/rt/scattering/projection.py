@@ -14,7 +14,7 @@ orders it uses.
 import numpy as np
 
 from flakedb.rt.basis.fourier import cosine_coefficients, phi_samples
-from flakedb.rt.adding.reuse import active_cache, array_key
+from flakedb.rt.common.reuse import active_cache, array_key
 
 
 def _combine(M, a):
@@ -73,7 +73,7 @@ def project_kernel_basis(fn, M, mu_i, mu_o, tol=1e-5, n_start=16, n_max=16384, w
     and returns a :class:`ChunkedCoefficients`, which evaluates the others again when asked.
 
     ``parts`` (:attr:`flakedb.rt.scattering.media.KernelBasis.parts`, the basis as keyed groups): inside a fit's
-    :func:`flakedb.rt.adding.reuse.reusing` scope each group's coefficients at a sampling (and its samples at
+    :func:`flakedb.rt.common.reuse.reusing` scope each group's coefficients at a sampling (and its samples at
     φ_d = 0, π) are taken from the fit's cache when an earlier evaluation computed them, else computed and
     kept there; the criteria, M's combinations and the truncation are applied afresh, so the result is the
     uncached one (the transform acts on each basis kernel alone).  Not used over the memory budget.
@@ -136,7 +136,7 @@ class _BasisProjection:
                   np.broadcast_to(np.asarray(weights, dtype=float), (self.hi, self.ho)))
         self.mu_b = None if self.M is None else np.abs(self.M).max(axis=0)
         self.samples = {}
-        # the fit's cache (flakedb.rt.adding.reuse) and the keyed groups of the basis, when both exist
+        # the fit's cache (flakedb.rt.common.reuse) and the keyed groups of the basis, when both exist
         self.cache = active_cache() if parts else None
         self.parts = parts
         self.part_samples = {}

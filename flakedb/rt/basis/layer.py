@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flakedb.conventions import fourier_weight
-from flakedb.rt.adding.jobs import thread_pool
+from flakedb.rt.common.jobs import thread_pool
 
 
 @dataclass
