@@ -141,6 +141,14 @@ def _pair_values(c, n_phi):
     return np.concatenate([c[..., :1], c @ cos], axis=-1)
 
 
+#: How far inside the gamut (G1) stops, as a fraction of the luminance Y: a channel mapped to the gamut's edge is
+#: left at GAMUT_MARGIN·Y, not 0.  The .bsdf stores R, Y, B as float32 and readers rebuild
+#: G = (Y − 0.212671 R − 0.072169 B) / 0.715160 (flakedb.bsdf), whose rounding reaches ≈ 3 float32 ulps of Y / 0.715
+#: (≈ 3e-7 Y): with the earlier 1e-9 a green mapped to 0 read back as −2.3e-9 (`red-solid`, spectral, n = 16).
+#: 2⁻²⁰ ≈ 9.5e-7 covers it; the colour moves by that fraction of the way to grey (ΔE00 ≪ 1e-3).
+GAMUT_MARGIN = 2.0 ** -20
+
+
 def desaturation_factors(coeffs, w, n_phi: int = N_PHI_DEFAULT, rows: int = 16) -> np.ndarray:
     """s (n, n) of (G1) for a table's coefficients (3, n, n, L) in a space with luminance weights
     ``w``: the largest s in [0, 1] making every channel ≥ 0 at the pair's order-0 coefficient and at
@@ -163,8 +171,8 @@ def desaturation_factors(coeffs, w, n_phi: int = N_PHI_DEFAULT, rows: int = 16) 
         Y = np.einsum("k,k...->...", w, v)                          # (r, n, P)
         neg = (v < 0) & (Y > 0)[None]
         with np.errstate(divide="ignore", invalid="ignore"):
-            # Y - v > Y > 0 where neg; 1e-9 below the zero crossing so rounding cannot leave -0
-            bound = np.where(neg, (1.0 - 1e-9) * Y[None] / (Y[None] - v), 1.0)
+            # Y - v > Y > 0 where neg; GAMUT_MARGIN below the zero crossing (a file's rebuilt G stays >= 0)
+            bound = np.where(neg, (1.0 - GAMUT_MARGIN) * Y[None] / (Y[None] - v), 1.0)
         s[r0:r0 + rows] = np.clip(bound.min(axis=(0, 3)), 0.0, 1.0)
     s = np.minimum(s, s[::-1, ::-1].T)
     return s
@@ -216,7 +224,7 @@ def desaturate_points(rgb, w) -> np.ndarray:
     v = np.asarray(rgb, dtype=float)
     Y = v @ np.asarray(w, float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        bound = np.where((v < 0) & (Y[..., None] > 0), (1.0 - 1e-9) * Y[..., None] / (Y[..., None] - v), 1.0)
+        bound = np.where((v < 0) & (Y[..., None] > 0), (1.0 - GAMUT_MARGIN) * Y[..., None] / (Y[..., None] - v), 1.0)
     s = np.clip(bound.min(axis=-1), 0.0, 1.0)
     out = Y[..., None] + s[..., None] * (v - Y[..., None])
     return np.where(Y[..., None] > 0, np.maximum(out, 0.0), 0.0)

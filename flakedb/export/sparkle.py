@@ -104,7 +104,12 @@ class SparkleLayer:
 
 def glint_alpha(diameter_um: float, wavelength_nm: float = DIFFRACTION_WAVELENGTH_NM) -> float:
     """GGX α (air) of one flake's glint: α_g = λ / (π D), the lobe whose peak density equals the flake's
-    Airy peak (module docstring)."""
+    Airy peak (module docstring).  A 16 µm flake at 550 nm, and its lobe's peak D(0) = 1/(π α²):
+
+    >>> a = glint_alpha(16.0, 550.0)
+    >>> round(a, 5), bool(np.isclose(float(ggx_D(1.0, a)), 1.0 / (np.pi * a * a)))
+    (0.01094, True)
+    """
     return float(wavelength_nm) * 1e-3 / (math.pi * float(diameter_um))
 
 

@@ -77,7 +77,16 @@ MEASURED_FORMATS = {
 
 
 def measured_format(path) -> MeasuredFormat:
-    """The :class:`MeasuredFormat` of ``path`` by its suffix, or :class:`MeasuredError` listing the known ones."""
+    """The :class:`MeasuredFormat` of ``path`` by its suffix, or :class:`MeasuredError` listing the known ones.
+
+    >>> sorted(MEASURED_FORMATS) == sorted({measured_format("a" + k) is MEASURED_FORMATS[k] and k for k in MEASURED_FORMATS})
+    True
+    >>> try:
+    ...     measured_format("paint.txt")
+    ... except MeasuredError as e:
+    ...     print(str(e).split(";")[0])
+    paint.txt: unknown measured-BRDF suffix '.txt'
+    """
     suffix = Path(path).suffix.lower()
     if suffix not in MEASURED_FORMATS:
         known = ", ".join(f"{k} ({v.what})" for k, v in MEASURED_FORMATS.items())

@@ -103,7 +103,15 @@ def read_tensor_file(path):
 
 def write_tensor_file(path, fields, align=8):
     """Write {name: array} as a ``tensor_file`` (each field's data aligned to ``align`` bytes); used for
-    synthetic test files.  :func:`read_tensor_file` reads it back."""
+    synthetic test files.  :func:`read_tensor_file` reads it back:
+
+    >>> import tempfile
+    >>> f = Path(tempfile.mkdtemp()) / "t.bsdf"
+    >>> write_tensor_file(f, {"theta": np.array([0.0, 0.5], np.float32), "n": np.arange(6, dtype=np.int32).reshape(2, 3)})
+    >>> back = read_tensor_file(f)
+    >>> back["theta"].tolist(), back["n"].shape, back["n"].dtype.kind
+    ([0.0, 0.5], (2, 3), 'i')
+    """
     codes = {np.dtype(v).newbyteorder("<"): k for k, v in TENSOR_DTYPES.items()}
     arrs = {k: np.ascontiguousarray(v) for k, v in fields.items()}
     head = len(TENSOR_MAGIC) + 2 + 4 + sum(2 + len(k.encode()) + 11 + 8 * a.ndim for k, a in arrs.items())
