@@ -39,8 +39,9 @@ Resolution of a fit
 -------------------
 Every evaluation of one fit stage uses one n, so the objective does not jump with n.  With a given n (``--n``,
 the recipe's ``resolution: N``) that n; with ``resolution: auto`` and loadings only, the auto resolution settled
-on the start values (:func:`flakedb.solve.pipeline.settle_node_count`).  With ``resolution: auto`` and a fitted
-field that is not a loading (an orientation α, a film thickness, a size: each evaluation recomputes a projection,
+on the start values (:func:`flakedb.solve.pipeline.settle_node_count`); the same for other fields that leave the
+auto resolution alone.  With ``resolution: auto`` and a fitted field that sets it (:data:`RESOLUTION_FIELDS`: a
+flake's orientation α, an interface's roughness; each evaluation then also recomputes a projection,
 docs/fit-speed.md), the fit first *searches* at a coarser n (:func:`search_node_count`: half the auto
 resolution's first choice for the start values), then settles the auto resolution on the searched values and
 *refines* there from the searched values with the same solver and stopping rules.  The result is the fit at the
@@ -453,9 +454,9 @@ class _Evaluator:
         return np.array([r["residual"] for r in rows], float)
 
 
-#: The last field of a loading's path: a fit moving only these reuses every species' optics and projection
-#: (:mod:`flakedb.rt.common.reuse`); any other fitted field recomputes a projection at every evaluation.
-LOADING_FIELDS = ("volume_fraction", "optical_depth", "weight_fraction")
+#: The last field of the paths that set the auto resolution (:func:`flakedb.solve.resolution.auto_resolution`:
+#: a flake's orientation spread, an interface's roughness) and change a projection at every evaluation.
+RESOLUTION_FIELDS = ("orientation_alpha", "roughness")
 #: Smallest node count a search runs at (module docstring, "Resolution of a fit").
 SEARCH_MIN_N = 16
 
@@ -463,12 +464,12 @@ SEARCH_MIN_N = 16
 def search_node_count(recipe, n, params):
     """The coarser node count a fit searches at before it settles the resolution on the searched values
     (module docstring, "Resolution of a fit"), or None (the fit settles n at its start and runs there): only
-    with ``resolution: auto`` (no ``n``, no recipe resolution) and a fitted field other than a loading; half
-    the auto resolution's first choice for the start values, even, at least :data:`SEARCH_MIN_N`, and None
-    when that is not coarser."""
+    with ``resolution: auto`` (no ``n``, no recipe resolution) and a fitted field that sets the auto resolution
+    (:data:`RESOLUTION_FIELDS`); half the auto resolution's first choice for the start values, even, at least
+    :data:`SEARCH_MIN_N`, and None when that is not coarser."""
     if n is not None or recipe.n is not None:
         return None
-    if all(p.name.rsplit(".", 1)[-1] in LOADING_FIELDS for p in params):
+    if not any(p.name.rsplit(".", 1)[-1] in RESOLUTION_FIELDS for p in params):
         return None
     n_auto = resolve_node_count(recipe)[0]
     n_s = max(SEARCH_MIN_N, 2 * (n_auto // 4))

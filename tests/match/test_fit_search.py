@@ -3,7 +3,8 @@
 Guards against: a fit whose reported colours are not those its fitted recipe composes to (the fit's n chosen
 for the start values, where the auto resolution of the fitted recipe picks another, left a ΔE00 of 0.028 between
 the fit's report and `compose` of its result in the α bench); a search at the coarse n that is not refined (the
-result at the search's n); and the search used where it must not be (a given n, a recipe resolution, loadings only).
+result at the search's n); and the search used where it must not be (a given n, a recipe resolution, fields that leave the auto resolution
+alone).
 """
 
 import numpy as np
@@ -40,7 +41,10 @@ def test_search_node_count_only_for_auto_resolution_and_a_non_loading_field():
     assert search_node_count(rec, 32, params) is None                                  # --n given
     assert search_node_count(recipe_from_doc(_doc(0.1, res=48)), None, params) is None  # the recipe's resolution
     loading = find_fit_parameters(_doc(0.1, {"fit": [0.1, 5.0]}))
-    assert search_node_count(rec, None, loading) is None                               # loadings only
+    assert search_node_count(rec, None, loading) is None                               # a loading only
+    thick = _doc(0.1)
+    thick["layers"][1]["basecoat"]["thickness_um"] = {"fit": [5, 20]}
+    assert search_node_count(rec, None, find_fit_parameters(thick)) is None             # leaves auto n alone
 
 
 def test_alpha_fit_searches_coarse_and_ends_at_the_fitted_recipes_resolution():
