@@ -158,14 +158,18 @@ class Target:
     @property
     def label(self) -> str:
         """What tables and figures call the target: its ``# name:``, else its file's stem (never the
-        folder path it was read from), else "target".
+        folder path it was read from), else "target" (also for a target read from text, whose source is the
+        placeholder ``<target>``).
 
         >>> Target(np.zeros((1, 2)), source="/lab/2026/panels/A-17.csv").label, Target(np.zeros((1, 2)), name="A").label
         ('A-17', 'A')
+        >>> Target(np.zeros((1, 2)), source="<target>").label
+        'target'
         """
         if self.name:
             return self.name
-        return Path(str(self.source)).stem if self.source else "target"
+        stem = Path(str(self.source)).stem if self.source else ""
+        return "target" if not stem or (stem.startswith("<") and stem.endswith(">")) else stem
 
     def lab_under(self, observer=None, illuminant=None) -> np.ndarray:
         """L*a*b* (G, 3) under ``observer`` / ``illuminant`` (default: the target's own).
