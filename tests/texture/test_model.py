@@ -418,7 +418,7 @@ def test_mosaic_of_a_point_is_the_topmost_flake():
     st = stack_of(species="metallic", vf=0.08, alpha=0.2, D=20.0)
     f = st.flakes[0]
     _, _, z, wz, _, _, _, (B1, B2, T, kappa, _) = tm._sky_terms(st, f, 0.0)
-    assert T == 0.0
+    assert 0.0 <= T < 1e-12  # opaque: the aluminium flake passes ~1e-17, or 0.0, by BLAS kernel and SIMD path
     rho, A_e = f.number_density_per_um3, kappa * f.mean_area_um2()
     h = z - f.z_top_um
     top = rho * A_e * np.exp(-rho * A_e * h) * f.thickness_um * wz  # P(the ray's top flake at each node)
