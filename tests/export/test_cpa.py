@@ -37,6 +37,7 @@ from flakedb.match.targets import E2194_GEOMETRIES
 from flakedb.paint.recipe import load_recipe
 from flakedb.rt.basis.quadrature import radau_hemisphere
 from tests.blender_python import blender_python
+from tests.mtlx_glsl import validated_glsl
 
 ETA = 1.5
 WL = np.arange(380.0, 781.0, 10.0)
@@ -126,23 +127,13 @@ def test_materialx_graph(tmp_path):
     """The exported .cpa.mtlx validates against MaterialX's standard library, GLSL is generated for
     it, and its image rows and scales are the fit's table."""
     mx = pytest.importorskip("MaterialX", reason="materialx not installed (pip install 'flakedb[materialx]')")
-    import MaterialX.PyMaterialXGenGlsl as mx_glsl
-    import MaterialX.PyMaterialXGenShader as mx_gen
 
     src = tmp_path / "model.bsdf"
     write_bsdf(src, cpa_table(truth_fit()), truncation=0.0)
     out = export(src, tmp_path / "out", method="cpa")
     doc = mx.createDocument()
     mx.readFromXmlFile(doc, out["files"]["materialx"])
-    lib = mx.createDocument()
-    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
-    doc.importLibrary(lib)
-    ok, msg = doc.validate()
-    assert ok, msg
-    gen = mx_glsl.GlslShaderGenerator.create()
-    ctx = mx_gen.GenContext(gen)
-    ctx.registerSourceCodeSearchPath(mx.getDefaultDataSearchPath())
-    assert len(gen.generate("cpa", doc.getNode("M_model"), ctx).getSourceCode(mx_gen.PIXEL_STAGE)) > 1000
+    assert len(validated_glsl(doc, "M_model", "cpa")) > 1000
     fit = cpa.CPAFit.from_dict(json.loads(Path(out["files"]["fit"]).read_text()))
     px = cpa.read_png16(Path(out["files"]["image"]).read_bytes())
     scales = [doc.getNode(f"colour_{k}").getInputValue("in2") for k in range(len(px))]

@@ -27,6 +27,7 @@ from flakedb.paint.texture_inputs import texture_stack
 from flakedb.texture.instruments import Observer
 from flakedb.texture.model import directional_geometry, sparkle_indices
 from tests.blender_python import blender_python
+from tests.mtlx_glsl import validated_glsl
 
 RECIPES = Path(flakedb.__file__).parent / "catalog" / "recipes"
 SILVER = load_recipe(RECIPES / "metallic-silver.yaml")
@@ -161,8 +162,6 @@ def test_materialx_graph_with_sparkle(silver_layer):
     """The .cpa.mtlx with the glint layer validates against MaterialX's standard library, GLSL is generated,
     and it carries the layer's numbers (cells per UV unit, the lobe's α, the glint's α)."""
     mx = pytest.importorskip("MaterialX", reason="materialx not installed (pip install 'flakedb[materialx]')")
-    import MaterialX.PyMaterialXGenGlsl as mx_glsl
-    import MaterialX.PyMaterialXGenShader as mx_gen
 
     table, lay = silver_layer
     fit = cpa.CPAFit(table, (0.18, 0.28, 0.42), 1.5)
@@ -170,15 +169,7 @@ def test_materialx_graph_with_sparkle(silver_layer):
     nodes = sp.node_inputs(lay)
     doc = mx.createDocument()
     mx.readFromXmlString(doc, cpa_mtlx_text("t.png", scale, fit.alphas, 1.5, 32, "silver", "{}", sparkle=nodes))
-    lib = mx.createDocument()
-    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
-    doc.importLibrary(lib)
-    ok, msg = doc.validate()
-    assert ok, msg
-    gen = mx_glsl.GlslShaderGenerator.create()
-    ctx = mx_gen.GenContext(gen)
-    ctx.registerSourceCodeSearchPath(mx.getDefaultDataSearchPath())
-    code = gen.generate("cpa", doc.getNode("M_silver"), ctx).getSourceCode(mx_gen.PIXEL_STAGE)
+    code = validated_glsl(doc, "M_silver", "cpa")
     assert "cellnoise" in code
     assert doc.getNode("glints").getInputValue("roughness")[0] == pytest.approx(lay.glint_alpha, rel=1e-6)
     assert doc.getNode("colour_2_smooth").getInputValue("in2") == pytest.approx(1.0 - lay.share, abs=1e-9)
