@@ -96,10 +96,13 @@ def palette_tables(palette: dict, catalog: dict, table_dir: Path) -> dict[str, d
     S_ref = reference_scattering_km(catalog, ref["species"], float(ref["volume_fraction"]["value"]), wl)
     method = palette.get("conversion", {}).get("value", "Star1988")
     out = {}
+    tables = {}  # the solver's R∞ table per g: one solve serves every species of that g
     for name, sp in palette["species"].items():
         K, S = km[sp["column"]]
         g = float(sp["asymmetry_g"]["value"])
-        table = semi_infinite_albedo(g) if method == "R-inf-matched" else None
+        if method == "R-inf-matched" and g not in tables:
+            tables[g] = semi_infinite_albedo(g)
+        table = tables.get(g)
         a, s = relative_km_to_specific(K, S, S_ref, float(sp["pigment_volume_fraction"]["value"]), g,
                                        method=method, r_inf_table=table)
         w = wl
