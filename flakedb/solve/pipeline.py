@@ -229,7 +229,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
 
 def second_report(paint, n, version, colour_settings=None, progress=None, threads=None):
     """``(n', colour report at n')`` of the discretisation's second solve at n' = :func:`flakedb.solve.resolution.second_solve_n`
-    (≈ 3n/4), or a dict saying why there is none: n < 16, or a store (it holds the species' factors at its own n
+    (n/2 from n = 96 on, else ≈ 3n/4), or a dict saying why there is none: n < 16, or a store (it holds the species' factors at its own n
     only).  Made before the solve at n (:func:`solve_recipe`'s ``before_solve``), so that its arrays are freed
     before those of n exist: made after, while n's R^t and table were held, it set the compose's peak (cadmium
     yellow under a rough 0.1 coat, 41 bands, n = 200: 3.95 GB, of which 1.6 GB the second solve's).  ``threads``:
@@ -255,7 +255,7 @@ def second_report(paint, n, version, colour_settings=None, progress=None, thread
 
 def discretisation_estimate(solved, report, log=None) -> dict:
     """The estimated ΔE00 of the solve's own discretisation: the report against the second solve at
-    n' = :func:`flakedb.solve.resolution.second_solve_n` (≈ 3n/4; :func:`flakedb.appearance.report.discretisation_error`,
+    n' = :func:`flakedb.solve.resolution.second_solve_n` (n/2 or 3n/4; :func:`flakedb.appearance.report.discretisation_error`,
     docs/resolution.md) that :func:`second_report` made before the solve (``solved.before``), for n ≥ 16 without
     a store (a store holds the species' factors at its own n only)."""
     n, second = solved.n, solved.before
@@ -334,7 +334,7 @@ def report_of(solved, colour_settings=None, name=""):
                          paint.eta if paint.delta else None, name, settings=colour_settings)
 
 
-#: The discretisation's second solve (at ≈ 3n/4) runs beside the main solve when the main solve's R^t, about
+#: The discretisation's second solve (at n/2 or 3n/4) runs beside the main solve when the main solve's R^t, about
 #: 4·C·n³ bytes (2n orders × C channels × (n/2)² float64), is at most this; above it, before the main solve, so
 #: that the two never hold their arrays at once (cadmium yellow under a rough 0.1 coat, 41 bands, n = 200: a
 #: 1.3 GB R^t; made after the solve, the second solve had set the peak at 3.95 GB, made before it 2.97 GB).

@@ -133,7 +133,7 @@ def auto_resolution(recipe) -> tuple[int, str]:
     bins (per bin, over the reflected total); ``colour_error``, the CIEDE2000 between n and 2n at
     the report geometries, for a metal base against the converged answer (:func:`_colour_needs`: metal bases by
     n, flakes by h·α_f, other stacks by n; compose
-    states the estimate of its own result from a second solve at ≈ 3n/4).  Each rule is a measured envelope, not
+    states the estimate of its own result from a second solve at :func:`second_solve_n`).  Each rule is a measured envelope, not
     a guess:
 
     * rough coat of roughness α: h α ≥ the smallest h α of :data:`COAT_LOBE_ERROR` meeting lobe_error
@@ -333,16 +333,25 @@ def _colour_needs(recipe, target, flake_alphas, metal):
     return out
 
 
-def second_solve_n(n) -> int:
-    """The node count of the report's second solve: 3n/4 rounded to an even count (at least 8).  Closer to n
-    than n/2 (which at n = 32 is pre-asymptotic for flakes: ΔE00(16, 32) was 21× ΔE00(32, 64) for metallic
-    silver), and the factor from ΔE00(n', n) to ΔE00(n, 2n) hardly depends on the order (0.96–1.20 for
-    p = 2 … 1.5, against 0.25–0.35 from n/2); always even (n = 30 used to ask for n/2 = 15 and fail).
+#: From this n on, the report's second solve is at n/2 instead of 3n/4 (:func:`second_solve_n`): there the
+#: n/2 solve is in the error's asymptotic range and its estimate is on the safe side, where 3n/4's fell below
+#: the true ΔE00(n, 2n) (docs/resolution.md, "The report's own estimate"; bench/estimate_accuracy.json).
+SECOND_SOLVE_HALF_FROM = 96
 
-    >>> [second_solve_n(n) for n in (16, 30, 32, 48, 100, 128)]
-    [12, 22, 24, 36, 76, 96]
+
+def second_solve_n(n) -> int:
+    """The node count of the report's second solve, always even: n/2 for n ≥ :data:`SECOND_SOLVE_HALF_FROM`,
+    else 3n/4 (at least 8).  Below it n/2 can be pre-asymptotic (metallic silver: ΔE00(16, 32) was 21×
+    ΔE00(32, 64)); from it on the n/2 solve costs about half the 3n/4 one and its estimate is the
+    conservative one (docs/resolution.md).
+
+    >>> [second_solve_n(n) for n in (16, 30, 32, 48, 94, 96, 100, 128, 200)]
+    [12, 22, 24, 36, 70, 48, 50, 64, 100]
     """
-    return max(8, 2 * int(round(3 * int(n) / 8)))
+    n = int(n)
+    if n >= SECOND_SOLVE_HALF_FROM:
+        return 2 * int(round(n / 4))
+    return max(8, 2 * int(round(3 * n / 8)))
 
 
 def discretisation_error(report, report_second, n, n_second):
@@ -350,9 +359,8 @@ def discretisation_error(report, report_second, n, n_second):
     converged answer: d/(r^p − 1) = c n^−p), from a second solve at ``n_second`` < n
     (:func:`second_solve_n`; docs/resolution.md, "colour_error"): d = max over the report geometries of
     ΔE00(n', n), times (1 − 2^−p)/(r^p − 1), r = n/n', p = :data:`DISCRETISATION_ORDER` (an error c·n^−p:
-    ΔE00(n', n) = c n^−p (r^p − 1) and ΔE00(n, 2n) = c n^−p (1 − 2^−p)).  Measured: coated aluminium n 48 →
-    0.83 (ΔE00(48, 96) 0.657), n 144 → 0.097 (0.095); metallic silver n 32 → 0.18 (0.10).  Returns a JSON-able
-    dict.
+    ΔE00(n', n) = c n^−p (r^p − 1) and ΔE00(n, 2n) = c n^−p (1 − 2^−p)).  Its ratio to the true ΔE00(n, 2n):
+    docs/resolution.md ("The report's own estimate").  Returns a JSON-able dict.
 
     >>> g = lambda L: {"geometries": [{"L": L, "a": 0.0, "b": 0.0}]}
     >>> round(discretisation_error(g(50.0), g(51.0), 32, 24)["estimate_dE00"], 3)      # ΔE00 1 between them
