@@ -22,7 +22,7 @@ its median reported, so a drift of the shared machine's speed cancels):
   at n = 200 (solve + ``.bsdf``), B = layerlab on the same stack, same n, the same number of orders, the same
   channels (grey: both solve one channel and write three; ``channels differ``: both solve three).  Target
   B / A ≥ 3.  The grey row also times D = ``flakedb compose bench/recipes/rough-hg-lambertian-rgb.yaml`` (the
-  same stack as a recipe, RGB mode, n = 200: solve, the discretisation's second solve at 3n/4, the checks, the
+  same stack as a recipe, RGB mode, n = 200: solve, the discretisation's second solve at n/2, the checks, the
   colour report and the ``.bsdf`` / ``.h5`` / ``.json``): ``layerlab_over_compose`` = B / D, issue #34 item 8's
   target ≥ 3 (docs/compose-overhead.md).
 
