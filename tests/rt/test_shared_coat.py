@@ -4,7 +4,7 @@ rough tops (flakedb.rt.adding.stack._RoughBuild).
 
 Guards against: a cached chain that differs from a fresh one (by a bit), that is solved again by a second thread
 asking at the same time, or that keeps a failure; a solve whose rough top waits in the background thread's queue
-behind another solve's top (compose's discretisation solve at 3n/4 is submitted first) instead of being built by
+behind another solve's top (compose's discretisation solve at n/2 or 3n/4 is submitted first) instead of being built by
 the thread that needs it, and a top built that way that differs from the background build."""
 
 import threading

@@ -653,8 +653,8 @@ def _height_chain_grid(eta, alpha):
     """The part of :func:`height_chain_escape` that does not depend on the requested cosines: the grids (signed
     propagation cosines z, heights c, the map c → 1 − c) and the chain's solution D_s(z, c) on them, ``(zs, c,
     flip, d)``, read-only.  Solved once per (η, α) in a process and shared by every node set (compose's solve at
-    n and its discretisation's second solve at n/2 or 3n/4; a fit's solves): the same arrays, so the escape probabilities
-    are those of a fresh solve bit for bit.  Threads asking for the same (η, α) at once solve it once."""
+    n and its discretisation's second solve at n/2 or 3n/4; a fit's solves): the same arrays, so the escape
+    probabilities are those of a fresh solve bit for bit.  Threads asking for the same (η, α) at once solve it once."""
     key = (float(eta), float(alpha))
     with _HEIGHT_GRIDS_LOCK:
         job = _HEIGHT_GRIDS.get(key)
