@@ -79,6 +79,44 @@ def glsl_renderer() -> tuple[dict | None, str]:
     return {"python": sys.executable, "wrap": [xvfb, "-a", "-s", "-screen 0 64x64x24"]}, ""
 
 
+def lambert_mtlx_text(albedo) -> str:
+    """A MaterialX document of a Lambertian of ``albedo`` (linear RGB): ``oren_nayar_diffuse_bsdf`` at roughness 0
+    without energy compensation, exactly albedo / π (pbrlib/genglsl/mx_oren_nayar_diffuse_bsdf.glsl)."""
+    c = ", ".join(f"{float(x):.9g}" for x in albedo)
+    return f"""<?xml version="1.0"?>
+<materialx version="1.39" colorspace="lin_rec709">
+  <oren_nayar_diffuse_bsdf name="lambert" type="BSDF">
+    <input name="color" type="color3" value="{c}" />
+    <input name="roughness" type="float" value="0" />
+  </oren_nayar_diffuse_bsdf>
+  <surface name="SR_lambert" type="surfaceshader"><input name="bsdf" type="BSDF" nodename="lambert" /></surface>
+  <surfacematerial name="M_lambert" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="SR_lambert" />
+  </surfacematerial>
+</materialx>
+"""
+
+
+def glsl_probe(tool: dict | None = None) -> tuple[bool, str]:
+    """(True, renderer) when MaterialX's GLSL renderer makes a GL context and draws a white Lambertian as
+    π f = 1 at one geometry (to 1e-5), else (False, why): what a test checks before it renders, so that a
+    machine without a working GL context skips and says why."""
+    if tool is None:
+        tool, why = glsl_renderer()
+        if tool is None:
+            return False, why
+    with tempfile.TemporaryDirectory(prefix="flakedb-mtlx-probe-") as tmp:
+        p = Path(tmp) / "white.mtlx"
+        p.write_text(lambert_mtlx_text((1.0, 1.0, 1.0)))
+        try:
+            r = render_geometries([p], [(45.0, 15.0)], tool=tool, timeout=120.0)
+        except (RuntimeError, OSError, subprocess.TimeoutExpired) as e:
+            return False, f"MaterialX's GlslRenderer could not render: {e}"
+    if not np.allclose(r["rf"], 1.0, rtol=1e-5):
+        return False, f"MaterialX's GlslRenderer drew a white Lambertian as {r['rf'].ravel()} (π f = 1 expected)"
+    return True, f"MaterialX {r['materialx']} on {r['gl'].get('renderer', '?')}"
+
+
 #: The render, run in a subprocess with a display (``python worker.py job.json``); imports only MaterialX,
 #: numpy and the standard library.  The job: {"size", "eye", "sampler", "renders": [{"mtlx", "geometries": [(ω_l
 #: towards the light, ω_v towards the camera)...]}], "out"}; writes {"means": [[R, G, B, spread]...], "materialx", "gl"}.
