@@ -48,11 +48,13 @@ from pathlib import Path
 
 import numpy as np
 
+from flakedb.colour.tolerance import delta_E_2000
 from flakedb.export.blender import ggx_lobe_height_correlated
 from flakedb.export.cpa import CPAFit, hat_weights, table_image
 from flakedb.export.materialx_glsl import ggx_dir_albedo_analytic
-from flakedb.export.openpbr import file_directions
-from flakedb.match.fit import geometry_directions
+from flakedb.export.openpbr import colour_grid, exact_rgb, file_directions
+from flakedb.match.fit import channels_to_Lab, geometry_directions
+from flakedb.match.targets import E2194_GEOMETRIES
 
 #: camera distance: MaterialX's V = normalize(eye − P) is within 0.71 / EYE_DISTANCE rad of ω_v
 EYE_DISTANCE = 1.0e4
@@ -67,7 +69,7 @@ def glsl_renderer() -> tuple[dict | None, str]:
     present, else (None, why and how to fix it).  Whether a GL context is really made is seen only by
     rendering (:func:`render_geometries` raises RuntimeError then)."""
     try:
-        import MaterialX.PyMaterialXRenderGlsl  # noqa: F401  (the wheel's GLSL renderer)
+        import MaterialX.PyMaterialXRenderGlsl  # noqa: F401  # lazy: optional, the wheel's GLSL renderer
     except ImportError as e:
         return None, f"MaterialX's GLSL renderer does not import ({e}): pip install materialx"
     if os.environ.get("DISPLAY"):
@@ -306,11 +308,6 @@ def check_cpa_glsl(b, mtlx, geometries=None, *, tool: dict | None = None) -> dic
     FourierBSDF it was fitted to, :func:`flakedb.export.openpbr.exact_rgb`): ΔE00 (CIEDE2000, D65 / 2°, the
     file's white-normalised linear sRGB, as :func:`flakedb.export.cpa.cpa_error`) per geometry, the rendered
     and exact reflectance factors, and the renderer's identity.  What the renderer produces, not the fit."""
-    from flakedb.colour.tolerance import delta_E_2000
-    from flakedb.export.openpbr import colour_grid, exact_rgb
-    from flakedb.match.fit import channels_to_Lab
-    from flakedb.match.targets import E2194_GEOMETRIES
-
     g = np.asarray(E2194_GEOMETRIES if geometries is None else geometries, float)
     r = render_geometries([mtlx], g, tool=tool)
     rf = r["rf"][0]
