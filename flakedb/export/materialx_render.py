@@ -10,7 +10,7 @@ MaterialX's own render tests do (source/MaterialXTest/MaterialXRenderGlsl): the 
 (the documents' own colour space, and the table image's: no colour transform anywhere),
 ``hwSrgbEncodeOutput`` off (no display encoding), no shadow map, no ambient occlusion,
 ``fileTextureVerticalFlip`` on (MaterialX's texture space has v = 0 at the image's bottom row, OpenGL's at
-the first row uploaded, which is the file's top: MaterialXView and MaterialX's render tests flip),
+the first row uploaded, which is the file's top; tests/export/test_cpa_glsl.py fails with the rows reversed),
 a ``GL_RGBA32F`` framebuffer read back as float32: no tone mapping, no gamma, no quantisation.
 
 The light is one MaterialX ``directional_light`` (``lights/genglsl/mx_directional_light.glsl``) of
@@ -32,8 +32,15 @@ compensation ``comp = 1 + C_k (1 − E_ss(μ_v, α_k)) / E_ss`` (``mx_ggx_energy
 rational fit of the GGX albedo, :func:`flakedb.export.materialx_glsl.ggx_dir_albedo_analytic`), which
 :func:`flakedb.export.cpa.evaluate_cpa` (Cycles' Glossy BSDF) does not have; the coat's ``dielectric_bsdf``
 (roughness 0, α clamped to 1e-8) reaches no geometry off the mirror direction; ``add`` sums responses.
-The table is what the 16-bit PNG holds (:func:`flakedb.export.cpa.quantised`), read with linear filtering
-between texel centres.
+The exported graph therefore carries each lobe's colours with that compensation undone
+(:func:`flakedb.export.cpa.materialx_fit`).  The table is what MaterialX's ``StbImageLoader`` makes of the
+16-bit PNG, 8 bits per channel (:func:`table_as_loaded`), read with linear filtering between texel centres.
+
+MaterialX's ``GLTextureHandler`` samples textures mipmapped with 16x anisotropy; on the flat patch the
+table's coordinate has zero screen derivatives, where OpenGL's rule is magnification (plain bilinear), but
+llvmpipe's anisotropic path then read the table up to 14 % off (``sampler=False`` shows it).  The worker
+binds a GL sampler object (``GL_LINEAR``, clamp to edge, anisotropy 1) to every texture unit before each
+render: what a conformant implementation does with these derivatives.  Measurements: docs/renderers.md.
 """
 
 from __future__ import annotations

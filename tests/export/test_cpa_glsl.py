@@ -135,7 +135,8 @@ def test_catalogue_paint_e2194(paint, tmp_path, gl_context):
     print(paint, "dE00 per E2194 geometry", np.round(de, 2), "|MaterialX - prediction| / largest channel, max", off.max())
     assert off.max() < RTOL_PRED, off
     assert de.max() <= MEASURED_BOUND[paint], de
-    if MEASURED_BOUND[paint] > GOAL and de.max() > GOAL:
+    if MEASURED_BOUND[paint] > GOAL:         # strict: meeting the goal fails until the bound and the docs say so
+        assert de.max() > GOAL, f"{paint} now meets the goal ({de.max():.2f}): set its MEASURED_BOUND to {GOAL} and update docs"
         pytest.xfail(f"{paint}: worst ΔE00 {de.max():.2f} at the E2194 geometries in MaterialX GLSL, above the "
                      f"goal of {GOAL} (docs/renderers.md)")
     assert de.max() <= GOAL
