@@ -18,7 +18,10 @@ import json
 
 import click
 
+from flakedb.bsdf import open_bsdf
+from flakedb.cli.errors import FlakedbError
 from flakedb.cli.exporting import run_export
+from flakedb.export.materialx_render import check_cpa_glsl, glsl_renderer
 
 
 @click.command("export-cpa")
@@ -31,13 +34,31 @@ from flakedb.cli.exporting import run_export
                    "UV map), parameterised from its flakes by the texture model (docs/renderers.md, 'Sparkle').")
 @click.option("--uv-metres", "uv_metres", default=1.0, show_default=True, type=float,
               help="With --sparkle: metres per UV unit of the geometry's UV map (0.001 for UVs in mm).")
+@click.option("--check", "check", type=click.Choice(["glsl"]), default=None,
+              help="After writing, render NAME.cpa.mtlx in MaterialX's own GLSL renderer (Xvfb + Mesa when there is no "
+                   "display) under a directional light at the ASTM E2194 geometries and print the ΔE00 against FILE's "
+                   "exact prediction per geometry: what the renderer produces, not the fit's own number.")
 @click.option("--json", "as_json", is_flag=True, help="Print the fit and the files as JSON.")
-def export_cpa(file, out, name, sparkle, uv_metres, as_json):
+def export_cpa(file, out, name, sparkle, uv_metres, check, as_json):
     """Fit a coat mirror, a Lambert term and three GGX lobes whose colours are a table indexed by the view angle to a Fourier .bsdf / flakedb .h5 FILE, and write NAME.cpa.png (the table), NAME.cpa.mtlx (MaterialX standard nodes), NAME.cpa.blender.py (Cycles / EEVEE node group) and NAME.cpa.json (the fit and its ΔE00)."""
+    tool = None
+    if check == "glsl":   # before any work: a check that cannot run is refused, nothing written
+        tool, why = glsl_renderer()
+        if tool is None:
+            raise FlakedbError(f"--check glsl: {why}; or leave out --check")
     s = run_export(file, out, "cpa", name, as_json, bad_input=(ValueError, OSError), sparkle_recipe=sparkle,
                    uv_metres=uv_metres)
+    rendered = None
+    if check == "glsl":
+        if not as_json:
+            click.echo("rendering NAME.cpa.mtlx in MaterialX's GLSL renderer at the E2194 geometries", err=True)
+        try:
+            rendered = check_cpa_glsl(open_bsdf(file), s["files"]["materialx"], tool=tool)
+        except RuntimeError as e:
+            raise FlakedbError(f"--check glsl: the files are written, but the render failed: {e}") from None
     if as_json:
-        click.echo(json.dumps({"fit": {k: v for k, v in s["fit"].items() if k != "table"}, "files": s["files"]}, indent=2))
+        click.echo(json.dumps({"fit": {k: v for k, v in s["fit"].items() if k != "table"}, "files": s["files"],
+                               **({"check_glsl": rendered} if rendered else {})}, indent=2))
         return
     f, e = s["fit"], s["fit"]["error"]
     click.echo(f"fit: lobes GGX α {', '.join(f'{a:.3g}' for a in f['alphas'])}, colour table {len(f['table'])} x "
@@ -53,5 +74,9 @@ def export_cpa(file, out, name, sparkle, uv_metres, as_json):
                    f"({r['diameter_um']:g} µm flakes); {r['glints_per_mm2_above_threshold']:.3g} glints/mm² above the "
                    f"texture model's threshold at {r['light_deg']:g}° under a {r['source_half_angle_deg']:g}° source "
                    f"(the model's count, Cycles within ±20 %, docs/renderers.md)")
+    if rendered:
+        per = ", ".join(f"{g['aspecular_deg']:g}°: {g['dE00']:.2f}" for g in rendered["geometries"])
+        click.echo(f"MaterialX GLSL render ({rendered['renderer']}; a plane under a directional light) against "
+                   f"FILE's exact prediction, ΔE00 per E2194 aspecular angle: {per}; worst {rendered['worst_dE00']:.2f}")
     for k, p in s["files"].items():
         click.echo(f"wrote {p} ({k})")

@@ -66,6 +66,7 @@ from scipy.sparse import csr_matrix
 from flakedb.atomic import atomic_path
 from flakedb.colour.tolerance import delta_E_2000
 from flakedb.export.blender import ggx_lobe_height_correlated, sphere_normals, sun_disk
+from flakedb.export.materialx_glsl import compensated_lobe_colours
 from flakedb.export.openpbr import colour_grid, cosine_weighted_difference, exact_rgb, file_directions
 from flakedb.match.fit import channels_to_Lab, geometry_directions
 from flakedb.match.targets import E2194_GEOMETRIES, E2539_EXTRA
@@ -378,6 +379,20 @@ def cpa_error(b, fit: CPAFit, n_mu: int = 16, n_phi: int = 24) -> dict:
 # --------------------------------------------------------------------------------------------
 # The colour table as an image
 # --------------------------------------------------------------------------------------------
+def materialx_fit(fit: CPAFit) -> CPAFit:
+    """The fit with the colours the MaterialX graph must carry (:func:`flakedb.export.materialx.cpa_mtlx_text`):
+    MaterialX's GLSL ``generalized_schlick_bsdf`` multiplies its lobe by its energy compensation
+    ``1 + F (1 - E_ss(μ_v, α)) / E_ss`` (Turquin 2019; absent from Cycles' Glossy BSDF and from this model), so
+    lobe k's column j holds the F whose compensated value is the model's colour at μ_j
+    (:func:`flakedb.export.materialx_glsl.compensated_lobe_colours`); the Lambert row is unchanged.  Exact at
+    the table's nodes; between them the renderer interpolates F linearly (measured effect in docs/renderers.md)."""
+    mu = np.linspace(0.0, 1.0, fit.n_table)
+    table = fit.table.copy()
+    for k, a in enumerate(fit.alphas, start=1):
+        table[k] = compensated_lobe_colours(fit.table[k], mu, a)
+    return CPAFit(table, fit.alphas, fit.coat_ior, fit.source, fit.error)
+
+
 def table_image(fit: CPAFit) -> tuple:
     """(pixels (K + 1, n_table, 3) in [0, 1], row 0 = table row 0 = the image's **bottom** row as
     renderers index it (v = (k + 0.5) / (K + 1)); scale (K + 1,) per row): row k's colours are

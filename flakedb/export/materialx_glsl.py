@@ -267,3 +267,22 @@ def coat_furnace_reflection(fit: OpenPBRFit, mu_v, samples: int) -> np.ndarray:
     if k["coat_weight"] == 0:
         return np.zeros_like(np.asarray(mu_v, float))
     return fis_lobe_uniform(mu_v, k["alpha_c"], k["eta_c"], samples)
+
+
+def compensated_lobe_colours(colours, mu_v, alpha: float) -> np.ndarray:
+    """The ``color0 = color90`` F to give a ``generalized_schlick_bsdf`` (GGX of ``alpha``) so that MaterialX's
+    GLSL closure, which multiplies its lobe by F · comp with ``comp = 1 + F (1 - E_ss(μ_v, α)) / E_ss``
+    (:func:`energy_compensation`), draws the lobe with the colour ``colours`` C: the non-negative root of
+    F + F² x = C, x = (1 - E_ss) / E_ss, i.e. F = (√(1 + 4 x C) - 1) / (2 x) (F = C where x = 0).
+    ``colours`` (..., 3) at view cosines ``mu_v`` (...).
+
+    >>> mu, C = np.array([0.2, 0.7, 1.0]), np.array([[0.1, 0.5, 1.2]] * 3)
+    >>> F = compensated_lobe_colours(C, mu, 0.42)
+    >>> bool(np.allclose(F * energy_compensation(mu[:, None] * np.ones(3), 0.42, F), C, rtol=1e-12)), bool(np.all(F < C))
+    (True, True)
+    """
+    C = np.maximum(np.asarray(colours, float), 0.0)
+    Ess = ggx_dir_albedo_analytic(np.clip(np.asarray(mu_v, float), M_FLOAT_EPS, 1.0), alpha, 1.0, 1.0)[..., None]
+    x = (1.0 - Ess) / Ess
+    safe = np.where(x > 0, x, 1.0)
+    return np.where(x > 0, (np.sqrt(1.0 + 4.0 * safe * C) - 1.0) / (2.0 * safe), C)

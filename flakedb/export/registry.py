@@ -12,7 +12,7 @@ import json
 import math
 
 from flakedb.export.blender import cpa_material_script, write_material_script
-from flakedb.export.cpa import fit_cpa, png16_bytes, table_image
+from flakedb.export.cpa import fit_cpa, materialx_fit, png16_bytes, table_image
 from flakedb.export.gltf import write_gltf
 from flakedb.export.materialx import cpa_mtlx_text, write_mtlx
 from flakedb.export.sparkle import design_from_recipe
@@ -95,7 +95,7 @@ def export_cpa(src, out_dir, name: str | None = None, progress=None, sparkle_rec
         nodes = sparkle_node_inputs(layer, uv_metres)
         d["sparkle"] = dict(layer.to_dict(), node_inputs=nodes)
     fit_json = json.dumps(d, separators=(",", ":"))
-    px, scale = table_image(fit)
+    px, scale = table_image(materialx_fit(fit))     # the graph's colours: MaterialX's energy compensation undone
     texts = {"materialx": cpa_mtlx_text(finals["image"].name, scale, fit.alphas, fit.coat_ior, fit.n_table, name,
                                         json.dumps({k: v for k, v in d.items() if k != "table"}, separators=(",", ":")),
                                         sparkle=nodes),
