@@ -92,3 +92,24 @@ def test_a_fabry_perot_paint_keeps_one_chromaticity_at_equal_theta_d():
     assert lab[:, 0].min() > 10                     # the flakes' light reaches all four (not a black paint)
     worst, _ = common_chromaticity_worst_de00(lab)
     assert worst < 2.0
+
+
+@pytest.mark.slow
+def test_two_spectra_bound_known_case_and_the_measured_paint():
+    # colours mixed from two lights of known xy in four proportions: the segment between them holds all four (the
+    # bound is ~0, limited by the 201-point segment); the measured paint's four θ_d' ≈ 4.5° colours cannot all be
+    # mixtures of two spectra to better than 8 ΔE00 (local-search estimate 8.27 with 40 starts, docs §4a)
+    from flakedb.match.halfangle import two_spectra_worst_de00
+    a, b = np.array([0.45, 0.41]), np.array([0.20, 0.18])
+    ua = np.array([a[0] / a[1], 1, (1 - a.sum()) / a[1]])
+    ub = np.array([b[0] / b[1], 1, (1 - b.sum()) / b[1]])
+    t = np.array([0.1, 0.35, 0.6, 0.9])[:, None]
+    Y = np.array([0.05, 0.2, 0.4, 0.7])[:, None]
+    lab = XYZ_to_Lab(Y * (t * ua + (1 - t) * ub))
+    worst, _ = two_spectra_worst_de00(lab, starts=10)
+    assert worst < 0.2
+    assert common_chromaticity_worst_de00(lab)[0] > 10                  # one chromaticity cannot do it
+    tgt = read_target(IRID)
+    idx = [int(np.flatnonzero((tgt.geometries[:, 0] == g0) & (tgt.geometries[:, 1] == g1))[0]) for g0, g1 in EQUAL_THETA_D]
+    worst, _ = two_spectra_worst_de00(tgt.lab[idx], starts=10)
+    assert worst > 8.0
