@@ -4,6 +4,8 @@ with physically bounded free parameters (tools/validation/*.yaml) -> a per-geome
 redistributed: give your own copy.  The RGL paints' targets ship in tools/validation/targets/.
 
 Usage: python tools/validate_measured.py OUT_DIR FILE|TARGET.csv [...] [--n N] [--max-nfev K] [--base NAME.yaml]
+       [--start FIELD=VALUE ...]   (a free parameter's start, FIELD the last part of its path, e.g.
+                                    coating_thickness_nm[1]=550 orientation_alpha=0.1)
 The base is chosen by the file's name (KINDS below: silver, gold, pearl, colour-shift, blue metallic, with the
 RGL database's names of its car paints), or given with --base (a file in tools/validation/); paints of a kind
 with no base are reported as not attempted, with the reason.  Writes OUT_DIR/<name>.csv (target), OUT_DIR/<name>-fitted.yaml and prints a
@@ -14,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from flakedb.match.fit import match
+from flakedb.match.fit import find_fit_parameters, match
 from flakedb.match.measured import MeasuredError, measured_target
 from flakedb.match.targets import E2539_GEOMETRIES, read_target, write_target
 from flakedb.paint.catalog import load_catalog
@@ -23,7 +25,8 @@ BASES = Path(__file__).resolve().parent / "validation"
 #: name fragment -> base recipe, or the reason no base exists
 KINDS = (("silver", "silver-tio2.yaml"), ("ilm_l3_37_metallic", "silver-tio2.yaml"), ("gold", "gold.yaml"),
          ("pearl", "pearl.yaml"), ("color-changing", "colour-shift.yaml"), ("colour-shift", "colour-shift.yaml"),
-         ("irid_flake_paint", "colour-shift.yaml"), ("blue", "blue-metallic.yaml"),
+         ("irid_flake_paint", "colour-shift.yaml"), ("cc_", "colour-shift-fabry-perot.yaml"),
+         ("blue", "blue-metallic.yaml"),
          ("ilm_solo_m_68", "blue-metallic.yaml"),
          ("red", "no red-metallic base yet (the organic reds are KM-derived tinters, docs/colourants.md; a base "
                  "of Al flakes with quinacridone-red or pyrrole-red is not written)"))
@@ -54,10 +57,27 @@ def main(argv):
         i = argv.index("--base"); forced = argv[i + 1]; del argv[i:i + 2]
     if "--max-nfev" in argv:
         i = argv.index("--max-nfev"); max_nfev = int(argv[i + 1]); del argv[i:i + 2]
+    starts = {}
+    while "--start" in argv:
+        i = argv.index("--start")
+        field, _, value = argv[i + 1].partition("=")
+        starts[field] = float(value)
+        del argv[i:i + 2]
     if len(argv) < 2:
         print(__doc__, file=sys.stderr)
         return 2
     out = Path(argv[0])
+    for f in argv[1:]:                            # every --start names a free parameter of its base, before writing
+        base = forced or base_for(Path(f).stem)
+        if not base.endswith(".yaml"):
+            continue
+        free = [p.name.rsplit(".", 1)[-1] for p in find_fit_parameters(
+            yaml.safe_load((BASES / base).read_text(encoding="utf-8")))]
+        unknown = sorted(set(starts) - set(free))
+        if unknown:
+            print(f"error: --start {', '.join(unknown)}: not a free parameter of {base} (its free parameters: "
+                  f"{', '.join(free)}; hint: give the last part of the parameter's path)", file=sys.stderr)
+            return 2
     out.mkdir(parents=True, exist_ok=True)
     cat = load_catalog(None)
     g = np.asarray(E2539_GEOMETRIES, float)
@@ -79,6 +99,12 @@ def main(argv):
                                wavelength_nm=m.wavelength_nm, observer="2", illuminant="D65", name=name,
                                notes=m.notes)
         doc = yaml.safe_load((BASES / base).read_text(encoding="utf-8"))
+        for p in find_fit_parameters(doc):
+            if p.name.rsplit(".", 1)[-1] in starts:
+                node = doc
+                for k in p.path[:-1]:
+                    node = node[k]
+                node[p.path[-1]]["start"] = starts[p.name.rsplit(".", 1)[-1]]
         res = match(doc, read_target(csv), n=n, catalog=cat, max_nfev=max_nfev, source=base,
                     log=lambda s: print(s, file=sys.stderr, flush=True))
         (out / f"{name}-fitted.yaml").write_text(yaml.safe_dump(res.fitted_doc, sort_keys=False), encoding="utf-8")

@@ -211,3 +211,14 @@ def test_validation_tool_names_what_it_cannot_attempt(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "not attempted: no red-metallic base" in r.stdout
     assert not (tmp_path / "o" / "red-metallic-paint.csv").exists()
+
+
+def test_validate_measured_start_names_a_free_parameter(tmp_path):
+    # --start sets a free parameter's start by the last part of its path; an unknown one is refused, naming the
+    # base's free parameters, before anything is written (exit 2)
+    r = _tool("validate_measured.py", tmp_path / "out",
+              ROOT / "tools" / "validation" / "targets" / "cc_ibiza_sunset_rgb.csv", "--start", "spacer_nm=300")
+    assert r.returncode == 2
+    assert "--start spacer_nm: not a free parameter of colour-shift-fabry-perot.yaml" in r.stderr
+    assert "coating_thickness_nm[1]" in r.stderr
+    assert not (tmp_path / "out").exists()
