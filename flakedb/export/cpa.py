@@ -75,6 +75,9 @@ N_TABLE = 32
 N_LOBES = 3
 #: GGX α searched for the lobes (every N_LOBES-subset of it).
 ALPHA_GRID = (0.03, 0.06, 0.11, 0.18, 0.28, 0.42, 0.65)
+#: Backscatter lobes (:func:`retro_lobe`): how many, and the GGX α searched for them.
+N_RETRO = 1
+RETRO_ALPHA_GRID = (0.18, 0.28, 0.42, 0.65, 1.0)
 #: Hemisphere sample set of the fit: Gauss-Legendre nodes in μ_v and μ_l, midpoints in φ_d.
 N_MU_FIT = 16
 N_PHI_FIT = 24
@@ -89,7 +92,7 @@ E2539_SHARE = 0.2
 #: Weight of the second-difference penalty along μ_v, relative to the data's mean diagonal.
 SMOOTHNESS = 1e-2
 #: Reweightings of the E2194 geometries towards the worst ΔE00.
-MINIMAX_PASSES = 4
+MINIMAX_PASSES = 8
 #: Largest view / light angle of the "within 70°" hemisphere statistics.
 HEMISPHERE_STAT_DEG = 70.0
 
@@ -107,6 +110,7 @@ class CPAFit:
     coat_ior: float
     source: str = ""
     error: dict = field(default_factory=dict)
+    retro_alphas: tuple = ()
 
     @property
     def n_table(self) -> int:
@@ -115,13 +119,15 @@ class CPAFit:
     def to_dict(self) -> dict:
         return {"model": "flakedb.export.cpa: coat mirror + Lambert + GGX lobes, RGB colours indexed by N.V",
                 "alphas": [float(a) for a in self.alphas], "roughness": [float(math.sqrt(a)) for a in self.alphas],
+                "retro_alphas": [float(a) for a in self.retro_alphas],
+                "retro_roughness": [float(math.sqrt(a)) for a in self.retro_alphas],
                 "coat_ior": float(self.coat_ior), "n_table": self.n_table, "source": self.source,
                 "table": np.round(self.table, 7).tolist(), "error": self.error}
 
     @classmethod
     def from_dict(cls, d) -> CPAFit:
         return cls(np.asarray(d["table"], float), tuple(float(a) for a in d["alphas"]), float(d["coat_ior"]),
-                   d.get("source", ""), dict(d.get("error", {})))
+                   d.get("source", ""), dict(d.get("error", {})), tuple(float(a) for a in d.get("retro_alphas", ())))
 
 
 # --------------------------------------------------------------------------------------------
@@ -144,11 +150,28 @@ def hat_weights(mu_v, n_table: int) -> np.ndarray:
     return H
 
 
-def lobe_basis(mu_v, mu_l, cos_h, alphas) -> np.ndarray:
-    """(P, K + 1) the model's lobe shapes [1/sr] without colour: 1/π and the GGX lobes of
-    :func:`flakedb.export.blender.ggx_lobe_height_correlated` (Cycles' Glossy BSDF, F = 1)."""
+def retro_lobe(mu_l, cos_vl, alpha) -> np.ndarray:
+    """The backscatter lobe [1/sr]: Cycles' Glossy BSDF (GGX, F = 1) whose shading normal is the view
+    direction ω_v, seen through the true normal.  Its closure, with N' = ω_v (N'·ω_v = 1, N'·ω_l =
+    ``cos_vl`` = ω_v·ω_l, half vector h·ω_v = sqrt((1 + cos_vl) / 2)), returns ``D G2 / (4 cos_vl)``
+    times the cosine cos_vl to its own normal; the radiance under a light is that, so the BRDF about the
+    true normal is ``D G2 / (4 μ_l)`` (zero where μ_l ≤ 0 or cos_vl ≤ 0).  It peaks at retro-reflection
+    (ω_l = ω_v) and, unlike a GGX lobe about N, tells apart two geometries of one view cosine that
+    differ by the side of the light (E2194's aspecular 15° and 75°)."""
+    mu_l, cos_vl = np.asarray(mu_l, float), np.asarray(cos_vl, float)
+    ok = (mu_l > 0) & (cos_vl > 0)
+    c = np.clip(cos_vl, 1e-12, 1.0)
+    f = ggx_lobe_height_correlated(1.0, c, np.sqrt(0.5 * (1.0 + c)), alpha) * c / np.clip(mu_l, 1e-12, None)
+    return np.where(ok, f, 0.0)
+
+
+def lobe_basis(mu_v, mu_l, cos_h, alphas, retro_alphas=(), cos_vl=None) -> np.ndarray:
+    """(P, 1 + K + R) the model's lobe shapes [1/sr] without colour: 1/π, the GGX lobes of
+    :func:`flakedb.export.blender.ggx_lobe_height_correlated` (Cycles' Glossy BSDF, F = 1) and the
+    backscatter lobes of :func:`retro_lobe` (``cos_vl`` = ω_v·ω_l needed when ``retro_alphas``)."""
     cols = [np.full(np.shape(mu_v), 1.0 / np.pi)]
     cols += [ggx_lobe_height_correlated(mu_v, mu_l, cos_h, a) for a in alphas]
+    cols += [retro_lobe(mu_l, cos_vl, a) for a in retro_alphas]
     return np.stack(cols, axis=-1)
 
 
@@ -167,7 +190,8 @@ def evaluate_cpa(fit: CPAFit, mu_i, mu_o, phi_d) -> np.ndarray:
 def _eval_dirs(fit: CPAFit, wv, wl):
     mu_v, mu_l = wv[..., 2], wl[..., 2]
     shape = mu_v.shape
-    B = lobe_basis(mu_v.ravel(), mu_l.ravel(), _half_cos(wv, wl).ravel(), fit.alphas)          # (P, K+1)
+    B = lobe_basis(mu_v.ravel(), mu_l.ravel(), _half_cos(wv, wl).ravel(), fit.alphas, fit.retro_alphas,
+                   np.sum(wv * wl, axis=-1).ravel())                                        # (P, 1+K+R)
     H = hat_weights(mu_v, fit.n_table)                                                        # (P, n)
     C = np.einsum("pj,kjc->pkc", H, fit.table)                                               # (P, K+1, 3)
     return np.einsum("pk,pkc->pc", B, C).reshape(shape + (3,))
@@ -191,7 +215,7 @@ def cpa_sun_image(fit: CPAFit, size: int = 32, direction=(0.0, 0.0, 1.0), irradi
     for l, wt in zip(dirs, wts):
         mu_l = Nk @ l
         h = (l + v) / np.linalg.norm(l + v)
-        B = lobe_basis(mu_v, mu_l, Nk @ h, fit.alphas)
+        B = lobe_basis(mu_v, mu_l, Nk @ h, fit.alphas, fit.retro_alphas, np.full(mu_v.shape, l @ v))
         C = np.einsum("pj,kjc->pkc", hat_weights(mu_v, fit.n_table), fit.table)
         f = np.einsum("pk,pkc->pc", B, C)
         out += np.where((mu_l > 0)[:, None], f * (wt * np.maximum(mu_l, 0.0) * irradiance)[:, None], 0.0)
@@ -274,7 +298,7 @@ def _nnls_gram(G, b, n_table, n_rows, lam):
 
 
 def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_GRID, source: str = "",
-            minimax_passes: int = MINIMAX_PASSES) -> CPAFit:
+            minimax_passes: int = MINIMAX_PASSES, n_retro: int = N_RETRO, retro_grid=RETRO_ALPHA_GRID) -> CPAFit:
     """Fit :class:`CPAFit` to the FourierBSDF ``b`` (module docstring) and measure its error."""
     if b.delta is not None:
         if b.delta.get("kind") != "fresnel":
@@ -298,17 +322,20 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
     W_g0 = GEOMETRY_WEIGHT * W_g0 / W_g0.sum()
     Y = np.r_[y_h, y_g]
     alpha_grid = tuple(float(a) for a in alpha_grid)
+    retro_grid = tuple(float(a) for a in retro_grid) if n_retro else ()
     # The design is (lobe shape B_pa) x (interpolation weight H_j(μ_v,p)), and the samples share few
     # distinct μ_v: the Gram blocks Σ_p W B_pa B_pc H_j H_k = Σ_v H_vj H_vk M_v,ac with M_v = Σ_{p at v}
     # W B_a B_c, so each pass sums over the samples once and each subset is assembled from (U, K, K).
     MI, MO, PH = np.r_[mi, gi], np.r_[mo, go], np.r_[ph, gp]
     wl_dir, wv_dir = file_directions(MI, MO, PH)
-    B_all = lobe_basis(wv_dir[..., 2], wl_dir[..., 2], _half_cos(wv_dir, wl_dir), alpha_grid)      # (P, 1 + A)
+    B_all = lobe_basis(wv_dir[..., 2], wl_dir[..., 2], _half_cos(wv_dir, wl_dir), alpha_grid, retro_grid,
+                       np.sum(wv_dir * wl_dir, axis=-1))                                           # (P, 1 + A + R)
     uniq, inv = np.unique(wv_dir[..., 2], return_inverse=True)
     H_u = hat_weights(uniq, n_table)                                                               # (U, n)
     S = csr_matrix((np.ones(len(inv)), (inv, np.arange(len(inv)))), shape=(len(uniq), len(inv)))   # sample -> μ_v
-    n_rows = n_lobes + 1
-    index = {a: i + 1 for i, a in enumerate(alpha_grid)}
+    n_rows = n_lobes + 1 + n_retro
+    index = {("ggx", a): i + 1 for i, a in enumerate(alpha_grid)}
+    index.update({("retro", a): i + 1 + len(alpha_grid) for i, a in enumerate(retro_grid)})
 
     def moments(W):
         """M_v,ac, Σ_p W B_pa H_j y_p (as (U, K, 3) before H) and Σ W y² per channel."""
@@ -317,9 +344,11 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
         BY = (S @ (WB[:, :, None] * Y[:, None, :]).reshape(len(W), -1)).reshape(len(uniq), B_all.shape[1], 3)
         return M, BY, np.sum(W[:, None] * Y * Y, axis=0)
 
-    def solve_subset(alphas, mom):
+    def solve_subset(lobes, mom):
         M, BY, yy = mom
-        ks = [0] + [index[a] for a in alphas]
+        alphas, retro = lobes
+        ks = [0] + [index["ggx", a] for a in alphas] + [index["retro", a] for a in retro]
+        n_rows = len(ks)
         G = np.einsum("vj,vac,vk->ajck", H_u, M[:, ks][:, :, ks], H_u).reshape(n_rows * n_table, n_rows * n_table)
         XYs = np.einsum("vj,vac->ajc", H_u, BY[:, ks]).reshape(n_rows * n_table, 3)
         c = np.stack([_nnls_gram(G, XYs[:, k], n_table, n_rows, SMOOTHNESS) for k in range(3)], axis=-1)
@@ -331,10 +360,11 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
     for p in range(max(int(minimax_passes), 1)):
         mom = moments(np.r_[W_h, W_g0 * u])
         if p == 0:
-            subsets = list(itertools.combinations(alpha_grid, n_lobes))
-            alphas = min(subsets, key=lambda s: solve_subset(s, mom)[1])
-        c, _ = solve_subset(alphas, mom)
-        fit = CPAFit(c.reshape(n_rows, n_table, 3), alphas, coat_ior, source)
+            ggx = min(itertools.combinations(alpha_grid, n_lobes), key=lambda s: solve_subset((s, ()), mom)[1])
+            lobes = min(((ggx, r) for r in itertools.combinations(retro_grid, n_retro)),
+                        key=lambda s: solve_subset(s, mom)[1])
+        c, _ = solve_subset(lobes, mom)
+        fit = CPAFit(c.reshape(n_rows, n_table, 3), lobes[0], coat_ior, source, retro_alphas=lobes[1])
         de = delta_E_2000(channels_to_Lab(np.pi * evaluate_cpa(fit, gi, go, gp), "rgb", wl_nm), lab_g)
         key = (float(de[:n45].max()), float(de.max()))
         if best is None or key < best[0]:
