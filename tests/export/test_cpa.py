@@ -15,9 +15,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 import flakedb
 from flakedb.bsdf import BSDFTable, open_bsdf, write_bsdf
+from flakedb.cli.main import cli
 from flakedb.colour.tolerance import delta_E_2000
 from flakedb.compose.orchestrate import compose
 from flakedb.export import cpa
@@ -32,7 +34,7 @@ from flakedb.export.blender import (
     render_cycles_sphere,
     sun_direction,
 )
-from flakedb.export.registry import EXPORT_METHODS, export
+from flakedb.export.registry import EXPORT_METHODS
 from flakedb.match.fit import channels_to_Lab, geometry_directions
 from flakedb.match.targets import E2194_GEOMETRIES
 from flakedb.paint.recipe import load_recipe
@@ -156,19 +158,23 @@ def test_png_round_trip():
 
 
 def test_materialx_graph(tmp_path):
-    """The exported .cpa.mtlx validates against MaterialX's standard library, GLSL is generated for
+    """`flakedb export-cpa`: the exported .cpa.mtlx validates against MaterialX's standard library, GLSL is generated for
     it, its image rows and scales are the fit's table, and its backscatter lobe's normal is the view
-    direction reversed (MaterialX's ``viewdirection`` points at the surface)."""
+    direction reversed (MaterialX's ``viewdirection`` points at the surface); the command prints the
+    worst E2194 ΔE00 of the route as rendered."""
     mx = pytest.importorskip("MaterialX", reason="materialx not installed (pip install 'flakedb[materialx]')")
 
     src = tmp_path / "model.bsdf"
     write_bsdf(src, cpa_table(truth_fit_retro()), truncation=0.0)
-    out = export(src, tmp_path / "out", method="cpa")
+    r = CliRunner().invoke(cli, ["export-cpa", str(src), "--out", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
     doc = mx.createDocument()
-    mx.readFromXmlFile(doc, out["files"]["materialx"])
+    mx.readFromXmlFile(doc, str(tmp_path / "out" / "model.cpa.mtlx"))
     assert len(validated_glsl(doc, "M_model", "cpa")) > 1000
-    fit = cpa.CPAFit.from_dict(json.loads(Path(out["files"]["fit"]).read_text()))
-    px = cpa.read_png16(Path(out["files"]["image"]).read_bytes())
+    fit = cpa.CPAFit.from_dict(json.loads((tmp_path / "out" / "model.cpa.json").read_text()))
+    px = cpa.read_png16((tmp_path / "out" / "model.cpa.png").read_bytes())
+    # the command prints the route's ΔE00 at the E2194 geometries, what Cycles renders (the model, to ≤ 3e-4)
+    assert "in Cycles" in r.output and f"worst ΔE00 against FILE {fit.error['worst_dE00_E2194']:.2f} at the E2194" in r.output
     scales = [doc.getNode(f"colour_{k}").getInputValue("in2") for k in range(len(px))]
     np.testing.assert_allclose(px * np.asarray(scales)[:, None, None], fit.table, atol=1e-4 * fit.table.max())
     assert doc.getNode("lobe_1").getInputValue("roughness")[0] == pytest.approx(fit.alphas[0], rel=1e-6)
