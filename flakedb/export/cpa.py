@@ -9,15 +9,20 @@ vector and θ_d of AxF's table are not available there.  This model therefore in
 cosine μ_v = N·ω_v and leaves the light dependence to the lobes (what AxF-style Cycles
 implementations do)::
 
-    f(ω_v, ω_l) = F_c(μ_v) δ(ω_l - mirror(ω_v))  +  C_0(μ_v) / π  +  Σ_{k=1..K} C_k(μ_v) L_k(ω_v, ω_l),
+    f(ω_v, ω_l) = F_c(μ_v) δ(ω_l - mirror(ω_v))  +  C_0(μ_v) / π  +  Σ_{k=1..K} C_k(μ_v) L_k(ω_v, ω_l)
+                  +  Σ_{r=1..R} C_{K+r}(μ_v) B_r(ω_v, ω_l),
 
-    L_k = D(h; α_k) G2(ω_v, ω_l; α_k) / (4 μ_v μ_l),
+    L_k = D(h; α_k) G2(ω_v, ω_l; α_k) / (4 μ_v μ_l),    B_r = D(h·ω_v; α_r) G2(1, ω_v·ω_l; α_r) / (4 μ_l),
 
 with F_c the smooth coat's dielectric Fresnel reflectance (the file's ``delta``, carried exactly, left
 out of the fit; Born & Wolf §1.5.2), D the GGX distribution and G2 the height-correlated Smith
 masking-shadowing (Heitz 2014, eq. 99): Cycles' Glossy BSDF with GGX and no Fresnel
 (:func:`flakedb.export.blender.ggx_lobe_height_correlated`), so that the model is what the Blender
-node group renders, term for term.  Each C_k is linear RGB, piecewise linear in μ_v between
+node group renders, term for term.  B_r (:func:`retro_lobe`) is the same Glossy BSDF with its shading normal
+set to the view direction: a backscatter lobe, peaked at ω_l = ω_v.  At one view cosine every L_k is
+largest towards the mirror direction, so no mixture of them with view-indexed colours can make a
+geometry on the light's side (E2194's aspecular 75°, 110°) redder than one of the same μ_v across the
+normal (15°), as the particle pearlescent is; B_r can.  Each C_k is linear RGB, piecewise linear in μ_v between
 ``n_table`` equally spaced nodes μ_j = j / (n_table - 1): row k of the colour table (an image of
 (K + 1) rows x n_table columns, read with linear interpolation at pixel centres).  Nothing
 multiplies a lobe by a function of the light direction, so the coat's transmission at the light end,
@@ -41,8 +46,11 @@ the weighted residual over
 * a small second-difference penalty along μ_v (:data:`SMOOTHNESS`: the table stays smooth where no
   sample falls, e.g. towards μ_v = 0).
 
-The roughnesses are searched over :data:`ALPHA_GRID` (every K-subset), the best kept, then
-:data:`MINIMAX_PASSES` reweightings of the E2194 geometries towards their worst ΔE00.
+The GGX subsets of :data:`ALPHA_GRID` (every K-subset) are ranked by their weighted residual (without
+backscatter lobes); for each in turn, the backscatter α of least residual is taken from
+:data:`RETRO_ALPHA_GRID` and :data:`MINIMAX_PASSES` reweightings of the E2194 geometries towards their
+worst ΔE00 are run; the first subset whose best pass meets :data:`E2194_TARGET` is kept (the
+hemisphere's best among those that meet the issue's target), else the one of least E2194 worst.
 
 Reported: ΔE00 (CIEDE2000, D65 / 2°, the file's white-normalised linear sRGB) at every E2194 and
 E2539 geometry, and over the hemisphere sample set (median, 95th percentile, max, for both
@@ -93,6 +101,10 @@ E2539_SHARE = 0.2
 SMOOTHNESS = 1e-2
 #: Reweightings of the E2194 geometries towards the worst ΔE00.
 MINIMAX_PASSES = 8
+#: The issue's target: worst ΔE00 at the E2194 geometries.  The lobe subsets are tried in order of their
+#: residual (at most MAX_SUBSETS of them) until one's minimax meets it.
+E2194_TARGET = 2.0
+MAX_SUBSETS = 35
 #: Largest view / light angle of the "within 70°" hemisphere statistics.
 HEMISPHERE_STAT_DEG = 70.0
 
@@ -298,7 +310,8 @@ def _nnls_gram(G, b, n_table, n_rows, lam):
 
 
 def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_GRID, source: str = "",
-            minimax_passes: int = MINIMAX_PASSES, n_retro: int = N_RETRO, retro_grid=RETRO_ALPHA_GRID) -> CPAFit:
+            minimax_passes: int = MINIMAX_PASSES, n_retro: int = N_RETRO, retro_grid=RETRO_ALPHA_GRID,
+            max_subsets: int = MAX_SUBSETS) -> CPAFit:
     """Fit :class:`CPAFit` to the FourierBSDF ``b`` (module docstring) and measure its error."""
     if b.delta is not None:
         if b.delta.get("kind") != "fresnel":
@@ -355,22 +368,35 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
         r = float(np.sum(yy - 2.0 * np.sum(c * XYs, axis=0) + np.einsum("mk,mn,nk->k", c, G, c)))
         return c, r
 
-    u = np.r_[np.ones(n45), np.full(len(geoms) - n45, E2539_SHARE)]
+    def minimax(ggx, mom0):
+        """The backscatter α for the GGX subset (least residual), then MINIMAX_PASSES reweightings of the
+        E2194 geometries: ((E2194 worst, all worst), fit) of the best pass."""
+        lobes = min(((ggx, r) for r in itertools.combinations(retro_grid, n_retro)), key=lambda s: solve_subset(s, mom0)[1])
+        u = np.r_[np.ones(n45), np.full(len(geoms) - n45, E2539_SHARE)]
+        best = None
+        for p in range(max(int(minimax_passes), 1)):
+            mom = mom0 if p == 0 else moments(np.r_[W_h, W_g0 * u])
+            c, _ = solve_subset(lobes, mom)
+            fit = CPAFit(c.reshape(n_rows, n_table, 3), lobes[0], coat_ior, source, retro_alphas=lobes[1])
+            de = delta_E_2000(channels_to_Lab(np.pi * evaluate_cpa(fit, gi, go, gp), "rgb", wl_nm), lab_g)
+            key = (float(de[:n45].max()), float(de.max()))
+            if best is None or key < best[0]:
+                best = (key, fit)
+            u[:n45] = u[:n45] * (de[:n45] / max(de[:n45].max(), 1e-12)) ** 2 + 1e-3      # towards E2194's minimax
+            u[:n45] = u[:n45] * n45 / u[:n45].sum()
+        return best
+
+    # GGX subsets in order of their residual; the first whose minimax meets E2194_TARGET is kept (the
+    # hemisphere's best among those that meet it), else the one with the least E2194 worst
+    mom0 = moments(np.r_[W_h, W_g0 * np.r_[np.ones(n45), np.full(len(geoms) - n45, E2539_SHARE)]])
+    ranked = sorted(itertools.combinations(alpha_grid, n_lobes), key=lambda s: solve_subset((s, ()), mom0)[1])
     best = None
-    for p in range(max(int(minimax_passes), 1)):
-        mom = moments(np.r_[W_h, W_g0 * u])
-        if p == 0:
-            ggx = min(itertools.combinations(alpha_grid, n_lobes), key=lambda s: solve_subset((s, ()), mom)[1])
-            lobes = min(((ggx, r) for r in itertools.combinations(retro_grid, n_retro)),
-                        key=lambda s: solve_subset(s, mom)[1])
-        c, _ = solve_subset(lobes, mom)
-        fit = CPAFit(c.reshape(n_rows, n_table, 3), lobes[0], coat_ior, source, retro_alphas=lobes[1])
-        de = delta_E_2000(channels_to_Lab(np.pi * evaluate_cpa(fit, gi, go, gp), "rgb", wl_nm), lab_g)
-        key = (float(de[:n45].max()), float(de.max()))
-        if best is None or key < best[0]:
-            best = (key, fit)
-        u[:n45] = u[:n45] * (de[:n45] / max(de[:n45].max(), 1e-12)) ** 2 + 1e-3      # towards E2194's minimax
-        u[:n45] = u[:n45] * n45 / u[:n45].sum()
+    for ggx in ranked[:max(int(max_subsets), 1)]:
+        cand = minimax(ggx, mom0)
+        if best is None or max(cand[0][0], E2194_TARGET) < max(best[0][0], E2194_TARGET):
+            best = cand
+        if best[0][0] <= E2194_TARGET:
+            break
     fit = best[1]
     fit.error = cpa_error(b, fit)
     return fit
