@@ -246,7 +246,14 @@ def test_cycles_node_group_is_the_model():
 
 #: The catalogue paints of docs/renderers.md (issue 23's four), composed at n = 32, and red metallic, whose
 #: first lobe subset misses the target (3.17) so that the fit's search for a subset that meets it is run.
-PAINTS = ["metallic-silver", "particle-cadmium-yellow", "particle-pearlescent", "tri-coat-pearl-white", "red-metallic"]
+#: The one catalogue recipe that misses the target (every other one measured ≤ 1.99: docs/renderers.md) is
+#: the clear-coated bare aluminium panel, a strict xfail with its number.
+PAINTS = ["metallic-silver", "particle-cadmium-yellow", "particle-pearlescent", "tri-coat-pearl-white", "red-metallic",
+          pytest.param("coated-aluminium", marks=pytest.mark.xfail(strict=True, reason=(
+              "measured 7.71 at aspecular -15..75 (1.43 at 110): a Beckmann conductor of roughness 0.1 under the coat "
+              "is black 75 deg from the specular (L* 0.04) while its highlight is L* 224; GGX tails (every lobe "
+              "here, and the only distribution of MaterialX's generalized_schlick_bsdf) fall too slowly to give both "
+              "with non-negative colours (L* 12.8 at 75 deg)")))]
 #: The issue's target at the E2194 geometries in Cycles: worst ΔE00 ≤ 2 against the exact paint, every paint.
 E2194_BOUND = 2.0
 
