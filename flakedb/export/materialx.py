@@ -109,6 +109,9 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
     lobe and the glint layer of :mod:`flakedb.export.sparkle` (:func:`_sparkle_nodes`)."""
     n = safe_name(name)
     rows = len(scales)
+    if rows != 1 + len(alphas) + len(retro_alphas):
+        raise ValueError(f"cpa_mtlx_text: {rows} table rows, not 1 + {len(alphas)} lobes + {len(retro_alphas)} "
+                         f"backscatter lobes")
     root = ET.Element("materialx", {"version": MTLX_VERSION, "colorspace": "lin_rec709", "flakedb_cpa": fit_json})
 
     def node(kind, nname, typ, **inputs):
@@ -248,8 +251,9 @@ def _sparkle_nodes(node, colour: str, sp: dict) -> str:
 
 
 def write_cpa_mtlx(path, image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str,
-                   fit_json: str = "{}") -> Path:
+                   fit_json: str = "{}", retro_alphas=()) -> Path:
     path = Path(path)
     with atomic_path(path, suffix="") as tmp:
-        Path(tmp).write_text(cpa_mtlx_text(image_file, scales, alphas, coat_ior, n_table, name, fit_json), encoding="utf-8")
+        Path(tmp).write_text(cpa_mtlx_text(image_file, scales, alphas, coat_ior, n_table, name, fit_json,
+                                           retro_alphas=retro_alphas), encoding="utf-8")
     return path
