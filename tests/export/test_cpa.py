@@ -5,8 +5,11 @@ Guards against: a fit that cannot recover a table made by its own model (the des
 view/light convention); a model image on the sphere whose frame or φ_d convention differs from the
 file's coordinates; a 16-bit PNG that does not read back as written (row order, byte order); a
 MaterialX graph that MaterialX refuses or cannot generate GLSL for; a Cycles node group that is
-not the model (wrong image row, wrong index x, wrong roughness mapping); and, on catalogue paints
-rendered in Cycles, an angle-indexed route that is not better than the single-lobe Principled route.
+not the model (wrong image row, wrong index x, wrong roughness mapping, a backscatter lobe not about
+the view); a backscatter lobe whose cosine is carried to the wrong normal; an export command that does
+not print the route's E2194 ΔE00; and, on catalogue paints rendered in Cycles, an angle-indexed route
+that is not better than the single-lobe Principled route or misses the issue's E2194 target (worst
+ΔE00 ≤ 2).
 """
 
 import json
