@@ -40,7 +40,7 @@ from flakedb.export.materialx_render import check_cpa_glsl, glsl_renderer
                    "exact prediction per geometry: what the renderer produces, not the fit's own number.")
 @click.option("--json", "as_json", is_flag=True, help="Print the fit and the files as JSON.")
 def export_cpa(file, out, name, sparkle, uv_metres, check, as_json):
-    """Fit a coat mirror, a Lambert term and three GGX lobes whose colours are a table indexed by the view angle to a Fourier .bsdf / flakedb .h5 FILE, and write NAME.cpa.png (the table), NAME.cpa.mtlx (MaterialX standard nodes), NAME.cpa.blender.py (Cycles / EEVEE node group) and NAME.cpa.json (the fit and its ΔE00)."""
+    """Fit a coat mirror, a Lambert term and three GGX lobes and a backscatter lobe whose colours are a table indexed by the view angle to a Fourier .bsdf / flakedb .h5 FILE, and write NAME.cpa.png (the table), NAME.cpa.mtlx (MaterialX standard nodes), NAME.cpa.blender.py (Cycles / EEVEE node group) and NAME.cpa.json (the fit and its ΔE00)."""
     tool = None
     if check == "glsl":   # before any work: a check that cannot run is refused, nothing written
         tool, why = glsl_renderer()
@@ -61,11 +61,15 @@ def export_cpa(file, out, name, sparkle, uv_metres, check, as_json):
                                **({"check_glsl": rendered} if rendered else {})}, indent=2))
         return
     f, e = s["fit"], s["fit"]["error"]
-    click.echo(f"fit: lobes GGX α {', '.join(f'{a:.3g}' for a in f['alphas'])}, colour table {len(f['table'])} x "
-               f"{f['n_table']} (indexed by N.V); coat ior {f['coat_ior']:.4g}")
-    click.echo(f"fit error (the model against FILE; Cycles renders the model to 0.2 %, docs/renderers.md): worst ΔE00 "
-               f"{e['worst_dE00_E2194']:.2f} at the E2194 geometries, {e['worst_dE00_E2539']:.2f} with E2539's; over "
-               f"the hemisphere (both within 70°) median {e['dE00_hemisphere_70deg']['median']:.2f}, "
+    retro = f.get("retro_alphas", [])
+    click.echo(f"fit: lobes GGX α {', '.join(f'{a:.3g}' for a in f['alphas'])}"
+               + (f", backscatter GGX α {', '.join(f'{a:.3g}' for a in retro)}" if retro else "")
+               + f", colour table {len(f['table'])} x {f['n_table']} (indexed by N.V); coat ior {f['coat_ior']:.4g}")
+    click.echo(f"in Cycles (the node group renders this model to ≤ 3e-4 at the E2194 geometries, ≤ 0.01 ΔE00; "
+               f"docs/renderers.md): worst ΔE00 against FILE {e['worst_dE00_E2194']:.2f} at the E2194 geometries "
+               f"(target ≤ 2)")
+    click.echo(f"fit error (the model against FILE): worst ΔE00 {e['worst_dE00_E2539']:.2f} with E2539's geometries; "
+               f"over the hemisphere (both within 70°) median {e['dE00_hemisphere_70deg']['median']:.2f}, "
                f"max {e['dE00_hemisphere_70deg']['max']:.2f}")
     if "sparkle" in f:
         g, r = f["sparkle"], f["sparkle"]["reference"]

@@ -60,7 +60,7 @@ SHORT_HELP = {
     'demo': 'Run the end-to-end demo with what flakedb can do today.',
     'export-mitsuba': "Export a Fourier .bsdf / flakedb .h5 FILE to Mitsuba 3's `measured` format (front-side reflection only).",
     'export-openpbr': 'Fit an OpenPBR Surface (coat, base colour, metalness, roughness) to a Fourier .bsdf / flakedb .h5 FILE by weighted least squares, and write NAME.mtlx (MaterialX), NAME.usda (USD), NAME.gltf / NAME.glb (glTF sphere) and NAME.blender.py (Principled BSDF).',
-    'export-cpa': 'Fit a coat mirror, a Lambert term and three GGX lobes whose colours are a table indexed by the view angle to a Fourier .bsdf / flakedb .h5 FILE, and write NAME.cpa.png (the table), NAME.cpa.mtlx (MaterialX standard nodes), NAME.cpa.blender.py (Cycles / EEVEE node group) and NAME.cpa.json (the fit and its ΔE00).',
+    'export-cpa': 'Fit a coat mirror, a Lambert term, three GGX lobes and a backscatter lobe whose colours are a table indexed by the view angle to a Fourier .bsdf / flakedb .h5 FILE, and write NAME.cpa.png (the table), NAME.cpa.mtlx (MaterialX standard nodes), NAME.cpa.blender.py (Cycles / EEVEE node group) and NAME.cpa.json (the fit and its ΔE00).',
     'info': "Describe a Fourier .bsdf, a flakedb .h5 or a Mitsuba 3 `measured` export: what paint, which channels and colour space, the smooth coat's mirror term, energy / colour / convergence checks in words, and the albedo at a few incident angles.",
     'match': 'Fit the {fit: [min, max]} fields of BASE (a recipe YAML) so its colour matches the target.',
     'render': 'Render unit spheres of the BSDFs in FILES (.bsdf, or a flakedb .h5 — a spectral one is converted to linear sRGB by the colour module) under a studio.',

@@ -581,8 +581,9 @@ def sun_direction(theta_deg: float, phi_deg: float = 90.0) -> tuple:
 #: read by one Image Texture per row with linear interpolation and EXTEND at (x, (k + 0.5) / rows),
 #: x = μ_v (n - 1) / n + 0.5 / n (the pixel centres of columns 0 and n - 1 at μ_v = 0 and 1),
 #: μ_v = N · Incoming (Geometry node); row 0 colours a Diffuse BSDF (roughness 0: Lambert), row k a
-#: Glossy BSDF (GGX, single scattering, no Fresnel) of roughness √α_k, all added, plus the coat's
-#: mirror: a Glossy BSDF of roughness 0 coloured by the Fresnel node of the coat's index.
+#: Glossy BSDF (GGX, single scattering, no Fresnel) of roughness √α_k, the rows after the K lobes a
+#: Glossy BSDF whose Normal is the Incoming (view) vector (flakedb.export.cpa.retro_lobe), all added,
+#: plus the coat's mirror: a Glossy BSDF of roughness 0 coloured by the Fresnel node of the coat's index.
 _CPA_BUILD = '''
 def build_sparkle_nodes(N, L, geo, colour, sp):
     """The glint layer of flakedb.export.sparkle in nodes: (glint shader, cell coordinates, the cell's three
@@ -683,11 +684,16 @@ def build_cpa_material(bpy, name, inp, fit_json):
             g.interface.new_socket("Random", in_out="OUTPUT", socket_type="NodeSocketColor")
             keep = N.new("ShaderNodeVectorMath"); keep.operation = "SCALE"; keep.inputs["Scale"].default_value = 1.0 - sp["share"]
             L.new(colour, keep.inputs[0]); colour = keep.outputs[0]
+        n_ggx = len(inp["roughness"])
         if k == 0:
             b = N.new("ShaderNodeBsdfDiffuse"); b.inputs["Roughness"].default_value = 0.0
-        else:
+        elif k <= n_ggx:
             b = N.new("ShaderNodeBsdfGlossy"); b.distribution = "GGX"
             b.inputs["Roughness"].default_value = inp["roughness"][k - 1]
+        else:                              # backscatter lobe: the Glossy BSDF about the view direction
+            b = N.new("ShaderNodeBsdfGlossy"); b.distribution = "GGX"
+            b.inputs["Roughness"].default_value = inp["retro_roughness"][k - 1 - n_ggx]
+            L.new(geo.outputs["Incoming"], b.inputs["Normal"])
         L.new(colour, b.inputs["Color"])
         total = add(total, b.outputs[0])
     if inp["coat_ior"] > 1.0:
@@ -711,21 +717,27 @@ def build_cpa_material(bpy, name, inp, fit_json):
 '''
 
 
-def cpa_inputs(table, alphas, coat_ior: float, sparkle: dict | None = None) -> dict:
+def cpa_inputs(table, alphas, coat_ior: float, sparkle: dict | None = None, retro_alphas=()) -> dict:
     """The node group's inputs (:data:`_CPA_BUILD`) from a colour table (rows, n, 3) of linear RGB
     (:class:`flakedb.export.cpa.CPAFit`), the lobes' GGX α and the coat's index: ``pixels`` the RGBA
     float image, row k = table row k (Blender's row 0 is the image's bottom), ``roughness`` = √α
     (Cycles squares its Roughness input); ``sparkle``: the glint layer's node inputs
-    (:func:`flakedb.export.sparkle.node_inputs`), or None for the smooth material."""
+    (:func:`flakedb.export.sparkle.node_inputs`), or None for the smooth material; ``retro_alphas``: the
+    backscatter lobes' GGX α (rows 1 + K ..., :func:`flakedb.export.cpa.retro_lobe`), ``retro_roughness``
+    = √α."""
     t = np.asarray(table, float)
+    if t.shape[0] != 1 + len(alphas) + len(retro_alphas):
+        raise ValueError(f"cpa_inputs: the table has {t.shape[0]} rows, not 1 + {len(alphas)} lobes + "
+                         f"{len(retro_alphas)} backscatter lobes")
     rgba = np.concatenate([t, np.ones(t.shape[:2] + (1,))], axis=-1)
     return {"rows": int(t.shape[0]), "n_table": int(t.shape[1]), "pixels": [float(v) for v in rgba.ravel()],
             "roughness": [float(math.sqrt(a)) for a in alphas], "coat_ior": float(coat_ior),
+            "retro_roughness": [float(math.sqrt(a)) for a in retro_alphas],
             **({"sparkle": dict(sparkle)} if sparkle is not None else {})}
 
 
 def cpa_material_script(table, alphas, coat_ior: float, name: str, fit_json: str = "{}",
-                        sparkle: dict | None = None) -> str:
+                        sparkle: dict | None = None, retro_alphas=()) -> str:
     """A standalone Blender script building the angle-indexed material (``blender --python``), with the glint
     layer when ``sparkle`` (:func:`flakedb.export.sparkle.node_inputs`) is given."""
     n = safe_name(name)
@@ -735,7 +747,7 @@ def cpa_material_script(table, alphas, coat_ior: float, name: str, fit_json: str
             + (f"# sparkle: the glint cells are in the UV map {sparkle['uv_map'] or '(the active one)'!s}, read as "
                f"{sparkle['cells_per_uv']:.6g} cells per UV unit: the UVs must be proportional to lengths on the surface\n"
                if sparkle else "")
-            + f"INPUTS = {cpa_inputs(table, alphas, coat_ior, sparkle)!r}\n"
+            + f"INPUTS = {cpa_inputs(table, alphas, coat_ior, sparkle, retro_alphas)!r}\n"
             f"FIT = {json.dumps(fit_json)}\n"
             f"material = build_cpa_material(bpy, {('flakedb_cpa_' + n)!r}, INPUTS, FIT)\n"
             f"for ob in bpy.context.selected_objects:          # assign to the selection, if any\n"
@@ -754,7 +766,7 @@ ob.data.materials.append(build_cpa_material(bpy, "flakedb_cpa", a["cpa"], "{}"))
 _CPA_RENDER = _CPA_BUILD + SCENE_SETUP_SCRIPT + _CPA_SPHERE_SCRIPT + CAMERA_SUN_RENDER_SCRIPT
 
 
-def render_cycles_cpa_sphere(table, alphas, coat_ior: float, *, size: int = 32, samples: int = 16,
+def render_cycles_cpa_sphere(table, alphas, coat_ior: float, *, retro_alphas=(), size: int = 32, samples: int = 16,
                              direction=(0.0, 0.0, 1.0), irradiance: float = 1.0, half_angle_deg: float = 2.0,
                              extent: float = 1.05, threads: int = 1, seed: int = 1, filter_width_px: float = 0.01,
                              python: str | None = None, timeout: float = 600.0) -> dict:
@@ -763,7 +775,7 @@ def render_cycles_cpa_sphere(table, alphas, coat_ior: float, *, size: int = 32, 
     args = render_args(size=size, samples=samples, direction=direction, irradiance=irradiance,
                        half_angle_deg=half_angle_deg, extent=extent, threads=threads, seed=seed,
                        filter_width_px=filter_width_px)
-    args["cpa"] = cpa_inputs(table, alphas, coat_ior)
+    args["cpa"] = cpa_inputs(table, alphas, coat_ior, retro_alphas=retro_alphas)
     out = run_bpy_script(_CPA_RENDER, args, python=python, timeout=timeout)
     return {"image": out["image"], "blender": out["blender"]}
 

@@ -91,14 +91,16 @@ def read_fit(path) -> dict:
 
 
 def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str, fit_json: str = "{}",
-                  sparkle: dict | None = None) -> str:
+                  sparkle: dict | None = None, retro_alphas=()) -> str:
     """The angle-indexed material of :mod:`flakedb.export.cpa` as a MaterialX 1.39 graph of standard
     nodes: μ_v = -``normal``·``viewdirection`` (world space), texture coordinate
     ``(μ_v (n - 1) / n + 0.5 / n, (k + 0.5) / rows)`` into ``image_file`` (the colour table, 16-bit
     PNG, ``lin_rec709``, linear filtering, clamped), each row times its ``scales[k]``; row 0 colours an
     ``oren_nayar_diffuse_bsdf`` of roughness 0 (Lambert), row k a ``generalized_schlick_bsdf`` (GGX,
     ``color0 = color90`` = the row's colour: no Fresnel variation) of roughness α_k (MaterialX's
-    ``roughness`` is α itself), all summed by ``add`` with the coat's mirror, a smooth
+    ``roughness`` is α itself), the rows after the K lobes the same BSDF with ``normal`` = −``viewdirection``
+    (the backscatter lobes of :func:`flakedb.export.cpa.retro_lobe`, α = ``retro_alphas``), all summed by
+    ``add`` with the coat's mirror, a smooth
     ``dielectric_bsdf`` of index ``coat_ior`` in reflection only; a ``surface`` and a
     ``surfacematerial``.  The sum is ``add``, not ``layer``: the table already holds the coat's
     transmission.  Plain XML (no MaterialX needed to write); the fit as JSON in ``flakedb_cpa``.
@@ -107,6 +109,9 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
     lobe and the glint layer of :mod:`flakedb.export.sparkle` (:func:`_sparkle_nodes`)."""
     n = safe_name(name)
     rows = len(scales)
+    if rows != 1 + len(alphas) + len(retro_alphas):
+        raise ValueError(f"cpa_mtlx_text: {rows} table rows, not 1 + {len(alphas)} lobes + {len(retro_alphas)} "
+                         f"backscatter lobes")
     root = ET.Element("materialx", {"version": MTLX_VERSION, "colorspace": "lin_rec709", "flakedb_cpa": fit_json})
 
     def node(kind, nname, typ, **inputs):
@@ -123,6 +128,8 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
     node("dotproduct", "NdotI", "float", in1=("vector3", ("node", "N_world")), in2=("vector3", ("node", "V_world")))
     node("multiply", "u_scaled", "float", in1=("float", ("node", "NdotI")), in2=("float", f"{-(n_table - 1) / n_table:.9g}"))
     node("add", "u", "float", in1=("float", ("node", "u_scaled")), in2=("float", f"{0.5 / n_table:.9g}"))
+    if retro_alphas:
+        node("multiply", "V_back", "vector3", in1=("vector3", ("node", "V_world")), in2=("float", "-1"))
     total = None
     for k in range(rows):
         node("combine2", f"uv_{k}", "vector2", in1=("float", ("node", "u")), in2=("float", f"{(k + 0.5) / rows:.9g}"))
@@ -144,12 +151,17 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
             total = "sum_glints"
         if k == 0:
             node("oren_nayar_diffuse_bsdf", "lobe_0", "BSDF", color=("color3", ("node", "colour_0")), roughness=("float", "0"))
-        else:
+        elif k <= len(alphas):
             a = float(alphas[k - 1])
             ck = f"colour_{k}_smooth" if sparkle is not None and k == sparkle["lobe"] else f"colour_{k}"
             node("generalized_schlick_bsdf", f"lobe_{k}", "BSDF", color0=("color3", ("node", ck)),
                  color90=("color3", ("node", ck)), roughness=("vector2", f"{a:.9g}, {a:.9g}"),
                  distribution=("string", "ggx"))
+        else:
+            a = float(retro_alphas[k - 1 - len(alphas)])
+            node("generalized_schlick_bsdf", f"lobe_{k}", "BSDF", color0=("color3", ("node", f"colour_{k}")),
+                 color90=("color3", ("node", f"colour_{k}")), roughness=("vector2", f"{a:.9g}, {a:.9g}"),
+                 normal=("vector3", ("node", "V_back")), distribution=("string", "ggx"))
         if total is None:
             total = f"lobe_{k}"
         else:
@@ -239,8 +251,9 @@ def _sparkle_nodes(node, colour: str, sp: dict) -> str:
 
 
 def write_cpa_mtlx(path, image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str,
-                   fit_json: str = "{}") -> Path:
+                   fit_json: str = "{}", retro_alphas=()) -> Path:
     path = Path(path)
     with atomic_path(path, suffix="") as tmp:
-        Path(tmp).write_text(cpa_mtlx_text(image_file, scales, alphas, coat_ior, n_table, name, fit_json), encoding="utf-8")
+        Path(tmp).write_text(cpa_mtlx_text(image_file, scales, alphas, coat_ior, n_table, name, fit_json,
+                                           retro_alphas=retro_alphas), encoding="utf-8")
     return path

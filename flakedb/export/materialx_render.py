@@ -51,13 +51,14 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from flakedb.colour.tolerance import delta_E_2000
 from flakedb.export.blender import ggx_lobe_height_correlated
-from flakedb.export.cpa import CPAFit, hat_weights, table_image
+from flakedb.export.cpa import CPAFit, hat_weights, retro_lobe, table_image
 from flakedb.export.materialx_glsl import ggx_dir_albedo_analytic
 from flakedb.export.openpbr import colour_grid, exact_rgb, file_directions
 from flakedb.match.fit import channels_to_Lab, geometry_directions
@@ -276,13 +277,14 @@ def table_as_loaded(fit: CPAFit) -> CPAFit:
     (p the 16-bit pixels of :func:`flakedb.export.cpa.table_image`)."""
     px, scale = table_image(fit)
     q8 = np.floor(np.round(px * 65535.0) / 256.0) / 255.0
-    return CPAFit(q8 * scale[:, None, None], fit.alphas, fit.coat_ior, fit.source, fit.error)
+    return replace(fit, table=q8 * scale[:, None, None])
 
 
 def cpa_materialx_rf(fit: CPAFit, geometries) -> np.ndarray:
     """π f (G, 3) that MaterialX's closures give the ``cpa`` graph of ``fit`` at ``geometries`` (module
     docstring): Lambert row 0 plus each lobe's colour C_k(μ_v) × the GGX lobe × MaterialX's energy
-    compensation 1 + C_k (1 − E_ss) / E_ss.  Pass :func:`table_as_loaded` of the fit for what the renderer
+    compensation 1 + C_k (1 − E_ss) / E_ss; a backscatter lobe (:func:`flakedb.export.cpa.retro_lobe`) the same
+    with E_ss at N·V = 1 (its normal is ω_v).  Pass :func:`table_as_loaded` of the fit for what the renderer
     reads of the PNG.  Off the coat's mirror direction (its δ is not drawn).
 
     A white Lambert row alone gives π f = 1; a lobe of colour 1 gets 1 / E_ss:
@@ -306,6 +308,11 @@ def cpa_materialx_rf(fit: CPAFit, geometries) -> np.ndarray:
         ess = ggx_dir_albedo_analytic(mu_v, a, 1.0, 1.0)[:, None]
         comp = 1.0 + C[:, k] * (1.0 - ess) / ess
         f = f + C[:, k] * comp * ggx_lobe_height_correlated(mu_v, mu_l, cos_h, a)[:, None]
+    cos_vl = np.einsum("gi,gi->g", wl, wv)
+    for k, a in enumerate(fit.retro_alphas, start=1 + len(fit.alphas)):  # normal = ω_v: N·V = 1
+        ess = float(ggx_dir_albedo_analytic(1.0, a, 1.0, 1.0))
+        comp = 1.0 + C[:, k] * (1.0 - ess) / ess
+        f = f + C[:, k] * comp * retro_lobe(mu_l, cos_vl, a)[:, None]
     return np.pi * np.where((mu_l > 0)[:, None], f, 0.0)
 
 

@@ -98,8 +98,9 @@ def export_cpa(src, out_dir, name: str | None = None, progress=None, sparkle_rec
     px, scale = table_image(materialx_fit(fit))     # the graph's colours: MaterialX's energy compensation undone
     texts = {"materialx": cpa_mtlx_text(finals["image"].name, scale, fit.alphas, fit.coat_ior, fit.n_table, name,
                                         json.dumps({k: v for k, v in d.items() if k != "table"}, separators=(",", ":")),
-                                        sparkle=nodes),
-             "blender": cpa_material_script(fit.table, fit.alphas, fit.coat_ior, name, fit_json, sparkle=nodes),
+                                        sparkle=nodes, retro_alphas=fit.retro_alphas),
+             "blender": cpa_material_script(fit.table, fit.alphas, fit.coat_ior, name, fit_json, sparkle=nodes,
+                                            retro_alphas=fit.retro_alphas),
              "fit": json.dumps(d, indent=1)}
     out_dir.mkdir(parents=True, exist_ok=True)
     with plan.staged() as stage:  # the four files land together or not at all

@@ -5,8 +5,11 @@ Guards against: a fit that cannot recover a table made by its own model (the des
 view/light convention); a model image on the sphere whose frame or φ_d convention differs from the
 file's coordinates; a 16-bit PNG that does not read back as written (row order, byte order); a
 MaterialX graph that MaterialX refuses or cannot generate GLSL for; a Cycles node group that is
-not the model (wrong image row, wrong index x, wrong roughness mapping); and, on catalogue paints
-rendered in Cycles, an angle-indexed route that is not better than the single-lobe Principled route.
+not the model (wrong image row, wrong index x, wrong roughness mapping, a backscatter lobe not about
+the view); a backscatter lobe whose cosine is carried to the wrong normal; an export command that does
+not print the route's E2194 ΔE00; and, on catalogue paints rendered in Cycles, an angle-indexed route
+that is not better than the single-lobe Principled route or misses the issue's E2194 target (worst
+ΔE00 ≤ 2).
 """
 
 import json
@@ -15,9 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 import flakedb
 from flakedb.bsdf import BSDFTable, open_bsdf, write_bsdf
+from flakedb.cli.main import cli
 from flakedb.colour.tolerance import delta_E_2000
 from flakedb.compose.orchestrate import compose
 from flakedb.export import cpa
@@ -25,13 +30,14 @@ from flakedb.export import openpbr as op
 from flakedb.export.blender import (
     bpy_available,
     cpa_inputs,
+    ggx_lobe_height_correlated as op_ggx,
     principled_inputs,
     render_cycles_cpa_sphere,
     render_cycles_geometries,
     render_cycles_sphere,
     sun_direction,
 )
-from flakedb.export.registry import EXPORT_METHODS, export
+from flakedb.export.registry import EXPORT_METHODS
 from flakedb.match.fit import channels_to_Lab, geometry_directions
 from flakedb.match.targets import E2194_GEOMETRIES
 from flakedb.paint.recipe import load_recipe
@@ -50,6 +56,13 @@ def truth_fit(n_table=cpa.N_TABLE):
     table = np.stack([(0.30, 0.20, 0.10) * (0.5 + 0.5 * mu), (0.05, 0.10, 0.20) * (1.0 + mu),
                       (0.20, 0.15, 0.02) * (1.5 - mu), (0.10, 0.10, 0.10) + 0 * mu])
     return cpa.CPAFit(table, (0.11, 0.28, 0.65), ETA)
+
+
+def truth_fit_retro(n_table=cpa.N_TABLE):
+    """truth_fit with a backscatter lobe (α 0.42) coloured by a fifth row."""
+    mu = np.linspace(0.0, 1.0, n_table)[:, None]
+    t = truth_fit(n_table)
+    return cpa.CPAFit(np.concatenate([t.table, [(0.02, 0.05, 0.10) * (0.5 + mu)]]), t.alphas, ETA, retro_alphas=(0.42,))
 
 
 def cpa_table(fit, h=20, L=48, M=192):
@@ -87,13 +100,37 @@ def test_table_file_is_the_model(model_file):
     assert np.median(np.abs(ex / swapped - 1)) > 0.05
 
 
-def test_fit_recovers_its_own_model(model_file):
+def test_fit_recovers_its_own_model(model_file, tmp_path):
     """fit_cpa on a file made by the model: the lobes found, the coat's index read from the delta, and
-    every E2194 / E2539 colour within 0.5 ΔE00 (what is left is the file's own interpolation)."""
+    every E2194 / E2539 colour within 0.5 ΔE00 (what is left is the file's own interpolation); with a
+    backscatter lobe in the model, its α is found too."""
     fit = cpa.fit_cpa(open_bsdf(model_file), minimax_passes=2, alpha_grid=(0.05, 0.11, 0.28, 0.65))
     assert fit.alphas == truth_fit().alphas and fit.coat_ior == ETA
     assert fit.error["worst_dE00_E2539"] < 0.5, fit.error["dE00_E2539"]
     assert fit.error["dE00_hemisphere_70deg"]["median"] < 0.5
+    write_bsdf(tmp_path / "retro.bsdf", cpa_table(truth_fit_retro()), truncation=0.0)
+    fit = cpa.fit_cpa(open_bsdf(tmp_path / "retro.bsdf"), minimax_passes=2, alpha_grid=(0.05, 0.11, 0.28, 0.65),
+                      retro_grid=(0.18, 0.42, 1.0))
+    assert (fit.alphas, fit.retro_alphas) == (truth_fit().alphas, (0.42,))
+    assert fit.error["worst_dE00_E2539"] < 0.5, fit.error["dE00_E2539"]
+
+
+def test_retro_lobe_is_the_ggx_lobe_about_the_view():
+    """The backscatter lobe is the GGX lobe about ω_v seen through N: when ω_v = N the two normals coincide
+    and it equals the ordinary lobe (the cosine carried from its own normal to N is then 1); it peaks
+    at ω_l = ω_v with D(1) G2 / (4 μ_l) = 1 / (4 π α² μ_l); and at E2194's aspecular 15° and 75° (one
+    view cosine) it is larger on the light's side, which no GGX lobe about N is."""
+    rng = np.random.default_rng(5)
+    mu_l = rng.uniform(0.05, 1.0, 50)
+    for a in (0.18, 0.42, 1.0):
+        np.testing.assert_allclose(cpa.retro_lobe(mu_l, mu_l, a),
+                                   op_ggx(1.0, mu_l, np.sqrt(0.5 * (1 + mu_l)), a), rtol=1e-12)
+        th = rng.uniform(0.0, 1.4, 20)
+        np.testing.assert_allclose(cpa.retro_lobe(np.cos(th), 1.0, a), 1.0 / (4 * np.pi * a * a * np.cos(th)), rtol=1e-12)
+    gi, go, gp = geometry_directions(np.array([[45.0, 15.0], [45.0, 75.0]]))
+    wl, wv = op.file_directions(gi, go, gp)
+    B = cpa.lobe_basis(wv[..., 2], wl[..., 2], cpa._half_cos(wv, wl), (0.42,), (0.42,), np.sum(wv * wl, axis=-1))
+    assert B[0, 1] > 6 * B[1, 1] and B[1, 2] > 6 * B[0, 2]          # measured 6.4 and 9.1
 
 
 def test_sun_image_frame():
@@ -124,23 +161,32 @@ def test_png_round_trip():
 
 
 def test_materialx_graph(tmp_path):
-    """The exported .cpa.mtlx validates against MaterialX's standard library, GLSL is generated for
-    it, and its image rows and scales are the fit's table."""
+    """`flakedb export-cpa`: the exported .cpa.mtlx validates against MaterialX's standard library, GLSL is generated for
+    it, its image rows and scales are the fit's table, and its backscatter lobe's normal is the view
+    direction reversed (MaterialX's ``viewdirection`` points at the surface); the command prints the
+    worst E2194 ΔE00 of the route as rendered."""
     mx = pytest.importorskip("MaterialX", reason="materialx not installed (pip install 'flakedb[materialx]')")
 
     src = tmp_path / "model.bsdf"
-    write_bsdf(src, cpa_table(truth_fit()), truncation=0.0)
-    out = export(src, tmp_path / "out", method="cpa")
+    write_bsdf(src, cpa_table(truth_fit_retro()), truncation=0.0)
+    r = CliRunner().invoke(cli, ["export-cpa", str(src), "--out", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
     doc = mx.createDocument()
-    mx.readFromXmlFile(doc, out["files"]["materialx"])
+    mx.readFromXmlFile(doc, str(tmp_path / "out" / "model.cpa.mtlx"))
     assert len(validated_glsl(doc, "M_model", "cpa")) > 1000
-    fit = cpa.CPAFit.from_dict(json.loads(Path(out["files"]["fit"]).read_text()))
-    px = cpa.read_png16(Path(out["files"]["image"]).read_bytes())
+    fit = cpa.CPAFit.from_dict(json.loads((tmp_path / "out" / "model.cpa.json").read_text()))
+    px = cpa.read_png16((tmp_path / "out" / "model.cpa.png").read_bytes())
+    # the command prints the route's ΔE00 at the E2194 geometries, what Cycles renders (the model, to ≤ 3e-4)
+    assert "in Cycles" in r.output and f"worst ΔE00 against FILE {fit.error['worst_dE00_E2194']:.2f} at the E2194" in r.output
     scales = [doc.getNode(f"colour_{k}").getInputValue("in2") for k in range(len(px))]
     table = cpa.materialx_fit(fit).table         # the lobes' colours with MaterialX's energy compensation undone
     np.testing.assert_allclose(px * np.asarray(scales)[:, None, None], table, atol=1e-4 * table.max())
     assert np.all(table[1:] < fit.table[1:] + 1e-12) and np.array_equal(table[0], fit.table[0])
     assert doc.getNode("lobe_1").getInputValue("roughness")[0] == pytest.approx(fit.alphas[0], rel=1e-6)
+    retro = doc.getNode(f"lobe_{1 + len(fit.alphas)}")                 # the backscatter lobe: about -viewdirection
+    assert fit.retro_alphas == (0.42,) and retro.getInputValue("roughness")[0] == pytest.approx(0.42, rel=1e-6)
+    assert retro.getInput("normal").getNodeName() == "V_back"
+    assert doc.getNode("V_back").getInput("in1").getNodeName() == "V_world"
     assert "cpa" in EXPORT_METHODS
 
 
@@ -186,42 +232,90 @@ CYCLES_GEOMETRY_RTOL = 1e-3
 def test_cycles_node_group_is_the_model():
     """The node group in Cycles at the six E2194 geometries (a plane under a 0.5° sun, every pixel one
     geometry: :func:`flakedb.export.blender.render_cycles_geometries`) renders the numpy model
-    (:func:`flakedb.export.cpa.evaluate_cpa`) within CYCLES_GEOMETRY_RTOL per channel: the image row
-    per lobe, the N·V index and the roughness mapping are the model's.  With the table's rows reversed
-    (a wrong row index) it is far off."""
-    fit = truth_fit()
+    (:func:`flakedb.export.cpa.evaluate_cpa`, with a backscatter lobe) within CYCLES_GEOMETRY_RTOL per
+    channel: the image row per lobe, the N·V index, the roughness mapping and the backscatter lobe's
+    normal (the view) are the model's.  With the table's rows reversed (a wrong row index), or the
+    backscatter lobe drawn about N (its Normal input left unlinked), the model is far off."""
+    fit = truth_fit_retro()
     g = np.asarray(E2194_GEOMETRIES, float)
     gi, go, gp = geometry_directions(g)
     model = np.pi * cpa.evaluate_cpa(fit, gi, go, gp)
-    cy = render_cycles_geometries(g, cpa=cpa_inputs(fit.table, fit.alphas, fit.coat_ior), python=BLENDER_PYTHON)
+    cy = render_cycles_geometries(g, cpa=cpa_inputs(fit.table, fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas),
+                                  python=BLENDER_PYTHON)
     np.testing.assert_allclose(cy, model, rtol=CYCLES_GEOMETRY_RTOL)
-    wrong = cpa.CPAFit(fit.table[::-1], fit.alphas, fit.coat_ior)
+    wrong = cpa.CPAFit(fit.table[::-1], fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas)
     assert np.max(np.abs(np.pi * cpa.evaluate_cpa(wrong, gi, go, gp) / model - 1)) > 0.1
+    about_n = cpa.CPAFit(fit.table, fit.alphas + fit.retro_alphas, fit.coat_ior)
+    assert np.max(np.abs(np.pi * cpa.evaluate_cpa(about_n, gi, go, gp) / model - 1)) > 0.1
 
 
-#: The issue's target at the E2194 geometries in Cycles (worst ΔE00 ≤ 2); the pearlescent misses it
-#: (measured 3.7 at aspecular 75°; docs/renderers.md): its bound states what is reached.
-E2194_BOUND = {"metallic-silver": 2.0, "particle-pearlescent": 4.0}
+#: The catalogue paints of docs/renderers.md (issue 23's four), composed at n = 32, and red metallic, whose
+#: first lobe subset misses the target (3.17) so that the fit's search for a subset that meets it is run.
+#: The one catalogue recipe that misses the target (every other one measured ≤ 1.99: docs/renderers.md) is
+#: the clear-coated bare aluminium panel, a strict xfail with its number.
+PAINTS = ["metallic-silver", "particle-cadmium-yellow", "particle-pearlescent", "tri-coat-pearl-white", "red-metallic",
+          pytest.param("coated-aluminium", marks=pytest.mark.xfail(strict=True, reason=(
+              "measured 7.71 at aspecular -15..75 (1.43 at 110): a Beckmann conductor of roughness 0.1 under the coat "
+              "is black 75 deg from the specular (L* 0.04) while its highlight is L* 224; GGX tails (every lobe "
+              "here, and the only distribution of MaterialX's generalized_schlick_bsdf) fall too slowly to give both "
+              "with non-negative colours (L* 12.8 at 75 deg)")))]
+#: The issue's target at the E2194 geometries in Cycles: worst ΔE00 ≤ 2 against the exact paint, every paint.
+E2194_BOUND = 2.0
+
+
+@pytest.fixture(scope="module")
+def catalogue(tmp_path_factory):
+    """paint -> (its exact file at n = 32, its cpa fit), composed and fitted once per module."""
+    cache = {}
+
+    def get(paint):
+        if paint not in cache:
+            d = tmp_path_factory.mktemp(paint)
+            compose(load_recipe(RECIPES / f"{paint}.yaml"), d, n=32)
+            b = open_bsdf(d / f"{paint}.bsdf")
+            cache[paint] = (b, cpa.fit_cpa(b))
+        return cache[paint]
+    return get
+
+
+def _e2194_lab_exact(b):
+    g = np.asarray(E2194_GEOMETRIES, float)
+    return g, channels_to_Lab(np.pi * op.exact_rgb(b, *geometry_directions(g)), "rgb", WL)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not BPY_OK, reason=f"Blender's bpy is not available: {BPY_WHY}{BLENDER_NOTE}")
+@pytest.mark.parametrize("paint", PAINTS)
+def test_cycles_e2194_worst_within_2(paint, catalogue):
+    """The issue's target, in the renderer: the catalogue paint (n = 32) fitted by ``fit_cpa`` and rendered
+    by the node group in Cycles at the six E2194 geometries (:func:`render_cycles_geometries`: a plane
+    under a 0.5° sun, 256 spp) has its worst ΔE00 against the exact paint ≤ E2194_BOUND.  Measured
+    (docs/renderers.md): 0.87 (silver), 0.40 (cadmium yellow), 1.69 (pearlescent: 3.68 without the
+    backscatter lobe, whose one view cosine at aspecular 15° and 75° no lobe about N can tell apart),
+    0.36 (pearl white), 1.90 (red metallic: 3.17 with its first lobe subset)."""
+    b, fit = catalogue(paint)
+    g, lab_exact = _e2194_lab_exact(b)
+    rf = render_cycles_geometries(g, cpa=cpa_inputs(fit.table, fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas),
+                                  python=BLENDER_PYTHON)
+    de = delta_E_2000(channels_to_Lab(np.maximum(rf, 1e-6), "rgb", WL), lab_exact)
+    assert de.max() <= E2194_BOUND, dict(zip(g[:, 1].tolist(), np.round(de, 2).tolist()))
 
 
 @pytest.mark.slow
 @pytest.mark.skipif(not BPY_OK, reason=f"Blender's bpy is not available: {BPY_WHY}{BLENDER_NOTE}")
 @pytest.mark.parametrize("paint", ["metallic-silver", "particle-pearlescent"])
-def test_cycles_cpa_beats_single_lobe(paint, tmp_path):
+def test_cycles_cpa_beats_single_lobe(paint, catalogue):
     """The catalogue paint (n = 32) under a 2° sun at 35° from the view axis (32 px, 64 spp, black
     world): the node group in Cycles renders the model (the sum over the compared pixels within
     CYCLES_SUM_RTOL per channel), and against the exact paint (:func:`flakedb.export.cpa.sun_image`
     of the file, deterministic) its median ΔE00 is below the single-lobe Principled route's and
-    within CPA_MEDIAN_BOUND; at the six E2194 geometries its worst ΔE00 is below the single lobe's
-    and within E2194_BOUND."""
-    compose(load_recipe(RECIPES / f"{paint}.yaml"), tmp_path, n=32)
-    b = open_bsdf(tmp_path / f"{paint}.bsdf")
+    within CPA_MEDIAN_BOUND; at the six E2194 geometries its worst ΔE00 is below the single lobe's."""
+    b, fit = catalogue(paint)
     d = sun_direction(35.0)
     mask = compared_pixels(d)
     exact = cpa.sun_image(lambda mi, mo, ph: op.exact_rgb(b, mi, mo, ph), SIZE, d)
-    fit = cpa.fit_cpa(b)
-    cy = render_cycles_cpa_sphere(fit.table, fit.alphas, fit.coat_ior, size=SIZE, samples=64, direction=d,
-                                  python=BLENDER_PYTHON)["image"]
+    cy = render_cycles_cpa_sphere(fit.table, fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas, size=SIZE,
+                                  samples=64, direction=d, python=BLENDER_PYTHON)["image"]
     model = cpa.cpa_sun_image(fit, SIZE, d)
     np.testing.assert_allclose(cy[mask].sum(0), model[mask].sum(0), rtol=CYCLES_SUM_RTOL)
     pbr = op.fit_openpbr(b)
@@ -230,11 +324,10 @@ def test_cycles_cpa_beats_single_lobe(paint, tmp_path):
     de_single = np.median(delta_E_2000(_lab(single, mask), _lab(exact, mask)))
     assert de_cpa < de_single and de_cpa <= CPA_MEDIAN_BOUND[paint], (de_cpa, de_single)
     # at the six E2194 geometries, rendered (a plane under a sun; test_cycles_node_group_is_the_model)
-    g = np.asarray(E2194_GEOMETRIES, float)
-    lab_exact = channels_to_Lab(np.pi * op.exact_rgb(b, *geometry_directions(g)), "rgb", WL)
+    g, lab_exact = _e2194_lab_exact(b)
     worst = {}
-    for route, kw in (("cpa", {"cpa": cpa_inputs(fit.table, fit.alphas, fit.coat_ior)}),
+    for route, kw in (("cpa", {"cpa": cpa_inputs(fit.table, fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas)}),
                       ("single", {"inputs": principled_inputs(pbr)})):
         rf = render_cycles_geometries(g, python=BLENDER_PYTHON, **kw)
         worst[route] = float(delta_E_2000(channels_to_Lab(np.maximum(rf, 1e-6), "rgb", WL), lab_exact).max())
-    assert worst["cpa"] < worst["single"] and worst["cpa"] <= E2194_BOUND[paint], worst
+    assert worst["cpa"] < worst["single"], worst

@@ -226,7 +226,7 @@ def test_cycles_glint_count_matches_the_model(silver_cpa, light_deg):
     stack, _ = texture_stack(SILVER)
     row = sparkle_indices(stack, Observer("pinhole", 10.0, 1e-4, src, light_deg=(light_deg,)), light_deg)
     side = 256 * 10e-6
-    r = render_cycles_patch(cpa_inputs(fit.table, fit.alphas, fit.coat_ior, sp.node_inputs(lay)), side_m=side, size=256,
+    r = render_cycles_patch(cpa_inputs(fit.table, fit.alphas, fit.coat_ior, sp.node_inputs(lay), fit.retro_alphas), side_m=side, size=256,
                             light_deg=light_deg, half_angle_deg=src, samples=16, cells=True, python=BLENDER_PYTHON)
     n, seen, beta = _count(r["image"], r["cells"], light_deg, row["glint_threshold_luminance_factor"])
     assert seen == pytest.approx((side * 1e6 / lay.cell_um) ** 2, rel=0.02)   # + a partial row and column
@@ -256,8 +256,8 @@ def test_cycles_mean_is_the_smooth_render(silver_cpa, light_deg, view_deg):
     fit, lay = silver_cpa
     kw = dict(side_m=0.04, size=128, light_deg=light_deg, view_deg=view_deg, half_angle_deg=sp.REFERENCE_SOURCE_DEG, samples=64,
               filter_width_px=1.5, python=BLENDER_PYTHON)
-    a = render_cycles_patch(cpa_inputs(fit.table, fit.alphas, fit.coat_ior, sp.node_inputs(lay)), **kw)["image"]
-    b = render_cycles_patch(cpa_inputs(fit.table, fit.alphas, fit.coat_ior), **kw)["image"]
+    a = render_cycles_patch(cpa_inputs(fit.table, fit.alphas, fit.coat_ior, sp.node_inputs(lay), fit.retro_alphas), **kw)["image"]
+    b = render_cycles_patch(cpa_inputs(fit.table, fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas), **kw)["image"]
     np.testing.assert_allclose(a.mean(axis=(0, 1)) / b.mean(axis=(0, 1)), 1.0, atol=PATCH_MEAN_RTOL)
 
 
