@@ -110,8 +110,8 @@ def test_graph_renders_what_flakedb_predicts(harness):
 #: The issue's goal, worst ΔE00 at the E2194 geometries in MaterialX GLSL ≤ 2, and per paint what is reached
 #: (docs/renderers.md, "Rendered in MaterialX's GLSL renderer"): the bound asserted where the goal is missed.
 GOAL = 2.0
-MEASURED_BOUND = {"metallic-silver": 2.0, "particle-cadmium-yellow": 2.0, "particle-pearlescent": 4.0,
-                  "tri-coat-pearl-white": 2.0}
+MEASURED_BOUND = {"metallic-silver": 2.0, "particle-cadmium-yellow": 2.0, "particle-pearlescent": 2.0,
+                  "tri-coat-pearl-white": 2.0, "red-metallic": 2.0}
 
 
 @pytest.mark.slow
