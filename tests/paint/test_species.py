@@ -51,6 +51,8 @@ ADDED = {"pearl-white": "interference_flake", "carbon-black": "pigment", "iron-o
 ADDED = ADDED | {n: "interference_flake" for n in (
     "aluminium-cornflake", "aluminium-silver-dollar", "aluminium-vmp", "aluminium-silica", "mica-tio2-pearl",
     "synthetic-mica-tio2-interference", "alumina-tio2", "glass-flake-tio2", "aluminium-tio2")}
+#: iron-oxide-coated mica, the species gold and golden-pearl paints are made of (tests/paint/test_fe2o3_flakes.py)
+ADDED = ADDED | {"mica-fe2o3-pearl": "interference_flake", "mica-tio2-fe2o3-gold": "interference_flake"}
 #: issue #35 item 1, organic colourants from published KM data (tests/paint/test_palette.py)
 ADDED = ADDED | {n: "tinter" for n in (
     "phthalo-blue", "phthalo-blue-red-shade", "phthalo-green", "phthalo-green-yellow-shade", "quinacridone-red",
