@@ -227,3 +227,61 @@ def test_store_builds_the_new_species_and_composes_from_them(tmp_path, catalog):
     a_direct = solve_recipe(rec, catalog=catalog).table.albedo()
     # the stored kernel is the direct one to 1e-5 of its scale (tests/store/test_stored.py); measured here 2.2e-7
     assert a_store.shape == a_direct.shape and np.abs(a_store - a_direct).max() <= 1e-5
+
+
+@pytest.mark.slow
+def test_gold_base_recovers_the_hematite_thickness(tmp_path):
+    """`match` from tools/validation/gold-fe2o3.yaml: a target made by flakedb from that base with 50 nm of
+    hematite (the other fields at the base's start values), fitted from 65 nm with the pearl's loading free too,
+    recovers the thickness to 2 % (n = 16, E2194 geometries)."""
+    import yaml
+    from click.testing import CliRunner
+
+    from flakedb.cli.main import cli
+    root = __import__("pathlib").Path(__file__).resolve().parents[2]
+    doc = yaml.safe_load((root / "tools" / "validation" / "gold-fe2o3.yaml").read_text(encoding="utf-8"))
+    ps = doc["layers"][1]["basecoat"]["particles"]
+    assert [p["species"] for p in ps] == ["metallic", "iron-oxide-red-transparent", "mica-fe2o3-pearl"]
+
+    def fixed(node):  # every {fit: ..., start: s} at its start value
+        if isinstance(node, dict):
+            return node["start"] if "fit" in node else {k: fixed(v) for k, v in node.items()}
+        return [fixed(v) for v in node] if isinstance(node, list) else node
+    truth = fixed(doc)
+    truth["layers"][1]["basecoat"]["particles"][2]["coating_thickness_nm"] = 50.0
+    (tmp_path / "true.yaml").write_text(yaml.safe_dump(truth))
+    target = tmp_path / "target.csv"
+    r = CliRunner().invoke(cli, ["compare", str(tmp_path / "true.yaml"), "--n", "16", "--write-csv", str(target),
+                                 "--geometries", "e2194"])
+    assert r.exit_code == 0, r.output
+    base = fixed(doc)
+    base["layers"][1]["basecoat"]["particles"][2].update(
+        coating_thickness_nm={"fit": [27, 108], "start": 65}, volume_fraction={"fit": [0.002, 0.1], "start": 0.03})
+    (tmp_path / "base.yaml").write_text(yaml.safe_dump(base))
+    out = tmp_path / "out"
+    r = CliRunner().invoke(cli, ["match", str(tmp_path / "base.yaml"), "--target", str(target), "--n", "16",
+                                 "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    fitted = yaml.safe_load((out / "validation-gold-fe2o3-fitted.yaml").read_text())
+    p = fitted["layers"][1]["basecoat"]["particles"][2]
+    assert p["coating_thickness_nm"] == pytest.approx(50.0, rel=0.02)
+    assert p["volume_fraction"] == pytest.approx(0.02, rel=0.05)
+
+
+@pytest.mark.parametrize("base", ["gold-fe2o3.yaml", "pearl-gold.yaml"])
+def test_validation_bases_are_valid_at_start_and_bounds(catalog, base):
+    """The new match bases name the new species and parse at their start values and at every bound together
+    (all low, all high): `match` would refuse them before any computation otherwise."""
+    import yaml
+
+    from flakedb.paint.recipe import parse_recipe
+    root = __import__("pathlib").Path(__file__).resolve().parents[2]
+    doc = yaml.safe_load((root / "tools" / "validation" / base).read_text(encoding="utf-8"))
+    assert {p["species"] for p in doc["layers"][1]["basecoat"]["particles"]} & set(FE)
+
+    def at(node, pick):
+        if isinstance(node, dict):
+            return pick(node) if "fit" in node else {k: at(v, pick) for k, v in node.items()}
+        return [at(v, pick) for v in node] if isinstance(node, list) else node
+    for pick in (lambda f: f["start"], lambda f: f["fit"][0], lambda f: f["fit"][1]):
+        parse_recipe(yaml.safe_dump(at(doc, pick)), catalog=catalog)
