@@ -7,13 +7,14 @@ import numpy as np
 import pytest
 
 from flakedb.paint.catalog import get_species, load_catalog
+from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import RecipeError, parse_recipe
 from flakedb.paint.recipe_checks import flake_entry_with_films
 from flakedb.paint.species import binder_index, film_spreads, film_stack, flake_reflectance_transmittance
 from tests.cases import basecoat_recipe
 
 NEW = ("aluminium-cornflake", "aluminium-silver-dollar", "aluminium-vmp", "aluminium-silica", "mica-tio2-pearl",
-       "alumina-tio2", "aluminium-tio2")
+       "alumina-tio2", "aluminium-tio2", "mica-fe2o3-pearl", "mica-tio2-fe2o3-gold")
 WL = np.arange(380.0, 781.0, 20.0)
 
 
@@ -29,8 +30,11 @@ def test_species_optics_physical(catalog, name):
     R, T = flake_reflectance_transmittance(e, WL, c, binder_index(catalog, WL))
     assert np.all(R >= 0) and np.all(T >= 0) and np.all(R + T <= 1 + 1e-12)
     mats, _ = film_stack(e)
-    if "Al" not in mats:  # lossless substrates and coatings (k = 0 in these tables): R + T = 1
+    k = np.stack([refractive_index(m, WL).imag for m in mats])
+    if not np.any(k > 0):  # lossless substrates and coatings (k = 0 in these tables): R + T = 1
         np.testing.assert_allclose(R + T, 1.0, atol=1e-9)
+    else:  # an absorbing film (Al, Fe2O3) takes some light at every angle but grazing (cos 0: R = 1)
+        assert np.all((R + T)[:, c > 0] < 1.0)
 
 
 def test_film_spreads_pair_the_two_faces(catalog):
