@@ -653,7 +653,10 @@ def test_size_averaged_phase_equals_the_sum_of_each_spheres_amplitudes():
         x = np.stack([np.linspace(x_lo, x_hi, 23), np.linspace(0.7 * x_lo, 0.9 * x_hi, 23)])  # (W = 2, Q)
         w = rng.uniform(0.1, 1.0, x.shape)
         mm = np.array([m, m * (1 + 0.05j)])
-        got = M.size_averaged_phase(mm, x, w, mu)
+        eff, got = M.size_averaged_phase(mm, x, w, mu)
+        ref = mie(mm[:, None], x)  # the efficiencies as mie computes them, bit for bit
+        for name in ("qext", "qsca", "qback", "g"):
+            np.testing.assert_array_equal(getattr(eff, name), getattr(ref, name))
         direct = np.zeros((2, mu.size))
         magnitude = np.zeros((2, mu.size))
         for i in range(2):
