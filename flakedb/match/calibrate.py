@@ -300,8 +300,20 @@ def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=N
 
     history = []
 
+    jacobians = {}
+
     def jac(z):
         r0 = resid(z)
+        key = tuple(float(v) for v in z)
+        if key not in jacobians:  # the solver's last Jacobian is at its solution: the standard errors' one
+            jacobians[key] = jacobian(z, r0)
+        d = np.concatenate(de(z))
+        history.append({"z": z.tolist(), "cost": float(r0 @ r0), "max_dE00": float(d.max())})
+        log(f"iteration {len(history) - 1}: sum r^2 = {float(r0 @ r0):.4g}, max dE00 = {d.max():.3f}; "
+            + ", ".join(f"{p.name} = {v:+.4f}" for p, v in zip(params, z)) + f"  [{calls[0]} compose calls]")
+        return jacobians[key].copy()
+
+    def jacobian(z, r0):
         J = np.empty((r0.size, len(params)))
         chained = band_chained_columns(params, base, z, [pr for pr, _, _ in evaluate(z)]) if band_jacobian else {}
         for j, prm in enumerate(params):
@@ -314,10 +326,6 @@ def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=N
             if prm.name == LEAD_ABSORPTION and chained:
                 for k, weights in chained.items():
                     J[:, k] = (chained_residuals(evaluate(z), evaluate(zj), weights) - r0) / h
-        d = np.concatenate(de(z))
-        history.append({"z": z.tolist(), "cost": float(r0 @ r0), "max_dE00": float(d.max())})
-        log(f"iteration {len(history) - 1}: sum r^2 = {float(r0 @ r0):.4g}, max dE00 = {d.max():.3f}; "
-            + ", ".join(f"{p.name} = {v:+.4f}" for p, v in zip(params, z)) + f"  [{calls[0]} compose calls]")
         return J
 
     def chained_residuals(at_z, at_step, weights):
