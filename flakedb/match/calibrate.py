@@ -28,7 +28,11 @@ Residuals over every panel and geometry: spectral reflectance factors when the t
 (100 (R_pred − R_target) per band, the prediction linearly interpolated onto the target's grid,
 which it must cover), else the three CIEDE2000 components (:func:`flakedb.colour.tolerance.ciede2000_residuals`).
 Bounded trust-region least squares (scipy ``least_squares(method="trf")``), forward-difference
-Jacobian (step :data:`FD_STEP` in z), one compose per panel per evaluation (:func:`flakedb.match.fit.predict`);
+Jacobian (step :data:`FD_STEP` in z), one compose per panel per evaluation (:func:`flakedb.match.fit.predict`).
+A pigment's absorption columns come from one step: the k-factor acts band by band and the bands of a solve
+are independent, so the step of a_0 (ln k raised by h in every band) gives ∂R_λ/∂ln k(λ) for every band, and
+column j is ∂ln k(λ)/∂a_j times it (:func:`band_chained_columns`; spectral panels; the chain rule of
+:mod:`flakedb.match.tinter`): a Jacobian costs two composes per panel whatever the degree;
 the other species' optics and projections (and the calibrated species' optics across its panels) are computed once per
 fit (:mod:`flakedb.rt.common.reuse`, docs/fit-speed.md).
 Standard errors: the Gauss–Newton covariance s² (JᵀJ)⁻¹ at the solution with the residual variance
