@@ -1,6 +1,9 @@
 """The fits of issue 39 item 1 as whole processes: a 3-loading match, an orientation-α fit and a 2-panel calibrate,
 each with the fit's reuse cache (:mod:`flakedb.rt.common.reuse`, the product's path) or without it (``--today``: every
-evaluation computes every species' optics and projection afresh, the path before the cache).
+evaluation computes every species' optics and projection afresh, the path before the cache, and a calibrate composes
+once per Jacobian column instead of chaining its absorption columns).  Code shared by both paths (the Mie
+phase function's double series, the recipe check's copies on lookup) speeds both: its gain shows against
+main's code run beside (docs/fit-speed.md), not in this pair's ratio.
 
     python bench/fit_cases.py prepare DIR            # the base recipes, targets and ladder (true recipes composed)
     python bench/fit_cases.py run CASE DIR [--today] # CASE: match3 | alpha | calibrate2; prints one JSON line
