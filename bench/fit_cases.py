@@ -19,8 +19,15 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-import yaml
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from flakedb.process import blas_one_thread, tune_allocator  # noqa: E402  (imports no numpy)
+
+if __name__ == "__main__":  # the process as `flakedb match` / `calibrate` runs (flakedb.cli.main.main), before numpy
+    blas_one_thread()
+    tune_allocator()
+
+import numpy as np  # noqa: E402
+import yaml  # noqa: E402
 
 #: The product's default spectral grid (380–780 nm every 10 nm, 41 bands) and ``resolution: auto``, as a colour
 #: engineer composes.
@@ -140,5 +147,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     main()
