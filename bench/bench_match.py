@@ -14,8 +14,9 @@ recovered parameters.
 
 ``fit/…`` (issue 39 item 1): the three fits of bench/fit_cases.py — three loadings free, the flakes' orientation
 α, a two-panel calibrate — each as two whole processes in turn, today's path (every evaluation computes every
-species' optics and projection) and the product's (the fit's reuse cache, :mod:`flakedb.rt.common.reuse`), with the
-ratio today / reuse of the pair.  Each pair takes minutes on 2 cores (timed once: ``--long``).
+species' optics and projection; a calibrate composes once per Jacobian column) and the product's (the fit's reuse
+cache, :mod:`flakedb.rt.common.reuse`, and a calibrate's chained absorption columns), with the ratio today / reuse
+of the pair.  Code both paths share (the Mie double series) speeds both; docs/fit-speed.md compares with main.  Each pair takes minutes on 2 cores (timed once: ``--long``).
 """
 
 import json

@@ -28,7 +28,11 @@ Residuals over every panel and geometry: spectral reflectance factors when the t
 (100 (R_pred − R_target) per band, the prediction linearly interpolated onto the target's grid,
 which it must cover), else the three CIEDE2000 components (:func:`flakedb.colour.tolerance.ciede2000_residuals`).
 Bounded trust-region least squares (scipy ``least_squares(method="trf")``), forward-difference
-Jacobian (step :data:`FD_STEP` in z), one compose per panel per evaluation (:func:`flakedb.match.fit.predict`);
+Jacobian (step :data:`FD_STEP` in z), one compose per panel per evaluation (:func:`flakedb.match.fit.predict`).
+A pigment's absorption columns come from one step: the k-factor acts band by band and the bands of a solve
+are independent, so the step of a_0 (ln k raised by h in every band) gives ∂R_λ/∂ln k(λ) for every band, and
+column j is ∂ln k(λ)/∂a_j times it (:func:`band_chained_columns`; spectral panels; the chain rule of
+:mod:`flakedb.match.tinter`): a Jacobian costs two composes per panel whatever the degree;
 the other species' optics and projections (and the calibrated species' optics across its panels) are computed once per
 fit (:mod:`flakedb.rt.common.reuse`, docs/fit-speed.md).
 Standard errors: the Gauss–Newton covariance s² (JᵀJ)⁻¹ at the solution with the residual variance
@@ -39,6 +43,7 @@ not known beforehand; it assumes independent residuals of equal variance.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -173,6 +178,51 @@ def calibrated_entry(entry, params, z, source="flakedb calibrate") -> dict:
     return e
 
 
+#: The absorption column whose step the others are chained from (P_0 = 1: ln k raised by the step in every band).
+LEAD_ABSORPTION = "absorption_a0"
+
+
+def band_chained_columns(params, entry, z, predictions) -> dict:
+    """Which Jacobian columns follow from the lead absorption step (module docstring, "The fit"), with the
+    weights that give them: ``{column: [w per panel, (C,)]}``, w_j(λ) = ∂ln k(λ)/∂a_j = interp(F P_j) / interp(F)
+    (F the k-factor on its 10 nm samples, interpolated onto each panel's bands as compose does), so that the
+    column's change of reflectance is w_j(λ) times the lead step's, band by band.  Empty where the chain rule
+    does not hold: a species other than a pigment, no absorption parameters, or a panel not in spectral mode
+    (an RGB channel mixes bands).
+
+    >>> ps = free_parameters({"kind": "pigment"}, ["absorption"], degree=1)
+    >>> w = band_chained_columns(ps, {"kind": "pigment"}, [0.0, 0.0], [_Bands([380.0, 580.0, 780.0])])
+    >>> list(w), w[1][0].round(12).tolist()        # a1's weight: P_1(x) = x, −1 … 1 over 380–780 nm
+    ([1], [-1.0, 0.0, 1.0])
+    """
+    names = [p.name for p in params]
+    if entry["kind"] != "pigment" or LEAD_ABSORPTION not in names:
+        return {}
+    if any(pr.mode != "spectral" for pr in predictions):
+        return {}
+    val = {p.name: float(v) for p, v in zip(params, z)}
+    order = [k for k in sorted(val) if k.startswith("absorption_a")]  # the coefficient order of calibrated_entry
+    grid = factor_grid()
+    f = np.exp(ln_absorption_factor([val[k] for k in order], grid))
+    if "absorption_factor" in entry:
+        f = f * absorption_factor(entry["absorption_factor"], grid)
+    lo, hi = FACTOR_RANGE_NM
+    x = 2.0 * (grid - lo) / (hi - lo) - 1.0
+    out = {}
+    for j, name in enumerate(names):
+        if name in order and name != LEAD_ABSORPTION:
+            fp = f * legendre.legval(x, np.eye(len(order))[order.index(name)])
+            out[j] = [np.interp(pr.wavelength_nm, grid, fp) / np.interp(pr.wavelength_nm, grid, f)
+                      for pr in predictions]
+    return out
+
+
+@dataclass
+class _Bands:  # a prediction's bands only (the doctest above)
+    wavelength_nm: list
+    mode: str = "spectral"
+
+
 @dataclass
 class CalibrationResult:
     species: str
@@ -191,9 +241,8 @@ class CalibrationResult:
 
 
 def _catalog_with(catalog, species, entry) -> dict:
-    cat = copy.deepcopy(catalog)
-    cat["particles"][species] = entry
-    return cat
+    """``catalog`` with ``species``'s entry replaced (the rest shared: a recipe check copies what it uses)."""
+    return {**catalog, "particles": {**catalog["particles"], species: entry}}
 
 
 def _residuals(pred, target, lab_pred, cs):
@@ -210,8 +259,11 @@ def _residuals(pred, target, lab_pred, cs):
 
 @reuse_per_call
 def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=None, log=None,
-              max_nfev=40) -> CalibrationResult:
-    """Fit ``species``'s free parameters (module docstring) to ``panels`` (a list of :class:`Panel`)."""
+              max_nfev=40, band_jacobian=True) -> CalibrationResult:
+    """Fit ``species``'s free parameters (module docstring) to ``panels`` (a list of :class:`Panel`).
+
+    ``band_jacobian``: the absorption columns beyond the first from the first's step, band by band
+    (:func:`band_chained_columns`); False: a compose per column (the path before, for the benchmark)."""
     log = log or (lambda s: None)
     if not panels:
         raise ValueError("calibrate: no panels")
@@ -252,19 +304,42 @@ def calibrate(species, panels, catalog, free=None, degree=ABSORPTION_DEGREE, n=N
 
     history = []
 
+    jacobians = {}
+
     def jac(z):
         r0 = resid(z)
-        J = np.empty((r0.size, len(params)))
-        for j, prm in enumerate(params):
-            h = FD_STEP if z[j] + FD_STEP <= prm.hi else -FD_STEP
-            zj = z.copy()
-            zj[j] += h
-            J[:, j] = (resid(zj) - r0) / h
+        key = tuple(float(v) for v in z)
+        if key not in jacobians:  # the solver's last Jacobian is at its solution: the standard errors' one
+            jacobians[key] = jacobian(z, r0)
         d = np.concatenate(de(z))
         history.append({"z": z.tolist(), "cost": float(r0 @ r0), "max_dE00": float(d.max())})
         log(f"iteration {len(history) - 1}: sum r^2 = {float(r0 @ r0):.4g}, max dE00 = {d.max():.3f}; "
             + ", ".join(f"{p.name} = {v:+.4f}" for p, v in zip(params, z)) + f"  [{calls[0]} compose calls]")
+        return jacobians[key].copy()
+
+    def jacobian(z, r0):
+        J = np.empty((r0.size, len(params)))
+        chained = band_chained_columns(params, base, z, [pr for pr, _, _ in evaluate(z)]) if band_jacobian else {}
+        for j, prm in enumerate(params):
+            if j in chained:
+                continue  # from the lead step below (the chain rule through the bands)
+            h = FD_STEP if z[j] + FD_STEP <= prm.hi else -FD_STEP
+            zj = z.copy()
+            zj[j] += h
+            J[:, j] = (resid(zj) - r0) / h
+            if prm.name == LEAD_ABSORPTION and chained:
+                for k, weights in chained.items():
+                    J[:, k] = (chained_residuals(evaluate(z), evaluate(zj), weights) - r0) / h
         return J
+
+    def chained_residuals(at_z, at_step, weights):
+        """The residuals with each panel's reflectance moved by ``weights`` (per panel, (C,)) times the lead
+        step's change, band by band."""
+        out = []
+        for p, (pr0, _, cs), (pr1, _, _), w in zip(panels, at_z, at_step, weights):
+            pr = dataclasses.replace(pr0, rf=pr0.rf + w[None, :] * (pr1.rf - pr0.rf))
+            out.append(_residuals(pr, p.target, pr.lab(cs.observer, cs.illuminant), cs).ravel())
+        return np.concatenate(out)
 
     z0 = np.zeros(len(params))
     lb = np.array([p.lo for p in params])

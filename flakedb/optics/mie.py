@@ -56,6 +56,19 @@ with π_n, τ_n from the upward recurrences of Bohren & Huffman eq. 4.47.  In th
 ``m = 0.75, x = 10`` (Du 2004, Table 2); Wiscombe's MIEV0 and ``miepython.S1_S2`` print the complex
 conjugate (exp(+iωt)); miepython's ``coefficients`` are ours.
 
+Size-averaged phase function
+----------------------------
+A pigment's phase function is a weighted sum over its size nodes q of ``|S_1|² + |S_2|²``
+(:func:`lognormal_pigment`).  Expanding the squares of the two series and summing over q first::
+
+    Σ_q w_q (|S_1|² + |S_2|²) = Σ_{n,n'} c_n c_n' [U_nn' (π_n π_n' + τ_n τ_n') + V_nn' (π_n τ_n' + τ_n π_n')]
+    U_nn' = Σ_q w_q Re(a_n a*_n' + b_n b*_n'),   V_nn' = Σ_q w_q Re(a_n b*_n' + b_n a*_n'),   c_n = (2n+1)/(n(n+1))
+
+(coefficients of a node beyond its own series length are 0).  The angles then meet N² products per band
+instead of Q·N terms (Q ≈ 650 nodes, N ≲ 90 orders for a catalogue pigment at 41 bands):
+:func:`size_averaged_phase`.  The two forms differ by rounding only (tests/optics/test_mie.py bounds it by
+Higham's sum bound; docs/fit-speed.md has the measured differences and times).
+
 Number of terms
 ---------------
 Wiscombe's count ``x + 4.05 x^{1/3} + 2`` leaves relative errors up to 2.3e-6 in ``Q_back`` (and
@@ -130,7 +143,8 @@ class LognormalPigment(NamedTuple):
 # ----------------------------------------------------------------------------------------------
 
 #: The functions compiled by numba (:func:`_compile_kernels`), callers after callees.
-_KERNELS = ("_cf_ratio", "_ratio_down", "_coefficients", "_scatter_kernel", "_coefficient_table_kernel")
+_KERNELS = ("_cf_ratio", "_ratio_down", "_coefficients", "_efficiencies", "_scatter_kernel", "_coefficient_table_kernel",
+            "_phase_moments_kernel", "_angular_kernel")
 _compiled = False
 #: Held while the kernels are replaced: compose's texture thread and its solve may both reach a first Mie
 #: evaluation at once (a pigment without a store), and a second replacement would wrap a dispatcher again
@@ -231,6 +245,35 @@ def _coefficients(m, x, n_max, a, b, absn, rz, rx):  # pragma: no cover - compil
         absn[n] = xi2_inv * (abs_a + abs_b)
 
 
+def _efficiencies(a, b, absn, nn, xp, eff, p):  # pragma: no cover - compiled
+    """Q_ext, Q_sca, Q_back, g (module docstring) of one sphere from its coefficients (index n, a[nn + 1] = 0)
+    into ``eff[:, p]``."""
+    s_abs = 0.0
+    s_sca = 0.0
+    s_back = 0.0 + 0.0j
+    s_g = 0.0
+    sign = -1.0
+    for n in range(1, nn + 1):
+        an = a[n]
+        bn = b[n]
+        cn = 2.0 * n + 1.0
+        s_abs += cn * absn[n]
+        s_sca += cn * (an.real * an.real + an.imag * an.imag + bn.real * bn.real + bn.imag * bn.imag)
+        s_back += sign * cn * (an - bn)
+        sign = -sign
+        s_g += cn / (n * (n + 1.0)) * (an.real * bn.real + an.imag * bn.imag)
+        an1 = a[n + 1]
+        bn1 = b[n + 1]
+        s_g += n * (n + 2.0) / (n + 1.0) * (
+            an.real * an1.real + an.imag * an1.imag + bn.real * bn1.real + bn.imag * bn1.imag
+        )
+    x2 = xp * xp
+    eff[1, p] = 2.0 * s_sca / x2
+    eff[0, p] = eff[1, p] + 2.0 * s_abs / x2
+    eff[2, p] = (s_back.real * s_back.real + s_back.imag * s_back.imag) / x2
+    eff[3, p] = 4.0 * s_g / (x2 * eff[1, p]) if eff[1, p] > 0.0 else 0.0
+
+
 def _scatter_kernel(m, x, n_terms, order, starts, mu):  # pragma: no cover - compiled
     """Efficiencies of every (m, x) pair p and amplitudes S1, S2 at the angles order[starts[p]:starts[p+1]]."""
     n_pairs = m.shape[0]
@@ -264,30 +307,7 @@ def _scatter_kernel(m, x, n_terms, order, starts, mu):  # pragma: no cover - com
         _coefficients(m[p], xp, nn, a, b, absn, rz, rx)
         a[nn + 1] = 0.0
         b[nn + 1] = 0.0
-        s_abs = 0.0
-        s_sca = 0.0
-        s_back = 0.0 + 0.0j
-        s_g = 0.0
-        sign = -1.0
-        for n in range(1, nn + 1):
-            an = a[n]
-            bn = b[n]
-            cn = 2.0 * n + 1.0
-            s_abs += cn * absn[n]
-            s_sca += cn * (an.real * an.real + an.imag * an.imag + bn.real * bn.real + bn.imag * bn.imag)
-            s_back += sign * cn * (an - bn)
-            sign = -sign
-            s_g += cn / (n * (n + 1.0)) * (an.real * bn.real + an.imag * bn.imag)
-            an1 = a[n + 1]
-            bn1 = b[n + 1]
-            s_g += n * (n + 2.0) / (n + 1.0) * (
-                an.real * an1.real + an.imag * an1.imag + bn.real * bn1.real + bn.imag * bn1.imag
-            )
-        x2 = xp * xp
-        eff[1, p] = 2.0 * s_sca / x2
-        eff[0, p] = eff[1, p] + 2.0 * s_abs / x2
-        eff[2, p] = (s_back.real * s_back.real + s_back.imag * s_back.imag) / x2
-        eff[3, p] = 4.0 * s_g / (x2 * eff[1, p]) if eff[1, p] > 0.0 else 0.0
+        _efficiencies(a, b, absn, nn, xp, eff, p)
         j0 = starts[p]
         j1 = starts[p + 1]
         n_ang = j1 - j0
@@ -328,6 +348,102 @@ def _scatter_kernel(m, x, n_terms, order, starts, mu):  # pragma: no cover - com
             s1_out[e] = s1r[k] + 1j * s1i[k]
             s2_out[e] = s2r[k] + 1j * s2i[k]
     return eff, s1_out, s2_out
+
+
+def _phase_moments_kernel(m, x, n_terms, weight, n_max):  # pragma: no cover - compiled
+    """The efficiencies (4, W·Q) of every (m_w, x_wq) (as :func:`_scatter_kernel`) and the weighted sums over the size nodes q of each band w of the coefficient products (module docstring,
+    "Size-averaged phase function"): U[w, n, n'] = Σ_q weight[w, q] Re(a_n a*_n' + b_n b*_n') and
+    V[w, n, n'] = Σ_q weight[w, q] Re(a_n b*_n' + b_n a*_n') (index n − 1), for m (W,), x, n_terms, weight (W, Q)."""
+    n_w, n_q = x.shape
+    eff = np.zeros((4, n_w * n_q))
+    u = np.zeros((n_w, n_max, n_max))
+    v = np.zeros((n_w, n_max, n_max))
+    a = np.zeros(n_max + 2, dtype=np.complex128)
+    b = np.zeros(n_max + 2, dtype=np.complex128)
+    rz = np.zeros(n_max + 2, dtype=np.complex128)
+    rx = np.zeros(n_max + 2, dtype=np.float64)
+    absn = np.zeros(n_max + 2, dtype=np.float64)
+    ar = np.zeros(n_max)
+    ai = np.zeros(n_max)
+    br = np.zeros(n_max)
+    bi = np.zeros(n_max)
+    for w in range(n_w):
+        for q in range(n_q):
+            xq = x[w, q]
+            if xq == 0.0 or m[w] == 1.0:
+                continue  # a sphere of zero size or matching its surroundings scatters nothing
+            nn = n_terms[w, q]
+            _coefficients(m[w], xq, nn, a, b, absn, rz, rx)
+            a[nn + 1] = 0.0
+            b[nn + 1] = 0.0
+            _efficiencies(a, b, absn, nn, xq, eff, w * n_q + q)
+            wq = weight[w, q]
+            for n in range(nn):
+                ar[n] = a[n + 1].real
+                ai[n] = a[n + 1].imag
+                br[n] = b[n + 1].real
+                bi[n] = b[n + 1].imag
+            for n in range(nn):
+                wan_r = wq * ar[n]
+                wan_i = wq * ai[n]
+                wbn_r = wq * br[n]
+                wbn_i = wq * bi[n]
+                for k in range(n + 1):  # the lower triangle; symmetric
+                    u[w, n, k] += wan_r * ar[k] + wan_i * ai[k] + wbn_r * br[k] + wbn_i * bi[k]
+                    v[w, n, k] += wan_r * br[k] + wan_i * bi[k] + wbn_r * ar[k] + wbn_i * ai[k]
+        for n in range(n_max):
+            for k in range(n):
+                u[w, k, n] = u[w, n, k]
+                v[w, k, n] = v[w, n, k]
+    return eff, u, v
+
+
+def _angular_kernel(mu, n_max):  # pragma: no cover - compiled
+    """(2n+1)/(n(n+1)) π_n(μ) and (2n+1)/(n(n+1)) τ_n(μ), n = 1..n_max (rows n − 1), at each μ (M,): the
+    upward recurrences of Bohren & Huffman eq. 4.47, as :func:`_scatter_kernel` runs them."""
+    n_ang = mu.shape[0]
+    pi_c = np.zeros((n_max, n_ang))
+    tau_c = np.zeros((n_max, n_ang))
+    for k in range(n_ang):
+        uk = mu[k]
+        pp = 0.0
+        pc = 1.0
+        for n in range(1, n_max + 1):
+            fn = (2.0 * n + 1.0) / (n * (n + 1.0))
+            tau = n * uk * pc - (n + 1.0) * pp
+            pi_c[n - 1, k] = fn * pc
+            tau_c[n - 1, k] = fn * tau
+            pn = (2.0 * n + 1.0) / n * uk * pc - (n + 1.0) / n * pp
+            pp = pc
+            pc = pn
+    return pi_c, tau_c
+
+
+def size_averaged_phase(m, x, weight, mu, n_terms=None):
+    """``(efficiencies, phase)``: :func:`mie`'s efficiencies of every (m_w, x_wq) (a :class:`MieEfficiencies` of
+    arrays (W, Q)) and Σ_q weight[w, q] (|S_1|² + |S_2|²)(m_w, x_wq; μ) (W, M) for m (W,), x and weight (W, Q),
+    μ (M,): the sum over the size nodes taken inside the double series (module docstring, "Size-averaged
+    phase function"), so that the angles meet N² products per band instead of Q N terms."""
+    m = np.ascontiguousarray(np.asarray(m, dtype=np.complex128))
+    x = np.ascontiguousarray(np.asarray(x, dtype=np.float64))
+    weight = np.ascontiguousarray(np.broadcast_to(np.asarray(weight, dtype=np.float64), x.shape))
+    mb, _, nt, _ = _prepare_mx(m[:, None], x, n_terms)
+    nt = np.ascontiguousarray(nt.reshape(x.shape))
+    mu = _prepare_mu(mu)
+    n_max = int(nt.max())
+    _compile_kernels()
+    with deferred():   # a signal waits for the compiled call (flakedb.interrupts)
+        eff, u, v = _phase_moments_kernel(m, x, nt, weight, n_max)
+        pi_c, tau_c = _angular_kernel(np.ascontiguousarray(mu), n_max)
+    # Σ_nn' [U_nn' (π_n π_n' + τ_n τ_n') + V_nn' (π_n τ_n' + τ_n π_n')] (the c_n in π_c, τ_c), per band; the
+    # bands stacked into the rows of one matrix product each
+    n_w, n_ang = u.shape[0], mu.size
+    pt = np.concatenate([pi_c, tau_c], axis=1)  # (N, 2M)
+    up = (u.reshape(n_w * n_max, n_max) @ pt).reshape(n_w, n_max, 2 * n_ang)
+    vt = (v.reshape(n_w * n_max, n_max) @ tau_c).reshape(n_w, n_max, n_ang)
+    phase = (np.einsum("wnm,nm->wm", up[:, :, :n_ang], pi_c) + np.einsum("wnm,nm->wm", up[:, :, n_ang:], tau_c)
+             + 2.0 * np.einsum("wnm,nm->wm", vt, pi_c))
+    return MieEfficiencies(*(e.reshape(x.shape) for e in eff)), phase
 
 
 def _coefficient_table_kernel(m, x, n_max):  # pragma: no cover - compiled
@@ -661,12 +777,9 @@ def lognormal_pigment(
         mu = np.asarray(mu, dtype=np.float64)
         if mu.ndim != 1:
             raise ValueError("lognormal_pigment: mu must be 1-D (M,)")
-        eff_all, s1, s2, _, _, _ = _run(mm[:, :, None], x[:, :, None], mu[None, None, :], n_terms)
-        qext, qsca, qback, g = (e.reshape(x.shape) for e in eff_all)
-        s1 = s1.reshape(x.shape + mu.shape)
-        s2 = s2.reshape(x.shape + mu.shape)
-        p_qsca = (np.abs(s1) ** 2 + np.abs(s2) ** 2) / (2.0 * np.pi * x[:, :, None] ** 2)
-        phase = np.einsum("q,wqm->wm", w * area, p_qsca)
+        # Σ_q w_q area_q p_qsca,q(μ), p_qsca = (|S_1|² + |S_2|²) / (2π x²) (phase_function's "qsca" norm)
+        eff, phase = size_averaged_phase(mW, x, (w * area)[None, :] / (2.0 * np.pi * x**2), mu, n_terms)
+        qext, qsca, g = eff.qext, eff.qsca, eff.g
     c_ext = (qext * area) @ w
     c_sca = (qsca * area) @ w
     g_mean = (g * qsca * area) @ w / c_sca

@@ -13,6 +13,7 @@ import copy
 import json
 import os
 import re
+from collections.abc import Mapping
 from pathlib import Path
 
 import jsonschema
@@ -274,27 +275,57 @@ def _stack_total_um(entry) -> float:
     return (2 * sum(f["thickness_nm"]["value"] for f in entry["coating"]) + entry["substrate"]["thickness_nm"]["value"]) / 1000.0
 
 
-def expand_sweeps(catalog: dict) -> dict:
+def expand_sweeps(catalog: dict) -> "SpeciesView":
     """All species by name: the catalogue's particles plus one entry per sweep value.
 
     A sweep member is a deep copy of its base with the stepped thickness set (its ``source`` names
     the sweep) and ``thickness_um`` recomputed from the stack, named by the sweep's
     ``name_format`` (e.g. ``pearlescent-tio2-070nm``).  Insertion order: particles, then sweeps.
+    Every entry is a deep copy (the caller may change it), made when it is first looked up
+    (:class:`SpeciesView`): a recipe's check reads a few of the catalogue's species, not all of them.
     """
-    out = {name: copy.deepcopy(e) for name, e in catalog["particles"].items()}
+    makers = {name: (lambda e=e: copy.deepcopy(e)) for name, e in catalog["particles"].items()}
     for sname, s in (catalog.get("sweeps") or {}).items():
-        base = catalog["particles"][s["base"]]
         for value in _sweep_values(s["values_nm"]):
-            e = copy.deepcopy(base)
-            src = f"sweep {sname}: {s['source']}"
-            m = re.fullmatch(r"coating\[(\d+)\]\.thickness_nm", s["parameter"])
-            film = e["coating"][int(m.group(1))] if m else e["substrate"]
-            film["thickness_nm"] = {"value": value, "source": src}
-            e["thickness_um"] = {"value": _stack_total_um(e), "source": "total of the film stack"}
-            e.pop("density_g_cm3", None)   # the base's density is its own stack's, not this member's
-            e["description"] = f"{base['description']}; {s['parameter']} = {value} nm"
-            out[s["name_format"].format(value=value)] = e
-    return out
+            makers[s["name_format"].format(value=value)] = (
+                lambda sname=sname, s=s, value=value: _sweep_member(catalog, sname, s, value))
+    return SpeciesView(makers)
+
+
+def _sweep_member(catalog, sname, s, value) -> dict:
+    base = catalog["particles"][s["base"]]
+    e = copy.deepcopy(base)
+    src = f"sweep {sname}: {s['source']}"
+    m = re.fullmatch(r"coating\[(\d+)\]\.thickness_nm", s["parameter"])
+    film = e["coating"][int(m.group(1))] if m else e["substrate"]
+    film["thickness_nm"] = {"value": value, "source": src}
+    e["thickness_um"] = {"value": _stack_total_um(e), "source": "total of the film stack"}
+    e.pop("density_g_cm3", None)   # the base's density is its own stack's, not this member's
+    e["description"] = f"{base['description']}; {s['parameter']} = {value} nm"
+    return e
+
+
+class SpeciesView(Mapping):
+    """name → species entry (:func:`expand_sweeps`): each entry made (a deep copy) on its first lookup and the
+    same object on every later one, as a dict of copies made beforehand would give."""
+
+    def __init__(self, makers: dict):
+        self._makers = makers
+        self._made: dict = {}
+
+    def __getitem__(self, name):
+        if name not in self._made:
+            self._made[name] = self._makers[name]()  # KeyError for an unknown name, as a dict
+        return self._made[name]
+
+    def __iter__(self):
+        return iter(self._makers)
+
+    def __len__(self):
+        return len(self._makers)
+
+    def __contains__(self, name):
+        return name in self._makers
 
 
 def species_names(catalog: dict | None = None) -> list[str]:

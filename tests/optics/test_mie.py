@@ -640,3 +640,34 @@ def test_first_mie_evaluations_in_two_threads_at_once():
             "assert out == ['ok'] * 3, out")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert run.returncode == 0, run.stderr[-2000:]
+
+
+def test_size_averaged_phase_equals_the_sum_of_each_spheres_amplitudes():
+    """The double series of M.size_averaged_phase (the sum over sizes inside, N² products per band) against the
+    direct sum Σ_q w_q (|S_1|² + |S_2|²) of every sphere's amplitudes (:func:`amplitude`), within the rounding
+    of the two sums (Higham eq. 3.5 on Σ_q w_q (Σ_n |terms_n|)², the magnitude both forms add up): a lossless
+    large sphere (deep minima), a strong absorber and a small weak one, weights of both signs' magnitude."""
+    mu = np.cos(np.linspace(np.pi, 0.0, 41))
+    rng = np.random.default_rng(5)
+    for m, x_lo, x_hi in ((1.33 + 0j, 5.0, 40.0), (2.5 + 1.5j, 0.5, 12.0), (1.05 + 0.001j, 0.01, 0.8)):
+        x = np.stack([np.linspace(x_lo, x_hi, 23), np.linspace(0.7 * x_lo, 0.9 * x_hi, 23)])  # (W = 2, Q)
+        w = rng.uniform(0.1, 1.0, x.shape)
+        mm = np.array([m, m * (1 + 0.05j)])
+        eff, got = M.size_averaged_phase(mm, x, w, mu)
+        ref = mie(mm[:, None], x)  # the efficiencies as mie computes them, bit for bit
+        for name in ("qext", "qsca", "qback", "g"):
+            np.testing.assert_array_equal(getattr(eff, name), getattr(ref, name))
+        direct = np.zeros((2, mu.size))
+        magnitude = np.zeros((2, mu.size))
+        for i in range(2):
+            for q in range(x.shape[1]):
+                s1, s2 = amplitude(mm[i], x[i, q], mu)
+                direct[i] += w[i, q] * (np.abs(s1) ** 2 + np.abs(s2) ** 2)
+                nt = int(default_n_terms(x[i, q]))
+                a, b, _ = M._coefficient_table(mm[i], x[i, q], nt)
+                pi_c, tau_c = M._angular_kernel(mu, nt)  # (2n+1)/(n(n+1)) π_n, τ_n
+                t = (np.abs(a)[:, None] + np.abs(b)[:, None]) * (np.abs(pi_c) + np.abs(tau_c))
+                magnitude[i] += w[i, q] * 2.0 * t.sum(axis=0) ** 2
+        tol.assert_within_sum_bound(got, direct, n_terms=x.shape[1] + 4 * int(default_n_terms(x.max())),
+                                    abs_terms=magnitude)
+        assert np.all(got > 0)

@@ -100,6 +100,22 @@ class TestCatalogue:
         assert abs(e["thickness_um"]["value"] - 0.44) < 1e-12
         assert catalog["particles"]["pearlescent"]["coating"][0]["thickness_nm"]["value"] == 120  # not mutated
 
+    def test_species_are_copies_made_on_lookup(self, catalog):
+        """expand_sweeps' view: each entry a deep copy equal to the catalogue's, the same object on every lookup
+        (a recipe's check sees one entry per species), made only when looked up; changing it leaves the
+        catalogue and a second view as they were."""
+        allsp = expand_sweeps(catalog)
+        assert list(allsp)[: len(catalog["particles"])] == list(catalog["particles"]) and "metallic" in allsp
+        assert not allsp._made                                   # nothing copied before a lookup
+        e = allsp["metallic"]
+        assert e == catalog["particles"]["metallic"] and e is not catalog["particles"]["metallic"]
+        assert allsp["metallic"] is e and set(allsp._made) == {"metallic"}
+        e["orientation_alpha"]["value"] = 9.0
+        assert catalog["particles"]["metallic"]["orientation_alpha"]["value"] != 9.0
+        assert expand_sweeps(catalog)["metallic"]["orientation_alpha"]["value"] != 9.0
+        with pytest.raises(KeyError):
+            allsp["chrome"]
+
     def test_film_stack_symmetric(self, catalog):
         for name, e in expand_sweeps(catalog).items():
             if e["kind"] == "interference_flake":
