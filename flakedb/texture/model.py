@@ -540,16 +540,22 @@ def beam_collected(g, diameter_um, lam_um, lam_w, n=BEAM_GRID):
     reach = BEAM_AIRY_REACH * float(lam_um.max()) / (D * c)
     E = 1.25 * (max(g.s_par, g.s_perp) + max(g.a_par, g.a_perp)) + reach  # grid half-width, rad
     h = 2.0 * E / n
-    nu_x = np.fft.fftfreq(n, h)[:, None]
-    nu_y = np.fft.rfftfreq(n, h)[None, :]
+    # the OTF vanishes beyond u = 1/λ'_min (|ν_x| ≤ c D/λ'_min, |ν_y| ≤ D/λ'_min): the spectrum is formed on
+    # that block of low frequencies only (a few % of the grid), zero elsewhere as the product there is
+    kx = min(int(np.ceil(c * D * n * h / float(lam_um.min()))) + 1, n // 2 - 1)
+    ky = min(int(np.ceil(D * n * h / float(lam_um.min()))) + 1, n // 2)
+    rows = np.r_[0:kx + 1, n - kx:n]
+    nu_x = np.fft.fftfreq(n, h)[rows, None]
+    nu_y = np.fft.rfftfreq(n, h)[None, :ky + 1]
     F = _jinc(2.0 * np.pi * np.sqrt((g.s_par * nu_x) ** 2 + (g.s_perp * nu_y) ** 2))
     F *= (np.pi * g.a_par * g.a_perp) * _jinc(2.0 * np.pi * np.sqrt((g.a_par * nu_x) ** 2 + (g.a_perp * nu_y) ** 2))
     # the mixture Σ_k w_k OTF(λ_k u) of the elliptical frequency u = |(ν_x/c, ν_y)|/D, tabulated in u (1-D)
     u = np.sqrt((nu_x / c) ** 2 + nu_y**2) / D
     u_tab = np.linspace(0.0, 1.0 / float(lam_um.min()), _OTF_TABLE)
     mix = sum(w * airy_otf(lam * u_tab) for lam, w in zip(lam_um, lam_w))
-    otf = np.interp(u, u_tab, mix, right=0.0)
-    f = np.fft.irfft2(F * otf, s=(n, n)) / (h * h)
+    spec = np.zeros((n, n // 2 + 1))
+    spec[rows, :ky + 1] = F * np.interp(u, u_tab, mix, right=0.0)
+    f = np.fft.irfft2(spec, s=(n, n)) / (h * h)
     return np.fft.fftfreq(n, 1.0 / n) * h, f
 
 
@@ -577,15 +583,20 @@ def _beam_levels(g, diameters_um, lam_um, lam_w, alpha, distribution=DEFAULT_DIS
     S = np.zeros((D_all.size, n_levels + 1))
     I = np.zeros_like(S)
     f_max = np.zeros(D_all.size)
+    # f and the density are even in δ⊥ (ellipses, Airy pattern; m_z holds δ⊥²): the columns 0 … n/2 of the grid,
+    # those with a mirror column (1 … n/2 − 1) counted twice
+    m = n // 2 + 1
+    twice = np.full(m, 2.0)
+    twice[0] = twice[-1] = 1.0
     for i, D in enumerate(D_all):
         x, f = beam_collected(g, D, lam_um, lam_w, n)
         h = x[1] - x[0]
         fm = float(f[0, 0])
         a = 0.5 * x[:, None]
-        b = 0.5 * x[None, :] / g.c
+        b = 0.5 * x[None, :m] / g.c
         mz = (np.cos(th) - a * np.sin(th)) / np.sqrt(1.0 + a * a + b * b)
-        p = 2.0 * ndf(mz, alpha) * (h * h)
-        phi = f / fm
+        p = 2.0 * ndf(mz, alpha) * (h * h) * twice
+        phi = f[:, :m] / fm
         k = np.clip((phi * n_levels).astype(np.int64), 0, n_levels - 1).ravel()
         S[i, :-1] = np.cumsum(np.bincount(k, p.ravel(), n_levels)[::-1])[::-1]
         I[i, :-1] = np.cumsum(np.bincount(k, (p * phi).ravel(), n_levels)[::-1])[::-1]
