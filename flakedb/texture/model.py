@@ -553,9 +553,12 @@ def beam_collected(g, diameter_um, lam_um, lam_w, n=BEAM_GRID):
     u = np.sqrt((nu_x / c) ** 2 + nu_y**2) / D
     u_tab = np.linspace(0.0, 1.0 / float(lam_um.min()), _OTF_TABLE)
     mix = sum(w * airy_otf(lam * u_tab) for lam, w in zip(lam_um, lam_w))
-    spec = np.zeros((n, n // 2 + 1))
-    spec[rows, :ky + 1] = F * np.interp(u, u_tab, mix, right=0.0)
-    f = np.fft.irfft2(spec, s=(n, n)) / (h * h)
+    spec = np.zeros((n, ky + 1))
+    spec[rows] = F * np.interp(u, u_tab, mix, right=0.0)
+    # irfft2's two passes (numpy.fft.irfftn), the first over the nonzero columns only (the others stay zero)
+    half = np.zeros((n, n // 2 + 1), complex)
+    half[:, :ky + 1] = np.fft.ifft(spec, axis=0)
+    f = np.fft.irfft(half, n, axis=1) / (h * h)
     return np.fft.fftfreq(n, 1.0 / n) * h, f
 
 
