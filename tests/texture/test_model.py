@@ -433,6 +433,25 @@ def test_partial_occlusion_of_transmitting_flakes_per_channel_and_weighted():
     np.testing.assert_allclose(wsum, np.einsum("cz,cdzk->dzk", W, occ), rtol=1e-12, atol=1e-15)
 
 
+def test_poisson_quantile_is_the_least_count_reaching_q():
+    """flakedb.texture.model._poisson_ppf (the occlusion's obstacle counts, without scipy.stats): the least k with
+    P(K ≤ k; λ) ≥ q, checked on the definition by an independent CDF (the sum of the pmf in log space), λ 0 … 1500
+    (e^{−λ} underflows beyond 745), and −1 at q = 0 as scipy.stats' convention.  A count one off fails."""
+    from scipy.special import gammaln
+
+    rng = np.random.default_rng(7)
+    q = np.concatenate([rng.random(400), [1e-12, 0.5, 1.0 - 1e-12]])
+    for lam in (0.0, 0.3, 7.5, 58.0, 1500.0):
+        k = tm._poisson_ppf(q, lam)
+        kk = np.arange(int(k.max()) + 2)
+        pmf = np.exp(kk * np.log(lam) - lam - gammaln(kk + 1.0)) if lam > 0 else (kk == 0).astype(float)
+        cdf = np.cumsum(pmf)
+        ki = k.astype(int)
+        assert np.all(cdf[ki] >= q * (1 - 1e-12)), lam
+        assert np.all(np.where(ki > 0, cdf[np.maximum(ki - 1, 0)] < q * (1 + 1e-12), True)), lam
+    assert tm._poisson_ppf(0.0, 5.0) == -1.0
+
+
 def test_mosaic_of_a_point_is_the_topmost_flake():
     """A spot far smaller than the flakes (0.05 µm against 20 µm) is one ray: its variance is E[b_top²] − E[b_top]²
     of the topmost flake (opaque flakes), P(top in dz) = ρA_e e^{−ρA_e h} dz, here summed independently on the
