@@ -148,6 +148,22 @@ def _airy_cdf():
 
 
 @numba.njit(cache=True)
+def _source_mirrored(u1, u2, r_s, lx, ly, lz, ex, ey, ez, fx, fy, fz, eta, mx, my, mz):
+    """A point of the source, uniform in the cone of half-angle r_s around the air direction l (frame e, f
+    across it; u1 ↦ the cosine of its offset, u2 ↦ its azimuth), refracted into the binder (toward the source,
+    going up: tangential / η) and mirrored about the flake normal m: (o_x, o_y, o_z, b·m)."""
+    cth = 1.0 - u1 * (1.0 - np.cos(r_s))
+    sth = np.sqrt(max(0.0, 1.0 - cth * cth))
+    ph = 2.0 * np.pi * u2
+    sx = cth * lx + sth * (np.cos(ph) * ex + np.sin(ph) * fx)
+    sy = cth * ly + sth * (np.cos(ph) * ey + np.sin(ph) * fy)
+    bx, by = sx / eta, sy / eta
+    bz = np.sqrt(1.0 - bx * bx - by * by)
+    dm = bx * mx + by * my + bz * mz
+    return 2.0 * dm * mx - bx, 2.0 * dm * my - by, 2.0 * dm * mz - bz, dm
+
+
+@numba.njit(cache=True)
 def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam_ch, p_ch, wt_ch, us, ud, uc,
                         rot1, rot2, airy_cdf, airy_x):
     """Mean over the source, the flake's diffraction and its colours of (weight of the sampled channel) × (the
@@ -165,21 +181,8 @@ def _collected_fraction(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, la
     C = p_ch.shape[0]
     acc = np.zeros(C)
     for k in range(K):
-        # source point: uniform in the cone of half-angle r_s (small-angle disc on the unit sphere)
-        u1 = (us[k, 0] + rot1) % 1.0
-        u2 = (us[k, 1] + rot2) % 1.0
-        cth = 1.0 - u1 * (1.0 - np.cos(r_s))
-        sth = np.sqrt(max(0.0, 1.0 - cth * cth))
-        ph = 2.0 * np.pi * u2
-        sx = cth * lx + sth * (np.cos(ph) * ex + np.sin(ph) * fx)
-        sy = cth * ly + sth * (np.cos(ph) * ey + np.sin(ph) * fy)
-        sz = cth * lz + sth * (np.cos(ph) * ez + np.sin(ph) * fz)
-        # refract into the binder (toward the source, going up): tangential / eta
-        bx, by = sx / eta, sy / eta
-        bz = np.sqrt(1.0 - bx * bx - by * by)
-        # mirror about m
-        dm = bx * mx + by * my + bz * mz
-        ox, oy, oz = 2.0 * dm * mx - bx, 2.0 * dm * my - by, 2.0 * dm * mz - bz
+        ox, oy, oz, dm = _source_mirrored((us[k, 0] + rot1) % 1.0, (us[k, 1] + rot2) % 1.0, r_s, lx, ly, lz, ex, ey, ez,
+                                          fx, fy, fz, eta, mx, my, mz)
         # the wavelength channel
         uch = (uc[k] + rot1 + rot2) % 1.0
         ch = 0
@@ -290,18 +293,8 @@ def _collected_density(mx, my, mz, D, eta, lx, ly, lz, vx, vy, vz, r_s, r_a, lam
     C = p_ch.shape[0]
     acc = np.zeros(C)
     for k in range(K):
-        u1 = (us[k, 0] + rot1) % 1.0
-        u2 = (us[k, 1] + rot2) % 1.0
-        cth = 1.0 - u1 * (1.0 - np.cos(r_s))
-        sth = np.sqrt(max(0.0, 1.0 - cth * cth))
-        ph = 2.0 * np.pi * u2
-        sx = cth * lx + sth * (np.cos(ph) * ex + np.sin(ph) * fx)
-        sy = cth * ly + sth * (np.cos(ph) * ey + np.sin(ph) * fy)
-        sz = cth * lz + sth * (np.cos(ph) * ez + np.sin(ph) * fz)
-        bx, by = sx / eta, sy / eta
-        bz = np.sqrt(1.0 - bx * bx - by * by)
-        dm = bx * mx + by * my + bz * mz
-        ox, oy, oz = 2.0 * dm * mx - bx, 2.0 * dm * my - by, 2.0 * dm * mz - bz
+        ox, oy, oz, dm = _source_mirrored((us[k, 0] + rot1) % 1.0, (us[k, 1] + rot2) % 1.0, r_s, lx, ly, lz, ex, ey, ez,
+                                          fx, fy, fz, eta, mx, my, mz)
         # aperture point (air), refracted into the binder
         w1 = (ua[k, 0] + rot2) % 1.0
         w2 = (ua[k, 1] + rot1) % 1.0

@@ -49,10 +49,18 @@ def ndtri(p):
 
 
 def _poisson_ppf(q, lam):
-    """Poisson quantile (scipy.stats, imported on first use: scipy.stats costs more than scipy.special)."""
-    from scipy.stats import poisson  # lazy: scipy.stats is slow to import; only the glint draws need it
+    """Poisson quantile: the least k with P(K ≤ k; λ) ≥ q for q ∈ (0, 1), −1 at q = 0 (``q``, ``lam`` broadcast;
+    float).  scipy.stats.poisson.ppf's own steps, ceil(pdtrik(q, λ)) corrected by one step where pdtr already
+    reaches q, on scipy.special (imported on first use as :func:`j1`), without scipy.stats (≈ 0.3 s to import)
+    and its argument checks (≈ 30 ms a call here)."""
+    from scipy.special import pdtr, pdtrik  # lazy: scipy.special is slow to import; only the glint draws need it
 
-    return poisson.ppf(q, lam)
+    q, lam = np.broadcast_arrays(np.asarray(q, float), np.asarray(lam, float))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        vals = np.ceil(pdtrik(q, lam))
+        vals1 = np.maximum(vals - 1.0, 0.0)
+        out = np.where(pdtr(vals1, lam) >= q, vals1, vals)
+    return np.where(q <= 0.0, -1.0, np.where(q >= 1.0, np.inf, out))
 
 
 @lru_cache(maxsize=64)
@@ -540,16 +548,25 @@ def beam_collected(g, diameter_um, lam_um, lam_w, n=BEAM_GRID):
     reach = BEAM_AIRY_REACH * float(lam_um.max()) / (D * c)
     E = 1.25 * (max(g.s_par, g.s_perp) + max(g.a_par, g.a_perp)) + reach  # grid half-width, rad
     h = 2.0 * E / n
-    nu_x = np.fft.fftfreq(n, h)[:, None]
-    nu_y = np.fft.rfftfreq(n, h)[None, :]
+    # the OTF vanishes beyond u = 1/λ'_min (|ν_x| ≤ c D/λ'_min, |ν_y| ≤ D/λ'_min): the spectrum is formed on
+    # that block of low frequencies only (a few % of the grid), zero elsewhere as the product there is
+    kx = min(int(np.ceil(c * D * n * h / float(lam_um.min()))) + 1, n // 2 - 1)
+    ky = min(int(np.ceil(D * n * h / float(lam_um.min()))) + 1, n // 2)
+    rows = np.r_[0:kx + 1, n - kx:n]
+    nu_x = np.fft.fftfreq(n, h)[rows, None]
+    nu_y = np.fft.rfftfreq(n, h)[None, :ky + 1]
     F = _jinc(2.0 * np.pi * np.sqrt((g.s_par * nu_x) ** 2 + (g.s_perp * nu_y) ** 2))
     F *= (np.pi * g.a_par * g.a_perp) * _jinc(2.0 * np.pi * np.sqrt((g.a_par * nu_x) ** 2 + (g.a_perp * nu_y) ** 2))
     # the mixture Σ_k w_k OTF(λ_k u) of the elliptical frequency u = |(ν_x/c, ν_y)|/D, tabulated in u (1-D)
     u = np.sqrt((nu_x / c) ** 2 + nu_y**2) / D
     u_tab = np.linspace(0.0, 1.0 / float(lam_um.min()), _OTF_TABLE)
     mix = sum(w * airy_otf(lam * u_tab) for lam, w in zip(lam_um, lam_w))
-    otf = np.interp(u, u_tab, mix, right=0.0)
-    f = np.fft.irfft2(F * otf, s=(n, n)) / (h * h)
+    spec = np.zeros((n, ky + 1))
+    spec[rows] = F * np.interp(u, u_tab, mix, right=0.0)
+    # irfft2's two passes (numpy.fft.irfftn), the first over the nonzero columns only (the others stay zero)
+    half = np.zeros((n, n // 2 + 1), complex)
+    half[:, :ky + 1] = np.fft.ifft(spec, axis=0)
+    f = np.fft.irfft(half, n, axis=1) / (h * h)
     return np.fft.fftfreq(n, 1.0 / n) * h, f
 
 
@@ -577,15 +594,20 @@ def _beam_levels(g, diameters_um, lam_um, lam_w, alpha, distribution=DEFAULT_DIS
     S = np.zeros((D_all.size, n_levels + 1))
     I = np.zeros_like(S)
     f_max = np.zeros(D_all.size)
+    # f and the density are even in δ⊥ (ellipses, Airy pattern; m_z holds δ⊥²): the columns 0 … n/2 of the grid,
+    # those with a mirror column (1 … n/2 − 1) counted twice
+    m = n // 2 + 1
+    twice = np.full(m, 2.0)
+    twice[0] = twice[-1] = 1.0
     for i, D in enumerate(D_all):
         x, f = beam_collected(g, D, lam_um, lam_w, n)
         h = x[1] - x[0]
         fm = float(f[0, 0])
         a = 0.5 * x[:, None]
-        b = 0.5 * x[None, :] / g.c
+        b = 0.5 * x[None, :m] / g.c
         mz = (np.cos(th) - a * np.sin(th)) / np.sqrt(1.0 + a * a + b * b)
-        p = 2.0 * ndf(mz, alpha) * (h * h)
-        phi = f / fm
+        p = 2.0 * ndf(mz, alpha) * (h * h) * twice
+        phi = f[:, :m] / fm
         k = np.clip((phi * n_levels).astype(np.int64), 0, n_levels - 1).ravel()
         S[i, :-1] = np.cumsum(np.bincount(k, p.ravel(), n_levels)[::-1])[::-1]
         I[i, :-1] = np.cumsum(np.bincount(k, (p * phi).ravel(), n_levels)[::-1])[::-1]
@@ -693,7 +715,7 @@ def _disc_points(n):
     return np.stack([r * np.cos(t), r * np.sin(t)], -1)
 
 
-def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUSION_POINTS):
+def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUSION_POINTS, weights=None):
     """Partial occlusion (docs/texture.md §3.3): the distribution of a flake's path transmission over its area.
 
     A flake of radius r (``radii`` (nR,), as a horizontal disc) at depth z (``z`` (nz,)) sends the light it
@@ -705,7 +727,12 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
     (:data:`N_OCCLUSION` configurations, common random numbers); ``correlated``: one set of flakes crosses
     both paths (a layer of discs: a flake above may cover both), else two independent sets (the solver's RT).
     Returns t (C, nR, nz, n_cfg): per channel, the mean over :data:`N_OCCLUSION_POINTS` points of the disc of
-    Π_j T^{crossings}: a partly covered flake is dimmed by the share covered, not all or nothing."""
+    Π_j T^{crossings}: a partly covered flake is dimmed by the share covered, not all or nothing.  ``weights``
+    (C, nz): Σ_c weights[c, z] t[c] instead, (nR, nz, n_cfg) (the glints' luminance-weighted transmission).
+
+    Each drawn flake is kept only where its disc can reach the paths of the largest radius; a point's
+    transmission depends on its crossing counts alone, so it is formed once per distinct combination of counts
+    (the same products as point by point, to rounding)."""
     z = np.asarray(z, float)
     radii = np.atleast_1d(np.asarray(radii, float))
     lb = np.array([np.sqrt(1 - g.mu_l_b**2), 0.0, g.mu_l_b])
@@ -722,9 +749,16 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
     lo_r, hi_r = max(radii.min(), r_med * np.exp(-2.33 * s_g0)), min(radii.max(), r_med * np.exp(2.33 * s_g0))
     radii = np.exp(np.linspace(np.log(lo_r), np.log(hi_r), min(N_OCCLUSION_RADII, radii.size)))
     r_big = float(radii.max())
-    out = np.empty((C, radii.size, z.size, n_cfg))
+    if weights is None:  # per channel: the identity at every depth
+        W = np.broadcast_to(np.eye(C)[:, :, None], (C, C, z.size))
+    else:
+        W = np.asarray(weights, float).reshape(1, C, z.size)
+    rows = W.shape[0]
+    out = np.empty((rows, radii.size, z.size, n_cfg))
+    nzc = z.size * n_cfg
     # the flakes above, drawn once for every radius (the bounding cylinder holds the largest): per species and
-    # set, their heights, centres, squared radii (−1 where not drawn) and the crossed flakes' T per path
+    # set, the drawn flakes alone (flattened: their (depth, configuration) cell, height, centre, radius) and the
+    # crossed flakes' T per path
     drawn = []
     for f in stack.flakes:
         lo = np.clip(z - (f.z_top_um + f.thickness_um), 0.0, None)  # heights Δ of this species above each depth
@@ -745,40 +779,63 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
             u = _occlusion_uniforms(n_cfg, n_max, s)
             # Poisson counts by inversion of the same uniform at every depth (smooth in z)
             N = _poisson_ppf(u[0, :, 0][None, :], lam[:, None])  # (nz, n_cfg)
-            live = np.arange(n_max)[None, None, :] < N[:, :, None]  # (nz, n_cfg, n_max)
-            dlt = lo[:, None, None] + u[1][None] * (hi - lo)[:, None, None]
+            iz, ic, ij = np.nonzero(np.arange(n_max)[None, None, :] < N[:, :, None])  # the drawn flakes
+            dlt = lo[iz] + u[1][ic, ij] * (hi - lo)[iz]
             rr = np.minimum(0.5 * float(f.diameter_median_um) * np.exp(s_g * ndtri(np.clip(u[2], 1e-12, 1 - 1e-12))), r_q)
             rad = R_b * np.sqrt(u[4])
-            cx = dlt * mid[0] + (rad * np.cos(2.0 * np.pi * u[3]))[None]
-            cy = dlt * mid[1] + (rad * np.sin(2.0 * np.pi * u[3]))[None]
-            sets.append((dlt, cx, cy, np.broadcast_to(rr[None], dlt.shape), live))
-        drawn.append((sets, T))
-    nzc = z.size * n_cfg
+            cx = dlt * mid[0] + (rad * np.cos(2.0 * np.pi * u[3]))[ic, ij]
+            cy = dlt * mid[1] + (rad * np.sin(2.0 * np.pi * u[3]))[ic, ij]
+            sets.append((dlt, cx, cy, rr[ic, ij], iz * n_cfg + ic))
+        for path, tvec in enumerate((t_l, t_v)):
+            dlt, cx, cy, rr, cell = sets[0 if correlated else path]
+            # only the flakes whose disc reaches the path of some point of the largest flake (centre within r + r_j)
+            ox, oy = dlt * tvec[0] - cx, dlt * tvec[1] - cy
+            d2 = ox * ox + oy * oy
+            cand = d2 < (r_big + rr) ** 2
+            drawn.append((ox[cand], oy[cand], d2[cand], rr[cand], cell[cand], T[:, path]))
+    q_idx = np.arange(n_pts)
     for ir, r in enumerate(radii):
-        tr = np.ones((C, z.size, n_cfg, n_pts))  # per point
-        for sets, T in drawn:
-            for path, tvec in enumerate((t_l, t_v)):
-                dlt, cx, cy, rr, live = sets[0 if correlated else path]
-                # only the flakes whose disc reaches the path of some point of the flake (centre within r + r_j)
-                ox, oy = dlt * tvec[0] - cx, dlt * tvec[1] - cy
-                near = live & (ox * ox + oy * oy < (r + rr) ** 2)
-                iz, ic, ij = np.nonzero(near)
-                px = r * pts[:, 0] + ox[iz, ic, ij][:, None]  # (near flakes, Q)
-                py = r * pts[:, 1] + oy[iz, ic, ij][:, None]
-                hit = px * px + py * py < (rr[iz, ic, ij] ** 2)[:, None]
-                cell = ((iz * n_cfg + ic)[:, None] * n_pts + np.arange(n_pts)).ravel()
-                n = np.bincount(cell, hit.ravel(), nzc * n_pts).astype(np.int64).reshape(z.size, n_cfg, n_pts)
-                k = int(n.max(initial=0))
-                pw = T[:, path][:, None] ** np.arange(k + 1)[None, :]  # (C, k + 1); 0^0 = 1
-                tr *= pw[:, n]
-        out[:, ir] = tr.mean(axis=-1)
+        # per (species, path): the crossings of each point's path, (cells × points)
+        counts, tables = [], []
+        for ox, oy, d2, rr, cell, tp in drawn:
+            near = d2 < (r + rr) ** 2
+            px = r * pts[:, 0] + ox[near][:, None]  # (near flakes, Q)
+            py = r * pts[:, 1] + oy[near][:, None]
+            hit = px * px + py * py < (rr[near] ** 2)[:, None]
+            n = np.bincount((cell[near][:, None] * n_pts + q_idx).ravel(), hit.ravel(), nzc * n_pts).astype(np.int64)
+            k = int(n.max(initial=0))
+            counts.append(n)
+            tables.append(tp[:, None] ** np.arange(k + 1)[None, :])  # (C, k + 1); 0^0 = 1
+        # a point's transmission Π T^crossings depends on its crossing counts alone: per distinct combination of
+        # counts once, then the disc mean per cell as the points' histogram over the combinations
+        code = np.zeros(nzc * n_pts, np.int64)
+        for n, pw in zip(counts, tables):
+            code = code * pw.shape[1] + n
+        n_code = int(np.prod([pw.shape[1] for pw in tables]))
+        if n_code <= 1 << 16:  # few possible combinations: found by a table (np.unique sorts)
+            seen = np.bincount(code, minlength=n_code) > 0
+            uniq = np.flatnonzero(seen)
+            inv = (np.cumsum(seen) - 1)[code]
+        else:
+            uniq, inv = np.unique(code, return_inverse=True)
+        digits, rest = [], uniq
+        for pw in tables[::-1]:
+            rest, d = np.divmod(rest, pw.shape[1])
+            digits.append(d)
+        prod = np.ones((C, uniq.size))
+        for pw, d in zip(tables, digits[::-1]):  # the factors in the order species, light path, view path
+            prod *= pw[:, d]
+        # per point its (weighted) transmission, then the disc's mean per (depth, configuration)
+        val = np.einsum("rcz,cu->rzu", W, prod)[:, np.arange(nzc * n_pts) // (n_cfg * n_pts), inv]
+        out[:, ir] = val.reshape(rows, z.size, n_cfg, n_pts).sum(axis=-1) / n_pts
     if radii.size == 1:
-        return np.repeat(out, r_all.size, axis=1)
-    # the same configurations at every radius: each draw interpolated in ln r to the requested radii
-    x = np.log(r_all)
-    k = np.clip(np.searchsorted(np.log(radii), x) - 1, 0, radii.size - 2)
-    t = np.clip((x - np.log(radii)[k]) / (np.log(radii)[k + 1] - np.log(radii)[k]), 0.0, 1.0)
-    return out[:, k] * (1.0 - t)[None, :, None, None] + out[:, k + 1] * t[None, :, None, None]
+        out = np.repeat(out, r_all.size, axis=1)
+    else:  # the same configurations at every radius: each draw interpolated in ln r to the requested radii
+        x = np.log(r_all)
+        k = np.clip(np.searchsorted(np.log(radii), x) - 1, 0, radii.size - 2)
+        t = np.clip((x - np.log(radii)[k]) / (np.log(radii)[k + 1] - np.log(radii)[k]), 0.0, 1.0)
+        out = out[:, k] * (1.0 - t)[None, :, None, None] + out[:, k + 1] * t[None, :, None, None]
+    return out if weights is None else out[0]
 
 
 #: Uniform depths at which :func:`_glint_paths` finds where the absorbers stop every flake glinting.
@@ -842,8 +899,7 @@ def _glint_paths(stack, f, g):
         return np.exp(-(tau_l + tau_v))  # (C, nz)
 
     def samples(zz):  # w (nD, nz, configurations) at depths zz
-        occ = _occlusion(stack, g, zz, radii, CORRELATED_PATHS)  # (C, nD, nz, K)
-        return np.einsum("c,cz,cdzk->dzk", yR / R_Y, absorbed(zz), occ)
+        return _occlusion(stack, g, zz, radii, CORRELATED_PATHS, weights=(yR / R_Y)[:, None] * absorbed(zz))
 
     zf = top + d * np.linspace(0.0, 1.0, N_CUT)
     wa = (yR / R_Y) @ absorbed(zf)  # (N_CUT,) non-increasing

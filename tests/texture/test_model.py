@@ -410,6 +410,48 @@ def test_partial_occlusion_keeps_the_paths_mean_transmission(correlated, light):
     assert np.mean((occ > 0.05) & (occ < 0.95)) > 0.2
 
 
+def test_partial_occlusion_of_transmitting_flakes_per_channel_and_weighted():
+    """Transmitting (pearlescent) flakes, 16 channels, independent paths at 15°: the draws' mean per channel is the
+    Poisson generating function e^{−λ_l(1 − T_l) − λ_v(1 − T_v)} (each point's product over its crossing counts,
+    formed once per distinct combination of counts in flakedb.texture.model._occlusion), and the luminance-weighted
+    form (``weights``) is the per-channel result contracted, to rounding.  Allowed: 4 standard errors + 0.005 (as
+    above).  A product taken over the wrong path's T, or T^(k−1), fails."""
+    st = stack_of(species="pearlescent", vf=0.08, alpha=0.2, D=20.0)
+    f = st.flakes[0]
+    g = tm.directional_geometry(st.eta, 15.0, 0.0, 1.0, np.radians(0.5))
+    z, wz = tm._depth_nodes(f, 8)
+    occ = tm._occlusion(st, g, z, [8.0, 12.0], False, n_cfg=1024)  # (C, 2, nz, draws)
+    _, lam_l, T_l = tm._path(st, z, g.mu_l_b)
+    _, lam_v, T_v = tm._path(st, z, g.mu_v_b)
+    assert occ.shape[0] > 1 and 0.2 < float(T_l.min()) < 0.9  # several channels, partly transmitting
+    want = np.exp(-lam_l * (1.0 - T_l) - lam_v * (1.0 - T_v))  # (C, nz)
+    layer = np.einsum("z,cdzk->cdk", wz, occ)
+    got, se = layer.mean(axis=-1), layer.std(axis=-1) / np.sqrt(layer.shape[-1])
+    assert np.all(np.abs(got - (want @ wz)[:, None]) <= 4.0 * se + 0.005), (got, want @ wz, se)
+    W = np.random.default_rng(1).random((occ.shape[0], z.size))
+    wsum = tm._occlusion(st, g, z, [8.0, 12.0], False, n_cfg=1024, weights=W)
+    np.testing.assert_allclose(wsum, np.einsum("cz,cdzk->dzk", W, occ), rtol=1e-12, atol=1e-15)
+
+
+def test_poisson_quantile_is_the_least_count_reaching_q():
+    """flakedb.texture.model._poisson_ppf (the occlusion's obstacle counts, without scipy.stats): the least k with
+    P(K ≤ k; λ) ≥ q, checked on the definition by an independent CDF (the sum of the pmf in log space), λ 0 … 1500
+    (e^{−λ} underflows beyond 745), and −1 at q = 0 as scipy.stats' convention.  A count one off fails."""
+    from scipy.special import gammaln
+
+    rng = np.random.default_rng(7)
+    q = np.concatenate([rng.random(400), [1e-12, 0.5, 1.0 - 1e-12]])
+    for lam in (0.0, 0.3, 7.5, 58.0, 1500.0):
+        k = tm._poisson_ppf(q, lam)
+        kk = np.arange(int(k.max()) + 2)
+        pmf = np.exp(kk * np.log(lam) - lam - gammaln(kk + 1.0)) if lam > 0 else (kk == 0).astype(float)
+        cdf = np.cumsum(pmf)
+        ki = k.astype(int)
+        assert np.all(cdf[ki] >= q * (1 - 1e-12)), lam
+        assert np.all(np.where(ki > 0, cdf[np.maximum(ki - 1, 0)] < q * (1 + 1e-12), True)), lam
+    assert tm._poisson_ppf(0.0, 5.0) == -1.0
+
+
 def test_mosaic_of_a_point_is_the_topmost_flake():
     """A spot far smaller than the flakes (0.05 µm against 20 µm) is one ray: its variance is E[b_top²] − E[b_top]²
     of the topmost flake (opaque flakes), P(top in dz) = ρA_e e^{−ρA_e h} dz, here summed independently on the

@@ -49,3 +49,26 @@ def test_density_estimator_of_point_cones_is_the_airy_peak():
     om_a = 2 * np.pi * (1 - np.cos(r_a))
     want = om_a / eta**2 * (0.25 * np.pi * D * D * c / lam**2)
     assert dens == pytest.approx(want, rel=1e-3)
+
+
+@pytest.mark.parametrize("light", [15.0, 75.0])
+def test_source_point_refracted_and_mirrored(light):
+    """The estimators' shared source step (fs._source_mirrored): the source's centre (u1 = 0) refracts by Snell's
+    law (tangential sin θ/η) and mirrors about m (o = 2(b·m)m − b, unit, b·m returned); every point of the cone
+    lies r_s or less from the centre in air, so its refracted direction lies within r_s/η (to first order) of
+    the centre's.  A mirror about −m or a refraction by η instead of 1/η fails."""
+    eta, th = 1.5, np.radians(light)
+    lx, lz = np.sin(th), np.cos(th)
+    ex, ey, ez = lz, 0.0, -lx
+    fx, fy, fz = 0.0, lz * ex - lx * ez, 0.0  # l × e
+    m = np.array([0.1, -0.05, 1.0]) / np.linalg.norm([0.1, -0.05, 1.0])
+    b = np.array([lx / eta, 0.0, np.sqrt(1.0 - (lx / eta) ** 2)])
+    ox, oy, oz, dm = fs._source_mirrored(0.0, 0.3, np.radians(1.0), lx, 0.0, lz, ex, ey, ez, fx, fy, fz, eta, *m)
+    np.testing.assert_allclose([ox, oy, oz], 2.0 * (b @ m) * m - b, atol=1e-15)
+    assert dm == pytest.approx(b @ m, abs=1e-15)
+    r_s = np.radians(1.0)
+    for u1, u2 in ((1.0, 0.0), (1.0, 0.25), (0.5, 0.6)):
+        o = np.array(fs._source_mirrored(u1, u2, r_s, lx, 0.0, lz, ex, ey, ez, fx, fy, fz, eta, *m)[:3])
+        bb = 2.0 * (o @ m) * m - o  # back to the refracted source direction
+        assert np.linalg.norm(o) == pytest.approx(1.0, abs=1e-14)
+        assert np.arccos(min(bb @ b, 1.0)) <= r_s / eta * 1.02 * np.sqrt(u1) + 1e-9
