@@ -489,7 +489,7 @@ def thin_film_thickness_average(n_films, d_films_nm, rel_sd, wavelength_nm, cos_
 
 
 def incoherent_substrate_flake(n_coating, d_coating_nm, n_substrate, d_substrate_nm, wavelength_nm, cos_theta,
-                               n_binder, coating_rel_sd=0.0, n_nodes=None):
+                               n_binder, coating_rel_sd=0.0, n_nodes=None, substrate_rel_sd=0.0):
     """R, T, A of a symmetric flake whose substrate is incoherent: coatings coherent, substrate round trips in power.
 
     The flake is binder | coating (outside → in) | substrate | coating reversed | binder.  Each coating
@@ -512,10 +512,14 @@ def incoherent_substrate_flake(n_coating, d_coating_nm, n_substrate, d_substrate
 
     ``n_coating`` (C,) or (W, C), ``d_coating_nm`` (C,) the coating films outside → in (C = 0: a bare
     slab); ``n_substrate`` scalar or (W,), ``d_substrate_nm`` its thickness; ``wavelength_nm`` (W,),
-    ``cos_theta`` (A,) and ``n_binder`` as :func:`thin_film_transfer_matrix`.  ``coating_rel_sd``: the
-    coating films' common log-normal flake-to-flake spread (one shared z, as
-    :func:`thin_film_thickness_average`'s group), averaged in power with ``n_nodes`` trapezoid nodes
-    (default :func:`thickness_nodes_needed`).  Returns :class:`ThinFilmRT` (each (W, A));
+    ``cos_theta`` (A,) and ``n_binder`` as :func:`thin_film_transfer_matrix`.  ``coating_rel_sd``
+    (scalar or (C,)): the coating films' log-normal flake-to-flake spreads, driven by one shared z (as a
+    group of :func:`thin_film_thickness_average`), averaged in power with ``n_nodes`` trapezoid nodes
+    (default :func:`thickness_nodes_needed`).  ``substrate_rel_sd``: a log-normal spread of ``d_s``
+    (independent of the coating's); it enters through ``a`` only, so it changes nothing for a lossless
+    substrate (skipped there, exactly) and is averaged on :func:`thickness_nodes_needed` nodes (taken
+    for an oscillation of index Re N_s: an over-resolution of the smooth absorption) where k > 0.
+    Returns :class:`ThinFilmRT` (each (W, A));
     ``R + T + A = 1``, ``A = 0`` to rounding for lossless films and substrate.
     """
     n, d, wl, cos, n_b, _ = _prepare(n_coating, d_coating_nm, wavelength_nm, cos_theta, n_binder, None)
@@ -524,13 +528,16 @@ def incoherent_substrate_flake(n_coating, d_coating_nm, n_substrate, d_substrate
     d_s = float(d_substrate_nm)
     if not (np.isfinite(d_s) and d_s >= 0):
         raise ValueError(f"d_substrate_nm must be a finite thickness >= 0 in nm, got {d_substrate_nm!r}")
-    sd = float(coating_rel_sd)
-    if not (np.isfinite(sd) and sd >= 0):
-        raise ValueError(f"coating_rel_sd must be a finite relative standard deviation >= 0, got {coating_rel_sd!r}")
-    if sd > 0 and d.size:
+    sd = np.broadcast_to(np.asarray(coating_rel_sd, dtype=float), d.shape)
+    if np.any(~np.isfinite(sd)) or np.any(sd < 0):
+        raise ValueError(f"coating_rel_sd must be finite relative standard deviations >= 0, got {coating_rel_sd!r}")
+    sd_s = float(substrate_rel_sd)
+    if not (np.isfinite(sd_s) and sd_s >= 0):
+        raise ValueError(f"substrate_rel_sd must be a finite relative standard deviation >= 0, got {substrate_rel_sd!r}")
+    if np.any(sd > 0):
         nn = thickness_nodes_needed(n.real.max(axis=0), d, sd, wl.min()) if n_nodes is None else int(n_nodes)
         z, wts = _z_nodes(nn)
-        dk = d[:, None] * _lognormal_factor(sd, z)[None, :]  # (C, K)
+        dk = d[:, None] * _lognormal_factor(sd[:, None], z[None, :])  # (C, K)
     else:
         dk, wts = d[:, None], np.ones(1)
     (m11, m12, m21, m22), phase = _product(n, dk, wl, cos, n_b)  # (2, W, K, A), (W, K, A)
@@ -549,11 +556,19 @@ def incoherent_substrate_flake(n_coating, d_coating_nm, n_substrate, d_substrate
     T2 = np.where(inv2, 1.0, 4.0 * (p_s.real / np.abs(D2)) * (p_b / np.abs(D2)) * atten)
     R1, R2 = np.abs(r1) ** 2, np.abs(r2) ** 2
     k0 = (2.0 * np.pi / wl).reshape(W, 1, 1)
-    a = np.exp(-2.0 * k0 * d_s * normal_wavevector(ns, nb, cos_c).imag)  # one pass, (W, 1, A)
-    den = 1.0 - (R2 * a) ** 2
-    den = np.where(den > 0, den, 1.0)  # R2 a = 1 only where nothing enters the substrate (T1 = T2 = 0)
-    R_pol = R1 + T1 * T2 * R2 * a * a / den
-    T_pol = np.maximum(T1 * T2 * a / den, 0.0)
+    im_q = normal_wavevector(ns, nb, cos_c).imag  # (W, 1, A)
+    if sd_s > 0 and np.any(N_s.imag > 0):
+        m_s = thickness_nodes_needed(float(N_s.real.max()), d_s, sd_s, wl.min())
+        f_s, w_s = _lognormal_factor(sd_s, _z_nodes(m_s)[0]), _z_nodes(m_s)[1]
+    else:  # one thickness, or a lossless substrate, whose thickness does not enter
+        f_s, w_s = np.ones(1), np.ones(1)
+    R_pol = T_pol = 0.0
+    for f, w in zip(f_s, w_s):  # substrate nodes (absorbing substrates with a spread only); vectorised inside
+        a = np.exp(-2.0 * k0 * (d_s * f) * im_q)  # one pass
+        den = 1.0 - (R2 * a) ** 2
+        den = np.where(den > 0, den, 1.0)  # R2 a = 1 only where nothing enters the substrate (T1 = T2 = 0)
+        R_pol = R_pol + w * (R1 + T1 * T2 * R2 * a * a / den)
+        T_pol = T_pol + w * np.maximum(T1 * T2 * a / den, 0.0)
     R_s, R_p, T_s, T_p = (np.einsum("wka,k->wa", np.broadcast_to(x, (W, wts.size, A)), wts)
                           for x in (R_pol[0], R_pol[1], T_pol[0], T_pol[1]))
     R = 0.5 * (R_s + R_p)

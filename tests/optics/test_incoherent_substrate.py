@@ -101,3 +101,24 @@ def test_coating_spread_is_the_power_average_over_its_nodes():
     ref = sum(wi * incoherent_substrate_flake(COAT_N, np.array(COAT_D) * fi, N_MICA, D0, wl, cos, N_BINDER).R
               for fi, wi in zip(f, w))
     np.testing.assert_allclose(got.R, ref, rtol=0, atol=4 * m * U)
+
+
+def test_substrate_spread_averages_the_absorption_only():
+    """A lossless substrate's spread changes nothing; an absorbing one's is the bare-slab closed form averaged
+    over the log-normal thickness (here by a 2001-node trapezoid rule in z, independent of the code's nodes)."""
+    wl, cos = np.array([500.0]), np.array([1.0])
+    a0 = incoherent_substrate_flake(COAT_N, COAT_D, N_MICA, D0, wl, cos, N_BINDER)
+    a1 = incoherent_substrate_flake(COAT_N, COAT_D, N_MICA, D0, wl, cos, N_BINDER, substrate_rel_sd=0.3)
+    np.testing.assert_array_equal(a1.R, a0.R)
+    k, d, sd = 5e-3, 3000.0, 0.3
+    got = incoherent_substrate_flake([], [], N_MICA + 1j * k, d, wl, cos, N_BINDER, substrate_rel_sd=sd)
+    r = ((N_MICA - N_BINDER) / (N_MICA + N_BINDER)) ** 2
+    z = np.linspace(-7.5, 7.5, 2001)
+    w = np.exp(-z * z / 2)
+    w /= w.sum()
+    a = np.exp(-4 * np.pi * k * d * _lognormal_factor(sd, z) / wl[0])
+    R_ref = w @ (r + (1 - r) ** 2 * r * a * a / (1 - r * r * a * a))
+    T_ref = w @ ((1 - r) ** 2 * a / (1 - r * r * a * a))
+    assert abs(got.T[0, 0] - T_ref) < 1e-9 and abs(got.R[0, 0] - R_ref) < 1e-9
+    one = incoherent_substrate_flake([], [], N_MICA + 1j * k, d, wl, cos, N_BINDER)
+    assert abs(one.T[0, 0] - T_ref) > 1e-3  # the spread matters here
