@@ -521,6 +521,13 @@ def incoherent_substrate_flake(n_coating, d_coating_nm, n_substrate, d_substrate
     for an oscillation of index Re N_s: an over-resolution of the smooth absorption) where k > 0.
     Returns :class:`ThinFilmRT` (each (W, A));
     ``R + T + A = 1``, ``A = 0`` to rounding for lossless films and substrate.
+
+    A bare lossless slab is the closed form of its interface reflectance r, ``r + (1 − r)² r / (1 − r²)``:
+
+    >>> rt = incoherent_substrate_flake([], [], 1.6, 2000.0, [550.0], [1.0], 1.5)
+    >>> r = (0.1 / 3.1) ** 2
+    >>> bool(abs(rt.R[0, 0] - (r + (1 - r) ** 2 * r / (1 - r * r))) < 1e-15), round(float(rt.R[0, 0] + rt.T[0, 0]), 12)
+    (True, 1.0)
     """
     n, d, wl, cos, n_b, _ = _prepare(n_coating, d_coating_nm, wavelength_nm, cos_theta, n_binder, None)
     W, A = wl.size, cos.size

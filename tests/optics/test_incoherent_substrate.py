@@ -122,3 +122,38 @@ def test_substrate_spread_averages_the_absorption_only():
     assert abs(got.T[0, 0] - T_ref) < 1e-9 and abs(got.R[0, 0] - R_ref) < 1e-9
     one = incoherent_substrate_flake([], [], N_MICA + 1j * k, d, wl, cos, N_BINDER)
     assert abs(one.T[0, 0] - T_ref) > 1e-3  # the spread matters here
+
+
+def test_catalogue_field_dispatches_and_defaults_to_coherent():
+    """substrate.coherence: absent or 'coherent' gives the coherent flake bit for bit; 'incoherent' gives
+    incoherent_substrate_flake on the entry's films; an unknown value is refused by the schema, by path."""
+    import copy
+
+    from flakedb.paint.catalog import get_species, load_catalog, validate_catalog
+    from flakedb.paint.species import binder_index, film_spreads, film_stack, flake_reflectance_transmittance
+    from flakedb.paint.materials import refractive_index
+
+    doc = load_catalog()
+    wl, cos = np.array([450.0, 550.0, 650.0]), np.array([1.0, 0.5])
+    nb = binder_index(doc, wl)
+    e = get_species("mica-tio2-pearl", doc)
+    assert e["substrate"]["coherence"]["value"] == "incoherent"
+    coh = copy.deepcopy(e)
+    coh["substrate"].pop("coherence")
+    explicit = copy.deepcopy(e)
+    explicit["substrate"]["coherence"]["value"] = "coherent"
+    R0, T0 = flake_reflectance_transmittance(coh, wl, cos, nb)
+    R1, T1 = flake_reflectance_transmittance(explicit, wl, cos, nb)
+    np.testing.assert_array_equal(R0, R1)
+    np.testing.assert_array_equal(T0, T1)
+    R, T = flake_reflectance_transmittance(e, wl, cos, nb)
+    mats, d = film_stack(e)
+    n = np.stack([refractive_index(m, wl) for m in mats], axis=1)
+    _, sd = film_spreads(e)
+    ref = incoherent_substrate_flake(n[:, :1], d[:1], n[:, 1], d[1], wl, cos, nb, coating_rel_sd=sd[:1])
+    np.testing.assert_array_equal(R, ref.R)
+    assert np.abs(R - R0).max() > 0.05  # the mica's fringes: the two treatments differ visibly
+    bad = copy.deepcopy(doc)
+    bad["particles"]["mica-tio2-pearl"]["substrate"]["coherence"]["value"] = "partial"
+    probs = validate_catalog(bad)
+    assert any("particles.mica-tio2-pearl.substrate.coherence" in p for p in probs), probs
