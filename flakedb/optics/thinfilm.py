@@ -54,6 +54,7 @@ __all__ = [
     "lognormal_thickness_nodes",
     "thickness_nodes_needed",
     "thin_film_thickness_average",
+    "incoherent_substrate_flake",
 ]
 
 
@@ -482,3 +483,101 @@ def thin_film_thickness_average(n_films, d_films_nm, rel_sd, wavelength_nm, cos_
             part_a = part if part_a is None else [p + q for p, q in zip(part_a, part)]
         acc = part_a if acc is None else [np.concatenate([p, q], axis=1) for p, q in zip(acc, part_a)]
     return ThinFilmRT(*acc)
+
+
+# --- a thick substrate: coherent coatings, incoherent substrate ----------------------------------
+
+
+def incoherent_substrate_flake(n_coating, d_coating_nm, n_substrate, d_substrate_nm, wavelength_nm, cos_theta,
+                               n_binder, coating_rel_sd=0.0, n_nodes=None, substrate_rel_sd=0.0):
+    """R, T, A of a symmetric flake whose substrate is incoherent: coatings coherent, substrate round trips in power.
+
+    The flake is binder | coating (outside → in) | substrate | coating reversed | binder.  Each coating
+    is a coherent stack (characteristic matrices, Born & Wolf §1.6.3); the substrate is thick against
+    its coherence length (or varies across a flake by much more than λ / (2 n)), so the waves of its
+    round trips add in power, the phase-averaged limit of the coherent flake (coherent-incoherent
+    method: Katsidis & Siapkas, Appl. Opt. 41, 3978 (2002); Centurioni, Appl. Opt. 44, 7532 (2005)).
+    Per polarisation (s and p do not mix in isotropic films), with ``R1, T1`` the coating's
+    reflectance and transmittance from the binder into the substrate and ``R1', T1'`` from the
+    substrate into the binder (the same coating, met from its inner side at the back face),
+
+        R = R1 + T1 T1' R1' a² / (1 − R1'² a²),     T = T1 T1' a / (1 − R1'² a²),
+
+    ``a = exp(−2 k0 d_s Im q_s)`` the power transmitted by one pass through the substrate
+    (``q_s = N_s cos θ_s``, = exp(−4π k d_s / (λ cos θ_s)) for small k); unpolarised R, T are the s, p
+    means.  The reversed coating's matrix is the coating's with m11 and m22 exchanged (every film's
+    matrix has equal diagonal elements).  The interfaces with the substrate take its real index
+    ``Re N_s`` (its k enters through ``a`` only; exact for a lossless substrate, the approximation of
+    a weakly absorbing one).  Reciprocity makes ``T1' = T1``; ``R1' = R1`` only for lossless coatings.
+
+    ``n_coating`` (C,) or (W, C), ``d_coating_nm`` (C,) the coating films outside → in (C = 0: a bare
+    slab); ``n_substrate`` scalar or (W,), ``d_substrate_nm`` its thickness; ``wavelength_nm`` (W,),
+    ``cos_theta`` (A,) and ``n_binder`` as :func:`thin_film_transfer_matrix`.  ``coating_rel_sd``
+    (scalar or (C,)): the coating films' log-normal flake-to-flake spreads, driven by one shared z (as a
+    group of :func:`thin_film_thickness_average`), averaged in power with ``n_nodes`` trapezoid nodes
+    (default :func:`thickness_nodes_needed`).  ``substrate_rel_sd``: a log-normal spread of ``d_s``
+    (independent of the coating's); it enters through ``a`` only, so it changes nothing for a lossless
+    substrate (skipped there, exactly) and is averaged on :func:`thickness_nodes_needed` nodes (taken
+    for an oscillation of index Re N_s: an over-resolution of the smooth absorption) where k > 0.
+    Returns :class:`ThinFilmRT` (each (W, A));
+    ``R + T + A = 1``, ``A = 0`` to rounding for lossless films and substrate.
+
+    A bare lossless slab is the closed form of its interface reflectance r, ``r + (1 − r)² r / (1 − r²)``:
+
+    >>> rt = incoherent_substrate_flake([], [], 1.6, 2000.0, [550.0], [1.0], 1.5)
+    >>> r = (0.1 / 3.1) ** 2
+    >>> bool(abs(rt.R[0, 0] - (r + (1 - r) ** 2 * r / (1 - r * r))) < 1e-15), round(float(rt.R[0, 0] + rt.T[0, 0]), 12)
+    (True, 1.0)
+    """
+    n, d, wl, cos, n_b, _ = _prepare(n_coating, d_coating_nm, wavelength_nm, cos_theta, n_binder, None)
+    W, A = wl.size, cos.size
+    N_s = _as_index("n_substrate", n_substrate, W)  # (W, 1)
+    d_s = float(d_substrate_nm)
+    if not (np.isfinite(d_s) and d_s >= 0):
+        raise ValueError(f"d_substrate_nm must be a finite thickness >= 0 in nm, got {d_substrate_nm!r}")
+    sd = np.broadcast_to(np.asarray(coating_rel_sd, dtype=float), d.shape)
+    if np.any(~np.isfinite(sd)) or np.any(sd < 0):
+        raise ValueError(f"coating_rel_sd must be finite relative standard deviations >= 0, got {coating_rel_sd!r}")
+    sd_s = float(substrate_rel_sd)
+    if not (np.isfinite(sd_s) and sd_s >= 0):
+        raise ValueError(f"substrate_rel_sd must be a finite relative standard deviation >= 0, got {substrate_rel_sd!r}")
+    if np.any(sd > 0):
+        nn = thickness_nodes_needed(n.real.max(axis=0), d, sd, wl.min()) if n_nodes is None else int(n_nodes)
+        z, wts = _z_nodes(nn)
+        dk = d[:, None] * _lognormal_factor(sd[:, None], z[None, :])  # (C, K)
+    else:
+        dk, wts = d[:, None], np.ones(1)
+    (m11, m12, m21, m22), phase = _product(n, dk, wl, cos, n_b)  # (2, W, K, A), (W, K, A)
+    cos_c = cos.reshape(1, 1, A)
+    nb = n_b.reshape(W, 1, 1).real
+    ns = N_s.reshape(W, 1, 1)
+    p_b = np.stack([nb * cos_c, cos_c / nb])  # binder admittances (s, p), real, (2, W, 1, A)
+    q_s = normal_wavevector(ns.real, nb, cos_c)  # real index: real, or imaginary beyond the critical angle
+    p_s = np.stack([q_s, q_s / (ns.real * ns.real)])
+    atten = np.exp(-2.0 * phase.imag)  # |e^{iΣδ}|² of one coating
+    # from the binder into the substrate
+    r1, D1, inv1 = _solve(m11 + m12 * p_s, m21 + m22 * p_s, p_b)
+    T1 = np.where(inv1, 1.0, 4.0 * (p_b / np.abs(D1)) * (p_s.real / np.abs(D1)) * atten)
+    # from the substrate into the binder: the reversed coating (m11 <-> m22), ambient the substrate
+    r2, D2, inv2 = _solve(m22 + m12 * p_b, m21 + m11 * p_b, p_s)
+    T2 = np.where(inv2, 1.0, 4.0 * (p_s.real / np.abs(D2)) * (p_b / np.abs(D2)) * atten)
+    R1, R2 = np.abs(r1) ** 2, np.abs(r2) ** 2
+    k0 = (2.0 * np.pi / wl).reshape(W, 1, 1)
+    im_q = normal_wavevector(ns, nb, cos_c).imag  # (W, 1, A)
+    if sd_s > 0 and np.any(N_s.imag > 0):
+        m_s = thickness_nodes_needed(float(N_s.real.max()), d_s, sd_s, wl.min())
+        f_s, w_s = _lognormal_factor(sd_s, _z_nodes(m_s)[0]), _z_nodes(m_s)[1]
+    else:  # one thickness, or a lossless substrate, whose thickness does not enter
+        f_s, w_s = np.ones(1), np.ones(1)
+    R_pol = T_pol = 0.0
+    for f, w in zip(f_s, w_s):  # substrate nodes (absorbing substrates with a spread only); vectorised inside
+        a = np.exp(-2.0 * k0 * (d_s * f) * im_q)  # one pass
+        den = 1.0 - (R2 * a) ** 2
+        den = np.where(den > 0, den, 1.0)  # R2 a = 1 only where nothing enters the substrate (T1 = T2 = 0)
+        R_pol = R_pol + w * (R1 + T1 * T2 * R2 * a * a / den)
+        T_pol = T_pol + w * np.maximum(T1 * T2 * a / den, 0.0)
+    R_s, R_p, T_s, T_p = (np.einsum("wka,k->wa", np.broadcast_to(x, (W, wts.size, A)), wts)
+                          for x in (R_pol[0], R_pol[1], T_pol[0], T_pol[1]))
+    R = 0.5 * (R_s + R_p)
+    T = 0.5 * (T_s + T_p)
+    return ThinFilmRT(R_s, R_p, T_s, T_p, R, T, 1.0 - R - T)

@@ -6,6 +6,9 @@ A *species* is one entry of the catalogue, or one member of a sweep (``expand_sw
   + ``coating`` reversed, embedded in the binder.  R(c, λ) and T(c, λ) come from the transfer-matrix
   method (:func:`flakedb.optics.thinfilm.flake_reflectance_transmittance`, Born & Wolf §1.6),
   unpolarised, with c = |ω·m| the cosine between the light and the flake normal *in the binder*.
+  ``substrate.coherence: incoherent``: the substrate's round trips add in power, the coatings stay
+  coherent (:func:`flakedb.optics.thinfilm.incoherent_substrate_flake`), the phase-averaged limit of
+  a substrate whose thickness varies by many λ / (2 n).
   A film may carry ``thickness_rel_sd``: its thickness varies from flake to flake (log-normal, that
   relative standard deviation), and R, T are the ensemble's averages (:func:`film_spreads`).
 * ``mirror_flake``: R = albedo (constant or a spectrum, linearly interpolated in λ), T = 0
@@ -29,6 +32,7 @@ import numpy as np
 
 from flakedb.optics.mie import default_n_quad, lognormal_pigment
 from flakedb.optics.thinfilm import flake_reflectance_transmittance as tmm_flake
+from flakedb.optics.thinfilm import incoherent_substrate_flake
 from flakedb.optics.thinfilm import thin_film_thickness_average
 from flakedb.paint.catalog import TINTER_TABLES, get_species, load_catalog
 from flakedb.paint.materials import material_density_g_cm3, material_info, refractive_index
@@ -120,6 +124,11 @@ def film_spreads(entry: dict) -> tuple[np.ndarray, np.ndarray]:
     return groups, np.array(sd + [sub] + sd[::-1])
 
 
+def substrate_is_incoherent(entry: dict) -> bool:
+    """Whether an interference flake's substrate is incoherent (``substrate.coherence``; absent: coherent)."""
+    return entry["substrate"].get("coherence", {"value": "coherent"})["value"] == "incoherent"
+
+
 def binder_index(catalog: dict, wavelength_nm) -> np.ndarray:
     """Real index of the catalogue's binder at ``wavelength_nm`` (its k is 0 in the shipped data)."""
     N = refractive_index(catalog["binder"]["material"], wavelength_nm)
@@ -166,7 +175,11 @@ def flake_reflectance_transmittance(entry: dict, wavelength_nm, cos_theta, n_bin
         mats, d_nm = film_stack(entry)
         n_films = np.stack([refractive_index(m, wl) for m in mats], axis=1)  # (W, F)
         groups, sd = film_spreads(entry)
-        if np.any(sd > 0):  # an ensemble of flakes whose films vary: the powers average
+        if substrate_is_incoherent(entry):  # coherent coatings, the substrate's round trips in power
+            nc = len(entry["coating"])
+            rt = incoherent_substrate_flake(n_films[:, :nc], d_nm[:nc], n_films[:, nc], d_nm[nc], wl, cos, n_binder,
+                                            coating_rel_sd=sd[:nc], substrate_rel_sd=sd[nc])
+        elif np.any(sd > 0):  # an ensemble of flakes whose films vary: the powers average
             rt = thin_film_thickness_average(n_films, d_nm, sd, wl, cos, n_binder, None, groups=groups)
         else:
             rt = tmm_flake(n_films, d_nm, wl, cos, n_binder)
@@ -258,6 +271,8 @@ def describe(name: str, entry: dict) -> str:
     if entry["kind"] == "interference_flake":
         mats, d = film_stack(entry)
         lines.append("film stack (top to bottom): " + " | ".join(f"{m} {x:g} nm" for m, x in zip(mats, d)))
+        if substrate_is_incoherent(entry):
+            lines.append("substrate incoherent: its round trips add in power (coatings coherent)")
         groups, sd = film_spreads(entry)
         if np.any(sd > 0):
             lines.append("thickness spread (relative SD, log-normal across flakes): " + ", ".join(

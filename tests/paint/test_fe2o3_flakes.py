@@ -83,7 +83,10 @@ def test_flake_is_the_stack_by_nested_airy(catalog, name):
     # two exact methods in double precision: their difference is rounding of ~10 operations per film
     # (7 films, a few hundred flops), amplified by the recursion's denominators |1 + r r' e²| >= ~0.3 here:
     # ~1e-14; 1e-12 bounds it with margin and is far below any physics (the Fe2O3 films move R by > 0.1)
+    # The catalogue's mica is incoherent (substrate.coherence; tests/optics/test_incoherent_substrate.py checks
+    # that against the coherent flake averaged over the mica's thickness): this test is of the coherent stack.
     e = _without_spreads(get_species(name, catalog))
+    e["substrate"].pop("coherence")
     nb = binder_index(catalog, WL)
     R, T = flake_reflectance_transmittance(e, WL, COS, nb)
     mats, d = film_stack(e)
@@ -131,7 +134,8 @@ def _lab(spectrum, wl):
 def _normal_colours(entry, catalog, mica_rel_sd=0.0):
     """Lab of the flake's reflectance and transmittance at normal incidence in the binder (D65 / 2°), and its
     absorptance at 450 and 650 nm; ``mica_rel_sd`` > 0 averages over the mica's thickness (the catalogue
-    leaves it 0 for cost; real mica is cleaved to a broad distribution, which washes out its fringes)."""
+    leaves it 0 and treats the natural mica as incoherent instead, the limit of a broad spread: the spread then
+    changes nothing, the mica being lossless)."""
     wl = np.arange(380.0, 781.0, 10.0)
     e = copy.deepcopy(entry)
     if mica_rel_sd:
@@ -148,8 +152,8 @@ def _hue_deg(lab):
 def test_iron_oxide_pearl_is_bronze(catalog):
     """Hematite absorbs below ~550 nm: the flake takes the blue (absorptance at 450 nm > 3x that at 650 nm),
     and what it reflects and transmits at normal incidence is warm.  Measured (docs/flakes.md): the catalogue
-    flake reflects hue 82° (a* +4, b* +33), over a 0.3 spread of its mica 46° (a* +19, b* +20), bronze;
-    transmits hue 54-68°.  Gold / bronze sector taken as hue 30-100° (orange to yellow) with chroma > 15."""
+    flake (incoherent mica) reflects hue 47° (a* +19, b* +20), bronze, as the coherent flake over a 0.3 spread
+    of its mica does (46°; 82° with one coherent 400 nm mica); transmits hue 68°.  Gold / bronze sector taken as hue 30-100° (orange to yellow) with chroma > 15."""
     e = get_species("mica-fe2o3-pearl", catalog)
     for sd in (0.0, 0.3):
         Rlab, Tlab, a450, a650 = _normal_colours(e, catalog, sd)
@@ -159,9 +163,9 @@ def test_iron_oxide_pearl_is_bronze(catalog):
 
 
 def test_iron_oxide_top_turns_the_white_pearl_gold(catalog):
-    """8 nm of hematite on the silver-white pearl: b* of its reflectance rises by > 8 (measured +17 for the
-    catalogue flake, +14 over a 0.3 mica spread), the ensemble's hue becomes yellow (measured 90°; the white
-    pearl's is achromatic, measured C* 3.3); the white pearl absorbs nothing, the gold one > 0.3 of the blue."""
+    """8 nm of hematite on the silver-white pearl: b* of its reflectance rises by > 8 (measured +14 for the
+    catalogue flake, incoherent mica, as over a 0.3 spread of a coherent mica; +17 with one coherent 400 nm
+    mica), the ensemble's hue becomes yellow (measured 93°; the white pearl's is achromatic, measured C* 3.6); the white pearl absorbs nothing, the gold one > 0.3 of the blue."""
     gold, white = get_species("mica-tio2-fe2o3-gold", catalog), get_species("mica-tio2-pearl", catalog)
     for sd in (0.0, 0.3):
         g, _, g450, g650 = _normal_colours(gold, catalog, sd)
@@ -199,8 +203,9 @@ def test_gold_paint_composes_and_is_warmer_than_the_white_pearl(catalog):
         a = table.albedo()[:, int(np.argmax(table.mu))]  # (16 bands,) at the node nearest normal incidence
         assert a.shape == (16,) and np.all((a > 0) & (a < 1)), (name, a)
         ratio[name] = a[:5].mean() / a[-6:].mean()
-    # measured: white pearl 1.28, bronze 0.34, gold 0.66; with the hematite swapped for as much rutile (the
-    # interference alone) 0.84 and 1.04, which these bounds refuse
+    # measured (incoherent mica): white pearl 1.03, bronze 0.24, gold 0.51; with the hematite swapped for as
+    # much rutile (the interference alone) 0.65 and 0.80, which these bounds refuse (with one coherent 400 nm
+    # mica, before: 1.28, 0.34, 0.66; swapped 0.84, 1.04)
     assert ratio["mica-fe2o3-pearl"] < 0.5 * ratio["mica-tio2-pearl"], ratio
     assert ratio["mica-tio2-fe2o3-gold"] < 0.65 * ratio["mica-tio2-pearl"], ratio
 
