@@ -40,7 +40,7 @@ from flakedb.export.materialx_render import check_cpa_glsl, glsl_renderer
                    "exact prediction per geometry: what the renderer produces, not the fit's own number.")
 @click.option("--json", "as_json", is_flag=True, help="Print the fit and the files as JSON.")
 def export_cpa(file, out, name, sparkle, uv_metres, check, as_json):
-    """Fit a coat mirror, a Lambert term and three GGX lobes and a backscatter lobe whose colours are a table indexed by the view angle to a Fourier .bsdf / flakedb .h5 FILE, and write NAME.cpa.png (the table), NAME.cpa.mtlx (MaterialX standard nodes), NAME.cpa.blender.py (Cycles / EEVEE node group) and NAME.cpa.json (the fit and its ΔE00)."""
+    """Fit a coat mirror, a Lambert term, three GGX lobes and a backscatter lobe whose colours are a table indexed by the view angle to a Fourier .bsdf / flakedb .h5 FILE, and write NAME.cpa.png (the table), NAME.cpa.mtlx (MaterialX standard nodes), NAME.cpa.blender.py (Cycles / EEVEE node group) and NAME.cpa.json (the fit and its ΔE00)."""
     tool = None
     if check == "glsl":   # before any work: a check that cannot run is refused, nothing written
         tool, why = glsl_renderer()

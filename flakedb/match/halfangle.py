@@ -29,7 +29,14 @@ def binder_half_angles_deg(geometries_deg, n_binder=1.5) -> tuple[np.ndarray, np
     """(θ_h', θ_d') [deg], each (G,), of in-plane geometries (G, 2) (illumination θ_i, aspecular γ; viewer at
     θ_v = θ_i − γ, the specular at γ = 0, ASTM E2194's sign as :mod:`flakedb.match.targets`) after refraction
     into a smooth coat of real index ``n_binder``: θ' = asin(sin θ / n) for both directions (Snell), then the
-    half vector of the refracted pair and the angle between it and the refracted light."""
+    half vector of the refracted pair and the angle between it and the refracted light.
+
+    At the specular the half vector is the normal and θ_d' is the refracted 45°, asin(sin 45° / 1.5):
+
+    >>> th, td = binder_half_angles_deg([(45.0, 0.0)])
+    >>> round(float(th[0]), 9), bool(np.isclose(td[0], np.degrees(np.arcsin(np.sin(np.radians(45.0)) / 1.5))))
+    (0.0, True)
+    """
     g = np.atleast_2d(np.asarray(geometries_deg, dtype=float))
     ti = np.arcsin(np.sin(np.radians(g[:, 0])) / n_binder)
     tv = np.arcsin(np.sin(np.radians(g[:, 0] - g[:, 1])) / n_binder)
