@@ -5,9 +5,14 @@ ASTM E2194 geometries (:func:`flakedb.export.blender.render_cycles_geometries`: 
 backscatter lobe (``n_retro=0``, 4 minimax passes, the first lobe subset), as its fit's own ΔE00 (the
 node group renders the model to ≤ 3e-4: docs/renderers.md), and both fits' E2539 worst.
 
+With ``--renderer glsl`` the recipe is exported by ``export-cpa`` (:func:`flakedb.export.registry.export`,
+method ``cpa``) and its ``.cpa.mtlx`` rendered by MaterialX's own GLSL renderer at the six E2194 geometries
+(:func:`flakedb.export.materialx_render.check_cpa_glsl`, as ``tests/export/test_cpa_glsl.py``): the ΔE00 per
+geometry against the exact paint (needs ``materialx`` and Xvfb or a display).
+
 Needs bpy 5.0.1 in a Python 3.11 environment (``make blender-venv``)::
 
-    python tools/cpa_catalogue.py OUTDIR [RECIPE ...] [--blender-python PATH]
+    python tools/cpa_catalogue.py OUTDIR [RECIPE ...] [--blender-python PATH] [--renderer cycles|glsl]
 
 Composes into OUTDIR (a recipe already composed there is reused) and prints one JSON line per recipe
 (docs/renderers.md, "Every catalogue recipe").
@@ -63,15 +68,35 @@ def measure(recipe: str, out: Path, python: str | None) -> dict:
             "E2539_worst": round(fit.error["worst_dE00_E2539"], 2), "seconds": round(time.time() - t, 1)}
 
 
+def measure_glsl(recipe: str, out: Path) -> dict:
+    """One recipe's row in MaterialX GLSL: the exported graph's rendered ΔE00 per E2194 geometry, its worst."""
+    from flakedb.export import materialx_render as mr
+    from flakedb.export.registry import export
+
+    t = time.time()
+    if not (out / f"{recipe}.bsdf").exists():
+        compose(load_recipe(RECIPES / f"{recipe}.yaml"), out, n=32)
+    b = open_bsdf(out / f"{recipe}.bsdf")
+    ex = export(out / f"{recipe}.bsdf", out / "glsl", method="cpa")
+    r = mr.check_cpa_glsl(b, ex["files"]["materialx"])
+    de = [g["dE00"] for g in r["geometries"]]
+    return {"recipe": recipe, "glsl_dE00": [round(float(x), 2) for x in de], "glsl_worst": round(float(max(de)), 2),
+            "alphas": list(ex["fit"]["alphas"]), "retro_alphas": list(ex["fit"].get("retro_alphas", [])),
+            "renderer": r["renderer"], "seconds": round(time.time() - t, 1)}
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("out", type=Path)
     ap.add_argument("recipes", nargs="*", help="recipe names [default: every catalogue recipe]")
     ap.add_argument("--blender-python", default=None, help="a Python with bpy 5.0.1 [default: .venv-blender's]")
+    ap.add_argument("--renderer", choices=("cycles", "glsl"), default="cycles",
+                    help="Cycles (bpy) or MaterialX's GLSL renderer [default: cycles]")
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
     for r in a.recipes or sorted(p.stem for p in RECIPES.glob("*.yaml")):
-        print(json.dumps(measure(r, a.out, a.blender_python)), flush=True)
+        row = measure_glsl(r, a.out) if a.renderer == "glsl" else measure(r, a.out, a.blender_python)
+        print(json.dumps(row), flush=True)
 
 
 if __name__ == "__main__":
