@@ -164,16 +164,17 @@ def test_twenty_sigterms_at_random_moments_during_match(tmp_path):
     (tmp_path / "t.csv").write_text(MATCH_TARGET)
     rng = random.Random(20261207)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+
+    def match(out):
+        return _flakedb_under_default_signals(["match", str(tmp_path / "base.yaml"), "--target", str(tmp_path / "t.csv"),
+                                               "--out", str(out), "--max-evaluations", "3"])
+
+    duration = _whole_run_seconds(match(tmp_path / "whole"), env)
     codes = []
     for k in range(20):
         out = tmp_path / f"out{k}"
-        proc = subprocess.Popen([sys.executable, "-c", "import signal, sys; "
-                                 "[signal.signal(s, signal.SIG_DFL) for s in (signal.SIGTERM, signal.SIGHUP)]; "
-                                 "from flakedb.cli.main import main; sys.argv[0] = 'flakedb'; main()",
-                                 "match", str(tmp_path / "base.yaml"), "--target", str(tmp_path / "t.csv"), "--out",
-                                 str(out), "--max-evaluations", "3"], env=env, stdout=subprocess.PIPE,
-                                stderr=subprocess.STDOUT, text=True)
-        time.sleep(rng.uniform(1.0, 3.5))
+        proc = subprocess.Popen(match(out), env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        time.sleep(max(1.0, rng.uniform(0.3, 0.85) * duration))
         proc.send_signal(signal.SIGTERM)
         text, _ = proc.communicate(timeout=120)
         codes.append(proc.returncode)
@@ -181,9 +182,28 @@ def test_twenty_sigterms_at_random_moments_during_match(tmp_path):
         if proc.returncode == 143:
             assert left == [], (k, left, text)
             assert "Traceback" not in text and "internal error" not in text, text
-        else:   # finished before the signal: the whole set, and the fit's own exit status
-            assert proc.returncode in (0, 1) and left == MATCH_OUTPUTS, (k, proc.returncode, left, text[-2000:])
+        else:   # finished before the signal: the whole set, and the fit's own exit status, or -SIGTERM when the
+            # signal came after the work, once flakedb's handler was restored and the default one killed
+            assert proc.returncode in (0, 1, -signal.SIGTERM) and left == MATCH_OUTPUTS, \
+                (k, proc.returncode, left, text[-2000:])
     assert codes.count(143) >= 15, codes   # the signals did land during the work
+
+
+def _flakedb_under_default_signals(args) -> list:
+    """A ``flakedb`` command line whose SIGTERM / SIGHUP start at the default action (as a shell's child)."""
+    return [sys.executable, "-c", "import signal, sys; "
+            "[signal.signal(s, signal.SIG_DFL) for s in (signal.SIGTERM, signal.SIGHUP)]; "
+            "from flakedb.cli.main import main; sys.argv[0] = 'flakedb'; main()"] + list(args)
+
+
+def _whole_run_seconds(cmd, env) -> float:
+    """Wall seconds of one uninterrupted run of ``cmd`` on this machine now: the signal tests send their signals
+    at fractions of it, so that they land inside the work however fast the command has become (fixed 1.5-4 s
+    delays all came after a 2-3x faster calibrate)."""
+    t0 = time.perf_counter()
+    run = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=600)
+    assert run.returncode in (0, 1), run.stdout[-2000:]
+    return time.perf_counter() - t0
 
 
 CAL_LADDER = "species: cadmium-yellow\nname: cy-lab\npanels:\n  - {recipe: base.yaml, target: t.csv}\n"
@@ -214,15 +234,14 @@ def test_sigterm_during_calibrate_and_a_batch_compare(tmp_path, command):
         complete = ["figs", "table.csv"]
     rng = random.Random(38 + len(command))
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    launch = _flakedb_under_default_signals(args)
+    duration = _whole_run_seconds(launch, env)
     codes = []
     for _ in range(3):
         for p in out.iterdir():
             shutil.rmtree(p) if p.is_dir() else p.unlink()
-        proc = subprocess.Popen([sys.executable, "-c", "import signal, sys; "
-                                 "[signal.signal(s, signal.SIG_DFL) for s in (signal.SIGTERM, signal.SIGHUP)]; "
-                                 "from flakedb.cli.main import main; sys.argv[0] = 'flakedb'; main()"] + args,
-                                env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        time.sleep(rng.uniform(1.5, 4.0))
+        proc = subprocess.Popen(launch, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        time.sleep(max(1.0, rng.uniform(0.35, 0.8) * duration))
         proc.send_signal(signal.SIGTERM)
         text, _ = proc.communicate(timeout=120)
         codes.append(proc.returncode)
@@ -230,8 +249,8 @@ def test_sigterm_during_calibrate_and_a_batch_compare(tmp_path, command):
         if proc.returncode == 143:
             assert left == [], (left, text)
             assert "internal error" not in text and "Traceback" not in text, text
-        else:
-            assert proc.returncode in (0, 1) and left == complete, (proc.returncode, left, text[-2000:])
+        else:   # after the work: complete (its exit status, or -SIGTERM as in the match test)
+            assert proc.returncode in (0, 1, -signal.SIGTERM) and left == complete, (proc.returncode, left, text[-2000:])
     assert 143 in codes, codes
 
 
