@@ -43,6 +43,13 @@ def raise_or_defer(exc: BaseException) -> None:
     raise exc
 
 
+def hold(exc: BaseException) -> None:
+    """Keep ``exc`` to be raised when the next outermost :func:`deferred` block of the main thread ends (a signal's
+    exception that Python could not raise where it arrived, e.g. inside a finaliser; the first one kept)."""
+    if _STATE["pending"] is None:
+        _STATE["pending"] = exc
+
+
 @contextlib.contextmanager
 def deferred():
     """A block (a compiled kernel's call) during which :func:`raise_or_defer` holds its exception back; the

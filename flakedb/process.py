@@ -33,7 +33,7 @@ import signal
 import sys
 import threading
 
-from flakedb.interrupts import raise_or_defer
+from flakedb.interrupts import hold, raise_or_defer
 
 #: glibc's mallopt parameters (malloc.h).
 _M_TRIM_THRESHOLD = -1
@@ -133,12 +133,27 @@ def _raise_terminated(signum, frame):
 TERMINATING_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, n))
 
 
+def _terminated_where_it_cannot_be_raised(unraisable, previous=sys.unraisablehook):
+    """``sys.unraisablehook``: a :class:`Terminated` that arrived inside a finaliser or a weakref callback (Python
+    prints "Exception ignored in ..." with a traceback and goes on) is held for the next kernel call's end
+    (:func:`flakedb.interrupts.hold`) instead, so the run still stops, and nothing is printed; the command's exit
+    status is 128 + the signal either way (:func:`received_signal`).  Anything else: Python's own report."""
+    if isinstance(unraisable.exc_value, Terminated):
+        hold(unraisable.exc_value)
+        return
+    previous(unraisable)
+
+
 def install_signal_handlers() -> bool:
     """Make SIGTERM, SIGHUP and SIGINT raise :class:`Terminated` in the main thread (True when installed;
     False off the main thread, where Python cannot install handlers).  A signal the parent set to be ignored
-    (``nohup`` ignores SIGHUP; a background job of a non-interactive shell, SIGINT) stays ignored."""
+    (``nohup`` ignores SIGHUP; a background job of a non-interactive shell, SIGINT) stays ignored.  A
+    :class:`Terminated` raised where Python cannot raise it (a finaliser) is held, not printed
+    (:func:`_terminated_where_it_cannot_be_raised`)."""
     if threading.current_thread() is not threading.main_thread():
         return False
+    if sys.unraisablehook is not _terminated_where_it_cannot_be_raised:
+        sys.unraisablehook = _terminated_where_it_cannot_be_raised
     for s in TERMINATING_SIGNALS:
         if signal.getsignal(s) is signal.SIG_IGN:
             continue

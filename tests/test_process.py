@@ -83,3 +83,33 @@ def test_the_command_line_runs_blas_on_one_thread(tmp_path):
 @pytest.mark.skipif((__import__("os").cpu_count() or 1) < 2, reason="OpenBLAS caps its threads at the cores")
 def test_a_user_set_blas_thread_count_is_obeyed(tmp_path):
     assert _blas_threads_of_a_command(tmp_path, OPENBLAS_NUM_THREADS="2") == 2
+
+
+def test_a_signal_inside_a_finaliser_is_held_not_printed(tmp_path):
+    """A SIGTERM whose Terminated is raised inside a finaliser or weakref callback (CI: during a batch compare's
+    clean-up, "Exception ignored in <function WeakValueDictionary...remove>" with a traceback, and the run went on)
+    is held for the next kernel call's end, which raises it, and nothing is printed."""
+    import subprocess
+    import sys
+
+    code = (
+        "import signal, sys\n"
+        "from flakedb.process import Terminated, install_signal_handlers\n"
+        "from flakedb.interrupts import deferred\n"
+        "install_signal_handlers()\n"
+        "class Finalised:\n"
+        "    def __del__(self):\n"
+        "        raise Terminated(signal.SIGTERM)\n"
+        "x = Finalised()\n"
+        "del x\n"
+        "print('went on after the finaliser')\n"
+        "try:\n"
+        "    with deferred():\n"
+        "        pass\n"
+        "except Terminated as e:\n"
+        "    print('raised at the kernel call', e.signum == signal.SIGTERM)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "Exception ignored" not in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert r.stdout.splitlines() == ["went on after the finaliser", "raised at the kernel call True"], r.stdout
