@@ -290,6 +290,20 @@ def XYZ_to_Lab(XYZ, white="D65") -> np.ndarray:
     return np.stack([116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)], axis=-1)
 
 
+def Lab_to_XYZ(Lab, white="D65") -> np.ndarray:
+    """XYZ (Y = 1 for white) of CIE L*a*b* (CIE 15:2004 §8.2.1 inverted), the inverse of :func:`XYZ_to_Lab` for
+    a named white: colour-science's ``Lab_to_XYZ`` at that white's chromaticity (2° observer; "D65" is
+    ``cie_tables.D65_XY_2DEG``, as in :func:`XYZ_to_Lab`).
+
+    >>> float(np.round(Lab_to_XYZ([100.0, 0.0, 0.0])[1], 12))
+    1.0
+    """
+    import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
+
+    xy = np.asarray(cie_tables.D65_XY_2DEG if white == "D65" else colour.CCS_ILLUMINANTS[CMFS_NAME][white])
+    return np.asarray(colour.Lab_to_XYZ(np.asarray(Lab, dtype=float), xy), dtype=float)
+
+
 def _XYZ_to_Lab_colour_science(XYZ, white):
     import colour  # lazy: colour-science takes ~0.5 s to import (it pulls matplotlib)
 

@@ -20,9 +20,9 @@ import numpy as np
 from scipy.optimize import minimize
 
 from flakedb.colour import cie_tables
-from flakedb.colour.colorimetry import XYZ_to_Lab, delta_E_2000
+from flakedb.colour.colorimetry import Lab_to_XYZ, XYZ_to_Lab, delta_E_2000
 
-__all__ = ["binder_half_angles_deg", "common_chromaticity_worst_de00", "lab_to_XYZ_d65", "two_spectra_worst_de00"]
+__all__ = ["binder_half_angles_deg", "common_chromaticity_worst_de00", "two_spectra_worst_de00"]
 
 
 def binder_half_angles_deg(geometries_deg, n_binder=1.5) -> tuple[np.ndarray, np.ndarray]:
@@ -49,17 +49,6 @@ def binder_half_angles_deg(geometries_deg, n_binder=1.5) -> tuple[np.ndarray, np
     return th, td
 
 
-def lab_to_XYZ_d65(lab) -> np.ndarray:
-    """XYZ (Y = 1 for white) of CIELAB under D65 / 2° as :func:`flakedb.colour.colorimetry.XYZ_to_Lab` with
-    white "D65" (CIE 15:2004 §8.2.1 inverted: t = f³ above 24/116, else (f − 16/116) · 108/841)."""
-    lab = np.asarray(lab, dtype=float)
-    x, y = cie_tables.D65_XY_2DEG
-    white = np.array([x / y, 1.0, (1.0 - x - y) / y])
-    fy = (lab[..., 0] + 16.0) / 116.0
-    f = np.stack([fy + lab[..., 1] / 500.0, fy, fy - lab[..., 2] / 200.0], axis=-1)
-    return np.where(f > 24.0 / 116.0, f ** 3, (f - 16.0 / 116.0) * 108.0 / 841.0) * white
-
-
 def common_chromaticity_worst_de00(lab, grid_step=0.005, refine=5) -> tuple[float, np.ndarray]:
     """(least worst ΔE00, its chromaticity xy (2,)) over one CIE xy shared by colours (G, 3), each keeping its
     own luminance Y: min over xy of max_g ΔE00(lab_g, Lab(Y_g, xy)).  Global by a grid over x, y in 0.10-0.60
@@ -68,7 +57,7 @@ def common_chromaticity_worst_de00(lab, grid_step=0.005, refine=5) -> tuple[floa
     best point is within one grid cell of the minimum and the local search finishes it.  One colour, or colours
     of one chromaticity, give 0."""
     lab = np.atleast_2d(np.asarray(lab, dtype=float))
-    Y = lab_to_XYZ_d65(lab)[:, 1]
+    Y = Lab_to_XYZ(lab)[:, 1]
 
     def lab_at(xy):                                                    # xy (..., 2) -> Lab (..., G, 3)
         x, y = xy[..., 0, None], xy[..., 1, None]
@@ -100,7 +89,7 @@ def two_spectra_worst_de00(lab, starts=40, seed=0, n_mix=201) -> tuple[float, np
     upper estimate of the minimum (not proven global, unlike the grid of :func:`common_chromaticity_worst_de00`);
     never above that function's value, which is the degenerate segment."""
     lab = np.atleast_2d(np.asarray(lab, dtype=float))
-    Y = lab_to_XYZ_d65(lab)[:, 1]
+    Y = Lab_to_XYZ(lab)[:, 1]
     t = np.linspace(0.0, 1.0, int(n_mix))[:, None]
     ref = np.repeat(lab[:, None, :], t.size, axis=1)
 
