@@ -582,42 +582,32 @@ def beam_collected(g, diameter_um, lam_um, lam_w, n=BEAM_GRID):
     ``g.s_perp``, unit integral) ⊛ the Airy pattern of the flake's projection (D c × D) at the wavelengths
     ``lam_um`` (binder, µm) mixed with weights ``lam_w``; f = beam ⊛ aperture (the ellipse ``g.a_par`` ×
     ``g.a_perp``).  Returns (x (n,) the grid's offsets along either axis, rad, in FFT order: x[0] = 0;
-    f (n, n)).  One diameter of :func:`_beams_collected`."""
-    x, f = _beams_collected(g, [diameter_um], lam_um, lam_w, n)
-    return x[0], f[0]
-
-
-def _beams_collected(g, diameters_um, lam_um, lam_w, n=BEAM_GRID):
-    """:func:`beam_collected` of every diameter in ``diameters_um`` (nD,) at once: (x (nD, n), f (nD, n, n)), each
-    diameter on its own grid (its spacing h grows with its Airy reach), the inverse FFTs batched over diameters
-    (the same transforms, value for value, as one diameter at a time)."""
+    f (n, n))."""
     lam_um, lam_w = np.atleast_1d(np.asarray(lam_um, float)), np.atleast_1d(np.asarray(lam_w, float))
-    D_all, c = np.atleast_1d(np.asarray(diameters_um, float)), float(g.c)
-    lam_min = float(lam_um.min())
-    E0 = 1.25 * (max(g.s_par, g.s_perp) + max(g.a_par, g.a_perp))
-    # per diameter: grid half-width E (rad) and spacing h; the OTF vanishes beyond u = 1/λ'_min (|ν_x| ≤ c D/λ'_min,
-    # |ν_y| ≤ D/λ'_min): the spectrum is formed on that block of low frequencies only (a few % of the grid), zero
-    # elsewhere as the product there is (the block of the largest diameter for all: beyond a diameter's own block
-    # its OTF table reads exactly 0)
-    h = np.array([2.0 * (E0 + BEAM_AIRY_REACH * float(lam_um.max()) / (float(D) * c)) / n for D in D_all])
-    kx = max(min(int(np.ceil(c * float(D) * n * hh / lam_min)) + 1, n // 2 - 1) for D, hh in zip(D_all, h))
-    ky = max(min(int(np.ceil(float(D) * n * hh / lam_min)) + 1, n // 2) for D, hh in zip(D_all, h))
+    D, c = float(diameter_um), float(g.c)
+    reach = BEAM_AIRY_REACH * float(lam_um.max()) / (D * c)
+    E = 1.25 * (max(g.s_par, g.s_perp) + max(g.a_par, g.a_perp)) + reach  # grid half-width, rad
+    h = 2.0 * E / n
+    # the OTF vanishes beyond u = 1/λ'_min (|ν_x| ≤ c D/λ'_min, |ν_y| ≤ D/λ'_min): the spectrum is formed on
+    # that block of low frequencies only (a few % of the grid), zero elsewhere as the product there is
+    kx = min(int(np.ceil(c * D * n * h / float(lam_um.min()))) + 1, n // 2 - 1)
+    ky = min(int(np.ceil(D * n * h / float(lam_um.min()))) + 1, n // 2)
     rows = np.r_[0:kx + 1, n - kx:n]
-    nu_x = np.stack([np.fft.fftfreq(n, hh)[rows, None] for hh in h])  # (nD, rows, 1)
-    nu_y = np.stack([np.fft.rfftfreq(n, hh)[None, :ky + 1] for hh in h])  # (nD, 1, ky + 1)
+    nu_x = np.fft.fftfreq(n, h)[rows, None]
+    nu_y = np.fft.rfftfreq(n, h)[None, :ky + 1]
     F = _jinc(2.0 * np.pi * np.sqrt((g.s_par * nu_x) ** 2 + (g.s_perp * nu_y) ** 2))
     F *= (np.pi * g.a_par * g.a_perp) * _jinc(2.0 * np.pi * np.sqrt((g.a_par * nu_x) ** 2 + (g.a_perp * nu_y) ** 2))
     # the mixture Σ_k w_k OTF(λ_k u) of the elliptical frequency u = |(ν_x/c, ν_y)|/D, tabulated in u (1-D)
-    u = np.sqrt((nu_x / c) ** 2 + nu_y**2) / D_all[:, None, None]
-    u_tab = np.linspace(0.0, 1.0 / lam_min, _OTF_TABLE)
+    u = np.sqrt((nu_x / c) ** 2 + nu_y**2) / D
+    u_tab = np.linspace(0.0, 1.0 / float(lam_um.min()), _OTF_TABLE)
     mix = sum(w * airy_otf(lam * u_tab) for lam, w in zip(lam_um, lam_w))
-    spec = np.zeros((D_all.size, n, ky + 1))
-    spec[:, rows] = F * np.interp(u, u_tab, mix, right=0.0)
+    spec = np.zeros((n, ky + 1))
+    spec[rows] = F * np.interp(u, u_tab, mix, right=0.0)
     # irfft2's two passes (numpy.fft.irfftn), the first over the nonzero columns only (the others stay zero)
-    half = np.zeros((D_all.size, n, n // 2 + 1), complex)
-    half[..., :ky + 1] = np.fft.ifft(spec, axis=1)
-    f = np.fft.irfft(half, n, axis=2) / (h * h)[:, None, None]
-    return np.fft.fftfreq(n, 1.0 / n)[None, :] * h[:, None], f
+    half = np.zeros((n, n // 2 + 1), complex)
+    half[:, :ky + 1] = np.fft.ifft(spec, axis=0)
+    f = np.fft.irfft(half, n, axis=1) / (h * h)
+    return np.fft.fftfreq(n, 1.0 / n) * h, f
 
 
 def _beam_levels(g, diameters_um, lam_um, lam_w, alpha, distribution=DEFAULT_DISTRIBUTION, n=BEAM_GRID,
@@ -641,26 +631,27 @@ def _beam_levels(g, diameters_um, lam_um, lam_w, alpha, distribution=DEFAULT_DIS
     D_all = np.atleast_1d(np.asarray(diameters_um, float))
     ndf = flake_distribution(distribution).ndf
     th = np.arccos(np.clip(g.cos_h, -1.0, 1.0))
-    nD = D_all.size
+    S = np.zeros((D_all.size, n_levels + 1))
+    I = np.zeros_like(S)
+    f_max = np.zeros(D_all.size)
     # f and the density are even in δ⊥ (ellipses, Airy pattern; m_z holds δ⊥²): the columns 0 … n/2 of the grid,
-    # those with a mirror column (1 … n/2 − 1) counted twice; every diameter at once (its own grid)
+    # those with a mirror column (1 … n/2 − 1) counted twice
     m = n // 2 + 1
     twice = np.full(m, 2.0)
     twice[0] = twice[-1] = 1.0
-    x, f = _beams_collected(g, D_all, lam_um, lam_w, n)  # (nD, n), (nD, n, n)
-    h = x[:, 1] - x[:, 0]
-    f_max = f[:, 0, 0].copy()
-    a = 0.5 * x[:, :, None]
-    b = 0.5 * x[:, None, :m] / g.c
-    mz = (np.cos(th) - a * np.sin(th)) / np.sqrt(1.0 + a * a + b * b)
-    p = 2.0 * ndf(mz, alpha) * (h * h)[:, None, None] * twice
-    phi = f[:, :, :m] / f_max[:, None, None]
-    # each diameter's levels in its own block of bins (bincount adds each bin's terms in the same order)
-    k = (np.clip((phi * n_levels).astype(np.int64), 0, n_levels - 1) + (n_levels * np.arange(nD))[:, None, None]).ravel()
-    S = np.zeros((nD, n_levels + 1))
-    I = np.zeros_like(S)
-    S[:, :-1] = np.cumsum(np.bincount(k, p.ravel(), nD * n_levels).reshape(nD, n_levels)[:, ::-1], axis=1)[:, ::-1]
-    I[:, :-1] = np.cumsum(np.bincount(k, (p * phi).ravel(), nD * n_levels).reshape(nD, n_levels)[:, ::-1], axis=1)[:, ::-1]
+    for i, D in enumerate(D_all):
+        x, f = beam_collected(g, D, lam_um, lam_w, n)
+        h = x[1] - x[0]
+        fm = float(f[0, 0])
+        a = 0.5 * x[:, None]
+        b = 0.5 * x[None, :m] / g.c
+        mz = (np.cos(th) - a * np.sin(th)) / np.sqrt(1.0 + a * a + b * b)
+        p = 2.0 * ndf(mz, alpha) * (h * h) * twice
+        phi = f[:, :m] / fm
+        k = np.clip((phi * n_levels).astype(np.int64), 0, n_levels - 1).ravel()
+        S[i, :-1] = np.cumsum(np.bincount(k, p.ravel(), n_levels)[::-1])[::-1]
+        I[i, :-1] = np.cumsum(np.bincount(k, (p * phi).ravel(), n_levels)[::-1])[::-1]
+        f_max[i] = fm
     return S, I, f_max
 
 
