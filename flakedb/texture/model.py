@@ -198,15 +198,23 @@ class FlakeLayer:
 
     def mean_crossed_transmittance(self, mu, projected=None):
         """T̄(μ) per channel (C, *mu.shape): the mean transmittance of the flakes a path at cosine μ crosses,
-        1 − σ_t(μ)/(aρ P(μ)) with the solver's σ_t per unit loading and P (``projected``, if already known)."""
+        1 − σ_t(μ)/(aρ P(μ)) with the solver's σ_t per unit loading and P (``projected``, if already known).
+        Kept per layer for each (μ, P) asked (read-only): a report asks the same few cosines again and again."""
         mu = np.asarray(mu, float)
         if not np.any(self.T):
             return np.zeros((np.atleast_2d(self.T).shape[0],) + mu.shape)
-        if projected is None:
-            projected = projected_area(mu, self.alpha, distribution=self.distribution)
-        optics = FlakeOptics(np.asarray(self.c, float), np.atleast_2d(self.R), np.atleast_2d(self.T))
-        st = extinction_Ergun(mu, self.alpha, optics, 1.0, distribution=self.distribution)
-        return np.clip(1.0 - st / np.asarray(projected, float), 0.0, 1.0)
+        pr = None if projected is None else np.asarray(projected, float)
+        key = (mu.shape, mu.tobytes(), None if pr is None else (pr.shape, pr.tobytes()))
+        memo = self.__dict__.setdefault("_crossed_memo", {})  # the frozen dataclass's own dict: not a field
+        if key not in memo:
+            if pr is None:
+                pr = np.asarray(projected_area(mu, self.alpha, distribution=self.distribution), float)
+            optics = FlakeOptics(np.asarray(self.c, float), np.atleast_2d(self.R), np.atleast_2d(self.T))
+            st = extinction_Ergun(mu, self.alpha, optics, 1.0, distribution=self.distribution)
+            out = np.clip(1.0 - st / pr, 0.0, 1.0)
+            out.setflags(write=False)
+            memo[key] = out
+        return memo[key]
 
     def diameters(self, n=N_DIAMETER):
         """(D nodes µm, number fractions) of the log-normal: Gauss–Hermite in ln D (exact for the
