@@ -499,3 +499,22 @@ def test_mosaic_of_a_point_is_the_topmost_flake():
     _, v1 = tm.mosaic_variance(f, z, B1, B2, T, kappa, 2000.0)
     _, v4 = tm.mosaic_variance(f, z, B1, B2, T, kappa, 8000.0)
     assert v4 == pytest.approx(v1 / 16.0, rel=1e-2)  # K̄ = 2πp² − 8ps + …: 0.6 % at s = 10 µm, p = 2 mm
+
+
+def test_mean_crossed_transmittance_is_the_solvers_extinction_over_its_area_each_time_asked():
+    """FlakeLayer.mean_crossed_transmittance, kept per (μ, P) asked: T̄ = 1 − σ_t/(aρ P) by the solver's own
+    extinction (paper eq. 2) and projected area, the same on every asking (scalar-like and array μ, in any
+    order), another P gives its own T̄ (a memo keyed on μ alone would return the first), and the kept
+    array cannot be written."""
+    c = np.linspace(0.0, 1.0, 9)
+    T = np.vstack([0.8 - 0.3 * c, 0.5 + 0.2 * c])
+    f = tm.FlakeLayer("pearl", 0.0, 10.0, 1e-4, 12.0, 1.4, 0.4, 0.3, c, np.full((2, 9), 0.1), T)
+    optics = FlakeOptics(c, np.full((2, 9), 0.1), T)
+    for mu in (np.array([1.0]), np.array([0.9, 0.6]), np.array([1.0]), np.array([0.9, 0.6])):
+        P = tm.projected_area(mu, 0.3)
+        want = np.clip(1.0 - extinction_Ergun(mu, 0.3, optics, 1.0) / P, 0.0, 1.0)
+        np.testing.assert_array_equal(f.mean_crossed_transmittance(mu), want)
+        np.testing.assert_array_equal(f.mean_crossed_transmittance(mu, P), want)
+        np.testing.assert_array_equal(f.mean_crossed_transmittance(mu, 2.0 * P),
+                                      np.clip(1.0 - extinction_Ergun(mu, 0.3, optics, 1.0) / (2.0 * P), 0.0, 1.0))
+    assert not f.mean_crossed_transmittance(np.array([1.0])).flags.writeable
