@@ -48,19 +48,59 @@ def ndtri(p):
     return _ndtri(p)
 
 
-def _poisson_ppf(q, lam):
-    """Poisson quantile: the least k with P(K ≤ k; λ) ≥ q for q ∈ (0, 1), −1 at q = 0 (``q``, ``lam`` broadcast;
-    float).  scipy.stats.poisson.ppf's own steps, ceil(pdtrik(q, λ)) corrected by one step where pdtr already
-    reaches q, on scipy.special (imported on first use as :func:`j1`), without scipy.stats (≈ 0.3 s to import)
-    and its argument checks (≈ 30 ms a call here)."""
+def _poisson_ppf_scipy(q, lam):
+    """scipy.stats.poisson.ppf's own steps, ceil(pdtrik(q, λ)) corrected by one step where pdtr already reaches q,
+    on scipy.special (imported on first use as :func:`j1`): :func:`_poisson_ppf` where it cannot decide alone."""
     from scipy.special import pdtr, pdtrik  # lazy: scipy.special is slow to import; only the glint draws need it
 
-    q, lam = np.broadcast_arrays(np.asarray(q, float), np.asarray(lam, float))
     with np.errstate(invalid="ignore", divide="ignore"):
         vals = np.ceil(pdtrik(q, lam))
         vals1 = np.maximum(vals - 1.0, 0.0)
-        out = np.where(pdtr(vals1, lam) >= q, vals1, vals)
-    return np.where(q <= 0.0, -1.0, np.where(q >= 1.0, np.inf, out))
+        return np.where(pdtr(vals1, lam) >= q, vals1, vals)
+
+
+#: Relative width above P(K ≤ k − 1; λ) in which :func:`_poisson_ppf` defers to scipy's root finder: there scipy's
+#: pdtrik, whose root may sit on either side of the integer, decides (it was seen off up to 1e-12 relative).
+_PPF_SCIPY_BAND = 1e-9
+
+
+def _poisson_ppf(q, lam):
+    """Poisson quantile: the least k with P(K ≤ k; λ) ≥ q for q ∈ (0, 1), −1 at q = 0, ∞ at q = 1 (``q``, ``lam``
+    broadcast; float): the integers of scipy.stats.poisson.ppf, without scipy.stats (≈ 0.3 s to import).
+
+    The CDF pdtr(k, λ) (scipy.special, the function scipy's ppf checks its answer with) is tabulated per distinct
+    λ for k = 0 … λ + 10√λ + 40 (when that table is not larger than a few entries per q) and searched by bisection for every q at once; scipy's own steps
+    (:func:`_poisson_ppf_scipy`, a root finder per element) decide where the table cannot: q beyond the table,
+    λ ≤ 0 or not finite, a table not non-decreasing, P(K ≤ k − 1) underflowed to 0, and q within
+    :data:`_PPF_SCIPY_BAND` above P(K ≤ k − 1)."""
+    from scipy.special import pdtr  # lazy: scipy.special is slow to import; only the glint draws need it
+
+    q, lam = np.broadcast_arrays(np.asarray(q, float), np.asarray(lam, float))
+    shape = q.shape
+    q, lam = q.ravel(), lam.ravel()
+    out = np.full(q.size, np.nan)
+    inner = (q > 0.0) & (q < 1.0) & (lam > 0.0) & np.isfinite(lam)
+    lu, row = np.unique(lam[inner], return_inverse=True)
+    n_k = int(np.ceil(lu.max() + 10.0 * np.sqrt(lu.max()) + 40.0)) if lu.size else 0
+    if lu.size and lu.size * n_k <= 4 * q.size + 4096:  # else the table costs more than the root finder per q
+        cdf = pdtr(np.arange(n_k, dtype=float)[None, :], lu[:, None])  # (distinct λ, n_k)
+        qi = q[inner]
+        lo, hi = np.zeros(qi.size, np.int64), np.full(qi.size, n_k - 1, np.int64)
+        for _ in range(int(np.ceil(np.log2(n_k))) + 1):  # the least index with cdf ≥ q (bisection, every q at once)
+            mid = (lo + hi) // 2
+            below = cdf[row, mid] < qi
+            lo, hi = np.where(below, mid + 1, lo), np.where(below, hi, mid)
+        k = lo
+        prev = np.where(k > 0, cdf[row, np.maximum(k - 1, 0)], 0.0)
+        monotone = np.all(np.diff(cdf, axis=1) >= 0.0, axis=1)[row]
+        decided = ((cdf[row, k] >= qi) & (prev < qi) & (qi - prev > _PPF_SCIPY_BAND * qi) & monotone
+                   & ((k == 0) | (prev > 0.0)))  # P(K ≤ k − 1) underflowed: q is subnormal
+        out[np.flatnonzero(inner)[decided]] = k[decided]
+    rest = np.isnan(out)  # everything the table did not decide
+    if np.any(rest):
+        out[rest] = _poisson_ppf_scipy(q[rest], lam[rest])
+    out = np.where(q <= 0.0, -1.0, np.where(q >= 1.0, np.inf, out))
+    return out.reshape(shape)
 
 
 @lru_cache(maxsize=64)
@@ -158,15 +198,23 @@ class FlakeLayer:
 
     def mean_crossed_transmittance(self, mu, projected=None):
         """T̄(μ) per channel (C, *mu.shape): the mean transmittance of the flakes a path at cosine μ crosses,
-        1 − σ_t(μ)/(aρ P(μ)) with the solver's σ_t per unit loading and P (``projected``, if already known)."""
+        1 − σ_t(μ)/(aρ P(μ)) with the solver's σ_t per unit loading and P (``projected``, if already known).
+        Kept per layer for each (μ, P) asked (read-only): a report asks the same few cosines again and again."""
         mu = np.asarray(mu, float)
         if not np.any(self.T):
             return np.zeros((np.atleast_2d(self.T).shape[0],) + mu.shape)
-        if projected is None:
-            projected = projected_area(mu, self.alpha, distribution=self.distribution)
-        optics = FlakeOptics(np.asarray(self.c, float), np.atleast_2d(self.R), np.atleast_2d(self.T))
-        st = extinction_Ergun(mu, self.alpha, optics, 1.0, distribution=self.distribution)
-        return np.clip(1.0 - st / np.asarray(projected, float), 0.0, 1.0)
+        pr = None if projected is None else np.asarray(projected, float)
+        key = (mu.shape, mu.tobytes(), None if pr is None else (pr.shape, pr.tobytes()))
+        memo = self.__dict__.setdefault("_crossed_memo", {})  # the frozen dataclass's own dict: not a field
+        if key not in memo:
+            if pr is None:
+                pr = np.asarray(projected_area(mu, self.alpha, distribution=self.distribution), float)
+            optics = FlakeOptics(np.asarray(self.c, float), np.atleast_2d(self.R), np.atleast_2d(self.T))
+            st = extinction_Ergun(mu, self.alpha, optics, 1.0, distribution=self.distribution)
+            out = np.clip(1.0 - st / pr, 0.0, 1.0)
+            out.setflags(write=False)
+            memo[key] = out
+        return memo[key]
 
     def diameters(self, n=N_DIAMETER):
         """(D nodes µm, number fractions) of the log-normal: Gauss–Hermite in ln D (exact for the
@@ -955,12 +1003,15 @@ def _spot_fill_one(d, p):
     t = k * np.pi * (3.0 - np.sqrt(5.0))
     pts = np.stack([r * np.cos(t), r * np.sin(t)], -1)  # unit disc, equal areas
     u = (np.arange(_FILL_OFFSETS) + 0.5) / _FILL_OFFSETS * p
-    cx, cy = np.meshgrid(u, u, indexing="ij")
-    x = np.floor((cx.reshape(-1, 1) + 0.5 * d * pts[None, :, 0]) / p).astype(np.int64)
-    y = np.floor((cy.reshape(-1, 1) + 0.5 * d * pts[None, :, 1]) / p).astype(np.int64)
+    # a point's spot column depends on the centre's x alone, its row on the centre's y alone: (offsets, points) each
+    x = np.floor((u[:, None] + 0.5 * d * pts[None, :, 0]) / p).astype(np.int64)
+    y = np.floor((u[:, None] + 0.5 * d * pts[None, :, 1]) / p).astype(np.int64)
     span = int(np.ceil(d / p)) + 3
-    cell = (x + span) * (2 * span + 1) + (y + span) + np.arange(x.shape[0])[:, None] * (2 * span + 1) ** 2
-    counts = np.bincount(cell.ravel(), minlength=x.shape[0] * (2 * span + 1) ** 2).reshape(x.shape[0], -1)
+    side = 2 * span + 1
+    n_c = _FILL_OFFSETS * _FILL_OFFSETS  # centres (x offset major, as meshgrid's "ij")
+    cell = (((x[:, None, :] + span) * side + (y[None, :, :] + span)).reshape(n_c, -1)
+            + np.arange(n_c)[:, None] * side * side)
+    counts = np.bincount(cell.ravel(), minlength=n_c * side * side).reshape(n_c, -1)
     frac = counts.max(axis=1) / _FILL_POINTS * (0.25 * np.pi * d * d) / (p * p)
     return min(float(frac.mean()), 1.0)
 

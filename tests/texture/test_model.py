@@ -452,6 +452,33 @@ def test_poisson_quantile_is_the_least_count_reaching_q():
     assert tm._poisson_ppf(0.0, 5.0) == -1.0
 
 
+def test_poisson_quantile_is_scipy_stats_integers(monkeypatch):
+    """The tabulated quantile (flakedb.texture.model._poisson_ppf: a bisection in pdtr's table, scipy's root finder
+    only near a step) gives scipy.stats.poisson.ppf's integers, also where q sits on a step of the CDF (q =
+    P(K ≤ k), one ulp either side, 1e-13 … 1e-8 above: where scipy's root finder decides), at λ 0 … 2500 (e^{−λ}
+    underflows beyond 745), q 0, 1, subnormal and one ulp from 1; and the table, not the root finder, answers
+    nearly every uniform draw (the point of it).  A search one step off fails."""
+    from scipy.special import pdtr
+    from scipy.stats import poisson
+
+    rng = np.random.default_rng(11)
+    for lam in (0.0, 1e-300, 1e-6, 0.3, 7.5, 58.0, 745.0, 1500.0, 2500.0):
+        k = np.unique(np.floor(np.linspace(0.0, 1.0, 400) * (lam + 8.0 * np.sqrt(lam) + 3.0)))
+        c = pdtr(k, lam)
+        cases = [c, np.nextafter(c, 2.0), np.nextafter(c, -1.0), rng.random(400),
+                 np.array([0.0, 1.0, 5e-324, 1e-300, 1e-16, 0.5, 1.0 - 1e-16, np.nextafter(1.0, 0.0)])]
+        cases += [c * (1.0 + r) for r in (1e-13, 1e-12, 1e-11, 1e-10, 1e-9, 1e-8)]
+        q = np.clip(np.concatenate(cases), 0.0, 1.0)  # scipy.stats answers nan outside [0, 1]
+        np.testing.assert_array_equal(tm._poisson_ppf(q, lam), poisson.ppf(q, lam), err_msg=f"lambda {lam}")
+    # the occlusion's shape (one row of uniforms against a column of depths' means): the table answers
+    u, lam_z = rng.random(512), np.exp(rng.uniform(-3.0, 7.0, 12))
+    asked = []
+    root_finder = tm._poisson_ppf_scipy
+    monkeypatch.setattr(tm, "_poisson_ppf_scipy", lambda q, lam: asked.append(np.size(q)) or root_finder(q, lam))
+    np.testing.assert_array_equal(tm._poisson_ppf(u[None, :], lam_z[:, None]), poisson.ppf(u[None, :], lam_z[:, None]))
+    assert sum(asked) <= 0.01 * u.size * lam_z.size
+
+
 def test_mosaic_of_a_point_is_the_topmost_flake():
     """A spot far smaller than the flakes (0.05 µm against 20 µm) is one ray: its variance is E[b_top²] − E[b_top]²
     of the topmost flake (opaque flakes), P(top in dz) = ρA_e e^{−ρA_e h} dz, here summed independently on the
@@ -472,3 +499,22 @@ def test_mosaic_of_a_point_is_the_topmost_flake():
     _, v1 = tm.mosaic_variance(f, z, B1, B2, T, kappa, 2000.0)
     _, v4 = tm.mosaic_variance(f, z, B1, B2, T, kappa, 8000.0)
     assert v4 == pytest.approx(v1 / 16.0, rel=1e-2)  # K̄ = 2πp² − 8ps + …: 0.6 % at s = 10 µm, p = 2 mm
+
+
+def test_mean_crossed_transmittance_is_the_solvers_extinction_over_its_area_each_time_asked():
+    """FlakeLayer.mean_crossed_transmittance, kept per (μ, P) asked: T̄ = 1 − σ_t/(aρ P) by the solver's own
+    extinction (paper eq. 2) and projected area, the same on every asking (scalar-like and array μ, in any
+    order), another P gives its own T̄ (a memo keyed on μ alone would return the first), and the kept
+    array cannot be written."""
+    c = np.linspace(0.0, 1.0, 9)
+    T = np.vstack([0.8 - 0.3 * c, 0.5 + 0.2 * c])
+    f = tm.FlakeLayer("pearl", 0.0, 10.0, 1e-4, 12.0, 1.4, 0.4, 0.3, c, np.full((2, 9), 0.1), T)
+    optics = FlakeOptics(c, np.full((2, 9), 0.1), T)
+    for mu in (np.array([1.0]), np.array([0.9, 0.6]), np.array([1.0]), np.array([0.9, 0.6])):
+        P = tm.projected_area(mu, 0.3)
+        want = np.clip(1.0 - extinction_Ergun(mu, 0.3, optics, 1.0) / P, 0.0, 1.0)
+        np.testing.assert_array_equal(f.mean_crossed_transmittance(mu), want)
+        np.testing.assert_array_equal(f.mean_crossed_transmittance(mu, P), want)
+        np.testing.assert_array_equal(f.mean_crossed_transmittance(mu, 2.0 * P),
+                                      np.clip(1.0 - extinction_Ergun(mu, 0.3, optics, 1.0) / (2.0 * P), 0.0, 1.0))
+    assert not f.mean_crossed_transmittance(np.array([1.0])).flags.writeable
