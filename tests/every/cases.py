@@ -101,7 +101,7 @@ def field_cases() -> list:
     return [
         ("orientation_alpha", metal, {"orientation_alpha": 0.3}),
         ("ggx", metal, {"orientation_distribution": "ggx", "orientation_alpha": 0.2}),
-        ("student_t", metal, {"orientation_distribution": "student_t", "orientation_shape": 2.0,
+        ("student_t", metal, {"orientation_distribution": "student_t", "orientation_shape": 3.0,
                               "orientation_alpha": 0.2}),
         ("mixture", metal, {"orientation_alpha": 0.2, "orientation_mixture": {
             "weight": 0.3, "orientation_alpha": 0.5, "orientation_distribution": "student_t", "orientation_shape": 3.0}}),

@@ -1,7 +1,7 @@
 """Every catalogue species and every recipe field family through the store (issue #35): the build plan names what
 the recipe will ask for, and a tiny store built for the recipe (`flakedb build --recipe`) composes the same paint
 as the direct solve, within the store's stated accuracy (docs/store.md, "Accuracy": max |Δf| ≤ 1e-3 of max f,
-ΔE00 ≤ 0.05 at the report's angles; measured here ≤ 4e-5 and ≤ 5e-4).
+ΔE00 ≤ 0.05 at the report's angles; measured here ≤ 3.2e-5 and ≤ 3e-4).
 
 Guards against: a species the store cannot hold or holds under another name than the one compose asks for; a
 tinter that reaches the store (it is always computed directly, and a store compose must still give its optics);
