@@ -21,7 +21,8 @@ from flakedb.paint.components import store_key
 from flakedb.paint.mapping import catalog_species
 from flakedb.pipelines.build import build, request_for_recipe
 from flakedb.solve.pipeline import solve_recipe, solve_reported
-from flakedb.solve.store_context import store_problems
+from flakedb.paint.texture_inputs import texture_stack
+from flakedb.solve.store_context import StoreContext, store_problems
 from flakedb.store import versions as st
 from tests.every.cases import N, field_params, field_recipe, species_params, stored, tiny
 
@@ -53,6 +54,11 @@ def _through_the_store(rec, tmp_path):
     assert store_problems(version, rec, N) == []
     direct = solve_reported(rec, N, verify=False)
     from_store = solve_reported(rec, N, store=url, verify=False)
+    # the texture model takes a pigment's cross-sections from the same store entry the solve reads
+    ctx = StoreContext.open_for_recipe(url, rec, N)
+    (own, _), (via, _) = texture_stack(rec), texture_stack(rec, stored=ctx)
+    for a, b in zip(own.absorbers, via.absorbers):
+        np.testing.assert_allclose(b.sigma_per_um, a.sigma_per_um, rtol=1e-3)
     assert "store" in from_store.solved.paint.info and "store" not in direct.solved.paint.info
     return direct, from_store
 
