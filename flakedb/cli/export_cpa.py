@@ -76,7 +76,8 @@ def export_cpa(file, out, name, sparkle, uv_metres, check, as_json):
         click.echo(f"sparkle: lobe {g['lobe']} (GGX α {g['lobe_alpha']:.3g}) split {g['share']:.3g} into glints: cells "
                    f"{g['cell_um']:.3g} µm, {g['occupancy']:.3g} of them a flake, glint α {g['glint_alpha']:.3g} "
                    f"({r['diameter_um']:g} µm flakes); {r['glints_per_mm2_above_threshold']:.3g} glints/mm² above the "
-                   f"texture model's threshold at {r['light_deg']:g}° under a {r['source_half_angle_deg']:g}° source "
+                   f"texture model's {'kind-relative ' if r.get('threshold') == 'relative' else ''}threshold "
+                   f"(luminance factor {r['glint_threshold_luminance_factor']:.3g}) at {r['light_deg']:g}° under a {r['source_half_angle_deg']:g}° source "
                    f"(the model's count, Cycles within ±20 %, docs/renderers.md)")
     if rendered:
         per = ", ".join(f"{g['aspecular_deg']:g}°: {g['dE00']:.2f}" for g in rendered["geometries"])

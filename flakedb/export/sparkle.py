@@ -36,14 +36,19 @@ Parameters from the texture model (:func:`flakedb.texture.model.sparkle_indices`
   :data:`flakedb.texture.instruments.DIFFRACTION_WAVELENGTH_NM`; D the median diameter): 0.011 for 16 µm
   flakes.  The source's size is the renderer's light.
 * the lobe k: the fitted lobe whose α is nearest the air image of the flake spread, η α_flake (a binder
-  slope s is seen in air as η s for small tilts, docs/texture.md §3.1).
+  slope s is seen in air as η s for small tilts, docs/texture.md §3.1), among the lobes with colour at
+  normal view (a fitted lobe can be black there, and then holds no glint to split off).
 * the share β: the model's ``flake_luminance_factor`` (the flakes' single mirror reflections, the part
   of the BSDF the glints are) over lobe k's luminance factor π C_k,Y L_k at the reference geometry, at
   most 1: the glints carry the flakes' single reflection, the rest of lobe k stays smooth.
 * the cell size: the one free number, chosen so that the layer's expected count of glints above the
   model's fixed luminance threshold (``glint_threshold_luminance_factor``) is the model's
   ``glints_per_mm2_above_threshold`` at the reference geometry (light polar angle, view along the
-  normal, source half-angle: :func:`layer_glints_per_mm2`).  Elsewhere the layer predicts its own count
+  normal, source half-angle: :func:`layer_glints_per_mm2`).  Flakes that sparkle but never reach the fixed
+  threshold (interference pearls, R 0.1–0.4, whose aligned peak is below half an R = 1 flake's) are
+  calibrated the same way on the model's kind-relative count ``glints_per_mm2`` above half their own
+  aligned median-diameter flake's ``peak_luminance_factor`` (``reference["threshold"]``: "fixed" or
+  "relative"; the model counts each diameter against its own peak, the layer against the median's).  Elsewhere the layer predicts its own count
   from its own normals and widths; the tests compare it with the model at other lights and sources.
 * the occupancy f = β Y(C_k) / Y_flake (at most 1), Y_flake = R(c) T_in T_out of an aligned surface flake:
   an occupied cell is as bright as a flake, so the glints reach the model's threshold as flakes do.
@@ -61,7 +66,7 @@ import numpy as np
 from flakedb.export.blender import ggx_lobe_height_correlated, smith_lambda, sun_disk
 from flakedb.paint.texture_inputs import texture_stack
 from flakedb.texture.instruments import DIFFRACTION_WAVELENGTH_NM, Observer
-from flakedb.texture.model import directional_geometry, sparkle_indices
+from flakedb.texture.model import GLINT_FRACTION, directional_geometry, sparkle_indices
 
 #: Rec. 709 / sRGB luminance weights of linear RGB (the cpa table's channels).
 Y_WEIGHTS = np.array([0.2126, 0.7152, 0.0722])
@@ -230,20 +235,33 @@ def design_layer(table, alphas, *, eta: float, flake_alpha: float, diameter_um: 
     sets the occupancy f = β Y(C_k) / flake_Y (at most 1): an occupied cell is as bright as that flake.  Raises
     ValueError (with the numbers) when the model predicts no glints there or the layer's brightest cell
     cannot reach the model's threshold."""
-    if not model_row.get("sparkle") or model_row.get("glints_per_mm2_above_threshold", 0.0) <= 0.0:
+    count = float(model_row.get("glints_per_mm2_above_threshold", 0.0))
+    threshold = float(model_row.get("glint_threshold_luminance_factor", 0.0))
+    basis = "fixed"
+    if model_row.get("sparkle") and count <= 0.0 and model_row.get("glints_per_mm2", 0.0) > 0.0:
+        # flakes that sparkle but never reach the fixed threshold (a pearl's R of 0.1-0.4 against the R = 1 flake
+        # the threshold is half of): the model's own count, flakes at least GLINT_FRACTION as bright as an aligned
+        # surface flake of their kind, with that kind's threshold (the median diameter's peak; module docstring)
+        count = float(model_row["glints_per_mm2"])
+        threshold = GLINT_FRACTION * float(model_row["peak_luminance_factor"])
+        basis = "relative"
+    if not model_row.get("sparkle") or count <= 0.0:
         raise ValueError(f"the texture model predicts no glints above its threshold at light {light_deg:g}° "
                          f"({model_row.get('no_sparkle_reason') or 'count 0'}): no sparkle layer to build")
     alphas = [float(a) for a in alphas]
     target = float(eta) * float(flake_alpha)
-    k = 1 + int(np.argmin([abs(math.log(a / target)) for a in alphas]))
-    colour_Y = float(Y_WEIGHTS @ np.asarray(table, float)[k, -1])          # C_k at μ_v = 1 (view along N)
+    Y = np.asarray(table, float)[1:, -1] @ Y_WEIGHTS                         # each lobe's C_k at μ_v = 1 (view along N)
+    # the nearest lobe in α that carries colour along the view (a fit may leave a lobe black there: no glints)
+    lit = [j for j in range(len(alphas)) if Y[j] > 0.0] or list(range(len(alphas)))
+    k = 1 + min(lit, key=lambda j: abs(math.log(alphas[j] / target)))
+    colour_Y = float(Y[k - 1])
     lobe_lf = lobe_luminance_factor(colour_Y, alphas[k - 1], light_deg)
     share = float(min(1.0, model_row["flake_luminance_factor"] / lobe_lf)) if lobe_lf > 0 else 0.0
     ag = glint_alpha(diameter_um)
     occ = float(min(1.0, share * colour_Y / float(flake_Y))) if share > 0 else 1.0
     ref = {"light_deg": float(light_deg), "view_deg": 0.0, "source_half_angle_deg": float(half_angle_deg),
-           "glints_per_mm2_above_threshold": float(model_row["glints_per_mm2_above_threshold"]),
-           "glint_threshold_luminance_factor": float(model_row["glint_threshold_luminance_factor"]),
+           "glints_per_mm2_above_threshold": count, "glint_threshold_luminance_factor": threshold,
+           "threshold": basis,
            "flake_luminance_factor": float(model_row["flake_luminance_factor"]),
            "lobe_luminance_factor": lobe_lf, "diameter_um": float(diameter_um), "flake_alpha": float(flake_alpha),
            "flake_Y": float(flake_Y), "eta": float(eta)}

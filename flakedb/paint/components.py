@@ -266,6 +266,38 @@ def entry_key(entry) -> str:
     return hashlib.blake2b(text.encode(), digest_size=16).hexdigest()
 
 
+def particle_entry(p) -> dict:
+    """The catalogue entry a catalogue particle's optics come from, as the recipe resolved it: ``p.entry`` (an
+    interference flake's film overrides are already applied to it) with a pigment's ``median_diameter_um`` /
+    ``gsd`` overrides.  The one place a recipe's optical overrides meet the entry (the direct path and the
+    store's entry of :func:`store_key` both read it)."""
+    if p.kind != "pigment" or (p.median_diameter_um is None and p.gsd is None):
+        return p.entry
+    entry = copy.deepcopy(p.entry)
+    if p.median_diameter_um is not None:
+        entry["median_diameter_um"] = {"value": float(p.median_diameter_um), "source": "recipe"}
+    if p.gsd is not None:
+        entry["gsd"] = {"value": float(p.gsd), "source": "recipe"}
+    return entry
+
+
+def store_key(p) -> str:
+    """The name a store holds a catalogue particle's optics under: the species name, or, where the recipe changes
+    the optics (an interference flake's films, a pigment's size distribution), ``<species>~<12 hex>``: the
+    species with a digest of the overrides (blake2b of their sorted JSON), so each overridden species is one
+    more species of a version (``flakedb build --recipe`` projects it; the stored entry is
+    :func:`particle_entry`, checked against the recipe's when a compose reads it)."""
+    over = dict(getattr(p, "film_overrides", None) or {})
+    if p.kind == "pigment":
+        over.update({k: float(v) for k, v in (("median_diameter_um", p.median_diameter_um), ("gsd", p.gsd))
+                     if v is not None})
+    if not over:
+        return p.species
+    text = json.dumps({k: (list(map(float, v)) if isinstance(v, (list, tuple)) else float(v))
+                       for k, v in sorted(over.items())}, sort_keys=True)
+    return f"{p.species}~{hashlib.blake2b(text.encode(), digest_size=6).hexdigest()}"
+
+
 def reused(key, compute):
     """``compute()``, or inside a fit's reuse scope (:func:`flakedb.rt.common.reuse.reusing`) the value an earlier
     evaluation computed under ``key`` — a species' optics per unit loading, keyed by everything it depends on
@@ -325,7 +357,7 @@ def flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
                "orientation_alpha": alpha, "orientation_distribution": dist, "a_rho_per_um": a_rho,
                "loading": "optical depth: sigma_t(mu=1) x layer thickness"}
     if stored is not None and isinstance(p, CatalogParticle):
-        med = stored.flake_medium(p.species, alpha, a_rho, opaque=p.opaque, distribution=dist)
+        med = stored.flake_medium(store_key(p), alpha, a_rho, opaque=p.opaque, distribution=dist)
         rec["kernel"] = med.factors.source
     else:
         med = FlakeMedium(alpha, optics, a_rho, dist)
@@ -339,7 +371,7 @@ def stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored):
     """StoredPigmentMedium: ⟨C_ext⟩, ⟨C_sca⟩, ⟨V⟩ and the phase function's Legendre moments from the
     store (:meth:`flakedb.solve.store_context.StoreContext.pigment`), the RGB mode's clips as
     :func:`pigment_tospectra_to_rgb_mode` (the phase ≥ 0 clip on the series, :func:`rgb_phase_moments`)."""
-    po = stored.pigment(p.species)  # per recipe band: c_ext_um2, c_sca_um2, mean_volume_um3 (scalar), chi
+    po = stored.pigment(store_key(p))  # per recipe band: c_ext_um2, c_sca_um2, mean_volume_um3 (scalar), chi
     c_ext, c_sca, chi = po["c_ext_um2"], po["c_sca_um2"], po["legendre_moments"]
     if recipe.mode == "rgb":
         e = spectra_to_rgb_mode(c_ext, wl)
@@ -388,11 +420,7 @@ def rgb_phase_moments(sp_chi, s):
 def pigment_component(p, recipe, layer_um, n_binder, wl, info, stored=None):
     if stored is not None:
         return stored_pigment_component(p, recipe, layer_um, n_binder, wl, info, stored)
-    entry = copy.deepcopy(p.entry)
-    if p.median_diameter_um is not None:
-        entry["median_diameter_um"] = {"value": float(p.median_diameter_um), "source": "recipe"}
-    if p.gsd is not None:
-        entry["gsd"] = {"value": float(p.gsd), "source": "recipe"}
+    entry = particle_entry(p)
     mu = phase_cos_grid()
 
     def optics():

@@ -77,9 +77,9 @@ phase clip the store path differed from the direct one by ΔE00 0.83 (cadmium-ye
 nm; the blue channel's phase goes negative over 14 % of cos Θ); with it 1.2e-3 (tests/test_stored.py).
 For flakes the direct path's per-c clip of R to [0, 1] with R + T ≤ 1 needs T, which the store does
 not hold: it is not applied (the direct path reports its size in ``info['rgb_clip']``).  A rough coat needs a version built for a rough top (``flakedb build --recipe`` or ``--top rough``:
-the air-side Radau nodes inside, as the solver keeps them below a rough interface).  Not supported
-from the store (compose without a store instead): a pigment whose recipe overrides the catalogue's
-size distribution.
+the air-side Radau nodes inside, as the solver keeps them below a rough interface).  A particle whose
+recipe changes its optics (an interference flake's films, a pigment's size distribution) is its own species
+of the store, named by :func:`flakedb.paint.components.store_key` (``flakedb build --recipe`` adds it).
 
 Primer (Lambertian, docs/model.md §4): ``color`` black / gray / white → albedo 0.04 / 0.18 / 0.9
 (:data:`flakedb.paint.recipe.PRIMER_ALBEDO`); or an albedo; or a spectrum (linear in λ).

@@ -24,12 +24,18 @@ treats the coat as smooth), a metal base (its mirror is not a flake).
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 
 from flakedb.colour.colorimetry import tristimulus_weights
-from flakedb.paint.components import adaptive_flake_optics, flake_a_rho_from_volume_fraction, pigment_number_density, recipe_alpha, recipe_distribution
+from flakedb.paint.components import (
+    adaptive_flake_optics,
+    flake_a_rho_from_volume_fraction,
+    particle_entry,
+    pigment_number_density,
+    recipe_alpha,
+    recipe_distribution,
+    store_key,
+)
 from flakedb.paint.recipe import CatalogParticle, CustomFlake, CustomMedium, Spectrum
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics, tinter_coefficients
 from flakedb.texture.model import (
@@ -125,16 +131,11 @@ def texture_stack(recipe, stored=None) -> tuple[TextureStack, list]:
                 a, s = tinter_coefficients(p.entry, wl)
                 absorbers.append(Absorber(z, b.thickness_um, float(p.volume_fraction) * (a + s)))
             elif isinstance(p, CatalogParticle) and stored is not None and wl is not None:
-                po = stored.pigment(p.species)  # the solver's own cross-sections (flakedb.paint.components.stored_pigment_component)
+                po = stored.pigment(store_key(p))  # the solver's own cross-sections (flakedb.paint.components.stored_pigment_component)
                 absorbers.append(Absorber(z, b.thickness_um,
                                           pigment_number_density(p.volume_fraction, po["mean_volume_um3"]) * np.asarray(po["c_ext_um2"])))
             elif isinstance(p, CatalogParticle):
-                entry = copy.deepcopy(p.entry)
-                if p.median_diameter_um is not None:
-                    entry["median_diameter_um"] = {"value": float(p.median_diameter_um)}
-                if p.gsd is not None:
-                    entry["gsd"] = {"value": float(p.gsd)}
-                po = pigment_optics(entry, wl, b.ior)
+                po = pigment_optics(particle_entry(p), wl, b.ior)
                 absorbers.append(Absorber(z, b.thickness_um, pigment_number_density(p.volume_fraction, po.mean_volume_um3) * np.asarray(po.c_ext_um2)))
             elif isinstance(p, CustomMedium):
                 absorbers.append(Absorber(z, b.thickness_um, np.full(C, float(p.optical_depth) / b.thickness_um)))

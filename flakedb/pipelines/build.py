@@ -18,7 +18,7 @@ from flakedb.colour.colorimetry import spectral_grid
 from flakedb.paint import catalog as cat
 from flakedb.paint import species as sp
 from flakedb.paint.mapping import catalog_species
-from flakedb.paint.components import recipe_alpha, recipe_distribution, recipe_top_alpha
+from flakedb.paint.components import particle_entry, recipe_alpha, recipe_distribution, recipe_top_alpha, store_key
 from flakedb.solve.resolution import (
     resolve_node_count,
 )
@@ -52,7 +52,7 @@ def recipe_orientations(recipes) -> dict:
     for rec in recipes:
         for p in catalog_species(rec):
             if p.is_flake:
-                out.setdefault(p.species, {}).setdefault(recipe_distribution(p), set()).add(recipe_alpha(p))
+                out.setdefault(store_key(p), {}).setdefault(recipe_distribution(p), set()).add(recipe_alpha(p))
     return {k: {d: sorted(a) for d, a in sorted(v.items())} for k, v in out.items()}
 
 
@@ -76,13 +76,15 @@ def shipped_distribution_alphas(catalog=None) -> dict:
 
 def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, channel_block=8, store_raw=False,
                  catalog_path=None, eta_top=None, rank_tol=None, recipe=None, top="smooth",
-                 distribution_alphas=None) -> st.BuildRequest:
+                 distribution_alphas=None, entries=None) -> st.BuildRequest:
     """A :class:`flakedb.store.versions.BuildRequest` from the catalogue (default: every species, sweeps
     included).  ``n``: node counts; ``wavelength_nm``: default 380–780 nm every 5 nm; ``alphas``:
     flake species → Beckmann α's and ``distribution_alphas`` flake species → {distribution: α's}
     (both None: the catalogue's α in the catalogue's distribution and those the shipped recipes use);
     ``eta_top``: the paints' smooth top index (None: plain Radau grid and the catalogue binder's
-    index; see :mod:`flakedb.store.versions`); ``rank_tol``: the flakes' spectral SVD truncation.
+    index; see :mod:`flakedb.store.versions`); ``rank_tol``: the flakes' spectral SVD truncation;
+    ``entries``: more species, key → resolved entry, beside ``species`` (a recipe's species with its own
+    films or pigment size, :func:`flakedb.paint.components.store_key`; with ``species`` None only these).
 
     >>> r = make_request(species=["gray-mirror"], n=16, alphas={"gray-mirror": [0.25]})
     >>> r.resolutions, r.alphas, len(r.wavelength_nm), r.wavelength_nm[0], r.wavelength_nm[-1]
@@ -94,7 +96,8 @@ def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, cha
     """
     catalog = cat.load_catalog(catalog_path)
     allsp = cat.expand_sweeps(catalog)
-    names = [s for s in allsp if allsp[s]["kind"] in cat.STORED_KINDS] if not species else list(species)
+    entries = dict(entries or {})
+    names = list(species or []) if (species or entries) else [s for s in allsp if allsp[s]["kind"] in cat.STORED_KINDS]
     unknown = [s for s in names if s not in allsp]
     if unknown:
         raise ValueError(f"unknown species {', '.join(unknown)}; known: {', '.join(allsp)}")
@@ -118,8 +121,14 @@ def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, cha
                     else:
                         distribution_alphas.setdefault(s, {})[d] = sorted(a)
     alphas, distribution_alphas = alphas or {}, distribution_alphas or {}
+    clash = sorted(set(entries) & set(allsp))
+    if clash:
+        raise ValueError(f"entries {', '.join(clash)}: a catalogue species' name; an entry of a recipe's own films or "
+                         f"pigment size is named by flakedb.paint.components.store_key")
+    species_entries = {**{s: allsp[s] for s in names}, **entries}
+    names = list(species_entries)
     return st.BuildRequest(
-        species={s: allsp[s] for s in names}, binder=catalog["binder"], material_checksums=material_checksums(),
+        species=species_entries, binder=catalog["binder"], material_checksums=material_checksums(),
         resolutions=tuple(ns), wavelength_nm=tuple(float(w) for w in wl),
         alphas={k: [float(a) for a in v] for k, v in alphas.items() if k in names},
         channel_block=int(channel_block), store_raw=bool(store_raw),
@@ -134,14 +143,17 @@ def request_for_recipe(recipe, n=None, store_raw=False, catalog_path=None) -> st
     count (``n`` or the recipe's own: resolution or auto), its flakes' (distribution, α)'s, its
     wavelengths and its binder index as the top interface's (a rough coat: the nodes of a rough top)."""
     n = resolve_node_count(recipe, n)[0]
-    names = sorted({p.species for p in catalog_species(recipe)})
-    if not names:
+    parts = catalog_species(recipe)
+    if not parts:
         raise ValueError(f"recipe {recipe.name!r} has no catalogue species: it needs no store")
+    names = sorted({p.species for p in parts if store_key(p) == p.species})
+    # a species whose optics the recipe changes (films, pigment size) is one more species under its own key
+    entries = {store_key(p): particle_entry(p) for p in parts if store_key(p) != p.species}
     orient = recipe_orientations([recipe])
     alphas = {k: v["beckmann"] for k, v in orient.items() if "beckmann" in v}
     other = {k: {d: a for d, a in v.items() if d != "beckmann"} for k, v in orient.items()}
     wl = recipe.wavelength_nm if recipe.wavelength_nm is not None else spectral_grid(DEFAULT_RANGE_NM, DEFAULT_STEP_NM)
-    return make_request(species=names, n=int(n), wavelength_nm=wl, alphas=alphas,
+    return make_request(species=names, entries=entries, n=int(n), wavelength_nm=wl, alphas=alphas,
                         distribution_alphas={k: v for k, v in other.items() if v},
                         store_raw=store_raw, catalog_path=catalog_path, eta_top=float(recipe.binder_ior),
                         recipe=recipe.name, top=recipe_top(recipe))

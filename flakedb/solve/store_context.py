@@ -12,7 +12,7 @@ import numpy as np
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.paint.catalog import optical_entry
 from flakedb.paint.mapping import catalog_species
-from flakedb.paint.components import recipe_alpha, recipe_distribution, recipe_top_alpha
+from flakedb.paint.components import particle_entry, recipe_alpha, recipe_distribution, recipe_top_alpha, store_key
 from flakedb.rt.scattering.stored import StoredFlakeMedium
 from flakedb.store import versions as st
 from flakedb.store.versions import StoreError
@@ -21,6 +21,14 @@ from flakedb.store.versions import StoreError
 def _same_entry(a, b) -> bool:
     norm = lambda e: json.loads(json.dumps(optical_entry(e), sort_keys=True, default=float))
     return norm(a) == norm(b)
+
+
+def _overrides(p) -> str:
+    """The recipe fields that make ``p``'s optics differ from its catalogue species' (:func:`store_key`)."""
+    names = sorted(getattr(p, "film_overrides", None) or {})
+    if p.kind == "pigment":
+        names += [k for k in ("median_diameter_um", "gsd") if getattr(p, k) is not None]
+    return ", ".join(names)
 
 
 def wavelength_map(store_nm, recipe_nm, tol_nm=1e-9):
@@ -85,31 +93,27 @@ def store_problems(version, recipe, n, raw=False) -> list[str]:
     have = set(version.species)
     stored_inputs = version.metadata["inputs"]["species"]
     for p in catalog_species(recipe):
-        if p.species not in have:
-            probs.append(f"species {p.species!r} ({p.path}) is not in the store")
+        key = store_key(p)   # the species, or the species with the recipe's films / pigment size (store_key)
+        label = repr(p.species) if key == p.species else f"{p.species!r} with the recipe's {_overrides(p)} ({key})"
+        if key not in have:
+            probs.append(f"species {label} ({p.path}) is not in the store")
             continue
-        if not getattr(p, "film_overrides", None) and not _same_entry(stored_inputs[p.species], p.entry):
-            probs.append(f"species {p.species!r}: the store was built from a different catalogue entry "
+        if not _same_entry(stored_inputs[key], particle_entry(p)):
+            probs.append(f"species {label}: the store was built from a different catalogue entry "
                          f"(the catalogue changed since): rebuild")
         if p.is_flake:
             a, d = recipe_alpha(p), recipe_distribution(p)
-            have_d = version.distributions(p.species)
+            have_d = version.distributions(key)
             if d not in have_d:
                 probs.append(f"{p.path}: orientation_distribution {d!r} is not in the store: it holds {p.species!r} "
                              f"for the {' and '.join(have_d) or 'no'} distribution(s) only (a version written "
                              f"without distributions holds Beckmann flakes); the kernel depends on the distribution "
                              f"through D(h): add it as a new version with the command below")
-            elif not any(abs(a - x) <= 1e-12 for x in version.alphas(p.species, d)):
+            elif not any(abs(a - x) <= 1e-12 for x in version.alphas(key, d)):
                 probs.append(f"{p.path}: orientation α = {a:g} is not in the store (it has α "
-                             f"{version.alphas(p.species, d)} for {p.species!r}"
+                             f"{version.alphas(key, d)} for {label}"
                              f"{'' if d == 'beckmann' else f' ({d})'}); the kernel depends on α through D(h): "
                              f"add it as a new version with the command below (projected once, not per compose)")
-        if getattr(p, "film_overrides", None):
-            probs.append(f"{p.path}: the recipe sets the flake's films ({', '.join(sorted(p.film_overrides))}); the "
-                         f"store holds the catalogue's film stack: compose without --store")
-        if p.kind == "pigment" and (p.median_diameter_um is not None or p.gsd is not None):
-            probs.append(f"{p.path}: the recipe overrides the pigment's size distribution; the store holds the "
-                         f"catalogue's: compose without --store")
     if recipe.wavelength_nm is not None:
         try:
             wavelength_map(version.wavelength_nm, recipe.wavelength_nm)
@@ -186,8 +190,8 @@ class StoreContext:
         """The store paths this recipe reads (what compose verifies)."""
         out = [f"grid/n{self.n}/"]
         for p in catalog_species(recipe):
-            out.append(self.version.flake_prefix(p.species, self.n, recipe_alpha(p), recipe_distribution(p)) + "/"
-                       if p.is_flake else f"species/{p.species}/")
+            out.append(self.version.flake_prefix(store_key(p), self.n, recipe_alpha(p), recipe_distribution(p)) + "/"
+                       if p.is_flake else f"species/{store_key(p)}/")
         return out
 
     def flake_medium(self, species, alpha, a_rho, opaque=False, distribution="beckmann"):

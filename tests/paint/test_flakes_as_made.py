@@ -147,9 +147,10 @@ def test_match_recovers_the_tio2_thickness_on_aluminium(tmp_path):
     assert fitted["layers"][1]["basecoat"]["particles"][0]["coating_thickness_nm"] == pytest.approx(20.0, rel=0.02)
 
 
-def test_store_serves_a_spread_flake_and_refuses_recipe_films(tmp_path):
+def test_store_serves_a_spread_flake_and_recipe_films_after_a_recipe_build(tmp_path):
     """A catalogue flake with a thickness spread is built into a store and composed from it; a recipe that
-    sets its films is refused by name (the store holds the catalogue's stack), not as a changed catalogue."""
+    sets its films is refused by name until `flakedb build --recipe` adds the flake with those films (its own
+    species of the store, flakedb.paint.components.store_key), not as a changed catalogue; then it composes."""
     from click.testing import CliRunner
 
     from flakedb.cli.main import cli
@@ -165,4 +166,9 @@ def test_store_serves_a_spread_flake_and_refuses_recipe_films(tmp_path):
     (tmp_path / "b.yaml").write_text(plain.replace("volume_fraction: 0.05}", "volume_fraction: 0.05, coating_thickness_nm: [20]}"))
     r = CliRunner().invoke(cli, ["compose", str(tmp_path / "b.yaml"), "--store", str(store), "--out", str(tmp_path / "o2")])
     assert r.exit_code != 0
-    assert "sets the flake's films (coating_thickness_nm)" in r.output and "catalogue changed" not in r.output
+    assert "with the recipe's coating_thickness_nm" in r.output and "catalogue changed" not in r.output
+    assert "flakedb build --recipe" in r.output
+    r = CliRunner().invoke(cli, ["build", "--recipe", str(tmp_path / "b.yaml"), "--store", str(store), "--workers", "1"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, ["compose", str(tmp_path / "b.yaml"), "--store", str(store), "--out", str(tmp_path / "o2")])
+    assert r.exit_code == 0, r.output
