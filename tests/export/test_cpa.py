@@ -37,6 +37,7 @@ from flakedb.export.blender import (
     render_cycles_sphere,
     sun_direction,
 )
+from flakedb.export.materialx import PLANE_WEIGHTS
 from flakedb.export.registry import EXPORT_METHODS
 from flakedb.match.fit import channels_to_Lab, geometry_directions
 from flakedb.match.targets import E2194_GEOMETRIES
@@ -148,14 +149,24 @@ def test_sun_image_frame():
 
 
 def test_png_round_trip():
-    """16-bit PNG: what is read is what was written, to the 16-bit quantum, row 0 the bottom row; the
-    quantised fit differs from the fit by at most half a quantum of each row's scale."""
+    """16-bit PNG: what is read is what was written, to the 16-bit quantum, row 0 the bottom row; the table's
+    PNG (two 8-bit planes) reads back the 16-bit values exactly, and the graph's recombination of the planes
+    (PLANE_WEIGHTS) is q / 65535; the quantised fit differs from the fit by at most half a quantum of each
+    row's scale."""
     rng = np.random.default_rng(1)
     px = rng.uniform(0, 1, (4, 32, 3))
     back = cpa.read_png16(cpa.png16_bytes(px))
     np.testing.assert_allclose(back, px, atol=0.5 / 65535 + 1e-12)
     fit = truth_fit()
-    _, scale = cpa.table_image(fit)
+    tab, scale = cpa.table_image(fit)
+    png = cpa.table_png_bytes(tab)                       # NAME.cpa.png: 16 bits in two 8-bit planes
+    planes, depth = cpa.read_png(png)
+    assert depth == 8 and planes.shape == (2 * len(tab), tab.shape[1], 3)
+    q16 = np.round(tab * 65535.0)
+    np.testing.assert_array_equal(cpa.read_table_png(png) * 65535.0, q16)
+    w_hi, w_lo = PLANE_WEIGHTS                           # what the MaterialX graph computes from two texture reads
+    r = len(tab)
+    np.testing.assert_allclose(w_hi * planes[:r] / 255.0 + w_lo * planes[r:] / 255.0, q16 / 65535.0, rtol=0, atol=1e-15)
     q = cpa.quantised(fit)
     assert np.all(np.abs(q.table - fit.table) <= 0.5 / 65535 * scale[:, None, None] * (1 + 1e-9))
 
@@ -175,7 +186,7 @@ def test_materialx_graph(tmp_path):
     mx.readFromXmlFile(doc, str(tmp_path / "out" / "model.cpa.mtlx"))
     assert len(validated_glsl(doc, "M_model", "cpa")) > 1000
     fit = cpa.CPAFit.from_dict(json.loads((tmp_path / "out" / "model.cpa.json").read_text()))
-    px = cpa.read_png16((tmp_path / "out" / "model.cpa.png").read_bytes())
+    px = cpa.read_table_png((tmp_path / "out" / "model.cpa.png").read_bytes())
     # the command prints the route's ΔE00 at the E2194 geometries, what Cycles renders (the model, to ≤ 3e-4)
     assert "in Cycles" in r.output and f"worst ΔE00 against FILE {fit.error['worst_dE00_E2194']:.2f} at the E2194" in r.output
     scales = [doc.getNode(f"colour_{k}").getInputValue("in2") for k in range(len(px))]
