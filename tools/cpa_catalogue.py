@@ -1,5 +1,6 @@
 """The ``cpa`` route over the catalogue in Cycles: every recipe of ``flakedb/catalog/recipes`` composed at
-n = 32, fitted by :func:`flakedb.export.cpa.fit_cpa` and rendered by its Blender node group at the six
+n = 32, fitted as ``export-cpa`` fits the node group (:func:`flakedb.export.cpa.fit_cpa_cycles`: GGX lobes, or
+Beckmann lobes where the GGX fit misses the target and they are closer) and rendered by it at the six
 ASTM E2194 geometries (:func:`flakedb.export.blender.render_cycles_geometries`: a plane under a 0.5° sun,
 8 px x 256 spp), the ΔE00 (D65 / 2°) against the exact paint per geometry; beside it the route before the
 backscatter lobe (``n_retro=0``, 4 minimax passes, the first lobe subset), as its fit's own ΔE00 (the
@@ -56,14 +57,14 @@ def measure(recipe: str, out: Path, python: str | None) -> dict:
 
     exact = lab(np.pi * op.exact_rgb(b, gi, go, gp))
     before = cpa.fit_cpa(b, n_retro=0, minimax_passes=4, max_subsets=1)
-    fit = cpa.fit_cpa(b)
-    cy = render_cycles_geometries(g, cpa=cpa_inputs(fit.table, fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas),
-                                  python=python)
+    fit = cpa.fit_cpa_cycles(b, cpa.fit_cpa(b))             # what export-cpa writes into the node group
+    cy = render_cycles_geometries(g, cpa=cpa_inputs(fit.table, fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas,
+                                                    distribution=fit.distribution), python=python)
     de_before = delta_E_2000(lab(np.pi * cpa.evaluate_cpa(before, gi, go, gp)), exact)
     de = delta_E_2000(lab(cy), exact)
     return {"recipe": recipe, "before_fit_worst": round(float(de_before.max()), 2),
             "cycles_dE00": [round(float(x), 2) for x in de], "cycles_worst": round(float(de.max()), 2),
-            "alphas": list(fit.alphas), "retro_alphas": list(fit.retro_alphas),
+            "alphas": list(fit.alphas), "retro_alphas": list(fit.retro_alphas), "distribution": fit.distribution,
             "E2539_worst_before": round(before.error["worst_dE00_E2539"], 2),
             "E2539_worst": round(fit.error["worst_dE00_E2539"], 2), "seconds": round(time.time() - t, 1)}
 
