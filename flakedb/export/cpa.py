@@ -68,7 +68,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import nnls
+from scipy.optimize import minimize, nnls
 from scipy.sparse import csr_matrix
 
 from flakedb.atomic import atomic_path
@@ -614,8 +614,6 @@ def ggx_route_floor(b, ratio: float = GGX_MIN_RATIO_75_15) -> float:
     ΔE00(y, exact 75°)) with y = max(ratio m, exact 75°) per channel (the nearest allowed value channel by
     channel), searched by Nelder-Mead in log m from three starts.  It binds where the exact 75° is below
     ``ratio`` times its 15° (a bare Beckmann metal: coated-aluminium 7.2e-6 gives 5.56); elsewhere it is ~0."""
-    from scipy.optimize import minimize
-
     g = np.asarray(E2194_GEOMETRIES, float)[[1, 4]]
     wl_nm = colour_grid(b)
     exact = np.pi * exact_rgb(b, *geometry_directions(g))

@@ -38,9 +38,9 @@ class Session:
     (``info``: the MaterialX version and the GL strings)."""
 
     def __init__(self, size: int):
-        import MaterialX as mx
-        from MaterialX import PyMaterialXRender as mx_render
-        from MaterialX import PyMaterialXRenderGlsl as mx_glsl
+        import MaterialX as mx  # lazy: the optional materialx wheel, in the render subprocess only
+        from MaterialX import PyMaterialXRender as mx_render  # lazy: the optional materialx wheel, in the render subprocess only
+        from MaterialX import PyMaterialXRenderGlsl as mx_glsl  # lazy: the optional materialx wheel, in the render subprocess only
 
         self.mx, self.mx_render = mx, mx_render
         self.search = mx.getDefaultDataSearchPath()
@@ -75,8 +75,8 @@ class Session:
         with :meth:`aim_sun`) or None.  ``environment``: a uniform sky of that radiance sampled by FIS with
         ``env_samples`` samples, or None (no indirect light)."""
         mx, mx_render = self.mx, self.mx_render
-        from MaterialX import PyMaterialXGenGlsl as mx_gen_glsl
-        from MaterialX import PyMaterialXGenShader as mx_gen
+        from MaterialX import PyMaterialXGenGlsl as mx_gen_glsl  # lazy: the optional materialx wheel, in the render subprocess only
+        from MaterialX import PyMaterialXGenShader as mx_gen  # lazy: the optional materialx wheel, in the render subprocess only
 
         gen = mx_gen_glsl.GlslShaderGenerator.create()
         ctx = mx_gen.GenContext(gen)
