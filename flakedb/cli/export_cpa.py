@@ -58,7 +58,9 @@ def export_cpa(file, out, name, sparkle, uv_metres, check, as_json):
         except RuntimeError as e:
             raise FlakedbError(f"--check glsl: the files are written, but the render failed: {e}") from None
     if as_json:
-        click.echo(json.dumps({"fit": {k: v for k, v in s["fit"].items() if k != "table"}, "files": s["files"],
+        fit = {k: ({kk: vv for kk, vv in v.items() if kk != "table"} if k == "cycles" else v)
+               for k, v in s["fit"].items() if k != "table"}
+        click.echo(json.dumps({"fit": fit, "files": s["files"],
                                **({"check_glsl": rendered} if rendered else {})}, indent=2))
         return
     f, e = s["fit"], s["fit"]["error"]
