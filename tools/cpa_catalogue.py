@@ -1,5 +1,6 @@
 """The ``cpa`` route over the catalogue in Cycles: every recipe of ``flakedb/catalog/recipes`` composed at
-n = 32, fitted by :func:`flakedb.export.cpa.fit_cpa` and rendered by its Blender node group at the six
+n = 32, fitted as ``export-cpa`` fits the node group (:func:`flakedb.export.cpa.fit_cpa_cycles`: GGX lobes, or
+Beckmann lobes where the GGX fit misses the target and they are closer) and rendered by it at the six
 ASTM E2194 geometries (:func:`flakedb.export.blender.render_cycles_geometries`: a plane under a 0.5° sun,
 8 px x 256 spp), the ΔE00 (D65 / 2°) against the exact paint per geometry; beside it the route before the
 backscatter lobe (``n_retro=0``, 4 minimax passes, the first lobe subset), as its fit's own ΔE00 (the
@@ -10,9 +11,15 @@ method ``cpa``) and its ``.cpa.mtlx`` rendered by MaterialX's own GLSL renderer 
 (:func:`flakedb.export.materialx_render.check_cpa_glsl`, as ``tests/export/test_cpa_glsl.py``): the ΔE00 per
 geometry against the exact paint (needs ``materialx`` and Xvfb or a display).
 
+With ``--fits DIR`` the GGX fits are read from ``DIR/RECIPE.cpa.json`` (``export-cpa``'s, of the same files: the
+fit is deterministic) instead of fitted again, the ``before`` fit is skipped, and both renderers are measured: the
+node group of :func:`flakedb.export.cpa.fit_cpa_cycles` in Cycles, and the MaterialX files that ``export-cpa``
+writes for the fit, all rendered in one MaterialX process, with the render's largest difference from flakedb's
+prediction of it (:func:`flakedb.export.materialx_render.cpa_materialx_rf`) per recipe.
+
 Needs bpy 5.0.1 in a Python 3.11 environment (``make blender-venv``)::
 
-    python tools/cpa_catalogue.py OUTDIR [RECIPE ...] [--blender-python PATH] [--renderer cycles|glsl]
+    python tools/cpa_catalogue.py OUTDIR [RECIPE ...] [--blender-python PATH] [--renderer cycles|glsl] [--fits DIR]
 
 Composes into OUTDIR (a recipe already composed there is reused) and prints one JSON line per recipe
 (docs/renderers.md, "Every catalogue recipe").
@@ -56,14 +63,14 @@ def measure(recipe: str, out: Path, python: str | None) -> dict:
 
     exact = lab(np.pi * op.exact_rgb(b, gi, go, gp))
     before = cpa.fit_cpa(b, n_retro=0, minimax_passes=4, max_subsets=1)
-    fit = cpa.fit_cpa(b)
-    cy = render_cycles_geometries(g, cpa=cpa_inputs(fit.table, fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas),
-                                  python=python)
+    fit = cpa.fit_cpa_cycles(b, cpa.fit_cpa(b))             # what export-cpa writes into the node group
+    cy = render_cycles_geometries(g, cpa=cpa_inputs(fit.table, fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas,
+                                                    distribution=fit.distribution), python=python)
     de_before = delta_E_2000(lab(np.pi * cpa.evaluate_cpa(before, gi, go, gp)), exact)
     de = delta_E_2000(lab(cy), exact)
     return {"recipe": recipe, "before_fit_worst": round(float(de_before.max()), 2),
             "cycles_dE00": [round(float(x), 2) for x in de], "cycles_worst": round(float(de.max()), 2),
-            "alphas": list(fit.alphas), "retro_alphas": list(fit.retro_alphas),
+            "alphas": list(fit.alphas), "retro_alphas": list(fit.retro_alphas), "distribution": fit.distribution,
             "E2539_worst_before": round(before.error["worst_dE00_E2539"], 2),
             "E2539_worst": round(fit.error["worst_dE00_E2539"], 2), "seconds": round(time.time() - t, 1)}
 
@@ -85,6 +92,54 @@ def measure_glsl(recipe: str, out: Path) -> dict:
             "renderer": r["renderer"], "seconds": round(time.time() - t, 1)}
 
 
+def measure_from_fits(recipes, out: Path, fits: Path, python: str | None) -> list[dict]:
+    """Rows of both renderers from saved GGX fits (module docstring, ``--fits``)."""
+    from flakedb.export import materialx_render as mr
+    from flakedb.export.materialx import cpa_mtlx_text
+
+    g = np.asarray(E2194_GEOMETRIES, float)
+    gi, go, gp = geometry_directions(g)
+    mx_dir = out / "glsl-fits"
+    mx_dir.mkdir(parents=True, exist_ok=True)
+    rows, files, fitted = [], [], []
+    for recipe in recipes:
+        t = time.time()
+        if not (out / f"{recipe}.bsdf").exists():
+            compose(load_recipe(RECIPES / f"{recipe}.yaml"), out, n=32)
+        b = open_bsdf(out / f"{recipe}.bsdf")
+        wl = op.colour_grid(b)
+        exact = channels_to_Lab(np.maximum(np.pi * op.exact_rgb(b, gi, go, gp), 1e-6), "rgb", wl)
+        fit = cpa.CPAFit.from_dict(json.loads((fits / f"{recipe}.cpa.json").read_text()))
+        cy_fit = cpa.fit_cpa_cycles(b, fit)
+        cy = render_cycles_geometries(g, cpa=cpa_inputs(cy_fit.table, cy_fit.alphas, cy_fit.coat_ior,
+                                                        retro_alphas=cy_fit.retro_alphas,
+                                                        distribution=cy_fit.distribution), python=python)
+        de = delta_E_2000(channels_to_Lab(np.maximum(cy, 1e-6), "rgb", wl), exact)
+        px, scale = cpa.table_image(cpa.materialx_fit(fit))           # what export-cpa writes for MaterialX
+        (mx_dir / f"{recipe}.cpa.png").write_bytes(cpa.table_png_bytes(px))
+        m = mx_dir / f"{recipe}.cpa.mtlx"
+        m.write_text(cpa_mtlx_text(f"{recipe}.cpa.png", scale, fit.alphas, fit.coat_ior, fit.n_table, recipe,
+                                   retro_alphas=fit.retro_alphas), encoding="utf-8")
+        files.append(m)
+        fitted.append((b, fit, exact, wl))
+        rows.append({"recipe": recipe, "cycles_dE00": [round(float(x), 2) for x in de], "cycles_worst": round(float(de.max()), 2),
+                     "distribution": cy_fit.distribution, "alphas": list(fit.alphas), "cycles_alphas": list(cy_fit.alphas),
+                     "retro_alphas": list(fit.retro_alphas), "fit_worst": round(fit.error["worst_dE00_E2194"], 2),
+                     "cycles_seconds": round(time.time() - t, 1)})
+    t = time.time()
+    r = mr.render_geometries(files, g)
+    for row, rf, (b, fit, exact, wl) in zip(rows, r["rf"], fitted):
+        de = delta_E_2000(channels_to_Lab(np.maximum(rf, 1e-6), "rgb", wl), exact)
+        pred = mr.cpa_materialx_rf(mr.table_as_loaded(cpa.materialx_fit(fit)), g)
+        row.update({"glsl_dE00": [round(float(x), 2) for x in de], "glsl_worst": round(float(de.max()), 2),
+                    "glsl_minus_prediction": float((np.abs(rf - pred).max(axis=1) / pred.max(axis=1)).max()),
+                    "glsl_minus_prediction_abs": float(np.abs(rf - pred).max()),
+                    "renderer": f"MaterialX {r['materialx']} on {r['gl'].get('renderer', '?')}"})
+    for row in rows:
+        row["glsl_seconds_all"] = round(time.time() - t, 1)
+    return rows
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("out", type=Path)
@@ -92,8 +147,15 @@ def main(argv=None) -> None:
     ap.add_argument("--blender-python", default=None, help="a Python with bpy 5.0.1 [default: .venv-blender's]")
     ap.add_argument("--renderer", choices=("cycles", "glsl"), default="cycles",
                     help="Cycles (bpy) or MaterialX's GLSL renderer [default: cycles]")
+    ap.add_argument("--fits", type=Path, default=None,
+                    help="read the GGX fits from DIR/RECIPE.cpa.json and measure both renderers (module docstring)")
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
+    if a.fits is not None:
+        for row in measure_from_fits(a.recipes or sorted(p.stem for p in RECIPES.glob("*.yaml")), a.out, a.fits,
+                                     a.blender_python):
+            print(json.dumps(row), flush=True)
+        return
     for r in a.recipes or sorted(p.stem for p in RECIPES.glob("*.yaml")):
         row = measure_glsl(r, a.out) if a.renderer == "glsl" else measure(r, a.out, a.blender_python)
         print(json.dumps(row), flush=True)

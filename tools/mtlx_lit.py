@@ -65,6 +65,7 @@ import numpy as np
 from flakedb.colour.tolerance import delta_E_2000
 from flakedb.export.blender import model_sun_image, sun_direction
 from flakedb.export.materialx import read_fit
+from flakedb.export.materialx_render import glsl_renderer
 from flakedb.export.materialx_glsl import (
     coat_furnace_reflection,
     coat_throughput,
@@ -93,19 +94,8 @@ KINDS = ("sun", "sun-nocoat", "furnace", "furnace-nocoat")
 
 def tools() -> tuple[dict | None, str]:
     """({"python", "wrap"}, "") when MaterialX's GLSL renderer can be imported and a display or
-    ``xvfb-run`` is present, else (None, why).  Whether a GL context is created is seen only by
-    rendering (:func:`probe`)."""
-    try:
-        import MaterialX.PyMaterialXRenderGlsl  # noqa: F401  (the wheel's GLSL renderer)
-    except ImportError as e:
-        return None, f"MaterialX's GLSL renderer does not import ({e}): pip install materialx"
-    if os.environ.get("DISPLAY"):
-        return {"python": sys.executable, "wrap": []}, ""
-    xvfb = shutil.which("xvfb-run")
-    if not xvfb:
-        return None, ("no DISPLAY and no xvfb-run: apt-get install -y xvfb libgl1-mesa-dri libglx-mesa0 "
-                      "(MaterialX's GlslRenderer opens an X window for its GL context)")
-    return {"python": sys.executable, "wrap": [xvfb, "-a", "-s", "-screen 0 64x64x24"]}, ""
+    ``xvfb-run`` is present, else (None, why): :func:`flakedb.export.materialx_render.glsl_renderer`."""
+    return glsl_renderer()
 
 
 def sphere_obj(path, n_lat: int = 96, n_lon: int = 192) -> Path:
@@ -212,87 +202,22 @@ def fit_of(mtlx) -> OpenPBRFit:
 # ---------------------------------------------------------------------------------------------
 # The render (run in a subprocess with a display: ``python mtlx_lit.py --worker JOB.json``)
 # ---------------------------------------------------------------------------------------------
-def _gl_strings() -> dict:
-    """GL_VENDOR / GL_RENDERER / GL_VERSION of the current context (libGL through ctypes)."""
-    try:
-        gl = ctypes.CDLL("libGL.so.1")
-        gl.glGetString.restype = ctypes.c_char_p
-        return {k: (gl.glGetString(e) or b"").decode() for k, e in
-                (("vendor", 0x1F00), ("renderer", 0x1F01), ("version", 0x1F02))}
-    except OSError as e:
-        return {"error": str(e)}
-
-
 def _worker(job_path: str) -> int:
-    import MaterialX as mx
-    from MaterialX import PyMaterialXGenGlsl as mx_gen_glsl
-    from MaterialX import PyMaterialXGenShader as mx_gen
-    from MaterialX import PyMaterialXRender as mx_render
-    from MaterialX import PyMaterialXRenderGlsl as mx_glsl
+    from flakedb.export.mtlx_session import Session
 
     job = json.loads(Path(job_path).read_text())
-    size, extent = int(job["size"]), float(job["extent"])
-    search = mx.getDefaultDataSearchPath()
-    lib = mx.createDocument()
-    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), search, lib)
-    renderer = mx_glsl.GlslRenderer.create(size, size, mx_render.BaseType.FLOAT)
-    renderer.initialize()
-    info = {"materialx": mx.getVersionString(), "gl": _gl_strings()}
-    renderer.setImageHandler(mx_glsl.GLTextureHandler.create(mx_render.StbImageLoader.create()))
-    obj = sphere_obj(Path(job_path).with_name("sphere.obj"))
-    if not renderer.getGeometryHandler().loadGeometry(mx.FilePath(str(obj)), False):
-        raise RuntimeError(f"MaterialX could not load {obj}")
-    cam = renderer.getCamera()
-    cam.setViewMatrix(mx_render.Camera.createViewMatrix(mx.Vector3(0, 0, EYE_Z), mx.Vector3(0, 0, 0),
-                                                        mx.Vector3(0, 1, 0)))
-    cam.setProjectionMatrix(mx_render.Camera.createOrthographicMatrix(-extent, extent, -extent, extent,
-                                                                      EYE_Z - 2, EYE_Z + 2))
+    session = Session(int(job["size"]))
+    session.load_geometry(sphere_obj(Path(job_path).with_name("sphere.obj")))
+    session.orthographic((0.0, 0.0, EYE_Z), (0, 1, 0), float(job["extent"]), 2.0)
     for r in job["renders"]:
-        doc = mx.createDocument()
-        doc.importLibrary(lib)
-        mx.readFromXmlFile(doc, r["mtlx"])
-        ok, msg = doc.validate()
-        if not ok:
-            raise RuntimeError(f"{r['mtlx']} does not validate: {msg}")
-        gen = mx_gen_glsl.GlslShaderGenerator.create()
-        ctx = mx_gen.GenContext(gen)
-        ctx.registerSourceCodeSearchPath(search)
-        o = ctx.getOptions()
-        o.targetColorSpaceOverride = "lin_rec709"
-        o.hwSrgbEncodeOutput = False
-        o.hwShadowMap = False
-        o.hwAmbientOcclusion = False
-        o.hwSpecularEnvironmentMethod = mx_gen.HwSpecularEnvironmentMethod.SPECULAR_ENVIRONMENT_FIS
-        lh = mx_render.LightHandler.create()
-        lights = []
-        if r["sun"]:
-            d = np.asarray(r["sun"]["direction"], float)
-            sun = doc.addNode("directional_light", "flakedb_sun", "lightshader")
-            sun.setInputValue("direction", mx.Vector3(*(-d / np.linalg.norm(d))))      # the light travels along -d
-            sun.setInputValue("color", mx.Color3(1.0, 1.0, 1.0))
-            sun.setInputValue("intensity", float(r["sun"]["irradiance"]))
-            lights.append(sun)
-        lh.registerLights(doc, lights, ctx)
-        lh.setLightSources(lights)
-        L = float(r["environment"] or 0.0)
-        env = mx_render.createUniformImage(16, 8, 4, mx_render.BaseType.FLOAT, mx.Color4(L, L, L, 1.0))
-        lh.setEnvRadianceMap(env)
-        lh.setEnvIrradianceMap(env)
-        lh.setEnvSampleCount(int(job["env_samples"]))
-        lh.setIndirectLighting(r["environment"] is not None)
-        lh.setDirectLighting(bool(lights))
-        materials = [n for n in doc.getNodes() if n.getType() == "material"]
-        shader = gen.generate(materials[0].getName(), materials[0], ctx)
-        renderer.setLightHandler(lh)
-        renderer.createProgram(shader)
-        renderer.validateInputs()
-        renderer.render()
-        img = renderer.captureImage(None)
-        w, h, ch = img.getWidth(), img.getHeight(), img.getChannelCount()
-        buf = (ctypes.c_float * (w * h * ch)).from_address(img.getResourceBuffer())
-        px = np.ctypeslib.as_array(buf).reshape(h, w, ch)[::-1, :, :3]          # glReadPixels: row 0 at the bottom
+        sun = session.program(session.document(r["mtlx"]),
+                              sun_irradiance=float(r["sun"]["irradiance"]) if r["sun"] else None,
+                              environment=r["environment"], env_samples=int(job["env_samples"]))
+        if sun is not None:
+            session.aim_sun(sun, r["sun"]["direction"])
+        px = session.render()[::-1]                                     # glReadPixels: row 0 at the bottom
         np.ascontiguousarray(px, dtype=np.float32).tofile(r["out"])
-    print(json.dumps(info))
+    print(json.dumps(session.info))
     return 0
 
 

@@ -327,6 +327,35 @@ def ggx_lobe_height_correlated(mu_v, mu_l, cos_h, alpha):
     return D * G2 / (4.0 * np.clip(mu_v, 1e-12, 1.0) * np.clip(mu_l, 1e-12, 1.0))
 
 
+def beckmann_lambda(a2, mu):
+    """Beckmann's Smith Λ(μ) in Walter et al. 2007's rational approximation (eq. 27; Heitz 2014, below
+    eq. 69), as Cycles evaluates it (``bsdf_lambda_from_sqr_alpha_tan_n``): with a = 1 / (α tan θ),
+    Λ = (1 - 1.259 a + 0.396 a²) / (3.535 a + 2.181 a²) for a < 1.6 (α² tan²θ ≥ 0.39), else 0; ``a2`` = α²."""
+    mu = np.clip(mu, 1e-12, 1.0)
+    s = a2 * np.maximum(1.0 / (mu * mu) - 1.0, 0.0)                    # α² tan²θ
+    a = 1.0 / np.sqrt(np.maximum(s, 1e-30))
+    lam = ((0.396 * a - 1.259) * a + 1.0) / ((2.181 * a + 3.535) * a)
+    return np.where(s < 0.39, 0.0, lam)
+
+
+def beckmann_lobe_height_correlated(mu_v, mu_l, cos_h, alpha):
+    """``D G2 / (4 μ_v μ_l)`` [1/sr] of Beckmann's distribution ``D = exp(-tan²θ_h / α²) / (π α² cos⁴θ_h)``
+    with the height-correlated Smith ``G2 = 1 / (1 + Λ(μ_v) + Λ(μ_l))`` of :func:`beckmann_lambda`:
+    Cycles' Glossy BSDF with distribution Beckmann (``bsdf_D``, ``bsdf_G`` of
+    ``intern/cycles/kernel/closure/bsdf_microfacet.h``; no Fresnel, no energy compensation),
+    ``alpha`` = roughness²."""
+    a2 = max(float(alpha), 1e-3) ** 2
+    c2 = np.clip(cos_h, 1e-12, 1.0) ** 2
+    D = np.exp(-(1.0 - c2) / (c2 * a2)) / (np.pi * a2 * c2 * c2)
+    G2 = 1.0 / (1.0 + beckmann_lambda(a2, mu_v) + beckmann_lambda(a2, mu_l))
+    return D * G2 / (4.0 * np.clip(mu_v, 1e-12, 1.0) * np.clip(mu_l, 1e-12, 1.0))
+
+
+#: Cycles' Glossy BSDF distributions that the ``cpa`` node group's lobes can take: name -> its lobe [1/sr]
+#: (the node's ``distribution`` is the name upper-cased).
+GLOSSY_LOBES = {"ggx": ggx_lobe_height_correlated, "beckmann": beckmann_lobe_height_correlated}
+
+
 def fresnel_blend(cos_d, n):
     """Cycles' blend factor of its "generalized Schlick" Fresnel in the real-Fresnel mode that the
     Principled BSDF uses (exponent -IOR): ``s = (F(cos θ_d; n) - F0) / (1 - F0)`` clipped to [0, 1],
@@ -688,7 +717,7 @@ def build_cpa_material(bpy, name, inp, fit_json):
         if k == 0:
             b = N.new("ShaderNodeBsdfDiffuse"); b.inputs["Roughness"].default_value = 0.0
         elif k <= n_ggx:
-            b = N.new("ShaderNodeBsdfGlossy"); b.distribution = "GGX"
+            b = N.new("ShaderNodeBsdfGlossy"); b.distribution = inp.get("distribution", "GGX")
             b.inputs["Roughness"].default_value = inp["roughness"][k - 1]
         else:                              # backscatter lobe: the Glossy BSDF about the view direction
             b = N.new("ShaderNodeBsdfGlossy"); b.distribution = "GGX"
@@ -717,14 +746,17 @@ def build_cpa_material(bpy, name, inp, fit_json):
 '''
 
 
-def cpa_inputs(table, alphas, coat_ior: float, sparkle: dict | None = None, retro_alphas=()) -> dict:
+def cpa_inputs(table, alphas, coat_ior: float, sparkle: dict | None = None, retro_alphas=(),
+               distribution: str = "ggx") -> dict:
     """The node group's inputs (:data:`_CPA_BUILD`) from a colour table (rows, n, 3) of linear RGB
     (:class:`flakedb.export.cpa.CPAFit`), the lobes' GGX α and the coat's index: ``pixels`` the RGBA
     float image, row k = table row k (Blender's row 0 is the image's bottom), ``roughness`` = √α
     (Cycles squares its Roughness input); ``sparkle``: the glint layer's node inputs
     (:func:`flakedb.export.sparkle.node_inputs`), or None for the smooth material; ``retro_alphas``: the
     backscatter lobes' GGX α (rows 1 + K ..., :func:`flakedb.export.cpa.retro_lobe`), ``retro_roughness``
-    = √α."""
+    = √α; ``distribution``: the K lobes' (a key of :data:`GLOSSY_LOBES`; the Glossy node's, upper-cased)."""
+    if distribution not in GLOSSY_LOBES:
+        raise ValueError(f"cpa_inputs: distribution {distribution!r} is not one of {sorted(GLOSSY_LOBES)}")
     t = np.asarray(table, float)
     if t.shape[0] != 1 + len(alphas) + len(retro_alphas):
         raise ValueError(f"cpa_inputs: the table has {t.shape[0]} rows, not 1 + {len(alphas)} lobes + "
@@ -733,21 +765,22 @@ def cpa_inputs(table, alphas, coat_ior: float, sparkle: dict | None = None, retr
     return {"rows": int(t.shape[0]), "n_table": int(t.shape[1]), "pixels": [float(v) for v in rgba.ravel()],
             "roughness": [float(math.sqrt(a)) for a in alphas], "coat_ior": float(coat_ior),
             "retro_roughness": [float(math.sqrt(a)) for a in retro_alphas],
+            "distribution": distribution.upper(),
             **({"sparkle": dict(sparkle)} if sparkle is not None else {})}
 
 
 def cpa_material_script(table, alphas, coat_ior: float, name: str, fit_json: str = "{}",
-                        sparkle: dict | None = None, retro_alphas=()) -> str:
+                        sparkle: dict | None = None, retro_alphas=(), distribution: str = "ggx") -> str:
     """A standalone Blender script building the angle-indexed material (``blender --python``), with the glint
     layer when ``sparkle`` (:func:`flakedb.export.sparkle.node_inputs`) is given."""
     n = safe_name(name)
     return (f'"""flakedb export: the angle-indexed colour-table material of {name} (run inside Blender;\n'
-            f'Cycles and EEVEE).  flakedb.export.cpa: coat mirror + Lambert + GGX lobes coloured by N.V."""\n'
+            f'Cycles and EEVEE).  flakedb.export.cpa: coat mirror + Lambert + {distribution} lobes coloured by N.V."""\n'
             f"import bpy\n{_CPA_BUILD}\n"
             + (f"# sparkle: the glint cells are in the UV map {sparkle['uv_map'] or '(the active one)'!s}, read as "
                f"{sparkle['cells_per_uv']:.6g} cells per UV unit: the UVs must be proportional to lengths on the surface\n"
                if sparkle else "")
-            + f"INPUTS = {cpa_inputs(table, alphas, coat_ior, sparkle, retro_alphas)!r}\n"
+            + f"INPUTS = {cpa_inputs(table, alphas, coat_ior, sparkle, retro_alphas, distribution)!r}\n"
             f"FIT = {json.dumps(fit_json)}\n"
             f"material = build_cpa_material(bpy, {('flakedb_cpa_' + n)!r}, INPUTS, FIT)\n"
             f"for ob in bpy.context.selected_objects:          # assign to the selection, if any\n"
@@ -766,7 +799,8 @@ ob.data.materials.append(build_cpa_material(bpy, "flakedb_cpa", a["cpa"], "{}"))
 _CPA_RENDER = _CPA_BUILD + SCENE_SETUP_SCRIPT + _CPA_SPHERE_SCRIPT + CAMERA_SUN_RENDER_SCRIPT
 
 
-def render_cycles_cpa_sphere(table, alphas, coat_ior: float, *, retro_alphas=(), size: int = 32, samples: int = 16,
+def render_cycles_cpa_sphere(table, alphas, coat_ior: float, *, retro_alphas=(), distribution: str = "ggx",
+                             size: int = 32, samples: int = 16,
                              direction=(0.0, 0.0, 1.0), irradiance: float = 1.0, half_angle_deg: float = 2.0,
                              extent: float = 1.05, threads: int = 1, seed: int = 1, filter_width_px: float = 0.01,
                              python: str | None = None, timeout: float = 600.0) -> dict:
@@ -775,7 +809,7 @@ def render_cycles_cpa_sphere(table, alphas, coat_ior: float, *, retro_alphas=(),
     args = render_args(size=size, samples=samples, direction=direction, irradiance=irradiance,
                        half_angle_deg=half_angle_deg, extent=extent, threads=threads, seed=seed,
                        filter_width_px=filter_width_px)
-    args["cpa"] = cpa_inputs(table, alphas, coat_ior, retro_alphas=retro_alphas)
+    args["cpa"] = cpa_inputs(table, alphas, coat_ior, retro_alphas=retro_alphas, distribution=distribution)
     out = run_bpy_script(_CPA_RENDER, args, python=python, timeout=timeout)
     return {"image": out["image"], "blender": out["blender"]}
 

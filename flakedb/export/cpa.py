@@ -68,12 +68,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import nnls
+from scipy.optimize import minimize, nnls
 from scipy.sparse import csr_matrix
 
 from flakedb.atomic import atomic_path
 from flakedb.colour.tolerance import delta_E_2000
-from flakedb.export.blender import ggx_lobe_height_correlated, sphere_normals, sun_disk
+from flakedb.export.blender import GLOSSY_LOBES, ggx_lobe_height_correlated, sphere_normals, sun_disk
 from flakedb.export.materialx_glsl import compensated_lobe_colours
 from flakedb.export.openpbr import colour_grid, cosine_weighted_difference, exact_rgb, file_directions
 from flakedb.match.fit import channels_to_Lab, geometry_directions
@@ -114,9 +114,11 @@ HEMISPHERE_STAT_DEG = 70.0
 class CPAFit:
     """The fitted material.
 
-    table (K + 1, n_table, 3) linear RGB colours: row 0 the Lambert term's, row k the lobe of GGX
-    α = ``alphas[k - 1]`` (roughness √α); column j at μ_v = j / (n_table - 1).  coat_ior: the smooth
-    coat's index (1: no coat mirror).  error: what the fit costs (module docstring)."""
+    table (K + 1, n_table, 3) linear RGB colours: row 0 the Lambert term's, row k the lobe of
+    α = ``alphas[k - 1]`` (roughness √α) of ``distribution`` (a key of
+    :data:`flakedb.export.blender.GLOSSY_LOBES`: ``"ggx"``, or ``"beckmann"`` for the Cycles node group only);
+    column j at μ_v = j / (n_table - 1).  coat_ior: the smooth coat's index (1: no coat mirror).  error: what the
+    fit costs (module docstring).  The backscatter lobes (``retro_alphas``) are GGX whatever ``distribution``."""
 
     table: np.ndarray
     alphas: tuple
@@ -124,6 +126,7 @@ class CPAFit:
     source: str = ""
     error: dict = field(default_factory=dict)
     retro_alphas: tuple = ()
+    distribution: str = "ggx"
 
     @property
     def n_table(self) -> int:
@@ -134,13 +137,15 @@ class CPAFit:
                 "alphas": [float(a) for a in self.alphas], "roughness": [float(math.sqrt(a)) for a in self.alphas],
                 "retro_alphas": [float(a) for a in self.retro_alphas],
                 "retro_roughness": [float(math.sqrt(a)) for a in self.retro_alphas],
+                "distribution": self.distribution,
                 "coat_ior": float(self.coat_ior), "n_table": self.n_table, "source": self.source,
                 "table": np.round(self.table, 7).tolist(), "error": self.error}
 
     @classmethod
     def from_dict(cls, d) -> CPAFit:
         return cls(np.asarray(d["table"], float), tuple(float(a) for a in d["alphas"]), float(d["coat_ior"]),
-                   d.get("source", ""), dict(d.get("error", {})), tuple(float(a) for a in d.get("retro_alphas", ())))
+                   d.get("source", ""), dict(d.get("error", {})), tuple(float(a) for a in d.get("retro_alphas", ())),
+                   str(d.get("distribution", "ggx")))
 
 
 # --------------------------------------------------------------------------------------------
@@ -178,12 +183,13 @@ def retro_lobe(mu_l, cos_vl, alpha) -> np.ndarray:
     return np.where(ok, f, 0.0)
 
 
-def lobe_basis(mu_v, mu_l, cos_h, alphas, retro_alphas=(), cos_vl=None) -> np.ndarray:
-    """(P, 1 + K + R) the model's lobe shapes [1/sr] without colour: 1/π, the GGX lobes of
-    :func:`flakedb.export.blender.ggx_lobe_height_correlated` (Cycles' Glossy BSDF, F = 1) and the
+def lobe_basis(mu_v, mu_l, cos_h, alphas, retro_alphas=(), cos_vl=None, distribution: str = "ggx") -> np.ndarray:
+    """(P, 1 + K + R) the model's lobe shapes [1/sr] without colour: 1/π, the lobes of ``distribution``
+    (:data:`flakedb.export.blender.GLOSSY_LOBES`: Cycles' Glossy BSDF with GGX or Beckmann, F = 1) and the
     backscatter lobes of :func:`retro_lobe` (``cos_vl`` = ω_v·ω_l needed when ``retro_alphas``)."""
+    lobe = GLOSSY_LOBES[distribution]
     cols = [np.full(np.shape(mu_v), 1.0 / np.pi)]
-    cols += [ggx_lobe_height_correlated(mu_v, mu_l, cos_h, a) for a in alphas]
+    cols += [lobe(mu_v, mu_l, cos_h, a) for a in alphas]
     cols += [retro_lobe(mu_l, cos_vl, a) for a in retro_alphas]
     return np.stack(cols, axis=-1)
 
@@ -204,7 +210,7 @@ def _eval_dirs(fit: CPAFit, wv, wl):
     mu_v, mu_l = wv[..., 2], wl[..., 2]
     shape = mu_v.shape
     B = lobe_basis(mu_v.ravel(), mu_l.ravel(), _half_cos(wv, wl).ravel(), fit.alphas, fit.retro_alphas,
-                   np.sum(wv * wl, axis=-1).ravel())                                        # (P, 1+K+R)
+                   np.sum(wv * wl, axis=-1).ravel(), fit.distribution)                      # (P, 1+K+R)
     H = hat_weights(mu_v, fit.n_table)                                                        # (P, n)
     C = np.einsum("pj,kjc->pkc", H, fit.table)                                               # (P, K+1, 3)
     return np.einsum("pk,pkc->pc", B, C).reshape(shape + (3,))
@@ -228,7 +234,7 @@ def cpa_sun_image(fit: CPAFit, size: int = 32, direction=(0.0, 0.0, 1.0), irradi
     for l, wt in zip(dirs, wts):
         mu_l = Nk @ l
         h = (l + v) / np.linalg.norm(l + v)
-        B = lobe_basis(mu_v, mu_l, Nk @ h, fit.alphas, fit.retro_alphas, np.full(mu_v.shape, l @ v))
+        B = lobe_basis(mu_v, mu_l, Nk @ h, fit.alphas, fit.retro_alphas, np.full(mu_v.shape, l @ v), fit.distribution)
         C = np.einsum("pj,kjc->pkc", hat_weights(mu_v, fit.n_table), fit.table)
         f = np.einsum("pk,pkc->pc", B, C)
         out += np.where((mu_l > 0)[:, None], f * (wt * np.maximum(mu_l, 0.0) * irradiance)[:, None], 0.0)
@@ -312,8 +318,11 @@ def _nnls_gram(G, b, n_table, n_rows, lam):
 
 def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_GRID, source: str = "",
             minimax_passes: int = MINIMAX_PASSES, n_retro: int = N_RETRO, retro_grid=RETRO_ALPHA_GRID,
-            max_subsets: int = MAX_SUBSETS) -> CPAFit:
-    """Fit :class:`CPAFit` to the FourierBSDF ``b`` (module docstring) and measure its error."""
+            max_subsets: int = MAX_SUBSETS, distribution: str = "ggx") -> CPAFit:
+    """Fit :class:`CPAFit` to the FourierBSDF ``b`` (module docstring) and measure its error; the K lobes
+    of ``distribution`` (a key of :data:`flakedb.export.blender.GLOSSY_LOBES`)."""
+    if distribution not in GLOSSY_LOBES:
+        raise ValueError(f"fit_cpa: distribution {distribution!r} is not one of {sorted(GLOSSY_LOBES)}")
     if b.delta is not None:
         if b.delta.get("kind") != "fresnel":
             raise ValueError(f"fit_cpa: the file's delta kind {b.delta.get('kind')!r} is not carried "
@@ -343,7 +352,7 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
     MI, MO, PH = np.r_[mi, gi], np.r_[mo, go], np.r_[ph, gp]
     wl_dir, wv_dir = file_directions(MI, MO, PH)
     B_all = lobe_basis(wv_dir[..., 2], wl_dir[..., 2], _half_cos(wv_dir, wl_dir), alpha_grid, retro_grid,
-                       np.sum(wv_dir * wl_dir, axis=-1))                                           # (P, 1 + A + R)
+                       np.sum(wv_dir * wl_dir, axis=-1), distribution)                             # (P, 1 + A + R)
     uniq, inv = np.unique(wv_dir[..., 2], return_inverse=True)
     H_u = hat_weights(uniq, n_table)                                                               # (U, n)
     S = csr_matrix((np.ones(len(inv)), (inv, np.arange(len(inv)))), shape=(len(uniq), len(inv)))   # sample -> μ_v
@@ -378,7 +387,8 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
         for p in range(max(int(minimax_passes), 1)):
             mom = mom0 if p == 0 else moments(np.r_[W_h, W_g0 * u])
             c, _ = solve_subset(lobes, mom)
-            fit = CPAFit(c.reshape(n_rows, n_table, 3), lobes[0], coat_ior, source, retro_alphas=lobes[1])
+            fit = CPAFit(c.reshape(n_rows, n_table, 3), lobes[0], coat_ior, source, retro_alphas=lobes[1],
+                         distribution=distribution)
             de = delta_E_2000(channels_to_Lab(np.pi * evaluate_cpa(fit, gi, go, gp), "rgb", wl_nm), lab_g)
             key = (float(de[:n45].max()), float(de.max()))
             if best is None or key < best[0]:
@@ -401,6 +411,20 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
     fit = best[1]
     fit.error = cpa_error(b, fit)
     return fit
+
+
+def fit_cpa_cycles(b, ggx_fit: CPAFit | None = None, **kw) -> CPAFit:
+    """The fit for the Cycles / EEVEE node group: ``ggx_fit`` (:func:`fit_cpa`, GGX lobes: what MaterialX's
+    ``generalized_schlick_bsdf`` can draw, its only distribution), or, where that misses
+    :data:`E2194_TARGET`, the fit with Beckmann lobes (Cycles' Glossy BSDF offers the distribution) when its
+    worst E2194 ΔE00 is lower.  A Beckmann lobe's tail falls as exp(-tan²θ_h / α²), GGX's as a power, which
+    is what a bare Beckmann metal under the coat needs (docs/renderers.md, coated aluminium)."""
+    if ggx_fit is None:
+        ggx_fit = fit_cpa(b, **kw)
+    if ggx_fit.error["worst_dE00_E2194"] <= E2194_TARGET:
+        return ggx_fit
+    beck = fit_cpa(b, distribution="beckmann", **kw)
+    return beck if beck.error["worst_dE00_E2194"] < ggx_fit.error["worst_dE00_E2194"] else ggx_fit
 
 
 def cpa_error(b, fit: CPAFit, n_mu: int = 16, n_phi: int = 24) -> dict:
@@ -442,7 +466,11 @@ def materialx_fit(fit: CPAFit) -> CPAFit:
     lobe k's column j holds the F whose compensated value is the model's colour at μ_j
     (:func:`flakedb.export.materialx_glsl.compensated_lobe_colours`; a backscatter lobe's closure has the view
     direction for its normal, so its N·V is 1 at every column); the Lambert row is unchanged.  Exact at
-    the table's nodes; between them the renderer interpolates F linearly (measured effect in docs/renderers.md)."""
+    the table's nodes; between them the renderer interpolates F linearly (measured effect in docs/renderers.md).
+    MaterialX's lobes are GGX only: a fit of another distribution is refused (ValueError)."""
+    if fit.distribution != "ggx":
+        raise ValueError(f"materialx_fit: the fit's lobes are {fit.distribution!r}; MaterialX 1.39's "
+                         f"generalized_schlick_bsdf has GGX only: fit with distribution='ggx'")
     mu = np.linspace(0.0, 1.0, fit.n_table)
     table = fit.table.copy()
     for k, a in enumerate(fit.alphas, start=1):
@@ -454,67 +482,147 @@ def materialx_fit(fit: CPAFit) -> CPAFit:
 
 def table_image(fit: CPAFit) -> tuple:
     """(pixels (K + 1, n_table, 3) in [0, 1], row 0 = table row 0 = the image's **bottom** row as
-    renderers index it (v = (k + 0.5) / (K + 1)); scale (K + 1,) per row): row k's colours are
-    ``pixels[k] * scale[k]``, each row scaled to its largest value so that 16-bit storage keeps
-    5 significant digits of every row."""
+    renderers index it; scale (K + 1,) per row): row k's colours are ``pixels[k] * scale[k]``, each row
+    scaled to its largest value so that 16-bit storage (:func:`table_planes`) keeps 5 significant digits of
+    every row."""
     scale = np.maximum(fit.table.reshape(fit.table.shape[0], -1).max(axis=1), 1e-12)
     return np.clip(fit.table / scale[:, None, None], 0.0, 1.0), scale
 
 
-def png16_bytes(pixels) -> bytes:
-    """A 16-bit RGB PNG (ISO/IEC 15948: signature, IHDR, one zlib IDAT, IEND; filter 0 per row) of
-    ``pixels`` (H, W, 3) in [0, 1], row 0 written **last** (the bottom row, as renderers index
-    textures), values rounded to ``round(65535 x)``."""
-    p = np.asarray(pixels, float)[::-1]
-    h, w, _ = p.shape
-    q = np.round(np.clip(p, 0.0, 1.0) * 65535.0).astype(">u2")
+def png_bytes(values, bit_depth: int = 16) -> bytes:
+    """An RGB PNG (ISO/IEC 15948: signature, IHDR, one zlib IDAT, IEND; filter 0 per row) of the integers
+    ``values`` (H, W, 3) in [0, 2**bit_depth - 1] (``bit_depth`` 8 or 16), row 0 written **last** (the bottom
+    row, as renderers index textures)."""
+    if bit_depth not in (8, 16):
+        raise ValueError(f"png_bytes: bit depth {bit_depth}, not 8 or 16")
+    v = np.asarray(values)[::-1]
+    h, w, _ = v.shape
+    q = np.clip(v, 0, 2 ** bit_depth - 1).astype(">u2" if bit_depth == 16 else np.uint8)
     raw = b"".join(b"\x00" + row.tobytes() for row in q)
 
     def chunk(kind, data):
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
 
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, bit_depth, 2, 0, 0, 0))
             + chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b""))
 
 
-def read_png16(data: bytes) -> np.ndarray:
-    """(H, W, 3) float pixels of a PNG written by :func:`png16_bytes`, row 0 = the bottom row: the round trip
-    is exact to the 16-bit step.
+def png16_bytes(pixels) -> bytes:
+    """A 16-bit RGB PNG (:func:`png_bytes`) of ``pixels`` (H, W, 3) in [0, 1], values ``round(65535 x)``."""
+    return png_bytes(np.round(np.clip(np.asarray(pixels, float), 0.0, 1.0) * 65535.0).astype(np.int64), 16)
 
-    >>> px = np.array([[[0.0, 0.5, 1.0]], [[0.25, 0.75, 0.125]]])
-    >>> bool(np.abs(read_png16(png16_bytes(px)) - px).max() <= 0.5 / 65535)
-    True
+
+def read_png(data: bytes) -> tuple[np.ndarray, int]:
+    """(integer values (H, W, 3), bit depth) of an 8- or 16-bit RGB PNG written by :func:`png_bytes`, row 0 =
+    the bottom row.
+
+    >>> v = np.array([[[0, 128, 255]], [[7, 9, 11]]])
+    >>> back, depth = read_png(png_bytes(v, 8))
+    >>> bool(np.array_equal(back, v)), depth
+    (True, 8)
     """
     if data[:8] != b"\x89PNG\r\n\x1a\n":
         raise ValueError("not a PNG file")
-    pos, idat, w, h = 8, b"", 0, 0
+    pos, idat, w, h, depth = 8, b"", 0, 0, 0
     while pos < len(data):
         n = struct.unpack(">I", data[pos:pos + 4])[0]
         kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + n]
         if kind == b"IHDR":
             w, h, depth, ctype = struct.unpack(">IIBB", body[:10])
-            if (depth, ctype) != (16, 2):
-                raise ValueError(f"PNG bit depth {depth} / colour type {ctype}: only 16-bit RGB is read")
+            if depth not in (8, 16) or ctype != 2:
+                raise ValueError(f"PNG bit depth {depth} / colour type {ctype}: only 8- or 16-bit RGB is read")
         elif kind == b"IDAT":
             idat += body
         pos += 12 + n
-    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w * 6)
+    nb = depth // 8
+    raw = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + w * 3 * nb)
     if np.any(raw[:, 0] != 0):
         raise ValueError("PNG rows with a filter other than 0 are not read")
-    q = np.frombuffer(raw[:, 1:].tobytes(), ">u2").reshape(h, w, 3)
-    return (q / 65535.0)[::-1]
+    q = np.frombuffer(raw[:, 1:].tobytes(), ">u2" if nb == 2 else np.uint8).reshape(h, w, 3)
+    return q.astype(np.int64)[::-1], depth
+
+
+def read_png16(data: bytes) -> np.ndarray:
+    """(H, W, 3) float pixels of a 16-bit PNG written by :func:`png16_bytes`, row 0 = the bottom row: the round
+    trip is exact to the 16-bit step.
+
+    >>> px = np.array([[[0.0, 0.5, 1.0]], [[0.25, 0.75, 0.125]]])
+    >>> bool(np.abs(read_png16(png16_bytes(px)) - px).max() <= 0.5 / 65535)
+    True
+    """
+    q, depth = read_png(data)
+    if depth != 16:
+        raise ValueError(f"read_png16: the PNG is {depth}-bit")
+    return q / 65535.0
+
+
+def table_planes(pixels) -> np.ndarray:
+    """(2 R, n, 3) uint8 of the table's pixels (R, n, 3) in [0, 1] (:func:`table_image`): rows 0 … R − 1 the
+    high bytes of q = round(65535 p), rows R … 2R − 1 the low bytes (:data:`flakedb.export.materialx.PLANE_WEIGHTS`)."""
+    q = np.round(np.clip(np.asarray(pixels, float), 0.0, 1.0) * 65535.0).astype(np.int64)
+    return np.concatenate([q >> 8, q & 255]).astype(np.uint8)
+
+
+def table_png_bytes(pixels) -> bytes:
+    """``NAME.cpa.png``: an 8-bit RGB PNG of :func:`table_planes` of ``pixels`` (R, n, 3) in [0, 1]: 2 R rows."""
+    return png_bytes(table_planes(pixels), 8)
+
+
+def read_table_png(data: bytes) -> np.ndarray:
+    """(R, n, 3) the 16-bit table pixels in [0, 1] of a PNG written by :func:`table_png_bytes`: exact to the
+    16-bit step."""
+    q, depth = read_png(data)
+    if depth != 8 or q.shape[0] % 2:
+        raise ValueError(f"read_table_png: a {depth}-bit PNG of {q.shape[0]} rows is not a table in two 8-bit planes")
+    r = q.shape[0] // 2
+    return (256 * q[:r] + q[r:]) / 65535.0
 
 
 def write_table_png(path, fit: CPAFit) -> Path:
-    """The colour table's normalised pixels (:func:`table_image`) as a 16-bit PNG at ``path``."""
+    """The colour table's normalised pixels (:func:`table_image`) as :func:`table_png_bytes` at ``path``."""
     path = Path(path)
     with atomic_path(path, suffix="") as tmp:
-        Path(tmp).write_bytes(png16_bytes(table_image(fit)[0]))
+        Path(tmp).write_bytes(table_png_bytes(table_image(fit)[0]))
     return path
 
 
 def quantised(fit: CPAFit) -> CPAFit:
-    """The fit with its table as a renderer reads it back from the 16-bit PNG (pixels x scale)."""
+    """The fit with its table as a renderer reads it back from ``NAME.cpa.png`` (16 bits in two 8-bit planes,
+    :func:`table_planes`; pixels x scale)."""
     px, scale = table_image(fit)
-    return CPAFit(np.round(px * 65535.0) / 65535.0 * scale[:, None, None], fit.alphas, fit.coat_ior, fit.source,
-                  fit.error)
+    return replace(fit, table=np.round(px * 65535.0) / 65535.0 * scale[:, None, None])
+
+
+# --------------------------------------------------------------------------------------------
+# What a GGX route cannot reach
+# --------------------------------------------------------------------------------------------
+#: Half-vector angles (rad) of ASTM E2194's aspecular 15° and 75° (45° illumination; both seen at μ_v = cos 30°).
+THETA_H_15, THETA_H_75 = math.radians(7.5), math.radians(37.5)
+#: The least 75° / 15° ratio of a GGX lobe about N: D = α² / (π (α² cos²θ + sin²θ)²) gives
+#: ((α² cos²θ_15 + sin²θ_15) / (α² cos²θ_75 + sin²θ_75))², increasing in α, so its infimum is the α → 0 limit
+#: (sin 7.5° / sin 37.5°)⁴ = 2.11e-3 (G2 and 1 / (4 μ_v μ_l) are equal at both); the Lambert term gives 1 and the
+#: backscatter lobe more than 1.
+GGX_MIN_RATIO_75_15 = (math.sin(THETA_H_15) / math.sin(THETA_H_75)) ** 4
+
+
+def ggx_route_floor(b, ratio: float = GGX_MIN_RATIO_75_15) -> float:
+    """A lower bound on the worst ΔE00 (D65 / 2°, the file's linear sRGB) that the GGX route (every lobe GGX
+    about N with colours indexed by μ_v, the Lambert term and the backscatter lobes; MaterialX's energy
+    compensation is a factor of μ_v, the same at both) can reach at ASTM E2194's aspecular 15° and 75°, which
+    share one table column: the route's 75° is at least ``ratio`` times its 15° in each channel
+    (:data:`GGX_MIN_RATIO_75_15`), so the best is min over RGB m ≥ 0 at 15° of max(ΔE00(m, exact 15°),
+    ΔE00(y, exact 75°)) with y = max(ratio m, exact 75°) per channel (the nearest allowed value channel by
+    channel), searched by Nelder-Mead in log m from three starts.  It binds where the exact 75° is below
+    ``ratio`` times its 15° (a bare Beckmann metal: coated-aluminium 7.2e-6 gives 5.56); elsewhere it is ~0."""
+    g = np.asarray(E2194_GEOMETRIES, float)[[1, 4]]
+    wl_nm = colour_grid(b)
+    exact = np.pi * exact_rgb(b, *geometry_directions(g))
+    lab_exact = channels_to_Lab(np.maximum(exact, 1e-9), "rgb", wl_nm)
+
+    def worst(log_m):
+        m = np.exp(log_m)
+        lab = channels_to_Lab(np.maximum(np.stack([m, np.maximum(ratio * m, exact[1])]), 1e-9), "rgb", wl_nm)
+        return float(delta_E_2000(lab, lab_exact).max())
+
+    return min(minimize(worst, np.log(np.maximum(exact[0], 1e-9) * s), method="Nelder-Mead",
+                        options={"xatol": 1e-7, "fatol": 1e-7, "maxiter": 4000}).fun for s in (0.5, 0.8, 1.0))

@@ -18,6 +18,14 @@ from flakedb.export.openpbr import OpenPBRFit
 MTLX_VERSION = "1.39"
 
 
+#: The colour table's 16-bit value q = round(65535 p) is carried in two 8-bit planes, q = 256 hi + lo, so that
+#: an 8-bit loader (MaterialX's StbImageLoader reads a 16-bit PNG's high byte only) reads all 16 bits; a texture
+#: read returns hi / 255 and lo / 255, and p = PLANE_WEIGHTS[0] hi/255 + PLANE_WEIGHTS[1] lo/255 exactly: linear,
+#: so a bilinear filter of the planes is the filter of p
+#: (:func:`flakedb.export.cpa.table_planes`).
+PLANE_WEIGHTS = (256.0 * 255.0 / 65535.0, 255.0 / 65535.0)
+
+
 def safe_name(name: str) -> str:
     """A MaterialX / USD identifier from a file stem: letters, digits and ``_``, not starting with a digit."""
     s = re.sub(r"[^A-Za-z0-9_]", "_", str(name)) or "paint"
@@ -93,9 +101,13 @@ def read_fit(path) -> dict:
 def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str, fit_json: str = "{}",
                   sparkle: dict | None = None, retro_alphas=()) -> str:
     """The angle-indexed material of :mod:`flakedb.export.cpa` as a MaterialX 1.39 graph of standard
-    nodes: μ_v = -``normal``·``viewdirection`` (world space), texture coordinate
-    ``(μ_v (n - 1) / n + 0.5 / n, (k + 0.5) / rows)`` into ``image_file`` (the colour table, 16-bit
-    PNG, ``lin_rec709``, linear filtering, clamped), each row times its ``scales[k]``; row 0 colours an
+    nodes: μ_v = -``normal``·``viewdirection`` (world space), x = clip(μ_v, 0, 1) (n − 1), j = min(⌊x⌋, n − 2),
+    t = x − j; texels j and j + 1 of ``image_file`` (the colour table's 16 bits in two 8-bit planes,
+    :func:`flakedb.export.cpa.table_planes`, ``lin_rec709``) read at their centres ``((j + 0.5) / n, (k + 0.5) /
+    (2 rows))``, ``(…, (rows + k + 0.5) / (2 rows))`` with ``closest`` filtering, each recombined ``hi w_hi +
+    lo w_lo`` (:data:`PLANE_WEIGHTS`) and mixed by t in the shader's float arithmetic (the texture filter's
+    fixed-point weights are not used: :func:`flakedb.export.cpa.hat_weights` exactly), each row times its
+    ``scales[k]``; row 0 colours an
     ``oren_nayar_diffuse_bsdf`` of roughness 0 (Lambert), row k a ``generalized_schlick_bsdf`` (GGX,
     ``color0 = color90`` = the row's colour: no Fresnel variation) of roughness α_k (MaterialX's
     ``roughness`` is α itself), the rows after the K lobes the same BSDF with ``normal`` = −``viewdirection``
@@ -126,18 +138,34 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
     node("normal", "N_world", "vector3", space=("string", "world"))
     node("viewdirection", "V_world", "vector3", space=("string", "world"))
     node("dotproduct", "NdotI", "float", in1=("vector3", ("node", "N_world")), in2=("vector3", ("node", "V_world")))
-    node("multiply", "u_scaled", "float", in1=("float", ("node", "NdotI")), in2=("float", f"{-(n_table - 1) / n_table:.9g}"))
-    node("add", "u", "float", in1=("float", ("node", "u_scaled")), in2=("float", f"{0.5 / n_table:.9g}"))
+    # x = clip(μ_v, 0, 1) (n - 1), j = min(floor x, n - 2), t = x - j: texels j and j + 1 read at their centres
+    # (u = (j + 0.5) / n, (j + 1.5) / n) and mixed by t in float (cpa.hat_weights), not by the texture filter
+    node("multiply", "x_raw", "float", in1=("float", ("node", "NdotI")), in2=("float", f"{-(n_table - 1):.9g}"))
+    node("clamp", "x", "float", **{"in": ("float", ("node", "x_raw"))}, low=("float", "0"), high=("float", f"{n_table - 1:.9g}"))
+    node("floor", "x_floor", "float", **{"in": ("float", ("node", "x"))})
+    node("min", "j", "float", in1=("float", ("node", "x_floor")), in2=("float", f"{n_table - 2:.9g}"))
+    node("subtract", "t", "float", in1=("float", ("node", "x")), in2=("float", ("node", "j")))
+    node("add", "j_centre", "float", in1=("float", ("node", "j")), in2=("float", "0.5"))
+    node("divide", "u0", "float", in1=("float", ("node", "j_centre")), in2=("float", f"{n_table:.9g}"))
+    node("add", "u1", "float", in1=("float", ("node", "u0")), in2=("float", f"{1.0 / n_table:.17g}"))
     if retro_alphas:
         node("multiply", "V_back", "vector3", in1=("vector3", ("node", "V_world")), in2=("float", "-1"))
     total = None
     for k in range(rows):
-        node("combine2", f"uv_{k}", "vector2", in1=("float", ("node", "u")), in2=("float", f"{(k + 0.5) / rows:.9g}"))
-        img = node("image", f"table_{k}", "color3", texcoord=("vector2", ("node", f"uv_{k}")),
-                   filtertype=("string", "linear"), uaddressmode=("string", "clamp"), vaddressmode=("string", "clamp"))
-        f = ET.SubElement(img, "input", {"name": "file", "type": "filename", "value": image_file,
-                                         "colorspace": "lin_rec709"})
-        del f
+        for e in (0, 1):
+            for plane, row, weight in (("hi", k, PLANE_WEIGHTS[0]), ("lo", rows + k, PLANE_WEIGHTS[1])):
+                node("combine2", f"uv_{plane}{e}_{k}", "vector2", in1=("float", ("node", f"u{e}")),
+                     in2=("float", f"{(row + 0.5) / (2 * rows):.9g}"))
+                img = node("image", f"plane_{plane}{e}_{k}", "color3", texcoord=("vector2", ("node", f"uv_{plane}{e}_{k}")),
+                           filtertype=("string", "closest"), uaddressmode=("string", "clamp"),
+                           vaddressmode=("string", "clamp"))
+                ET.SubElement(img, "input", {"name": "file", "type": "filename", "value": image_file,
+                                             "colorspace": "lin_rec709"})
+                node("multiply", f"{plane}{e}_{k}", "color3", in1=("color3", ("node", f"plane_{plane}{e}_{k}")),
+                     in2=("float", f"{weight:.17g}"))
+            node("add", f"table{e}_{k}", "color3", in1=("color3", ("node", f"hi{e}_{k}")), in2=("color3", ("node", f"lo{e}_{k}")))
+        node("mix", f"table_{k}", "color3", bg=("color3", ("node", f"table0_{k}")), fg=("color3", ("node", f"table1_{k}")),
+             mix=("float", ("node", "t")))
         node("multiply", f"colour_{k}", "color3", in1=("color3", ("node", f"table_{k}")), in2=("float", f"{float(scales[k]):.9g}"))
         if sparkle is not None and k == sparkle["lobe"]:
             glint = _sparkle_nodes(node, f"colour_{k}", sparkle)

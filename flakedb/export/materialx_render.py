@@ -33,8 +33,9 @@ rational fit of the GGX albedo, :func:`flakedb.export.materialx_glsl.ggx_dir_alb
 :func:`flakedb.export.cpa.evaluate_cpa` (Cycles' Glossy BSDF) does not have; the coat's ``dielectric_bsdf``
 (roughness 0, α clamped to 1e-8) reaches no geometry off the mirror direction; ``add`` sums responses.
 The exported graph therefore carries each lobe's colours with that compensation undone
-(:func:`flakedb.export.cpa.materialx_fit`).  The table is what MaterialX's ``StbImageLoader`` makes of the
-16-bit PNG, 8 bits per channel (:func:`table_as_loaded`), read with linear filtering between texel centres.
+(:func:`flakedb.export.cpa.materialx_fit`).  The table is 16 bits carried in an 8-bit PNG's two planes, which
+MaterialX's ``StbImageLoader`` reads exactly (:func:`table_as_loaded`), read with linear filtering between
+texel centres.
 
 MaterialX's ``GLTextureHandler`` samples textures mipmapped with 16x anisotropy; on the flat patch the
 table's coordinate has zero screen derivatives, where OpenGL's rule is magnification (plain bilinear), but
@@ -51,14 +52,14 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from flakedb.colour.tolerance import delta_E_2000
+from flakedb.export import mtlx_session
 from flakedb.export.blender import ggx_lobe_height_correlated
-from flakedb.export.cpa import CPAFit, hat_weights, retro_lobe, table_image
+from flakedb.export.cpa import CPAFit, hat_weights, quantised, retro_lobe
 from flakedb.export.materialx_glsl import ggx_dir_albedo_analytic
 from flakedb.export.openpbr import colour_grid, exact_rgb, file_directions
 from flakedb.match.fit import channels_to_Lab, geometry_directions
@@ -127,40 +128,18 @@ def glsl_probe(tool: dict | None = None) -> tuple[bool, str]:
     return True, f"MaterialX {r['materialx']} on {r['gl'].get('renderer', '?')}"
 
 
-#: The render, run in a subprocess with a display (``python worker.py job.json``); imports only MaterialX,
-#: numpy and the standard library.  The job: {"size", "eye", "sampler", "renders": [{"mtlx", "geometries": [(ω_l
+#: The render, run in a subprocess with a display (``python worker.py job.json``) after the source of
+#: :mod:`flakedb.export.mtlx_session` (its ``Session``: libraries, generator options, the light); imports only
+#: MaterialX, numpy and the standard library.  The job: {"size", "eye", "sampler", "renders": [{"mtlx", "geometries": [(ω_l
 #: towards the light, ω_v towards the camera)...]}], "out"}; writes {"means": [[R, G, B, spread]...], "materialx", "gl"}.
 _WORKER = r'''
 import ctypes, json, sys
 from pathlib import Path
 import numpy as np
-import MaterialX as mx
-from MaterialX import PyMaterialXGenGlsl as mx_gen_glsl
-from MaterialX import PyMaterialXGenShader as mx_gen
-from MaterialX import PyMaterialXRender as mx_render
-from MaterialX import PyMaterialXRenderGlsl as mx_glsl
 
 job = json.loads(Path(sys.argv[1]).read_text())
 size, eye_d = int(job["size"]), float(job["eye"])
-search = mx.getDefaultDataSearchPath()
-lib = mx.createDocument()
-mx.loadLibraries(mx.getDefaultDataLibraryFolders(), search, lib)
-renderer = mx_glsl.GlslRenderer.create(size, size, mx_render.BaseType.FLOAT)
-renderer.initialize()
-renderer.setImageHandler(mx_glsl.GLTextureHandler.create(mx_render.StbImageLoader.create()))
-
-
-def gl_strings():
-    try:
-        gl = ctypes.CDLL("libGL.so.1")
-        gl.glGetString.restype = ctypes.c_char_p
-        return {k: (gl.glGetString(e) or b"").decode() for k, e in
-                (("vendor", 0x1F00), ("renderer", 0x1F01), ("version", 0x1F02))}
-    except OSError as e:
-        return {"error": str(e)}
-
-
-info = {"materialx": mx.getVersionString(), "gl": gl_strings()}
+session = Session(size)
 sampler = None
 if job.get("sampler"):
     gl = ctypes.CDLL("libGL.so.1")
@@ -174,60 +153,20 @@ if job.get("sampler"):
 obj = Path(sys.argv[1]).with_name("plane.obj")
 obj.write_text("v -50 -50 0\nv 50 -50 0\nv 50 50 0\nv -50 50 0\nvt 0 0\nvt 100 0\nvt 100 100\nvt 0 100\n"
                "vn 0 0 1\nf 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n")
-if not renderer.getGeometryHandler().loadGeometry(mx.FilePath(str(obj)), False):
-    raise RuntimeError(f"MaterialX could not load {obj}")
+session.load_geometry(obj)
 means = []
 for r in job["renders"]:
-    doc = mx.createDocument()
-    doc.importLibrary(lib)
-    mx.readFromXmlFile(doc, r["mtlx"])
-    mx.flattenFilenames(doc, mx.FileSearchPath(str(Path(r["mtlx"]).parent)))
-    ok, msg = doc.validate()
-    if not ok:
-        raise RuntimeError(f"{r['mtlx']} does not validate: {msg}")
-    gen = mx_gen_glsl.GlslShaderGenerator.create()
-    ctx = mx_gen.GenContext(gen)
-    ctx.registerSourceCodeSearchPath(search)
-    o = ctx.getOptions()
-    o.targetColorSpaceOverride = "lin_rec709"
-    o.hwSrgbEncodeOutput = False
-    o.hwShadowMap = False
-    o.hwAmbientOcclusion = False
-    o.fileTextureVerticalFlip = True
-    lh = mx_render.LightHandler.create()
-    sun = doc.addNode("directional_light", "flakedb_sun", "lightshader")
-    sun.setInputValue("color", mx.Color3(1.0, 1.0, 1.0))
-    sun.setInputValue("intensity", 1.0)
-    lh.registerLights(doc, [sun], ctx)
-    lh.setLightSources([sun])
-    black = mx_render.createUniformImage(16, 8, 4, mx_render.BaseType.FLOAT, mx.Color4(0.0, 0.0, 0.0, 1.0))
-    lh.setEnvRadianceMap(black)
-    lh.setEnvIrradianceMap(black)
-    lh.setIndirectLighting(False)
-    lh.setDirectLighting(True)
-    material = [n for n in doc.getNodes() if n.getType() == "material"][0]
-    shader = gen.generate(material.getName(), material, ctx)
-    renderer.setLightHandler(lh)
-    renderer.createProgram(shader)
-    renderer.validateInputs()
+    sun = session.program(session.document(r["mtlx"]), sun_irradiance=1.0)
     for l, v in r["geometries"]:
         v = np.asarray(v, float) / np.linalg.norm(v)
-        up = mx.Vector3(0, 1, 0) if abs(v[1]) < 0.9 else mx.Vector3(1, 0, 0)
-        cam = renderer.getCamera()
-        cam.setViewMatrix(mx_render.Camera.createViewMatrix(mx.Vector3(*(eye_d * v)), mx.Vector3(0, 0, 0), up))
-        cam.setProjectionMatrix(mx_render.Camera.createOrthographicMatrix(-0.5, 0.5, -0.5, 0.5, eye_d - 60, eye_d + 60))
-        l = np.asarray(l, float)
-        sun.setInputValue("direction", mx.Vector3(*(-l / np.linalg.norm(l))))      # the light travels along -l
+        session.orthographic(eye_d * v, (0, 1, 0) if abs(v[1]) < 0.9 else (1, 0, 0), 0.5, 60.0)
+        session.aim_sun(sun, l)
         if sampler is not None:
             for unit in range(16):
                 gl.glBindSampler(unit, sampler)
-        renderer.render()
-        img = renderer.captureImage(None)
-        w, h, ch = img.getWidth(), img.getHeight(), img.getChannelCount()
-        buf = (ctypes.c_float * (w * h * ch)).from_address(img.getResourceBuffer())
-        px = np.ctypeslib.as_array(buf).reshape(h, w, ch)[:, :, :3].astype(np.float64)
-        means.append([float(x) for x in px.reshape(-1, 3).mean(0)] + [float(px.reshape(-1, 3).std(0).max())])
-Path(job["out"]).write_text(json.dumps(dict(info, means=means)))
+        px = session.render().reshape(-1, 3)
+        means.append([float(x) for x in px.mean(0)] + [float(px.std(0).max())])
+Path(job["out"]).write_text(json.dumps(dict(session.info, means=means)))
 '''
 
 
@@ -257,7 +196,7 @@ def render_geometries(mtlx_files, geometries, *, tool: dict | None = None, size:
                "renders": [{"mtlx": m, "geometries": [[wl[g].tolist(), wv[g].tolist()] for g in range(len(wl))]}
                            for m in files]}
         (t / "job.json").write_text(json.dumps(job))
-        (t / "worker.py").write_text(_WORKER)
+        (t / "worker.py").write_text(Path(mtlx_session.__file__).read_text(encoding="utf-8") + _WORKER)
         env = dict(os.environ, LP_NUM_THREADS=os.environ.get("LP_NUM_THREADS", "2"))
         p = subprocess.run(tool["wrap"] + [tool["python"], str(t / "worker.py"), str(t / "job.json")],
                            capture_output=True, text=True, timeout=timeout, check=False, env=env, cwd=tmp)
@@ -271,13 +210,13 @@ def render_geometries(mtlx_files, geometries, *, tool: dict | None = None, size:
 
 
 def table_as_loaded(fit: CPAFit) -> CPAFit:
-    """The fit with its table as MaterialX's ``StbImageLoader`` hands the ``.cpa.png`` to OpenGL: stb_image
-    converts a 16-bit PNG to 8 bits by keeping the high byte (``stbi__convert_16_to_8``: ``v >> 8``), the
-    texture is ``GL_RGB8``, so row k's colours are ``floor(round(65535 p) / 256) / 255 × scale[k]``
-    (p the 16-bit pixels of :func:`flakedb.export.cpa.table_image`)."""
-    px, scale = table_image(fit)
-    q8 = np.floor(np.round(px * 65535.0) / 256.0) / 255.0
-    return replace(fit, table=q8 * scale[:, None, None])
+    """The fit with its table as the graph reads the ``.cpa.png`` through MaterialX's ``StbImageLoader``: the PNG
+    is 8-bit (a ``GL_RGB8`` texture, read exactly), its two planes hold the high and low bytes of the 16-bit
+    q = round(65535 p) (:func:`flakedb.export.cpa.table_planes`) and the graph recombines them linearly, so row
+    k's colours are ``q / 65535 × scale[k]``: :func:`flakedb.export.cpa.quantised`.  (stb_image reads a 16-bit
+    PNG as its high byte only, ``stbi__convert_16_to_8``: the table was a 16-bit PNG until that cost
+    fig7-pearlescent-tio2-110nm 2.37 ΔE00 in this renderer.)"""
+    return quantised(fit)
 
 
 def cpa_materialx_rf(fit: CPAFit, geometries) -> np.ndarray:

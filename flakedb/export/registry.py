@@ -12,7 +12,7 @@ import json
 import math
 
 from flakedb.export.blender import cpa_material_script, write_material_script
-from flakedb.export.cpa import fit_cpa, materialx_fit, png16_bytes, table_image
+from flakedb.export.cpa import E2194_TARGET, fit_cpa, fit_cpa_cycles, materialx_fit, table_image, table_png_bytes
 from flakedb.export.gltf import write_gltf
 from flakedb.export.materialx import cpa_mtlx_text, write_mtlx
 from flakedb.export.sparkle import design_from_recipe
@@ -59,13 +59,16 @@ def export_cpa(src, out_dir, name: str | None = None, progress=None, sparkle_rec
                uv_metres: float = 1.0) -> dict:
     """Fit the angle-indexed material to ``src`` (:func:`flakedb.export.cpa.fit_cpa`: coat mirror,
     Lambert and GGX lobes whose colours are a table indexed by N·V) and write ``NAME.cpa.png`` (the
-    colour table, 16-bit linear RGB, each row scaled to its maximum), ``NAME.cpa.mtlx`` (MaterialX
+    colour table, 16-bit linear RGB in two 8-bit planes, each row scaled to its maximum), ``NAME.cpa.mtlx`` (MaterialX
     graph of standard nodes reading that image by the relative name), ``NAME.cpa.blender.py``
     (Cycles / EEVEE node group; the table in float, packed: no file needed) and ``NAME.cpa.json``
     (the fit: table, roughnesses, error) in ``out_dir``.  With ``sparkle_recipe`` (the paint's recipe file)
     the MaterialX graph and the node group carry the glint layer of :mod:`flakedb.export.sparkle`,
     parameterised from the recipe's flakes by the texture model, for a UV map of ``uv_metres`` metres per unit;
-    the layer is in the fit's JSON under ``sparkle``.  Returns {"fit": dict, "files": {kind: path}}."""
+    the layer is in the fit's JSON under ``sparkle``.  The fit has GGX lobes (MaterialX's only distribution); where
+    it misses the E2194 target the node group gets the Beckmann fit of :func:`flakedb.export.cpa.fit_cpa_cycles`
+    when that is closer (without ``sparkle_recipe``: the glint layer is designed for GGX lobes), in the JSON
+    under ``cycles``.  Returns {"fit": dict, "files": {kind: path}}."""
     out_dir = Path(out_dir)
     option = "--name" if name is not None else "FILE's name (before its first '.'; choose one with --name)"
     name = Path(src).name.split(".")[0] if name is None else str(name)
@@ -87,6 +90,13 @@ def export_cpa(src, out_dir, name: str | None = None, progress=None, sparkle_rec
         progress("fitting the angle-indexed colour table (hemisphere + E2194/E2539 geometries)")
     fit = fit_cpa(b, source=str(src))
     d = fit.to_dict()
+    cycles = fit
+    if recipe is None:
+        if progress and fit.error["worst_dE00_E2194"] > E2194_TARGET:
+            progress("the GGX fit misses the E2194 target: fitting Beckmann lobes for the Cycles node group")
+        cycles = fit_cpa_cycles(b, fit, source=str(src))
+    if cycles is not fit:
+        d["cycles"] = cycles.to_dict()
     nodes = None
     if recipe is not None:
         if progress:
@@ -99,12 +109,14 @@ def export_cpa(src, out_dir, name: str | None = None, progress=None, sparkle_rec
     texts = {"materialx": cpa_mtlx_text(finals["image"].name, scale, fit.alphas, fit.coat_ior, fit.n_table, name,
                                         json.dumps({k: v for k, v in d.items() if k != "table"}, separators=(",", ":")),
                                         sparkle=nodes, retro_alphas=fit.retro_alphas),
-             "blender": cpa_material_script(fit.table, fit.alphas, fit.coat_ior, name, fit_json, sparkle=nodes,
-                                            retro_alphas=fit.retro_alphas),
+             "blender": cpa_material_script(cycles.table, cycles.alphas, cycles.coat_ior, name,
+                                            fit_json if cycles is fit else json.dumps(d["cycles"], separators=(",", ":")),
+                                            sparkle=nodes, retro_alphas=cycles.retro_alphas,
+                                            distribution=cycles.distribution),
              "fit": json.dumps(d, indent=1)}
     out_dir.mkdir(parents=True, exist_ok=True)
     with plan.staged() as stage:  # the four files land together or not at all
-        stage.path(finals["image"]).write_bytes(png16_bytes(px))
+        stage.path(finals["image"]).write_bytes(table_png_bytes(px))
         for kind, text in texts.items():
             stage.path(finals[kind]).write_text(text, encoding="utf-8")
     return {"fit": d, "files": {kind: str(p) for kind, p in finals.items()}}

@@ -37,6 +37,7 @@ from flakedb.export.blender import (
     render_cycles_sphere,
     sun_direction,
 )
+from flakedb.export.materialx import PLANE_WEIGHTS
 from flakedb.export.registry import EXPORT_METHODS
 from flakedb.match.fit import channels_to_Lab, geometry_directions
 from flakedb.match.targets import E2194_GEOMETRIES
@@ -148,14 +149,24 @@ def test_sun_image_frame():
 
 
 def test_png_round_trip():
-    """16-bit PNG: what is read is what was written, to the 16-bit quantum, row 0 the bottom row; the
-    quantised fit differs from the fit by at most half a quantum of each row's scale."""
+    """16-bit PNG: what is read is what was written, to the 16-bit quantum, row 0 the bottom row; the table's
+    PNG (two 8-bit planes) reads back the 16-bit values exactly, and the graph's recombination of the planes
+    (PLANE_WEIGHTS) is q / 65535; the quantised fit differs from the fit by at most half a quantum of each
+    row's scale."""
     rng = np.random.default_rng(1)
     px = rng.uniform(0, 1, (4, 32, 3))
     back = cpa.read_png16(cpa.png16_bytes(px))
     np.testing.assert_allclose(back, px, atol=0.5 / 65535 + 1e-12)
     fit = truth_fit()
-    _, scale = cpa.table_image(fit)
+    tab, scale = cpa.table_image(fit)
+    png = cpa.table_png_bytes(tab)                       # NAME.cpa.png: 16 bits in two 8-bit planes
+    planes, depth = cpa.read_png(png)
+    assert depth == 8 and planes.shape == (2 * len(tab), tab.shape[1], 3)
+    q16 = np.round(tab * 65535.0)
+    np.testing.assert_array_equal(cpa.read_table_png(png) * 65535.0, q16)
+    w_hi, w_lo = PLANE_WEIGHTS                           # what the MaterialX graph computes from two texture reads
+    r = len(tab)
+    np.testing.assert_allclose(w_hi * planes[:r] / 255.0 + w_lo * planes[r:] / 255.0, q16 / 65535.0, rtol=0, atol=1e-15)
     q = cpa.quantised(fit)
     assert np.all(np.abs(q.table - fit.table) <= 0.5 / 65535 * scale[:, None, None] * (1 + 1e-9))
 
@@ -175,7 +186,7 @@ def test_materialx_graph(tmp_path):
     mx.readFromXmlFile(doc, str(tmp_path / "out" / "model.cpa.mtlx"))
     assert len(validated_glsl(doc, "M_model", "cpa")) > 1000
     fit = cpa.CPAFit.from_dict(json.loads((tmp_path / "out" / "model.cpa.json").read_text()))
-    px = cpa.read_png16((tmp_path / "out" / "model.cpa.png").read_bytes())
+    px = cpa.read_table_png((tmp_path / "out" / "model.cpa.png").read_bytes())
     # the command prints the route's ΔE00 at the E2194 geometries, what Cycles renders (the model, to ≤ 3e-4)
     assert "in Cycles" in r.output and f"worst ΔE00 against FILE {fit.error['worst_dE00_E2194']:.2f} at the E2194" in r.output
     scales = [doc.getNode(f"colour_{k}").getInputValue("in2") for k in range(len(px))]
@@ -251,15 +262,9 @@ def test_cycles_node_group_is_the_model():
 
 #: The catalogue paints of docs/renderers.md (issue 23's four), composed at n = 32, and red metallic, whose
 #: first lobe subset misses the target (3.17) so that the fit's search for a subset that meets it is run.
-#: The one catalogue recipe that misses the target (every other one measured ≤ 1.99: docs/renderers.md) is
-#: the clear-coated bare aluminium panel, a strict xfail with its number.
-PAINTS = ["metallic-silver", "particle-cadmium-yellow", "particle-pearlescent", "tri-coat-pearl-white", "red-metallic",
-          pytest.param("coated-aluminium", marks=pytest.mark.xfail(strict=True, reason=(
-              "measured 7.71 at aspecular -15..75 (1.43 at 110): a Beckmann conductor of roughness 0.1 under the coat "
-              "is black 75 deg from the specular (L* 0.04) while its highlight is L* 224; GGX tails (every lobe "
-              "here, and the only distribution of MaterialX's generalized_schlick_bsdf) fall too slowly to give both "
-              "with non-negative colours (L* 12.8 at 75 deg); no such mix can go below 5.56 at 15/75 "
-              "(test_coated_aluminium_out_of_reach)")))]
+#: The one catalogue recipe that GGX lobes cannot bring to the target, the clear-coated bare aluminium panel
+#: (7.71; test_coated_aluminium_out_of_reach), is test_coated_aluminium_beckmann_in_cycles.
+PAINTS = ["metallic-silver", "particle-cadmium-yellow", "particle-pearlescent", "tri-coat-pearl-white", "red-metallic"]
 #: The issue's target at the E2194 geometries in Cycles: worst ΔE00 ≤ 2 against the exact paint, every paint.
 E2194_BOUND = 2.0
 
@@ -385,29 +390,141 @@ COATED_ALUMINIUM_FLOOR = 5.0
 
 @pytest.mark.slow
 def test_coated_aluminium_out_of_reach(tmp_path):
-    """Why coated-aluminium misses the E2194 target in the ``cpa`` route (the strict xfail of
-    test_cycles_e2194_worst_within_2): its exact aspecular 75° is 7e-6 of its 15° (a Beckmann α 0.1 conductor
-    under the coat), and the route's 75° is at least (sin 7.5° / sin 37.5°)⁴ = 2.11e-3 of its 15°
-    (test_ggx_tail_ratio_at_e2194_15_75).  The best any RGB colour m at 15° (with 2.11e-3 m at 75°, the most
-    favourable the lobes allow) does is max(ΔE00) 5.56 > 2 (a direct search over m); the bite: with the ratio
-    of the exact paint the same search reaches 0."""
-    from scipy.optimize import minimize
-
+    """Why coated-aluminium misses the E2194 target in the ``cpa`` route with GGX lobes (MaterialX's only
+    distribution; Cycles takes Beckmann lobes there: test_coated_aluminium_beckmann_in_cycles): its exact
+    aspecular 75° is 7e-6 of its 15° (a Beckmann α 0.1 conductor under the coat), and the route's 75° is at least
+    (sin 7.5° / sin 37.5°)⁴ = 2.11e-3 of its 15° (test_ggx_tail_ratio_at_e2194_15_75).  The best any RGB colour m
+    at 15° (with 2.11e-3 m at 75°, the most favourable the lobes allow) does is max(ΔE00) 5.56 > 2
+    (:func:`flakedb.export.cpa.ggx_route_floor`, the number ``export-cpa`` prints for MaterialX); the bite: with
+    the ratio of the exact paint the same search reaches 0."""
     compose(load_recipe(RECIPES / "coated-aluminium.yaml"), tmp_path, n=32)
     b = open_bsdf(tmp_path / "coated-aluminium.bsdf")
-    g, lab_exact = _e2194_lab_exact(b)
+    g, _ = _e2194_lab_exact(b)
     exact = np.pi * op.exact_rgb(b, *geometry_directions(g))
-    pair = [1, 4]
-
-    def floor(ratio):
-        def worst(log_m):
-            m = np.exp(log_m)
-            lab = channels_to_Lab(np.maximum(np.stack([m, ratio * m]), 1e-9), "rgb", WL)
-            return float(delta_E_2000(lab, lab_exact[pair]).max())
-        return min(minimize(worst, np.log(exact[1] * s), method="Nelder-Mead",
-                            options={"xatol": 1e-7, "fatol": 1e-7, "maxiter": 4000}).fun for s in (0.5, 0.8, 1.0))
-
-    lowest = floor(float(ggx_tail_ratio(0.0)))
+    assert cpa.GGX_MIN_RATIO_75_15 == pytest.approx(float(ggx_tail_ratio(0.0)), rel=1e-12)
+    lowest = cpa.ggx_route_floor(b)
     print("coated-aluminium: exact 75/15", exact[4] / exact[1], "least worst dE00 at 15/75", lowest)
     assert lowest > COATED_ALUMINIUM_FLOOR > E2194_BOUND
-    assert floor(exact[4].mean() / exact[1].mean()) < 0.05
+    assert cpa.ggx_route_floor(b, ratio=float(exact[4].mean() / exact[1].mean())) < 0.05
+
+
+# --------------------------------------------------------------------------------------------
+# Beckmann lobes (the Cycles node group's option)
+# --------------------------------------------------------------------------------------------
+def beckmann_lambda_exact(alpha, mu):
+    """Beckmann's Smith Λ in closed form (Heitz 2014, eq. 69 / Walter et al. 2007, eq. 25):
+    Λ = (erf(a) − 1) / 2 + exp(−a²) / (2 a √π), a = 1 / (α tan θ)."""
+    from scipy.special import erf
+
+    a = mu / (alpha * np.sqrt(1.0 - mu * mu))
+    return 0.5 * (erf(a) - 1.0) + np.exp(-a * a) / (2.0 * a * np.sqrt(np.pi))
+
+
+#: Walter et al.'s rational Λ against the closed form, relative in G1: the approximation's own error, 0.35 % in
+#: their paper (measured here on α 0.05…1, θ 1…89°: 0.36 %, at α 0.05 and θ 89°): 0.4 %.
+BECKMANN_G1_RTOL = 4e-3
+
+
+def test_beckmann_lobe_closed_forms():
+    """The numpy Beckmann lobe (Cycles' Glossy BSDF, Beckmann): its D is normalised (∫ D cos θ_h dω = 1 by
+    quadrature for α 0.05…0.6), its Smith G1 = 1 / (1 + Λ) is the closed form's within BECKMANN_G1_RTOL,
+    the lobe is D G2 / (4 μ_v μ_l) with the height-correlated G2 and is reciprocal; the bite: it is not the GGX
+    lobe of the same α (its tail falls as exp(−tan²θ_h / α²): at E2194 aspecular 75° vs 15°, 3e-25 of GGX's
+    2.1e-3 ratio at α 0.1)."""
+    from flakedb.export.blender import beckmann_lambda, beckmann_lobe_height_correlated
+
+    x, w = np.polynomial.legendre.leggauss(400)
+    c = 0.5 * (x + 1.0)                                              # cos θ_h on (0, 1)
+    for alpha in (0.05, 0.11, 0.28, 0.6):
+        a2 = alpha * alpha
+        D = np.exp(-(1 - c * c) / (c * c * a2)) / (np.pi * a2 * c ** 4)
+        assert 2 * np.pi * np.sum(0.5 * w * D * c) == pytest.approx(1.0, rel=1e-6)
+    mu = np.cos(np.radians(np.linspace(1.0, 89.0, 177)))
+    for alpha in (0.05, 0.1, 0.3, 0.6, 1.0):
+        g_approx = 1.0 / (1.0 + beckmann_lambda(alpha * alpha, mu))
+        g_exact = 1.0 / (1.0 + beckmann_lambda_exact(alpha, mu))
+        assert np.abs(g_approx / g_exact - 1).max() <= BECKMANN_G1_RTOL, (alpha, np.abs(g_approx / g_exact - 1).max())
+    rng = np.random.default_rng(3)
+    mv, ml, ch = rng.uniform(0.05, 1, 50), rng.uniform(0.05, 1, 50), rng.uniform(0.5, 1, 50)
+    a = 0.2
+    f = beckmann_lobe_height_correlated(mv, ml, ch, a)
+    D = np.exp(-(1 - ch ** 2) / (ch ** 2 * a * a)) / (np.pi * a * a * ch ** 4)
+    G2 = 1.0 / (1.0 + beckmann_lambda(a * a, mv) + beckmann_lambda(a * a, ml))
+    np.testing.assert_allclose(f, D * G2 / (4 * mv * ml), rtol=1e-12)
+    np.testing.assert_allclose(f, beckmann_lobe_height_correlated(ml, mv, ch, a), rtol=1e-12)
+    from flakedb.export.materialx_render import geometry_vectors
+
+    wl, wv = geometry_vectors(np.asarray(E2194_GEOMETRIES, float)[[1, 4]])
+    h = (wl + wv) / np.linalg.norm(wl + wv, axis=-1, keepdims=True)
+    beck = beckmann_lobe_height_correlated(wv[:, 2], wl[:, 2], h[:, 2], 0.1)
+    ggx = op_ggx(wv[:, 2], wl[:, 2], h[:, 2], 0.1)
+    assert beck[1] / beck[0] < 1e-20 and ggx[1] / ggx[0] > cpa.GGX_MIN_RATIO_75_15
+
+
+@pytest.mark.skipif(not BPY_OK, reason=f"Blender's bpy is not available: {BPY_WHY}{BLENDER_NOTE}")
+def test_cycles_beckmann_node_group_is_the_model():
+    """The node group with Beckmann lobes (``cpa_inputs(..., distribution="beckmann")``) renders the numpy model
+    with Beckmann lobes (:func:`flakedb.export.cpa.evaluate_cpa` of a fit with ``distribution="beckmann"``) at the
+    six E2194 geometries within CYCLES_GEOMETRY_RTOL per channel, the model averaged over the render's 0.5° sun
+    disk (the steeper Beckmann lobe makes the disk's average differ from the point value by up to 1.2e-3 on this
+    table, GGX's by 3.4e-4); the bite: the same table with GGX lobes (the node's distribution not set) is further
+    off than 10 CYCLES_GEOMETRY_RTOL."""
+    from flakedb.export.blender import sun_disk
+    from flakedb.export.materialx_render import geometry_vectors
+
+    t = truth_fit_retro()
+    fit = cpa.CPAFit(t.table, t.alphas, t.coat_ior, retro_alphas=t.retro_alphas, distribution="beckmann")
+    g = np.asarray(E2194_GEOMETRIES, float)
+    gi, go, gp = geometry_directions(g)
+    wl, wv = geometry_vectors(g)
+    model = np.zeros((len(g), 3))
+    for k in range(len(g)):                             # π f averaged over the 0.5° sun, over μ_l of its centre
+        for l, w in zip(*sun_disk(wl[k], 0.5, n_rings=8, n_azimuth=16)):
+            model[k] += w * np.pi * cpa.evaluate_cpa(fit, *geometry_directions_of(l, wv[k]))[0] * l[2] / wl[k, 2]
+    cy = render_cycles_geometries(g, cpa=cpa_inputs(fit.table, fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas,
+                                                    distribution="beckmann"), python=BLENDER_PYTHON)
+    print("Cycles Beckmann / model - 1, max", np.abs(cy / model - 1).max())
+    np.testing.assert_allclose(cy, model, rtol=CYCLES_GEOMETRY_RTOL)
+    ggx = np.pi * cpa.evaluate_cpa(t, gi, go, gp)
+    assert np.abs(cy / ggx - 1).max() > 10 * CYCLES_GEOMETRY_RTOL
+
+
+def test_materialx_refuses_beckmann():
+    """MaterialX's generalized_schlick_bsdf has GGX only: a Beckmann fit is refused for the graph, saying so."""
+    t = truth_fit()
+    with pytest.raises(ValueError, match="GGX only"):
+        cpa.materialx_fit(cpa.CPAFit(t.table, t.alphas, t.coat_ior, distribution="beckmann"))
+    with pytest.raises(ValueError, match="distribution"):
+        cpa.fit_cpa(None, distribution="phong")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not BPY_OK, reason=f"Blender's bpy is not available: {BPY_WHY}{BLENDER_NOTE}")
+def test_coated_aluminium_beckmann_in_cycles(tmp_path):
+    """The clear-coated bare aluminium panel (a Beckmann α 0.1 conductor under the coat), out of the GGX route's
+    reach (test_coated_aluminium_out_of_reach: ≥ 5.56), reaches the issue's target in Cycles with Beckmann lobes:
+    ``fit_cpa_cycles`` of a GGX fit that misses (its first lobe subset only, to keep the test short: the full GGX
+    search takes ~110 s and stops at 7.72) chooses the Beckmann fit, and Cycles renders it at the six E2194
+    geometries within E2194_BOUND of the exact paint (measured 0.27; the model 0.28).  The bite: the GGX fit's own
+    worst is above 5."""
+    compose(load_recipe(RECIPES / "coated-aluminium.yaml"), tmp_path, n=32)
+    b = open_bsdf(tmp_path / "coated-aluminium.bsdf")
+    ggx = cpa.fit_cpa(b, max_subsets=1, minimax_passes=2)
+    assert ggx.error["worst_dE00_E2194"] > 5.0
+    fit = cpa.fit_cpa_cycles(b, ggx)
+    assert fit.distribution == "beckmann" and fit.error["worst_dE00_E2194"] <= E2194_BOUND
+    g, lab_exact = _e2194_lab_exact(b)
+    rf = render_cycles_geometries(g, cpa=cpa_inputs(fit.table, fit.alphas, fit.coat_ior, retro_alphas=fit.retro_alphas,
+                                                    distribution=fit.distribution), python=BLENDER_PYTHON)
+    de = delta_E_2000(channels_to_Lab(np.maximum(rf, 1e-6), "rgb", WL), lab_exact)
+    print("coated-aluminium, Beckmann lobes in Cycles: dE00 per E2194 geometry", np.round(de, 2))
+    assert de.max() <= E2194_BOUND, dict(zip(g[:, 1].tolist(), np.round(de, 2).tolist()))
+
+
+def geometry_directions_of(wl, wv):
+    """(mu_i, mu_o, phi_d) arrays of one (light, view) pair of unit vectors in the surface frame (normal +z), the
+    file's coordinates of :func:`flakedb.export.openpbr.file_directions`."""
+    tv, tl = wv[:2], wl[:2]
+    den = np.linalg.norm(tv) * np.linalg.norm(tl)
+    cos_dphi = float(np.dot(tv, tl) / den) if den > 0 else 1.0
+    return np.array([wl[2]]), np.array([-wv[2]]), np.array([np.pi - np.arccos(np.clip(cos_dphi, -1.0, 1.0))])
