@@ -29,7 +29,7 @@ from flakedb.bsdf.limits import (
 )
 from flakedb.bsdf.metadata import check_delta, check_known_metadata
 from flakedb.bsdf.table import BSDFFileError, BSDFTable
-from flakedb.rt.common.jobs import thread_pool
+from flakedb.rt.common.jobs import available_threads, thread_pool
 from flakedb.safeio import check_regular
 
 #: An HDF5 file's first eight bytes.
@@ -144,7 +144,7 @@ def shuffle_deflate(chunk) -> bytes:
 def write_chunks_deflated(dataset, data, row0=0) -> None:
     """``dataset[:, row0:row0 + a, :b, :] = data`` (data (C, a, b, L)) for a dataset of chunks (1, 1, h, L) with
     shuffle + deflate(1) (:func:`h5_filters`), b a multiple of h: every chunk encoded by
-    :func:`shuffle_deflate` on the process's threads (``flakedb-h5``, one per core) and written as it is stored
+    :func:`shuffle_deflate` on the process's threads (``flakedb-h5``, :func:`flakedb.rt.common.jobs.available_threads`) and written as it is stored
     (``write_direct_chunk``), in batches of :data:`H5_CHUNK_BATCH`.  h5py's own write ran the filters on one core:
     the cadmium yellow / rough 0.1 coat table at n = 200 (41 bands, 1.15 GB, 72 % zeros) took most of the
     compose's write.  The file is the same HDF5 (same filters declared; h5py and any HDF5 reader decode it).
@@ -154,7 +154,7 @@ def write_chunks_deflated(dataset, data, row0=0) -> None:
     h = dataset.chunks[2]
     same = C > 1 and data.strides[0] == 0
     keys = [(c, i, j) for c in range(1 if same else C) for i in range(a) for j in range(0, b, h)]
-    pool = thread_pool(os.cpu_count() or 1, "flakedb-h5")
+    pool = thread_pool(available_threads(), "flakedb-h5")
     for k0 in range(0, len(keys), H5_CHUNK_BATCH):
         batch = keys[k0:k0 + H5_CHUNK_BATCH]
         encoded = pool.map(lambda key: shuffle_deflate(data[key[0], key[1], key[2]:key[2] + h]), batch)
@@ -207,7 +207,7 @@ def read_chunks_deflated(dataset, decode=True, threads=None, quadrant=False, off
     """The values of a coefficient dataset of :func:`write_h5`'s layout (float64 little-endian, chunks
     (1, 1, h, L) that tile it, fill value 0, the shuffle then the deflate filter and no other), read as stored
     (``read_direct_chunk`` through HDF5's chunk index) and inflated and unshuffled on ``threads`` threads (None:
-    one per core, the process's ``flakedb-h5`` pool; 1: in the caller), chunks never written left 0.  h5py
+    :func:`flakedb.rt.common.jobs.available_threads`, the process's ``flakedb-h5`` pool; 1: in the caller), chunks never written left 0.  h5py
     inflated on one core: the cadmium yellow / rough 0.1 coat file at n = 200 (1.15 GB of coefficients).
     None when the dataset is not that layout, a chunk's filters were skipped or its place is not on the grid:
     the caller then lets HDF5 read it.  A chunk that does not inflate to exactly its size raises ValueError
@@ -233,7 +233,7 @@ def read_chunks_deflated(dataset, decode=True, threads=None, quadrant=False, off
         return None
     row0 = n_i // 2 if quadrant else 0
     out = np.zeros((C, n_i - row0, n_o - row0, L) if quadrant else shape) if decode else np.zeros((0,))
-    pool = None if threads == 1 else thread_pool(threads or os.cpu_count() or 1, "flakedb-h5")
+    pool = None if threads == 1 else thread_pool(threads or available_threads(), "flakedb-h5")
     for k0 in range(0, count, H5_CHUNK_BATCH):
         places, bufs = [], []
         for k in range(k0, min(count, k0 + H5_CHUNK_BATCH)):
