@@ -12,9 +12,8 @@ import sys
 import tempfile
 
 from flakedb.bsdf import write_bsdf
-from flakedb.process import tune_allocator
+from flakedb.process import available_threads, tune_allocator
 from flakedb.bsdf.convert import stack_to_table
-from flakedb.rt.common.jobs import available_threads
 from flakedb.rt.scattering.media import PhaseMedium
 from flakedb.rt.adding.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
 

@@ -94,6 +94,40 @@ def blas_one_thread(environ=None, modules=None) -> bool:
     return True
 
 
+#: Environment variables that cap the threads flakedb runs itself (its solver's and writers' pools), first set
+#: set to a positive integer wins: flakedb's own, then OpenMP's, the usual "threads this job may use" of a CI runner or a batch system.
+#: ``OPENBLAS_NUM_THREADS`` / ``MKL_NUM_THREADS`` are not among them: they size the BLAS's own pool, which the
+#: solver holds at one thread per call (``flakedb.rt.adding.stack.solve_stack``), so flakedb's threads times
+#: the BLAS's stay within the cap; the command line sets them to 1 itself (:func:`blas_one_thread`).
+THREAD_CAP_VARIABLES = ("FLAKEDB_THREADS", "OMP_NUM_THREADS")
+
+
+def available_threads(environ=None, cpus=None) -> int:
+    """The threads flakedb's own pools may use: the CPUs this process may run on (``os.sched_getaffinity``, a
+    ``taskset`` or a container's cpuset; ``os.cpu_count()`` where the platform has no affinity), capped by the
+    first of :data:`THREAD_CAP_VARIABLES` that is set to a positive integer (other values are ignored).  Every
+    pool of the solve, the writers and compose asks this one function.  ``environ``, ``cpus``: ``os.environ`` and
+    the CPU count, for tests.
+
+    >>> available_threads({}, cpus=2), available_threads({"OMP_NUM_THREADS": "1"}, cpus=2)
+    (2, 1)
+    >>> available_threads({"FLAKEDB_THREADS": "8", "OMP_NUM_THREADS": "1"}, cpus=2)   # flakedb's first; never above the CPUs
+    2
+    >>> available_threads({"OMP_NUM_THREADS": "0"}, cpus=2), available_threads({"OMP_NUM_THREADS": "x"}, cpus=4)
+    (2, 4)
+    """
+    environ = os.environ if environ is None else environ
+    if cpus is None:
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cap = None
+    for name in THREAD_CAP_VARIABLES:
+        value = str(environ.get(name, "")).strip()
+        if value.isdigit() and int(value) > 0:
+            cap = int(value)
+            break
+    return max(1, min(int(cpus), cap) if cap else int(cpus))
+
+
 def _libc():
     """The C library: glibc's soname first (``ctypes.util.find_library`` runs ``ldconfig -p`` in a subprocess,
     3 ms of every command), then whatever find_library names."""

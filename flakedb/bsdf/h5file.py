@@ -29,7 +29,8 @@ from flakedb.bsdf.limits import (
 )
 from flakedb.bsdf.metadata import check_delta, check_known_metadata
 from flakedb.bsdf.table import BSDFFileError, BSDFTable
-from flakedb.rt.common.jobs import available_threads, thread_pool
+from flakedb.process import available_threads
+from flakedb.rt.common.jobs import thread_pool
 from flakedb.safeio import check_regular
 
 #: An HDF5 file's first eight bytes.
@@ -175,7 +176,7 @@ class EarlyChunks:
 
 def encode_chunks_early(table: BSDFTable, threads=None):
     """Start encoding the chunks :func:`write_h5` writes for ``table`` (:func:`shuffle_deflate` on
-    :func:`flakedb.rt.common.jobs.available_threads` threads, or ``threads``) and return an :class:`EarlyChunks`
+    :func:`flakedb.process.available_threads` threads, or ``threads``) and return an :class:`EarlyChunks`
     to pass to :func:`write_h5`, so that the deflate runs beside whatever the caller does before the write (compose:
     the file channels' gamut mapping, the report's texture and the ``.bsdf``).  None when :func:`write_h5` would
     not deflate them (:func:`h5_filters`, odd n) or they hold more than :data:`EARLY_ENCODE_BYTES`.
@@ -200,7 +201,7 @@ def encode_chunks_early(table: BSDFTable, threads=None):
 def write_chunks_deflated(dataset, data, row0=0, early=None) -> None:
     """``dataset[:, row0:row0 + a, :b, :] = data`` (data (C, a, b, L)) for a dataset of chunks (1, 1, h, L) with
     shuffle + deflate(1) (:func:`h5_filters`), b a multiple of h: every chunk encoded by
-    :func:`shuffle_deflate` on the process's threads (``flakedb-h5``, :func:`flakedb.rt.common.jobs.available_threads`) and written as it is stored
+    :func:`shuffle_deflate` on the process's threads (``flakedb-h5``, :func:`flakedb.process.available_threads`) and written as it is stored
     (``write_direct_chunk``), in batches of :data:`H5_CHUNK_BATCH`.  h5py's own write ran the filters on one core:
     the cadmium yellow / rough 0.1 coat table at n = 200 (41 bands, 1.15 GB, 72 % zeros) took most of the
     compose's write.  The file is the same HDF5 (same filters declared; h5py and any HDF5 reader decode it).
@@ -266,7 +267,7 @@ def read_chunks_deflated(dataset, decode=True, threads=None, quadrant=False, off
     """The values of a coefficient dataset of :func:`write_h5`'s layout (float64 little-endian, chunks
     (1, 1, h, L) that tile it, fill value 0, the shuffle then the deflate filter and no other), read as stored
     (``read_direct_chunk`` through HDF5's chunk index) and inflated and unshuffled on ``threads`` threads (None:
-    :func:`flakedb.rt.common.jobs.available_threads`, the process's ``flakedb-h5`` pool; 1: in the caller), chunks never written left 0.  h5py
+    :func:`flakedb.process.available_threads`, the process's ``flakedb-h5`` pool; 1: in the caller), chunks never written left 0.  h5py
     inflated on one core: the cadmium yellow / rough 0.1 coat file at n = 200 (1.15 GB of coefficients).
     None when the dataset is not that layout, a chunk's filters were skipped or its place is not on the grid:
     the caller then lets HDF5 read it.  A chunk that does not inflate to exactly its size raises ValueError

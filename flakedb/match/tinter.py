@@ -69,8 +69,8 @@ from flakedb.paint.catalog import validate_catalog
 from flakedb.paint.checks import YamlFileError, load_yaml_file
 from flakedb.paint.mapping import build_paint, solve_paint, with_media
 from flakedb.paint.components import tinter_medium
-from flakedb.rt.common.jobs import available_threads
 from flakedb.paint.recipe import CatalogParticle
+from flakedb.process import available_threads
 from flakedb.safeio import FileTooLargeError, read_text_limited
 from flakedb.solve.pipeline import memory_budget_bytes, settle_node_count
 

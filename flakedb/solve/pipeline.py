@@ -28,8 +28,7 @@ from flakedb.bsdf.convert import stack_to_table
 from flakedb.bsdf.table import ENERGY_SLACK, energy_albedo
 from flakedb.conventions import fourier_weight
 from flakedb.paint.mapping import build_paint, catalog_species, solve_paint
-from flakedb.process import memory_budget_bytes
-from flakedb.rt.common.jobs import available_threads
+from flakedb.process import available_threads, memory_budget_bytes
 from flakedb.solve.resolution import (
     AUTO_REFINE_STEPS,
     auto_colour_target,
@@ -233,7 +232,7 @@ def second_report(paint, n, version, colour_settings=None, progress=None, thread
     only).  Made before the solve at n (:func:`solve_recipe`'s ``before_solve``), so that its arrays are freed
     before those of n exist: made after, while n's R^t and table were held, it set the compose's peak (cadmium
     yellow under a rough 0.1 coat, 41 bands, n = 200: 3.95 GB, of which 1.6 GB the second solve's).  ``threads``:
-    the solver's threads (default :func:`flakedb.rt.common.jobs.available_threads`; 1 beside the solve at n, so that its rough top is built in its own
+    the solver's threads (default :func:`flakedb.process.available_threads`; 1 beside the solve at n, so that its rough top is built in its own
     thread and the solver's background thread is the solve at n's)."""
     if version is not None:
         return {"method": "not estimated: species factors from the store exist at n only"}

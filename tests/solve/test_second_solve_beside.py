@@ -9,7 +9,7 @@ import os
 import textwrap
 
 from flakedb.paint.recipe import parse_recipe
-from flakedb.rt.common.jobs import available_threads
+from flakedb.process import available_threads
 from flakedb.solve import pipeline, resolution
 
 RECIPE = textwrap.dedent("""\
