@@ -94,8 +94,9 @@ def blas_one_thread(environ=None, modules=None) -> bool:
     return True
 
 
-#: Environment variables that cap the threads flakedb runs itself (its solver's and writers' pools), first set
-#: set to a positive integer wins: flakedb's own, then OpenMP's, the usual "threads this job may use" of a CI runner or a batch system.
+#: Environment variables that cap the threads flakedb runs itself (its solver's and writers' pools); the first set
+#: to a positive integer wins: flakedb's own, then OpenMP's (the usual "threads this job may use" of a CI runner or
+#: a batch system).
 #: ``OPENBLAS_NUM_THREADS`` / ``MKL_NUM_THREADS`` are not among them: they size the BLAS's own pool, which the
 #: solver holds at one thread per call (``flakedb.rt.adding.stack.solve_stack``), so flakedb's threads times
 #: the BLAS's stay within the cap; the command line sets them to 1 itself (:func:`blas_one_thread`).
