@@ -362,6 +362,8 @@ def environment_problems(environ=None) -> list[str]:
     []
     >>> environment_problems({"FLAKEDB_H5_PROBE": "no"})
     ["FLAKEDB_H5_PROBE='no': use 0 (off) or 1 (on)"]
+    >>> environment_problems({"FLAKEDB_THREADS": "0"})[0].split(":")[0], environment_problems({"FLAKEDB_THREADS": "2"})
+    ("FLAKEDB_THREADS='0'", [])
     >>> environment_problems({"FLAKEDB_CATALOG": "/nonexistent/particles.yaml"})[0].split(":")[0]
     "FLAKEDB_CATALOG='/nonexistent/particles.yaml'"
     """
@@ -375,6 +377,10 @@ def environment_problems(environ=None) -> list[str]:
         raw = environ.get(v)
         if raw is not None and raw.strip() not in ("", "0", "1"):
             out.append(f"{v}={_shown(raw)}: use 0 (off) or 1 (on)")
+    raw = environ.get("FLAKEDB_THREADS")
+    if raw is not None and raw.strip() and not (raw.strip().isdigit() and int(raw.strip()) > 0):
+        out.append(f"FLAKEDB_THREADS={_shown(raw)}: use a positive whole number of threads (e.g. FLAKEDB_THREADS=1), "
+                   f"or unset it for every CPU this process may use")
     for v in _PATH_VARIABLES:
         raw = environ.get(v)
         if raw is not None and "\0" in raw:
