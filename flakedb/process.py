@@ -23,6 +23,8 @@ sleep after one 300 × 300 product), and on 2 cores that worker takes a core fro
 thread: the 3-species store compose used 0.76 s of CPU against 0.65 s with one BLAS thread (wall 0.57 s
 against 0.54 s).  The solver already runs its batched matrices on one BLAS thread
 (:func:`flakedb.rt.adding.stack.solve_stack`); this makes the rest of the process do the same.
+:func:`available_threads`: how many threads flakedb's own pools use (the CPUs the process may run on, capped by
+``FLAKEDB_THREADS`` or ``OMP_NUM_THREADS``).
 """
 
 import contextlib
@@ -67,19 +69,23 @@ def tune_allocator():
     return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
 
 
-#: The environment variables that choose a BLAS library's thread count; a user who sets any of them is obeyed.
+#: The environment variables that choose a BLAS library's thread count.
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
+#: Those that name the BLAS itself: a user who sets any of them is obeyed.  ``OMP_NUM_THREADS`` alone caps
+#: flakedb's own threads (:func:`available_threads`), and the BLAS still gets one thread per call: its threads and
+#: flakedb's would multiply (OpenBLAS reads ``OMP_NUM_THREADS`` when its own variable is unset).
+BLAS_OWN_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
 
 
 def blas_one_thread(environ=None, modules=None) -> bool:
     """Set ``OPENBLAS_NUM_THREADS=1`` and ``MKL_NUM_THREADS=1`` for this process and its children (module
-    docstring); True when set.  Left alone (False) when the user set any of :data:`BLAS_THREAD_VARIABLES`, or
+    docstring); True when set.  Left alone (False) when the user set any of :data:`BLAS_OWN_VARIABLES`, or
     when numpy is already imported (its BLAS read the variables as it loaded, so setting them now would only
     reach child processes, inconsistently).  ``environ``, ``modules``: ``os.environ`` and ``sys.modules``.
 
-    >>> blas_one_thread({"OMP_NUM_THREADS": "2"}, {})       # the user's choice stands
+    >>> blas_one_thread({"OPENBLAS_NUM_THREADS": "2"}, {})  # the user's choice stands
     False
-    >>> env = {}
+    >>> env = {"OMP_NUM_THREADS": "2"}                        # flakedb's cap (available_threads), not the BLAS's
     >>> blas_one_thread(env, {}), env["OPENBLAS_NUM_THREADS"]
     (True, '1')
     >>> blas_one_thread({}, {"numpy": object()})            # too late for this process
@@ -87,7 +93,7 @@ def blas_one_thread(environ=None, modules=None) -> bool:
     """
     environ = os.environ if environ is None else environ
     modules = sys.modules if modules is None else modules
-    if "numpy" in modules or any(environ.get(v, "").strip() for v in BLAS_THREAD_VARIABLES):
+    if "numpy" in modules or any(environ.get(v, "").strip() for v in BLAS_OWN_VARIABLES):
         return False
     environ["OPENBLAS_NUM_THREADS"] = "1"
     environ["MKL_NUM_THREADS"] = "1"
