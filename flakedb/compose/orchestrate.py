@@ -275,9 +275,7 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
 
     rep = solve_reported(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical, colour_settings,
                          on_stored=start_texture)
-    solved, report, reason, warnings, t = rep.solved, rep.report, rep.n_reason, rep.warnings, rep.timings_s
-    paint, stack, table, version, n_used = solved.paint, solved.stack, solved.table, solved.version, solved.n
-    h5_chunks = encode_chunks_early(table)  # the .h5's deflate beside the file channels, the texture and the .bsdf
+    h5_chunks = encode_chunks_early(rep.solved.table)  # the .h5's deflate beside the file channels, texture, .bsdf
     try:
         return _write(recipe, out_dir, raw, rgb_space, progress, plan, observers, texture, rep, h5_chunks)
     finally:
