@@ -78,8 +78,10 @@ def _layerlab_missing():
 
 
 def _env():
+    """The children's environment: BLAS on one thread (flakedb's pools and layerlab's TBB use the cores); no
+    ``OMP_NUM_THREADS``, which caps flakedb's own threads (flakedb.process.available_threads)."""
     path = [str(ROOT)] + ([LAYERLAB_PATH] if LAYERLAB_PATH else []) + [os.environ.get("PYTHONPATH", "")]
-    return dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+    return dict(os.environ, OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
                 PYTHONPATH=os.pathsep.join(p for p in path if p))
 
 
@@ -126,6 +128,7 @@ def _compile_package():
 
 def _flakedb_stack(n, mode, energy_compensation=True):
     """flakedb's solve of bench/stack_rough_hg_lambertian.py's stack (same parameters as layerlab_stack)."""
+    from flakedb.process import available_threads
     from flakedb.rt.scattering.media import PhaseMedium
     from flakedb.rt.adding.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
 
@@ -136,7 +139,7 @@ def _flakedb_stack(n, mode, energy_compensation=True):
     c = len(albedo)
     slab = Slab(ls.SLAB_TAU, PhaseMedium(sigma_t_per_um=[1.0] * c, albedo=albedo, phase=("hg", ls.HG_G)))
     return solve_stack(Rough(ls.ETA, ALPHA, energy_compensation), [slab], Lambertian(primer),
-                       SolverSettings.product(n, threads=os.cpu_count() or 1))
+                       SolverSettings.product(n, threads=available_threads()))
 
 
 def _albedo_at(mu_nodes, albedo, mu):

@@ -71,7 +71,7 @@ def _whole_stack(n=200, write=True, colour=False):
                 "from flakedb.rt.scattering.media import PhaseMedium; "
                 "slab = Slab(2.0, PhaseMedium(np.ones(3), np.full(3, 0.95), ('hg', np.full(3, 0.7)))); "
                 f"solve_stack(Rough(1.5, 0.1), [slab], Lambertian(np.full(3, 0.5)), SolverSettings.product({n}))")]
-        env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
                    PYTHONPATH=os.pathsep.join([os.path.dirname(here), os.environ.get("PYTHONPATH", "")]))
         t0 = time.perf_counter()
         p = subprocess.Popen(cmd, env=env)

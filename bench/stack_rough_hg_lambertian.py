@@ -12,7 +12,7 @@ import sys
 import tempfile
 
 from flakedb.bsdf import write_bsdf
-from flakedb.process import tune_allocator
+from flakedb.process import available_threads, tune_allocator
 from flakedb.bsdf.convert import stack_to_table
 from flakedb.rt.scattering.media import PhaseMedium
 from flakedb.rt.adding.stack import Lambertian, Rough, Slab, SolverSettings, solve_stack
@@ -23,7 +23,7 @@ def main(n=200, out=None, colour=False):
     albedo, primer = ([0.95, 0.9, 0.8], [0.5, 0.4, 0.3]) if colour else ([0.95] * 3, [0.5] * 3)
     slab = Slab(2.0, PhaseMedium(sigma_t_per_um=[1.0] * 3, albedo=albedo, phase=("hg", 0.7)))
     s = solve_stack(Rough(1.5, 0.1), [slab], Lambertian(primer),
-                    SolverSettings.product(n, threads=os.cpu_count() or 1))
+                    SolverSettings.product(n, threads=available_threads()))
     out = out or os.path.join(tempfile.gettempdir(), "flakedb-bench-rough-hg-lambertian.bsdf")
     write_bsdf(out, stack_to_table(s))
     return s

@@ -23,6 +23,8 @@ sleep after one 300 × 300 product), and on 2 cores that worker takes a core fro
 thread: the 3-species store compose used 0.76 s of CPU against 0.65 s with one BLAS thread (wall 0.57 s
 against 0.54 s).  The solver already runs its batched matrices on one BLAS thread
 (:func:`flakedb.rt.adding.stack.solve_stack`); this makes the rest of the process do the same.
+:func:`available_threads`: how many threads flakedb's own pools use (the CPUs the process may run on, capped by
+``FLAKEDB_THREADS`` or ``OMP_NUM_THREADS``).
 """
 
 import contextlib
@@ -67,19 +69,23 @@ def tune_allocator():
     return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES))
 
 
-#: The environment variables that choose a BLAS library's thread count; a user who sets any of them is obeyed.
+#: The environment variables that choose a BLAS library's thread count.
 BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
+#: Those that name the BLAS itself: a user who sets any of them is obeyed.  ``OMP_NUM_THREADS`` alone caps
+#: flakedb's own threads (:func:`available_threads`), and the BLAS still gets one thread per call: its threads and
+#: flakedb's would multiply (OpenBLAS reads ``OMP_NUM_THREADS`` when its own variable is unset).
+BLAS_OWN_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
 
 
 def blas_one_thread(environ=None, modules=None) -> bool:
     """Set ``OPENBLAS_NUM_THREADS=1`` and ``MKL_NUM_THREADS=1`` for this process and its children (module
-    docstring); True when set.  Left alone (False) when the user set any of :data:`BLAS_THREAD_VARIABLES`, or
+    docstring); True when set.  Left alone (False) when the user set any of :data:`BLAS_OWN_VARIABLES`, or
     when numpy is already imported (its BLAS read the variables as it loaded, so setting them now would only
     reach child processes, inconsistently).  ``environ``, ``modules``: ``os.environ`` and ``sys.modules``.
 
-    >>> blas_one_thread({"OMP_NUM_THREADS": "2"}, {})       # the user's choice stands
+    >>> blas_one_thread({"OPENBLAS_NUM_THREADS": "2"}, {})  # the user's choice stands
     False
-    >>> env = {}
+    >>> env = {"OMP_NUM_THREADS": "2"}                        # flakedb's cap (available_threads), not the BLAS's
     >>> blas_one_thread(env, {}), env["OPENBLAS_NUM_THREADS"]
     (True, '1')
     >>> blas_one_thread({}, {"numpy": object()})            # too late for this process
@@ -87,11 +93,46 @@ def blas_one_thread(environ=None, modules=None) -> bool:
     """
     environ = os.environ if environ is None else environ
     modules = sys.modules if modules is None else modules
-    if "numpy" in modules or any(environ.get(v, "").strip() for v in BLAS_THREAD_VARIABLES):
+    if "numpy" in modules or any(environ.get(v, "").strip() for v in BLAS_OWN_VARIABLES):
         return False
     environ["OPENBLAS_NUM_THREADS"] = "1"
     environ["MKL_NUM_THREADS"] = "1"
     return True
+
+
+#: Environment variables that cap the threads flakedb runs itself (its solver's and writers' pools); the first set
+#: to a positive integer wins: flakedb's own, then OpenMP's (the usual "threads this job may use" of a CI runner or
+#: a batch system).
+#: ``OPENBLAS_NUM_THREADS`` / ``MKL_NUM_THREADS`` are not among them: they size the BLAS's own pool, which the
+#: solver holds at one thread per call (``flakedb.rt.adding.stack.solve_stack``), so flakedb's threads times
+#: the BLAS's stay within the cap; the command line sets them to 1 itself (:func:`blas_one_thread`).
+THREAD_CAP_VARIABLES = ("FLAKEDB_THREADS", "OMP_NUM_THREADS")
+
+
+def available_threads(environ=None, cpus=None) -> int:
+    """The threads flakedb's own pools may use: the CPUs this process may run on (``os.sched_getaffinity``, a
+    ``taskset`` or a container's cpuset; ``os.cpu_count()`` where the platform has no affinity), capped by the
+    first of :data:`THREAD_CAP_VARIABLES` that is set to a positive integer (other values are ignored).  Every
+    pool of the solve, the writers and compose asks this one function.  ``environ``, ``cpus``: ``os.environ`` and
+    the CPU count, for tests.
+
+    >>> available_threads({}, cpus=2), available_threads({"OMP_NUM_THREADS": "1"}, cpus=2)
+    (2, 1)
+    >>> available_threads({"FLAKEDB_THREADS": "8", "OMP_NUM_THREADS": "1"}, cpus=2)   # flakedb's first; never above the CPUs
+    2
+    >>> available_threads({"OMP_NUM_THREADS": "0"}, cpus=2), available_threads({"OMP_NUM_THREADS": "x"}, cpus=4)
+    (2, 4)
+    """
+    environ = os.environ if environ is None else environ
+    if cpus is None:
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cap = None
+    for name in THREAD_CAP_VARIABLES:
+        value = str(environ.get(name, "")).strip()
+        if value.isdigit() and int(value) > 0:
+            cap = int(value)
+            break
+    return max(1, min(int(cpus), cap) if cap else int(cpus))
 
 
 def _libc():
@@ -327,6 +368,8 @@ def environment_problems(environ=None) -> list[str]:
     []
     >>> environment_problems({"FLAKEDB_H5_PROBE": "no"})
     ["FLAKEDB_H5_PROBE='no': use 0 (off) or 1 (on)"]
+    >>> environment_problems({"FLAKEDB_THREADS": "0"})[0].split(":")[0], environment_problems({"FLAKEDB_THREADS": "2"})
+    ("FLAKEDB_THREADS='0'", [])
     >>> environment_problems({"FLAKEDB_CATALOG": "/nonexistent/particles.yaml"})[0].split(":")[0]
     "FLAKEDB_CATALOG='/nonexistent/particles.yaml'"
     """
@@ -340,6 +383,10 @@ def environment_problems(environ=None) -> list[str]:
         raw = environ.get(v)
         if raw is not None and raw.strip() not in ("", "0", "1"):
             out.append(f"{v}={_shown(raw)}: use 0 (off) or 1 (on)")
+    raw = environ.get("FLAKEDB_THREADS")
+    if raw is not None and raw.strip() and not (raw.strip().isdigit() and int(raw.strip()) > 0):
+        out.append(f"FLAKEDB_THREADS={_shown(raw)}: use a positive whole number of threads (e.g. FLAKEDB_THREADS=1), "
+                   f"or unset it for every CPU this process may use")
     for v in _PATH_VARIABLES:
         raw = environ.get(v)
         if raw is not None and "\0" in raw:

@@ -85,6 +85,13 @@ def test_a_user_set_blas_thread_count_is_obeyed(tmp_path):
     assert _blas_threads_of_a_command(tmp_path, OPENBLAS_NUM_THREADS="2") == 2
 
 
+@pytest.mark.skipif((__import__("os").cpu_count() or 1) < 2, reason="OpenBLAS caps its threads at the cores")
+def test_omp_num_threads_caps_flakedb_and_the_blas_stays_at_one_thread(tmp_path):
+    """OMP_NUM_THREADS alone is flakedb's thread cap (flakedb.process.available_threads); OpenBLAS, which would read
+    it when its own variable is unset, still gets one thread, so its threads and flakedb's do not multiply."""
+    assert _blas_threads_of_a_command(tmp_path, OMP_NUM_THREADS="2") == 1
+
+
 def test_a_signal_inside_a_finaliser_is_held_not_printed(tmp_path):
     """A SIGTERM whose Terminated is raised inside a finaliser or weakref callback (CI: during a batch compare's
     clean-up, "Exception ignored in <function WeakValueDictionary...remove>" with a traceback, and the run went on)

@@ -29,6 +29,7 @@ from flakedb.bsdf.limits import (
 )
 from flakedb.bsdf.metadata import check_delta, check_known_metadata
 from flakedb.bsdf.table import BSDFFileError, BSDFTable
+from flakedb.process import available_threads
 from flakedb.rt.common.jobs import thread_pool
 from flakedb.safeio import check_regular
 
@@ -47,11 +48,13 @@ def preload_h5py() -> None:
     import h5py  # lazy: h5py takes 17-50 ms to import; only the .h5 file needs it  # noqa: F401
 
 
-def write_h5(path, table: BSDFTable, extra_metadata: dict | None = None) -> dict:
+def write_h5(path, table: BSDFTable, extra_metadata: dict | None = None, encoded=None) -> dict:
     """Write the full-precision table (float64, every order, all channels) to HDF5, atomically.
 
     ``extra_metadata`` (e.g. ``{"recipe_text": …, "store_version": …}``) is merged over
     ``table.metadata``; ``flakedb_version`` is always recorded.  Layout in the package docstring (:mod:`flakedb.bsdf`).
+    ``encoded``: :func:`encode_chunks_early` of this table (its chunks compressed while the caller did other
+    work), or None; the file is the same either way.
     Returns ``{"size": bytes, "n_channels": C, "max_order": L}``.
     """
     if not isinstance(table, BSDFTable):
@@ -81,7 +84,7 @@ def write_h5(path, table: BSDFTable, extra_metadata: dict | None = None) -> dict
                                  fillvalue=0.0, **filters)
             row0 = n // 2 if table.reflection_only else 0  # the reflection quadrant written alone
             if filters and n % 2 == 0:  # compressed by every core, chunk by chunk (write_chunks_deflated)
-                write_chunks_deflated(d, data, row0)
+                write_chunks_deflated(d, data, row0, encoded if encoded is not None and encoded.table is table else None)
             elif table.reflection_only:
                 d[:, n // 2:, : n // 2, :] = data
             else:
@@ -141,23 +144,80 @@ def shuffle_deflate(chunk) -> bytes:
     return z.compress(np.ascontiguousarray(b.T)) + z.flush()
 
 
-def write_chunks_deflated(dataset, data, row0=0) -> None:
+def _chunk_keys(data, h):
+    """``(same, keys)`` of :func:`write_chunks_deflated`: whether the channels are one broadcast array (encoded
+    once), and the (channel, row, column) of every chunk to encode, in the order they are written."""
+    C, a, b, _ = data.shape
+    same = C > 1 and data.strides[0] == 0
+    return same, [(c, i, j) for c in range(1 if same else C) for i in range(a) for j in range(0, b, h)]
+
+
+def _encode(data, key, h):
+    return shuffle_deflate(data[key[0], key[1], key[2]:key[2] + h])
+
+
+#: :func:`encode_chunks_early` encodes a table whose stored coefficients hold at most this many bytes (every
+#: chunk's compressed bytes are then held until the write: n = 200 grey RGB, 28 MB raw, 7 MB deflated); a larger
+#: one is encoded at the write, in batches of :data:`H5_CHUNK_BATCH`.
+EARLY_ENCODE_BYTES = 64e6
+
+
+class EarlyChunks:
+    """The coefficient chunks of ``table`` being shuffled and deflated on the ``flakedb-h5`` threads
+    (:func:`encode_chunks_early`): ``futures[k]`` the bytes of ``keys[k]``."""
+
+    def __init__(self, table, keys, futures):
+        self.table, self.keys, self.futures = table, keys, futures
+
+    def cancel(self):
+        for f in self.futures:
+            f.cancel()
+
+
+def encode_chunks_early(table: BSDFTable, threads=None):
+    """Start encoding the chunks :func:`write_h5` writes for ``table`` (:func:`shuffle_deflate` on
+    :func:`flakedb.process.available_threads` threads, or ``threads``) and return an :class:`EarlyChunks`
+    to pass to :func:`write_h5`, so that the deflate runs beside whatever the caller does before the write (compose:
+    the file channels' gamut mapping, the report's texture and the ``.bsdf``).  None when :func:`write_h5` would
+    not deflate them (:func:`h5_filters`, odd n) or they hold more than :data:`EARLY_ENCODE_BYTES`.
+
+    >>> t = BSDFTable(np.array([-1.0, -0.5, 0.5, 1.0]), reflection=np.zeros((1, 2, 2, 3)), eta=1.0)
+    >>> early = encode_chunks_early(t)   # a reflection quadrant of 2 rows, one chunk (2 nodes × 3 orders) each
+    >>> early.keys, [f.result() == shuffle_deflate(np.zeros((2, 3))) for f in early.futures]
+    ([(0, 0, 0), (0, 1, 0)], [True, True])
+    """
+    data = table.live_quadrant() if table.reflection_only else table.coeffs
+    C, a, b, L = data.shape
+    n = table.n
+    stored = data.nbytes if data.strides[0] != 0 else data[:1].nbytes
+    if n % 2 or not h5_filters(data) or stored > EARLY_ENCODE_BYTES:
+        return None
+    h = max(n // 2, 1)
+    _, keys = _chunk_keys(data, h)
+    pool = thread_pool(threads or available_threads(), "flakedb-h5")
+    return EarlyChunks(table, keys, [pool.submit(_encode, data, key, h) for key in keys])
+
+
+def write_chunks_deflated(dataset, data, row0=0, early=None) -> None:
     """``dataset[:, row0:row0 + a, :b, :] = data`` (data (C, a, b, L)) for a dataset of chunks (1, 1, h, L) with
     shuffle + deflate(1) (:func:`h5_filters`), b a multiple of h: every chunk encoded by
-    :func:`shuffle_deflate` on the process's threads (``flakedb-h5``, one per core) and written as it is stored
+    :func:`shuffle_deflate` on the process's threads (``flakedb-h5``, :func:`flakedb.process.available_threads`) and written as it is stored
     (``write_direct_chunk``), in batches of :data:`H5_CHUNK_BATCH`.  h5py's own write ran the filters on one core:
     the cadmium yellow / rough 0.1 coat table at n = 200 (41 bands, 1.15 GB, 72 % zeros) took most of the
     compose's write.  The file is the same HDF5 (same filters declared; h5py and any HDF5 reader decode it).
     Channels that are one array (a broadcast channel axis, stride 0: a grey paint solved once) are encoded once
-    and their bytes written for every channel (the encoding is a function of the chunk's values)."""
-    C, a, b, L = data.shape
+    and their bytes written for every channel (the encoding is a function of the chunk's values).  ``early``:
+    :func:`encode_chunks_early` of the same data with the same chunks, whose bytes are written as they are."""
+    C = data.shape[0]
     h = dataset.chunks[2]
-    same = C > 1 and data.strides[0] == 0
-    keys = [(c, i, j) for c in range(1 if same else C) for i in range(a) for j in range(0, b, h)]
-    pool = thread_pool(os.cpu_count() or 1, "flakedb-h5")
-    for k0 in range(0, len(keys), H5_CHUNK_BATCH):
-        batch = keys[k0:k0 + H5_CHUNK_BATCH]
-        encoded = pool.map(lambda key: shuffle_deflate(data[key[0], key[1], key[2]:key[2] + h]), batch)
+    same, keys = _chunk_keys(data, h)
+    if early is not None and early.keys == keys:
+        batches = [(keys, (f.result() for f in early.futures))]
+    else:
+        pool = thread_pool(available_threads(), "flakedb-h5")
+        batches = ((keys[k0:k0 + H5_CHUNK_BATCH], pool.map(lambda key: _encode(data, key, h), keys[k0:k0 + H5_CHUNK_BATCH]))
+                   for k0 in range(0, len(keys), H5_CHUNK_BATCH))
+    for batch, encoded in batches:
         for (c, i, j), buf in zip(batch, encoded):
             for cc in (range(C) if same else (c,)):
                 dataset.id.write_direct_chunk((cc, row0 + i, j, 0), buf)
@@ -207,7 +267,7 @@ def read_chunks_deflated(dataset, decode=True, threads=None, quadrant=False, off
     """The values of a coefficient dataset of :func:`write_h5`'s layout (float64 little-endian, chunks
     (1, 1, h, L) that tile it, fill value 0, the shuffle then the deflate filter and no other), read as stored
     (``read_direct_chunk`` through HDF5's chunk index) and inflated and unshuffled on ``threads`` threads (None:
-    one per core, the process's ``flakedb-h5`` pool; 1: in the caller), chunks never written left 0.  h5py
+    :func:`flakedb.process.available_threads`, the process's ``flakedb-h5`` pool; 1: in the caller), chunks never written left 0.  h5py
     inflated on one core: the cadmium yellow / rough 0.1 coat file at n = 200 (1.15 GB of coefficients).
     None when the dataset is not that layout, a chunk's filters were skipped or its place is not on the grid:
     the caller then lets HDF5 read it.  A chunk that does not inflate to exactly its size raises ValueError
@@ -233,7 +293,7 @@ def read_chunks_deflated(dataset, decode=True, threads=None, quadrant=False, off
         return None
     row0 = n_i // 2 if quadrant else 0
     out = np.zeros((C, n_i - row0, n_o - row0, L) if quadrant else shape) if decode else np.zeros((0,))
-    pool = None if threads == 1 else thread_pool(threads or os.cpu_count() or 1, "flakedb-h5")
+    pool = None if threads == 1 else thread_pool(threads or available_threads(), "flakedb-h5")
     for k0 in range(0, count, H5_CHUNK_BATCH):
         places, bufs = [], []
         for k in range(k0, min(count, k0 + H5_CHUNK_BATCH)):

@@ -45,7 +45,7 @@ import numpy as np
 
 import flakedb.bsdf as bsdf_files  # the module, so a test can replace its writers
 from flakedb.appearance.report import ASPECULAR_DEG, eval_table, multiangle_geometry, texture_ground
-from flakedb.bsdf.h5file import preload_h5py
+from flakedb.bsdf.h5file import encode_chunks_early, preload_h5py
 from flakedb.colour import gamut
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.outputs import OutputPlan
@@ -218,16 +218,18 @@ class ComposeResult:
     table: object = None
 
 
-def write_outputs(out_dir, name, table, file_table, report, h5_metadata, plan=None):
+def write_outputs(out_dir, name, table, file_table, report, h5_metadata, plan=None, h5_chunks=None):
     """Write DIR/NAME.bsdf, .h5, .json all-or-nothing (module docstring): checked by ``plan`` (default
     :func:`output_plan`), written into a staging directory, moved in together
-    (:meth:`flakedb.outputs.OutputPlan.staged`).  Returns (paths, bsdf summary)."""
+    (:meth:`flakedb.outputs.OutputPlan.staged`).  ``h5_chunks``: the ``.h5``'s chunks already being encoded
+    (:func:`flakedb.bsdf.h5file.encode_chunks_early`), or None.  Returns (paths, bsdf summary)."""
     plan = (plan or output_plan(out_dir, name)).check()
     out = Path(out_dir)
     final = {"bsdf": out / f"{name}.bsdf", "h5": out / f"{name}.h5", "json": out / f"{name}.json"}
     with plan.staged() as stage:
         summary = bsdf_files.write_bsdf(stage.path(final["bsdf"]), file_table, truncation=BSDF_TRUNCATION)
-        bsdf_files.write_h5(stage.path(final["h5"]), table, h5_metadata)
+        bsdf_files.write_h5(stage.path(final["h5"]), table, h5_metadata,
+                            **({} if h5_chunks is None else {"encoded": h5_chunks}))
         with open(stage.path(final["json"]), "w", encoding="utf-8") as fh:
             json.dump(report, fh, indent=1, allow_nan=False)
             fh.write("\n")
@@ -273,6 +275,17 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
 
     rep = solve_reported(recipe, n, raw, catalog, log, store, verify, progress, allow_unphysical, colour_settings,
                          on_stored=start_texture)
+    h5_chunks = encode_chunks_early(rep.solved.table)  # the .h5's deflate beside the file channels, texture, .bsdf
+    try:
+        return _write(recipe, out_dir, raw, rgb_space, progress, plan, observers, texture, rep, h5_chunks)
+    finally:
+        if h5_chunks is not None:
+            h5_chunks.cancel()  # chunks not yet started, when the write failed or was interrupted
+
+
+def _write(recipe, out_dir, raw, rgb_space, progress, plan, observers, texture, rep, h5_chunks) -> ComposeResult:
+    """:func:`compose`'s file channels, metadata, texture report and writes, after the solve and report ``rep``
+    (:func:`flakedb.solve.pipeline.solve_reported`)."""
     solved, report, reason, warnings, t = rep.solved, rep.report, rep.n_reason, rep.warnings, rep.timings_s
     paint, stack, table, version, n_used = solved.paint, solved.stack, solved.table, solved.version, solved.n
     progress("write", {"start": True})
@@ -307,7 +320,7 @@ def _compose(recipe, out_dir, n, raw, catalog, log, store, verify, rgb_space, pr
         table, paint.mode, paint.wavelength_nm, stack.x, stack.albedo(include_delta=False), paint.eta if paint.delta else None))
     h5_md["rgb_file"] = gamut_info
     t0 = time.perf_counter()
-    paths, summary = write_outputs(out_dir, recipe.name, table, file_table, report, h5_md, plan)
+    paths, summary = write_outputs(out_dir, recipe.name, table, file_table, report, h5_md, plan, h5_chunks)
     t["write"] = time.perf_counter() - t0
     progress("write", {"seconds": t["write"], "paths": paths})
     return ComposeResult(paths=paths, report=report, n=n_used, n_reason=reason, timings_s=t, bsdf_summary=summary,

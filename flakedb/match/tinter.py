@@ -50,7 +50,6 @@ from __future__ import annotations
 import copy
 import csv
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -71,6 +70,7 @@ from flakedb.paint.checks import YamlFileError, load_yaml_file
 from flakedb.paint.mapping import build_paint, solve_paint, with_media
 from flakedb.paint.components import tinter_medium
 from flakedb.paint.recipe import CatalogParticle
+from flakedb.process import available_threads
 from flakedb.safeio import FileTooLargeError, read_text_limited
 from flakedb.solve.pipeline import memory_budget_bytes, settle_node_count
 
@@ -289,7 +289,7 @@ class _PanelModel:
     def rf(self, sa, ss, g) -> np.ndarray:
         """Reflectance factors (G, B) at the recipe's bands with the tinter's σ_a/φ, σ_s/φ (B,) and g."""
         paint = with_media(self.paint, {path: tinter_medium(sa, ss, g, vf) for path, vf in self.uses})
-        stack = solve_paint(paint, self.n, memory_budget_bytes=memory_budget_bytes(), threads=os.cpu_count() or 1)
+        stack = solve_paint(paint, self.n, memory_budget_bytes=memory_budget_bytes(), threads=available_threads())
         table = stack_to_table(stack, paint.channels, paint.eta, None, paint.delta, {"recipe": self.recipe.name})
         return eval_geometries(table, self.geometries)
 

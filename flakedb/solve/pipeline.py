@@ -16,7 +16,6 @@ with ``allow_unphysical`` becomes a loud warning.
 
 from __future__ import annotations
 
-import os
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -29,7 +28,7 @@ from flakedb.bsdf.convert import stack_to_table
 from flakedb.bsdf.table import ENERGY_SLACK, energy_albedo
 from flakedb.conventions import fourier_weight
 from flakedb.paint.mapping import build_paint, catalog_species, solve_paint
-from flakedb.process import memory_budget_bytes
+from flakedb.process import available_threads, memory_budget_bytes
 from flakedb.solve.resolution import (
     AUTO_REFINE_STEPS,
     auto_colour_target,
@@ -184,7 +183,7 @@ def solve_recipe(recipe, n=None, raw=False, catalog=None, log=None, store=None, 
     before = None if before_solve is None else before_solve(paint, n_used, version)
     t0 = time.perf_counter()
     stack = solve_paint(paint, n_used, memory_budget_bytes=memory_budget_bytes(),  # units parsed (flakedb.process)
-                        threads=os.cpu_count() or 1, progress=progress)
+                        threads=available_threads(), progress=progress)
     t["solve"] = time.perf_counter() - t0
     log(f"solve: n = {n_used} ({reason}), {stack.info.get('orders')} Fourier orders, {t['solve']:.2f} s")
     problems = check_physical(stack)
@@ -233,7 +232,7 @@ def second_report(paint, n, version, colour_settings=None, progress=None, thread
     only).  Made before the solve at n (:func:`solve_recipe`'s ``before_solve``), so that its arrays are freed
     before those of n exist: made after, while n's R^t and table were held, it set the compose's peak (cadmium
     yellow under a rough 0.1 coat, 41 bands, n = 200: 3.95 GB, of which 1.6 GB the second solve's).  ``threads``:
-    the solver's threads (default every core; 1 beside the solve at n, so that its rough top is built in its own
+    the solver's threads (default :func:`flakedb.process.available_threads`; 1 beside the solve at n, so that its rough top is built in its own
     thread and the solver's background thread is the solve at n's)."""
     if version is not None:
         return {"method": "not estimated: species factors from the store exist at n only"}
@@ -243,7 +242,7 @@ def second_report(paint, n, version, colour_settings=None, progress=None, thread
     n2 = second_solve_n(n)
     t0 = time.perf_counter()
     progress("discretisation", {"start": True, "n": n2})
-    second = solve_paint(paint, n2, memory_budget_bytes=memory_budget_bytes(), threads=threads or os.cpu_count() or 1)
+    second = solve_paint(paint, n2, memory_budget_bytes=memory_budget_bytes(), threads=threads or available_threads())
     table = stack_to_table(second.scattered(), paint.channels, paint.eta, None, paint.delta, {})
     x, albedo = second.x, second.albedo(include_delta=False)
     del second  # its R^t, before the report's evaluation

@@ -736,3 +736,35 @@ def test_truncation_orders_follow_their_definition(truncation):
                 ks.append(next(j for j in range(1, a.size + 1) if np.abs(a[j:]).sum() <= truncation * abs(a[0])))
             want[i, o] = max(ks)
     np.testing.assert_array_equal(_truncation_orders(c, truncation), want)
+
+
+@pytest.mark.parametrize("channels", ["grey", "distinct"])
+def test_h5_chunks_encoded_early_write_the_same_file(tmp_path, channels):
+    """Chunks encoded before the write (flakedb.bsdf.h5file.encode_chunks_early, compose's deflate beside its
+    other work) are stored as the write's own encoding stores them: the same chunk bytes, the same file; an
+    encoding of another table is not used."""
+    import h5py
+
+    from flakedb.bsdf.h5file import encode_chunks_early
+
+    base = synthetic_table(h=6, L=40, channels=1 if channels == "grey" else 3)
+    coeffs = np.array(base.coeffs)
+    ell = np.arange(coeffs.shape[-1])
+    counts = np.random.default_rng(7).integers(1, 12, size=coeffs.shape[1:3])
+    coeffs[..., ell[None, None, :] >= counts[..., None]] = 0.0
+    q = np.ascontiguousarray(coeffs[:, 6:, :6])
+    table = BSDFTable(base.mu, reflection=np.broadcast_to(q, (3,) + q.shape[1:]) if channels == "grey" else q, eta=1.5)
+    other = BSDFTable(base.mu, reflection=np.zeros_like(table.stored), eta=1.5)
+    early = encode_chunks_early(table)
+    assert early is not None and len(early.keys) == (1 if channels == "grey" else 3) * 6
+    write_h5(tmp_path / "late.h5", table)
+    write_h5(tmp_path / "early.h5", table, encoded=early)
+    write_h5(tmp_path / "foreign.h5", table, encoded=encode_chunks_early(other))
+    with h5py.File(tmp_path / "late.h5", "r") as f, h5py.File(tmp_path / "early.h5", "r") as g:
+        d, e = f["coeffs"].id, g["coeffs"].id
+        offsets = [tuple(d.get_chunk_info(k).chunk_offset) for k in range(d.get_num_chunks())]
+        assert len(offsets) == 3 * 6
+        assert all(d.read_direct_chunk(o) == e.read_direct_chunk(o) for o in offsets)
+    late = (tmp_path / "late.h5").read_bytes()
+    assert (tmp_path / "early.h5").read_bytes() == late == (tmp_path / "foreign.h5").read_bytes()
+    np.testing.assert_array_equal(read_h5(tmp_path / "early.h5").to_table().coeffs, table.coeffs)

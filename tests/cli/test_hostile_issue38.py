@@ -482,6 +482,8 @@ def test_render_into_a_folder_whose_name_is_not_utf8(tmp_path):
     ("FLAKEDB_CATALOG", "/nonexistent/particles.yaml", "no such file"),
     ("FLAKEDB_MATERIALS_DIR", "/nonexistent", "materials.yaml"),
     ("FLAKEDB_H5_PROBE", "yes", "use 0 (off) or 1 (on)"),
+    ("FLAKEDB_THREADS", "all", "positive whole number"),
+    ("FLAKEDB_THREADS", "0", "positive whole number"),
 ])
 def test_path_and_switch_variables_are_named_before_work(paint, monkeypatch, no_work, var, value, words):
     monkeypatch.setenv(var, value)
