@@ -41,13 +41,6 @@ def j1(x):
     return _j1(x)
 
 
-def ndtri(p):
-    """Inverse of the standard normal CDF (scipy.special, imported on first use as :func:`j1`)."""
-    from scipy.special import ndtri as _ndtri  # lazy: scipy.special is slow to import; only the glint draws need it
-
-    return _ndtri(p)
-
-
 def _poisson_ppf(q, lam):
     """Poisson quantile: the least k with P(K ≤ k; λ) ≥ q for q ∈ (0, 1), −1 at q = 0 (``q``, ``lam`` broadcast;
     float).  scipy.stats.poisson.ppf's own steps, ceil(pdtrik(q, λ)) corrected by one step where pdtr already
