@@ -707,9 +707,11 @@ def _occlusion_points(n_cfg, n_slots, stream, shift=None):
     Every run of consecutive configurations is itself equidistributed, so the configurations with the same
     number of obstacles (a run of i where the count is the ordered stratum midpoints) are a quadrature of the
     obstacles' attributes on their own; the first n_slots slots are the same whatever n_slots."""
-    block = 5 * N_OCCLUSION_MAX + 1
-    al = _kronecker_alphas(block * (stream + 1))[block * stream:block * stream + 5 * n_slots + 1]
-    ph = np.full(al.size, 0.5) if shift is None else np.random.default_rng([shift, stream]).random(al.size)
+    block = 5 * N_OCCLUSION_MAX + 1  # per stream: the slots' attributes, then (last) the count
+    alphas = _kronecker_alphas(block * (stream + 1))
+    al = np.append(alphas[block * stream:block * stream + 5 * n_slots], alphas[block * (stream + 1) - 1])
+    ph = np.random.default_rng([shift, stream]).random(block)[np.r_[0:5 * n_slots, block - 1]] if shift is not None \
+        else np.full(al.size, 0.5)
     i = np.arange(n_cfg, dtype=float)
     u = (ph[:, None] + i[None, :] * al[:, None]) % 1.0
     count, u = u[-1], u[:-1].reshape(n_slots, 5, n_cfg).transpose(1, 0, 2)
