@@ -673,8 +673,6 @@ def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v, combos):
 
 #: Obstacle configurations and points per flake disc of the partial-occlusion distribution (:func:`_occlusion`).
 N_OCCLUSION, N_OCCLUSION_POINTS = 512, 12
-#: Flake radii at which the occlusion is evaluated (log-spaced over the diameter nodes; linear in ln r between).
-N_OCCLUSION_RADII = 4
 #: Phases of the occlusion rule's Kronecker points (:func:`_occlusion_points`): None, ½ for every coordinate (the
 #: rule); an integer, uniform random phases from that seed (a randomised rule, to measure the rule's own error:
 #: docs/texture.md §3.3).
@@ -807,13 +805,14 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
     t_l, t_v = lb[:2] / lb[2], vb[:2] / vb[2]
     C = np.asarray(stack.y_weights).size
     pts = _disc_points(n_pts)  # (Q, 2)
-    r_all = radii
-    # evaluated at radii spanning the flakes' 1–99 % quantiles (the outer Gauss–Hermite nodes, of negligible
-    # weight, reach 9× the median at σ_g 1.5); beyond them the nearest is held
+    # evaluated at each requested radius within the flakes' 1–99 % quantiles (the outer Gauss–Hermite nodes, of
+    # negligible weight, reach 9× the median at σ_g 1.5), the nearest of them beyond; not interpolated between
+    # radii: each radius has its own configurations, and a blend of two unrelated ones narrows the distribution
+    # (4 radii blended: metallic-silver's count 3 % low)
     s_g0 = np.log(float(stack.flakes[0].diameter_gsd)) if stack.flakes else 0.0
     r_med = float(np.exp(np.mean(np.log(radii))))
     lo_r, hi_r = max(radii.min(), r_med * np.exp(-2.33 * s_g0)), min(radii.max(), r_med * np.exp(2.33 * s_g0))
-    radii = np.exp(np.linspace(np.log(lo_r), np.log(hi_r), min(N_OCCLUSION_RADII, radii.size)))
+    radii, back = np.unique(np.clip(radii, lo_r, hi_r), return_inverse=True)
     if weights is None:  # per channel: the identity at every depth
         W = np.broadcast_to(np.eye(C)[:, :, None], (C, C, z.size))
     else:
@@ -894,13 +893,7 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
         # per point its (weighted) transmission, then the disc's mean per (depth, configuration)
         val = np.einsum("rcz,cu->rzu", W, prod)[:, np.arange(nzc * n_pts) // (n_cfg * n_pts), inv]
         out[:, ir] = val.reshape(rows, z.size, n_cfg, n_pts).sum(axis=-1) / n_pts
-    if radii.size == 1:
-        out = np.repeat(out, r_all.size, axis=1)
-    else:  # the same strata at every radius: each configuration interpolated in ln r to the requested radii
-        x = np.log(r_all)
-        k = np.clip(np.searchsorted(np.log(radii), x) - 1, 0, radii.size - 2)
-        t = np.clip((x - np.log(radii)[k]) / (np.log(radii)[k + 1] - np.log(radii)[k]), 0.0, 1.0)
-        out = out[:, k] * (1.0 - t)[None, :, None, None] + out[:, k + 1] * t[None, :, None, None]
+    out = out[:, back]  # each requested radius at its own value (the nearest of the 1–99 % quantiles beyond them)
     return out if weights is None else out[0]
 
 
