@@ -49,11 +49,12 @@ def _observer(name, lights):
     return dataclasses.replace(PRESETS[name], light_deg=tuple(lights))
 
 
-def run_sim(names, out, seed=36):
+def run_sim(names, out, seed=36, side_um=None):
     from flakedb.reference.flake_sim import simulate
     from tests.texture.cases import sim_inputs, stack_of
     for name in names:
         kw, obs, lights, L, ray = CASES[name]
+        L = side_um or L
         o = _observer(obs, lights)
         st = stack_of(**kw)
         sp, ab = sim_inputs(st)
@@ -61,7 +62,7 @@ def run_sim(names, out, seed=36):
         res = simulate(st.eta, st.y_weights, sp, ab, o.spot_um, o.aperture_half_angle_rad, o.source_half_angle_deg,
                        o.view_deg, o.light_deg, L_um=L, seed=seed, wavelength_nm=st.wavelength_nm, ray_um=ray,
                        sky_pixels=SKY_PIXELS[obs])
-        res.update(name=name, seconds=time.time() - t, seed=seed)
+        res.update(name=name, seconds=time.time() - t, seed=seed, side_um=L)
         with open(out, "a") as fh:
             fh.write(json.dumps(res) + "\n")
         print(name, f"{res['seconds']:.0f} s", flush=True)
@@ -120,9 +121,11 @@ if __name__ == "__main__":
     ap.add_argument("what", choices=("sim", "table", "sizes"))
     ap.add_argument("args", nargs="*")
     ap.add_argument("--out", default="bench/texture_reference.jsonl")
+    ap.add_argument("--seed", type=int, default=36, help="the simulation's seed (a second placement: another seed)")
+    ap.add_argument("--side", type=float, default=None, help="patch side µm (default: the case's)")
     a = ap.parse_args()
     if a.what == "sim":
-        run_sim(a.args or list(CASES), a.out)
+        run_sim(a.args or list(CASES), a.out, a.seed, a.side)
     elif a.what == "table":
         table(a.args[0] if a.args else a.out)
     else:

@@ -41,13 +41,6 @@ def j1(x):
     return _j1(x)
 
 
-def ndtri(p):
-    """Inverse of the standard normal CDF (scipy.special, imported on first use as :func:`j1`)."""
-    from scipy.special import ndtri as _ndtri  # lazy: scipy.special is slow to import; only the glint draws need it
-
-    return _ndtri(p)
-
-
 def _poisson_ppf_scipy(q, lam):
     """scipy.stats.poisson.ppf's own steps, ceil(pdtrik(q, λ)) corrected by one step where pdtr already reaches q,
     on scipy.special (imported on first use as :func:`j1`): :func:`_poisson_ppf` where it cannot decide alone."""
@@ -728,31 +721,49 @@ def _path_weights(yR, R_Y, att, lam_l, lam_v, lam_b, T_l, T_v, combos):
 
 #: Obstacle configurations and points per flake disc of the partial-occlusion distribution (:func:`_occlusion`).
 N_OCCLUSION, N_OCCLUSION_POINTS = 512, 12
-#: Flake radii at which the occlusion is drawn (log-spaced over the diameter nodes; linear in ln r between).
-N_OCCLUSION_RADII = 4
-#: Seed of the occlusion configurations: common random numbers for every depth, diameter and geometry, so the
-#: indices are deterministic and smooth in every input.
-OCCLUSION_SEED = 36
+#: Phases of the occlusion rule's Kronecker points (:func:`_occlusion_points`): None, ½ for every coordinate (the
+#: rule); an integer, uniform random phases from that seed (a randomised rule, to measure the rule's own error:
+#: docs/texture.md §3.3).
+OCCLUSION_SHIFT = None
 
 
-#: Most flakes above one flake's bounding cylinder the occlusion draws per configuration.
+#: Most flakes touching one flake's paths the occlusion evaluates per configuration.
 N_OCCLUSION_MAX = 2048
 
 
 @lru_cache(maxsize=4)
-def _occlusion_table(n_cfg, stream):
-    u = np.random.default_rng([OCCLUSION_SEED, stream]).random((5, n_cfg, N_OCCLUSION_MAX))
+def _kronecker_alphas(n):
+    """frac(√s) of the first n squarefree integers s ≥ 2: rationally independent (Besicovitch), so the points
+    i ↦ frac(i α) are jointly equidistributed in every finite set of coordinates."""
+    m = int(1.7 * n) + 16
+    sf = np.ones(m, bool)
+    for p in range(2, int(np.sqrt(m)) + 1):
+        sf[p * p::p * p] = False
+    s = np.flatnonzero(sf)[2:2 + n].astype(float)  # skip 0 and 1
+    a = np.sqrt(s) % 1.0
+    a.setflags(write=False)
+    return a
+
+
+@lru_cache(maxsize=8)
+def _occlusion_points(n_cfg, n_slots, stream, shift=None):
+    """The occlusion rule's uniforms (5 attributes, n_slots obstacle slots, n_cfg configurations) of one set
+    (``stream``) and (n_cfg,) the uniforms of its obstacle count: Kronecker points frac(φ + i α), i the
+    configuration, one rationally independent α per (stream, slot, attribute) (:func:`_kronecker_alphas`).
+    Every run of consecutive configurations is itself equidistributed, so the configurations with the same
+    number of obstacles (a run of i where the count is the ordered stratum midpoints) are a quadrature of the
+    obstacles' attributes on their own; the first n_slots slots are the same whatever n_slots."""
+    block = 5 * N_OCCLUSION_MAX + 1  # per stream: the slots' attributes, then (last) the count
+    alphas = _kronecker_alphas(block * (stream + 1))
+    al = np.append(alphas[block * stream:block * stream + 5 * n_slots], alphas[block * (stream + 1) - 1])
+    ph = np.random.default_rng([shift, stream]).random(block)[np.r_[0:5 * n_slots, block - 1]] if shift is not None \
+        else np.full(al.size, 0.5)
+    i = np.arange(n_cfg, dtype=float)
+    u = (ph[:, None] + i[None, :] * al[:, None]) % 1.0
+    count, u = u[-1], u[:-1].reshape(n_slots, 5, n_cfg).transpose(1, 0, 2)
     u.setflags(write=False)
-    return u
-
-
-def _occlusion_uniforms(n_cfg, n_max, stream=0):
-    """Uniforms (5, n_cfg, n_max) of the occlusion's configurations: the first n_max columns of one fixed table
-    per stream (the same numbers whatever n_max, so the indices are smooth across diameters and depths)."""
-    if n_max > N_OCCLUSION_MAX:
-        raise TextureModelLimit(f"a flake's paths meet up to {n_max} flakes above it: beyond the occlusion's "
-                                f"{N_OCCLUSION_MAX} (docs/texture.md §3.3)")
-    return _occlusion_table(n_cfg, stream)[:, :, :n_max]
+    count.setflags(write=False)
+    return u, count
 
 
 def _disc_points(n):
@@ -763,6 +774,56 @@ def _disc_points(n):
     return np.stack([r * np.cos(t), r * np.sin(t)], -1)
 
 
+def _touching(rho, r, rn, rw, lo, hi, t_a, t_b):
+    """The flakes above that can cross a path of a flake of radius r (docs/texture.md §3.3, the occlusion rule).
+
+    A flake above at height Δ of radius r_j (nodes ``rn`` with number fractions ``rw``) crosses the path of some
+    point of the flake's disc along drift t exactly when its centre lies within r + r_j of Δ t; for the two paths
+    of one set (drifts ``t_a``, ``t_b``: equal for a single path) the centres that can matter fill the stadium of
+    radius R = r + r_j around the segment Δ t_a … Δ t_b, area πR² + 2RΔG (G = |t_b − t_a|).  Centres outside it
+    cross nothing, so the flakes in it are the whole Poisson process of the ones that matter, split into two
+    independent Poisson parts: the two half-discs (``A``: Δ uniform on [lo, hi], r_j ∝ rw R²) and the rectangle
+    (``B``: Δ ∝ Δ, r_j ∝ rw R).  Returns their expected counts μ_A, μ_B (nz,) (``rho`` per µm³, heights lo, hi
+    (nz,)) and the radius CDFs of the two parts."""
+    R = r + rn
+    G = float(np.linalg.norm(np.asarray(t_b) - np.asarray(t_a)))
+    mu_A = rho * np.pi * float(rw @ (R * R)) * (hi - lo)
+    mu_B = rho * G * float(rw @ R) * (hi * hi - lo * lo)
+    cdf_A = np.cumsum(rw * R * R) / float(rw @ (R * R))
+    cdf_B = np.cumsum(rw * R) / float(rw @ R)
+    return mu_A, mu_B, cdf_A, cdf_B
+
+
+def _place(u, r, rn, lo, hi, t_a, t_b, mu_A, mu_B, cdf_A, cdf_B):
+    """Heights, centres (x, y) and radii of the obstacles of :func:`_touching` from five uniforms each (``u``
+    (5, …) with lo, hi, μ_A, μ_B broadcast): part A or B by the first, then Δ, r_j (inversion of the part's
+    radius CDF), and the centre uniform in the part (a point of the disc of radius R folded onto the half-disc
+    beyond either end; the rectangle's length and width)."""
+    t_a, t_b = np.asarray(t_a, float), np.asarray(t_b, float)
+    G = float(np.linalg.norm(t_b - t_a))
+    e = (t_b - t_a) / G if G > 0 else np.array([1.0, 0.0])
+    en = np.array([-e[1], e[0]])
+    in_A = u[0] * (mu_A + mu_B) < mu_A
+    dA = lo + u[1] * (hi - lo)
+    dB = np.sqrt(lo * lo + u[1] * (hi * hi - lo * lo))
+    dlt = np.where(in_A, dA, dB)
+    iA = np.minimum(np.searchsorted(cdf_A, u[2]), rn.size - 1)
+    iB = np.minimum(np.searchsorted(cdf_B, u[2]), rn.size - 1)
+    rj = rn[np.where(in_A, iA, iB)]
+    R = r + rj
+    # A: a point of the disc of radius R; the half towards t_b sits at the segment's end Δ t_b, the other at Δ t_a
+    px = R * np.sqrt(u[3]) * np.cos(2.0 * np.pi * u[4])
+    py = R * np.sqrt(u[3]) * np.sin(2.0 * np.pi * u[4])
+    end = np.where(px * e[0] + py * e[1] >= 0.0, 1.0, 0.0)
+    ax = dlt * (t_a[0] + end * (t_b[0] - t_a[0])) + px
+    ay = dlt * (t_a[1] + end * (t_b[1] - t_a[1])) + py
+    # B: along the segment (length Δ G), across it ±R
+    s, h = u[3] * dlt * G, (2.0 * u[4] - 1.0) * R
+    bx = dlt * t_a[0] + s * e[0] + h * en[0]
+    by = dlt * t_a[1] + s * e[1] + h * en[1]
+    return dlt, np.where(in_A, ax, bx), np.where(in_A, ay, by), rj
+
+
 def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUSION_POINTS, weights=None):
     """Partial occlusion (docs/texture.md §3.3): the distribution of a flake's path transmission over its area.
 
@@ -771,32 +832,35 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
     height Δ (a horizontal disc of radius r_j, centre c_j) crosses the light path of x when |x + Δ t_l − c_j| < r_j
     (t = ω_xy/ω_z the paths' drift per µm of height) and the view path when |x + Δ t_v − c_j| < r_j, each crossing
     transmitting T̄_c(μ) (:meth:`FlakeLayer.mean_crossed_transmittance`).  The flakes above are Poisson (ρ per
-    µm³, diameters log-normal, crossing rate scaled by P(μ)/μ, the solver's projected area) and are drawn
-    (:data:`N_OCCLUSION` configurations, common random numbers); ``correlated``: one set of flakes crosses
-    both paths (a layer of discs: a flake above may cover both), else two independent sets (the solver's RT).
+    µm³, diameters the layer's log-normal nodes, crossing rate scaled by P(μ)/μ, the solver's projected area);
+    ``correlated``: one set of flakes crosses both paths (a layer of discs: a flake above may cover both), else
+    two independent sets (the solver's RT).  Only the flakes that can cross a path of the disc enter
+    (:func:`_touching`: the stadium around the two paths, in closed form), and the rule over their
+    configurations is deterministic: :data:`N_OCCLUSION` equal-weight configurations whose number of such
+    flakes is the Poisson quantile of the stratum midpoints (i + ½)/n (so P(none) = e^{−μ} to 1/n), their
+    attributes Kronecker points (:func:`_occlusion_points`), equidistributed within each run of configurations
+    with the same count; the same points for every depth, radius and geometry (smooth in the inputs).
     Returns t (C, nR, nz, n_cfg): per channel, the mean over :data:`N_OCCLUSION_POINTS` points of the disc of
     Π_j T^{crossings}: a partly covered flake is dimmed by the share covered, not all or nothing.  ``weights``
     (C, nz): Σ_c weights[c, z] t[c] instead, (nR, nz, n_cfg) (the glints' luminance-weighted transmission).
 
-    Each drawn flake is kept only where its disc can reach the paths of the largest radius; a point's
-    transmission depends on its crossing counts alone, so it is formed once per distinct combination of counts
-    (the same products as point by point, to rounding)."""
+    A point's transmission depends on its crossing counts alone, so it is formed once per distinct combination
+    of counts (the same products as point by point, to rounding)."""
     z = np.asarray(z, float)
     radii = np.atleast_1d(np.asarray(radii, float))
     lb = np.array([np.sqrt(1 - g.mu_l_b**2), 0.0, g.mu_l_b])
     vb = np.array([-np.sqrt(1 - g.mu_v_b**2), 0.0, g.mu_v_b])
     t_l, t_v = lb[:2] / lb[2], vb[:2] / vb[2]
-    mid, half = 0.5 * (t_l + t_v), 0.5 * float(np.linalg.norm(t_l - t_v))
     C = np.asarray(stack.y_weights).size
     pts = _disc_points(n_pts)  # (Q, 2)
-    r_all = radii
-    # drawn at radii spanning the flakes' 1–99 % quantiles (the outer Gauss–Hermite nodes, of negligible weight,
-    # reach 9× the median at σ_g 1.5 and would set the draws' bounding cylinder); beyond them the nearest is held
+    # evaluated at each requested radius within the flakes' 1–99 % quantiles (the outer Gauss–Hermite nodes, of
+    # negligible weight, reach 9× the median at σ_g 1.5), the nearest of them beyond; not interpolated between
+    # radii: each radius has its own configurations, and a blend of two unrelated ones narrows the distribution
+    # (4 radii blended: metallic-silver's count 3 % low)
     s_g0 = np.log(float(stack.flakes[0].diameter_gsd)) if stack.flakes else 0.0
     r_med = float(np.exp(np.mean(np.log(radii))))
     lo_r, hi_r = max(radii.min(), r_med * np.exp(-2.33 * s_g0)), min(radii.max(), r_med * np.exp(2.33 * s_g0))
-    radii = np.exp(np.linspace(np.log(lo_r), np.log(hi_r), min(N_OCCLUSION_RADII, radii.size)))
-    r_big = float(radii.max())
+    radii, back = np.unique(np.clip(radii, lo_r, hi_r), return_inverse=True)
     if weights is None:  # per channel: the identity at every depth
         W = np.broadcast_to(np.eye(C)[:, :, None], (C, C, z.size))
     else:
@@ -804,53 +868,54 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
     rows = W.shape[0]
     out = np.empty((rows, radii.size, z.size, n_cfg))
     nzc = z.size * n_cfg
-    # the flakes above, drawn once for every radius (the bounding cylinder holds the largest): per species and
-    # set, the drawn flakes alone (flattened: their (depth, configuration) cell, height, centre, radius) and the
-    # crossed flakes' T per path
-    drawn = []
+    # per species and set: its density, the paths it crosses (drift, T per channel) and the heights above each depth
+    sets = []
     for f in stack.flakes:
         lo = np.clip(z - (f.z_top_um + f.thickness_um), 0.0, None)  # heights Δ of this species above each depth
         hi = np.clip(z - f.z_top_um, 0.0, None)
         if not np.any(hi > lo):
             continue
-        s_g = np.log(float(f.diameter_gsd))
-        r_q = 0.5 * float(f.diameter_median_um) * np.exp(3.0 * s_g)  # bounding radius (quantile 0.9987)
         mus = np.array([g.mu_l_b, g.mu_v_b])
         P = projected_area(mus, f.alpha, distribution=f.distribution) / mus
         T = f.mean_crossed_transmittance(mus)  # (C, 2): light, view
-        R_b = r_big + r_q + float(hi.max()) * half  # obstacles that can touch a path lie within R_b of Δ·mid
-        sets = []
-        for s in range(1 if correlated else 2):
-            rho = float(f.number_density_per_um3) * (0.5 * (P[0] + P[1]) if correlated else P[s])
-            lam = rho * np.pi * R_b * R_b * (hi - lo)  # (nz,) expected obstacles in the bounding cylinder
-            n_max = int(np.ceil(lam.max() + 6.0 * np.sqrt(lam.max()) + 6.0))
-            u = _occlusion_uniforms(n_cfg, n_max, s)
-            # Poisson counts by inversion of the same uniform at every depth (smooth in z)
-            N = _poisson_ppf(u[0, :, 0][None, :], lam[:, None])  # (nz, n_cfg)
-            iz, ic, ij = np.nonzero(np.arange(n_max)[None, None, :] < N[:, :, None])  # the drawn flakes
-            dlt = lo[iz] + u[1][ic, ij] * (hi - lo)[iz]
-            rr = np.minimum(0.5 * float(f.diameter_median_um) * np.exp(s_g * ndtri(np.clip(u[2], 1e-12, 1 - 1e-12))), r_q)
-            rad = R_b * np.sqrt(u[4])
-            cx = dlt * mid[0] + (rad * np.cos(2.0 * np.pi * u[3]))[ic, ij]
-            cy = dlt * mid[1] + (rad * np.sin(2.0 * np.pi * u[3]))[ic, ij]
-            sets.append((dlt, cx, cy, rr[ic, ij], iz * n_cfg + ic))
-        for path, tvec in enumerate((t_l, t_v)):
-            dlt, cx, cy, rr, cell = sets[0 if correlated else path]
-            # only the flakes whose disc reaches the path of some point of the largest flake (centre within r + r_j)
-            ox, oy = dlt * tvec[0] - cx, dlt * tvec[1] - cy
-            d2 = ox * ox + oy * oy
-            cand = d2 < (r_big + rr) ** 2
-            drawn.append((ox[cand], oy[cand], d2[cand], rr[cand], cell[cand], T[:, path]))
+        Dn, Dw = f.diameters()
+        rho = float(f.number_density_per_um3)
+        if correlated:
+            sets.append((rho * 0.5 * (P[0] + P[1]), ((t_l, T[:, 0]), (t_v, T[:, 1])), lo, hi, 0.5 * Dn, Dw))
+        else:
+            sets += [(rho * P[s], ((t, T[:, s]),), lo, hi, 0.5 * Dn, Dw) for s, t in enumerate((t_l, t_v))]
+    v = 0.5 if OCCLUSION_SHIFT is None else float(np.random.default_rng([OCCLUSION_SHIFT, 99]).random())
+    mid = (np.arange(n_cfg) + v) / n_cfg
     q_idx = np.arange(n_pts)
     for ir, r in enumerate(radii):
+        drawn = []
+        for stream, (rho, paths, lo, hi, rn, rw) in enumerate(sets):
+            t_a, t_b = paths[0][0], paths[-1][0]
+            mu_A, mu_B, cdf_A, cdf_B = _touching(rho, r, rn, rw, lo, hi, t_a, t_b)
+            # the number touching: Poisson quantiles of the stratum midpoints (in order for the first set, in a
+            # fixed order of their own for the others, so that two sets' counts are unrelated)
+            qk = mid if stream == 0 else _occlusion_points(n_cfg, 1, stream, OCCLUSION_SHIFT)[1]
+            N = _poisson_ppf(qk[None, :], (mu_A + mu_B)[:, None])  # (nz, n_cfg)
+            n_max = int(N.max(initial=0))
+            if n_max > N_OCCLUSION_MAX:
+                raise TextureModelLimit(f"a flake's paths meet up to {n_max} flakes above it: beyond the occlusion's "
+                                        f"{N_OCCLUSION_MAX} (docs/texture.md §3.3)")
+            if n_max == 0:
+                continue
+            u = _occlusion_points(n_cfg, 1 << max(4, (n_max - 1).bit_length()), stream, OCCLUSION_SHIFT)[0]
+            iz, ic, ij = np.nonzero(np.arange(n_max)[None, None, :] < N[:, :, None])  # the obstacles present
+            dlt, cx, cy, rj = _place(u[:, ij, ic], r, rn, lo[iz], hi[iz], t_a, t_b, mu_A[iz], mu_B[iz], cdf_A, cdf_B)
+            for tvec, tp in paths:
+                ox, oy = dlt * tvec[0] - cx, dlt * tvec[1] - cy
+                near = ox * ox + oy * oy < (r + rj) ** 2  # reaches this path of some point of the disc
+                drawn.append((ox[near], oy[near], rj[near], (iz * n_cfg + ic)[near], tp))
         # per (species, path): the crossings of each point's path, (cells × points)
         counts, tables = [], []
-        for ox, oy, d2, rr, cell, tp in drawn:
-            near = d2 < (r + rr) ** 2
-            px = r * pts[:, 0] + ox[near][:, None]  # (near flakes, Q)
-            py = r * pts[:, 1] + oy[near][:, None]
-            hit = px * px + py * py < (rr[near] ** 2)[:, None]
-            n = np.bincount((cell[near][:, None] * n_pts + q_idx).ravel(), hit.ravel(), nzc * n_pts).astype(np.int64)
+        for ox, oy, rr, cell, tp in drawn:
+            px = r * pts[:, 0] + ox[:, None]  # (flakes, Q)
+            py = r * pts[:, 1] + oy[:, None]
+            hit = px * px + py * py < (rr ** 2)[:, None]
+            n = np.bincount((cell[:, None] * n_pts + q_idx).ravel(), hit.ravel(), nzc * n_pts).astype(np.int64)
             k = int(n.max(initial=0))
             counts.append(n)
             tables.append(tp[:, None] ** np.arange(k + 1)[None, :])  # (C, k + 1); 0^0 = 1
@@ -876,13 +941,7 @@ def _occlusion(stack, g, z, radii, correlated, n_cfg=N_OCCLUSION, n_pts=N_OCCLUS
         # per point its (weighted) transmission, then the disc's mean per (depth, configuration)
         val = np.einsum("rcz,cu->rzu", W, prod)[:, np.arange(nzc * n_pts) // (n_cfg * n_pts), inv]
         out[:, ir] = val.reshape(rows, z.size, n_cfg, n_pts).sum(axis=-1) / n_pts
-    if radii.size == 1:
-        out = np.repeat(out, r_all.size, axis=1)
-    else:  # the same configurations at every radius: each draw interpolated in ln r to the requested radii
-        x = np.log(r_all)
-        k = np.clip(np.searchsorted(np.log(radii), x) - 1, 0, radii.size - 2)
-        t = np.clip((x - np.log(radii)[k]) / (np.log(radii)[k + 1] - np.log(radii)[k]), 0.0, 1.0)
-        out = out[:, k] * (1.0 - t)[None, :, None, None] + out[:, k + 1] * t[None, :, None, None]
+    out = out[:, back]  # each requested radius at its own value (the nearest of the 1–99 % quantiles beyond them)
     return out if weights is None else out[0]
 
 

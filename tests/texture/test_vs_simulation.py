@@ -9,6 +9,9 @@ Agreement: within 3σ + 10 % (σ the simulation's statistical error).  A perturb
 the reference with the old shortcuts switched back on must disagree.  The wider sweep at the BYK-like and
 person presets: bench/texture_reference.py, docs/texture.md §8."""
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -19,7 +22,9 @@ from tests.texture.cases import TEST_OBSERVER, sim_inputs, stack_of
 #: name: (recipe arguments, patch side µm, simulate the sky too)
 CASES = {
     "metallic-2%-20um-a0.2": (dict(species="metallic", vf=0.02, alpha=0.2, D=20.0), 4000.0, True),
-    "metallic-8%-20um-a0.2": (dict(species="metallic", vf=0.08, alpha=0.2, D=20.0), 2500.0, True),
+    # 4000 µm (was 2500): at 2500 the 30° row held 28 glints above β_t, 4.5 ± 0.85 per mm², where a 5000 µm patch
+    # (seed 12) reads 7.96 ± 0.56 and the model 7.90 (docs/texture.md §8)
+    "metallic-8%-20um-a0.2": (dict(species="metallic", vf=0.08, alpha=0.2, D=20.0), 4000.0, True),
     "metallic-2%-10um-a0.05": (dict(species="metallic", vf=0.02, alpha=0.05, D=10.0), 2500.0, False),
     "metallic-2%-40um-a0.3": (dict(species="metallic", vf=0.02, alpha=0.3, D=40.0), 6000.0, True),
     "pearlescent-3%-20um-a0.15": (dict(species="pearlescent", vf=0.03, alpha=0.15, D=20.0), 3500.0, True),
@@ -138,3 +143,41 @@ def test_the_old_shortcuts_are_not_the_reference():
     assert old["diffuse"]["graininess"] > 1.5 * new["diffuse"]["graininess"]
     assert not _close(g, old["diffuse"]["graininess"], old["diffuse"]["sigma_graininess"])
     assert _close(g, new["diffuse"]["graininess"], new["diffuse"]["sigma_graininess"])
+
+
+def _bench():
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[2] / "bench" / "texture_reference.py"
+    spec = importlib.util.spec_from_file_location("texture_reference_bench", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+_SWEEP = Path(__file__).resolve().parents[2] / "bench" / "texture_reference.jsonl"
+#: The sweep's one known miss (docs/texture.md §8): G5's sky luminances drawn independently of the mosaic
+#: (measured G ×1.068 at 16 % by bench/texture_mosaic_sky.py); held to its present size, not let grow.
+_KNOWN_MISS = {"byk/met-16%-20um-a0.2": 0.16}
+
+
+@pytest.mark.parametrize("row", [json.loads(line) for line in _SWEEP.read_text().splitlines()], ids=lambda r: r["name"])
+def test_the_bench_sweep_holds_against_the_stored_reference(row):
+    """docs/texture.md §8's BYK-like and person sweep (loading 2–16 %, diameter 10–40 µm, α 0.05–0.5, metallic and
+    pearlescent, with and without a black pigment) re-evaluated by bench/texture_reference.py's own model rows
+    against the stored reference (bench/texture_reference.jsonl, flakedb.reference.flake_sim with area hiding,
+    per-ray sky and true diffraction): glints per mm² (half-peak and above β_t) and, with ≥ 10 glints, the sparkle
+    intensity within 3σ + 10 %, G within 3σ + 10 % (the 16 % metallic graininess within 3σ + 16 %: the known miss).
+    Guards the table the documentation prints: the occlusion's flakes above 30 % too dense put the 16 % metallic
+    and both pearlescent counts outside (tried)."""
+    bench = _bench()
+    mrows, g = bench.model_row(row["name"])
+    for m, d in zip(mrows, row["directional"]):
+        assert bench._ok(m["glints_per_mm2"], d["glints_per_mm2"], d["sigma_glints_per_mm2"]), (d["light_deg"], m["glints_per_mm2"])
+        assert bench._ok(m["glints_per_mm2_above_threshold"], d["glints_per_mm2_above_threshold"],
+                         d["sigma_glints_per_mm2_above_threshold"]), d["light_deg"]
+        if d["glints"] >= 10:
+            assert bench._ok(m["sparkle_intensity"], d["sparkle_intensity"], d["sigma_sparkle_intensity"]), d["light_deg"]
+    dd = row["diffuse"]
+    assert bench._ok(g["graininess"], dd["graininess"], dd["sigma_graininess"], rel=_KNOWN_MISS.get(row["name"], 0.10)), \
+        (g["graininess"], dd["graininess"])
