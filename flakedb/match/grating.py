@@ -52,12 +52,14 @@ from __future__ import annotations
 import functools
 
 import numpy as np
+from scipy.special import jv
 
 from flakedb.optics.fresnel import fresnel_dielectric_real
 from flakedb.rt.scattering.microflake import flake_ndf, sample_flake_normal
 
 __all__ = ["binder_directions", "grating_brdf", "grating_brdf_montecarlo", "grating_paint_reflectance",
-           "mean_flake_cosine", "projected_density"]
+           "mean_flake_cosine", "projected_density",
+           "sinusoidal_efficiency"]
 
 
 @functools.lru_cache(maxsize=8)
@@ -86,12 +88,26 @@ def _frame(h):
     return e1, np.cross(h, e1)
 
 
+def sinusoidal_efficiency(order, cos_in, cos_out, wavelength_nm, depth_nm, n_binder=1.5):
+    """η_|m| of the orders ±m together (m ≠ 0: 2 J_m²(Φ); m = 0: J_0²(Φ)) of a sinusoidal reflection grating of
+    amplitude a = ``depth_nm`` (surface height a sin(2π x/Λ), peak-to-valley 2a) per unit reflectance, scalar
+    (Kirchhoff / Raman–Nath) theory: the reflected phase k n_b (cos θ_in + cos θ_out) z(x) has the Jacobi–Anger
+    expansion Σ_m J_m(Φ) e^{i m 2π x/Λ}, Φ = 2π n_b a (cos θ_in + cos θ_out)/λ, cosines to the flake normal.
+    Σ over all m of the returned values is 1 (Σ J_m² = 1): the grating only redistributes the reflected power.
+    Scalar theory ignores polarisation and the resonances of rigorous (RCWA) theory; it is taken as accurate
+    for Λ ≳ 2λ and shallow grooves (Loewen & Popov, Diffraction Gratings and Applications, 1997, ch. 3)."""
+    phi = 2.0 * np.pi * n_binder * depth_nm * (np.asarray(cos_in) + np.asarray(cos_out)) / np.asarray(wavelength_nm)
+    return (1.0 if order == 0 else 2.0) * jv(abs(order), phi) ** 2
+
+
 def grating_brdf(wi, wo, wavelength_nm, period_nm, alpha, distribution="beckmann", orders=(0, 1, 2),
-                 n_binder=1.5, n_phi=512):
+                 n_binder=1.5, n_phi=512, depth_nm=None):
     """f_|m| [1/sr] (M, N, W) of a grating-flake population with unit efficiency per order |m| in ``orders``
     (M,), at direction pairs ``wi``, ``wo`` (N, 3) in the binder (unit, z the coat normal, both μ > 0) and
     wavelengths (W,) [nm] in vacuum, period Λ = ``period_nm``, binder index ``n_binder``: the cone formula of the
-    module docstring (m = 0: D_p(h)/(4 μ_i μ_o)).  Vectorised over orders, directions, wavelengths and φ."""
+    module docstring (m = 0: D_p(h)/(4 μ_i μ_o)).  With ``depth_nm`` the efficiency of each order is that of a
+    sinusoidal grating of that amplitude (:func:`sinusoidal_efficiency`), evaluated at each flake's own cosines
+    on the cone, instead of 1.  Vectorised over directions, wavelengths and φ."""
     wi = np.atleast_2d(np.asarray(wi, float))
     wo = np.atleast_2d(np.asarray(wo, float))
     lam = np.asarray(wavelength_nm, float)
@@ -108,6 +124,9 @@ def grating_brdf(wi, wo, wavelength_nm, period_nm, alpha, distribution="beckmann
     for k, m in enumerate(orders):                                        # ≤ 3 orders: not a hot loop
         if m == 0:
             out[k] = (dp(h[:, 2]) / (4.0 * mu_i * mu_o))[:, None]
+            if depth_nm is not None:
+                cd = np.sum(wi * h, axis=-1)[:, None]
+                out[k] *= sinusoidal_efficiency(0, cd, cd, lam[None, :], depth_nm, n_binder)
             continue
         r = abs(m) * lam[None, :] / (n_binder * period_nm)                # (1, W)
         sb = r / H[:, None]                                               # sin β₀ (N, W)
@@ -121,6 +140,8 @@ def grating_brdf(wi, wo, wavelength_nm, period_nm, alpha, distribution="beckmann
         co = np.maximum(np.einsum("nwpk,nk->nwp", n, wo), 0.0)
         up = n[..., 2] > 0.0
         integ = np.where(up, dp(np.where(up, n[..., 2], 1.0)), 0.0) * ci * co
+        if depth_nm is not None:
+            integ = integ * sinusoidal_efficiency(m, ci, co, lam[None, :, None], depth_nm, n_binder)
         ring_mean = integ.mean(axis=-1)                                   # (1/2π) ∫ dφ
         val = sb * ring_mean / (r * H[:, None] * cb * (mu_i * mu_o)[:, None])
         out[k] = np.where(ok, val, 0.0)
@@ -128,14 +149,15 @@ def grating_brdf(wi, wo, wavelength_nm, period_nm, alpha, distribution="beckmann
 
 
 def grating_brdf_montecarlo(wi, wo, wavelength_nm, period_nm, alpha, order, distribution="beckmann",
-                            n_binder=1.5, n_samples=2_000_000, cone_deg=2.0, seed=0):
+                            n_binder=1.5, n_samples=2_000_000, cone_deg=2.0, seed=0, depth_nm=None):
     """Brute-force estimate of f_|m| [1/sr] at one pair (ω_i, ω_o) in the binder and one wavelength, with unit
     efficiency shared equally by +|m| and −|m|: flake normals drawn from the upper-hemisphere density 2 D(m)
     (:func:`sample_flake_normal`), grating azimuths uniform, the sign of m at random; each flake intercepts
     ⟨ω_i·m⟩ / (⟨m·z⟩ μ_i) of the coat's irradiance (⟨m·z⟩ the sample mean of m·z) and sends it along the
     direction the grating equation gives (dropped if evanescent or behind the flake); the BRDF is the power
     landing in a cone of half-angle ``cone_deg`` around ω_o over (N · solid angle · μ_o).  Independent of
-    :func:`grating_brdf` (no cone formula, no projection).  Returns (estimate, its standard error)."""
+    :func:`grating_brdf` (no cone formula, no projection).  With ``depth_nm`` each flake's power is weighted by
+    :func:`sinusoidal_efficiency` at its own incidence and exit cosines.  Returns (estimate, its standard error)."""
     rng = np.random.default_rng(seed)
     wi = np.asarray(wi, float)
     wo = np.asarray(wo, float)
@@ -158,6 +180,9 @@ def grating_brdf_montecarlo(wi, wo, wavelength_nm, period_nm, alpha, order, dist
     w_out = out_t + np.sqrt(np.maximum(1.0 - t2, 0.0))[:, None] * n
     hit = prop & (cin > 0) & (np.arccos(np.clip(w_out @ wo, -1.0, 1.0)) < np.radians(cone_deg))
     weight = np.where(hit, np.maximum(cin, 0.0) / (mean_cos * wi[2]), 0.0)
+    if depth_nm is not None:
+        cout = np.maximum(np.sum(w_out * n, axis=1), 0.0)
+        weight = weight * sinusoidal_efficiency(order, np.maximum(cin, 0.0), cout, wavelength_nm, depth_nm, n_binder)
     omega = 2.0 * np.pi * (1.0 - np.cos(np.radians(cone_deg)))
     scale = 1.0 / (omega * wo[2])
     return float(weight.mean() * scale), float(weight.std() / np.sqrt(n_samples) * scale)
@@ -176,12 +201,16 @@ def binder_directions(geometries_deg, n_binder=1.5):
 
 
 def grating_paint_reflectance(geometries_deg, wavelength_nm, period_nm, alpha, weights, k_d=0.0,
-                              distribution="beckmann", orders=(0, 1, 2), n_binder=1.5, n_phi=256):
+                              distribution="beckmann", orders=(0, 1, 2), n_binder=1.5, n_phi=256, depth_nm=None):
     """Reflectance factors R (G, W) of the single-scattering grating-flake paint (module docstring) at in-plane
-    geometries (G, 2) [deg]: ``weights`` (M,) the order weights a_|m| = c η_|m| for ``orders``, ``k_d`` the grey
-    Lambertian floor."""
+    geometries (G, 2) [deg]: ``weights`` (M,) the order weights a_|m| = c η_|m| for ``orders`` (scalars, or (M, W)
+    spectra), ``k_d`` the grey Lambertian floor.  With ``depth_nm`` the orders carry the sinusoidal grating's
+    efficiencies (:func:`grating_brdf`) and ``weights`` is c R_flake (the coverage times the flake metal's
+    reflectance)."""
     wi, wo, mu_i, mu_v = binder_directions(geometries_deg, n_binder)
-    f = grating_brdf(wi, wo, wavelength_nm, period_nm, alpha, distribution, orders, n_binder, n_phi)
+    f = grating_brdf(wi, wo, wavelength_nm, period_nm, alpha, distribution, orders, n_binder, n_phi, depth_nm)
     T = (1.0 - fresnel_dielectric_real(mu_i, n_binder)) * (1.0 - fresnel_dielectric_real(mu_v, n_binder))
-    fsum = np.tensordot(np.asarray(weights, float), f, axes=(0, 0))      # (G, W)
+    w = np.asarray(weights, float)
+    w = w[:, None, None] if w.ndim == 1 else w[:, None, :]
+    fsum = np.sum(w * f, axis=0)                                          # (G, W)
     return np.pi * (T / n_binder ** 2)[:, None] * fsum + k_d

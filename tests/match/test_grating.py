@@ -15,16 +15,18 @@ def _unit(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-@pytest.mark.parametrize("alpha,dist,order,geom", [
-    (0.2, "beckmann", 1, (45, 25)), (0.2, "beckmann", 1, (15, 45)), (0.2, "beckmann", 2, (45, 75)),
-    (0.3, "ggx", 1, (45, -15)), (0.15, "student_t(2.9)", 1, (45, 45)), (0.2, "beckmann", 0, (15, 45)),
+@pytest.mark.parametrize("alpha,dist,order,geom,lam,period", [
+    (0.2, "beckmann", 1, (45, 25), 550, 1000), (0.2, "beckmann", 1, (15, 45), 550, 1000),
+    (0.2, "beckmann", 2, (45, 75), 550, 1000), (0.3, "ggx", 1, (45, -15), 550, 1000),
+    (0.15, "student_t(2.9)", 1, (45, 45), 550, 1000), (0.2, "beckmann", 0, (15, 45), 550, 1000),
+    (0.6, "beckmann", 1, (15, 45), 650, 420),   # a wide cone (β₀ 31°): cos β₀ 0.86 matters
 ])
-def test_cone_formula_matches_brute_force_flakes(alpha, dist, order, geom):
+def test_cone_formula_matches_brute_force_flakes(alpha, dist, order, geom, lam, period):
     # 1 million flakes, each diffracted by the grating equation solved in its own frame, binned in a 2° cone: the
     # estimate carries its standard error plus the cone's averaging (f is smooth: second order in 2°, < 1 %)
     wi, wo, _, _ = binder_directions([geom])
-    f = grating_brdf(wi, wo, [550.0], 1000.0, alpha, dist, orders=(order,))[0, 0, 0]
-    mc, se = grating_brdf_montecarlo(wi[0], wo[0], 550.0, 1000.0, alpha, order, dist, n_samples=1_000_000,
+    f = grating_brdf(wi, wo, [lam], period, alpha, dist, orders=(order,))[0, 0, 0]
+    mc, se = grating_brdf_montecarlo(wi[0], wo[0], lam, period, alpha, order, dist, n_samples=1_000_000,
                                      cone_deg=2.0, seed=7)
     assert f > 0.02
     assert abs(mc - f) < 4.0 * se + 0.01 * f
@@ -75,3 +77,25 @@ def test_first_order_albedo_is_the_grating_equations(g, expected):
     alb = np.trapezoid(f * 2 * np.pi * mu, mu)
     # the grid resolves the lobe (width ~2α in sin θ): 1 % from the quadrature
     assert alb == pytest.approx(expected, abs=0.015)
+
+
+def test_sinusoidal_efficiencies_conserve_power_and_have_the_shallow_limit():
+    from flakedb.match.grating import sinusoidal_efficiency
+    c = np.linspace(0.2, 1, 7)
+    tot = sum(sinusoidal_efficiency(m, c, c[::-1], 520.0, 140.0) for m in range(60))
+    np.testing.assert_allclose(tot, 1.0, rtol=1e-12)
+    # shallow grooves: J_1(Φ) = Φ/2 − Φ³/16 + O(Φ⁵), η_±1 = 2 J_1², Φ = 2π n a (c_in + c_out)/λ (= 0.069 here)
+    phi = 2 * np.pi * 1.5 * 2.0 * 2.0 / 550.0
+    assert sinusoidal_efficiency(1, 1.0, 1.0, 550.0, 2.0) == pytest.approx(2 * (phi / 2 - phi ** 3 / 16) ** 2,
+                                                                           rel=1e-6)
+
+
+@pytest.mark.parametrize("order,geom", [(0, (45, 15)), (1, (45, 45)), (2, (15, 45))])
+def test_grooved_flakes_match_brute_force(order, geom):
+    # the efficiency taken at each flake's own cosines on the cone, against flakes weighted one by one
+    wi, wo, _, _ = binder_directions([geom])
+    f = grating_brdf(wi, wo, [480.0], 900.0, 0.2, orders=(order,), depth_nm=90.0)[0, 0, 0]
+    mc, se = grating_brdf_montecarlo(wi[0], wo[0], 480.0, 900.0, 0.2, order, n_samples=1_000_000, cone_deg=2.0,
+                                     seed=11, depth_nm=90.0)
+    assert f > 0.02
+    assert abs(mc - f) < 4.0 * se + 0.01 * f
