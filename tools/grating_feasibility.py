@@ -35,6 +35,8 @@ def main(argv=None):
     ap.add_argument("--no-fit", action="store_true", help="evaluate the first start only")
     ap.add_argument("--specular", action="store_true",
                     help="add a plain (specular) aluminium flake population: its coverage and α, two more free")
+    ap.add_argument("--second-grating", action="store_true",
+                    help="add a second grating population (its period, amplitude and coverage; α shared)")
     a = ap.parse_args(argv)
     t = read_target(a.target)
     geo, lab = np.asarray(t.geometries)[:, :2], np.asarray(t.lab)
@@ -42,7 +44,8 @@ def main(argv=None):
     N = refractive_index("Al", wl)
     r_al = np.abs((N - 1.5) / (N + 1.5)) ** 2                                # normal incidence, in the binder
 
-    names = NAMES + (("spec_coverage", "spec_alpha") if a.specular else ())
+    names = NAMES + (("spec_coverage", "spec_alpha") if a.specular else ()) + (
+        ("period2_nm", "amplitude2_nm", "coverage2") if a.second_grating else ())
 
     def model(p):
         d, amp, alpha, c, kd = np.exp(p[:5])
@@ -51,12 +54,18 @@ def main(argv=None):
         if a.specular:
             cs, alpha_s = np.exp(p[5:7])
             R = R + grating_paint_reflectance(geo, wl, 1e3, alpha_s, (cs * r_al)[None, :], 0.0, a.distribution, (0,))
+        if a.second_grating:
+            d2, amp2, c2 = np.exp(p[-3:])
+            R = R + grating_paint_reflectance(geo, wl, d2, alpha, np.tile(c2 * r_al, (len(ORDERS), 1)), 0.0,
+                                              a.distribution, ORDERS, n_phi=a.n_phi, depth_nm=amp2)
         return XYZ_to_Lab(reflectance_to_XYZ(R, wl))
 
     de = lambda p: delta_E_2000(lab, model(p))
     starts = [np.log([float(x) for x in s.split(",")]) for s in a.start.split(";")]
     if a.specular:
         starts = [np.r_[s, np.log([0.05, 0.1])] if s.size == 5 else s for s in starts]
+    if a.second_grating:
+        starts = [s if s.size == len(names) else np.r_[s, np.log([1000.0, 60.0, 0.05])] for s in starts]
     if a.no_fit:
         x = starts[0]
     else:
