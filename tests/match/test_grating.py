@@ -99,3 +99,16 @@ def test_grooved_flakes_match_brute_force(order, geom):
                                      seed=11, depth_nm=90.0)
     assert f > 0.02
     assert abs(mc - f) < 4.0 * se + 0.01 * f
+
+
+def test_binder_directions_agree_with_the_half_angle_test():
+    # the same refracted geometry as flakedb.match.halfangle (whose θ_d' groups motivate the grating flake)
+    from flakedb.match.halfangle import binder_half_angles_deg
+    g = [(45, -15), (45, 15), (45, 25), (45, 45), (45, 75), (45, 110), (15, -45), (15, -15), (15, 15), (15, 45),
+         (15, 80)]
+    wi, wo, mu_i, mu_v = binder_directions(g)
+    h = _unit(wi + wo)
+    th, td = binder_half_angles_deg(g)
+    np.testing.assert_allclose(np.degrees(np.arccos(np.clip(h[:, 2], -1, 1))), th, atol=1e-6)
+    np.testing.assert_allclose(np.degrees(np.arccos(np.sum(wi * h, axis=1))), td, atol=1e-6)
+    np.testing.assert_allclose(mu_v, np.cos(np.radians(np.array(g)[:, 0] - np.array(g)[:, 1])), rtol=1e-15)
