@@ -33,6 +33,8 @@ def main(argv=None):
     ap.add_argument("--start", default="700,44,0.094,0.245,5e-4;900,80,0.2,0.3,0.01;550,40,0.08,0.2,0.01",
                     help="starts, ';'-separated, each " + ",".join(NAMES))
     ap.add_argument("--no-fit", action="store_true", help="evaluate the first start only")
+    ap.add_argument("--polish", action="store_true", help="Nelder-Mead on the worst ΔE00 from the first start only "
+                    "(no least-squares stage): a restart of a minimax result")
     ap.add_argument("--specular", action="store_true",
                     help="add a plain (specular) aluminium flake population: its coverage and α, two more free")
     ap.add_argument("--second-grating", action="store_true",
@@ -69,7 +71,7 @@ def main(argv=None):
     if a.no_fit:
         x = starts[0]
     else:
-        fits = [least_squares(de, p0, method="trf", max_nfev=60).x for p0 in starts]
+        fits = [starts[0]] if a.polish else [least_squares(de, p0, method="trf", max_nfev=60).x for p0 in starts]
         x0 = min(fits, key=lambda p: de(p).max())
         x = minimize(lambda p: de(p).max(), x0, method="Nelder-Mead",
                      options=dict(maxiter=1500, xatol=1e-5, fatol=1e-4)).x
