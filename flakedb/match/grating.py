@@ -94,8 +94,9 @@ def sinusoidal_efficiency(order, cos_in, cos_out, wavelength_nm, depth_nm, n_bin
     (Kirchhoff / Raman–Nath) theory: the reflected phase k n_b (cos θ_in + cos θ_out) z(x) has the Jacobi–Anger
     expansion Σ_m J_m(Φ) e^{i m 2π x/Λ}, Φ = 2π n_b a (cos θ_in + cos θ_out)/λ, cosines to the flake normal.
     Σ over all m of the returned values is 1 (Σ J_m² = 1): the grating only redistributes the reflected power.
-    Scalar theory ignores polarisation and the resonances of rigorous (RCWA) theory; it is taken as accurate
-    for Λ ≳ 2λ and shallow grooves (Loewen & Popov, Diffraction Gratings and Applications, 1997, ch. 3)."""
+    Scalar theory is the limit Λ ≫ λ with shallow grooves; it ignores polarisation, the metal's phase and the
+    resonances (Wood anomalies) that rigorous electromagnetic theory (RCWA) gives at Λ/λ ~ 1-2 (E. G. Loewen and
+    E. Popov, Diffraction Gratings and Applications, 1997, on the domains of scalar theory)."""
     phi = 2.0 * np.pi * n_binder * depth_nm * (np.asarray(cos_in) + np.asarray(cos_out)) / np.asarray(wavelength_nm)
     return (1.0 if order == 0 else 2.0) * jv(abs(order), phi) ** 2
 
