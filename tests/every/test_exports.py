@@ -89,7 +89,7 @@ def _check_cpa(res, name, glsl=True):
     files = res["files"]
     d = _strict_json(Path(files["fit"]).read_text())
     _finite(d, "cpa")
-    px = cpa.read_png16(Path(files["image"]).read_bytes())
+    px = cpa.read_table_png(Path(files["image"]).read_bytes())
     assert np.all(np.isfinite(px)) and px.min() >= 0.0 and px.max() <= 1.0
     _mtlx_valid(files["materialx"], f"M_{name}" if glsl else None)
     compile(Path(files["blender"]).read_text(encoding="utf-8"), files["blender"], "exec")
