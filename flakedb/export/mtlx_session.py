@@ -23,7 +23,12 @@ import numpy as np
 
 
 def gl_strings() -> dict:
-    """GL_VENDOR / GL_RENDERER / GL_VERSION of the current context (libGL through ctypes)."""
+    """GL_VENDOR / GL_RENDERER / GL_VERSION of the current context (libGL through ctypes), or ``{"error": why}``
+    where libGL cannot be loaded.
+
+    >>> sorted(gl_strings()) in (["renderer", "vendor", "version"], ["error"])
+    True
+    """
     try:
         gl = ctypes.CDLL("libGL.so.1")
         gl.glGetString.restype = ctypes.c_char_p
