@@ -18,6 +18,7 @@ from flakedb.rt.scattering.microflake import (FLAKE_DISTRIBUTIONS, FlakeOptics, 
 from flakedb.texture import model as tm
 from flakedb.texture.instruments import PRESETS, Observer
 from tests.texture.cases import TEST_OBSERVER, recipe, stack_of
+from tests.tolerances import U
 
 
 def _f_ss(stack, light_deg, view_deg, phi_d=0.0):
@@ -499,9 +500,12 @@ def test_occlusion_rule_of_a_point_flake_is_the_crossing_probability():
     g = tm.directional_geometry(st.eta, 0.0, 0.0, 1.0, np.radians(0.5))
     z, _ = tm._depth_nodes(f)
     w = tm._occlusion(st, g, z, [1e-3], True)[0, 0]
-    assert np.all((w == 0.0) | (w == 1.0))
+    # 0 or 1 to rounding: a crossing covers the point, 1 − (a covered fraction of 1 to a few ulp) leaves O(U) per
+    # crossing (CI's second configuration, SIMD off, read 1.2e-32 and smaller where its first read exactly 0)
+    hit, free = np.abs(w) <= 16 * U, np.abs(w - 1.0) <= 16 * U
+    assert np.all(hit | free)
     _, lam, _ = tm._path(st, z, g.mu_v_b)
-    np.testing.assert_allclose((w == 1.0).mean(axis=-1), np.exp(-lam), atol=1.0 / w.shape[-1] + 1e-3)
+    np.testing.assert_allclose(free.mean(axis=-1), np.exp(-lam), atol=1.0 / w.shape[-1] + 1e-3)
 
 
 def test_poisson_quantile_is_the_least_count_reaching_q():
