@@ -126,13 +126,14 @@ def available_threads(environ=None, cpus=None) -> int:
     environ = os.environ if environ is None else environ
     if cpus is None:
         cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    cap = None
-    for name in THREAD_CAP_VARIABLES:
-        value = str(environ.get(name, "")).strip()
-        if value.isdigit() and int(value) > 0:
-            cap = int(value)
-            break
+    cap = next((c for c in (_positive_count(environ.get(v)) for v in THREAD_CAP_VARIABLES) if c), None)
     return max(1, min(int(cpus), cap) if cap else int(cpus))
+
+
+def _positive_count(raw):
+    """``raw`` (an environment value) as a positive whole number, else None."""
+    value = str(raw if raw is not None else "").strip()
+    return int(value) if value.isdigit() and int(value) > 0 else None
 
 
 def _libc():
@@ -384,7 +385,7 @@ def environment_problems(environ=None) -> list[str]:
         if raw is not None and raw.strip() not in ("", "0", "1"):
             out.append(f"{v}={_shown(raw)}: use 0 (off) or 1 (on)")
     raw = environ.get("FLAKEDB_THREADS")
-    if raw is not None and raw.strip() and not (raw.strip().isdigit() and int(raw.strip()) > 0):
+    if raw is not None and raw.strip() and _positive_count(raw) is None:
         out.append(f"FLAKEDB_THREADS={_shown(raw)}: use a positive whole number of threads (e.g. FLAKEDB_THREADS=1), "
                    f"or unset it for every CPU this process may use")
     for v in _PATH_VARIABLES:

@@ -281,16 +281,23 @@ def particle_entry(p) -> dict:
     return entry
 
 
+def recipe_overrides(p) -> dict:
+    """The recipe fields that make a catalogue particle's optics differ from its species' entry: an interference
+    flake's film overrides and a pigment's ``median_diameter_um`` / ``gsd`` (name -> value)."""
+    over = dict(getattr(p, "film_overrides", None) or {})
+    if p.kind == "pigment":
+        over.update({k: float(v) for k, v in (("median_diameter_um", p.median_diameter_um), ("gsd", p.gsd))
+                     if v is not None})
+    return over
+
+
 def store_key(p) -> str:
     """The name a store holds a catalogue particle's optics under: the species name, or, where the recipe changes
     the optics (an interference flake's films, a pigment's size distribution), ``<species>~<12 hex>``: the
     species with a digest of the overrides (blake2b of their sorted JSON), so each overridden species is one
     more species of a version (``flakedb build --recipe`` projects it; the stored entry is
     :func:`particle_entry`, checked against the recipe's when a compose reads it)."""
-    over = dict(getattr(p, "film_overrides", None) or {})
-    if p.kind == "pigment":
-        over.update({k: float(v) for k, v in (("median_diameter_um", p.median_diameter_um), ("gsd", p.gsd))
-                     if v is not None})
+    over = recipe_overrides(p)
     if not over:
         return p.species
     text = json.dumps({k: (list(map(float, v)) if isinstance(v, (list, tuple)) else float(v))

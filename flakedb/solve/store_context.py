@@ -12,7 +12,8 @@ import numpy as np
 from flakedb.colour.colorimetry import spectra_to_rgb_matrix
 from flakedb.paint.catalog import optical_entry
 from flakedb.paint.mapping import catalog_species
-from flakedb.paint.components import particle_entry, recipe_alpha, recipe_distribution, recipe_top_alpha, store_key
+from flakedb.paint.components import (particle_entry, recipe_alpha, recipe_distribution, recipe_overrides, recipe_top_alpha,
+                                      store_key)
 from flakedb.rt.scattering.stored import StoredFlakeMedium
 from flakedb.store import versions as st
 from flakedb.store.versions import StoreError
@@ -25,10 +26,7 @@ def _same_entry(a, b) -> bool:
 
 def _overrides(p) -> str:
     """The recipe fields that make ``p``'s optics differ from its catalogue species' (:func:`store_key`)."""
-    names = sorted(getattr(p, "film_overrides", None) or {})
-    if p.kind == "pigment":
-        names += [k for k in ("median_diameter_um", "gsd") if getattr(p, k) is not None]
-    return ", ".join(names)
+    return ", ".join(sorted(recipe_overrides(p)))
 
 
 def wavelength_map(store_nm, recipe_nm, tol_nm=1e-9):
