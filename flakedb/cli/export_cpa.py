@@ -58,7 +58,7 @@ def export_cpa(file, out, name, sparkle, uv_metres, check, as_json):
         except RuntimeError as e:
             raise FlakedbError(f"--check glsl: the files are written, but the render failed: {e}") from None
     if as_json:
-        fit = {k: ({kk: vv for kk, vv in v.items() if kk != "table"} if k == "cycles" else v)
+        fit = {k: ({kk: vv for kk, vv in v.items() if kk != "table"} if k in ("cycles", "materialx") else v)
                for k, v in s["fit"].items() if k != "table"}
         click.echo(json.dumps({"fit": fit, "files": s["files"],
                                **({"check_glsl": rendered} if rendered else {})}, indent=2))
@@ -75,12 +75,17 @@ def export_cpa(file, out, name, sparkle, uv_metres, check, as_json):
     click.echo(f"in Cycles (the node group renders this model to ≤ 3e-4 at the E2194 geometries, ≤ 0.01 ΔE00; "
                f"docs/renderers.md): worst ΔE00 against FILE {(cy or f)['error']['worst_dE00_E2194']:.2f} at the "
                f"E2194 geometries (target ≤ {E2194_TARGET:g})")
+    mx = f.get("materialx")
     if e["worst_dE00_E2194"] > E2194_TARGET:
         floor = ggx_route_floor(open_bsdf(file))
-        click.echo(f"in MaterialX (GGX lobes, its only distribution): the fit's worst ΔE00 {e['worst_dE00_E2194']:.2f} "
+        click.echo(f"in MaterialX (GGX lobes, its only distribution): the GGX fit's worst ΔE00 {e['worst_dE00_E2194']:.2f} "
                    f"misses the target; no mix of GGX lobes about N with view-indexed colours can go below "
                    f"{floor:.2f} at aspecular 15°/75° for this paint (one table column; a GGX lobe's 75°/15° ratio is "
                    f"≥ {GGX_MIN_RATIO_75_15:.3g}; docs/renderers.md)")
+        if mx:
+            tilt = "; ".join(f"α {a:.3g}, k {k:.3g}" for a, k in mx["tilted"])
+            click.echo(f"in MaterialX: the graph adds a GGX lobe about a normal tilted away from the view ({tilt}): the fit's worst ΔE00 {mx['error']['worst_dE00_E2194']:.2f} at the E2194 geometries "
+                       f"(E2539's geometries not weighted: worst {mx['error']['worst_dE00_E2539']:.2f})")
     click.echo(f"fit error (the model against FILE): worst ΔE00 {e['worst_dE00_E2539']:.2f} with E2539's geometries; "
                f"over the hemisphere (both within 70°) median {e['dE00_hemisphere_70deg']['median']:.2f}, "
                f"max {e['dE00_hemisphere_70deg']['max']:.2f}")

@@ -99,7 +99,7 @@ def read_fit(path) -> dict:
 
 
 def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str, fit_json: str = "{}",
-                  sparkle: dict | None = None, retro_alphas=()) -> str:
+                  sparkle: dict | None = None, retro_alphas=(), tilted=()) -> str:
     """The angle-indexed material of :mod:`flakedb.export.cpa` as a MaterialX 1.39 graph of standard
     nodes: μ_v = -``normal``·``viewdirection`` (world space), x = clip(μ_v, 0, 1) (n − 1), j = min(⌊x⌋, n − 2),
     t = x − j; texels j and j + 1 of ``image_file`` (the colour table's 16 bits in two 8-bit planes,
@@ -111,7 +111,9 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
     ``oren_nayar_diffuse_bsdf`` of roughness 0 (Lambert), row k a ``generalized_schlick_bsdf`` (GGX,
     ``color0 = color90`` = the row's colour: no Fresnel variation) of roughness α_k (MaterialX's
     ``roughness`` is α itself), the rows after the K lobes the same BSDF with ``normal`` = −``viewdirection``
-    (the backscatter lobes of :func:`flakedb.export.cpa.retro_lobe`, α = ``retro_alphas``), all summed by
+    (the backscatter lobes of :func:`flakedb.export.cpa.retro_lobe`, α = ``retro_alphas``), the rows after
+    those the same BSDF with ``normal`` = normalize(N (1 + k μ_v²) + k μ_v ``viewdirection``) (the tilted lobes of
+    :func:`flakedb.export.cpa.tilted_lobe`, (α, k) = ``tilted``; ``viewdirection`` points at the surface), all summed by
     ``add`` with the coat's mirror, a smooth
     ``dielectric_bsdf`` of index ``coat_ior`` in reflection only; a ``surface`` and a
     ``surfacematerial``.  The sum is ``add``, not ``layer``: the table already holds the coat's
@@ -121,9 +123,9 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
     lobe and the glint layer of :mod:`flakedb.export.sparkle` (:func:`_sparkle_nodes`)."""
     n = safe_name(name)
     rows = len(scales)
-    if rows != 1 + len(alphas) + len(retro_alphas):
+    if rows != 1 + len(alphas) + len(retro_alphas) + len(tilted):
         raise ValueError(f"cpa_mtlx_text: {rows} table rows, not 1 + {len(alphas)} lobes + {len(retro_alphas)} "
-                         f"backscatter lobes")
+                         f"backscatter lobes + {len(tilted)} tilted lobes")
     root = ET.Element("materialx", {"version": MTLX_VERSION, "colorspace": "lin_rec709", "flakedb_cpa": fit_json})
 
     def node(kind, nname, typ, **inputs):
@@ -150,6 +152,18 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
     node("add", "u1", "float", in1=("float", ("node", "u0")), in2=("float", f"{1.0 / n_table:.17g}"))
     if retro_alphas:
         node("multiply", "V_back", "vector3", in1=("vector3", ("node", "V_world")), in2=("float", "-1"))
+    if tilted:     # N' = normalize(N (1 + k μ_v²) + k μ_v V_world): cpa.tilted_cosines
+        node("multiply", "mu_v", "float", in1=("float", ("node", "NdotI")), in2=("float", "-1"))
+        node("multiply", "mu_v2", "float", in1=("float", ("node", "mu_v")), in2=("float", ("node", "mu_v")))
+    for i, (_, k_tilt) in enumerate(tilted):
+        kt = f"{float(k_tilt):.17g}"
+        node("multiply", f"tilt_kmu2_{i}", "float", in1=("float", ("node", "mu_v2")), in2=("float", kt))
+        node("add", f"tilt_a_{i}", "float", in1=("float", ("node", f"tilt_kmu2_{i}")), in2=("float", "1"))
+        node("multiply", f"tilt_b_{i}", "float", in1=("float", ("node", "mu_v")), in2=("float", kt))
+        node("multiply", f"tilt_nN_{i}", "vector3", in1=("vector3", ("node", "N_world")), in2=("float", ("node", f"tilt_a_{i}")))
+        node("multiply", f"tilt_nV_{i}", "vector3", in1=("vector3", ("node", "V_world")), in2=("float", ("node", f"tilt_b_{i}")))
+        node("add", f"tilt_sum_{i}", "vector3", in1=("vector3", ("node", f"tilt_nN_{i}")), in2=("vector3", ("node", f"tilt_nV_{i}")))
+        node("normalize", f"N_tilt_{i}", "vector3", **{"in": ("vector3", ("node", f"tilt_sum_{i}"))})
     total = None
     for k in range(rows):
         for e in (0, 1):
@@ -185,11 +199,17 @@ def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int
             node("generalized_schlick_bsdf", f"lobe_{k}", "BSDF", color0=("color3", ("node", ck)),
                  color90=("color3", ("node", ck)), roughness=("vector2", f"{a:.9g}, {a:.9g}"),
                  distribution=("string", "ggx"))
-        else:
+        elif k <= len(alphas) + len(retro_alphas):
             a = float(retro_alphas[k - 1 - len(alphas)])
             node("generalized_schlick_bsdf", f"lobe_{k}", "BSDF", color0=("color3", ("node", f"colour_{k}")),
                  color90=("color3", ("node", f"colour_{k}")), roughness=("vector2", f"{a:.9g}, {a:.9g}"),
                  normal=("vector3", ("node", "V_back")), distribution=("string", "ggx"))
+        else:
+            i = k - 1 - len(alphas) - len(retro_alphas)
+            a = float(tilted[i][0])
+            node("generalized_schlick_bsdf", f"lobe_{k}", "BSDF", color0=("color3", ("node", f"colour_{k}")),
+                 color90=("color3", ("node", f"colour_{k}")), roughness=("vector2", f"{a:.9g}, {a:.9g}"),
+                 normal=("vector3", ("node", f"N_tilt_{i}")), distribution=("string", "ggx"))
         if total is None:
             total = f"lobe_{k}"
         else:
@@ -279,9 +299,9 @@ def _sparkle_nodes(node, colour: str, sp: dict) -> str:
 
 
 def write_cpa_mtlx(path, image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str,
-                   fit_json: str = "{}", retro_alphas=()) -> Path:
+                   fit_json: str = "{}", retro_alphas=(), tilted=()) -> Path:
     path = Path(path)
     with atomic_path(path, suffix="") as tmp:
         Path(tmp).write_text(cpa_mtlx_text(image_file, scales, alphas, coat_ior, n_table, name, fit_json,
-                                           retro_alphas=retro_alphas), encoding="utf-8")
+                                           retro_alphas=retro_alphas, tilted=tilted), encoding="utf-8")
     return path

@@ -59,7 +59,7 @@ import numpy as np
 from flakedb.colour.tolerance import delta_E_2000
 from flakedb.export import mtlx_session
 from flakedb.export.blender import ggx_lobe_height_correlated
-from flakedb.export.cpa import CPAFit, hat_weights, quantised, retro_lobe
+from flakedb.export.cpa import CPAFit, hat_weights, quantised, retro_lobe, tilted_cosines, tilted_lobe
 from flakedb.export.materialx_glsl import ggx_dir_albedo_analytic
 from flakedb.export.openpbr import colour_grid, exact_rgb, file_directions
 from flakedb.match.fit import channels_to_Lab, geometry_directions
@@ -223,7 +223,8 @@ def cpa_materialx_rf(fit: CPAFit, geometries) -> np.ndarray:
     """π f (G, 3) that MaterialX's closures give the ``cpa`` graph of ``fit`` at ``geometries`` (module
     docstring): Lambert row 0 plus each lobe's colour C_k(μ_v) × the GGX lobe × MaterialX's energy
     compensation 1 + C_k (1 − E_ss) / E_ss; a backscatter lobe (:func:`flakedb.export.cpa.retro_lobe`) the same
-    with E_ss at N·V = 1 (its normal is ω_v).  Pass :func:`table_as_loaded` of the fit for what the renderer
+    with E_ss at N·V = 1 (its normal is ω_v); a tilted lobe (:func:`flakedb.export.cpa.tilted_lobe`) with E_ss at
+    N'·V.  Pass :func:`table_as_loaded` of the fit for what the renderer
     reads of the PNG.  Off the coat's mirror direction (its δ is not drawn).
 
     A white Lambert row alone gives π f = 1; a lobe of colour 1 gets 1 / E_ss:
@@ -252,6 +253,10 @@ def cpa_materialx_rf(fit: CPAFit, geometries) -> np.ndarray:
         ess = float(ggx_dir_albedo_analytic(1.0, a, 1.0, 1.0))
         comp = 1.0 + C[:, k] * (1.0 - ess) / ess
         f = f + C[:, k] * comp * retro_lobe(mu_l, cos_vl, a)[:, None]
+    for k, (a, tilt) in enumerate(fit.tilted, start=1 + len(fit.alphas) + len(fit.retro_alphas)):   # normal N'
+        ess = ggx_dir_albedo_analytic(tilted_cosines(mu_v, mu_l, cos_h, cos_vl, tilt)[0], a, 1.0, 1.0)[:, None]
+        comp = 1.0 + C[:, k] * (1.0 - ess) / ess
+        f = f + C[:, k] * comp * tilted_lobe(mu_v, mu_l, cos_h, cos_vl, a, tilt)[:, None]
     return np.pi * np.where((mu_l > 0)[:, None], f, 0.0)
 
 

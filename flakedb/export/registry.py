@@ -12,7 +12,8 @@ import json
 import math
 
 from flakedb.export.blender import cpa_material_script, write_material_script
-from flakedb.export.cpa import E2194_TARGET, fit_cpa, fit_cpa_cycles, materialx_fit, table_image, table_png_bytes
+from flakedb.export.cpa import (E2194_TARGET, fit_cpa, fit_cpa_cycles, fit_cpa_materialx, materialx_fit, table_image,
+                                table_png_bytes)
 from flakedb.export.gltf import write_gltf
 from flakedb.export.materialx import cpa_mtlx_text, write_mtlx
 from flakedb.export.sparkle import design_from_recipe
@@ -68,7 +69,9 @@ def export_cpa(src, out_dir, name: str | None = None, progress=None, sparkle_rec
     the layer is in the fit's JSON under ``sparkle``.  The fit has GGX lobes (MaterialX's only distribution); where
     it misses the E2194 target the node group gets the Beckmann fit of :func:`flakedb.export.cpa.fit_cpa_cycles`
     when that is closer (without ``sparkle_recipe``: the glint layer is designed for GGX lobes), in the JSON
-    under ``cycles``.  Returns {"fit": dict, "files": {kind: path}}."""
+    under ``cycles``, and the MaterialX graph the fit with a tilted lobe of
+    :func:`flakedb.export.cpa.fit_cpa_materialx` when that is closer (likewise), in the JSON under ``materialx``.
+    Returns {"fit": dict, "files": {kind: path}}."""
     out_dir = Path(out_dir)
     option = "--name" if name is not None else "FILE's name (before its first '.'; choose one with --name)"
     name = Path(src).name.split(".")[0] if name is None else str(name)
@@ -90,13 +93,17 @@ def export_cpa(src, out_dir, name: str | None = None, progress=None, sparkle_rec
         progress("fitting the angle-indexed colour table (hemisphere + E2194/E2539 geometries)")
     fit = fit_cpa(b, source=str(src))
     d = fit.to_dict()
-    cycles = fit
+    cycles = mtlx = fit
     if recipe is None:
         if progress and fit.error["worst_dE00_E2194"] > E2194_TARGET:
-            progress("the GGX fit misses the E2194 target: fitting Beckmann lobes for the Cycles node group")
+            progress("the GGX fit misses the E2194 target: fitting Beckmann lobes for the Cycles node group "
+                     "and a tilted GGX lobe for the MaterialX graph")
         cycles = fit_cpa_cycles(b, fit, source=str(src))
+        mtlx = fit_cpa_materialx(b, fit, source=str(src))
     if cycles is not fit:
         d["cycles"] = cycles.to_dict()
+    if mtlx is not fit:
+        d["materialx"] = mtlx.to_dict()
     nodes = None
     if recipe is not None:
         if progress:
@@ -105,10 +112,12 @@ def export_cpa(src, out_dir, name: str | None = None, progress=None, sparkle_rec
         nodes = sparkle_node_inputs(layer, uv_metres)
         d["sparkle"] = dict(layer.to_dict(), node_inputs=nodes)
     fit_json = json.dumps(d, separators=(",", ":"))
-    px, scale = table_image(materialx_fit(fit))     # the graph's colours: MaterialX's energy compensation undone
-    texts = {"materialx": cpa_mtlx_text(finals["image"].name, scale, fit.alphas, fit.coat_ior, fit.n_table, name,
-                                        json.dumps({k: v for k, v in d.items() if k != "table"}, separators=(",", ":")),
-                                        sparkle=nodes, retro_alphas=fit.retro_alphas),
+    px, scale = table_image(materialx_fit(mtlx))    # the graph's colours: MaterialX's energy compensation undone
+    texts = {"materialx": cpa_mtlx_text(finals["image"].name, scale, mtlx.alphas, mtlx.coat_ior, mtlx.n_table, name,
+                                        json.dumps({k: ({kk: vv for kk, vv in v.items() if kk != "table"}
+                                                        if k in ("cycles", "materialx") else v)
+                                                    for k, v in d.items() if k != "table"}, separators=(",", ":")),
+                                        sparkle=nodes, retro_alphas=mtlx.retro_alphas, tilted=mtlx.tilted),
              "blender": cpa_material_script(cycles.table, cycles.alphas, cycles.coat_ior, name,
                                             fit_json if cycles is fit else json.dumps(d["cycles"], separators=(",", ":")),
                                             sparkle=nodes, retro_alphas=cycles.retro_alphas,
