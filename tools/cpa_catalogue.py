@@ -14,7 +14,7 @@ geometry against the exact paint (needs ``materialx`` and Xvfb or a display).
 With ``--fits DIR`` the GGX fits are read from ``DIR/RECIPE.cpa.json`` (``export-cpa``'s, of the same files: the
 fit is deterministic) instead of fitted again, the ``before`` fit is skipped, and both renderers are measured: the
 node group of :func:`flakedb.export.cpa.fit_cpa_cycles` in Cycles, and the MaterialX files that ``export-cpa``
-writes for the fit, all rendered in one MaterialX process, with the render's largest difference from flakedb's
+writes for the fit (:func:`flakedb.export.cpa.fit_cpa_materialx`: a tilted lobe added where the GGX fit misses), all rendered in one MaterialX process, with the render's largest difference from flakedb's
 prediction of it (:func:`flakedb.export.materialx_render.cpa_materialx_rf`) per recipe.
 
 Needs bpy 5.0.1 in a Python 3.11 environment (``make blender-venv``)::
@@ -87,8 +87,11 @@ def measure_glsl(recipe: str, out: Path) -> dict:
     ex = export(out / f"{recipe}.bsdf", out / "glsl", method="cpa")
     r = mr.check_cpa_glsl(b, ex["files"]["materialx"])
     de = [g["dE00"] for g in r["geometries"]]
+    mx = ex["fit"].get("materialx", ex["fit"])           # the graph's fit (a tilted lobe where GGX misses)
     return {"recipe": recipe, "glsl_dE00": [round(float(x), 2) for x in de], "glsl_worst": round(float(max(de)), 2),
-            "alphas": list(ex["fit"]["alphas"]), "retro_alphas": list(ex["fit"].get("retro_alphas", [])),
+            "alphas": list(mx["alphas"]), "retro_alphas": list(mx.get("retro_alphas", [])),
+            "tilted": list(mx.get("tilted", [])), "fit_worst": round(mx["error"]["worst_dE00_E2194"], 2),
+            "E2539_worst": round(mx["error"]["worst_dE00_E2539"], 2),
             "renderer": r["renderer"], "seconds": round(time.time() - t, 1)}
 
 
@@ -115,16 +118,19 @@ def measure_from_fits(recipes, out: Path, fits: Path, python: str | None) -> lis
                                                         retro_alphas=cy_fit.retro_alphas,
                                                         distribution=cy_fit.distribution), python=python)
         de = delta_E_2000(channels_to_Lab(np.maximum(cy, 1e-6), "rgb", wl), exact)
-        px, scale = cpa.table_image(cpa.materialx_fit(fit))           # what export-cpa writes for MaterialX
+        mx_fit = cpa.fit_cpa_materialx(b, fit)                          # what export-cpa writes for MaterialX
+        px, scale = cpa.table_image(cpa.materialx_fit(mx_fit))
         (mx_dir / f"{recipe}.cpa.png").write_bytes(cpa.table_png_bytes(px))
         m = mx_dir / f"{recipe}.cpa.mtlx"
-        m.write_text(cpa_mtlx_text(f"{recipe}.cpa.png", scale, fit.alphas, fit.coat_ior, fit.n_table, recipe,
-                                   retro_alphas=fit.retro_alphas), encoding="utf-8")
+        m.write_text(cpa_mtlx_text(f"{recipe}.cpa.png", scale, mx_fit.alphas, mx_fit.coat_ior, mx_fit.n_table, recipe,
+                                   retro_alphas=mx_fit.retro_alphas, tilted=mx_fit.tilted), encoding="utf-8")
         files.append(m)
-        fitted.append((b, fit, exact, wl))
+        fitted.append((b, mx_fit, exact, wl))
         rows.append({"recipe": recipe, "cycles_dE00": [round(float(x), 2) for x in de], "cycles_worst": round(float(de.max()), 2),
                      "distribution": cy_fit.distribution, "alphas": list(fit.alphas), "cycles_alphas": list(cy_fit.alphas),
                      "retro_alphas": list(fit.retro_alphas), "fit_worst": round(fit.error["worst_dE00_E2194"], 2),
+                     "materialx_tilted": [list(t) for t in mx_fit.tilted],
+                     "materialx_fit_worst": round(mx_fit.error["worst_dE00_E2194"], 2),
                      "cycles_seconds": round(time.time() - t, 1)})
     t = time.time()
     r = mr.render_geometries(files, g)

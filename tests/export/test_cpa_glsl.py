@@ -26,7 +26,7 @@ from flakedb.export.materialx import cpa_mtlx_text
 from flakedb.export.registry import export
 from flakedb.match.targets import E2194_GEOMETRIES, E2539_EXTRA
 from flakedb.paint.recipe import load_recipe
-from tests.export.test_cpa import truth_fit
+from tests.export.test_cpa import truth_fit, truth_fit_retro
 
 TOOL, WHY = mr.glsl_renderer()
 RECIPES = Path(flakedb.__file__).parent / "catalog" / "recipes"
@@ -52,8 +52,19 @@ def _write_cpa(d, fit, name="m"):
     px, scale = cpa.table_image(fit)
     (d / f"{name}.cpa.png").write_bytes(cpa.table_png_bytes(px))
     p = d / f"{name}.cpa.mtlx"
-    p.write_text(cpa_mtlx_text(f"{name}.cpa.png", scale, fit.alphas, fit.coat_ior, fit.n_table, name))
+    p.write_text(cpa_mtlx_text(f"{name}.cpa.png", scale, fit.alphas, fit.coat_ior, fit.n_table, name,
+                               retro_alphas=fit.retro_alphas, tilted=fit.tilted))
     return p
+
+
+def truth_fit_tilted():
+    """truth_fit_retro with two tilted lobes (α 0.06 away from the view, k 0.45; α 0.28 towards it, k −0.3)
+    coloured by two more rows."""
+    t = truth_fit_retro()
+    mu = np.linspace(0.0, 1.0, t.n_table)[:, None]
+    rows = [(0.2, 0.1, 0.05) * (0.5 + mu), (0.02, 0.06, 0.04) * (1.5 - mu)]
+    return cpa.CPAFit(np.concatenate([t.table, rows]), t.alphas, t.coat_ior, retro_alphas=t.retro_alphas,
+                      tilted=((0.06, 0.45), (0.28, -0.3)))
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +82,8 @@ def gl_context():
 def harness(tmp_path_factory, gl_context):
     """One renderer run: a Lambertian of albedo (0.8, 0.5, 0.2) and the model table's graph at GEOMS."""
     d = tmp_path_factory.mktemp("cpa-glsl")
-    files = [_lambert(d / "lambert.mtlx", (0.8, 0.5, 0.2)), _write_cpa(d, truth_fit())]
+    files = [_lambert(d / "lambert.mtlx", (0.8, 0.5, 0.2)), _write_cpa(d, truth_fit()),
+             _write_cpa(d, truth_fit_tilted(), "tilted")]
     return mr.render_geometries(files, GEOMS, tool=TOOL)
 
 
@@ -110,13 +122,65 @@ def test_graph_renders_what_flakedb_predicts(harness):
     assert np.abs(rf / no_comp - 1).max() > 2 * RTOL_PRED
 
 
+def test_tilted_graph_renders_what_flakedb_predicts(harness):
+    """The graph's tilted lobes (``generalized_schlick_bsdf`` whose ``normal`` is normalize(N (1 + k μ_v²) +
+    k μ_v ``viewdirection``), :func:`flakedb.export.cpa.tilted_lobe`) and the backscatter lobe render
+    cpa_materialx_rf of the table within RTOL_PRED at every geometry, MaterialX's energy compensation taken at the
+    tilted normal's N'·V.  The bites: the same lobes untilted (k = 0), or with E_ss taken at μ_v, are further off."""
+    from dataclasses import replace
+
+    from flakedb.export import materialx_glsl as mg
+
+    rf = harness["rf"][2]
+    fit = mr.table_as_loaded(truth_fit_tilted())
+    pred = mr.cpa_materialx_rf(fit, GEOMS)
+    rel = np.abs(rf - pred).max(axis=1) / pred.max(axis=1)
+    print("tilted lobes: |MaterialX - prediction| / largest channel, max", rel.max())
+    assert rel.max() < RTOL_PRED, rel
+    untilted = replace(fit, tilted=tuple((a, 0.0) for a, _ in fit.tilted))
+    assert (np.abs(rf - mr.cpa_materialx_rf(untilted, GEOMS)).max(axis=1) / pred.max(axis=1)).max() > 10 * RTOL_PRED
+    wl, wv = mr.geometry_vectors(GEOMS)      # E_ss at μ_v instead of N'·V: only the tilted lobes' compensation changes
+    cos_h = (wl + wv)[:, 2] / np.linalg.norm(wl + wv, axis=1)
+    cos_vl = np.einsum("gi,gi->g", wl, wv)
+    C = np.einsum("gj,kjc->gkc", cpa.hat_weights(wv[:, 2], fit.n_table), fit.table)
+    wrong = pred.copy()
+    for k, (a, t) in enumerate(fit.tilted, start=1 + len(fit.alphas) + len(fit.retro_alphas)):
+        e_t = mg.ggx_dir_albedo_analytic(cpa.tilted_cosines(wv[:, 2], wl[:, 2], cos_h, cos_vl, t)[0], a, 1.0, 1.0)[:, None]
+        e_n = mg.ggx_dir_albedo_analytic(wv[:, 2], a, 1.0, 1.0)[:, None]
+        lobe = cpa.tilted_lobe(wv[:, 2], wl[:, 2], cos_h, cos_vl, a, t)[:, None]
+        wrong += np.pi * C[:, k] ** 2 * ((1.0 - e_n) / e_n - (1.0 - e_t) / e_t) * lobe
+    assert (np.abs(rf - wrong).max(axis=1) / pred.max(axis=1)).max() > 2 * RTOL_PRED
+
+
+@pytest.mark.slow
+def test_coated_aluminium_tilted_lobe_in_materialx(tmp_path, gl_context):
+    """coated-aluminium, a bare Beckmann aluminium panel under the coat, out of the reach of GGX lobes about N
+    (test_cpa.py::test_coated_aluminium_out_of_reach: ≥ 5.56; rendered 7.74 with them), in MaterialX with the
+    tilted lobe of :func:`flakedb.export.cpa.fit_cpa_materialx` (the files export-cpa writes for it: the fit's first
+    lobe subset, where the full search stops): worst ΔE00 at the six E2194 geometries ≤ GOAL (measured 1.88), and the
+    render is flakedb's prediction of the graph within RTOL_PRED (so the number is the route's)."""
+    compose(load_recipe(RECIPES / "coated-aluminium.yaml"), tmp_path, n=32)
+    b = open_bsdf(tmp_path / "coated-aluminium.bsdf")
+    fit = cpa.fit_cpa_materialx(b, cpa.fit_cpa(b, max_subsets=1, minimax_passes=2), max_subsets=1)
+    assert fit.tilted
+    m = _write_cpa(tmp_path, cpa.materialx_fit(fit), "coated-aluminium")
+    r = mr.check_cpa_glsl(b, m, tool=TOOL)
+    de = np.array([g["dE00"] for g in r["geometries"]])
+    rf = np.array([g["rendered_rf"] for g in r["geometries"]])
+    pred = mr.cpa_materialx_rf(mr.table_as_loaded(cpa.materialx_fit(fit)), E2194_GEOMETRIES)
+    off = np.abs(rf - pred).max(axis=1) / pred.max(axis=1)
+    print("coated-aluminium, tilted lobe", fit.tilted, "dE00 per E2194 geometry", np.round(de, 2), "off", off.max())
+    assert off.max() < RTOL_PRED, off
+    assert de.max() <= GOAL, de
+
+
 #: The issue's goal, worst ΔE00 at the E2194 geometries in MaterialX GLSL ≤ 2, and per paint what is reached
 #: (docs/renderers.md, "Rendered in MaterialX's GLSL renderer"): the bound asserted where the goal is missed.
 #: fig7-pearlescent-tio2-110nm rendered 2.37 while the table was read as 8 bits and interpolated by llvmpipe's
 #: fixed-point filter; with the 16 bits in two planes interpolated in the graph it renders its prediction, 1.99.
-#: Of the 35 catalogue recipes (tools/cpa_catalogue.py --renderer glsl) one misses the goal and is not a case here:
-#: coated-aluminium, 7.80, out of the GGX route's reach (test_cpa.py::test_coated_aluminium_out_of_reach: ≥ 5.56;
-#: MaterialX has GGX only; its fit alone takes ~110 s).
+#: All 35 catalogue recipes (tools/cpa_catalogue.py --renderer glsl) meet the goal; coated-aluminium (7.74 with GGX
+#: lobes about N, out of their reach: test_cpa.py::test_coated_aluminium_out_of_reach) only with the tilted lobe
+#: (1.88), test_coated_aluminium_tilted_lobe_in_materialx (export-cpa's full GGX search takes ~30-110 s there).
 GOAL = 2.0
 MEASURED_BOUND = {"metallic-silver": 2.0, "particle-cadmium-yellow": 2.0, "particle-pearlescent": 2.0,
                   "tri-coat-pearl-white": 2.0, "red-metallic": 2.0, "fig7-pearlescent-tio2-110nm": 2.0}
