@@ -71,7 +71,8 @@ def export_cpa(file, out, name, sparkle, uv_metres, check, as_json):
     cy = f.get("cycles")
     if cy:
         click.echo(f"in Cycles / EEVEE: the GGX fit misses the target, so the node group has Beckmann lobes "
-                   f"(α {', '.join(f'{a:.3g}' for a in cy['alphas'])}; MaterialX has GGX only)")
+                   f"(α {', '.join(f'{a:.3g}' for a in cy['alphas'])}; MaterialX has GGX only"
+                   + (": it gets a tilted GGX lobe, below)" if f.get("materialx") else ")"))
     click.echo(f"in Cycles (the node group renders this model to ≤ 3e-4 at the E2194 geometries, ≤ 0.01 ΔE00; "
                f"docs/renderers.md): worst ΔE00 against FILE {(cy or f)['error']['worst_dE00_E2194']:.2f} at the "
                f"E2194 geometries (target ≤ {E2194_TARGET:g})")

@@ -22,7 +22,11 @@ node group renders, term for term.  B_r (:func:`retro_lobe`) is the same Glossy 
 set to the view direction: a backscatter lobe, peaked at ω_l = ω_v.  At one view cosine every L_k is
 largest towards the mirror direction, so no mixture of them with view-indexed colours can make a
 geometry on the light's side (E2194's aspecular 75°, 110°) redder than one of the same μ_v across the
-normal (15°), as the particle pearlescent is; B_r can.  Each C_k is linear RGB, piecewise linear in μ_v between
+normal (15°), as the particle pearlescent is; B_r can.  Nor can it make aspecular 75° darker than 2.1e-3 of
+aspecular 15° (:func:`ggx_route_floor`), as a bare Beckmann metal under the coat needs; where that leaves the
+GGX fit above the target, the MaterialX graph adds a tilted lobe T (:func:`tilted_lobe`: the same Glossy BSDF
+about a normal tilted from N away from ω_v, built from N and ω_v; :func:`fit_cpa_materialx`) coloured by one
+more table row (the Cycles node group takes Beckmann lobes instead: :func:`fit_cpa_cycles`).  Each C_k is linear RGB, piecewise linear in μ_v between
 ``n_table`` equally spaced nodes μ_j = j / (n_table - 1): row k of the colour table (an image of
 (K + 1) rows x n_table columns, read with linear interpolation at pixel centres).  Nothing
 multiplies a lobe by a function of the light direction, so the coat's transmission at the light end,
@@ -487,7 +491,7 @@ def fit_cpa_materialx(b, ggx_fit: CPAFit | None = None, **kw) -> CPAFit:
     (``e2539_share`` 0): at the normal view (μ_v = 1, where N' = N) E2194's aspecular 45° and E2539's
     aspecular 15° share a table column with half vectors 22.5° and 7.5° from N, and no mix of GGX lobes about N
     makes the first less than (sin 7.5° / sin 22.5°)⁴ = 0.0135 of the second (a bare Beckmann metal's is
-    smaller: coated-aluminium 0.006), so weighting both leaves E2194's 45° above the target; E2194 is the
+    smaller: coated-aluminium 0.0083), so weighting both leaves E2194's 45° above the target; E2194 is the
     issue's target (measured E2539 worst in docs/renderers.md).  A Beckmann lobe, Cycles' answer
     (:func:`fit_cpa_cycles`), is not among MaterialX 1.39's distributions."""
     if ggx_fit is None:

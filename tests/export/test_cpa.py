@@ -201,6 +201,51 @@ def test_materialx_graph(tmp_path):
     assert "cpa" in EXPORT_METHODS
 
 
+def test_export_cpa_writes_the_tilted_graph_where_ggx_misses(tmp_path, monkeypatch):
+    """`flakedb export-cpa` where the GGX fit misses the E2194 target (made to miss here: the GGX fit of the model
+    file, its first subset, with its worst set to 3; one tilted (α, k) and one pass, to keep it short; coated-aluminium's real one is test_coated_aluminium_tilted_lobe_fit) writes the
+    MaterialX graph of fit_cpa_materialx: the JSON carries it under ``materialx`` with its tilted lobe, the PNG's rows
+    are its table with MaterialX's compensation undone, the last lobe's ``normal`` is the tilted normal node built from
+    N_world and V_world with k (the document validates and GLSL is generated), and the command says so."""
+    mx = pytest.importorskip("MaterialX", reason="materialx not installed (pip install 'flakedb[materialx]')")
+    import flakedb.export.registry as reg
+
+    src = tmp_path / "model.bsdf"
+    write_bsdf(src, cpa_table(truth_fit_retro()), truncation=0.0)
+    real_fit = cpa.fit_cpa
+
+    def missing(b, **kw):
+        fit = real_fit(b, max_subsets=1, minimax_passes=1, **kw)
+        fit.error["worst_dE00_E2194"] = 3.0
+        return fit
+
+    real_mx = cpa.fit_cpa_materialx
+    monkeypatch.setattr(reg, "fit_cpa", missing)
+    monkeypatch.setattr(reg, "fit_cpa_cycles", lambda b, fit, **kw: fit)
+    monkeypatch.setattr(reg, "fit_cpa_materialx", lambda b, fit, **kw: real_mx(b, fit, max_subsets=1, minimax_passes=1,
+                                                                                tilt_grid=((0.06, 0.45),), **kw))
+    r = CliRunner().invoke(cli, ["export-cpa", str(src), "--out", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
+    d = json.loads((tmp_path / "out" / "model.cpa.json").read_text())
+    assert "materialx" in d and "cycles" not in d
+    mfit = cpa.CPAFit.from_dict(d["materialx"])
+    assert len(mfit.tilted) == 1 and mfit.error["worst_dE00_E2194"] < 3.0
+    assert "a GGX lobe about a normal tilted away from the view" in r.output
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(tmp_path / "out" / "model.cpa.mtlx"))
+    assert len(validated_glsl(doc, "M_model", "cpa")) > 1000
+    px = cpa.read_table_png((tmp_path / "out" / "model.cpa.png").read_bytes())
+    assert len(px) == 1 + len(mfit.alphas) + len(mfit.retro_alphas) + 1
+    scales = [doc.getNode(f"colour_{k}").getInputValue("in2") for k in range(len(px))]
+    table = cpa.materialx_fit(mfit).table
+    np.testing.assert_allclose(px * np.asarray(scales)[:, None, None], table, atol=1e-4 * table.max())
+    lobe = doc.getNode(f"lobe_{len(px) - 1}")
+    assert lobe.getInput("normal").getNodeName() == "N_tilt_0"
+    assert lobe.getInputValue("roughness")[0] == pytest.approx(mfit.tilted[0][0], rel=1e-6)
+    assert doc.getNode("tilt_b_0").getInputValue("in2") == pytest.approx(mfit.tilted[0][1], rel=1e-7)   # float32
+    assert doc.getNode("tilt_nV_0").getInput("in1").getNodeName() == "V_world"
+
+
 # --------------------------------------------------------------------------------------------
 # Cycles
 # --------------------------------------------------------------------------------------------
