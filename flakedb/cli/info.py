@@ -24,7 +24,7 @@ from flakedb.bsdf.table import ENERGY_SLACK, energy_albedo
 from flakedb.cli.errors import FlakedbError
 from flakedb.colour.colorimetry import XYZ_to_Lab, reflectance_to_XYZ, white_XYZ
 from flakedb.solve.pipeline import solver_warnings
-from flakedb.export.materialx import read_fit
+from flakedb.export.materialx import read_mtlx_fit
 from flakedb.render.mitsuba import read_tensor_file
 from flakedb.safeio import read_head, read_limited
 
@@ -322,19 +322,29 @@ def _tensor_use(p: Path, desc: str) -> dict:
                             "(it writes all three), or `--no-coat` for a tensor at x1 without the coat"))}
 
 
+#: kind of flakedb MaterialX document (:data:`flakedb.export.materialx.FIT_ATTRIBUTES`) -> (summary kind, format).
+MTLX_FORMATS = {
+    "openpbr": ("materialx-fit", "MaterialX document, open_pbr_surface fitted by flakedb export-openpbr"),
+    "cpa": ("materialx-cpa", "MaterialX document, angle-indexed colour table and lobes (flakedb export-cpa)"),
+}
+
+
 def describe_fit(path):
-    """A JSON-able summary of a MaterialX document written by ``flakedb export-openpbr``: the fitted
-    parameters and the fit's error (:mod:`flakedb.export.openpbr`)."""
+    """A JSON-able summary of a MaterialX document written by ``flakedb export-openpbr`` (the fitted
+    parameters, :mod:`flakedb.export.openpbr`) or ``flakedb export-cpa`` (the lobes and the table,
+    :mod:`flakedb.export.cpa`), with the fit's error."""
     try:
-        fit = read_fit(path)
+        mtlx_kind, fit = read_mtlx_fit(path)
     except (ValueError, ET.ParseError) as e:
         raise BSDFFileError(str(e)) from None
     p = Path(path)
-    return {"kind": "materialx-fit", "file": str(p), "size_bytes": p.stat().st_size,
-            "format": "MaterialX document, open_pbr_surface fitted by flakedb export-openpbr", "fit": fit}
+    kind, fmt = MTLX_FORMATS[mtlx_kind]
+    return {"kind": kind, "file": str(p), "size_bytes": p.stat().st_size, "format": fmt, "fit": fit}
 
 
 def _print_fit(d):
+    if d["kind"] == "materialx-cpa":
+        return _print_cpa(d)
     echo = click.echo
     f = d["fit"]
     e = f.get("error", {})
@@ -354,6 +364,25 @@ def _print_fit(d):
         for g in e.get("dE00_E2539", []):
             echo(f"  illumination {g['illumination_deg']:4g} deg, aspecular {g['aspecular_deg']:5g} deg: "
                  f"ΔE00 {g['dE00']:.2f}")
+
+
+def _print_cpa(d):
+    echo = click.echo
+    f = d["fit"].get("materialx", d["fit"])   # the graph holds the MaterialX route's own fit where it has one
+    echo(f"file:          {d['file']} ({d['size_bytes'] / 1e3:.1f} kB): {d['format']}")
+    echo(f"fitted to:     {f.get('source', '?')}"
+         + ("; the GGX fit missed the E2194 target, the graph holds the MaterialX route's own fit"
+            if "materialx" in d["fit"] else ""))
+    lobes = ", ".join(f"{a:.3g}" for a in f.get("alphas", []))
+    retro = ", ".join(f"{a:.3g}" for a in f.get("retro_alphas", []))
+    tilted = f.get("tilted") or []
+    echo(f"lobes:         {f.get('distribution', 'ggx')} α {lobes or 'none'}; backscatter α {retro or 'none'}"
+         + (f"; {len(tilted)} tilted lobe(s)" if tilted else "") + f"; coat ior {f.get('coat_ior', '?')}")
+    echo(f"colour table:  {f.get('n_table', '?')} view angles (the .cpa.png beside this file)")
+    e = f.get("error", {})
+    if e:
+        echo(f"fit error:     worst ΔE00 {e['worst_dE00_E2194']:.2f} (E2194 geometries), {e['worst_dE00_E2539']:.2f} "
+             f"(with E2539's); cosine-weighted BSDF difference {100 * e['cosine_weighted_difference']:.1f} %")
 
 
 def _print_fourier(d):

@@ -89,13 +89,35 @@ def read_fit(path) -> dict:
     >>> OpenPBRFit.from_dict(read_fit(path)) == fit, ET.parse(path).getroot().find("open_pbr_surface").get("name")
     (True, 'SR__1_silver')
     """
+    kind, fit = read_mtlx_fit(path)
+    if kind != "openpbr":
+        raise ValueError(f"{path}: a flakedb {kind} MaterialX document, not an export-openpbr fit")
+    return fit
+
+
+#: Root attribute of a flakedb MaterialX document -> the export that writes it.
+FIT_ATTRIBUTES = {"flakedb_fit": "openpbr", "flakedb_cpa": "cpa"}
+
+
+def read_mtlx_fit(path) -> tuple[str, dict]:
+    """(kind, fit JSON) of a ``.mtlx`` written by ``flakedb export-openpbr`` (kind ``"openpbr"``, :func:`write_mtlx`)
+    or ``flakedb export-cpa`` (``"cpa"``, :func:`cpa_mtlx_text`); ValueError naming the file otherwise.
+
+    >>> import tempfile
+    >>> path = Path(tempfile.mkdtemp()) / "x.cpa.mtlx"
+    >>> _ = path.write_text(cpa_mtlx_text("x.cpa.png", [1.0, 1.0], [0.2], 1.5, 8, "x", '{"alphas": [0.2]}'))
+    >>> read_mtlx_fit(path)
+    ('cpa', {'alphas': [0.2]})
+    """
     root = ET.parse(path).getroot()
     if root.tag != "materialx":
         raise ValueError(f"{path}: not a MaterialX document (root <{root.tag}>)")
-    s = root.get("flakedb_fit")
-    if s is None:
-        raise ValueError(f"{path}: a MaterialX document without flakedb's fit (not written by flakedb export-openpbr)")
-    return json.loads(s)
+    for attribute, kind in FIT_ATTRIBUTES.items():
+        s = root.get(attribute)
+        if s is not None:
+            return kind, json.loads(s)
+    raise ValueError(f"{path}: a MaterialX document without flakedb's fit (not written by flakedb export-openpbr "
+                     f"or export-cpa)")
 
 
 def cpa_mtlx_text(image_file: str, scales, alphas, coat_ior: float, n_table: int, name: str, fit_json: str = "{}",

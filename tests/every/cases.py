@@ -21,6 +21,9 @@ RANGE_NM, STEP_NM = (500, 600), 20
 CARRIER = "metallic"
 CATALOG = expand_sweeps(load_catalog())
 SPECIES = list(CATALOG)
+#: Species a catalogue sweep makes from a base species by stepping one thickness (e.g. ``pearlescent-tio2-070nm``):
+#: the base's film structure at another value.
+SWEEP_MEMBERS = frozenset(SPECIES) - frozenset(load_catalog()["particles"])
 FLAKE_KINDS = ("interference_flake", "mirror_flake")
 
 #: Species whose tiny solve alone takes several seconds (a coating-thickness distribution averaged over

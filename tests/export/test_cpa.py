@@ -199,6 +199,11 @@ def test_materialx_graph(tmp_path):
     assert retro.getInput("normal").getNodeName() == "V_back"
     assert doc.getNode("V_back").getInput("in1").getNodeName() == "V_world"
     assert "cpa" in EXPORT_METHODS
+    # `flakedb info` reads the .cpa.mtlx flakedb wrote (it refused it: "without flakedb's fit")
+    r = CliRunner().invoke(cli, ["info", str(tmp_path / "out" / "model.cpa.mtlx")])
+    assert r.exit_code == 0, r.output
+    assert f"worst ΔE00 {fit.error['worst_dE00_E2194']:.2f} (E2194 geometries)" in r.output
+    assert "backscatter α 0.42" in r.output and "tilted" not in r.output
 
 
 def test_export_cpa_writes_the_tilted_graph_where_ggx_misses(tmp_path, monkeypatch):
@@ -244,6 +249,9 @@ def test_export_cpa_writes_the_tilted_graph_where_ggx_misses(tmp_path, monkeypat
     assert lobe.getInputValue("roughness")[0] == pytest.approx(mfit.tilted[0][0], rel=1e-6)
     assert doc.getNode("tilt_b_0").getInputValue("in2") == pytest.approx(mfit.tilted[0][1], rel=1e-7)   # float32
     assert doc.getNode("tilt_nV_0").getInput("in1").getNodeName() == "V_world"
+    r = CliRunner().invoke(cli, ["info", str(tmp_path / "out" / "model.cpa.mtlx")])      # the graph's own fit
+    assert r.exit_code == 0 and "1 tilted lobe(s)" in r.output and "MaterialX route's own fit" in r.output, r.output
+    assert f"worst ΔE00 {mfit.error['worst_dE00_E2194']:.2f} (E2194" in r.output
 
 
 # --------------------------------------------------------------------------------------------
