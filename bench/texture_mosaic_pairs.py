@@ -43,10 +43,10 @@ def model_inputs(f, n_depth=32):
     return z, B1m.sum(axis=0), B2n, (Q, lo, np.zeros_like(lo), B1m, DRIFT.copy())
 
 
-def simulate(f, n_patch, seed=1, L=200.0, n_pts=4000):
+def simulate(f, n_patch, seed=1, L=200.0, n_pts=4000, variants=("traced", "independent")):
     """Cov(β(x), β(x+s)) at OFFSETS (within each patch: biased by −Var(the patch's mean), alike for both) and E[β]
     for "traced" and "independent" on the same mosaics and points, and their "difference", each with its standard
-    error over patches: dict name → (mean, se of mean, cov (ns,), se (ns,))."""
+    error over patches: dict name → (mean, se of mean, cov (ns,), se (ns,), cov per patch (patches, ns))."""
     rng = np.random.default_rng(seed)
     rho, d, z0 = f.number_density_per_um3, f.thickness_um, f.z_top_um
     s_g = np.log(f.diameter_gsd)
@@ -89,14 +89,16 @@ def simulate(f, n_patch, seed=1, L=200.0, n_pts=4000):
     def many(px, py, F, copy):
         return np.concatenate([beta(px[i:i + 500], py[i:i + 500], F, copy) for i in range(0, px.size, 500)])
 
-    cov = {"traced": [], "independent": []}
-    means = {"traced": [], "independent": []}
+    cov = {k: [] for k in variants}
+    means = {k: [] for k in variants}
     for _ in range(n_patch):
         F = place()
         px, py = rng.random(n_pts) * L, rng.random(n_pts) * L
         th = 2 * np.pi * rng.random((OFFSETS.size, n_pts))
         copy = (place(), rng.random((F["X"].size, 2)) * L)
         for name, cp in (("traced", None), ("independent", copy)):  # the same mosaic and points for both
+            if name not in variants:
+                continue
             bx = many(px, py, F, cp)
             row = []
             for s, t in zip(OFFSETS, th):
@@ -105,9 +107,10 @@ def simulate(f, n_patch, seed=1, L=200.0, n_pts=4000):
             cov[name].append(row)
             means[name].append(bx.mean())
     out = {k: (np.mean(means[k]), np.std(means[k], ddof=1) / np.sqrt(n_patch), np.mean(cov[k], axis=0),
-               np.std(cov[k], axis=0, ddof=1) / np.sqrt(n_patch)) for k in cov}
-    dc = np.array(cov["traced"]) - np.array(cov["independent"])
-    out["difference"] = (0.0, 0.0, dc.mean(axis=0), dc.std(axis=0, ddof=1) / np.sqrt(n_patch))
+               np.std(cov[k], axis=0, ddof=1) / np.sqrt(n_patch), np.array(cov[k])) for k in cov}
+    if len(variants) == 2:
+        dc = np.array(cov["traced"]) - np.array(cov["independent"])
+        out["difference"] = (0.0, 0.0, dc.mean(axis=0), dc.std(axis=0, ddof=1) / np.sqrt(n_patch))
     return out
 
 
@@ -124,5 +127,5 @@ if __name__ == "__main__":
         cm.append(mom - mean * mean)
         print(f"model {'G6' if coupled else 'G5'}: mean {mean:.5f}  cov " + " ".join(f"{c:.5f}" for c in cm[-1]))
     print("model G6 − G5:                cov " + " ".join(f"{c:.5f}" for c in cm[1] - cm[0]))
-    for name, (m, sm, C, sC) in res.items():
+    for name, (m, sm, C, sC, *_) in res.items():
         print(f"MC {name}: mean {m:.5f} ± {sm:.5f}  cov " + " ".join(f"{c:.5f}±{e:.5f}" for c, e in zip(C, sC)))
