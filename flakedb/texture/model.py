@@ -1494,11 +1494,12 @@ def _coupling_reach(f, T, kappa, light):
 
 def _coupling_table(f, ss, kappa, w_max):
     """The area tables of the sky coupling (eq. G6) on a uniform grid 0 ≤ w ≤ ``w_max`` of the drift w = u|t| (µm)
-    at the offsets ``ss`` (ns,): (dw, ⟨G⟩ (ns, nw) µm², H (ns, nw) µm³, H_S (ns, nw), H_N (nw,)).  ⟨G⟩(s, w) = κ Σ_D n_D
+    at the offsets ``ss`` (ns,): (dw, ⟨G⟩ (ns, nw) µm², H (ns, nw) µm³, (⟨S⟩, H_S), (N, H_N)).  ⟨G⟩(s, w) = κ Σ_D n_D
     r² G1(s/r, w/r) the footprint area (footprints as discs of area κA, as the lens L) of the flakes that cover a
     point w away (at a random angle) and the ray s away but not the ray itself (G1 :func:`lens_outside_mean`);
-    H = ∫_0^w ⟨G⟩ dw'; H_S the same integral of ⟨S⟩ (:func:`shared_crossings_mean`: two parallel sky paths' common
-    crossings that cover neither ray) and H_N of κ⟨A − lens(w)⟩ (one path's crossings that do not cover its ray)."""
+    H = ∫_0^w ⟨G⟩ dw'; (⟨S⟩, H_S) the same for :func:`shared_crossings_mean` (two parallel sky paths' common
+    crossings that cover neither ray) and (N, H_N) (1, nw) for κ⟨A − lens(w)⟩ (one path's crossings that do not
+    cover its ray)."""
     Dn, Dw = f.diameters()
     r = 0.5 * Dn
     w = np.linspace(0.0, max(float(w_max), 1e-9), N_COUPLING_DRIFT)
@@ -1511,7 +1512,19 @@ def _coupling_table(f, ss, kappa, w_max):
     g = kappa * np.einsum("d,dsw->sw", Dw * r * r, g1)
     sh = kappa * np.einsum("d,dsw->sw", Dw * r * r, _shared_unit(sig, ups))
     own = kappa * (Dw * r * r) @ (np.pi - lens_area(2.0 * w[None, :] / (2.0 * r[:, None]), 1.0, 1.0))
-    return dw, g, _cumulative(g, dw), _cumulative(sh, dw), _cumulative(own, dw)
+    return dw, g, _cumulative(g, dw), (sh, _cumulative(sh, dw)), (own[None, :], _cumulative(own[None, :], dw))
+
+
+def _integral_rows(g, H, dw, q):
+    """∫_0^q of each row of ``g`` (ns, nw) taken linear between its nodes (spacing ``dw``), at ``q`` (any shape),
+    from its cumulative ``H``: exact for that piecewise-linear integrand (a linear interpolation of H read
+    H(q)/q wrongly near q = 0, where the integrand starts from 0: 0.3 % of a thick layer's G); held beyond
+    the end → (ns, *q.shape)."""
+    nw = g.shape[1]
+    q = np.clip(np.asarray(q, float), 0.0, (nw - 1) * dw)
+    i = np.minimum((q / dw).astype(int), nw - 2)
+    d = q - i * dw
+    return H[:, i] + g[:, i] * d + (g[:, i + 1] - g[:, i]) * (d * d / (2.0 * dw))
 
 
 def _lerp_rows(table, dw, q):
@@ -1526,10 +1539,10 @@ def _lerp_rows(table, dw, q):
 def _drift_integral(tab, drift, h):
     """F(s, m, h) = ∫_0^h ⟨G⟩(s, u g_m) du = H(s, h g_m)/g_m (µm³) for sky paths drifting g_m (M,) µm per µm of
     height, at heights ``h`` (nh,) → (ns, M, nh); 0 for a vertical path (⟨G⟩(s, 0) = 0)."""
-    dw, H = tab[0], tab[2]
+    dw, G, H = tab[:3]
     g = np.asarray(drift, float)[:, None]
     gs = np.where(g > 1e-12, g, 1.0)
-    return np.where(g > 1e-12, _lerp_rows(H, dw, gs * np.asarray(h, float)[None, :]) / gs, 0.0)
+    return np.where(g > 1e-12, _integral_rows(G, H, dw, gs * np.asarray(h, float)[None, :]) / gs, 0.0)
 
 
 def _coupling_two_flakes(f, z, light, T, kappa, L, tab):
@@ -1668,8 +1681,8 @@ def mosaic_pair_moment(f, z, B1n, B2n, T, kappa, s_um, light=None, coupling=None
             hz = z - f.z_top_um
             g_m = np.asarray(light[4], float)[:, None]
             q = g_m * hz[None, :]  # (M, nz) the drift at the flake's height
-            own = _lerp_rows(tab[4][None, :], tab[0], q)[0]
-            ell = np.where(own > 1e-12 * kappa * f.mean_area_um2(), _lerp_rows(tab[3], tab[0], q) / np.maximum(own, 1e-300), 0.0)
+            own = _integral_rows(*tab[4], tab[0], q)[0]
+            ell = np.where(own > 1e-12 * kappa * f.mean_area_um2(), _integral_rows(*tab[3], tab[0], q) / np.maximum(own, 1e-300), 0.0)
             ex = -lo[None] * (2.0 * (1 - Tl[None]) - ell * (1 - Tl[None]) ** 2)
             Fz = _drift_integral(tab, light[4], hz)  # (ns, M, nz)
             ex += 2.0 * rho * (1.0 - T) * (1.0 - Tl[None]) * Fz
