@@ -24,7 +24,7 @@ from flakedb.texture import model as tm
 DRIFT = np.array([0.1, 0.3, 0.55, 0.85])
 LUM = np.array([1.0, 0.8, 0.6, 0.4])
 WEIGHT = np.full(4, 0.25)
-OFFSETS = np.array([0.0, 3.0, 6.0, 10.0, 15.0, 20.0, 28.0])
+OFFSETS = np.array([0.0, 4.0, 8.0, 14.0, 22.0])
 
 
 def model_inputs(f, n_depth=32):
@@ -45,7 +45,7 @@ def model_inputs(f, n_depth=32):
     return z, B1m.sum(axis=0), B2n, (Q, lo, np.zeros_like(lo), B1m, DRIFT.copy())
 
 
-def simulate(f, n_patch, seed=1, L=200.0, n_pts=4000, variants=("traced", "independent")):
+def simulate(f, n_patch, seed=1, L=200.0, n_pts=3000, variants=("traced", "independent")):
     """Cov(β(x), β(x+s)) at OFFSETS (within each patch: biased by −Var(the patch's mean), alike for both) and E[β]
     for "traced" and "independent" on the same mosaics and points, and their "difference", each with its standard
     error over patches: dict name → (mean, se of mean, cov (ns,), se (ns,), cov per patch (patches, ns))."""
