@@ -3,6 +3,7 @@ docs/texture.md §8, "Against the reference without shortcuts").
 
     PYTHONPATH=$PWD python bench/texture_reference.py sim CASE... --out bench/texture_reference.jsonl
     PYTHONPATH=$PWD python bench/texture_reference.py table bench/texture_reference.jsonl
+    PYTHONPATH=$PWD python bench/texture_reference.py sky CASE... --seed 37 --side 2600 --out bench/texture_reference_sky37.jsonl
 
 ``sim`` runs :func:`flakedb.reference.flake_sim.simulate` (area hiding, per-ray sky, true diffraction) for each
 named case and appends one JSON line per case; ``table`` evaluates the model on the same inputs and prints the
@@ -47,6 +48,26 @@ SKY_PIXELS = {"byk-mac-like": 160, "person-1m": 24}
 def _observer(name, lights):
     import dataclasses
     return dataclasses.replace(PRESETS[name], light_deg=tuple(lights))
+
+
+def run_sky(names, out, seed=37, side_um=2600.0):
+    """The sky alone (no light: no glints) of each named case on a ``side_um`` patch just larger than its sky window:
+    another placement of the graininess reference in seconds to a minute (docs/texture.md §8, seed 37)."""
+    from flakedb.reference.flake_sim import simulate
+    from tests.texture.cases import sim_inputs, stack_of
+    for name in names:
+        kw, obs, lights, L, ray = CASES[name]
+        o = _observer(obs, lights)
+        st = stack_of(**kw)
+        sp, ab = sim_inputs(st)
+        t = time.time()
+        res = simulate(st.eta, st.y_weights, sp, ab, o.spot_um, o.aperture_half_angle_rad, o.source_half_angle_deg,
+                       o.view_deg, (), L_um=side_um, seed=seed, wavelength_nm=st.wavelength_nm, ray_um=ray,
+                       sky_pixels=SKY_PIXELS[obs])
+        res.update(name=name, seconds=time.time() - t, seed=seed, side_um=side_um)
+        with open(out, "a") as fh:
+            fh.write(json.dumps(res) + "\n")
+        print(name, f"{res['seconds']:.0f} s", flush=True)
 
 
 def run_sim(names, out, seed=36, side_um=None):
@@ -118,7 +139,7 @@ def table(path):
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser()
-    ap.add_argument("what", choices=("sim", "table", "sizes"))
+    ap.add_argument("what", choices=("sim", "sky", "table", "sizes"))
     ap.add_argument("args", nargs="*")
     ap.add_argument("--out", default="bench/texture_reference.jsonl")
     ap.add_argument("--seed", type=int, default=36, help="the simulation's seed (a second placement: another seed)")
@@ -126,6 +147,8 @@ if __name__ == "__main__":
     a = ap.parse_args()
     if a.what == "sim":
         run_sim(a.args or list(CASES), a.out, a.seed, a.side)
+    elif a.what == "sky":
+        run_sky(a.args, a.out, a.seed, a.side or 2600.0)
     elif a.what == "table":
         table(a.args[0] if a.args else a.out)
     else:

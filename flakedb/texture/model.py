@@ -358,6 +358,80 @@ def _lens_area_sq(d, d2, r1, r2, equal=False):
     return out
 
 
+#: Gauss–Legendre nodes of :func:`lens_outside_mean`'s radial integral (in the angle θ of ρ = a + (b − a)(1 − cos θ)/2,
+#: which smooths the square-root ends: 12 nodes agree with 96 to 2e-7 over 0 ≤ s ≤ 5, |s − u| ≤ 2).
+N_LENS_OUTSIDE = 12
+
+
+def lens_outside_mean(s, u, n=N_LENS_OUTSIDE):
+    """⟨|D(s e_x) ∩ D(u e_ψ) \\ D(0)|⟩_ψ for unit discs D(c) = {q : |q − c| < 1}, ψ uniform on (0, 2π): the area of
+    the centres of a unit disc that covers a point s away from the origin and a point u away at a uniformly random
+    angle, but not the origin (dimensionless; for radius r: r² × the value at s/r, u/r).  Used by the mosaic's sky
+    coupling (docs/texture.md §4, eq. G6).  In polar coordinates about the origin the circle of radius ρ lies in
+    D(a e_x) over the angle 2φ(ρ, a), φ = arccos((ρ² + a² − 1)/(2ρa)) (clipped to [0, π]), and P_ψ(|q − u e_ψ| < 1)
+    = φ(|q|, u)/π, so the area is (2/π) ∫ ρ φ(ρ, s) φ(ρ, u) dρ over max(1, |s − 1|, |u − 1|) < ρ < 1 + min(s, u);
+    symmetric in s and u, 0 where either is 0.  ``s``, ``u`` ≥ 0 broadcast together."""
+    s, u = np.broadcast_arrays(np.asarray(s, float), np.asarray(u, float))
+    a = np.maximum(np.maximum(np.abs(s - 1.0), np.abs(u - 1.0)), 1.0)
+    span = np.maximum(1.0 + np.minimum(s, u) - a, 0.0)[..., None]
+    x, w = leggauss(n)
+    th = 0.5 * np.pi * (x + 1.0)
+    rho = a[..., None] + 0.5 * span * (1.0 - np.cos(th))
+    jac = (0.25 * np.pi) * span * np.sin(th) * w  # dρ = ½ span sin θ dθ, dθ = ½π dx
+
+    def phi(c):
+        c = np.maximum(c, 1e-300)[..., None]
+        return np.arccos(np.clip((rho * rho + c * c - 1.0) / (2.0 * rho * c), -1.0, 1.0))
+
+    return (2.0 / np.pi) * np.sum(jac * rho * phi(s) * phi(u), axis=-1)
+
+
+#: Gauss–Legendre nodes per direction of :func:`shared_crossings_mean`'s integral over the lens (each half).
+N_SHARED_CROSSINGS = 16
+
+
+def _arc_half_angle(d, u):
+    """Half the angle of the circle of radius u (> 0) about a point whose part lies inside a unit disc d away
+    (0 … π)."""
+    return np.arccos(np.clip((u * u + d * d - 1.0) / np.maximum(2.0 * u * d, 1e-300), -1.0, 1.0))
+
+
+def shared_crossings_mean(s, u, n=N_SHARED_CROSSINGS):
+    """⟨|D(w) ∩ D(s e_x + w) \\ (D(0) ∪ D(s e_x))|⟩_ψ, w = u e_ψ, ψ uniform, for unit discs (dimensionless; radius
+    r: r² × the value at s/r, u/r): the centres of the unit discs that cover both points of two parallel sky paths
+    from the rays 0 and s e_x, drifted by w, but neither ray (the crossings the two paths share when no flake
+    above covers either ray; docs/texture.md §4, eq. G6).  Substituting q = p + w it is the integral over p in
+    the lens D(0) ∩ D(s e_x) of P_ψ(p + u e_ψ ∉ D(0) ∪ D(s e_x)) = 1 − (2β0 + 2β1 − overlap)/2π, β the half-angles
+    of the circle of radius u about p inside each disc and overlap their arcs' common length (closed form);
+    Gauss–Legendre over the lens, split at x = s/2 where its height changes form.  0 at u = 0, the lens area
+    for u ≥ 2; ``s`` ≤ 2 (beyond, the lens is empty: 0)."""
+    s, u = np.broadcast_arrays(np.asarray(s, float), np.asarray(u, float))
+    s_, u_ = s[..., None, None], np.maximum(u, 1e-12)[..., None, None]
+    x, w = leggauss(n)
+    out = 0.0
+    for lo, hi, c in ((s - 1.0, 0.5 * s, s), (0.5 * s, np.ones_like(s), np.zeros_like(s))):
+        # x in (lo, hi): the height is that of the disc about c (√(1 − (x − c)²)); cos-substitution at the ends
+        span = np.maximum(hi - lo, 0.0)[..., None, None]
+        th = 0.5 * np.pi * (x + 1.0)
+        px = lo[..., None, None] + 0.5 * span * (1.0 - np.cos(th))[:, None]  # (…, n, 1)
+        jx = 0.25 * np.pi * span * (np.sin(th) * w)[:, None]
+        hgt = np.sqrt(np.maximum(1.0 - (px - c[..., None, None]) ** 2, 0.0))
+        py = hgt * x[None, :]  # (…, n, n)
+        jy = hgt * w[None, :]
+        d0 = np.sqrt(px * px + py * py)
+        d1 = np.sqrt((px - s_) ** 2 + py * py)
+        b0, b1 = _arc_half_angle(d0, u_), _arc_half_angle(d1, u_)
+        # angular distance between the two discs' directions seen from p
+        a0 = np.arctan2(-py, -px)
+        a1 = np.arctan2(-py, s_ - px)
+        dl = np.abs(np.angle(np.exp(1j * (a0 - a1))))
+        o1 = np.maximum(np.minimum(np.minimum(b0 + b1 - dl, 2.0 * b0), 2.0 * b1), 0.0)
+        o2 = np.maximum(b0 + b1 - (2.0 * np.pi - dl), 0.0)
+        union = 2.0 * b0 + 2.0 * b1 - np.minimum(o1 + o2, 2.0 * np.minimum(b0, b1))
+        out = out + np.sum(jx * jy * (1.0 - union / (2.0 * np.pi)), axis=(-2, -1))
+    return np.where((s < 2.0) & (u > 0.0), out, 0.0)
+
+
 def diffraction_radius(diameter_um, eta, wavelength_nm=DIFFRACTION_WAVELENGTH_NM):
     """Angular radius (rad, in the binder) of the uniform cone with the peak radiant intensity of a
     disc's Airy pattern: Ω = λ²/A (A = πD²/4, λ in the binder), r = 2λ/(πD).  The Mitsuba route's lobe width
@@ -1344,7 +1418,11 @@ def _sky_terms(stack, f, view_deg):
     f_b = float(np.sum(ya_mz * lam_b) / max(float(np.sum(ya_mz * lam_v[None, :])), 1e-300))
     T_vy *= 1.0 - min(f_b, 1.0) * (1.0 - T_ly)
     P_v = float(projected_area(np.array([mu_vb]), f.alpha, distribution=f.distribution)[0]) / mu_vb
-    return Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v, (Q, lo_l, Tl_y))
+    # per normal, for the sky paths' coupling to the mosaic (eq. G6): its share of B1 and its sky path's drift
+    # per µm of height away from the view ray (|l'_xy/l'_z − v'_xy/v'_z|)
+    B1m = wm[:, None] * np.einsum("c,cmz->mz", y, amp * a_l)
+    drift = np.where(ok, _gap(np.where(ok[:, None], lm, vb[None, :]), vb), 0.0)
+    return Eb, Eb2, z, wz, b0, lam_v, tau_y, (B1, B2, T_vy, P_v, (Q, lo_l, Tl_y, B1m, drift))
 
 
 #: Least uniform depth cells, and the offset nodes per interval between kinks, of the mosaic's covariance
@@ -1363,10 +1441,194 @@ def _square_ring(p, s_key):
     return k.mean(axis=1) * 2.0 * np.pi
 
 
-def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um, light=None):
+#: The sky paths' coupling to the mosaic (eq. G6) on or off (off: G5's luminances independent of the mosaic).
+SKY_COUPLING = True
+#: Its coarse depth grid (cells at most, ρ A_e dz at most) and the drift grid of its area tables.
+N_COUPLING_DEPTH, COUPLING_DZ, N_COUPLING_DRIFT = 96, 0.05, 129
+#: Λ (the view ray's expected crossings) below which the coupling's depth grid ends: e^{−9.2} = 1e-4 of the rays.
+COUPLING_DEPTH_REACH = 9.2
+
+
+#: Nodes per side of the cached table of :func:`shared_crossings_mean` (σ, υ in [0, 2]; bilinear between them).
+N_SHARED_TABLE = 65
+
+
+@lru_cache(maxsize=1)
+def _shared_unit_table():
+    """:func:`shared_crossings_mean` on the N_SHARED_TABLE² grid σ, υ ∈ [0, 2] (read-only)."""
+    g = np.linspace(0.0, 2.0, N_SHARED_TABLE)
+    out = np.stack([shared_crossings_mean(si, g) for si in g])
+    out.setflags(write=False)
+    return out
+
+
+def _shared_unit(sig, ups):
+    """:func:`shared_crossings_mean` at σ = s/r, υ = u/r (broadcast) from its cached table: 0 for σ ≥ 2, the
+    lens area for υ ≥ 2 (where the table's last column is exactly it)."""
+    t = _shared_unit_table()
+    step = 2.0 / (N_SHARED_TABLE - 1)
+    a = np.clip(np.asarray(sig, float) / step, 0.0, N_SHARED_TABLE - 1.0)
+    b = np.clip(np.asarray(ups, float) / step, 0.0, N_SHARED_TABLE - 1.0)
+    i, j = np.minimum(a.astype(int), N_SHARED_TABLE - 2), np.minimum(b.astype(int), N_SHARED_TABLE - 2)
+    fa, fb = a - i, b - j
+    return ((t[i, j] * (1.0 - fb) + t[i, j + 1] * fb) * (1.0 - fa) + (t[i + 1, j] * (1.0 - fb) + t[i + 1, j + 1] * fb) * fa)
+
+
+def _cumulative(g, dw):
+    """∫_0^w g dw' (trapezoid) of each row of ``g`` (…, nw) on the uniform grid of step ``dw``."""
+    c = np.cumsum(0.5 * dw * (g[..., 1:] + g[..., :-1]), axis=-1)
+    return np.concatenate([np.zeros(g.shape[:-1] + (1,)), c], axis=-1)
+
+
+def _coupling_depth(f, T, kappa):
+    """The depth below the layer's top that the sky coupling (eq. G6) covers (µm): the layer, or where the view
+    ray's expected crossings Λ = ρ h A_e (1 − T) reach ``COUPLING_DEPTH_REACH`` (rays go no deeper)."""
+    rate = float(f.number_density_per_um3) * kappa * f.mean_area_um2() * max(1.0 - T, 1e-12)
+    return min(float(f.thickness_um), COUPLING_DEPTH_REACH / rate)
+
+
+def _coupling_reach(f, T, kappa, light):
+    """The largest drift of a sky path (µm) over :func:`_coupling_depth`: the reach of the coupling's offsets."""
+    return _coupling_depth(f, T, kappa) * float(np.max(light[4], initial=0.0))
+
+
+def _coupling_table(f, ss, kappa, w_max):
+    """The area tables of the sky coupling (eq. G6) on a uniform grid 0 ≤ w ≤ ``w_max`` of the drift w = u|t| (µm)
+    at the offsets ``ss`` (ns,): (dw, ⟨G⟩ (ns, nw) µm², H (ns, nw) µm³, (⟨S⟩, H_S), (N, H_N)).  ⟨G⟩(s, w) = κ Σ_D n_D
+    r² G1(s/r, w/r) the footprint area (footprints as discs of area κA, as the lens L) of the flakes that cover a
+    point w away (at a random angle) and the ray s away but not the ray itself (G1 :func:`lens_outside_mean`);
+    H = ∫_0^w ⟨G⟩ dw'; (⟨S⟩, H_S) the same for :func:`shared_crossings_mean` (two parallel sky paths' common
+    crossings that cover neither ray) and (N, H_N) (1, nw) for κ⟨A − lens(w)⟩ (one path's crossings that do not
+    cover its ray)."""
+    Dn, Dw = f.diameters()
+    r = 0.5 * Dn
+    w = np.linspace(0.0, max(float(w_max), 1e-9), N_COUPLING_DRIFT)
+    dw = float(w[1] - w[0])
+    sig, ups = np.broadcast_arrays(ss[None, :, None] / r[:, None, None], w[None, None, :] / r[:, None, None])
+    # G1 is 0 outside the strip |σ − υ| < 2 (and where either is 0): evaluated where it is not
+    on = (np.abs(sig - ups) < 2.0) & (sig > 0.0) & (ups > 0.0)
+    g1 = np.zeros(sig.shape)
+    g1[on] = lens_outside_mean(sig[on], ups[on])
+    g = kappa * np.einsum("d,dsw->sw", Dw * r * r, g1)
+    sh = kappa * np.einsum("d,dsw->sw", Dw * r * r, _shared_unit(sig, ups))
+    own = kappa * (Dw * r * r) @ (np.pi - lens_area(2.0 * w[None, :] / (2.0 * r[:, None]), 1.0, 1.0))
+    return dw, g, _cumulative(g, dw), (sh, _cumulative(sh, dw)), (own[None, :], _cumulative(own[None, :], dw))
+
+
+def _integral_rows(g, H, dw, q):
+    """∫_0^q of each row of ``g`` (ns, nw) taken linear between its nodes (spacing ``dw``), at ``q`` (any shape),
+    from its cumulative ``H``: exact for that piecewise-linear integrand (a linear interpolation of H read
+    H(q)/q wrongly near q = 0, where the integrand starts from 0: 0.3 % of a thick layer's G); held beyond
+    the end → (ns, *q.shape)."""
+    nw = g.shape[1]
+    q = np.clip(np.asarray(q, float), 0.0, (nw - 1) * dw)
+    i = np.minimum((q / dw).astype(int), nw - 2)
+    d = q - i * dw
+    return H[:, i] + g[:, i] * d + (g[:, i + 1] - g[:, i]) * (d * d / (2.0 * dw))
+
+
+def _lerp_rows(table, dw, q):
+    """Each row of ``table`` (ns, nw), a function on the uniform grid 0, dw, …, linearly interpolated at ``q`` (any
+    shape; held beyond the end) → (ns, *q.shape)."""
+    pos = np.clip(np.asarray(q, float) / dw, 0.0, table.shape[1] - 1.0)
+    i = np.minimum(pos.astype(int), table.shape[1] - 2)
+    fr = pos - i
+    return table[:, i] * (1.0 - fr) + table[:, i + 1] * fr
+
+
+def _drift_integral(tab, drift, h):
+    """F(s, m, h) = ∫_0^h ⟨G⟩(s, u g_m) du = H(s, h g_m)/g_m (µm³) for sky paths drifting g_m (M,) µm per µm of
+    height, at heights ``h`` (nh,) → (ns, M, nh); 0 for a vertical path (⟨G⟩(s, 0) = 0)."""
+    dw, G, H = tab[:3]
+    g = np.asarray(drift, float)[:, None]
+    gs = np.where(g > 1e-12, g, 1.0)
+    return np.where(g > 1e-12, _integral_rows(G, H, dw, gs * np.asarray(h, float)[None, :]) / gs, 0.0)
+
+
+def _coupling_two_flakes(f, z, light, T, kappa, L, tab):
+    """What the sky paths' coupling to the mosaic adds to G5's two-flake term at the offsets of ``L`` (ns,)
+    (docs/texture.md §4, eq. G6): the upper flake F1 (top at x, depth z1) and the lower F2 (top at y = x + s, z2 =
+    z1 + Δ) are two points of the Poisson process conditioned by the mosaic (their Palm distribution), so
+
+    * F1 blocks F2's sky path where its centre also covers y + Δ t2 (t2 F2's drift) but not y: of F1's centres
+      (⟨A_e⟩ of them cover x) the area ⟨G⟩(s, Δ|t2|) does, F2's light × T_l there;
+    * no flake above z1 covers x or y, so F1's sky path meets none of those that cover y only, and F2's none above
+      z1 of those that cover x only: each a factor exp(ρ (1 − T)(1 − T_l) ∫ ⟨G⟩(s, u|t|) du) over the heights above z1.
+
+    Evaluated on a coarse uniform depth grid (ρ A_e dz ≤ ``COUPLING_DZ``, over the depth a ray reaches: e^{−Λ} ≥
+    e^{−COUPLING_DEPTH_REACH}) as the corrected two-flake sum minus the same sum uncorrected, normals kept (the drift is per normal)."""
+    Qm, lo, Tl, B1m, drift = light
+    rho, A = float(f.number_density_per_um3), f.mean_area_um2()
+    A_e = kappa * A
+    h_end = _coupling_depth(f, T, kappa)
+    nc = int(min(N_COUPLING_DEPTH, max(32, np.ceil(rho * A_e * h_end / COUPLING_DZ))))
+    dz = h_end / nc
+    hc = (np.arange(nc) + 0.5) * dz
+    zc = f.z_top_um + hc
+    b1 = rho * A * dz * np.stack([np.interp(zc, z, row) for row in B1m])  # (M, nc)
+    tl = np.stack([np.interp(zc, z, row) for row in Tl])  # (M, nc)
+    lam = rho * hc * A_e * (1.0 - T)
+    lam_b = rho * hc[None, :] * (2.0 * (A_e - L[:, None]) * (1.0 - T) + L[:, None] * (1.0 - T * T))  # (ns, nc)
+    c0 = 1.0 - (L / A_e) * (1.0 - T)  # (ns,)
+    k_ex = rho * (1.0 - T) * (1.0 - tl)  # (M, nc)
+    F_h = _drift_integral(tab, drift, hc)  # (ns, M, nc) over the heights above each cell
+    n = np.arange(nc)
+    F_d = _drift_integral(tab, drift, n * dz)  # (ns, M, nc): up to the lower flake's height Δ = n dz above the upper
+    dw, g = tab[0], tab[1]
+    gb = _lerp_rows(g, dw, np.asarray(drift, float)[:, None] * (n * dz)[None, :]) / A_e  # (ns, M, nc) blocking share
+    up = np.exp(-lam_b + lam[None, :])  # (ns, nc)
+    U1 = up * np.einsum("mk,smk->sk", b1, np.exp(k_ex[None] * F_h))  # F1's light with its exclusion
+    U0 = up * b1.sum(axis=0)[None, :]
+    V = b1 * np.exp(-lam)[None, :]  # (M, nc)
+    k_i, l_i = np.meshgrid(n, n, indexing="ij")
+    upper = l_i >= k_i
+    wt = np.where(upper, np.where(l_i == k_i, 0.5, 1.0), 0.0)  # (nc, nc) k ≤ l, ½ on the diagonal
+    d_i = np.where(upper, l_i - k_i, 0)
+    out = np.empty(L.size)
+    for s0 in range(0, L.size, 8):
+        sl = slice(s0, s0 + 8)
+        # F2's exclusion over the heights above z1: ∫ from Δ to Δ + h1 = F(h_l) − F(Δ)
+        X2 = k_ex[None, :, None, :] * (F_h[sl][:, :, None, :] - F_d[sl][:, :, d_i])  # (s, M, k, l)
+        blk = c0[sl, None, None, None] - (1.0 - tl)[None, :, None, :] * gb[sl][:, :, d_i]
+        W = np.einsum("ml,smkl->skl", V, blk * np.exp(X2))  # (s, k, l)
+        corr = np.einsum("sk,skl,kl->s", U1[sl], W, wt)
+        base = c0[sl] * np.einsum("sk,l,kl->s", U0[sl], V.sum(axis=0), wt)
+        out[sl] = 2.0 * (corr - base)
+    return out
+
+
+def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um, light=None, coupling=None):
     """(mean, variance) of a p × p spot's luminance factor under the sky for flake layer ``f``, each view ray
     seeing the flakes it meets in depth order (docs/texture.md §4, eq. G5): the topmost alone when they are
     opaque (a mosaic), those below through T per flake crossed when they transmit.  Valid at any coverage.
+
+    Var = p⁻⁴ ∫ (E[ββ](s) − mean²) s K̄(s) ds (:func:`_square_ring`) with the two-point moment of
+    :func:`mosaic_pair_moment` (the arguments are its), zero beyond the largest diameter (and, with the sky
+    coupling, its reach).  Sparse flakes: Var → N_A⟨O(0)⟩E[b²] (eq. G2)."""
+    Dn, _ = f.diameters()
+    # offsets: C(s) = 0 beyond the largest flake, K̄(s) = 0 beyond √2 p; Gauss rules between the kinks (p, where
+    # K̄ changes form, and each diameter node, where its covariogram ends)
+    p = float(spot_um)
+    coupled = (SKY_COUPLING if coupling is None else coupling) and light is not None and len(light) > 3
+    # with the sky coupling (eq. G6) two rays farther apart than a flake still correlate: an upper flake over x
+    # reaches the lower flake's sky path up to its drift × the depth a ray reaches away
+    reach = _coupling_reach(f, T, kappa, light) if coupled else 0.0
+    s_end = min(float(Dn.max()) + reach, np.sqrt(2.0) * p)
+    br = np.unique(np.concatenate([[0.0, s_end], [p], Dn]))
+    br = br[br <= s_end]
+    x, wx = leggauss(N_MOSAIC_OFFSET)
+    lo_, hi_ = br[:-1, None], br[1:, None]
+    ss = (0.5 * (hi_ - lo_) * (x + 1.0) + lo_).ravel()
+    ws = (0.5 * (hi_ - lo_) * wx).ravel()
+    mean, moment = mosaic_pair_moment(f, z, B1n, B2n, T, kappa, ss, light, coupled)
+    var = float(np.sum(ws * ss * _square_ring(p, ss.tobytes()) * (moment - mean * mean))) / p**4
+    return mean, var
+
+
+def mosaic_pair_moment(f, z, B1n, B2n, T, kappa, s_um, light=None, coupling=None):
+    """(mean, E[β(x)β(x+s)] at the offsets ``s_um`` (ns,) µm) of the per-ray luminance factor under the sky for
+    flake layer ``f``, each view ray seeing the flakes it meets in depth order (docs/texture.md §4, eqs. G5, G6):
+    the topmost alone when they are opaque (a mosaic), those below through T per flake crossed when they transmit.
 
     The flakes are a Poisson process of discs (ρ per µm³, diameters log-normal); a view ray meets them at the
     rate ρ A_e per µm of depth, A_e = κ⟨A⟩ (κ = P(μ_v')/μ_v', the solver's projected area), and two rays s apart
@@ -1379,11 +1641,12 @@ def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um, light=None):
         E[β(x)β(x+s)] = ∫ ρ L B2 e^{−Λ_b} dz + 2 ∫∫_{z1<z2} B1(z1) (1 − (L/A_e)(1 − T)) e^{−Λ_b(z1) + Λ(z1)} B1(z2) e^{−Λ(z2)} dz2 dz1,
 
     the first term one flake covering both points, the second two flakes, the upper one dimming the lower's
-    ray where it covers both.  Var = p⁻⁴ ∫ (E[ββ](s) − mean²) s K̄(s) ds (:func:`_square_ring`), zero beyond
-    the largest diameter.  Sparse flakes: Var → N_A⟨O(0)⟩E[b²] (eq. G2).  ``T``: a crossed flake's luminance
-    transmittance on the view path.  ``light``: (Q, λ_l', T_l) per normal and depth (:func:`_sky_terms`), so
-    that two rays on one flake share only the crossings of their sky paths both meet (ℓ(s) = ⟨lens⟩/⟨A⟩ of
-    them); without it B2 (s-independent: the two rays' sky paths blocked together)."""
+    ray where it covers both.  ``T``: a crossed flake's luminance transmittance on the view path.  ``light``:
+    (Q, λ_l', T_l) per normal and depth (:func:`_sky_terms`), so that two rays on one flake share only the
+    crossings of their sky paths both meet (ℓ(s) = ⟨lens⟩/⟨A⟩ of them); without it B2 (s-independent: the two
+    rays' sky paths blocked together).  With (…, B1 per normal, the sky path's drift per normal) and ``coupling``
+    (default :data:`SKY_COUPLING`), the sky paths' coupling to the mosaic (eq. G6, :func:`_coupling_two_flakes`):
+    the upper flake blocking the lower's sky path and the flakes the mosaic excludes from both sky paths."""
     rho = float(f.number_density_per_um3)
     Dn, Dw = f.diameters()
     A_e = kappa * f.mean_area_um2()
@@ -1397,25 +1660,32 @@ def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um, light=None):
     lam = rho * h * A_e * (1.0 - T)
     e1 = b1 * np.exp(-lam)
     mean = float(e1.sum())
-    # offsets: C(s) = 0 beyond the largest flake, K̄(s) = 0 beyond √2 p; Gauss rules between the kinks (p, where
-    # K̄ changes form, and each diameter node, where its covariogram ends)
-    p = float(spot_um)
-    s_end = min(float(Dn.max()), np.sqrt(2.0) * p)
-    br = np.unique(np.concatenate([[0.0, s_end], [p], Dn]))
-    br = br[br <= s_end]
-    x, wx = leggauss(N_MOSAIC_OFFSET)
-    lo_, hi_ = br[:-1, None], br[1:, None]
-    ss = (0.5 * (hi_ - lo_) * (x + 1.0) + lo_).ravel()
-    ws = (0.5 * (hi_ - lo_) * wx).ravel()
+    ss = np.asarray(s_um, float)
+    coupled = (SKY_COUPLING if coupling is None else coupling) and light is not None and len(light) > 3
+    reach = _coupling_reach(f, T, kappa, light) if coupled else 0.0
     rr = 0.5 * Dn[:, None]
     L = kappa * (Dw @ _lens_area_sq(np.broadcast_to(ss, (Dn.size, ss.size)), ss * ss, rr, rr, equal=True))  # (ns,)
     lam_b = rho * h[None, :] * (2.0 * (A_e - L[:, None]) * (1.0 - T) + L[:, None] * (1.0 - T * T))  # (ns, nu)
     if light is not None:
         # two rays on one flake s apart: their mirrored sky paths (parallel) meet a flake above in common at the
         # share ℓ(s) = ⟨lens(s)⟩/⟨A⟩ of their crossings, each its own otherwise (partial occlusion of the sky path)
-        Qm, lo, Tl = light  # (M, nz): Σ_c-luminance² × weight / footprint, the light path's own crossings, its T
+        Qm, lo, Tl = light[:3]  # (M, nz): Σ_c-luminance² × weight / footprint, the light path's own crossings, its T
         ell = (L / kappa) / f.mean_area_um2()
         ex = -lo[None] * (ell[:, None, None] * (1 - Tl[None] ** 2) + 2.0 * (1.0 - ell[:, None, None]) * (1 - Tl[None]))
+        if coupled:
+            # eq. G6: the share of the two paths' crossings they have in common is that of the flakes covering
+            # both path points but neither ray, ℓ(s, m, h) = ∫⟨S⟩/∫κ⟨A − lens⟩ along the path (ℓ = lens(s)/A
+            # above is its limit far above the flake); and no flake above covers either ray, so neither sky path
+            # meets the flakes that cover the other ray only (each path's own were already left out)
+            tab = _coupling_table(f, ss, kappa, reach)
+            hz = z - f.z_top_um
+            g_m = np.asarray(light[4], float)[:, None]
+            q = g_m * hz[None, :]  # (M, nz) the drift at the flake's height
+            own = _integral_rows(*tab[4], tab[0], q)[0]
+            ell = np.where(own > 1e-12 * kappa * f.mean_area_um2(), _integral_rows(*tab[3], tab[0], q) / np.maximum(own, 1e-300), 0.0)
+            ex = -lo[None] * (2.0 * (1 - Tl[None]) - ell * (1 - Tl[None]) ** 2)
+            Fz = _drift_integral(tab, light[4], hz)  # (ns, M, nz)
+            ex += 2.0 * rho * (1.0 - T) * (1.0 - Tl[None]) * Fz
         B2s = np.einsum("mz,smz->sz", Qm, np.exp(ex))  # (ns, nz)
         b2 = np.stack([np.interp(zu, z, row) for row in B2s]) * dz  # (ns, nu)
         one = rho * (L / kappa) * np.sum(np.exp(-lam_b) * b2, axis=1)
@@ -1423,9 +1693,9 @@ def mosaic_variance(f, z, B1n, B2n, T, kappa, spot_um, light=None):
         one = rho * (L / kappa) * (np.exp(-lam_b) @ b2)  # flakes covering both, ρκ⟨lens⟩, × E_hit[b²] = B2/κ
     G = np.cumsum(e1[::-1])[::-1] - 0.5 * e1  # Σ_{l ≥ k} (½ on the diagonal) B1_l e^{−Λ_l}
     two = 2.0 * (1.0 - (L / A_e) * (1.0 - T)) * (np.exp(-lam_b + lam[None, :]) @ (b1 * G))
-    cov = one + two - mean * mean
-    var = float(np.sum(ws * ss * _square_ring(p, ss.tobytes()) * cov)) / p**4
-    return mean, var
+    if coupled:
+        two += _coupling_two_flakes(f, z, light, T, kappa, L, tab)
+    return mean, one + two
 
 
 def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=None, memo=None) -> dict:

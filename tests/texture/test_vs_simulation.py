@@ -156,9 +156,6 @@ def _bench():
 
 
 _SWEEP = Path(__file__).resolve().parents[2] / "bench" / "texture_reference.jsonl"
-#: The sweep's one known miss (docs/texture.md §8): G5's sky luminances drawn independently of the mosaic
-#: (measured G ×1.068 at 16 % by bench/texture_mosaic_sky.py); held to its present size, not let grow.
-_KNOWN_MISS = {"byk/met-16%-20um-a0.2": 0.16}
 
 
 @pytest.mark.parametrize("row", [json.loads(line) for line in _SWEEP.read_text().splitlines()], ids=lambda r: r["name"])
@@ -167,7 +164,8 @@ def test_the_bench_sweep_holds_against_the_stored_reference(row):
     pearlescent, with and without a black pigment) re-evaluated by bench/texture_reference.py's own model rows
     against the stored reference (bench/texture_reference.jsonl, flakedb.reference.flake_sim with area hiding,
     per-ray sky and true diffraction): glints per mm² (half-peak and above β_t) and, with ≥ 10 glints, the sparkle
-    intensity within 3σ + 10 %, G within 3σ + 10 % (the 16 % metallic graininess within 3σ + 16 %: the known miss).
+    intensity within 3σ + 10 %, G within 3σ + 10 % (the 16 % metallic graininess too since the sky coupling, eq. G6:
+    without it +15 %, outside).
     Guards the table the documentation prints: the occlusion's flakes above 30 % too dense put the 16 % metallic
     and both pearlescent counts outside (tried)."""
     bench = _bench()
@@ -179,5 +177,5 @@ def test_the_bench_sweep_holds_against_the_stored_reference(row):
         if d["glints"] >= 10:
             assert bench._ok(m["sparkle_intensity"], d["sparkle_intensity"], d["sigma_sparkle_intensity"]), d["light_deg"]
     dd = row["diffuse"]
-    assert bench._ok(g["graininess"], dd["graininess"], dd["sigma_graininess"], rel=_KNOWN_MISS.get(row["name"], 0.10)), \
+    assert bench._ok(g["graininess"], dd["graininess"], dd["sigma_graininess"]), \
         (g["graininess"], dd["graininess"])
