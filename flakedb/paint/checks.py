@@ -18,6 +18,7 @@ flakedb/schemas/recipe.schema.json); the limits are restated here so messages an
 from __future__ import annotations
 
 import math
+import re
 import unicodedata
 
 import yaml
@@ -159,7 +160,15 @@ def _path(parts):
     return out or "(top level)"
 
 
-def _string_problem(path, key, s):
+#: Unicode's control characters (general category Cc): U+0000–U+001F and U+007F–U+009F.
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def _string_problem(parts, key, s):
+    """The control-character problem of string ``s`` at path ``parts`` (its key ``key``), or None."""
+    if _CONTROL.search(s) is None:  # the usual string: one scan in C, no path formatted
+        return None
+    path = _path(parts)
     allowed = "\n\t" if key in MULTILINE_KEYS else ""
     for i, ch in enumerate(s):
         if unicodedata.category(ch) == "Cc" and ch not in allowed:
@@ -187,13 +196,13 @@ def value_problems(doc, limit=20) -> list[str]:
                 out.append(f"{_path(parts)}: integer with {len(str(abs(v)))} digits is outside the allowed "
                            f"range |value| ≤ 2^53 (hint: give a physical value)")
         elif isinstance(v, str):
-            p = _string_problem(_path(parts), key, v)
+            p = _string_problem(parts, key, v)
             if p:
                 out.append(p)
         elif isinstance(v, dict):
             for k, x in reversed(list(v.items())):
                 if isinstance(k, str):
-                    p = _string_problem(_path(parts + (k,)), None, k)
+                    p = _string_problem(parts + (k,), None, k)
                     if p:
                         out.append(p.replace(": contains", ": the key contains", 1))
                         continue
