@@ -260,6 +260,17 @@ def cpa_materialx_rf(fit: CPAFit, geometries) -> np.ndarray:
     return np.pi * np.where((mu_l > 0)[:, None], f, 0.0)
 
 
+def dE00_against_exact(b, rf, g):
+    """(ΔE00 per geometry, exact reflectance factors) of RGB reflectance factors ``rf`` (rows of ``g``, the
+    geometries as :func:`flakedb.match.fit.geometry_directions` reads them) against the exact paint ``b``
+    (:func:`flakedb.export.openpbr.exact_rgb`): CIEDE2000, D65 / 2°, the file's white-normalised linear sRGB, as
+    :func:`flakedb.export.cpa.cpa_error`."""
+    wl_nm = colour_grid(b)
+    exact = np.pi * exact_rgb(b, *geometry_directions(g))
+    de = delta_E_2000(channels_to_Lab(np.maximum(rf, 1e-6), "rgb", wl_nm), channels_to_Lab(exact, "rgb", wl_nm))
+    return de, exact
+
+
 def check_cpa_glsl(b, mtlx, geometries=None, *, tool: dict | None = None) -> dict:
     """Render the exported ``NAME.cpa.mtlx`` (its ``.cpa.png`` beside it) in MaterialX's GLSL renderer at
     ``geometries`` (default ASTM E2194's six, 45° illumination) and compare with the exact paint ``b`` (the
@@ -269,9 +280,7 @@ def check_cpa_glsl(b, mtlx, geometries=None, *, tool: dict | None = None) -> dic
     g = np.asarray(E2194_GEOMETRIES if geometries is None else geometries, float)
     r = render_geometries([mtlx], g, tool=tool)
     rf = r["rf"][0]
-    wl_nm = colour_grid(b)
-    exact = np.pi * exact_rgb(b, *geometry_directions(g))
-    de = delta_E_2000(channels_to_Lab(np.maximum(rf, 1e-6), "rgb", wl_nm), channels_to_Lab(exact, "rgb", wl_nm))
+    de, exact = dE00_against_exact(b, rf, g)
     return {"renderer": f"MaterialX {r['materialx']} GlslRenderer on {r['gl'].get('renderer', '?')}",
             "light": "directional_light, intensity 1, no environment; lin_rec709, no tone map, float32 target",
             "geometries": [{"illumination_deg": float(i), "aspecular_deg": float(a), "dE00": float(d),
