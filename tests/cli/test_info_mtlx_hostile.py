@@ -9,6 +9,7 @@ field), a non-zero exit, nothing printed before it."""
 import html
 import json
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -98,3 +99,25 @@ def test_a_damaged_openpbr_fit_is_one_error_naming_the_file(tmp_path):
     r = _info(p)
     assert r.exit_code == 2 and r.output.startswith(f"Error: {p}: "), r.output[:400]
     assert "base_color" in r.output.splitlines()[0] and "internal error" not in r.output
+
+
+def test_a_black_paint_exports_strict_json_that_info_reads(tmp_path):
+    """export-cpa of a black paint (a black primer under the coat: the table is 0) wrote
+    cosine_weighted_difference NaN (0/0) into the fit, which is not JSON (json.loads without NaN refuses it) and
+    which `flakedb info` now refuses: a black fit of a black paint differs by 0."""
+    from flakedb.export.openpbr import cosine_weighted_difference
+
+    z = np.zeros((4, 3))
+    assert cosine_weighted_difference(z, z, np.ones(4), -np.ones(4), np.ones(4)) == 0.0
+    assert np.isnan(cosine_weighted_difference(z + 1, z, np.ones(4), -np.ones(4), np.ones(4)))
+    rec = tmp_path / "black.yaml"
+    rec.write_text("flakedb: 1\nname: black\nspectral: {mode: spectral, range_nm: [380, 780], step_nm: 20}\n"
+                   "layers:\n  - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}\n  - primer: {albedo: 0}\n")
+    r = CliRunner().invoke(cli, ["compose", str(rec), "--n", "16", "--out", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, ["export-cpa", str(tmp_path / "black.bsdf"), "--json"])
+    assert r.exit_code == 0, r.output
+    json.loads(r.output, parse_constant=lambda c: pytest.fail(f"{c} in export-cpa's JSON"))
+    r = _info(tmp_path / "black.cpa.mtlx")
+    assert r.exit_code == 0, r.output
+    assert "cosine-weighted BSDF difference 0.0 %" in r.output
