@@ -10,6 +10,7 @@ solver's convergence in the same words compose printed (:func:`flakedb.solve.pip
 """
 
 import json
+import math
 import re
 import struct
 import xml.etree.ElementTree as ET
@@ -337,9 +338,69 @@ def describe_fit(path):
         mtlx_kind, fit = read_mtlx_fit(path)
     except (ValueError, ET.ParseError) as e:
         raise BSDFFileError(str(e)) from None
+    for where, f in ([("", fit), ("materialx.", fit.get("materialx"))] if "materialx" in fit else [("", fit)]):
+        _check_fit_fields(path, f, FIT_FIELDS[mtlx_kind], where)
     p = Path(path)
     kind, fmt = MTLX_FORMATS[mtlx_kind]
     return {"kind": kind, "file": str(p), "size_bytes": p.stat().st_size, "format": fmt, "fit": fit}
+
+
+#: The fit fields the summary prints, per kind of document: name -> (what it must be, required).  A list holds at
+#: most MAX_FIT_LIST entries (export-cpa writes a few lobes; a longer one is not flakedb's).
+_ERROR_FIELDS = {"worst_dE00_E2194": ("number", True), "worst_dE00_E2539": ("number", True),
+                 "cosine_weighted_difference": ("number", True)}
+FIT_FIELDS = {
+    "cpa": {"alphas": ("numbers", False), "retro_alphas": ("numbers", False), "tilted": ("pairs", False),
+            "coat_ior": ("number", False), "n_table": ("integer", False), "distribution": ("text", False),
+            "source": ("text", False), "error": (_ERROR_FIELDS, False)},
+    "openpbr": {"base_color": ("rgb", True), "base_metalness": ("number", True), "specular_roughness": ("number", True),
+                "coat_ior": ("number", True), "coat_roughness": ("number", True), "specular_color": ("rgb", False),
+                "specular_ior": ("number", False), "thin_film_thickness_nm": ("number", False),
+                "thin_film_ior": ("number", False), "source": ("text", False), "error": (_ERROR_FIELDS, False)},
+}
+MAX_FIT_LIST = 64
+_FIT_VALUE_TEXT = {"number": "a finite number", "integer": "an integer", "text": "printable text of ≤ 4096 characters",
+                   "rgb": "three finite numbers", "numbers": f"a list of ≤ {MAX_FIT_LIST} finite numbers",
+                   "pairs": f"a list of ≤ {MAX_FIT_LIST} [α, k] pairs of finite numbers"}
+
+
+def _fit_value_ok(v, what) -> bool:
+    def num(x):
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+    if what == "number":
+        return num(v)
+    if what == "integer":
+        return isinstance(v, int) and not isinstance(v, bool)
+    if what == "text":
+        return isinstance(v, str) and len(v) <= 4096 and v.isprintable()
+    if what == "rgb":
+        return isinstance(v, list) and len(v) == 3 and all(num(x) for x in v)
+    if not isinstance(v, list) or len(v) > MAX_FIT_LIST:
+        return False
+    if what == "numbers":
+        return all(num(x) for x in v)
+    return all(isinstance(x, list) and len(x) == 2 and all(num(y) for y in x) for x in v)   # "pairs"
+
+
+def _check_fit_fields(path, fit, fields, where=""):
+    """BSDFFileError naming ``path`` and the field where the fit of a flakedb MaterialX document lacks a field
+    :data:`FIT_FIELDS` requires or holds one of another kind (a damaged or foreign file), before anything is
+    printed."""
+    if not isinstance(fit, dict):
+        raise BSDFFileError(f"{path}: its fit's {where.rstrip('.')} is not a JSON object: a damaged file; export it again")
+    for name, (what, required) in fields.items():
+        if name not in fit:
+            if required:
+                raise BSDFFileError(f"{path}: its fit has no {where}{name}: a damaged file; export it again")
+            continue
+        if isinstance(what, dict):
+            if fit[name] != {}:           # an empty error block: no error was measured
+                _check_fit_fields(path, fit[name], what, f"{where}{name}.")
+        elif not _fit_value_ok(fit[name], what):
+            shown = json.dumps(fit[name])
+            raise BSDFFileError(f"{path}: its fit's {where}{name} is {shown[:60]}{'…' if len(shown) > 60 else ''}, "
+                                f"not {_FIT_VALUE_TEXT[what]}: a damaged file; export it again")
 
 
 def _print_fit(d):

@@ -82,6 +82,7 @@ from flakedb.export.materialx_glsl import compensated_lobe_colours
 from flakedb.export.openpbr import colour_grid, cosine_weighted_difference, exact_rgb, file_directions
 from flakedb.match.fit import channels_to_Lab, geometry_directions
 from flakedb.match.targets import E2194_GEOMETRIES, E2539_EXTRA
+from flakedb.optics.fresnel import fresnel_dielectric_real
 
 #: Columns of the colour table (nodes in μ_v) and number of GGX lobes.
 N_TABLE = 32
@@ -94,6 +95,12 @@ RETRO_ALPHA_GRID = (0.18, 0.28, 0.42, 0.65, 1.0)
 #: Tilted lobes (:func:`tilted_lobe`, MaterialX's route where GGX lobes about N miss the target): the (α, k)
 #: searched.  k = 0.304 centres the lobe on ASTM E2194's aspecular 15° at its view (μ_v = cos 30°).
 TILT_GRID = tuple((a, k) for a in (0.03, 0.06, 0.11) for k in (0.15, 0.304, 0.45))
+#: Energy (:func:`energy_capped`): points per table interval at which the albedo is held ≤ 1 (its nodes and
+#: N_ENERGY_SUB − 1 between), and the half-vector quadrature of :func:`lobe_albedos` (Gauss-Legendre nodes in
+#: the lobe's CDF u, midpoints in φ).
+N_ENERGY_SUB = 4
+N_ALBEDO_U = 48
+N_ALBEDO_PHI = 48
 #: Hemisphere sample set of the fit: Gauss-Legendre nodes in μ_v and μ_l, midpoints in φ_d.
 N_MU_FIT = 16
 N_PHI_FIT = 24
@@ -240,6 +247,69 @@ def lobe_basis(mu_v, mu_l, cos_h, alphas, retro_alphas=(), cos_vl=None, distribu
     cols += [retro_lobe(mu_l, cos_vl, a) for a in retro_alphas]
     cols += [tilted_lobe(mu_v, mu_l, cos_h, cos_vl, a, k) for a, k in tilted]
     return np.stack(cols, axis=-1)
+
+
+def lobe_albedos(mu_v, alphas, retro_alphas=(), distribution: str = "ggx", tilted=()) -> np.ndarray:
+    """(1 + K + R + T, V) the directional albedo ∫ B μ_l dω_l of each column of :func:`lobe_basis` at the view
+    cosines ``mu_v`` (V,): 1 for the Lambert term; for a lobe about the axis m (N, ω_v for a backscatter lobe,
+    N' of :func:`tilted_cosines` for a tilted one) the half vector h is drawn from D_α(m·h)(m·h) (GGX's: tan²θ_h =
+    α² u / (1 − u)) on :data:`N_ALBEDO_U` Gauss nodes in u × :data:`N_ALBEDO_PHI` midpoints in φ, ω_l the
+    mirror of ω_v about h (dω_l = 4 (ω_v·h) dω_h), so that the narrowest lobe is resolved as well as the widest.
+    Each is ≤ 1 (F = 1, a lobe of unit albedo at most)."""
+    mu = np.clip(np.asarray(mu_v, float), 0.0, 1.0)
+    x, wx = np.polynomial.legendre.leggauss(N_ALBEDO_U)
+    u, wu = 0.5 * (x + 1.0), 0.5 * wx
+    phi = (np.arange(N_ALBEDO_PHI) + 0.5) * 2.0 * np.pi / N_ALBEDO_PHI
+    v = np.stack([np.sqrt(1.0 - mu * mu), np.zeros_like(mu), mu], -1)                      # (V, 3)
+    lobe = GLOSSY_LOBES[distribution]
+    cols = [(a, np.broadcast_to([0.0, 0.0, 1.0], v.shape), lambda m, ml, ch, cvl, a=a: lobe(m, ml, ch, a)) for a in alphas]
+    cols += [(a, v, lambda m, ml, ch, cvl, a=a: retro_lobe(ml, cvl, a)) for a in retro_alphas]
+    for a, k in tilted:
+        nt = np.stack([-k * mu * v[:, 0], np.zeros_like(mu), np.ones_like(mu)], -1)   # N (1 + kμ²) − kμ ω_v
+        nt /= np.linalg.norm(nt, axis=-1, keepdims=True)
+        cols.append((a, nt, lambda m, ml, ch, cvl, a=a, k=k: tilted_lobe(m, ml, ch, cvl, a, k)))
+    out = [np.ones(mu.shape)]
+    for a, m, f in cols:
+        t2 = a * a * u / (1.0 - u)
+        ct = 1.0 / np.sqrt(1.0 + t2)
+        st = np.sqrt(t2) * ct
+        hl = np.stack([st[:, None] * np.cos(phi), st[:, None] * np.sin(phi), np.broadcast_to(ct[:, None], (u.size, phi.size))], -1)
+        e1 = np.stack([m[:, 2], np.zeros_like(mu), -m[:, 0]], -1)                         # ⊥ m in the plane of N, ω_v
+        h = (hl[None, ..., :1] * e1[:, None, None] + hl[None, ..., 1:2] * np.array([0.0, 1.0, 0.0])
+             + hl[None, ..., 2:] * m[:, None, None])                                      # (V, U, Φ, 3)
+        vh = np.einsum("vupi,vi->vup", h, v)
+        wl = 2.0 * vh[..., None] * h - v[:, None, None]
+        ml, cvl = wl[..., 2], np.einsum("vupi,vi->vup", wl, v)
+        pdf = a * a / (np.pi * (ct * ct * (a * a - 1.0) + 1.0) ** 2) * ct                  # D(m·h)(m·h), (U,)
+        ok = (vh > 0) & (ml > 0)
+        val = f(np.broadcast_to(mu[:, None, None], ml.shape), np.where(ok, ml, 1.0), h[..., 2], cvl)
+        g = np.where(ok, val * ml * 4.0 * vh, 0.0) / pdf[None, :, None]
+        out.append(np.einsum("vup,u->v", g, wu) / N_ALBEDO_PHI)
+    return np.stack(out)
+
+
+def energy_capped(fit: CPAFit, albedos=None) -> CPAFit:
+    """``fit`` with its table columns scaled down (per channel) where the model's directional albedo
+    F_c(μ_v) + Σ_k C_k(μ_v) A_k(μ_v) (A_k :func:`lobe_albedos`, F_c the coat's Fresnel) would exceed 1 at a node
+    or at :data:`N_ENERGY_SUB` − 1 points between two (the colours are linear between nodes): first each node on
+    its own, then each interval's two columns together, in order (scaling a column only lowers its neighbours'
+    intervals).  The least-squares fit has no energy constraint: a lobe narrower than the fit's samples can take
+    a colour of several (an albedo of 4.8 for a coated near-mirror, measured).  ``albedos``: lobe_albedos at
+    the points (precomputed)."""
+    n, sub = fit.n_table, N_ENERGY_SUB
+    mu = np.linspace(0.0, 1.0, (n - 1) * sub + 1)
+    A = lobe_albedos(mu, fit.alphas, fit.retro_alphas, fit.distribution, fit.tilted) if albedos is None else albedos
+    room = 1.0 - (fresnel_dielectric_real(mu, fit.coat_ior) if fit.coat_ior != 1.0 else 0.0 * mu)
+    table = np.array(fit.table, float)
+    S = np.einsum("rjc,rj->jc", table, A[:, ::sub])                                       # each node's albedo
+    table *= np.where(S > room[::sub, None], room[::sub, None] / np.maximum(S, 1e-300), 1.0)[None]
+    H = hat_weights(mu, n)
+    for j in range(n - 1):
+        q = slice(j * sub, (j + 1) * sub + 1)
+        S = np.einsum("qj,rjc,rq->qc", H[q, j:j + 2], table[:, j:j + 2], A[:, q])
+        ratio = np.max(np.where(room[q, None] > 0, S / np.maximum(room[q, None], 1e-300), 0.0), axis=0)
+        table[:, j:j + 2] /= np.maximum(ratio, 1.0)
+    return replace(fit, table=table)
 
 
 def _half_cos(wv, wl):
@@ -406,6 +476,8 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
     wl_dir, wv_dir = file_directions(MI, MO, PH)
     B_all = lobe_basis(wv_dir[..., 2], wl_dir[..., 2], _half_cos(wv_dir, wl_dir), alpha_grid, retro_grid,
                        np.sum(wv_dir * wl_dir, axis=-1), distribution, tilt_grid)                  # (P, 1 + A + R + T)
+    A_all = lobe_albedos(np.linspace(0.0, 1.0, (n_table - 1) * N_ENERGY_SUB + 1), alpha_grid, retro_grid,
+                         distribution, tilt_grid)                                        # energy_capped's, every column
     uniq, inv = np.unique(wv_dir[..., 2], return_inverse=True)
     H_u = hat_weights(uniq, n_table)                                                               # (U, n)
     S = csr_matrix((np.ones(len(inv)), (inv, np.arange(len(inv)))), shape=(len(uniq), len(inv)))   # sample -> μ_v
@@ -442,6 +514,8 @@ def fit_cpa(b, n_lobes: int = N_LOBES, n_table: int = N_TABLE, alpha_grid=ALPHA_
             c, _ = solve_subset(lobes, mom)
             fit = CPAFit(c.reshape(n_rows, n_table, 3), lobes[0], coat_ior, source, retro_alphas=lobes[1],
                          distribution=distribution, tilted=lobes[2])
+            ks = [0] + [index["ggx", a] for a in lobes[0]] + [index["retro", a] for a in lobes[1]] + [index["tilt", t] for t in lobes[2]]
+            fit = energy_capped(fit, A_all[ks])
             de = delta_E_2000(channels_to_Lab(np.pi * evaluate_cpa(fit, gi, go, gp), "rgb", wl_nm), lab_g)
             key = (float(de[:n45].max()), float(de.max()))
             if best is None or key < best[0]:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from flakedb.atomic import atomic_path
 from flakedb.export.openpbr import OpenPBRFit
+from flakedb.safeio import FileTooLargeError, read_limited
 
 #: MaterialX version of the written document (open_pbr_surface is in its standard library).
 MTLX_VERSION = "1.39"
@@ -97,6 +98,13 @@ def read_fit(path) -> dict:
 
 #: Root attribute of a flakedb MaterialX document -> the export that writes it.
 FIT_ATTRIBUTES = {"flakedb_fit": "openpbr", "flakedb_cpa": "cpa"}
+#: Largest MaterialX document :func:`read_mtlx_fit` reads (export-cpa's, glint layer included, are ~30 kB).
+MTLX_MAX_BYTES = 4 << 20
+
+
+def _refuse_constant(name):
+    """json.loads' hook for NaN / Infinity, which flakedb never writes into a fit."""
+    raise ValueError(f"{name} is not a number a fit holds")
 
 
 def read_mtlx_fit(path) -> tuple[str, dict]:
@@ -109,13 +117,27 @@ def read_mtlx_fit(path) -> tuple[str, dict]:
     >>> read_mtlx_fit(path)
     ('cpa', {'alphas': [0.2]})
     """
-    root = ET.parse(path).getroot()
+    try:
+        root = ET.fromstring(read_limited(path, MTLX_MAX_BYTES))
+    except FileTooLargeError:
+        raise ValueError(f"{path}: larger than the {MTLX_MAX_BYTES} bytes a flakedb MaterialX document can be "
+                         f"(export-cpa's are ~30 kB): not one flakedb wrote") from None
+    except ET.ParseError as e:
+        raise ValueError(f"{path}: not well-formed XML ({e}): a truncated or damaged file; export it again") from None
     if root.tag != "materialx":
         raise ValueError(f"{path}: not a MaterialX document (root <{root.tag}>)")
     for attribute, kind in FIT_ATTRIBUTES.items():
         s = root.get(attribute)
         if s is not None:
-            return kind, json.loads(s)
+            try:
+                fit = json.loads(s, parse_constant=_refuse_constant)
+            except (ValueError, RecursionError) as e:    # RecursionError: nesting deeper than the parser's stack
+                raise ValueError(f"{path}: its {attribute} attribute is not valid JSON ({str(e)[:120]}): a damaged "
+                                 f"file; export it again") from None
+            if not isinstance(fit, dict):
+                raise ValueError(f"{path}: its {attribute} attribute is not a JSON object (a {type(fit).__name__}): "
+                                 f"not flakedb's fit; export it again")
+            return kind, fit
     raise ValueError(f"{path}: a MaterialX document without flakedb's fit (not written by flakedb export-openpbr "
                      f"or export-cpa)")
 

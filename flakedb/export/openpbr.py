@@ -384,11 +384,12 @@ def hemisphere_grid(n_mu: int = N_MU, n_phi: int = N_PHI):
 
 def cosine_weighted_difference(f_fit, f_exact, mu_i, mu_o, weight) -> float:
     """``sqrt(Σ w μ_i |μ_o| |f_fit - f|² / Σ w μ_i |μ_o| |f|²)`` over the grid and channels: the
-    relative cosine-weighted L2 difference of two BSDFs (0 = equal)."""
+    relative cosine-weighted L2 difference of two BSDFs (0 = equal, also where both are 0: a black paint and its
+    black fit; NaN only where ``f_exact`` is 0 and ``f_fit`` is not)."""
     c = (weight * mu_i * np.abs(mu_o))[:, None]
     num = float(np.sum(c * (f_fit - f_exact) ** 2))
     den = float(np.sum(c * f_exact ** 2))
-    return float(np.sqrt(num / den)) if den > 0 else float("nan")
+    return float(np.sqrt(num / den)) if den > 0 else (0.0 if num == 0.0 else float("nan"))
 
 
 # --------------------------------------------------------------------------------------------

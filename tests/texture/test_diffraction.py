@@ -163,3 +163,14 @@ def test_spot_fill_against_random_placements(ratio):
         fills.append(np.bincount(cells - cells.min()).max() / sub**2)
     assert tm.spot_fill(D, p) == pytest.approx(np.mean(fills), abs=3 * np.std(fills) / np.sqrt(200) + 0.01)
     assert tm.spot_fill(D, p) <= min(1.0, np.pi * D * D / 4 / p**2) + 1e-12
+
+
+def test_spot_fill_of_flakes_much_larger_than_the_spot():
+    """A disc of diameter ≥ 2√2 p holds the whole spot its centre lies in (that spot is within √2 p of the
+    centre): spot_fill is exactly 1, which the binned estimate already gives from 2.5 p; a schema-valid flake of
+    1000 µm with diameter_gsd 3 (diameters to ~75 mm) under the 15 µm BYK-like spot asked the binning for
+    40 GiB (`flakedb texture`: out of memory); 75 mm here (205 GB before) is immediate."""
+    p = 15.0
+    tm._spot_fill_one.cache_clear()
+    assert [tm.spot_fill(r * p, p) for r in (2.5, 2.7, 2.82)] == [1.0, 1.0, 1.0]   # binned, below the bound
+    assert tm.spot_fill(np.array([2.83, 10.0, 5000.0]) * p, p).tolist() == [1.0, 1.0, 1.0]
