@@ -5,7 +5,7 @@ factor, which only the composed BSDF knows, so the command composes the paint (`
 function, into a temporary directory, with the same ``--n`` and ``--store``) and prints the ``texture``
 section of compose's report, identical to the one in NAME.json.  Custom observers are grounded on the
 same composed BSDF.  ``--flakes-only`` skips the solve: contrasts and graininess are then relative to the
-flakes' own mean (upper bounds, labelled ``ground: flakes``).
+flakes' own mean (labelled ``ground: flakes``; not bounds: that mean can exceed the paint's).
 """
 
 import json
@@ -85,7 +85,7 @@ def format_texture(rep) -> str:
                  "flakes brighter than the fixed luminance factor β_t (half an aligned R = 1 surface flake of 16 µm: what "
                  "a person or a camera counts); per spot: in one resolved spot; area frac: spots holding a glint; "
                  "intensity: the brightest spot's excess luminance factor (the share of the spot a glint fills); contrast: "
-                 "intensity / the mean (the flakes' own with --flakes-only: an upper bound); peak β: an aligned surface "
+                 "intensity / the mean (the flakes' own with --flakes-only); peak β: an aligned surface "
                  "flake.")
     return "\n".join(lines)
 
@@ -168,8 +168,8 @@ def _refuse_bsdf(path):
 @click.option("--store", "store", default=None, envvar="FLAKEDB_STORE",
               help="Precomputed species store, as `flakedb compose --store` (default $FLAKEDB_STORE).")
 @click.option("--flakes-only", is_flag=True,
-              help="Skip the BSDF solve: contrasts and graininess relative to the flakes' own mean (upper bounds, "
-                   "'ground: flakes'), not the paint's; fast.")
+              help="Skip the BSDF solve: contrasts and graininess relative to the flakes' own mean "
+                   "('ground: flakes'), not the paint's, so not bounds on compose's; fast.")
 @click.option("--mitsuba", "mitsuba_dir", default=None, type=click.Path(file_okay=False),
               help="Also write the Mitsuba 3 sparkle route for the first observer and light angle into DIR: "
                    "NAME.sparkle.xml (a blendbsdf of the `measured` export and a glint layer), its textures "

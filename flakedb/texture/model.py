@@ -1264,7 +1264,7 @@ def sparkle_indices(stack: TextureStack, observer, light_deg, ground_luminance_f
 def sparkle_grounded(row: dict, ground_luminance_factor=None) -> dict:
     """A :func:`sparkle_indices` row with its contrast taken against ``ground_luminance_factor`` (the
     smooth BSDF's π f at the row's geometry), or, when None, against the flakes' own mean
-    (``flake_luminance_factor``: an upper bound): ``sparkle_contrast`` = sparkle_intensity / ground
+    (``flake_luminance_factor``; not a bound: it can exceed the paint's): ``sparkle_contrast`` = sparkle_intensity / ground
     (docs/texture.md §3.4) and ``ground`` ("bsdf" or "flakes").  The ground enters nothing else, so
     the glint statistics can be computed before the BSDF is solved and grounded after."""
     ground = float(ground_luminance_factor) if ground_luminance_factor is not None else row["flake_luminance_factor"]
@@ -1712,7 +1712,7 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
     number of flakes: ⟨β⟩ = Σ N_A ⟨A⟩ E[b], Var β = Σ N_A ⟨A²/(A + a)⟩ E[b²] / a … (docs/texture.md
     eq. G2).  ``ground_luminance_factor``: the paint's total luminance factor under the sky (its
     directional albedo at the view), which replaces the flakes' mean in the denominator; without
-    it G is the flake-only value (an upper bound).  ``memo``: as :func:`sparkle_indices` (keeps
+    it G is the flake-only value (not a bound: docs/texture.md §1).  ``memo``: as :func:`sparkle_indices` (keeps
     :func:`_sky_terms`).  Returns a dict; where the variance comes out ≤ 0 (the hiding term cancels the
     single-flake term: thick, dense flake layers) ``graininess`` is None, ``valid`` False and ``note`` says why."""
     mean, var_single, var_pair = 0.0, 0.0, 0.0
@@ -1757,7 +1757,7 @@ def graininess_indices(stack: TextureStack, observer, ground_luminance_factor=No
 def graininess_grounded(row: dict, ground_luminance_factor=None) -> dict:
     """A :func:`graininess_indices` row with G = luminance_sd / ground, the ground being
     ``ground_luminance_factor`` (the paint's luminance factor under the sky) or, when None, the flakes'
-    own mean (an upper bound on G); ``ground`` says which; G is None where the row is not ``valid``
+    own mean (not a bound on G); ``ground`` says which; G is None where the row is not ``valid``
     (as :func:`sparkle_grounded`: the ground enters nothing else)."""
     ground = float(ground_luminance_factor) if ground_luminance_factor is not None else row["flake_luminance_factor"]
     sd = row["luminance_sd"]
