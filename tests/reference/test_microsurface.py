@@ -161,3 +161,24 @@ def test_solver_rough_interfaces_against_the_random_walk(alpha):
         _check("R from the binder", alpha, theta, Rb[k], bot["R"], bot["R_se"], N_PATHS, failures, BINDER_SPLIT)
         _check("T from the binder", alpha, theta, Tb[k], bot["T"], bot["T_se"], N_PATHS, failures, BINDER_SPLIT)
     assert not failures, "\n".join(failures)
+
+
+def test_walk_cell_average_smooth_limit():
+    """``cell``: incident cosines drawn from μ dμ on the cell, so T is the flux-weighted cell average.  α = 0.005
+    from the binder over a cell that holds the critical angle (μ 0.55–0.95; critical μ 0.745): T equals
+    ∫ (1 − F(μ)) μ dμ / ∫ μ dμ of the smooth interface (Gauss–Legendre above the critical μ, T = 0 below) within
+    3σ + 0.5 % (0.5176 ± 0.0011 against 0.5168); cosines drawn uniformly in μ give 0.454 (fails).  A malformed
+    cell is refused."""
+    lo, hi, eta = 0.55, 0.95, 1.5
+    mu_c = np.sqrt(1.0 - 1.0 / eta**2)
+    x, w = np.polynomial.legendre.leggauss(64)
+    mu = 0.5 * (hi + mu_c) + 0.5 * (hi - mu_c) * x  # below mu_c the binder reflects totally: T = 0
+    F, _ = ms.fresnel_dielectric_cos(mu, np.full(mu.shape, 1.0 / eta))
+    T = (0.5 * (hi - mu_c) * w * (1.0 - F) * mu).sum() / (0.5 * (hi * hi - lo * lo))
+    d = ms.walk_dielectric(None, 0.005, eta, 200_000, 11, from_below=True, cell=(lo, hi))
+    assert d["lost"] == 0
+    assert abs(d["T"] - T) <= 3 * d["T_se"] + 0.005 * T, (d["T"], T, d["T_se"])
+    T_uniform = (0.5 * (hi - mu_c) * w * (1.0 - F)).sum() / (hi - lo)
+    assert abs(T_uniform - T) > 3 * d["T_se"] + 0.005 * T  # the check can tell the two weightings apart
+    with pytest.raises(ValueError, match="cell"):
+        ms.walk_dielectric(None, 0.005, eta, 10, 1, cell=(0.9, 0.5))
