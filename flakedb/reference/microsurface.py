@@ -189,8 +189,9 @@ def walk_dielectric(mu_i, alpha, eta, n_paths, seed, from_below=False, cosine_we
     rng = np.random.default_rng(seed)
     if cosine_weighted or cell is not None:
         lo, hi = (0.0, 1.0) if cell is None else (float(cell[0]), float(cell[1]))
-        if not 0.0 <= lo < hi <= 1.0:
+        if not 0.0 <= lo < hi <= 1.0 + 1e-12:  # an edge computed as 1 may round past it
             raise ValueError(f"walk_dielectric: cell = {cell}, need 0 <= mu_lo < mu_hi <= 1")
+        hi = min(hi, 1.0)
         mu = np.sqrt(lo * lo + rng.random(n_paths) * (hi * hi - lo * lo))  # density ∝ μ on [lo, hi]
         s = np.sqrt(1.0 - mu * mu)
         wr = -np.stack([s, np.zeros(n_paths), mu], axis=1)
