@@ -176,17 +176,23 @@ def walk_conductor(mu_i, alpha, N, n_paths, seed):
             "lost": lost}
 
 
-def walk_dielectric(mu_i, alpha, eta, n_paths, seed, from_below=False, cosine_weighted=False):
+def walk_dielectric(mu_i, alpha, eta, n_paths, seed, from_below=False, cosine_weighted=False, cell=None):
     """Random walk on a rough dielectric interface (Beckmann α, relative index ``eta`` = n_below /
     n_above), lit from above at cosine ``mu_i`` (``from_below``: from below, in the denser or less dense
-    medium; ``cosine_weighted``: incident cosines drawn from 2μ dμ instead, for hemispherical averages).
+    medium; ``cosine_weighted``: incident cosines drawn from 2μ dμ instead, for hemispherical averages;
+    ``cell`` = (μ_lo, μ_hi): drawn from μ dμ on that interval instead, so that R and T are the flux-weighted
+    cell averages ∫ R(μ) μ dμ / ∫ μ dμ, the quantity a flux-cell discretisation carries per node).
     Each facet event reflects with probability F and refracts otherwise (the other side is the same
     surface with z flipped, Heitz et al. §5).  Returns dict ``R``, ``T`` (fractions of the paths leaving
     on the side of incidence / the other side), their standard errors, ``R_single`` and ``T_single``
     (leaving after one event), ``lost``."""
     rng = np.random.default_rng(seed)
-    if cosine_weighted:
-        mu = np.sqrt(rng.random(n_paths))
+    if cosine_weighted or cell is not None:
+        lo, hi = (0.0, 1.0) if cell is None else (float(cell[0]), float(cell[1]))
+        if not 0.0 <= lo < hi <= 1.0 + 1e-12:  # an edge computed as 1 may round past it
+            raise ValueError(f"walk_dielectric: cell = {cell}, need 0 <= mu_lo < mu_hi <= 1")
+        hi = min(hi, 1.0)
+        mu = np.sqrt(lo * lo + rng.random(n_paths) * (hi * hi - lo * lo))  # density ∝ μ on [lo, hi]
         s = np.sqrt(1.0 - mu * mu)
         wr = -np.stack([s, np.zeros(n_paths), mu], axis=1)
     else:
