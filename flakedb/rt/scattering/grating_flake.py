@@ -57,10 +57,9 @@ from scipy.special import jv
 
 from flakedb.rt.common.params import check_range
 from flakedb.rt.common.reuse import array_key
-from flakedb.rt.scattering.media import _single_part
+from flakedb.rt.scattering.media import KernelBasis
 from flakedb.rt.scattering.microflake import (
     FlakeOptics,
-    _check_alpha,
     extinction_Ergun,
     flake_distribution,
     interp_rows,
@@ -214,7 +213,8 @@ def grating_flake_kernel(mu_i, mu_o, phi_d, alpha, c_grid, R, wavelength_nm, per
     wavelength; ``n_binder`` scalar or (C,); ``period_nm`` Λ; ``amplitude_nm`` the sinusoid's amplitude a
     (0: a specular flake); ``a_rho_per_um`` the loading (flake area per volume).  ``orders``: restrict to
     these |k| (tests; None: every order that can propagate, the mirror order included)."""
-    alpha = float(_check_alpha(alpha))
+    check_range("grating_flake_kernel", "alpha", alpha, 0.0, None, lo_open=True)
+    alpha = float(alpha)
     n_cone = cone_nodes(alpha) if n_cone is None else int(n_cone)
     ndf = flake_distribution(distribution).ndf
     mu_i, mu_o, phi_d = np.broadcast_arrays(np.asarray(mu_i, float), np.asarray(mu_o, float),
@@ -280,7 +280,7 @@ def grating_flake_kernel(mu_i, mu_o, phi_d, alpha, c_grid, R, wavelength_nm, per
             co = cb * h_o[jn][:, None] + sb * ring_o[jn]
             nz = cb * h[jn, 2][:, None] + sb * ring_z[jn]
             d = np.where((ci * co) < 0.0, ndf(nz, alpha), 0.0)               # V(n) D(n)
-            live = np.nonzero(d)                                              # the Bessel functions only there
+            live = np.nonzero(d > floor)                                      # the Bessel functions only there
             aci, aco = np.abs(ci[live]), np.abs(co[live])
             ch = jc[live[0]]
             eff = 2.0 * sinusoidal_order_efficiency(k, aci, aco, lam[ch], amplitude_nm, nb[ch])
@@ -357,7 +357,7 @@ class GratingFlakeMedium:
                array_key(self.wavelength_nm), array_key(self.n_binder), float(self.period_nm),
                float(self.amplitude_nm), self.n_cone)
         C = o.R.shape[0]
-        return _single_part(key, self._kernel_unit, float(self.a_rho_per_um) * np.eye(C))
+        return KernelBasis(self._kernel_unit, float(self.a_rho_per_um) * np.eye(C), ((key, self._kernel_unit, C),))
 
     @property
     def phi_bandwidth(self):
