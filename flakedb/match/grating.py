@@ -52,9 +52,9 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy.special import jv
 
 from flakedb.optics.fresnel import fresnel_dielectric_real
+from flakedb.rt.scattering.grating_flake import sinusoidal_order_efficiency
 from flakedb.rt.scattering.microflake import flake_ndf, sample_flake_normal
 
 __all__ = ["binder_directions", "grating_brdf", "grating_brdf_montecarlo", "grating_paint_reflectance",
@@ -102,8 +102,8 @@ def sinusoidal_efficiency(order, cos_in, cos_out, wavelength_nm, depth_nm, n_bin
     >>> bool(abs(total - 1.0) < 1e-12)
     True
     """
-    phi = 2.0 * np.pi * n_binder * depth_nm * (np.asarray(cos_in) + np.asarray(cos_out)) / np.asarray(wavelength_nm)
-    return (1.0 if order == 0 else 2.0) * jv(abs(order), phi) ** 2
+    return (1.0 if order == 0 else 2.0) * sinusoidal_order_efficiency(order, cos_in, cos_out, wavelength_nm, depth_nm,
+                                                                      n_binder)
 
 
 def grating_brdf(wi, wo, wavelength_nm, period_nm, alpha, distribution="beckmann", orders=(0, 1, 2),

@@ -79,6 +79,13 @@ def validate_catalog(doc) -> list[str]:
 #: Kinds whose optics the precomputed store holds (flakedb build projects them).  A ``tinter`` (optics per
 #: unit volume fraction, no Mie, no thin film: docs/calibration.md) is always computed directly.
 STORED_KINDS = ("interference_flake", "mirror_flake", "pigment")
+def is_stored(entry: dict) -> bool:
+    """Whether a store holds this catalogue entry's optics: a kind of :data:`STORED_KINDS` without a ``grating``
+    (a grating flake's kernel depends on each band's wavelength and is computed directly by compose: the store's
+    flake factors are the specular kernel's, docs/model.md §3)."""
+    return entry["kind"] in STORED_KINDS and "grating" not in entry
+
+
 #: The coefficient tables of a tinter entry (σ_a/φ, σ_s/φ in 1/µm; schemas/catalog.schema.json).
 TINTER_TABLES = ("specific_absorption_per_um", "specific_scattering_per_um")
 

@@ -21,6 +21,7 @@ from flakedb.paint.materials import refractive_index
 from flakedb.paint.recipe import CatalogParticle, Spectrum
 from flakedb.paint.species import flake_reflectance_transmittance, pigment_optics, tinter_coefficients
 from flakedb.rt.basis.legendre import legendre_moments_gauss, legendre_series, truncate_legendre
+from flakedb.rt.scattering.grating_flake import GratingFlakeMedium
 from flakedb.rt.scattering.media import FlakeMedium, PhaseMedium, vmf_mean_cosine
 from flakedb.rt.scattering.microflake import DEFAULT_DISTRIBUTION, FlakeOptics, extinction_Ergun
 from flakedb.rt.common.reuse import active_cache, array_key
@@ -285,6 +286,7 @@ def recipe_overrides(p) -> dict:
     """The recipe fields that make a catalogue particle's optics differ from its species' entry: an interference
     flake's film overrides and a pigment's ``median_diameter_um`` / ``gsd`` (name -> value)."""
     over = dict(getattr(p, "film_overrides", None) or {})
+    over.update(getattr(p, "grating_overrides", None) or {})
     if p.kind == "pigment":
         over.update({k: float(v) for k, v in (("median_diameter_um", p.median_diameter_um), ("gsd", p.gsd))
                      if v is not None})
@@ -322,6 +324,9 @@ def spectrum_or_const(value, wl, C):
 def flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
     """FlakeMedium (or StoredFlakeMedium with ``stored``) and its record for a catalogue or custom flake."""
     dist = recipe_distribution(p)
+    grating = p.entry.get("grating") if isinstance(p, CatalogParticle) else None
+    if grating is not None:
+        stored = None                          # computed directly: not in any store (paint.catalog.is_stored)
     if isinstance(p, CatalogParticle) and stored is not None:
         alpha = recipe_alpha(p)
         t = float(p.entry["thickness_um"]["value"])
@@ -366,6 +371,14 @@ def flake_component(p, recipe, layer_um, n_binder, wl, C, info, stored=None):
     if stored is not None and isinstance(p, CatalogParticle):
         med = stored.flake_medium(store_key(p), alpha, a_rho, opaque=p.opaque, distribution=dist)
         rec["kernel"] = med.factors.source
+    elif grating is not None:
+        period, amplitude = float(grating["period_nm"]["value"]), float(grating["amplitude_nm"]["value"])
+        med = GratingFlakeMedium(alpha, optics, a_rho, np.asarray(wl, float), period, amplitude, n_binder, dist)
+        rec.update({"grating_period_nm": period, "grating_amplitude_nm": amplitude,
+                    "kernel": "grating flake (flakedb.rt.scattering.grating_flake: scalar sinusoidal-grating "
+                              "efficiencies, computed directly)"})
+        if p.grating_overrides:
+            rec["grating_overrides"] = {k: float(v) for k, v in p.grating_overrides.items()}
     else:
         med = FlakeMedium(alpha, optics, a_rho, dist)
     st = np.atleast_2d(med.sigma_t(np.array([1.0])))[:, 0]

@@ -121,7 +121,7 @@ from dataclasses import replace as replace_dataclass
 import numpy as np
 
 from flakedb.colour.colorimetry import spectra_to_rgb_mode
-from flakedb.paint.catalog import STORED_KINDS
+from flakedb.paint.catalog import is_stored
 from flakedb.paint.components import (
     custom_medium_component,
     flake_component,
@@ -294,9 +294,9 @@ def build_paint(recipe, catalog=None, stored=None) -> Paint:
 
 
 def catalog_species(recipe) -> list:
-    """The catalogue particles of a recipe that a store can serve (:data:`flakedb.paint.catalog.STORED_KINDS`:
-    not tinters, which are always computed directly), in layer order."""
-    return [p for _, p in recipe.particles() if isinstance(p, CatalogParticle) and p.kind in STORED_KINDS]
+    """The catalogue particles of a recipe that a store can serve (:func:`flakedb.paint.catalog.is_stored`:
+    not tinters nor grating flakes, which are always computed directly), in layer order."""
+    return [p for _, p in recipe.particles() if isinstance(p, CatalogParticle) and is_stored(p.entry)]
 
 
 def with_media(paint: Paint, replace: dict) -> Paint:

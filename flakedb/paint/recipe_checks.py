@@ -379,6 +379,22 @@ def flake_entry_with_films(entry: dict, overrides: dict, source: str = "recipe")
     return e
 
 
+#: A recipe's grating fields of a flake (applied by :func:`flake_entry_with_grating`): the period and amplitude of
+#: a sinusoidal grating embossed on it (flakedb.rt.scattering.grating_flake).
+GRATING_OVERRIDES = ("grating_period_nm", "grating_amplitude_nm")
+
+
+def flake_entry_with_grating(entry: dict, overrides: dict, source: str = "recipe") -> dict:
+    """A copy of flake ``entry`` with the recipe's :data:`GRATING_OVERRIDES` in its ``grating`` (both given, or
+    one over the catalogue's grating: checked by the caller)."""
+    e = copy.deepcopy(entry)
+    g = e.setdefault("grating", {})
+    for key, field in (("grating_period_nm", "period_nm"), ("grating_amplitude_nm", "amplitude_nm")):
+        if key in overrides:
+            g[field] = {"value": float(overrides[key]), "source": source}
+    return e
+
+
 def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
     """(problems, warnings, CatalogParticle or None): species known, overrides of its kind, grid
     covered, particle thinner than the layer ``d`` [µm]."""
@@ -396,7 +412,7 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
     entry = allsp[name]
     is_flake = entry["kind"] not in ("pigment", "tinter")
     flake_only = ("orientation_alpha", "orientation_distribution", "orientation_shape", "orientation_mixture",
-                  "diameter_um", "opaque", "diameter_gsd")
+                  "diameter_um", "opaque", "diameter_gsd") + GRATING_OVERRIDES
     pig_only = ("median_diameter_um", "gsd")
     for key in (pig_only if is_flake else flake_only + (pig_only if entry["kind"] == "tinter" else ())):
         if key in P:
@@ -420,6 +436,17 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
         films.pop("coating_thickness_nm")
     if films:
         entry = flake_entry_with_films(entry, films, source=f"recipe {pp}")
+    grating = {k: P[k] for k in GRATING_OVERRIDES if k in P} if is_flake else {}
+    if grating and "grating" not in entry and len(grating) < len(GRATING_OVERRIDES):
+        missing = next(k for k in GRATING_OVERRIDES if k not in grating)
+        problems.append(f"{pp}.{missing}: missing; {name!r} has no grating, so embossing it needs both "
+                        f"{' and '.join(GRATING_OVERRIDES)} (hint: e.g. grating_period_nm: 690, grating_amplitude_nm: 50)")
+        grating = {}
+    if grating:
+        entry = flake_entry_with_grating(entry, grating, source=f"recipe {pp}")
+    if is_flake and "grating" in entry and mode != "spectral":
+        problems.append(f"{pp}.species: {name!r} is a grating (diffractive) flake: its orders' directions depend on "
+                        f"the wavelength, which a {mode} channel does not have (hint: set spectral.mode: spectral)")
     if mode == "mono":
         problems.append(f"{pp}.species: catalogue species have spectral optics; mono mode takes "
                         f"wavelength-independent inputs only (hint: set spectral.mode to spectral or rgb)")
@@ -447,7 +474,8 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
         problems += more
     particle = CatalogParticle(
         name, entry, vf, P.get("orientation_alpha"), P.get("diameter_um"), bool(P.get("opaque", False)),
-        P.get("median_diameter_um"), P.get("gsd"), pp, dist, P.get("diameter_gsd"), film_overrides=films)
+        P.get("median_diameter_um"), P.get("gsd"), pp, dist, P.get("diameter_gsd"), film_overrides=films,
+        grating_overrides=grating)
     return problems, warnings, particle
 
 

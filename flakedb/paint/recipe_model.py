@@ -90,6 +90,8 @@ class CatalogParticle:
     #: interference flakes: the recipe's film overrides (coating_thickness_nm, coating_thickness_rel_sd,
     #: substrate_thickness_nm, substrate_thickness_rel_sd), already applied to ``entry``; empty: none
     film_overrides: dict = field(default_factory=dict)
+    #: flakes: the recipe's grating fields (grating_period_nm, grating_amplitude_nm), already applied to ``entry``
+    grating_overrides: dict = field(default_factory=dict)
 
     @property
     def kind(self):

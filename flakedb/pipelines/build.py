@@ -97,14 +97,17 @@ def make_request(species=None, n=DEFAULT_N, wavelength_nm=None, alphas=None, cha
     catalog = cat.load_catalog(catalog_path)
     allsp = cat.expand_sweeps(catalog)
     entries = dict(entries or {})
-    names = list(species or []) if (species or entries) else [s for s in allsp if allsp[s]["kind"] in cat.STORED_KINDS]
+    names = list(species or []) if (species or entries) else [s for s in allsp if cat.is_stored(allsp[s])]
     unknown = [s for s in names if s not in allsp]
     if unknown:
         raise ValueError(f"unknown species {', '.join(unknown)}; known: {', '.join(allsp)}")
-    direct = [s for s in names if allsp[s]["kind"] not in cat.STORED_KINDS]
+    direct = [s for s in names if not cat.is_stored(allsp[s])]
     if direct:
-        raise ValueError(f"species {', '.join(direct)}: a {allsp[direct[0]]['kind']} is computed directly by compose "
-                         f"(its optics are tabulated, nothing to project); leave it out of the build")
+        what = ("a grating flake's kernel depends on each band's wavelength (docs/model.md §3)"
+                if "grating" in allsp[direct[0]] else "its optics are tabulated, nothing to project")
+        raise ValueError(f"species {', '.join(direct)}: a {allsp[direct[0]]['kind']}"
+                         f"{' with a grating' if 'grating' in allsp[direct[0]] else ''} is computed directly by compose "
+                         f"({what}); leave it out of the build")
     ns = (int(n),) if isinstance(n, int) else tuple(int(x) for x in n)
     wl = spectral_grid(DEFAULT_RANGE_NM, DEFAULT_STEP_NM) if wavelength_nm is None else wavelength_nm
     if alphas is None and distribution_alphas is None:

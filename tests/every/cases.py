@@ -12,7 +12,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from flakedb.paint.catalog import STORED_KINDS, expand_sweeps, load_catalog
+from flakedb.paint.catalog import expand_sweeps, is_stored, load_catalog
 from flakedb.paint.recipe import parse_recipe
 
 N = 16
@@ -45,8 +45,9 @@ def is_flake(species):
 
 
 def stored(species):
-    """Whether a store holds the species' optics (:data:`flakedb.paint.catalog.STORED_KINDS`; a tinter never)."""
-    return kind(species) in STORED_KINDS
+    """Whether a store holds the species' optics (:func:`flakedb.paint.catalog.is_stored`; a tinter or a grating
+    flake never)."""
+    return is_stored(CATALOG[species])
 
 
 def coatings(species) -> list:

@@ -55,6 +55,8 @@ ADDED = ADDED | {n: "interference_flake" for n in (
 ADDED = ADDED | {"colour-shift-cr-mgf2-al": "interference_flake"}
 #: iron-oxide-coated mica, the species gold and golden-pearl paints are made of (tests/paint/test_fe2o3_flakes.py)
 ADDED = ADDED | {"mica-fe2o3-pearl": "interference_flake", "mica-tio2-fe2o3-gold": "interference_flake"}
+#: the diffractive (grating-embossed) aluminium flake, issue 35 (tests/paint/test_grating_recipe.py)
+ADDED = ADDED | {"holographic-aluminium": "interference_flake"}
 #: issue #35 item 1, organic colourants from published KM data (tests/paint/test_palette.py)
 ADDED = ADDED | {n: "tinter" for n in (
     "phthalo-blue", "phthalo-blue-red-shade", "phthalo-green", "phthalo-green-yellow-shade", "quinacridone-red",
