@@ -457,6 +457,10 @@ def _catalog_particle_checks(pp, base, P, d, mode, grid, allsp, ior=1.5):
         if t_flake > d:
             problems.append(f"{pp}: the flake is {t_flake:g} µm thick but {base}.thickness_um is {d:g} µm "
                             f"(hint: a layer must be thicker than its flakes)")
+        if "diameter_um" in P and float(P["diameter_um"]) <= t_flake:
+            problems.append(f"{pp}.diameter_um: {float(P['diameter_um']):g} µm is not wider than {name!r}'s thickness "
+                            f"{t_flake:g} µm: the flake model takes platelets (flat facets; the texture model's "
+                            f"discs) (hint: a diameter above {t_flake:g} µm; effect pigments are 5-100 µm across)")
         if P.get("opaque") and entry["kind"] == "mirror_flake":
             warnings.append(f"{pp}.opaque: a mirror flake is opaque already (T = 0)")
     elif entry["kind"] == "pigment":

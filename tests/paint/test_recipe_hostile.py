@@ -183,3 +183,25 @@ def test_a_coat_rougher_than_smooth_but_below_the_solvers_range_is_refused(rough
     interface_roughness is (it reached the solver and ran out of memory: 1e-6 at n = 16)."""
     p = problems(BASE.replace("roughness: 0,", f"roughness: {rough},"))
     assert any("layers[0].clearcoat.roughness" in m and "0.01-1" in m for m in p), p
+
+
+def test_a_flake_narrower_than_it_is_thick_is_refused():
+    """A schema-valid 0.1 µm diameter on a catalogue flake (metallic: 0.5 µm thick) is a pillar, not a platelet:
+    the micro-flake and texture models take flat facets (the texture model's graininess stopped falling with
+    loading for such flakes: hostile review, 2026-12-08).  One error naming the field, the value and the thickness."""
+    text = textwrap.dedent("""\
+        flakedb: 1
+        name: pillar
+        resolution: 16
+        layers:
+          - clearcoat: {thickness_um: 40, ior: 1.5, roughness: 0}
+          - basecoat:
+              thickness_um: 15
+              ior: 1.5
+              particles:
+                - {species: metallic, volume_fraction: 0.05, diameter_um: DIAMETER}
+          - primer: {albedo: 0.5}
+        """)
+    p = problems(text.replace("DIAMETER", "0.1"))
+    assert len(p) == 1 and p[0].startswith("layers[1].basecoat.particles[0].diameter_um: 0.1 µm") and "platelets" in p[0]
+    assert parse_recipe(text.replace("DIAMETER", "12"), source="ok.yaml").name == "pillar"
