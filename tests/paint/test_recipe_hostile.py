@@ -186,7 +186,7 @@ def test_a_coat_rougher_than_smooth_but_below_the_solvers_range_is_refused(rough
 
 
 def test_a_flake_narrower_than_it_is_thick_is_refused():
-    """A schema-valid 0.1 µm diameter on a catalogue flake (metallic: 0.5 µm thick) is a pillar, not a platelet:
+    """A schema-valid 0.1 µm diameter on a catalogue flake (metallic: 0.7 µm thick: its film stack) is a pillar, not a platelet:
     the micro-flake and texture models take flat facets (the texture model's graininess stopped falling with
     loading for such flakes: hostile review, 2026-12-08).  One error naming the field, the value and the thickness."""
     text = textwrap.dedent("""\
