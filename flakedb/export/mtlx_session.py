@@ -73,12 +73,24 @@ class Session:
             raise RuntimeError(f"{mtlx_path} does not validate: {msg}")
         return doc
 
+    def image(self, rgb):
+        """A MaterialX float RGBA image of ``rgb`` (H, W, 3) (alpha 1), row 0 first in its buffer (the row
+        OpenGL uploads first: texture coordinate t = 0)."""
+        rgb = np.asarray(rgb, dtype=np.float32)
+        h, w = rgb.shape[:2]
+        img = self.mx_render.createUniformImage(w, h, 4, self.mx_render.BaseType.FLOAT, self.mx.Color4(0, 0, 0, 1))
+        buf = np.ctypeslib.as_array((ctypes.c_float * (w * h * 4)).from_address(img.getResourceBuffer()))
+        buf.reshape(h, w, 4)[..., :3] = rgb
+        return img
+
     def program(self, doc, *, sun_irradiance: float | None = None, environment: float | None = None,
-                env_samples: int = 16):
+                env_samples: int = 16, env_maps=None):
         """Generate and bind the shader of ``doc``'s first material with the module docstring's options and
         lights; returns the sun's ``directional_light`` node (set its ``direction`` before each render, or
         with :meth:`aim_sun`) or None.  ``environment``: a uniform sky of that radiance sampled by FIS with
-        ``env_samples`` samples, or None (no indirect light)."""
+        ``env_samples`` samples, or None (no indirect light).  ``env_maps``: instead, (radiance,
+        irradiance / π) lat-long images (H, W, 3) in MaterialX's layout (``mx_latlong_projection``: row 0
+        looks up), the radiance map sampled by FIS, the irradiance map looked up at the normal."""
         mx, mx_render = self.mx, self.mx_render
         from MaterialX import PyMaterialXGenGlsl as mx_gen_glsl  # lazy: the optional materialx wheel, in the render subprocess only
         from MaterialX import PyMaterialXGenShader as mx_gen  # lazy: the optional materialx wheel, in the render subprocess only
@@ -103,12 +115,16 @@ class Session:
         lights = [sun] if sun is not None else []
         lh.registerLights(doc, lights, ctx)
         lh.setLightSources(lights)
-        L = float(environment or 0.0)
-        env = mx_render.createUniformImage(16, 8, 4, mx_render.BaseType.FLOAT, mx.Color4(L, L, L, 1.0))
-        lh.setEnvRadianceMap(env)
-        lh.setEnvIrradianceMap(env)
+        if env_maps is not None:
+            lh.setEnvRadianceMap(self.image(env_maps[0]))
+            lh.setEnvIrradianceMap(self.image(env_maps[1]))
+        else:
+            L = float(environment or 0.0)
+            env = mx_render.createUniformImage(16, 8, 4, mx_render.BaseType.FLOAT, mx.Color4(L, L, L, 1.0))
+            lh.setEnvRadianceMap(env)
+            lh.setEnvIrradianceMap(env)
         lh.setEnvSampleCount(int(env_samples))
-        lh.setIndirectLighting(environment is not None)
+        lh.setIndirectLighting(environment is not None or env_maps is not None)
         lh.setDirectLighting(bool(lights))
         material = [n for n in doc.getNodes() if n.getType() == "material"][0]
         shader = gen.generate(material.getName(), material, ctx)
