@@ -158,6 +158,8 @@ def _worker(job_path: str) -> int:
         if key not in maps:
             maps[key] = tuple(np.load(p) for p in key)
         session.program(session.document(r["mtlx"]), env_maps=maps[key], env_samples=int(r["samples"]))
+        if job.get("sampler", True):
+            session.bind_linear_samplers()
         px = session.render()[::-1]
         np.ascontiguousarray(px, dtype=np.float32).tofile(r["out"])
     print(json.dumps(session.info))

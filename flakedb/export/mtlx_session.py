@@ -56,6 +56,25 @@ class Session:
         self.renderer.setImageHandler(mx_glsl.GLTextureHandler.create(mx_render.StbImageLoader.create()))
         self.info = {"materialx": mx.getVersionString(), "gl": gl_strings()}
 
+    def bind_linear_samplers(self, units: int = 16) -> None:
+        """Bind one GL sampler object (``GL_LINEAR`` for minification and magnification: no mip levels, clamp
+        to edge, anisotropy 1) to texture units 0 … ``units`` − 1 (call after :meth:`program`, before each
+        render).  MaterialX's ``GLTextureHandler`` samples mipmapped with 16x anisotropy: where the texture
+        coordinate has screen derivatives (the ``cpa`` table on a sphere) that blends the table's rows and
+        byte planes; on a flat patch llvmpipe's anisotropic path read the table up to 14 % off.  An explicit
+        ``textureLod`` (the environment's FIS lookups) then reads the base level."""
+        gl = ctypes.CDLL("libGL.so.1")
+        if getattr(self, "_sampler", None) is None:
+            ids = (ctypes.c_uint * 1)()
+            gl.glGenSamplers(1, ids)
+            self._sampler = ids[0]
+            for pname, val in ((0x2801, 0x2601), (0x2800, 0x2601), (0x2802, 0x812F), (0x2803, 0x812F)):
+                gl.glSamplerParameteri(self._sampler, pname, val)   # MIN/MAG_FILTER GL_LINEAR, WRAP_S/T CLAMP_TO_EDGE
+            gl.glSamplerParameterf.argtypes = [ctypes.c_uint, ctypes.c_uint, ctypes.c_float]
+            gl.glSamplerParameterf(self._sampler, 0x84FE, 1.0)     # GL_TEXTURE_MAX_ANISOTROPY 1
+        for unit in range(int(units)):
+            gl.glBindSampler(unit, self._sampler)
+
     def load_geometry(self, obj_path) -> None:
         if not self.renderer.getGeometryHandler().loadGeometry(self.mx.FilePath(str(obj_path)), False):
             raise RuntimeError(f"MaterialX could not load {obj_path}")
