@@ -62,6 +62,9 @@ from flakedb.render.quadrature import render_sphere_quadrature
 SIZE, EXTENT = 64, 1.05
 #: the studio's lat-long image width (height ENV_WIDTH / 2)
 ENV_WIDTH = 256
+#: the graph's prediction sums over the studio rasterised at this width (a quadrature of the same environment:
+#: silver's uniform-sky centre pixel moves 0.2 % from 128 to 256)
+GRAPH_ENV_WIDTH = 128
 #: FIS sample counts rendered (MaterialX's default is 16)
 ENV_SAMPLES = (64, 256, 1024)
 #: pixels compared: normal within this angle of the view
@@ -240,7 +243,7 @@ def main(argv=None) -> int:
         print(json.dumps(orientation_check(tool, a.out), indent=1))
         return 0
     from flakedb.bsdf import read_bsdf
-    from flakedb.export.cpa import CPAFit
+    from flakedb.export.cpa import CPAFit, materialx_fit
     from flakedb.export.materialx_render import table_as_loaded
 
     rad = studio_image()
@@ -258,13 +261,13 @@ def main(argv=None) -> int:
     for i, p in enumerate(a.bsdf):
         b = read_bsdf(p)
         wl_nm = colour_grid(b)
-        fit = table_as_loaded(CPAFit.from_dict(json.loads(p.with_suffix(".cpa.json").read_text())))
+        fit = table_as_loaded(materialx_fit(CPAFit.from_dict(json.loads(p.with_suffix(".cpa.json").read_text()))))
         t1 = time.perf_counter()
         ex = exact_image(b, rad)
         t_ex = time.perf_counter() - t1
         eta = fit.coat_ior if b.delta is not None else None
         t1 = time.perf_counter()
-        gr = graph_image(fit, rad, None if eta is None else float(eta))
+        gr = graph_image(fit, studio_image(GRAPH_ENV_WIDTH), None if eta is None else float(eta))
         t_gr = time.perf_counter() - t1
         row = {"exact_s": round(t_ex, 1), "graph_s": round(t_gr, 1), "eta": eta,
                "graph_vs_exact": stats(dE00_map(gr, ex, wl_nm, white, mask))}
