@@ -227,6 +227,59 @@ def orientation_check(tool, out: Path) -> dict:
             "max_abs_vs_map_lookup": float(np.abs(img[m] - look).max()), "pixels": int(m.sum()), "renderer": info}
 
 
+def measure(bsdf_paths, tool, samples=ENV_SAMPLES, size: int = SIZE, progress=print):
+    """Render each ``.bsdf``'s ``.cpa.mtlx`` (beside it, with its ``.cpa.json``) under the studio at each FIS
+    sample count and compare with the exact and the graph's predictions (module docstring): (summary, images
+    {stem: {"render-S", "exact", "graph"}})."""
+    from flakedb.bsdf import read_bsdf
+    from flakedb.export.cpa import CPAFit, materialx_fit
+    from flakedb.export.materialx_render import table_as_loaded
+
+    bsdf_paths = [Path(p) for p in bsdf_paths]
+    rad = studio_image()
+    irr = irradiance_over_pi(rad)
+    white = float(LatLongEnvironment(irr)(np.array([0.0, 0.0, 1.0])).mean())
+    N, hit = pixel_normals(size)
+    mask = hit & (N[..., 2] > np.cos(np.radians(MAX_VIEW_DEG)))
+    jobs = [{"mtlx": p.with_suffix(".cpa.mtlx"), "radiance": rad, "irradiance": irr, "samples": s}
+            for p in bsdf_paths for s in samples]
+    t0 = time.perf_counter()
+    imgs, info = render(jobs, tool, size)
+    info["render_s"] = round(time.perf_counter() - t0, 1)
+    summary = {"renderer": info, "size": size, "extent": EXTENT, "env_width": ENV_WIDTH,
+               "graph_env_width": GRAPH_ENV_WIDTH, "max_view_deg": MAX_VIEW_DEG, "pixels": int(mask.sum()),
+               "white": white, "paints": {}}
+    images = {}
+    for i, p in enumerate(bsdf_paths):
+        b = read_bsdf(p)
+        wl_nm = colour_grid(b)
+        fit = table_as_loaded(materialx_fit(CPAFit.from_dict(json.loads(p.with_suffix(".cpa.json").read_text()))))
+        t1 = time.perf_counter()
+        ex = exact_image(b, rad, size)
+        t_ex = time.perf_counter() - t1
+        eta = fit.coat_ior if b.delta is not None else None
+        t1 = time.perf_counter()
+        gr = graph_image(fit, studio_image(GRAPH_ENV_WIDTH), None if eta is None else float(eta), size)
+        t_gr = time.perf_counter() - t1
+        row = {"exact_s": round(t_ex, 1), "graph_s": round(t_gr, 1), "eta": eta,
+               "graph_vs_exact": stats(dE00_map(gr, ex, wl_nm, white, mask))}
+        ims = {"exact": ex, "graph": gr}
+        for k, s in enumerate(samples):
+            im = imgs[i * len(samples) + k]
+            ims[f"render-{s}"] = im
+            row[f"render{s}_vs_exact"] = stats(dE00_map(im, ex, wl_nm, white, mask))
+            row[f"render{s}_vs_graph"] = stats(dE00_map(im, gr, wl_nm, white, mask))
+            row[f"render{s}_vs_graph_rel_max"] = float(np.abs(im[mask] - gr[mask]).max() / gr[mask].max())
+        if len(samples) > 1:
+            row[f"render{samples[0]}_vs_render{samples[-1]}"] = stats(
+                dE00_map(ims[f"render-{samples[0]}"], ims[f"render-{samples[-1]}"], wl_nm, white, mask))
+        summary["paints"][p.stem] = row
+        images[p.stem] = ims
+        if progress is not None:
+            progress(p.stem, json.dumps(row), flush=True)
+    return summary, images
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("out", type=Path)
@@ -242,45 +295,10 @@ def main(argv=None) -> int:
     if a.orientation:
         print(json.dumps(orientation_check(tool, a.out), indent=1))
         return 0
-    from flakedb.bsdf import read_bsdf
-    from flakedb.export.cpa import CPAFit, materialx_fit
-    from flakedb.export.materialx_render import table_as_loaded
-
-    rad = studio_image()
-    irr = irradiance_over_pi(rad)
-    white = float(LatLongEnvironment(irr)(np.array([0.0, 0.0, 1.0])).mean())
-    N, hit = pixel_normals()
-    mask = hit & (N[..., 2] > np.cos(np.radians(MAX_VIEW_DEG)))
-    jobs = [{"mtlx": p.with_suffix(".cpa.mtlx"), "radiance": rad, "irradiance": irr, "samples": s}
-            for p in a.bsdf for s in a.samples]
-    t0 = time.perf_counter()
-    imgs, info = render(jobs, tool)
-    info["render_s"] = round(time.perf_counter() - t0, 1)
-    summary = {"renderer": info, "size": SIZE, "extent": EXTENT, "env_width": ENV_WIDTH, "max_view_deg": MAX_VIEW_DEG,
-               "pixels": int(mask.sum()), "white": white, "paints": {}}
-    for i, p in enumerate(a.bsdf):
-        b = read_bsdf(p)
-        wl_nm = colour_grid(b)
-        fit = table_as_loaded(materialx_fit(CPAFit.from_dict(json.loads(p.with_suffix(".cpa.json").read_text()))))
-        t1 = time.perf_counter()
-        ex = exact_image(b, rad)
-        t_ex = time.perf_counter() - t1
-        eta = fit.coat_ior if b.delta is not None else None
-        t1 = time.perf_counter()
-        gr = graph_image(fit, studio_image(GRAPH_ENV_WIDTH), None if eta is None else float(eta))
-        t_gr = time.perf_counter() - t1
-        row = {"exact_s": round(t_ex, 1), "graph_s": round(t_gr, 1), "eta": eta,
-               "graph_vs_exact": stats(dE00_map(gr, ex, wl_nm, white, mask))}
-        for k, s in enumerate(a.samples):
-            im = imgs[i * len(a.samples) + k]
-            im.astype(np.float32).tofile(a.out / f"{p.stem}.render-{s}.f32")
-            row[f"render{s}_vs_exact"] = stats(dE00_map(im, ex, wl_nm, white, mask))
-            row[f"render{s}_vs_graph"] = stats(dE00_map(im, gr, wl_nm, white, mask))
-            row[f"render{s}_vs_graph_rel_max"] = float(np.abs(im[mask] - gr[mask]).max() / gr[mask].max())
-        ex.astype(np.float32).tofile(a.out / f"{p.stem}.exact.f32")
-        gr.astype(np.float32).tofile(a.out / f"{p.stem}.graph.f32")
-        summary["paints"][p.stem] = row
-        print(p.stem, json.dumps(row), flush=True)
+    summary, images = measure(a.bsdf, tool, a.samples)
+    for stem, ims in images.items():
+        for kind, im in ims.items():
+            im.astype(np.float32).tofile(a.out / f"{stem}.{kind}.f32")
     (a.out / "summary.json").write_text(json.dumps(summary, indent=1))
     return 0
 
