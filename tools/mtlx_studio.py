@@ -7,11 +7,13 @@ exact prediction of the same pixels (docs/renderers.md, "The studio in MaterialX
   layout :data:`flakedb.render.envmap.LATLONG`), :data:`ENV_WIDTH` pixels wide, given to MaterialX's
   ``LightHandler`` as its radiance map (sampled by FIS, ``env_samples`` samples per lobe and pixel) and, for
   the Lambert term, the irradiance map ``E(n) / π`` (:func:`irradiance_over_pi`, the cosine integral of the
-  same image over its pixels' exact solid angles).  MaterialX's ``mx_latlong_projection`` (u = atan(x, −z)/2π
-  + 1/2, v = 1/2 − asin(y)/π) after ``GlslProgram``'s environment matrix (a half turn about +y) reads the image
-  in the same layout as :data:`LATLONG`: :func:`orientation_check` renders a white Lambertian whose irradiance
-  map is the direction itself, ((d + 1)/2), and compares each pixel with that map looked up at the pixel's
-  normal.
+  same image over its pixels' exact solid angles).  MaterialX reads the image in the same layout as
+  :data:`LATLONG` (measured: :func:`orientation_check` renders a white Lambertian whose irradiance map is the
+  direction itself, (d + 1)/2, and compares each pixel with that map looked up at the pixel's normal; with
+  ``mx_latlong_projection``'s u = atan(x, −z)/2π + 1/2 that means ``GlslProgram``'s environment matrix is a half
+  turn about +y).  Every texture unit is read through a ``GL_LINEAR`` sampler without mip levels
+  (:meth:`flakedb.export.mtlx_session.Session.bind_linear_samplers`: the table on a curved surface), so the FIS
+  lookups read the radiance map's base level and the sample count alone sets the estimate's noise.
 * **The scene.**  The unit sphere of ``tools/mtlx_lit.py`` (96 × 192 quads, exact vertex normals) seen by an
   orthographic camera along −z over [−EXTENT, EXTENT]², one sample at each pixel centre: the scene and camera
   of :func:`flakedb.render.quadrature.render_sphere_quadrature` with ``pixel_ss = 1``.
