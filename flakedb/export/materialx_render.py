@@ -238,7 +238,20 @@ def cpa_materialx_rf(fit: CPAFit, geometries) -> np.ndarray:
     >>> bool(np.isclose(rf[0, 0], 1.0 + lobe / ess, rtol=1e-12))
     True
     """
-    wl, wv = geometry_vectors(geometries)
+    return cpa_materialx_vectors(fit, *geometry_vectors(geometries))
+
+
+def cpa_materialx_vectors(fit: CPAFit, wl, wv) -> np.ndarray:
+    """:func:`cpa_materialx_rf` at unit vectors ``wl`` (towards the light) and ``wv`` (towards the viewer),
+    (G, 3) each in the surface's frame (normal +z): π f (G, 3); 0 where μ_l ≤ 0.  Isotropic: any tangent
+    frame gives the same values.
+
+    >>> wl, wv = geometry_vectors([(45.0, 25.0)])
+    >>> fit = CPAFit(np.stack([np.ones((4, 3)), np.ones((4, 3))]), (0.3,), 1.0)
+    >>> bool(np.allclose(cpa_materialx_vectors(fit, wl, wv), cpa_materialx_rf(fit, [(45.0, 25.0)])))
+    True
+    """
+    wl, wv = np.asarray(wl, float), np.asarray(wv, float)
     mu_v, mu_l = wv[:, 2], wl[:, 2]
     h = wl + wv
     cos_h = h[:, 2] / np.linalg.norm(h, axis=-1)

@@ -56,6 +56,25 @@ class Session:
         self.renderer.setImageHandler(mx_glsl.GLTextureHandler.create(mx_render.StbImageLoader.create()))
         self.info = {"materialx": mx.getVersionString(), "gl": gl_strings()}
 
+    def bind_linear_samplers(self, units: int = 16) -> None:
+        """Bind one GL sampler object (``GL_LINEAR`` for minification and magnification: no mip levels, clamp
+        to edge, anisotropy 1) to texture units 0 … ``units`` − 1 (call after :meth:`program`, before each
+        render).  MaterialX's ``GLTextureHandler`` samples mipmapped with 16x anisotropy: where the texture
+        coordinate has screen derivatives (the ``cpa`` table on a sphere) that blends the table's rows and
+        byte planes; on a flat patch llvmpipe's anisotropic path read the table up to 14 % off.  An explicit
+        ``textureLod`` (the environment's FIS lookups) then reads the base level."""
+        gl = ctypes.CDLL("libGL.so.1")
+        if getattr(self, "_sampler", None) is None:
+            ids = (ctypes.c_uint * 1)()
+            gl.glGenSamplers(1, ids)
+            self._sampler = ids[0]
+            for pname, val in ((0x2801, 0x2601), (0x2800, 0x2601), (0x2802, 0x812F), (0x2803, 0x812F)):
+                gl.glSamplerParameteri(self._sampler, pname, val)   # MIN/MAG_FILTER GL_LINEAR, WRAP_S/T CLAMP_TO_EDGE
+            gl.glSamplerParameterf.argtypes = [ctypes.c_uint, ctypes.c_uint, ctypes.c_float]
+            gl.glSamplerParameterf(self._sampler, 0x84FE, 1.0)     # GL_TEXTURE_MAX_ANISOTROPY 1
+        for unit in range(int(units)):
+            gl.glBindSampler(unit, self._sampler)
+
     def load_geometry(self, obj_path) -> None:
         if not self.renderer.getGeometryHandler().loadGeometry(self.mx.FilePath(str(obj_path)), False):
             raise RuntimeError(f"MaterialX could not load {obj_path}")
@@ -73,12 +92,24 @@ class Session:
             raise RuntimeError(f"{mtlx_path} does not validate: {msg}")
         return doc
 
+    def image(self, rgb):
+        """A MaterialX float RGBA image of ``rgb`` (H, W, 3) (alpha 1), row 0 first in its buffer (the row
+        OpenGL uploads first: texture coordinate t = 0)."""
+        rgb = np.asarray(rgb, dtype=np.float32)
+        h, w = rgb.shape[:2]
+        img = self.mx_render.createUniformImage(w, h, 4, self.mx_render.BaseType.FLOAT, self.mx.Color4(0, 0, 0, 1))
+        buf = np.ctypeslib.as_array((ctypes.c_float * (w * h * 4)).from_address(img.getResourceBuffer()))
+        buf.reshape(h, w, 4)[..., :3] = rgb
+        return img
+
     def program(self, doc, *, sun_irradiance: float | None = None, environment: float | None = None,
-                env_samples: int = 16):
+                env_samples: int = 16, env_maps=None):
         """Generate and bind the shader of ``doc``'s first material with the module docstring's options and
         lights; returns the sun's ``directional_light`` node (set its ``direction`` before each render, or
         with :meth:`aim_sun`) or None.  ``environment``: a uniform sky of that radiance sampled by FIS with
-        ``env_samples`` samples, or None (no indirect light)."""
+        ``env_samples`` samples, or None (no indirect light).  ``env_maps``: instead, (radiance,
+        irradiance / π) lat-long images (H, W, 3) in MaterialX's layout (``mx_latlong_projection``: row 0
+        looks up), the radiance map sampled by FIS, the irradiance map looked up at the normal."""
         mx, mx_render = self.mx, self.mx_render
         from MaterialX import PyMaterialXGenGlsl as mx_gen_glsl  # lazy: the optional materialx wheel, in the render subprocess only
         from MaterialX import PyMaterialXGenShader as mx_gen  # lazy: the optional materialx wheel, in the render subprocess only
@@ -103,12 +134,16 @@ class Session:
         lights = [sun] if sun is not None else []
         lh.registerLights(doc, lights, ctx)
         lh.setLightSources(lights)
-        L = float(environment or 0.0)
-        env = mx_render.createUniformImage(16, 8, 4, mx_render.BaseType.FLOAT, mx.Color4(L, L, L, 1.0))
-        lh.setEnvRadianceMap(env)
-        lh.setEnvIrradianceMap(env)
+        if env_maps is not None:
+            lh.setEnvRadianceMap(self.image(env_maps[0]))
+            lh.setEnvIrradianceMap(self.image(env_maps[1]))
+        else:
+            L = float(environment or 0.0)
+            env = mx_render.createUniformImage(16, 8, 4, mx_render.BaseType.FLOAT, mx.Color4(L, L, L, 1.0))
+            lh.setEnvRadianceMap(env)
+            lh.setEnvIrradianceMap(env)
         lh.setEnvSampleCount(int(env_samples))
-        lh.setIndirectLighting(environment is not None)
+        lh.setIndirectLighting(environment is not None or env_maps is not None)
         lh.setDirectLighting(bool(lights))
         material = [n for n in doc.getNodes() if n.getType() == "material"][0]
         shader = gen.generate(material.getName(), material, ctx)
