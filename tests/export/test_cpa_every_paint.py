@@ -28,6 +28,7 @@ from flakedb.export import materialx_render as mr
 from flakedb.export.registry import export
 from flakedb.match.targets import E2194_GEOMETRIES
 from flakedb.paint.recipe import load_recipe
+from tests.compose.test_outputs import _file_checks
 
 RECIPES = Path(flakedb.__file__).parent / "catalog" / "recipes"
 #: The issue's goal at the E2194 geometries, each route.
@@ -37,7 +38,14 @@ GOAL = 2.0
 @pytest.mark.slow
 @pytest.mark.parametrize("recipe", sorted(p.stem for p in RECIPES.glob("*.yaml")))
 def test_every_catalogue_paint_within_2_in_both_routes(recipe, tmp_path):
-    compose(load_recipe(RECIPES / f"{recipe}.yaml"), tmp_path, n=32)
+    res = compose(load_recipe(RECIPES / f"{recipe}.yaml"), tmp_path, n=32)
+    # the recipe's own mode: the RGB file has no negative channel and no albedo above 1 where mapped (the checks
+    # of tests/compose/test_outputs.py, whose every-recipe sweep forces RGB mode)
+    a0_min, alb_min, alb_max = _file_checks(res.paths["bsdf"])
+    assert a0_min >= 0 and alb_min >= 0, (a0_min, alb_min)
+    g = res.report["rgb_file"]
+    if g is not None:
+        assert alb_max <= 1.0 + 1e-6 and g["max_channel_albedo_after"] <= max(1.0, g["max_channel_albedo_before"]) + 1e-12
     b = open_bsdf(tmp_path / f"{recipe}.bsdf")
     ex = export(tmp_path / f"{recipe}.bsdf", tmp_path / "cpa", method="cpa")
     d = ex["fit"]
