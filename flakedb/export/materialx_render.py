@@ -133,23 +133,13 @@ def glsl_probe(tool: dict | None = None) -> tuple[bool, str]:
 #: MaterialX, numpy and the standard library.  The job: {"size", "eye", "sampler", "renders": [{"mtlx", "geometries": [(ω_l
 #: towards the light, ω_v towards the camera)...]}], "out"}; writes {"means": [[R, G, B, spread]...], "materialx", "gl"}.
 _WORKER = r'''
-import ctypes, json, sys
+import json, sys
 from pathlib import Path
 import numpy as np
 
 job = json.loads(Path(sys.argv[1]).read_text())
 size, eye_d = int(job["size"]), float(job["eye"])
 session = Session(size)
-sampler = None
-if job.get("sampler"):
-    gl = ctypes.CDLL("libGL.so.1")
-    ids = (ctypes.c_uint * 1)()
-    gl.glGenSamplers(1, ids)
-    sampler = ids[0]
-    for pname, val in ((0x2801, 0x2601), (0x2800, 0x2601), (0x2802, 0x812F), (0x2803, 0x812F)):
-        gl.glSamplerParameteri(sampler, pname, val)         # MIN/MAG_FILTER GL_LINEAR, WRAP_S/T CLAMP_TO_EDGE
-    gl.glSamplerParameterf.argtypes = [ctypes.c_uint, ctypes.c_uint, ctypes.c_float]
-    gl.glSamplerParameterf(sampler, 0x84FE, 1.0)            # GL_TEXTURE_MAX_ANISOTROPY 1
 obj = Path(sys.argv[1]).with_name("plane.obj")
 obj.write_text("v -50 -50 0\nv 50 -50 0\nv 50 50 0\nv -50 50 0\nvt 0 0\nvt 100 0\nvt 100 100\nvt 0 100\n"
                "vn 0 0 1\nf 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n")
@@ -161,9 +151,8 @@ for r in job["renders"]:
         v = np.asarray(v, float) / np.linalg.norm(v)
         session.orthographic(eye_d * v, (0, 1, 0) if abs(v[1]) < 0.9 else (1, 0, 0), 0.5, 60.0)
         session.aim_sun(sun, l)
-        if sampler is not None:
-            for unit in range(16):
-                gl.glBindSampler(unit, sampler)
+        if job.get("sampler"):
+            session.bind_linear_samplers()              # no mip levels (Session.bind_linear_samplers)
         px = session.render().reshape(-1, 3)
         means.append([float(x) for x in px.mean(0)] + [float(px.std(0).max())])
 Path(job["out"]).write_text(json.dumps(dict(session.info, means=means)))
